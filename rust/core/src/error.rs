@@ -1,0 +1,52 @@
+//! One error enum for the whole core; the bindings map each variant to one
+//! Python exception (polars' shape). Messages name the row, carriage or
+//! argument at fault so a user can find it in their data.
+
+use thiserror::Error;
+
+/// Everything that can go wrong in the core.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum CoreError {
+    /// An error map (or one of its tables) is malformed.
+    #[error("{location}: {reason}")]
+    InvalidMap { location: String, reason: String },
+
+    /// A scale reading lies outside the map's table for that carriage.
+    #[error(
+        "row {row}: {axis} scale reading {value} mm is outside the {axis} map range \
+         [{lo}, {hi}] mm (pass out_of_range='clamp' to clamp instead)"
+    )]
+    PositionOutOfRange { row: usize, axis: char, value: f64, lo: f64, hi: f64 },
+
+    /// A temperature lies outside the temperatures covered by a map set.
+    #[error(
+        "{}temperature {value} C is outside the maps' range [{lo}, {hi}] C \
+         (pass out_of_range='clamp' to clamp instead)",
+        row.map(|r| format!("row {r}: ")).unwrap_or_default()
+    )]
+    TemperatureOutOfRange { row: Option<usize>, value: f64, lo: f64, hi: f64 },
+
+    /// NaN or infinity in an input array.
+    #[error("{argument}: non-finite value (NaN or inf) in row {row} (pass nan_policy='propagate' to get NaN rows instead)")]
+    NonFinite { argument: &'static str, row: usize },
+
+    /// An argument with the wrong shape, length or value.
+    #[error("{argument}: {reason}")]
+    InvalidArgument { argument: String, reason: String },
+
+    /// Geometry that admits no unique answer (zero normal, coplanar points, ...).
+    #[error("{0}")]
+    Degenerate(String),
+}
+
+pub type Result<T> = std::result::Result<T, CoreError>;
+
+impl CoreError {
+    pub(crate) fn invalid_map(location: impl Into<String>, reason: impl Into<String>) -> Self {
+        CoreError::InvalidMap { location: location.into(), reason: reason.into() }
+    }
+
+    pub(crate) fn invalid_argument(argument: impl Into<String>, reason: impl Into<String>) -> Self {
+        CoreError::InvalidArgument { argument: argument.into(), reason: reason.into() }
+    }
+}

@@ -1,0 +1,19 @@
+//! cmmpose-core: geometric and quasi-static thermal error compensation of a
+//! laser line scanner (digitizer) on a coordinate measuring machine, after
+//! J. O. Harris's PhD thesis (McMaster University). Pure Rust, no Python.
+//!
+//! Units: scale readings, positions and results in mm; map tables in um and
+//! arc-seconds at the API boundary ([`units`]), mm and rad inside.
+
+pub mod error;
+pub mod kernel;
+pub mod map;
+pub mod pose;
+pub mod thermal;
+pub mod units;
+
+pub use error::{CoreError, Result};
+pub use kernel::{NanPolicy, Options, OutOfRange, PointError, Report};
+pub use map::{Carriage, CarriageTable, ErrorMap};
+pub use pose::{Digitizer, Pose};
+pub use thermal::ErrorMapSet;

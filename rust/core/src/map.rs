@@ -1,0 +1,345 @@
+//! Error maps: per carriage a table of six component errors over scale
+//! position, plus three squareness errors (thesis section 3.3, Table 6).
+//!
+//! Tables are stored in kernel units (mm, rad) with a precomputed slope per
+//! segment, so evaluating a component is one multiply-add.
+
+use crate::error::{CoreError, Result};
+use crate::units::{component_from_kernel, component_to_kernel, ARCSEC_TO_RAD};
+
+/// The three carriages of the CMM, in kinematic order (X on the table, Y on
+/// the bridge, Z the ram).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Carriage {
+    X = 0,
+    Y = 1,
+    Z = 2,
+}
+
+impl Carriage {
+    pub const ALL: [Carriage; 3] = [Carriage::X, Carriage::Y, Carriage::Z];
+
+    pub fn letter(self) -> char {
+        ['X', 'Y', 'Z'][self as usize]
+    }
+}
+
+/// Names of the six components, in table column order.
+pub const COMPONENT_NAMES: [&str; 6] = ["dx", "dy", "dz", "ex", "ey", "ez"];
+
+/// Six component errors: delta_x, delta_y, delta_z (mm), eps_x, eps_y, eps_z (rad).
+pub type Components = [f64; 6];
+
+/// Where a scale reading falls in a table: segment index and offset (mm) from
+/// the segment's start.
+#[derive(Debug, Clone, Copy)]
+pub struct Located {
+    pub segment: usize,
+    pub offset: f64,
+}
+
+/// One carriage's table on a strictly increasing position grid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CarriageTable {
+    positions: Vec<f64>,
+    values: Vec<Components>,
+    /// Per segment: change of each component per mm.
+    slopes: Vec<Components>,
+    /// 1 / pitch when the grid is uniform, enabling O(1) lookup.
+    inv_pitch: Option<f64>,
+}
+
+impl CarriageTable {
+    /// Build from values already in kernel units (mm, rad). `carriage` only
+    /// labels error messages.
+    pub fn new(carriage: Carriage, positions: Vec<f64>, values: Vec<Components>) -> Result<Self> {
+        let where_ = |row: usize| format!("{} carriage table, row {}", carriage.letter(), row);
+        if positions.len() != values.len() {
+            return Err(CoreError::invalid_map(
+                format!("{} carriage table", carriage.letter()),
+                format!("{} positions but {} rows of components", positions.len(), values.len()),
+            ));
+        }
+        if positions.len() < 2 {
+            return Err(CoreError::invalid_map(
+                format!("{} carriage table", carriage.letter()),
+                format!("needs at least 2 rows to interpolate, got {}", positions.len()),
+            ));
+        }
+        for (i, (&p, v)) in positions.iter().zip(&values).enumerate() {
+            if !p.is_finite() {
+                return Err(CoreError::invalid_map(where_(i), format!("position {p} is not finite")));
+            }
+            if let Some(k) = v.iter().position(|c| !c.is_finite()) {
+                return Err(CoreError::invalid_map(
+                    where_(i),
+                    format!("component {} is not finite ({})", COMPONENT_NAMES[k], v[k]),
+                ));
+            }
+            if i > 0 && p <= positions[i - 1] {
+                let what = if p == positions[i - 1] { "duplicates" } else { "is less than" };
+                return Err(CoreError::invalid_map(
+                    where_(i),
+                    format!("position {p} mm {what} the previous position {} mm; positions must strictly increase", positions[i - 1]),
+                ));
+            }
+        }
+        let slopes = positions
+            .windows(2)
+            .zip(values.windows(2))
+            .map(|(p, v)| {
+                let h = p[1] - p[0];
+                std::array::from_fn(|k| (v[1][k] - v[0][k]) / h)
+            })
+            .collect();
+        let n = positions.len();
+        let pitch = (positions[n - 1] - positions[0]) / (n - 1) as f64;
+        let uniform = positions
+            .windows(2)
+            .all(|w| ((w[1] - w[0]) - pitch).abs() <= 1e-9 * pitch.abs().max(1.0));
+        Ok(CarriageTable { positions, values, slopes, inv_pitch: uniform.then(|| 1.0 / pitch) })
+    }
+
+    /// Build from rows in table units: position (mm), three deltas (um) and
+    /// three angles (arc-second), as printed in the thesis.
+    pub fn from_table_units(carriage: Carriage, rows: &[[f64; 7]]) -> Result<Self> {
+        let positions = rows.iter().map(|r| r[0]).collect();
+        let values = rows
+            .iter()
+            .map(|r| std::array::from_fn(|k| component_to_kernel(k, r[k + 1])))
+            .collect();
+        Self::new(carriage, positions, values)
+    }
+
+    /// Rows in table units (position mm, um x3, arc-second x3).
+    pub fn to_table_units(&self) -> Vec<[f64; 7]> {
+        self.positions
+            .iter()
+            .zip(&self.values)
+            .map(|(&p, v)| {
+                let mut row = [p, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+                for k in 0..6 {
+                    row[k + 1] = component_from_kernel(k, v[k]);
+                }
+                row
+            })
+            .collect()
+    }
+
+    pub fn positions(&self) -> &[f64] {
+        &self.positions
+    }
+
+    /// Components in kernel units (mm, rad), one per grid position.
+    pub fn values(&self) -> &[Components] {
+        &self.values
+    }
+
+    /// First and last grid position (mm).
+    pub fn range(&self) -> (f64, f64) {
+        (self.positions[0], self.positions[self.positions.len() - 1])
+    }
+
+    /// Segment holding `x`, or `None` when `x` is outside the table (or NaN).
+    #[inline]
+    pub fn locate(&self, x: f64) -> Option<Located> {
+        let (lo, hi) = self.range();
+        if !(x >= lo && x <= hi) {
+            return None;
+        }
+        Some(self.locate_inside(x))
+    }
+
+    /// Like [`locate`](Self::locate) but clamps to the table ends; the flag
+    /// says whether clamping happened.
+    #[inline]
+    pub fn locate_clamped(&self, x: f64) -> (Located, bool) {
+        let (lo, hi) = self.range();
+        if x < lo {
+            (Located { segment: 0, offset: 0.0 }, true)
+        } else if x > hi {
+            let s = self.positions.len() - 2;
+            (Located { segment: s, offset: self.positions[s + 1] - self.positions[s] }, true)
+        } else {
+            (self.locate_inside(x), false)
+        }
+    }
+
+    #[inline]
+    fn locate_inside(&self, x: f64) -> Located {
+        let last = self.positions.len() - 2;
+        let segment = match self.inv_pitch {
+            Some(inv) => {
+                // O(1) on a uniform grid; one correction step absorbs rounding.
+                let mut s = (((x - self.positions[0]) * inv) as usize).min(last);
+                if x < self.positions[s] {
+                    s -= 1;
+                } else if s < last && x >= self.positions[s + 1] {
+                    s += 1;
+                }
+                s
+            }
+            None => self.positions.partition_point(|&p| p <= x).saturating_sub(1).min(last),
+        };
+        Located { segment, offset: x - self.positions[segment] }
+    }
+
+    /// Components (mm, rad) at a located position.
+    #[inline(always)]
+    pub fn at(&self, loc: Located) -> Components {
+        let v = &self.values[loc.segment];
+        let s = &self.slopes[loc.segment];
+        std::array::from_fn(|k| v[k] + loc.offset * s[k])
+    }
+
+    /// Components (mm, rad) at `x`, or `None` outside the table.
+    pub fn eval(&self, x: f64) -> Option<Components> {
+        self.locate(x).map(|l| self.at(l))
+    }
+}
+
+/// The 21 geometric component errors of a CMM at one temperature.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ErrorMap {
+    tables: [CarriageTable; 3],
+    /// S_xy, S_yz, S_zx in radians.
+    squareness: [f64; 3],
+    temperature: Option<f64>,
+}
+
+impl ErrorMap {
+    /// Squareness in arc-seconds, tables already built.
+    pub fn new(
+        tables: [CarriageTable; 3],
+        squareness_arcsec: [f64; 3],
+        temperature: Option<f64>,
+    ) -> Result<Self> {
+        const NAMES: [&str; 3] = ["S_xy", "S_yz", "S_zx"];
+        for (name, s) in NAMES.iter().zip(squareness_arcsec) {
+            if !s.is_finite() {
+                return Err(CoreError::invalid_map("squareness", format!("{name} is not finite ({s})")));
+            }
+        }
+        if let Some(t) = temperature {
+            if !t.is_finite() {
+                return Err(CoreError::invalid_map("temperature", format!("{t} C is not finite")));
+            }
+        }
+        Ok(ErrorMap {
+            tables,
+            squareness: squareness_arcsec.map(|s| s * ARCSEC_TO_RAD),
+            temperature,
+        })
+    }
+
+    /// A map with every component zero on the given ranges: the
+    /// uncompensated machine.
+    pub fn zero(ranges: [(f64, f64); 3]) -> Self {
+        let tables = std::array::from_fn(|a| {
+            let (lo, hi) = ranges[a];
+            CarriageTable::new(Carriage::ALL[a], vec![lo, hi], vec![[0.0; 6]; 2])
+                .expect("zero table is valid when lo < hi")
+        });
+        ErrorMap { tables, squareness: [0.0; 3], temperature: None }
+    }
+
+    pub fn table(&self, carriage: Carriage) -> &CarriageTable {
+        &self.tables[carriage as usize]
+    }
+
+    pub fn tables(&self) -> &[CarriageTable; 3] {
+        &self.tables
+    }
+
+    /// S_xy, S_yz, S_zx in radians.
+    pub fn squareness(&self) -> [f64; 3] {
+        self.squareness
+    }
+
+    pub fn squareness_arcsec(&self) -> [f64; 3] {
+        self.squareness.map(|s| s / ARCSEC_TO_RAD)
+    }
+
+    pub fn temperature(&self) -> Option<f64> {
+        self.temperature
+    }
+
+    pub fn with_temperature(mut self, temperature: Option<f64>) -> Self {
+        self.temperature = temperature;
+        self
+    }
+
+    /// (lo, hi) scale range in mm for each carriage.
+    pub fn ranges(&self) -> [(f64, f64); 3] {
+        std::array::from_fn(|a| self.tables[a].range())
+    }
+
+    /// Build a map with `squareness` in radians (internal use by blending).
+    pub(crate) fn from_parts(tables: [CarriageTable; 3], squareness: [f64; 3], temperature: Option<f64>) -> Self {
+        ErrorMap { tables, squareness, temperature }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table(positions: &[f64]) -> Result<CarriageTable> {
+        let rows: Vec<[f64; 7]> = positions.iter().map(|&p| [p, p, 0.0, 0.0, 0.0, 0.0, 2.0 * p]).collect();
+        CarriageTable::from_table_units(Carriage::Y, &rows)
+    }
+
+    #[test]
+    fn interpolates_linearly_on_uniform_and_nonuniform_grids() {
+        for grid in [vec![0.0, 25.0, 50.0, 75.0], vec![0.0, 10.0, 35.0, 75.0]] {
+            let t = table(&grid).unwrap();
+            for x in [0.0, 3.3, 10.0, 24.999, 25.0, 49.0, 74.5, 75.0] {
+                let c = t.eval(x).unwrap();
+                assert!((c[0] - x * 1e-3).abs() < 1e-15, "dx at {x}");
+                assert!((c[5] - 2.0 * x * ARCSEC_TO_RAD).abs() < 1e-15, "ez at {x}");
+            }
+            assert!(t.eval(-0.001).is_none());
+            assert!(t.eval(75.001).is_none());
+            assert!(t.eval(f64::NAN).is_none());
+        }
+    }
+
+    #[test]
+    fn clamping_reports_and_holds_end_values() {
+        let t = table(&[0.0, 25.0, 50.0]).unwrap();
+        let (l, c) = t.locate_clamped(60.0);
+        assert!(c);
+        assert!((t.at(l)[0] - 0.05).abs() < 1e-15);
+        let (l, c) = t.locate_clamped(-1.0);
+        assert!(c);
+        assert_eq!(t.at(l)[0], 0.0);
+        assert!(!t.locate_clamped(10.0).1);
+    }
+
+    #[test]
+    fn rejects_bad_tables_with_row_numbers() {
+        let e = table(&[0.0, 25.0, 25.0]).unwrap_err().to_string();
+        assert!(e.contains("Y carriage table, row 2") && e.contains("duplicates"), "{e}");
+        let e = table(&[0.0, 25.0, 20.0]).unwrap_err().to_string();
+        assert!(e.contains("row 2") && e.contains("less than"), "{e}");
+        let e = table(&[0.0]).unwrap_err().to_string();
+        assert!(e.contains("at least 2 rows"), "{e}");
+        let e = table(&[0.0, f64::NAN]).unwrap_err().to_string();
+        assert!(e.contains("row 1") && e.contains("not finite"), "{e}");
+        let rows = [[0.0, 0.0, 0.0, f64::INFINITY, 0.0, 0.0, 0.0], [1.0; 7]];
+        let e = CarriageTable::from_table_units(Carriage::Z, &rows).unwrap_err().to_string();
+        assert!(e.contains("Z carriage table, row 0") && e.contains("dz"), "{e}");
+    }
+
+    #[test]
+    fn round_trips_table_units() {
+        let rows = [[0.0, 1.5, -2.0, 3.0, 0.57, -0.37, 12.0], [25.0, 2.0, 0.0, 0.0, 1.0, 2.0, 3.0]];
+        let t = CarriageTable::from_table_units(Carriage::X, &rows).unwrap();
+        let back = t.to_table_units();
+        for (a, b) in rows.iter().zip(&back) {
+            for k in 0..7 {
+                assert!((a[k] - b[k]).abs() < 1e-12);
+            }
+        }
+    }
+}
