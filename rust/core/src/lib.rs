@@ -17,3 +17,8 @@ pub use kernel::{NanPolicy, Options, OutOfRange, PointError, Report};
 pub use map::{Carriage, CarriageTable, ErrorMap};
 pub use pose::{Digitizer, Pose};
 pub use thermal::ErrorMapSet;
+
+/// Threads the parallel kernels use (rayon's global pool).
+pub fn thread_count() -> usize {
+    rayon::current_num_threads()
+}

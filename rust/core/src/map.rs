@@ -47,6 +47,10 @@ pub struct CarriageTable {
     slopes: Vec<Components>,
     /// 1 / pitch when the grid is uniform, enabling O(1) lookup.
     inv_pitch: Option<f64>,
+    /// The rows as given in table units, so that reading and writing a map
+    /// returns the digits the user supplied (unit conversion is not exact
+    /// in binary floating point).
+    table_rows: Vec<[f64; 7]>,
 }
 
 impl CarriageTable {
@@ -97,7 +101,18 @@ impl CarriageTable {
         let uniform = positions
             .windows(2)
             .all(|w| ((w[1] - w[0]) - pitch).abs() <= 1e-9 * pitch.abs().max(1.0));
-        Ok(CarriageTable { positions, values, slopes, inv_pitch: uniform.then(|| 1.0 / pitch) })
+        let table_rows = positions
+            .iter()
+            .zip(&values)
+            .map(|(&p, v)| {
+                let mut row = [p, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+                for k in 0..6 {
+                    row[k + 1] = component_from_kernel(k, v[k]);
+                }
+                row
+            })
+            .collect();
+        Ok(CarriageTable { positions, values, slopes, inv_pitch: uniform.then(|| 1.0 / pitch), table_rows })
     }
 
     /// Build from rows in table units: position (mm), three deltas (um) and
@@ -108,22 +123,14 @@ impl CarriageTable {
             .iter()
             .map(|r| std::array::from_fn(|k| component_to_kernel(k, r[k + 1])))
             .collect();
-        Self::new(carriage, positions, values)
+        let mut table = Self::new(carriage, positions, values)?;
+        table.table_rows = rows.to_vec();
+        Ok(table)
     }
 
     /// Rows in table units (position mm, um x3, arc-second x3).
     pub fn to_table_units(&self) -> Vec<[f64; 7]> {
-        self.positions
-            .iter()
-            .zip(&self.values)
-            .map(|(&p, v)| {
-                let mut row = [p, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
-                for k in 0..6 {
-                    row[k + 1] = component_from_kernel(k, v[k]);
-                }
-                row
-            })
-            .collect()
+        self.table_rows.clone()
     }
 
     pub fn positions(&self) -> &[f64] {
@@ -204,6 +211,8 @@ pub struct ErrorMap {
     tables: [CarriageTable; 3],
     /// S_xy, S_yz, S_zx in radians.
     squareness: [f64; 3],
+    /// The same as given, in arc-seconds (kept for exact round trips).
+    squareness_arcsec: [f64; 3],
     temperature: Option<f64>,
 }
 
@@ -228,6 +237,7 @@ impl ErrorMap {
         Ok(ErrorMap {
             tables,
             squareness: squareness_arcsec.map(|s| s * ARCSEC_TO_RAD),
+            squareness_arcsec,
             temperature,
         })
     }
@@ -240,7 +250,7 @@ impl ErrorMap {
             CarriageTable::new(Carriage::ALL[a], vec![lo, hi], vec![[0.0; 6]; 2])
                 .expect("zero table is valid when lo < hi")
         });
-        ErrorMap { tables, squareness: [0.0; 3], temperature: None }
+        ErrorMap { tables, squareness: [0.0; 3], squareness_arcsec: [0.0; 3], temperature: None }
     }
 
     pub fn table(&self, carriage: Carriage) -> &CarriageTable {
@@ -257,7 +267,7 @@ impl ErrorMap {
     }
 
     pub fn squareness_arcsec(&self) -> [f64; 3] {
-        self.squareness.map(|s| s / ARCSEC_TO_RAD)
+        self.squareness_arcsec
     }
 
     pub fn temperature(&self) -> Option<f64> {
@@ -276,7 +286,7 @@ impl ErrorMap {
 
     /// Build a map with `squareness` in radians (internal use by blending).
     pub(crate) fn from_parts(tables: [CarriageTable; 3], squareness: [f64; 3], temperature: Option<f64>) -> Self {
-        ErrorMap { tables, squareness, temperature }
+        ErrorMap { tables, squareness, squareness_arcsec: squareness.map(|s| s / ARCSEC_TO_RAD), temperature }
     }
 }
 
@@ -336,10 +346,6 @@ mod tests {
         let rows = [[0.0, 1.5, -2.0, 3.0, 0.57, -0.37, 12.0], [25.0, 2.0, 0.0, 0.0, 1.0, 2.0, 3.0]];
         let t = CarriageTable::from_table_units(Carriage::X, &rows).unwrap();
         let back = t.to_table_units();
-        for (a, b) in rows.iter().zip(&back) {
-            for k in 0..7 {
-                assert!((a[k] - b[k]).abs() < 1e-12);
-            }
-        }
+        assert_eq!(back, rows.to_vec());
     }
 }

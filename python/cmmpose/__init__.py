@@ -1,0 +1,34 @@
+"""cmmpose: geometric and quasi-static thermal error compensation of a laser
+line scanner (digitizer) on a coordinate measuring machine.
+
+Units throughout: mm for positions and results, um and arc-seconds in error
+map tables, degrees for pose angles, degrees C for temperatures.
+"""
+
+from ._core import __version__, thread_count
+from .compensation import compensate, uncompensated
+from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
+from .errors import ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError
+from .pose import MountOffset, Pose
+from .report import KernelReport
+
+__all__ = [
+    "__version__",
+    "compensate",
+    "uncompensated",
+    "ErrorMap",
+    "ErrorMapSet",
+    "Pose",
+    "MountOffset",
+    "KernelReport",
+    "CARRIAGES",
+    "TABLE_COLUMNS",
+    "data_path",
+    "thread_count",
+    "Error",
+    "MapError",
+    "OutOfRangeError",
+    "InputError",
+    "GeometryError",
+    "ClampWarning",
+]

@@ -1,0 +1,118 @@
+"""Per-point compensation of scanner points (thesis eqs. 10-13, 26-35)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from ._arrays import as_rows, as_triple, as_vector
+from .errormap import ErrorMap, ErrorMapSet
+from .errors import InputError, warn_clamped
+from .pose import pose_tuple
+from .report import KernelReport
+
+
+def compensate(
+    uv,
+    scales,
+    error_map: ErrorMap | ErrorMapSet,
+    pose,
+    offset,
+    temperature=None,
+    *,
+    out_of_range: str = "raise",
+    nan_policy: str = "raise",
+    return_report: bool = False,
+):
+    """Compensated machine coordinates of scanner points.
+
+    X_H = S + e(S) + R(S) . E313 . ((u, v, 0) - l1)   (SPEC.md section 4)
+
+    Parameters
+    ----------
+    uv : array_like, shape (N, 2)
+        Scan-plane coordinates u, v in mm (laser frame; w = 0).
+    scales : array_like, shape (N, 3)
+        Scale readings D, E, F in mm at which each point was taken.
+    error_map : ErrorMap or ErrorMapSet
+        The machine's component errors; a set needs ``temperature``.
+    pose : Pose or sequence of 3 float
+        Euler 3-1-3 angles alpha, beta, gamma in degrees.
+    offset : MountOffset or sequence of 3 float
+        Mount offset l1 = (U1, V1, W1) in mm.
+    temperature : float or array_like of shape (N,), optional
+        Machine temperature in degrees C, one for all points or one per point;
+        only with an ErrorMapSet. The set is blended once per temperature
+        interval, never per point.
+    out_of_range : {'raise', 'clamp'}
+        A scale reading outside a table or a temperature outside the set raises
+        ``OutOfRangeError`` naming the first such row, or is clamped to the end
+        value with a ``ClampWarning`` giving the counts.
+    nan_policy : {'raise', 'propagate'}
+        NaN or inf in a row raises ``InputError`` naming the first such row, or
+        gives a NaN output row.
+    return_report : bool
+        Also return a ``KernelReport`` with the clamp and NaN counts.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Compensated X, Y, Z in mm (machine frame H). With ``return_report``,
+        a tuple ``(xyz, report)``.
+
+    Notes
+    -----
+    Inputs are never modified. float64 C-contiguous inputs are read without a
+    copy; others are converted once.
+    """
+    uv = as_rows("uv", uv, 2)
+    scales = as_rows("scales", scales, 3)
+    if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
+        raise InputError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
+    if temperature is not None and not np.isscalar(temperature):
+        temperature = as_vector("temperature", temperature, scales.shape[0])
+    elif temperature is not None:
+        try:
+            temperature = float(temperature)
+        except (TypeError, ValueError):
+            raise InputError(f"temperature: expected a number or an (N,) array, got {temperature!r}") from None
+    xyz, report = _core.compensate(
+        uv,
+        scales,
+        error_map._core,
+        pose_tuple(pose),
+        as_triple("offset", offset),
+        temperature,
+        out_of_range,
+        nan_policy,
+    )
+    report = KernelReport(**report)
+    warn_clamped(report)
+    return (xyz, report) if return_report else xyz
+
+
+def uncompensated(uv, scales, pose, offset, *, nan_policy: str = "raise") -> np.ndarray:
+    """What the digitizer software reports: S + E313 . ((u, v, 0) - l1).
+
+    Parameters
+    ----------
+    uv : array_like, shape (N, 2)
+        Scan-plane coordinates u, v in mm.
+    scales : array_like, shape (N, 3)
+        Scale readings D, E, F in mm.
+    pose : Pose or sequence of 3 float
+        Euler 3-1-3 angles in degrees.
+    offset : MountOffset or sequence of 3 float
+        Mount offset l1 = (U1, V1, W1) in mm.
+    nan_policy : {'raise', 'propagate'}
+        As in :func:`compensate`.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        X, Y, Z in mm, uncorrected for the machine's errors.
+    """
+    xyz, _ = _core.uncompensated(
+        as_rows("uv", uv, 2), as_rows("scales", scales, 3), pose_tuple(pose), as_triple("offset", offset), nan_policy
+    )
+    return xyz

@@ -1,0 +1,229 @@
+"""Error maps: the 21 geometric component errors of a CMM (thesis Table 6) at
+one temperature (``ErrorMap``) or several (``ErrorMapSet``).
+
+Tables are in the thesis's units: position mm, deltas um, angles arc-second.
+The Rust core converts them to mm and rad once, when the map is built.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from os import PathLike
+
+import numpy as np
+
+from . import _core
+from ._arrays import as_rows, as_triple
+from .errors import InputError, warn_clamped
+from .report import KernelReport
+
+#: Carriages in kinematic order.
+CARRIAGES = ("X", "Y", "Z")
+#: Columns of a carriage table.
+TABLE_COLUMNS = ("position_mm", "dx_um", "dy_um", "dz_um", "ex_arcsec", "ey_arcsec", "ez_arcsec")
+
+
+def data_path(*parts: str):
+    """Path of a file bundled in the installed package's ``data`` folder."""
+    return resources.files("cmmpose").joinpath("data", *parts)
+
+
+class ErrorMap:
+    """The component errors of a CMM at one temperature.
+
+    Parameters
+    ----------
+    x, y, z : array_like, shape (n, 7)
+        Table of each carriage: position (mm, strictly increasing), delta_x,
+        delta_y, delta_z (um), eps_x, eps_y, eps_z (arc-second).
+    squareness : sequence of 3 float
+        S_xy, S_yz, S_zx in arc-seconds, sign convention of thesis Table 7 and
+        eq. 11 (e_x contains -E*S_xy).
+    temperature : float, optional
+        Temperature of the machine when the map was measured, degrees C.
+    source : str, optional
+        Where the map came from (file, table), kept for reports.
+    """
+
+    __slots__ = ("_core", "source")
+
+    def __init__(self, x, y, z, squareness, temperature: float | None = None, source: str | None = None):
+        tables = [as_rows(f"{c.lower()} table", t, 7) for c, t in zip(CARRIAGES, (x, y, z))]
+        sq = as_triple("squareness", squareness)
+        self._core = _core.ErrorMap(*tables, sq, None if temperature is None else float(temperature))
+        self.source = source
+
+    @classmethod
+    def _wrap(cls, core_map, source: str | None = None) -> ErrorMap:
+        obj = cls.__new__(cls)
+        obj._core = core_map
+        obj.source = source
+        return obj
+
+    # -- constructors from files -------------------------------------------------
+    @classmethod
+    def read(cls, path: str | PathLike) -> ErrorMap:
+        """Read a map in the canonical CSV format (docs/formats.md)."""
+        from .mapfiles import read_map
+
+        return read_map(path)
+
+    def write(self, path: str | PathLike) -> None:
+        """Write the map in the canonical CSV format (docs/formats.md)."""
+        from .mapfiles import write_map
+
+        write_map(self, path)
+
+    @classmethod
+    def read_controller_file(cls, path: str | PathLike, temperature: float | None = None) -> ErrorMap:
+        """Read a controller error file in the layout of thesis Appendix B."""
+        from .controller import read_controller_file
+
+        return read_controller_file(path, temperature=temperature)
+
+    @classmethod
+    def appendix_b(cls) -> ErrorMap:
+        """The controller map of thesis Appendix B (``errors_1102.txt``), measured at 22 C."""
+        with resources.as_file(data_path("errors_1102.txt")) as p:
+            return cls.read_controller_file(p, temperature=22.0)
+
+    @classmethod
+    def zero(cls, ranges=((0.0, 900.0), (0.0, 550.0), (-500.0, 0.0)), temperature: float | None = None) -> ErrorMap:
+        """A map with every error zero over ``ranges`` ((lo, hi) mm per carriage)."""
+        tables = [np.array([[lo] + [0.0] * 6, [hi] + [0.0] * 6]) for lo, hi in ranges]
+        return cls(*tables, (0.0, 0.0, 0.0), temperature, source="zero map")
+
+    # -- contents ----------------------------------------------------------------
+    def table(self, carriage: str) -> np.ndarray:
+        """Table of ``carriage`` ('X', 'Y' or 'Z'), shape (n, 7), thesis units (see ``TABLE_COLUMNS``)."""
+        return self._core.table(carriage)
+
+    @property
+    def squareness(self) -> tuple[float, float, float]:
+        """(S_xy, S_yz, S_zx) in arc-seconds."""
+        return self._core.squareness
+
+    @property
+    def temperature(self) -> float | None:
+        """Map temperature in degrees C, or None."""
+        return self._core.temperature
+
+    @property
+    def ranges(self) -> list[tuple[float, float]]:
+        """Covered scale range (lo, hi) in mm for X, Y, Z."""
+        return self._core.ranges
+
+    def with_temperature(self, temperature: float | None) -> ErrorMap:
+        """The same map labelled with another temperature (C)."""
+        return ErrorMap._wrap(self._core.with_temperature(temperature), self.source)
+
+    # -- the model ---------------------------------------------------------------
+    def position_error(self, scales, *, out_of_range: str = "raise", nan_policy: str = "raise") -> np.ndarray:
+        """Position error e(S) of eqs. 11-13.
+
+        Parameters
+        ----------
+        scales : array_like, shape (N, 3)
+            Scale readings D, E, F in mm.
+        out_of_range : {'raise', 'clamp'}
+            Readings outside the tables raise ``OutOfRangeError`` or are clamped
+            to the table ends (with a ``ClampWarning`` giving the count).
+        nan_policy : {'raise', 'propagate'}
+            NaN rows raise ``InputError`` naming the first, or give NaN rows.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            e_x, e_y, e_z in mm.
+        """
+        out, report = self._core.position_error(as_rows("scales", scales, 3), out_of_range, nan_policy)
+        warn_clamped(KernelReport(**report))
+        return out
+
+    def rotation_error(self, scales, *, out_of_range: str = "raise", nan_policy: str = "raise") -> np.ndarray:
+        """Rotation R(S) of eqs. 29-32 (right-handed X_p, docs/conventions.md).
+
+        Parameters
+        ----------
+        scales : array_like, shape (N, 3)
+            Scale readings D, E, F in mm.
+        out_of_range, nan_policy : str
+            As in :meth:`position_error`.
+
+        Returns
+        -------
+        ndarray, shape (N, 3, 3)
+            Rotation matrices whose columns are X_p, Y_p, Z_p (dimensionless).
+        """
+        out, report = self._core.rotation_error(as_rows("scales", scales, 3), out_of_range, nan_policy)
+        warn_clamped(KernelReport(**report))
+        return out
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, ErrorMap) and self._core == other._core
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        t = "no temperature" if self.temperature is None else f"{self.temperature:g} C"
+        rng = ", ".join(f"{c} {lo:g}..{hi:g}" for c, (lo, hi) in zip(CARRIAGES, self.ranges))
+        sq = ", ".join(f"{v:g}" for v in self.squareness)
+        src = f", source={self.source!r}" if self.source else ""
+        return f"ErrorMap({t}; {rng} mm; squareness {sq} a-s{src})"
+
+
+class ErrorMapSet:
+    """Error maps at several temperatures, blended linearly in temperature for
+    all 21 components (thesis section 6.4).
+
+    Parameters
+    ----------
+    maps : sequence of ErrorMap
+        Maps with distinct temperatures (C), in any order. Grids may differ;
+        blending uses the union of the grids over their common range.
+    """
+
+    __slots__ = ("_core", "_sources")
+
+    def __init__(self, maps):
+        maps = list(maps)
+        if not all(isinstance(m, ErrorMap) for m in maps):
+            raise InputError("maps: expected a sequence of ErrorMap")
+        self._core = _core.ErrorMapSet([m._core for m in maps])
+        by_t = {m.temperature: m.source for m in maps}
+        self._sources = [by_t[t] for t in self._core.temperatures]
+
+    @classmethod
+    def thesis(cls) -> ErrorMapSet:
+        """The thesis maps at 20, 25 and 30 C (Tables 8-16, squareness Table 7)."""
+        from .mapfiles import read_map
+
+        maps = []
+        for t in (20, 25, 30):
+            with resources.as_file(data_path("maps", f"thesis_{t}C.csv")) as p:
+                maps.append(read_map(p))
+        return cls(maps)
+
+    @property
+    def temperatures(self) -> list[float]:
+        """Map temperatures in degrees C, ascending."""
+        return self._core.temperatures
+
+    @property
+    def maps(self) -> list[ErrorMap]:
+        """The maps, sorted by temperature."""
+        return [ErrorMap._wrap(m, s) for m, s in zip(self._core.maps, self._sources)]
+
+    def at(self, temperature: float, *, out_of_range: str = "raise") -> ErrorMap:
+        """The map at ``temperature`` (C), linear between the two closest maps.
+
+        Outside the set's range: ``OutOfRangeError``, or the end map with
+        ``out_of_range='clamp'``.
+        """
+        return ErrorMap._wrap(self._core.at(float(temperature), out_of_range), source=f"blend at {temperature:g} C")
+
+    def __len__(self) -> int:
+        return len(self.temperatures)
+
+    def __repr__(self) -> str:
+        return f"ErrorMapSet(temperatures={[float(t) for t in self.temperatures]})"

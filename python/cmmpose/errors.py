@@ -1,0 +1,31 @@
+"""The exception hierarchy. Defined in the Rust extension so the core can raise
+them; every message names the file, line, row or argument at fault.
+
+- ``Error``: base of everything cmmpose raises on bad input.
+- ``MapError``: a malformed error map or map file.
+- ``OutOfRangeError``: a scale reading or temperature the maps do not cover.
+- ``InputError``: wrong shape, dtype, length, NaN, or a bad option value.
+- ``GeometryError``: degenerate geometry (zero normal, coplanar points, ...).
+"""
+
+import warnings
+
+from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
+
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "ClampWarning", "warn_clamped"]
+
+
+class ClampWarning(UserWarning):
+    """Points were clamped into the maps because ``out_of_range='clamp'``."""
+
+
+def warn_clamped(report) -> None:
+    """Warn once per call when a report says anything was clamped."""
+    x, y, z = report.clamped_position
+    if x or y or z or report.clamped_temperature:
+        warnings.warn(
+            f"clamped into the maps: {x} X, {y} Y, {z} Z scale readings and "
+            f"{report.clamped_temperature} temperatures (of {report.points} points)",
+            ClampWarning,
+            stacklevel=3,
+        )

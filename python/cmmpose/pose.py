@@ -1,0 +1,79 @@
+"""Digitizer pose (Euler 3-1-3, thesis eq. 7) and mount offset l1."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from . import _core
+from ._arrays import as_triple
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Orientation of the scan plane in machine axes.
+
+    Parameters
+    ----------
+    alpha : float
+        First rotation, about the machine Z axis, in degrees.
+    beta : float
+        Second rotation, about the new X' axis, in degrees.
+    gamma : float
+        Third rotation, about the new Z'' axis (the scanner's w), in degrees.
+
+    Notes
+    -----
+    W along +X is ``Pose(90, 90, gamma)``; W along +Y is ``Pose(180, 90, gamma)``.
+    """
+
+    alpha: float
+    beta: float
+    gamma: float = 0.0
+
+    def __post_init__(self) -> None:
+        as_triple("pose", (self.alpha, self.beta, self.gamma))
+
+    def matrix(self) -> np.ndarray:
+        """E313 (3, 3): columns are the u, v, w directions in machine axes (eq. 8)."""
+        return _core.euler313(self.alpha, self.beta, self.gamma)
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit scan-plane normal w in machine axes, (3,)."""
+        return self.matrix()[:, 2].copy()
+
+    @classmethod
+    def from_normal(cls, normal, gamma: float = 0.0) -> Pose:
+        """Pose whose w axis is ``normal`` (any length, (3,)), with ``gamma`` in degrees.
+
+        beta = acos(n_z), alpha = atan2(n_x, -n_y) (quadrant-safe eq. 6). For a
+        normal along Z alpha is undefined and set to 0.
+        """
+        return cls(*_core.pose_from_normal(as_triple("normal", normal), float(gamma)))
+
+    def as_tuple(self) -> tuple[float, float, float]:
+        return (self.alpha, self.beta, self.gamma)
+
+
+class MountOffset(NamedTuple):
+    """l1 = (U1, V1, W1): the mount point P seen from the laser origin L, in mm
+    along u, v, w."""
+
+    u1: float
+    v1: float
+    w1: float
+
+    @classmethod
+    def thesis(cls) -> MountOffset:
+        """The Hyscan 45C of the thesis (section 5.3): 1.001, 264.505, 129.575 mm."""
+        return cls(1.001, 264.505, 129.575)
+
+
+def pose_tuple(pose) -> tuple[float, float, float]:
+    """Accept a Pose or three angles in degrees."""
+    if isinstance(pose, Pose):
+        return pose.as_tuple()
+    return as_triple("pose", pose)

@@ -1,0 +1,33 @@
+"""What a kernel call did besides its output."""
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class KernelReport:
+    """Counts from one compensation call.
+
+    Attributes
+    ----------
+    points : int
+        Points processed.
+    clamped_position : tuple of 3 int
+        Points whose X, Y, Z scale reading was clamped into the map.
+    clamped_temperature : int
+        Points whose temperature was clamped into the map set's range.
+    nan_rows : int
+        Rows returned as NaN under ``nan_policy='propagate'``.
+    """
+
+    points: int
+    clamped_position: tuple[int, int, int]
+    clamped_temperature: int
+    nan_rows: int
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "clamped_position", tuple(self.clamped_position))
+
+    @property
+    def clamped(self) -> int:
+        """Clamp events in total (a point clamped on two axes counts twice)."""
+        return sum(self.clamped_position) + self.clamped_temperature
