@@ -69,7 +69,7 @@ def compensate(
     scales = as_rows("scales", scales, 3)
     if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
         raise InputError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
-    if temperature is not None and not np.isscalar(temperature):
+    if temperature is not None and np.ndim(temperature) > 0:
         temperature = as_vector("temperature", temperature, scales.shape[0])
     elif temperature is not None:
         try:

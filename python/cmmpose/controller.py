@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .errormap import CARRIAGES, ErrorMap
-from .errors import MapError
+from .errors import MapError, read_lines
 
 #: Sign applied to the file's squareness values to get the thesis convention.
 SQUARENESS_SIGN = -1.0
@@ -90,10 +90,7 @@ def read_controller_file(path: str | PathLike, temperature: float | None = None)
         Naming the file and line of any malformed content.
     """
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8", errors="strict").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(f"{path}: cannot read ({exc})") from None
+    lines = read_lines(path)
     squareness: dict[str, float] = {}
     axis_params: dict[str, tuple[float, float, float]] = {}
     blocks: dict[str, list[tuple[int, list[float]]]] = {}

@@ -12,7 +12,7 @@ import warnings
 
 from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "ClampWarning", "warn_clamped"]
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "ClampWarning", "warn_clamped", "read_lines"]
 
 
 class ClampWarning(UserWarning):
@@ -29,3 +29,19 @@ def warn_clamped(report) -> None:
             ClampWarning,
             stacklevel=3,
         )
+
+
+def read_lines(path) -> list[str]:
+    """Lines of a UTF-8 text file; an unreadable file or a bad byte raises
+    ``MapError`` naming the file (and the line of the bad byte)."""
+    try:
+        raw = open(path, "rb").read()
+    except OSError as exc:
+        raise MapError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    lines = []
+    for lineno, chunk in enumerate(raw.splitlines(), start=1):
+        try:
+            lines.append(chunk.decode("utf-8"))
+        except UnicodeDecodeError as exc:
+            raise MapError(f"{path}:{lineno}: not UTF-8 text (byte {chunk[exc.start]:#04x} at column {exc.start + 1})") from None
+    return lines

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
-from .errors import MapError
+from .errors import MapError, read_lines
 
 MAGIC = "cmmpose-error-map"
 VERSION = "1"
@@ -47,10 +47,7 @@ def read_map(path: str | PathLike) -> ErrorMap:
         On any malformed content, naming the file and line.
     """
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(f"{path}: cannot read ({exc})") from None
+    lines = read_lines(path)
     meta: dict[str, tuple[str, int]] = {}
     rows: dict[str, list[list[float]]] = {c: [] for c in CARRIAGES}
     header_seen = False

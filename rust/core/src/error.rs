@@ -16,7 +16,13 @@ pub enum CoreError {
         "row {row}: {axis} scale reading {value} mm is outside the {axis} map range \
          [{lo}, {hi}] mm (pass out_of_range='clamp' to clamp instead)"
     )]
-    PositionOutOfRange { row: usize, axis: char, value: f64, lo: f64, hi: f64 },
+    PositionOutOfRange {
+        row: usize,
+        axis: char,
+        value: f64,
+        lo: f64,
+        hi: f64,
+    },
 
     /// A temperature lies outside the temperatures covered by a map set.
     #[error(
@@ -24,7 +30,12 @@ pub enum CoreError {
          (pass out_of_range='clamp' to clamp instead)",
         row.map(|r| format!("row {r}: ")).unwrap_or_default()
     )]
-    TemperatureOutOfRange { row: Option<usize>, value: f64, lo: f64, hi: f64 },
+    TemperatureOutOfRange {
+        row: Option<usize>,
+        value: f64,
+        lo: f64,
+        hi: f64,
+    },
 
     /// NaN or infinity in an input array.
     #[error("{argument}: non-finite value (NaN or inf) in row {row} (pass nan_policy='propagate' to get NaN rows instead)")]
@@ -43,10 +54,16 @@ pub type Result<T> = std::result::Result<T, CoreError>;
 
 impl CoreError {
     pub(crate) fn invalid_map(location: impl Into<String>, reason: impl Into<String>) -> Self {
-        CoreError::InvalidMap { location: location.into(), reason: reason.into() }
+        CoreError::InvalidMap {
+            location: location.into(),
+            reason: reason.into(),
+        }
     }
 
     pub(crate) fn invalid_argument(argument: impl Into<String>, reason: impl Into<String>) -> Self {
-        CoreError::InvalidArgument { argument: argument.into(), reason: reason.into() }
+        CoreError::InvalidArgument {
+            argument: argument.into(),
+            reason: reason.into(),
+        }
     }
 }

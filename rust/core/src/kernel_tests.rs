@@ -109,7 +109,17 @@ fn pure_pitch_error_acts_through_the_ram_and_digitizer_levers() {
     // eps_y(X) = 10 a-s everywhere: the ram (lever F) and the digitizer
     // (lever q = E313 (uv - l1)) both turn about Y by eps.
     let eps_as = 10.0;
-    let map = map_from(|a, _| if a == 0 { [0.0, 0.0, 0.0, 0.0, eps_as, 0.0] } else { [0.0; 6] }, [0.0; 3], None);
+    let map = map_from(
+        |a, _| {
+            if a == 0 {
+                [0.0, 0.0, 0.0, 0.0, eps_as, 0.0]
+            } else {
+                [0.0; 6]
+            }
+        },
+        [0.0; 3],
+        None,
+    );
     let eps = eps_as * ARCSEC_TO_RAD;
     let d = digitizer(90.0, 90.0, 0.0);
     let (uv, s) = points(1000);
@@ -120,7 +130,10 @@ fn pure_pitch_error_acts_through_the_ram_and_digitizer_levers() {
         let rq = Vector3::new(ce * q.x + se * q.z, q.y, -se * q.x + ce * q.z);
         let expected = Vector3::new(s[3 * i + 2] * eps, 0.0, 0.0) + rq - q;
         for k in 0..3 {
-            assert!((comp[3 * i + k] - raw[3 * i + k] - expected[k]).abs() < 1e-12, "row {i} axis {k}");
+            assert!(
+                (comp[3 * i + k] - raw[3 * i + k] - expected[k]).abs() < 1e-12,
+                "row {i} axis {k}"
+            );
         }
         // The digitizer lever (W1 = 129.6 mm along X here) shows the Abbe
         // error in z: -eps * q.x, up to eps^2 |q| / 2 ~ 4e-7 mm.
@@ -130,7 +143,20 @@ fn pure_pitch_error_acts_through_the_ram_and_digitizer_levers() {
 
 #[test]
 fn rotation_is_orthonormal_and_right_handed() {
-    let map = map_from(|a, p| [0.0, 0.0, 0.0, 3.0 + p / 100.0, -2.0 - a as f64, 4.0 - p / 200.0], [-173.0, -19.0, 21.0], None);
+    let map = map_from(
+        |a, p| {
+            [
+                0.0,
+                0.0,
+                0.0,
+                3.0 + p / 100.0,
+                -2.0 - a as f64,
+                4.0 - p / 200.0,
+            ]
+        },
+        [-173.0, -19.0, 21.0],
+        None,
+    );
     let (_, s) = points(500);
     let mut r = vec![0.0; 9 * 500];
     rotation_error(&s, &map, Options::default(), &mut r).unwrap();
@@ -145,8 +171,16 @@ fn rotation_is_orthonormal_and_right_handed() {
 
 #[test]
 fn midpoint_temperature_gives_mean_of_neighbours() {
-    let lo = map_from(|a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0], [-173.0, -19.0, 21.0], Some(20.0));
-    let hi = map_from(|a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0], [-178.0, -4.0, 42.0], Some(25.0));
+    let lo = map_from(
+        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
+        [-173.0, -19.0, 21.0],
+        Some(20.0),
+    );
+    let hi = map_from(
+        |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
+        [-178.0, -4.0, 42.0],
+        Some(25.0),
+    );
     let set = ErrorMapSet::new(vec![lo.clone(), hi.clone()]).unwrap();
     let (uv, s) = points(2000);
     let d = digitizer(90.0, 90.0, 45.0);
@@ -157,17 +191,37 @@ fn midpoint_temperature_gives_mean_of_neighbours() {
     compensate(&uv, &s, &lo, &d, Options::default(), &mut a).unwrap();
     compensate(&uv, &s, &hi, &d, Options::default(), &mut b).unwrap();
     compensate_at_temperature(&uv, &s, 22.5, &set, &d, Options::default(), &mut m).unwrap();
-    compensate_at_temperatures(&uv, &s, &vec![22.5; 2000], &set, &d, Options::default(), &mut p).unwrap();
+    compensate_at_temperatures(
+        &uv,
+        &s,
+        &vec![22.5; 2000],
+        &set,
+        &d,
+        Options::default(),
+        &mut p,
+    )
+    .unwrap();
     for k in 0..6000 {
         // Position error is linear in the components; the rotation only to
         // first order: R(mean eps) - mean R(eps) ~ |d eps|^2 |q| ~ (5e-6)^2 * 300 mm.
-        assert!((m[k] - 0.5 * (a[k] + b[k])).abs() < 1e-7, "{k}: {} vs {}", m[k], 0.5 * (a[k] + b[k]));
+        assert!(
+            (m[k] - 0.5 * (a[k] + b[k])).abs() < 1e-7,
+            "{k}: {} vs {}",
+            m[k],
+            0.5 * (a[k] + b[k])
+        );
         assert!((p[k] - m[k]).abs() < 1e-12, "{k}");
     }
     let (mut pa, mut pb, mut pm) = (vec![0.0; 6000], vec![0.0; 6000], vec![0.0; 6000]);
     position_error(&s, &lo, Options::default(), &mut pa).unwrap();
     position_error(&s, &hi, Options::default(), &mut pb).unwrap();
-    position_error(&s, &set.at(22.5, false).unwrap(), Options::default(), &mut pm).unwrap();
+    position_error(
+        &s,
+        &set.at(22.5, false).unwrap(),
+        Options::default(),
+        &mut pm,
+    )
+    .unwrap();
     for k in 0..6000 {
         assert!((pm[k] - 0.5 * (pa[k] + pb[k])).abs() < 1e-15, "{k}");
     }
@@ -181,17 +235,49 @@ fn out_of_range_raises_naming_row_or_clamps_and_counts() {
     let s = [10.0, 10.0, -10.0, 10.0, 600.0, -10.0, 950.0, 700.0, 5.0];
     let mut out = [0.0; 9];
     let e = compensate(&uv, &s, &map, &d, Options::default(), &mut out).unwrap_err();
-    assert_eq!(e, CoreError::PositionOutOfRange { row: 1, axis: 'Y', value: 600.0, lo: 0.0, hi: 550.0 });
-    assert!(e.to_string().starts_with("row 1: Y scale reading 600 mm is outside the Y map range [0, 550] mm"));
-    let opts = Options { out_of_range: OutOfRange::Clamp, ..Default::default() };
+    assert_eq!(
+        e,
+        CoreError::PositionOutOfRange {
+            row: 1,
+            axis: 'Y',
+            value: 600.0,
+            lo: 0.0,
+            hi: 550.0
+        }
+    );
+    assert!(e
+        .to_string()
+        .starts_with("row 1: Y scale reading 600 mm is outside the Y map range [0, 550] mm"));
+    let opts = Options {
+        out_of_range: OutOfRange::Clamp,
+        ..Default::default()
+    };
     let r = compensate(&uv, &s, &map, &d, opts, &mut out).unwrap();
     assert_eq!(r.clamped_position, [1, 2, 1]);
 
-    let set = ErrorMapSet::new(vec![map.clone().with_temperature(Some(20.0)), map.with_temperature(Some(30.0))]).unwrap();
+    let set = ErrorMapSet::new(vec![
+        map.clone().with_temperature(Some(20.0)),
+        map.with_temperature(Some(30.0)),
+    ])
+    .unwrap();
     let s_ok = [10.0, 10.0, -10.0, 10.0, 10.0, -10.0, 10.0, 10.0, -10.0];
-    let e = compensate_at_temperatures(&uv, &s_ok, &[25.0, 25.0, 31.0], &set, &d, Options::default(), &mut out).unwrap_err();
-    assert!(e.to_string().starts_with("row 2: temperature 31 C is outside the maps' range [20, 30] C"), "{e}");
-    let r = compensate_at_temperatures(&uv, &s_ok, &[19.0, 25.0, 31.0], &set, &d, opts, &mut out).unwrap();
+    let e = compensate_at_temperatures(
+        &uv,
+        &s_ok,
+        &[25.0, 25.0, 31.0],
+        &set,
+        &d,
+        Options::default(),
+        &mut out,
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string()
+            .starts_with("row 2: temperature 31 C is outside the maps' range [20, 30] C"),
+        "{e}"
+    );
+    let r = compensate_at_temperatures(&uv, &s_ok, &[19.0, 25.0, 31.0], &set, &d, opts, &mut out)
+        .unwrap();
     assert_eq!(r.clamped_temperature, 2);
     let r = compensate_at_temperature(&uv, &s_ok, 35.0, &set, &d, opts, &mut out).unwrap();
     assert_eq!(r.clamped_temperature, 3);
@@ -206,8 +292,17 @@ fn nan_raises_with_first_row_or_propagates() {
     uv[2 * 7000] = f64::INFINITY;
     let mut out = vec![0.0; 30_000];
     let e = compensate(&uv, &s, &map, &d, Options::default(), &mut out).unwrap_err();
-    assert_eq!(e, CoreError::NonFinite { argument: "uv", row: 7000 });
-    let opts = Options { nan_policy: NanPolicy::Propagate, ..Default::default() };
+    assert_eq!(
+        e,
+        CoreError::NonFinite {
+            argument: "uv",
+            row: 7000
+        }
+    );
+    let opts = Options {
+        nan_policy: NanPolicy::Propagate,
+        ..Default::default()
+    };
     let r = compensate(&uv, &s, &map, &d, opts, &mut out).unwrap();
     assert_eq!(r.nan_rows, 2);
     assert!(out[3 * 9000].is_nan() && out[3 * 7000 + 2].is_nan() && out[3 * 8000].is_finite());
@@ -219,21 +314,59 @@ fn mismatched_lengths_are_rejected() {
     let d = digitizer(90.0, 90.0, 0.0);
     let mut out = [0.0; 6];
     let e = compensate(&[0.0; 2], &[1.0; 6], &map, &d, Options::default(), &mut out).unwrap_err();
-    assert!(e.to_string().starts_with("uv: has 1 rows but scales has 2"), "{e}");
+    assert!(
+        e.to_string().starts_with("uv: has 1 rows but scales has 2"),
+        "{e}"
+    );
     let e = compensate(&[0.0; 4], &[1.0; 5], &map, &d, Options::default(), &mut out).unwrap_err();
     assert!(e.to_string().starts_with("scales: length 5"), "{e}");
 }
 
 #[test]
 fn threads_do_not_change_results() {
-    let map = map_from(|a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0], [-173.0, -19.0, 21.0], None);
+    let map = map_from(
+        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
+        [-173.0, -19.0, 21.0],
+        None,
+    );
     let (uv, s) = points(50_000);
     let d = digitizer(10.0, 80.0, 45.0);
     let go = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         let mut out = vec![0.0; 150_000];
         pool.install(|| compensate(&uv, &s, &map, &d, Options::default(), &mut out).unwrap());
         out
     };
     assert_eq!(go(1), go(2));
+}
+
+#[test]
+fn tan_small_matches_libm_to_rounding() {
+    let mut worst: f64 = 0.0;
+    for i in -20_000..=20_000 {
+        let x = i as f64 * (1.0 / 64.0) / 20_000.0 * 1.0001;
+        let (a, b) = (tan_small(x), x.tan());
+        if b != 0.0 {
+            worst = worst.max(((a - b) / b).abs());
+        }
+    }
+    // Two ulps of relative error at most (libm itself is within one).
+    assert!(worst < 4.5e-16, "{worst:e}");
+    assert_eq!(tan_small(0.5), 0.5f64.tan());
+}
+
+#[test]
+fn inv_sqrt_one_plus_matches_the_exact_form() {
+    for i in 0..=100_000 {
+        let a = i as f64 * 2e-11; // up to 2e-6, across the switch at 1e-6
+        let exact = (1.0 + a).sqrt().recip();
+        assert!(
+            (inv_sqrt_one_plus(a) - exact).abs() <= f64::EPSILON,
+            "{a:e}"
+        );
+    }
+    assert_eq!(inv_sqrt_one_plus(3.0), 0.5);
 }

@@ -61,18 +61,28 @@ impl CarriageTable {
         if positions.len() != values.len() {
             return Err(CoreError::invalid_map(
                 format!("{} carriage table", carriage.letter()),
-                format!("{} positions but {} rows of components", positions.len(), values.len()),
+                format!(
+                    "{} positions but {} rows of components",
+                    positions.len(),
+                    values.len()
+                ),
             ));
         }
         if positions.len() < 2 {
             return Err(CoreError::invalid_map(
                 format!("{} carriage table", carriage.letter()),
-                format!("needs at least 2 rows to interpolate, got {}", positions.len()),
+                format!(
+                    "needs at least 2 rows to interpolate, got {}",
+                    positions.len()
+                ),
             ));
         }
         for (i, (&p, v)) in positions.iter().zip(&values).enumerate() {
             if !p.is_finite() {
-                return Err(CoreError::invalid_map(where_(i), format!("position {p} is not finite")));
+                return Err(CoreError::invalid_map(
+                    where_(i),
+                    format!("position {p} is not finite"),
+                ));
             }
             if let Some(k) = v.iter().position(|c| !c.is_finite()) {
                 return Err(CoreError::invalid_map(
@@ -81,7 +91,11 @@ impl CarriageTable {
                 ));
             }
             if i > 0 && p <= positions[i - 1] {
-                let what = if p == positions[i - 1] { "duplicates" } else { "is less than" };
+                let what = if p == positions[i - 1] {
+                    "duplicates"
+                } else {
+                    "is less than"
+                };
                 return Err(CoreError::invalid_map(
                     where_(i),
                     format!("position {p} mm {what} the previous position {} mm; positions must strictly increase", positions[i - 1]),
@@ -112,7 +126,13 @@ impl CarriageTable {
                 row
             })
             .collect();
-        Ok(CarriageTable { positions, values, slopes, inv_pitch: uniform.then(|| 1.0 / pitch), table_rows })
+        Ok(CarriageTable {
+            positions,
+            values,
+            slopes,
+            inv_pitch: uniform.then(|| 1.0 / pitch),
+            table_rows,
+        })
     }
 
     /// Build from rows in table units: position (mm), three deltas (um) and
@@ -148,7 +168,7 @@ impl CarriageTable {
     }
 
     /// Segment holding `x`, or `None` when `x` is outside the table (or NaN).
-    #[inline]
+    #[inline(always)]
     pub fn locate(&self, x: f64) -> Option<Located> {
         let (lo, hi) = self.range();
         if !(x >= lo && x <= hi) {
@@ -163,32 +183,55 @@ impl CarriageTable {
     pub fn locate_clamped(&self, x: f64) -> (Located, bool) {
         let (lo, hi) = self.range();
         if x < lo {
-            (Located { segment: 0, offset: 0.0 }, true)
+            (
+                Located {
+                    segment: 0,
+                    offset: 0.0,
+                },
+                true,
+            )
         } else if x > hi {
             let s = self.positions.len() - 2;
-            (Located { segment: s, offset: self.positions[s + 1] - self.positions[s] }, true)
+            (
+                Located {
+                    segment: s,
+                    offset: self.positions[s + 1] - self.positions[s],
+                },
+                true,
+            )
         } else {
             (self.locate_inside(x), false)
         }
     }
 
-    #[inline]
+    #[inline(always)]
     fn locate_inside(&self, x: f64) -> Located {
         let last = self.positions.len() - 2;
         let segment = match self.inv_pitch {
-            Some(inv) => {
-                // O(1) on a uniform grid; one correction step absorbs rounding.
-                let mut s = (((x - self.positions[0]) * inv) as usize).min(last);
-                if x < self.positions[s] {
-                    s -= 1;
-                } else if s < last && x >= self.positions[s + 1] {
-                    s += 1;
-                }
-                s
-            }
-            None => self.positions.partition_point(|&p| p <= x).saturating_sub(1).min(last),
+            // O(1) on a uniform grid. Rounding can put a reading that sits
+            // on a node into the neighbouring segment; the line through that
+            // segment passes through the node, so the value is the same.
+            Some(inv) => (((x - self.positions[0]) * inv) as usize).min(last),
+            None => self
+                .positions
+                .partition_point(|&p| p <= x)
+                .saturating_sub(1)
+                .min(last),
         };
-        Located { segment, offset: x - self.positions[segment] }
+        Located {
+            segment,
+            offset: x - self.positions[segment],
+        }
+    }
+
+    /// Value at the start of segment `i` and change per mm along it.
+    #[inline(always)]
+    pub(crate) fn segment(&self, i: usize) -> (&Components, &Components) {
+        (&self.values[i], &self.slopes[i])
+    }
+
+    pub(crate) fn segment_count(&self) -> usize {
+        self.slopes.len()
     }
 
     /// Components (mm, rad) at a located position.
@@ -226,12 +269,18 @@ impl ErrorMap {
         const NAMES: [&str; 3] = ["S_xy", "S_yz", "S_zx"];
         for (name, s) in NAMES.iter().zip(squareness_arcsec) {
             if !s.is_finite() {
-                return Err(CoreError::invalid_map("squareness", format!("{name} is not finite ({s})")));
+                return Err(CoreError::invalid_map(
+                    "squareness",
+                    format!("{name} is not finite ({s})"),
+                ));
             }
         }
         if let Some(t) = temperature {
             if !t.is_finite() {
-                return Err(CoreError::invalid_map("temperature", format!("{t} C is not finite")));
+                return Err(CoreError::invalid_map(
+                    "temperature",
+                    format!("{t} C is not finite"),
+                ));
             }
         }
         Ok(ErrorMap {
@@ -250,7 +299,12 @@ impl ErrorMap {
             CarriageTable::new(Carriage::ALL[a], vec![lo, hi], vec![[0.0; 6]; 2])
                 .expect("zero table is valid when lo < hi")
         });
-        ErrorMap { tables, squareness: [0.0; 3], squareness_arcsec: [0.0; 3], temperature: None }
+        ErrorMap {
+            tables,
+            squareness: [0.0; 3],
+            squareness_arcsec: [0.0; 3],
+            temperature: None,
+        }
     }
 
     pub fn table(&self, carriage: Carriage) -> &CarriageTable {
@@ -285,8 +339,17 @@ impl ErrorMap {
     }
 
     /// Build a map with `squareness` in radians (internal use by blending).
-    pub(crate) fn from_parts(tables: [CarriageTable; 3], squareness: [f64; 3], temperature: Option<f64>) -> Self {
-        ErrorMap { tables, squareness, squareness_arcsec: squareness.map(|s| s / ARCSEC_TO_RAD), temperature }
+    pub(crate) fn from_parts(
+        tables: [CarriageTable; 3],
+        squareness: [f64; 3],
+        temperature: Option<f64>,
+    ) -> Self {
+        ErrorMap {
+            tables,
+            squareness,
+            squareness_arcsec: squareness.map(|s| s / ARCSEC_TO_RAD),
+            temperature,
+        }
     }
 }
 
@@ -295,7 +358,10 @@ mod tests {
     use super::*;
 
     fn table(positions: &[f64]) -> Result<CarriageTable> {
-        let rows: Vec<[f64; 7]> = positions.iter().map(|&p| [p, p, 0.0, 0.0, 0.0, 0.0, 2.0 * p]).collect();
+        let rows: Vec<[f64; 7]> = positions
+            .iter()
+            .map(|&p| [p, p, 0.0, 0.0, 0.0, 0.0, 2.0 * p])
+            .collect();
         CarriageTable::from_table_units(Carriage::Y, &rows)
     }
 
@@ -329,7 +395,10 @@ mod tests {
     #[test]
     fn rejects_bad_tables_with_row_numbers() {
         let e = table(&[0.0, 25.0, 25.0]).unwrap_err().to_string();
-        assert!(e.contains("Y carriage table, row 2") && e.contains("duplicates"), "{e}");
+        assert!(
+            e.contains("Y carriage table, row 2") && e.contains("duplicates"),
+            "{e}"
+        );
         let e = table(&[0.0, 25.0, 20.0]).unwrap_err().to_string();
         assert!(e.contains("row 2") && e.contains("less than"), "{e}");
         let e = table(&[0.0]).unwrap_err().to_string();
@@ -337,13 +406,21 @@ mod tests {
         let e = table(&[0.0, f64::NAN]).unwrap_err().to_string();
         assert!(e.contains("row 1") && e.contains("not finite"), "{e}");
         let rows = [[0.0, 0.0, 0.0, f64::INFINITY, 0.0, 0.0, 0.0], [1.0; 7]];
-        let e = CarriageTable::from_table_units(Carriage::Z, &rows).unwrap_err().to_string();
-        assert!(e.contains("Z carriage table, row 0") && e.contains("dz"), "{e}");
+        let e = CarriageTable::from_table_units(Carriage::Z, &rows)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("Z carriage table, row 0") && e.contains("dz"),
+            "{e}"
+        );
     }
 
     #[test]
     fn round_trips_table_units() {
-        let rows = [[0.0, 1.5, -2.0, 3.0, 0.57, -0.37, 12.0], [25.0, 2.0, 0.0, 0.0, 1.0, 2.0, 3.0]];
+        let rows = [
+            [0.0, 1.5, -2.0, 3.0, 0.57, -0.37, 12.0],
+            [25.0, 2.0, 0.0, 0.0, 1.0, 2.0, 3.0],
+        ];
         let t = CarriageTable::from_table_units(Carriage::X, &rows).unwrap();
         let back = t.to_table_units();
         assert_eq!(back, rows.to_vec());

@@ -17,7 +17,10 @@ impl Pose {
     pub fn new(alpha: f64, beta: f64, gamma: f64) -> Result<Self> {
         for (name, v) in [("alpha", alpha), ("beta", beta), ("gamma", gamma)] {
             if !v.is_finite() {
-                return Err(CoreError::invalid_argument(format!("pose.{name}"), format!("{v} deg is not finite")));
+                return Err(CoreError::invalid_argument(
+                    format!("pose.{name}"),
+                    format!("{v} deg is not finite"),
+                ));
             }
         }
         Ok(Pose { alpha, beta, gamma })
@@ -29,9 +32,15 @@ impl Pose {
         let (sb, cb) = self.beta.to_radians().sin_cos();
         let (sg, cg) = self.gamma.to_radians().sin_cos();
         Matrix3::new(
-            ca * cg - sa * cb * sg, -ca * sg - sa * cb * cg, sa * sb,
-            ca * cb * sg + sa * cg, ca * cb * cg - sa * sg, -ca * sb,
-            sb * sg, sb * cg, cb,
+            ca * cg - sa * cb * sg,
+            -ca * sg - sa * cb * cg,
+            sa * sb,
+            ca * cb * sg + sa * cg,
+            ca * cb * cg - sa * sg,
+            -ca * sb,
+            sb * sg,
+            sb * cg,
+            cb,
         )
     }
 
@@ -49,7 +58,11 @@ impl Pose {
         let n = n / norm;
         let beta = n.z.clamp(-1.0, 1.0).acos().to_degrees();
         let horizontal = n.x.hypot(n.y);
-        let alpha = if horizontal < 1e-15 { 0.0 } else { n.x.atan2(-n.y).to_degrees() };
+        let alpha = if horizontal < 1e-15 {
+            0.0
+        } else {
+            n.x.atan2(-n.y).to_degrees()
+        };
         Pose::new(alpha, beta, gamma)
     }
 }
@@ -70,7 +83,10 @@ impl Digitizer {
     pub fn new(pose: &Pose, offset: [f64; 3]) -> Result<Self> {
         for (name, v) in ["U1", "V1", "W1"].iter().zip(offset) {
             if !v.is_finite() {
-                return Err(CoreError::invalid_argument(format!("offset.{name}"), format!("{v} mm is not finite")));
+                return Err(CoreError::invalid_argument(
+                    format!("offset.{name}"),
+                    format!("{v} mm is not finite"),
+                ));
             }
         }
         let m = pose.matrix();
@@ -94,9 +110,17 @@ mod tests {
 
     #[test]
     fn thesis_alignments_point_w_along_x_and_y() {
-        let w = Pose::new(90.0, 90.0, 0.0).unwrap().matrix().column(2).into_owned();
+        let w = Pose::new(90.0, 90.0, 0.0)
+            .unwrap()
+            .matrix()
+            .column(2)
+            .into_owned();
         assert!((w - Vector3::x()).norm() < 1e-15);
-        let w = Pose::new(180.0, 90.0, 0.0).unwrap().matrix().column(2).into_owned();
+        let w = Pose::new(180.0, 90.0, 0.0)
+            .unwrap()
+            .matrix()
+            .column(2)
+            .into_owned();
         assert!((w - Vector3::y()).norm() < 1e-15);
     }
 
@@ -116,7 +140,10 @@ mod tests {
                 let p = Pose::new(alpha, beta, 33.0).unwrap();
                 let n = p.matrix().column(2).into_owned();
                 let q = Pose::from_normal([n.x * 3.0, n.y * 3.0, n.z * 3.0], 33.0).unwrap();
-                assert!((q.alpha - alpha).abs() < 1e-9 && (q.beta - beta).abs() < 1e-9, "{alpha} {beta}: {q:?}");
+                assert!(
+                    (q.alpha - alpha).abs() < 1e-9 && (q.beta - beta).abs() < 1e-9,
+                    "{alpha} {beta}: {q:?}"
+                );
             }
         }
         assert!(Pose::from_normal([0.0, 0.0, 0.0], 0.0).is_err());

@@ -18,14 +18,41 @@ pub(crate) struct Interval {
     pub base: ErrorMap,
     /// Same grids as `base`; values are per degree C.
     pub slope: ErrorMap,
+    /// Per carriage and segment, base and slope side by side (value, per mm,
+    /// value per C, per mm per C) so one point reads one cache line run.
+    packed: [Vec<[f64; 24]>; 3],
 }
 
 impl Interval {
+    fn new(t_lo: f64, t_hi: f64, base: ErrorMap, slope: ErrorMap) -> Self {
+        let packed = std::array::from_fn(|a| {
+            let (b, s) = (&base.tables()[a], &slope.tables()[a]);
+            (0..b.segment_count())
+                .map(|i| {
+                    let ((bv, bs), (sv, ss)) = (b.segment(i), s.segment(i));
+                    let mut row = [0.0; 24];
+                    row[..6].copy_from_slice(bv);
+                    row[6..12].copy_from_slice(bs);
+                    row[12..18].copy_from_slice(sv);
+                    row[18..].copy_from_slice(ss);
+                    row
+                })
+                .collect()
+        });
+        Interval {
+            t_lo,
+            t_hi,
+            base,
+            slope,
+            packed,
+        }
+    }
+
     #[inline(always)]
     pub fn at(&self, carriage: usize, loc: Located, dt: f64) -> Components {
-        let b = self.base.tables()[carriage].at(loc);
-        let s = self.slope.tables()[carriage].at(loc);
-        std::array::from_fn(|k| b[k] + dt * s[k])
+        let r = &self.packed[carriage][loc.segment];
+        let x = loc.offset;
+        std::array::from_fn(|k| (r[k] + x * r[6 + k]) + dt * (r[12 + k] + x * r[18 + k]))
     }
 
     #[inline(always)]
@@ -71,7 +98,12 @@ fn resample(table: &CarriageTable, grid: &[f64]) -> Vec<Components> {
 fn union_grid(a: &[f64], b: &[f64]) -> Vec<f64> {
     let lo = a[0].max(b[0]);
     let hi = a[a.len() - 1].min(b[b.len() - 1]);
-    let mut g: Vec<f64> = a.iter().chain(b).copied().filter(|&x| x >= lo && x <= hi).collect();
+    let mut g: Vec<f64> = a
+        .iter()
+        .chain(b)
+        .copied()
+        .filter(|&x| x >= lo && x <= hi)
+        .collect();
     g.sort_by(|x, y| x.partial_cmp(y).expect("finite grid"));
     g.dedup();
     g
@@ -81,7 +113,10 @@ impl ErrorMapSet {
     /// Maps in any order; each must carry a distinct temperature.
     pub fn new(mut maps: Vec<ErrorMap>) -> Result<Self> {
         if maps.is_empty() {
-            return Err(CoreError::invalid_map("error map set", "needs at least one map"));
+            return Err(CoreError::invalid_map(
+                "error map set",
+                "needs at least one map",
+            ));
         }
         for (i, m) in maps.iter().enumerate() {
             if m.temperature().is_none() {
@@ -91,12 +126,19 @@ impl ErrorMapSet {
                 ));
             }
         }
-        maps.sort_by(|a, b| a.temperature().partial_cmp(&b.temperature()).expect("finite temperatures"));
+        maps.sort_by(|a, b| {
+            a.temperature()
+                .partial_cmp(&b.temperature())
+                .expect("finite temperatures")
+        });
         for w in maps.windows(2) {
             if w[0].temperature() == w[1].temperature() {
                 return Err(CoreError::invalid_map(
                     "error map set",
-                    format!("two maps at the same temperature {} C", w[0].temperature().unwrap()),
+                    format!(
+                        "two maps at the same temperature {} C",
+                        w[0].temperature().unwrap()
+                    ),
                 ));
             }
         }
@@ -123,18 +165,28 @@ impl ErrorMapSet {
             }
             let va = resample(a, &grid);
             let vb = resample(b, &grid);
-            let slope = va.iter().zip(&vb).map(|(x, y)| std::array::from_fn(|k| (y[k] - x[k]) * inv_dt)).collect();
+            let slope = va
+                .iter()
+                .zip(&vb)
+                .map(|(x, y)| std::array::from_fn(|k| (y[k] - x[k]) * inv_dt))
+                .collect();
             base_tables.push(CarriageTable::new(c, grid.clone(), va)?);
             slope_tables.push(CarriageTable::new(c, grid, slope)?);
         }
-        let to_array = |v: Vec<CarriageTable>| -> [CarriageTable; 3] { v.try_into().expect("three carriages") };
+        let to_array = |v: Vec<CarriageTable>| -> [CarriageTable; 3] {
+            v.try_into().expect("three carriages")
+        };
         let (sa, sb) = (lo.squareness(), hi.squareness());
-        Ok(Interval {
+        Ok(Interval::new(
             t_lo,
             t_hi,
-            base: ErrorMap::from_parts(to_array(base_tables), sa, Some(t_lo)),
-            slope: ErrorMap::from_parts(to_array(slope_tables), std::array::from_fn(|k| (sb[k] - sa[k]) * inv_dt), None),
-        })
+            ErrorMap::from_parts(to_array(base_tables), sa, Some(t_lo)),
+            ErrorMap::from_parts(
+                to_array(slope_tables),
+                std::array::from_fn(|k| (sb[k] - sa[k]) * inv_dt),
+                None,
+            ),
+        ))
     }
 
     pub fn maps(&self) -> &[ErrorMap] {
@@ -147,7 +199,10 @@ impl ErrorMapSet {
 
     /// Lowest and highest map temperature (C).
     pub fn temperature_range(&self) -> (f64, f64) {
-        (self.maps[0].temperature().unwrap(), self.maps[self.maps.len() - 1].temperature().unwrap())
+        (
+            self.maps[0].temperature().unwrap(),
+            self.maps[self.maps.len() - 1].temperature().unwrap(),
+        )
     }
 
     /// Which interval holds `t` (already inside the range) and the offset
@@ -155,7 +210,12 @@ impl ErrorMapSet {
     #[inline]
     pub(crate) fn interval_of(&self, t: f64) -> Option<(&Interval, f64)> {
         let last = self.intervals.len().checked_sub(1)?;
-        let i = self.intervals.iter().position(|iv| t <= iv.t_hi).unwrap_or(last);
+        // Branch-free count: temperatures of neighbouring points vary at random
+        // between intervals, where a search would mispredict.
+        let i = self.intervals[..last]
+            .iter()
+            .map(|iv| (t > iv.t_hi) as usize)
+            .sum::<usize>();
         let iv = &self.intervals[i];
         Some((iv, t - iv.t_lo))
     }
@@ -179,16 +239,26 @@ impl ErrorMapSet {
     pub fn at(&self, t: f64, clamp: bool) -> Result<ErrorMap> {
         let (lo, hi) = self.temperature_range();
         if !t.is_finite() {
-            return Err(CoreError::NonFinite { argument: "temperature", row: 0 });
+            return Err(CoreError::NonFinite {
+                argument: "temperature",
+                row: 0,
+            });
         }
         let (tc, moved) = self.clamp_temperature(t);
         if moved && !clamp {
-            return Err(CoreError::TemperatureOutOfRange { row: None, value: t, lo, hi });
+            return Err(CoreError::TemperatureOutOfRange {
+                row: None,
+                value: t,
+                lo,
+                hi,
+            });
         }
         if let Some(m) = self.maps.iter().find(|m| m.temperature() == Some(tc)) {
             return Ok(m.clone());
         }
-        let (iv, _) = self.interval_of(tc).expect("t strictly inside a range of two or more maps");
+        let (iv, _) = self
+            .interval_of(tc)
+            .expect("t strictly inside a range of two or more maps");
         Ok(iv.blend(tc))
     }
 }
@@ -199,7 +269,10 @@ mod tests {
 
     fn flat_map(grid: &[f64], value: f64, sq: f64, t: f64) -> ErrorMap {
         let tables = std::array::from_fn(|a| {
-            let rows: Vec<[f64; 7]> = grid.iter().map(|&p| [p, value, value, value, value, value, value + p]).collect();
+            let rows: Vec<[f64; 7]> = grid
+                .iter()
+                .map(|&p| [p, value, value, value, value, value, value + p])
+                .collect();
             CarriageTable::from_table_units(Carriage::ALL[a], &rows).unwrap()
         });
         ErrorMap::new(tables, [sq, -sq, 2.0 * sq], Some(t)).unwrap()
@@ -220,14 +293,23 @@ mod tests {
             assert!((c[k] - 0.5 * (a[k] + b[k])).abs() < 1e-15);
         }
         for k in 0..3 {
-            assert!((m.squareness()[k] - 0.5 * (set.maps()[0].squareness()[k] + set.maps()[1].squareness()[k])).abs() < 1e-18);
+            assert!(
+                (m.squareness()[k]
+                    - 0.5 * (set.maps()[0].squareness()[k] + set.maps()[1].squareness()[k]))
+                    .abs()
+                    < 1e-18
+            );
         }
         assert_eq!(m.temperature(), Some(22.5));
     }
 
     #[test]
     fn blends_maps_on_different_grids_exactly() {
-        let set = ErrorMapSet::new(vec![flat_map(&[0.0, 50.0, 100.0], 0.0, 0.0, 20.0), flat_map(&[0.0, 30.0, 90.0], 6.0, 0.0, 30.0)]).unwrap();
+        let set = ErrorMapSet::new(vec![
+            flat_map(&[0.0, 50.0, 100.0], 0.0, 0.0, 20.0),
+            flat_map(&[0.0, 30.0, 90.0], 6.0, 0.0, 30.0),
+        ])
+        .unwrap();
         let m = set.at(25.0, false).unwrap();
         assert_eq!(m.table(Carriage::X).positions(), &[0.0, 30.0, 50.0, 90.0]);
         for x in [0.0, 12.0, 30.0, 47.0, 77.0, 90.0] {
@@ -242,14 +324,26 @@ mod tests {
 
     #[test]
     fn rejects_out_of_range_and_bad_sets() {
-        let set = ErrorMapSet::new(vec![flat_map(&[0.0, 1.0], 0.0, 0.0, 20.0), flat_map(&[0.0, 1.0], 1.0, 0.0, 30.0)]).unwrap();
+        let set = ErrorMapSet::new(vec![
+            flat_map(&[0.0, 1.0], 0.0, 0.0, 20.0),
+            flat_map(&[0.0, 1.0], 1.0, 0.0, 30.0),
+        ])
+        .unwrap();
         let e = set.at(31.0, false).unwrap_err().to_string();
         assert!(e.contains("31") && e.contains("[20, 30]"), "{e}");
         assert_eq!(set.at(31.0, true).unwrap().temperature(), Some(30.0));
         assert!(ErrorMapSet::new(vec![]).is_err());
-        let e = ErrorMapSet::new(vec![flat_map(&[0.0, 1.0], 0.0, 0.0, 20.0), flat_map(&[0.0, 1.0], 0.0, 0.0, 20.0)]).unwrap_err();
+        let e = ErrorMapSet::new(vec![
+            flat_map(&[0.0, 1.0], 0.0, 0.0, 20.0),
+            flat_map(&[0.0, 1.0], 0.0, 0.0, 20.0),
+        ])
+        .unwrap_err();
         assert!(e.to_string().contains("same temperature"));
-        let e = ErrorMapSet::new(vec![flat_map(&[0.0, 1.0], 0.0, 0.0, 20.0), flat_map(&[2.0, 3.0], 0.0, 0.0, 25.0)]).unwrap_err();
+        let e = ErrorMapSet::new(vec![
+            flat_map(&[0.0, 1.0], 0.0, 0.0, 20.0),
+            flat_map(&[2.0, 3.0], 0.0, 0.0, 25.0),
+        ])
+        .unwrap_err();
         assert!(e.to_string().contains("no common position range"), "{e}");
     }
 }

@@ -1,0 +1,121 @@
+//! Criterion benches of the core: the compensation kernel at 1e3, 1e5 and
+//! 1e7 points (one map, and a map set with a temperature per point), and map
+//! blending. `cargo bench` (no Python needed). Thread count: RAYON_NUM_THREADS.
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use cmmpose_core::kernel::{compensate, compensate_at_temperatures, Options};
+use cmmpose_core::{Carriage, CarriageTable, Digitizer, ErrorMap, ErrorMapSet, Pose};
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+
+const RANGES: [(f64, f64); 3] = [(0.0, 900.0), (0.0, 550.0), (-500.0, 0.0)];
+
+/// A map shaped like the thesis's (25 mm grid, a few um and arc-seconds).
+fn map(t: f64) -> ErrorMap {
+    let tables = std::array::from_fn(|a| {
+        let (lo, hi) = RANGES[a];
+        let rows: Vec<[f64; 7]> = (0..=((hi - lo) / 25.0) as usize)
+            .map(|i| {
+                let p = lo + 25.0 * i as f64;
+                let w = (p / 97.0 + a as f64 + t).sin();
+                [
+                    p,
+                    80.0 * p / 900.0,
+                    2.0 * w,
+                    -w,
+                    3.0 * w,
+                    5.0 * w * w,
+                    -2.0 * w,
+                ]
+            })
+            .collect();
+        CarriageTable::from_table_units(Carriage::ALL[a], &rows).unwrap()
+    });
+    ErrorMap::new(tables, [-173.0, -19.0, 21.0], Some(t)).unwrap()
+}
+
+fn inputs(n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let mut x = 0.123_456_789f64;
+    let mut next = move || {
+        x = (x * 997.0 + 0.618_033_988_7).fract();
+        x
+    };
+    let mut uv = Vec::with_capacity(2 * n);
+    let mut s = Vec::with_capacity(3 * n);
+    let mut t = Vec::with_capacity(n);
+    for _ in 0..n {
+        uv.push(-30.0 + 60.0 * next());
+        uv.push(110.0 + 60.0 * next());
+        for (lo, hi) in RANGES {
+            s.push(lo + (hi - lo) * next());
+        }
+        t.push(20.0 + 10.0 * next());
+    }
+    (uv, s, t)
+}
+
+fn bench_kernel(c: &mut Criterion) {
+    let m = map(22.5);
+    let set = ErrorMapSet::new(vec![map(20.0), map(25.0), map(30.0)]).unwrap();
+    let d = Digitizer::new(
+        &Pose::new(90.0, 90.0, 0.0).unwrap(),
+        [1.001, 264.505, 129.575],
+    )
+    .unwrap();
+    let mut g = c.benchmark_group("compensate");
+    g.sample_size(10)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(3));
+    for n in [1_000usize, 100_000, 10_000_000] {
+        let (uv, s, t) = inputs(n);
+        let mut out = vec![0.0; 3 * n];
+        g.throughput(Throughput::Elements(n as u64));
+        g.bench_with_input(BenchmarkId::new("one_map", n), &n, |b, _| {
+            b.iter(|| {
+                compensate(
+                    black_box(&uv),
+                    black_box(&s),
+                    &m,
+                    &d,
+                    Options::default(),
+                    &mut out,
+                )
+                .unwrap()
+            })
+        });
+        g.bench_with_input(
+            BenchmarkId::new("set_per_point_temperature", n),
+            &n,
+            |b, _| {
+                b.iter(|| {
+                    compensate_at_temperatures(
+                        black_box(&uv),
+                        black_box(&s),
+                        black_box(&t),
+                        &set,
+                        &d,
+                        Options::default(),
+                        &mut out,
+                    )
+                    .unwrap()
+                })
+            },
+        );
+    }
+    g.finish();
+}
+
+fn bench_blend(c: &mut Criterion) {
+    let set = ErrorMapSet::new(vec![map(20.0), map(25.0), map(30.0)]).unwrap();
+    c.bench_function("blend_set_at_temperature", |b| {
+        b.iter(|| set.at(black_box(22.5), false).unwrap())
+    });
+    c.bench_function("build_set_of_three_maps", |b| {
+        let maps = vec![map(20.0), map(25.0), map(30.0)];
+        b.iter(|| ErrorMapSet::new(black_box(maps.clone())).unwrap())
+    });
+}
+
+criterion_group!(benches, bench_kernel, bench_blend);
+criterion_main!(benches);
