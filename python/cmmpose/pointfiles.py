@@ -47,12 +47,29 @@ def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | 
         try:
             a = np.loadtxt(path, delimiter=",", skiprows=1, usecols=order, ndmin=2, dtype=np.float64)
         except ValueError as exc:
-            # numpy names the row (counted after the header) and column.
-            raise InputError(f"{path}: {exc} (row 1 is the line after the header)") from None
+            raise InputError(_first_bad_line(path, len(header), order) or f"{path}: {exc}") from None
     uv = np.ascontiguousarray(a[:, 0:2])
     scales = np.ascontiguousarray(a[:, 2:5])
     temps = np.ascontiguousarray(a[:, 5]) if has_t else None
     return uv, scales, temps
+
+
+def _first_bad_line(path: Path, width: int, used: list[int]) -> str | None:
+    """On the error path only: the first line that is ragged or not numeric."""
+    with path.open(encoding="utf-8") as f:
+        next(f)
+        for lineno, line in enumerate(f, start=2):
+            if not line.strip():
+                continue
+            fields = line.rstrip("\n").split(",")
+            if len(fields) != width:
+                return f"{path}:{lineno}: expected {width} fields like the header, got {len(fields)}"
+            for k in used:
+                try:
+                    float(fields[k])
+                except ValueError:
+                    return f"{path}:{lineno}: value {fields[k].strip()!r} in column {k + 1} is not a number"
+    return None
 
 
 def write_points(path: str | Path, xyz: np.ndarray) -> None:

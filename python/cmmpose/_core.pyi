@@ -1,0 +1,80 @@
+"""Type stubs of the Rust extension ``cmmpose._core`` (rust/py/src/lib.rs)."""
+
+from typing import Literal, TypedDict, final
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+class Error(Exception): ...
+class MapError(Error): ...
+class OutOfRangeError(Error): ...
+class InputError(Error): ...
+class GeometryError(Error): ...
+
+class Report(TypedDict):
+    points: int
+    clamped_position: tuple[int, int, int]
+    clamped_temperature: int
+    nan_rows: int
+
+_F64_2D = npt.NDArray[np.float64]
+_OutOfRange = Literal["raise", "clamp"]
+_NanPolicy = Literal["raise", "propagate"]
+
+@final
+class ErrorMap:
+    def __new__(
+        cls,
+        x: _F64_2D,
+        y: _F64_2D,
+        z: _F64_2D,
+        squareness: tuple[float, float, float] | list[float],
+        temperature: float | None = None,
+    ) -> ErrorMap: ...
+    def table(self, carriage: str) -> _F64_2D: ...
+    @property
+    def squareness(self) -> tuple[float, float, float]: ...
+    @property
+    def temperature(self) -> float | None: ...
+    @property
+    def ranges(self) -> list[tuple[float, float]]: ...
+    def with_temperature(self, temperature: float | None) -> ErrorMap: ...
+    def position_error(
+        self, scales: _F64_2D, out_of_range: _OutOfRange = "raise", nan_policy: _NanPolicy = "raise"
+    ) -> tuple[_F64_2D, Report]: ...
+    def rotation_error(
+        self, scales: _F64_2D, out_of_range: _OutOfRange = "raise", nan_policy: _NanPolicy = "raise"
+    ) -> tuple[npt.NDArray[np.float64], Report]: ...
+    def __eq__(self, other: object) -> bool: ...
+
+@final
+class ErrorMapSet:
+    def __new__(cls, maps: list[ErrorMap]) -> ErrorMapSet: ...
+    @property
+    def temperatures(self) -> list[float]: ...
+    @property
+    def maps(self) -> list[ErrorMap]: ...
+    def at(self, temperature: float, out_of_range: _OutOfRange = "raise") -> ErrorMap: ...
+
+def compensate(
+    uv: _F64_2D,
+    scales: _F64_2D,
+    error_map: ErrorMap | ErrorMapSet,
+    pose: tuple[float, float, float],
+    offset: tuple[float, float, float],
+    temperature: float | npt.NDArray[np.float64] | None = None,
+    out_of_range: _OutOfRange = "raise",
+    nan_policy: _NanPolicy = "raise",
+) -> tuple[_F64_2D, Report]: ...
+def uncompensated(
+    uv: _F64_2D,
+    scales: _F64_2D,
+    pose: tuple[float, float, float],
+    offset: tuple[float, float, float],
+    nan_policy: _NanPolicy = "raise",
+) -> tuple[_F64_2D, Report]: ...
+def euler313(alpha: float, beta: float, gamma: float) -> _F64_2D: ...
+def pose_from_normal(normal: tuple[float, float, float] | list[float], gamma: float) -> tuple[float, float, float]: ...
+def thread_count() -> int: ...
