@@ -1,0 +1,16 @@
+"""The README's Python example runs as written."""
+
+import re
+from pathlib import Path
+
+import pytest
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+@pytest.mark.skipif(not README.is_file(), reason="README is not shipped with an installed package")
+def test_readme_python_example_runs():
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    assert blocks, "README has a python example"
+    for code in blocks:
+        exec(compile(code, str(README), "exec"), {})
