@@ -12,14 +12,15 @@ from pathlib import Path
 import numpy as np
 
 RADIUS = 76.25 / 2
-CENTRE = np.array([400.0, 275.0, -300.0])  # mm, machine frame
+CENTRE = np.array([400.0, 275.0, -350.0])  # mm, machine frame
 U1, V1, W1 = 1.001, 264.505, 129.575
-STAND_OFF = 140.0  # mm from the laser origin to the top of the ball along v
+# The laser origin L is mid depth of view (140 mm in front of the sensor); put it at
+# the top of the ball so the cap lies at v in [-RADIUS, 0].
 
 rng = np.random.default_rng(20021114)
 profiles, per_profile = 61, 64
 slices = np.linspace(-30.0, 30.0, profiles)  # x - centre_x of each scan plane
-F = CENTRE[2] + RADIUS + V1 - STAND_OFF
+F = CENTRE[2] + RADIUS + V1
 E = CENTRE[1]
 rows = []
 for k, s in enumerate(slices):

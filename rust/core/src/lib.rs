@@ -5,11 +5,14 @@
 //! Units: scale readings, positions and results in mm; map tables in um and
 //! arc-seconds at the API boundary ([`units`]), mm and rad inside.
 
+pub mod artefact;
 pub mod error;
 pub mod kernel;
 pub mod map;
 pub mod pose;
+pub mod scanner;
 pub mod thermal;
+pub mod truth;
 pub mod units;
 
 pub use error::{CoreError, Result};

@@ -233,6 +233,34 @@ impl ErrorMapSet {
         }
     }
 
+    /// Components (mm, rad) of one carriage at reading `x` (mm) and temperature
+    /// `t` (C), both already inside the covered ranges; `None` outside.
+    #[inline]
+    pub fn carriage_at(&self, carriage: Carriage, x: f64, t: f64) -> Option<Components> {
+        let (lo, hi) = self.temperature_range();
+        if !(t >= lo && t <= hi) {
+            return None;
+        }
+        match self.interval_of(t) {
+            Some((iv, dt)) => iv.base.tables()[carriage as usize]
+                .locate(x)
+                .map(|loc| iv.at(carriage as usize, loc, dt)),
+            None => self.maps[0].table(carriage).eval(x),
+        }
+    }
+
+    /// Squareness (rad) at temperature `t` (C) inside the covered range.
+    pub fn squareness_at(&self, t: f64) -> Option<[f64; 3]> {
+        let (lo, hi) = self.temperature_range();
+        if !(t >= lo && t <= hi) {
+            return None;
+        }
+        Some(match self.interval_of(t) {
+            Some((iv, dt)) => iv.squareness(dt),
+            None => self.maps[0].squareness(),
+        })
+    }
+
     /// The map at temperature `t` (C): linear between the two closest maps
     /// for all 21 components. Outside the range: an error, or the end map
     /// when `clamp` is set.
