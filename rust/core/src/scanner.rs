@@ -82,13 +82,15 @@ impl ScanFrame {
     }
 }
 
-/// One scanned point in the laser frame: u, v (mm) and the cosine of the
-/// incidence angle between the surface normal and +v.
+/// One scanned point: u, v in the laser frame (mm), the cosine of the
+/// incidence angle between the surface normal and +v, and where the point
+/// really is in machine coordinates (mm).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ProfilePoint {
     pub u: f64,
     pub v: f64,
     pub cos_incidence: f64,
+    pub xyz: [f64; 3],
 }
 
 /// Points of one profile, appended to `out`.
@@ -118,10 +120,12 @@ pub fn profile(
             let v = v1 - h.distance;
             let cos_inc = h.normal.dot(&frame.v_dir);
             if v >= v0 && cos_inc >= cos_limit {
+                let x = start + down * h.distance;
                 out.push(ProfilePoint {
                     u,
                     v,
                     cos_incidence: cos_inc,
+                    xyz: [x.x, x.y, x.z],
                 });
             }
         }
@@ -178,6 +182,7 @@ mod tests {
         for q in &pts {
             let x = frame.origin + frame.u_dir * q.u + frame.v_dir * q.v;
             assert!(((x - centre).norm() - r).abs() < 1e-9);
+            assert!((x - Vector3::from(q.xyz)).norm() < 1e-12);
             assert!(q.cos_incidence >= model.max_incidence_deg.to_radians().cos());
             assert!(q.v >= -30.0 && q.v <= 30.0);
         }

@@ -4,10 +4,14 @@
 //! released, core errors mapped one-to-one onto Python exceptions.
 
 use cmmpose_core as core;
+use core::artefact::Surface;
 use core::kernel::{self, NanPolicy, Options, OutOfRange, Report};
+use core::scanner::{self, ScanFrame, ScannerModel};
+use core::truth::{self, MachineEffects};
 use core::{Carriage, CarriageTable, CoreError, Digitizer, ErrorMap, ErrorMapSet, Pose};
 use numpy::{
-    PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
+    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3, PyUntypedArrayMethods,
 };
 use pyo3::create_exception;
 use pyo3::exceptions::PyException;
@@ -402,6 +406,143 @@ fn pose_from_normal(normal: [f64; 3], gamma: f64) -> PyResult<(f64, f64, f64)> {
     Ok((p.alpha, p.beta, p.gamma))
 }
 
+/// True mount points P (N, 3) mm and ram orientations R (N, 3, 3) of the
+/// truth machine. `states` is (N, 5): carriage map temperatures X, Y, Z (C),
+/// squareness temperature (C), granite top-minus-bottom (K). `effects` is
+/// (squareness_offset a-s, scale_error_ppm, roll_slope a-s/m, granite_squareness a-s/K),
+/// each three values.
+#[pyfunction]
+#[allow(clippy::type_complexity)]
+fn true_frames<'py>(
+    py: Python<'py>,
+    scales: PyReadonlyArray2<'py, f64>,
+    states: PyReadonlyArray2<'py, f64>,
+    map_set: PyRef<'py, PyErrorMapSet>,
+    effects: ([f64; 3], [f64; 3], [f64; 3], [f64; 3]),
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>)> {
+    let s = rows("scales", &scales, 3)?;
+    let st = rows("states", &states, truth::STATE_WIDTH)?;
+    let n = s.len() / 3;
+    if st.len() / truth::STATE_WIDTH != n {
+        return Err(InputError::new_err(format!(
+            "states: has {} rows but scales has {n}",
+            st.len() / truth::STATE_WIDTH
+        )));
+    }
+    let fx = MachineEffects {
+        squareness_offset: effects.0,
+        scale_error_ppm: effects.1,
+        roll_slope: effects.2,
+        granite_squareness: effects.3,
+    };
+    let p = unsafe { PyArray2::<f64>::new(py, [n, 3], false) };
+    let r = unsafe { PyArray3::<f64>::new(py, [n, 3, 3], false) };
+    let (ps, rs) = unsafe {
+        (
+            p.as_slice_mut().expect("contiguous"),
+            r.as_slice_mut().expect("contiguous"),
+        )
+    };
+    let set = &map_set.inner;
+    py.detach(|| truth::true_frames(s, st, set, &fx, ps, rs))
+        .map_err(to_py)?;
+    Ok((p, r))
+}
+
+fn surface(kind: &str, params: &[f64]) -> PyResult<Surface> {
+    let v3 = |i: usize| [params[i], params[i + 1], params[i + 2]];
+    let need = |k: usize| -> PyResult<()> {
+        if params.len() == k {
+            Ok(())
+        } else {
+            Err(InputError::new_err(format!(
+                "surfaces: a {kind} takes {k} numbers, got {}",
+                params.len()
+            )))
+        }
+    };
+    match kind {
+        "sphere" => {
+            need(4)?;
+            Surface::sphere(v3(0), params[3]).map_err(to_py)
+        }
+        "spheroid" => {
+            need(8)?;
+            Surface::spheroid(v3(0), v3(3), params[6], params[7]).map_err(to_py)
+        }
+        "disc" => {
+            need(7)?;
+            Surface::disc(v3(0), v3(3), params[6]).map_err(to_py)
+        }
+        other => Err(InputError::new_err(format!(
+            "surfaces: unknown kind {other:?} (sphere, spheroid, disc)"
+        ))),
+    }
+}
+
+/// Simulated profiles. `p` (M, 3) and `r` (M, 3, 3) are the true mount points
+/// and ram orientations of M profiles; `pose`/`offset` the true digitizer
+/// pose (deg) and mount offset (mm); `surfaces` a list of (kind, numbers).
+/// Returns (profile index (K,), points (K, 6): u, v mm, cos(incidence), true X, Y, Z mm).
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (p, r, pose, offset, surfaces, u_range=(-30.0, 30.0), v_range=(-30.0, 30.0), points_per_profile=1024, max_incidence_deg=70.0))]
+fn scan_profiles<'py>(
+    py: Python<'py>,
+    p: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray3<'py, f64>,
+    pose: (f64, f64, f64),
+    offset: (f64, f64, f64),
+    surfaces: Vec<(String, Vec<f64>)>,
+    u_range: (f64, f64),
+    v_range: (f64, f64),
+    points_per_profile: usize,
+    max_incidence_deg: f64,
+) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyArray2<f64>>)> {
+    let ps = rows("p", &p, 3)?;
+    let m = ps.len() / 3;
+    if r.shape() != [m, 3, 3] {
+        return Err(InputError::new_err(format!(
+            "r: expected shape ({m}, 3, 3), got {:?}",
+            r.shape()
+        )));
+    }
+    let rs = r
+        .as_slice()
+        .map_err(|_| InputError::new_err("r: array must be C-contiguous"))?;
+    let e313 = Pose::new(pose.0, pose.1, pose.2).map_err(to_py)?.matrix();
+    let offset = [offset.0, offset.1, offset.2];
+    let surfaces = surfaces
+        .iter()
+        .map(|(k, v)| surface(k, v))
+        .collect::<PyResult<Vec<_>>>()?;
+    let model = ScannerModel {
+        u_range,
+        v_range,
+        points_per_profile,
+        max_incidence_deg,
+    };
+    let (index, pts) = py
+        .detach(|| {
+            let frames: Vec<ScanFrame> = (0..m)
+                .map(|i| {
+                    let pv = nalgebra::Vector3::new(ps[3 * i], ps[3 * i + 1], ps[3 * i + 2]);
+                    let rm = nalgebra::Matrix3::from_row_slice(&rs[9 * i..9 * i + 9]);
+                    ScanFrame::new(pv, &rm, &e313, offset)
+                })
+                .collect();
+            scanner::profiles(&frames, &surfaces, &model)
+        })
+        .map_err(to_py)?;
+    let idx = PyArray1::from_vec(py, index.into_iter().map(|k| k as i64).collect());
+    let flat: Vec<f64> = pts
+        .iter()
+        .flat_map(|q| [q.u, q.v, q.cos_incidence, q.xyz[0], q.xyz[1], q.xyz[2]])
+        .collect();
+    let out = PyArray1::from_vec(py, flat).reshape([pts.len(), 6])?;
+    Ok((idx, out))
+}
+
 /// Number of threads the kernels use (rayon's global pool; set
 /// RAYON_NUM_THREADS before the first call to change it).
 #[pyfunction]
@@ -424,6 +565,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(euler313, m)?)?;
     m.add_function(wrap_pyfunction!(pose_from_normal, m)?)?;
     m.add_function(wrap_pyfunction!(thread_count, m)?)?;
+    m.add_function(wrap_pyfunction!(true_frames, m)?)?;
+    m.add_function(wrap_pyfunction!(scan_profiles, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

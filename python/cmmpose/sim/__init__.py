@@ -1,0 +1,50 @@
+"""Simulation of the thesis setup (DEA Iota 1102 + Hymarc Hyscan 45C): a truth
+machine with exact rigid-body kinematics, extra physical effects, artefacts and
+a line scanner sweeping over them. Data with a known truth, for testing
+compensation, fitting, calibration and diagnosis."""
+
+from .artefacts import BALL_RADIUS, Ballbar, Plane, Sphere, reference_sphere
+from .effects import (
+    AlignmentError,
+    AxisTemperature,
+    Effect,
+    GraniteGradient,
+    IncidenceError,
+    MountOffsetError,
+    ScaleError,
+    ScannerLatency,
+    ScannerScale,
+    SquarenessOffset,
+    UnmeasuredRoll,
+    available_effects,
+    parse_effect,
+)
+from .machine import TruthMachine, temperature_series
+from .scanner import ScanData, Scanner, Sweep, simulate_sweep
+
+__all__ = [
+    "TruthMachine",
+    "temperature_series",
+    "Scanner",
+    "Sweep",
+    "ScanData",
+    "simulate_sweep",
+    "Sphere",
+    "Ballbar",
+    "Plane",
+    "reference_sphere",
+    "BALL_RADIUS",
+    "Effect",
+    "SquarenessOffset",
+    "ScaleError",
+    "UnmeasuredRoll",
+    "AxisTemperature",
+    "GraniteGradient",
+    "ScannerLatency",
+    "ScannerScale",
+    "IncidenceError",
+    "AlignmentError",
+    "MountOffsetError",
+    "available_effects",
+    "parse_effect",
+]

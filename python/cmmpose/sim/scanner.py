@@ -1,0 +1,194 @@
+"""A line scanner (Hymarc Hyscan 45C, thesis Table 17) sweeping over an
+artefact while one CMM axis moves: every profile time-stamped, the points of a
+profile found in Rust (rust/core/src/scanner.rs)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import _core
+from ..errors import InputError
+from ..pose import Pose, pose_tuple
+from .effects import Effect
+from .machine import Temperature, TruthMachine
+
+AXES = {"X": 0, "Y": 1, "Z": 2}
+
+
+@dataclass(frozen=True)
+class Scanner:
+    """The scanner's optics and noise.
+
+    Parameters
+    ----------
+    u_range, v_range : tuple of float
+        Field of view across the line and depth of view, mm (laser origin in
+        the middle; 60 x 60 mm at 140 mm stand-off).
+    points_per_profile : int
+        Samples across the line (up to 1024).
+    profile_rate : float
+        Profiles per second, Hz (mirror 3.3 Hz sinusoidal; bidirectional mirror
+        scanning gives two lines per period).
+    max_incidence : float
+        Largest angle between surface normal and beam that returns a point, degrees.
+    noise : float
+        Gaussian noise sigma on v (depth), mm (Table 17 probing uncertainty: 8-9 um).
+    noise_u : float
+        Gaussian noise sigma on u, mm.
+    """
+
+    u_range: tuple[float, float] = (-30.0, 30.0)
+    v_range: tuple[float, float] = (-30.0, 30.0)
+    points_per_profile: int = 1024
+    profile_rate: float = 6.6
+    max_incidence: float = 70.0
+    noise: float = 0.008
+    noise_u: float = 0.0
+
+    def __post_init__(self):
+        if not (self.profile_rate > 0 and np.isfinite(self.profile_rate)):
+            raise InputError(f"profile_rate: must be positive (Hz), got {self.profile_rate}")
+        if not (self.noise >= 0 and self.noise_u >= 0):
+            raise InputError("noise, noise_u: must be >= 0 (mm)")
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """One CMM axis moving at constant speed while the scanner takes profiles.
+
+    Parameters
+    ----------
+    start : array_like, shape (3,)
+        Scale reading D, E, F (mm) at the first profile.
+    axis : {'X', 'Y', 'Z'}
+        The moving axis.
+    length : float
+        Travel, mm (> 0).
+    speed : float
+        mm/s (> 0).
+    direction : {+1, -1}
+        Forward (+1) or reverse (-1) along the axis.
+    """
+
+    start: tuple[float, float, float]
+    axis: str = "X"
+    length: float = 80.0
+    speed: float = 10.0
+    direction: int = 1
+
+    def __post_init__(self):
+        if self.axis not in AXES:
+            raise InputError(f"axis: expected 'X', 'Y' or 'Z', got {self.axis!r}")
+        if self.direction not in (1, -1):
+            raise InputError(f"direction: expected +1 or -1, got {self.direction!r}")
+        if not (self.length > 0 and self.speed > 0):
+            raise InputError("length and speed must be positive (mm, mm/s)")
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        """Scale readings (K, 3) mm at times t (s) after the first profile."""
+        s = np.tile(np.asarray(self.start, dtype=float), (len(t), 1))
+        s[:, AXES[self.axis]] += self.direction * self.speed * t
+        return s
+
+
+@dataclass
+class ScanData:
+    """One simulated sweep: what the machine records, and the truth.
+
+    Attributes
+    ----------
+    t : ndarray (N,)
+        Profile time stamp of each point, s.
+    uv : ndarray (N, 2)
+        Reported scan-plane coordinates, mm.
+    scales : ndarray (N, 3)
+        Recorded scale readings D, E, F, mm.
+    profile : ndarray (N,)
+        Profile index of each point.
+    true_xyz : ndarray (N, 3)
+        Where each point really is (before scanner noise and errors), mm.
+    temperatures : ndarray (N, 5)
+        The machine's real temperatures at each point (see TruthMachine.states).
+    """
+
+    t: np.ndarray
+    uv: np.ndarray
+    scales: np.ndarray
+    profile: np.ndarray
+    true_xyz: np.ndarray
+    temperatures: np.ndarray
+
+
+def simulate_sweep(
+    machine: TruthMachine,
+    artefact,
+    pose: Pose | tuple,
+    offset,
+    sweep: Sweep,
+    temperature: Temperature = 20.0,
+    *,
+    scanner: Scanner | None = None,
+    effects: tuple[Effect, ...] | None = None,
+    t0: float = 0.0,
+    rng: np.random.Generator | int | None = None,
+) -> ScanData:
+    """Scan ``artefact`` with the digitizer at ``pose``/``offset`` during ``sweep``.
+
+    Parameters
+    ----------
+    machine : TruthMachine
+        The real machine.
+    artefact : object with ``surfaces()``
+        Sphere, Ballbar, Plane (``cmmpose.sim.artefacts``).
+    pose : Pose or (alpha, beta, gamma)
+        Calibrated digitizer pose, degrees.
+    offset : sequence of 3 float
+        Calibrated mount offset U1, V1, W1, mm.
+    sweep : Sweep
+        Axis motion.
+    temperature : float or callable
+        Machine mean temperature, C, or a function of time (s).
+    scanner : Scanner, optional
+        Default: Hyscan 45C.
+    effects : tuple of Effect, optional
+        Scanner-side effects (pose, latency, scanner hooks). Default: the
+        machine's own effects list (one list drives both sides).
+    t0 : float
+        Time stamp of the first profile, s.
+    rng : Generator or int, optional
+        Noise source (seed).
+    """
+    scanner = scanner or Scanner()
+    effects = machine.effects if effects is None else tuple(effects)
+    rng = np.random.default_rng(rng)
+    n_profiles = int(np.floor(sweep.length / sweep.speed * scanner.profile_rate)) + 1
+    dt = np.arange(n_profiles) / scanner.profile_rate
+    t = t0 + dt
+    true_scales = sweep.positions(dt)
+    states = machine.states(t, temperature)
+    p, r = machine.frames(true_scales, states)
+    true_pose, true_offset = np.array(pose_tuple(pose), dtype=float), np.asarray(offset, dtype=float)
+    for e in effects:
+        true_pose, true_offset = e.pose(true_pose, true_offset)
+    surfaces = [(k, [float(x) for x in v]) for k, v in artefact.surfaces()]
+    index, pts = _core.scan_profiles(
+        p, r, tuple(true_pose), tuple(true_offset), surfaces,
+        tuple(scanner.u_range), tuple(scanner.v_range), scanner.points_per_profile, scanner.max_incidence,
+    )
+    u, v, cos_inc = pts[:, 0], pts[:, 1], pts[:, 2]
+    for e in effects:
+        u, v = e.scanner(u, v, cos_inc)
+    v = v + rng.normal(0.0, scanner.noise, len(v)) if scanner.noise else v
+    u = u + rng.normal(0.0, scanner.noise_u, len(u)) if scanner.noise_u else u
+    latency = sum(e.latency() for e in effects)
+    recorded = sweep.positions(dt - latency)  # the scale latch precedes the profile by the latency
+    return ScanData(
+        t=t[index],
+        uv=np.column_stack([u, v]),
+        scales=recorded[index],
+        profile=index,
+        true_xyz=np.ascontiguousarray(pts[:, 3:6]),
+        temperatures=states[index],
+    )
