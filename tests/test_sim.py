@@ -196,3 +196,34 @@ def test_bad_sim_inputs():
         scan(sim.TruthMachine(MAPS), scanner=sim.Scanner(max_incidence=95))
     with pytest.raises(cmmpose.InputError, match="outside the maps"):
         scan(sim.TruthMachine(MAPS), temperature=35.0)
+
+
+# --- thermocouple log ------------------------------------------------------------------------
+
+def test_thermocouple_log_channels_offsets_and_faults():
+    log = sim.thermocouple_log(600.0, 21.0, rate=2.0, axis_offsets=(0.5, 0.0, -0.3), granite_gradient=1.0,
+                               noise=0.0, faults=(sim.Fault("Y2", "stuck", at=100.0), sim.Fault("GB", "open", at=300.0)), rng=3)
+    assert set(log) == {"t"} | {c for c, _ in sim.CHANNELS} and len(log["t"]) == 1201
+    np.testing.assert_allclose(log["X1"], 21.5)
+    np.testing.assert_allclose(log["Z3"], 20.7)
+    np.testing.assert_allclose(log["GT"], 21.5)
+    assert np.all(log["GB"][log["t"] >= 300] == sim.OPEN_CIRCUIT_READING)
+    assert np.all(log["GB"][log["t"] < 300] == 20.5)
+    assert np.ptp(log["Y2"][log["t"] >= 100]) == 0.0
+
+
+def test_thermocouple_log_follows_a_drifting_room_with_noise():
+    room = sim.temperature_series([0.0, 3600.0], [20.0, 22.0])
+    log = sim.thermocouple_log(3600.0, room, rate=1.0, noise=0.02, drift=0.1, rng=4)
+    mean_scales = np.mean([log[c] for c, r in sim.CHANNELS if r.endswith("scale")], axis=0)
+    assert abs(mean_scales[-1] - 22.0) < 0.15 and abs(mean_scales[0] - 20.0) < 0.05
+    assert 0.01 < np.std(log["X1"] - room(log["t"])) < 0.1
+
+
+def test_thermocouple_log_bad_arguments():
+    with pytest.raises(cmmpose.InputError, match="channel"):
+        sim.Fault("Q9", "open")
+    with pytest.raises(cmmpose.InputError, match="kind"):
+        sim.Fault("X1", "melted")
+    with pytest.raises(cmmpose.InputError, match="positive"):
+        sim.thermocouple_log(0.0, 20.0)

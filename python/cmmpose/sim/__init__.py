@@ -21,6 +21,7 @@ from .effects import (
 )
 from .machine import TruthMachine, temperature_series
 from .scanner import ScanData, Scanner, Sweep, simulate_sweep
+from .thermocouples import CHANNELS, OPEN_CIRCUIT_READING, Fault, thermocouple_log
 
 __all__ = [
     "TruthMachine",
@@ -29,6 +30,10 @@ __all__ = [
     "Sweep",
     "ScanData",
     "simulate_sweep",
+    "thermocouple_log",
+    "Fault",
+    "CHANNELS",
+    "OPEN_CIRCUIT_READING",
     "Sphere",
     "Ballbar",
     "Plane",

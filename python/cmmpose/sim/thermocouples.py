@@ -1,0 +1,104 @@
+"""A simulated thermocouple log: 11 channels as on the thesis machine (three
+on each axis scale, granite top and bottom; section 6.4), sampled at a fixed
+rate with noise, slow drift and optional faults."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .machine import Temperature
+
+#: Channel names and roles, in log order.
+CHANNELS = (
+    ("X1", "x_scale"), ("X2", "x_scale"), ("X3", "x_scale"),
+    ("Y1", "y_scale"), ("Y2", "y_scale"), ("Y3", "y_scale"),
+    ("Z1", "z_scale"), ("Z2", "z_scale"), ("Z3", "z_scale"),
+    ("GT", "granite_top"), ("GB", "granite_bottom"),
+)  # fmt: skip
+
+#: What an open-circuit channel reads (degrees C): far outside any room, as
+#: a data logger's burn-out detection reports it.
+OPEN_CIRCUIT_READING = 999.9
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A channel that fails at ``at`` seconds: ``kind`` 'stuck' (holds its last
+    reading) or 'open' (reads ``OPEN_CIRCUIT_READING``)."""
+
+    channel: str
+    kind: str
+    at: float = 0.0
+
+    def __post_init__(self):
+        if self.channel not in dict(CHANNELS):
+            raise InputError(f"fault channel {self.channel!r}: not one of {[c for c, _ in CHANNELS]}")
+        if self.kind not in ("stuck", "open"):
+            raise InputError(f"fault kind {self.kind!r}: expected 'stuck' or 'open'")
+
+
+def thermocouple_log(
+    duration: float,
+    temperature: Temperature,
+    *,
+    rate: float = 1.0,
+    axis_offsets=(0.0, 0.0, 0.0),
+    granite_gradient: float = 0.0,
+    noise: float = 0.02,
+    drift: float = 0.0,
+    faults: tuple[Fault, ...] = (),
+    t0: float = 0.0,
+    rng: np.random.Generator | int | None = None,
+) -> dict[str, np.ndarray]:
+    """Log of the 11 thermocouples over ``duration`` seconds.
+
+    Parameters
+    ----------
+    duration : float
+        Length of the log, s (> 0).
+    temperature : float or callable
+        Machine mean temperature, degrees C, or a function of time (s).
+    rate : float
+        Samples per second, Hz.
+    axis_offsets : sequence of 3 float
+        How much each axis's scale channels read above the mean, K.
+    granite_gradient : float
+        Granite top minus bottom, K (split evenly around the mean).
+    noise : float
+        Gaussian noise per sample, K.
+    drift : float
+        Slow calibration drift of each channel, K per hour (a random sign per channel).
+    faults : tuple of Fault
+        Channels that fail during the log.
+    t0 : float
+        Time of the first sample, s.
+    rng : Generator or int, optional
+        Noise source.
+
+    Returns
+    -------
+    dict
+        ``t`` (s) and one array per channel name (degrees C).
+    """
+    if not (duration > 0 and rate > 0):
+        raise InputError("duration and rate must be positive (s, Hz)")
+    rng = np.random.default_rng(rng)
+    t = t0 + np.arange(int(np.floor(duration * rate)) + 1) / rate
+    mean = temperature(t) if callable(temperature) else np.full(t.shape, float(temperature))
+    offsets = {"x_scale": axis_offsets[0], "y_scale": axis_offsets[1], "z_scale": axis_offsets[2],
+               "granite_top": granite_gradient / 2, "granite_bottom": -granite_gradient / 2}
+    signs = rng.choice([-1.0, 1.0], len(CHANNELS))
+    log = {"t": t}
+    for (name, role), sign in zip(CHANNELS, signs):
+        log[name] = mean + offsets[role] + sign * drift * (t - t0) / 3600.0 + rng.normal(0.0, noise, t.shape)
+    for f in faults:
+        after = t >= f.at
+        if f.kind == "open":
+            log[f.channel][after] = OPEN_CIRCUIT_READING
+        elif after.any():
+            first = np.argmax(after)
+            log[f.channel][after] = log[f.channel][max(first - 1, 0)]
+    return log
