@@ -8,9 +8,10 @@ map tables, degrees for pose angles, degrees C for temperatures.
 from ._core import __version__, thread_count
 from .compensation import compensate, uncompensated
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
-from .errors import ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError
+from .errors import ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
 from .pose import MountOffset, Pose
 from .report import KernelReport
+from .run import Run, load_truth
 
 __all__ = [
     "__version__",
@@ -21,6 +22,8 @@ __all__ = [
     "Pose",
     "MountOffset",
     "KernelReport",
+    "Run",
+    "load_truth",
     "CARRIAGES",
     "TABLE_COLUMNS",
     "data_path",
@@ -30,5 +33,6 @@ __all__ = [
     "OutOfRangeError",
     "InputError",
     "GeometryError",
+    "RunError",
     "ClampWarning",
 ]

@@ -78,3 +78,22 @@ def uncompensated(
 def euler313(alpha: float, beta: float, gamma: float) -> _F64_2D: ...
 def pose_from_normal(normal: tuple[float, float, float] | list[float], gamma: float) -> tuple[float, float, float]: ...
 def thread_count() -> int: ...
+def true_frames(
+    scales: _F64_2D,
+    states: _F64_2D,
+    map_set: ErrorMapSet,
+    effects: tuple[
+        tuple[float, float, float], tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]
+    ],
+) -> tuple[_F64_2D, npt.NDArray[np.float64]]: ...
+def scan_profiles(
+    p: _F64_2D,
+    r: npt.NDArray[np.float64],
+    pose: tuple[float, float, float],
+    offset: tuple[float, float, float],
+    surfaces: list[tuple[str, list[float]]],
+    u_range: tuple[float, float] = (-30.0, 30.0),
+    v_range: tuple[float, float] = (-30.0, 30.0),
+    points_per_profile: int = 1024,
+    max_incidence_deg: float = 70.0,
+) -> tuple[npt.NDArray[np.int64], _F64_2D]: ...

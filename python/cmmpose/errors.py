@@ -6,13 +6,20 @@ them; every message names the file, line, row or argument at fault.
 - ``OutOfRangeError``: a scale reading or temperature the maps do not cover.
 - ``InputError``: wrong shape, dtype, length, NaN, or a bad option value.
 - ``GeometryError``: degenerate geometry (zero normal, coplanar points, ...).
+- ``RunError``: a malformed measurement run directory (Python-side only).
 """
 
 import warnings
 
 from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "ClampWarning", "warn_clamped", "read_lines"]
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "ClampWarning", "warn_clamped", "read_lines"]
+
+
+class RunError(Error):
+    """A malformed measurement run: a missing or unreadable file, a missing or
+    badly typed column, a bad value, or tables that do not fit together. The
+    message names the file (or table), the column and the first bad row."""
 
 
 class ClampWarning(UserWarning):
