@@ -119,3 +119,22 @@ def test_cli_ragged_csv_row(tmp_path):
     bad.write_text("u,v,D,E,F\n1,2,3,4,5\n1,2,3,4\n")
     r = CliRunner().invoke(main, ["compensate", str(bad), str(tmp_path / "o.csv"), "--maps", "appendix-b"])
     assert r.exit_code != 0 and "ragged.csv:3: expected 5 fields like the header, got 4" in r.output
+
+
+def test_cli_simulate_writes_a_loadable_run(tmp_path):
+    out = tmp_path / "run"
+    r = run("simulate", "--layout", "crossed", "--temperature", "22.5", "--effect", "latency:seconds=0.004",
+            "--effect", "scale:x=3", "--seed", "2", "-o", out)
+    assert r.exit_code == 0, r.output
+    loaded = cmmpose.Run.load(out)
+    assert len(loaded.scans["scan_id"]) == 16 and loaded.n_points > 10_000
+    _, info = cmmpose.load_truth(out)
+    assert [e["name"] for e in info["effects"]] == ["latency", "scale"]
+    again = CliRunner().invoke(main, ["simulate", "--layout", "crossed", "-o", str(out)])
+    assert again.exit_code != 0  # refuses to overwrite without --overwrite
+
+
+@pytest.mark.parametrize("effect, fragment", [("warp:x=1", "unknown"), ("latency:ms=3", "not one of")])
+def test_cli_simulate_bad_effect(tmp_path, effect, fragment):
+    r = CliRunner().invoke(main, ["simulate", "--effect", effect, "-o", str(tmp_path / "r")])
+    assert r.exit_code != 0 and fragment in r.output

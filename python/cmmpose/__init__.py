@@ -5,10 +5,12 @@ Units throughout: mm for positions and results, um and arc-seconds in error
 map tables, degrees for pose angles, degrees C for temperatures.
 """
 
+from . import layouts
 from ._core import __version__, thread_count
 from .compensation import compensate, uncompensated
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
+from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
 from .pose import MountOffset, Pose
 from .report import KernelReport
 from .run import Run, load_truth
@@ -17,6 +19,11 @@ __all__ = [
     "__version__",
     "compensate",
     "uncompensated",
+    "layouts",
+    "BallbarPosition",
+    "b89_positions",
+    "crossed_ballbar_positions",
+    "digitizer_pose_for",
     "ErrorMap",
     "ErrorMapSet",
     "Pose",

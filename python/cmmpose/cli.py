@@ -115,5 +115,45 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
     Console().print(table)
 
 
+@main.command("simulate")
+@click.option("--layout", type=click.Choice(["b89", "crossed"]), default="b89", show_default=True,
+              help="20 ASME B89.4.1 positions (thesis Appendix C geometry) or the 8 crossed-ballbar positions.")
+@click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
+@click.option("--maps", "maps", multiple=True, default=("thesis",), show_default=True,
+              help="The machine's real maps: 'thesis', 'appendix-b' or map files.")
+@click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
+              help="Extra physics, repeatable (see docs/simulation.md), e.g. latency:seconds=0.005.")
+@click.option("--speed", type=float, default=35.0, show_default=True, help="Sweep speed, mm/s.")
+@click.option("--bidirectional", is_flag=True, help="Alternate forward and reverse sweeps.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing run in RUN_DIR.")
+def simulate_cmd(layout, temperature, maps, effects, speed, bidirectional, seed, run_dir, overwrite) -> None:
+    """Simulate a ballbar run on the virtual Iota 1102 + Hyscan 45C and write it as a run directory."""
+    from .sim import parse_effect, simulate_ballbar_run
+
+    try:
+        parsed = [parse_effect(e) for e in effects]
+        machine_maps = load_maps(maps)
+        start = time.perf_counter()
+        with Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.completed}/{task.total} sweeps"),
+                      console=console) as bar:
+            task = bar.add_task("", total=None)
+            run, truth = simulate_ballbar_run(
+                machine_maps, temperature, parsed, layout=layout, speed=speed, bidirectional=bidirectional, seed=seed,
+                progress=lambda done, total: bar.update(task, completed=done, total=total))
+        elapsed = time.perf_counter() - start
+        run.save(run_dir, truth=truth, overwrite=overwrite)
+    except Error as exc:
+        raise click.ClickException(str(exc)) from None
+    table = Table(title=f"cmmpose simulate -> {run_dir}", show_header=False)
+    table.add_row("layout", f"{layout} ({len(run.scans['scan_id'])} sweeps)")
+    table.add_row("points", f"{run.n_points:,} ({run.n_points / len(run.scans['scan_id']):,.0f} per sphere)")
+    table.add_row("temperature", f"{temperature:g} C")
+    table.add_row("effects", ", ".join(effects) or "none")
+    table.add_row("time", f"{elapsed:.2f} s")
+    Console().print(table)
+
+
 if __name__ == "__main__":
     main()

@@ -20,6 +20,7 @@ from .effects import (
     parse_effect,
 )
 from .machine import TruthMachine, temperature_series
+from .runs import simulate_ballbar_run
 from .scanner import ScanData, Scanner, Sweep, simulate_sweep
 from .thermocouples import CHANNELS, OPEN_CIRCUIT_READING, Fault, thermocouple_log
 
@@ -30,6 +31,7 @@ __all__ = [
     "Sweep",
     "ScanData",
     "simulate_sweep",
+    "simulate_ballbar_run",
     "thermocouple_log",
     "Fault",
     "CHANNELS",

@@ -1,0 +1,163 @@
+"""Whole simulated measurement runs: the ballbar layouts of the thesis scanned
+ball by ball, with a thermocouple log, stored as a ``cmmpose.Run`` with its
+truth kept apart."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import asdict
+
+import numpy as np
+
+from .. import layouts
+from ..errormap import ErrorMap, ErrorMapSet
+from ..errors import InputError
+from ..pose import MountOffset
+from ..run import Run
+from .artefacts import BALL_RADIUS, Sphere
+from .effects import AxisTemperature, Effect, GraniteGradient
+from .machine import Temperature, TruthMachine
+from .scanner import Scanner, Sweep, simulate_sweep
+from .thermocouples import CHANNELS, thermocouple_log
+
+#: Pose used for the B89 layout: W along +X, scanned from straight above.
+B89_POSE = (90.0, 90.0, 0.0)
+#: Seconds between the starts of two sweeps (moving, settling).
+SCAN_INTERVAL = 20.0
+#: Travel beyond the ball on each side of a sweep, mm.
+SWEEP_MARGIN = 5.0
+
+
+def _layout(name: str):
+    if name == "b89":
+        positions = layouts.b89_positions(centre=layouts.B89_REACHABLE_CENTRE_MM)
+        return [(p, "X") for p in positions]
+    if name == "crossed":
+        return list(zip(layouts.crossed_ballbar_positions(), layouts.CROSSED_W_AXES))
+    raise InputError(f"layout: expected 'b89' or 'crossed', got {name!r}")
+
+
+def _pose(position, w_axis: str, layout: str) -> tuple[float, float, float]:
+    if layout == "b89":
+        return B89_POSE
+    alpha, beta = layouts.W_AXIS_ANGLES[w_axis]
+    return (alpha, beta, 0.0)
+
+
+def simulate_ballbar_run(
+    maps: ErrorMap | ErrorMapSet | None = None,
+    temperature: Temperature = 20.0,
+    effects: Sequence[Effect] = (),
+    *,
+    layout: str = "b89",
+    scanner: Scanner | None = None,
+    offset=None,
+    speed: float = 35.0,
+    bidirectional: bool = False,
+    seed: int = 0,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[Run, tuple[dict[str, np.ndarray], dict]]:
+    """Simulate a ballbar test: every ball of every position scanned by one sweep.
+
+    Parameters
+    ----------
+    maps : ErrorMap or ErrorMapSet, optional
+        The machine's real errors; default the thesis maps (20, 25, 30 C).
+    temperature : float or callable
+        Machine mean temperature, degrees C, or a function of time (s).
+    effects : sequence of Effect
+        Extra physics (``cmmpose.sim.effects``), unknown to the compensation.
+    layout : {'b89', 'crossed'}
+        The 20 ASME B89.4.1 positions (at the measured Appendix C geometry,
+        placed where the thesis digitizer reaches every ball) or the 8
+        crossed-ballbar positions of section 6.2.
+    scanner : Scanner, optional
+        Default: Hyscan 45C, 8 um noise.
+    offset : sequence of 3 float, optional
+        Mount offset U1, V1, W1 in mm; default the thesis digitizer.
+    speed : float
+        Sweep speed, mm/s.
+    bidirectional : bool
+        Alternate forward and reverse sweeps (default: all forward).
+    seed : int
+        Noise seed; the same seed gives the same run.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each sweep.
+
+    Returns
+    -------
+    run : Run
+        What the machine records.
+    truth : (dict of ndarray, dict)
+        ``true_xyz`` (N, 3) mm of every point, ``ball_centres`` (P, 2, 3) mm,
+        ``true_lengths`` (P,) mm; and a description of the effects. Save it with
+        ``run.save(dir, truth=truth)``; analysis never reads it.
+    """
+    maps = ErrorMapSet.thesis() if maps is None else maps
+    scanner = scanner or Scanner()
+    offset = MountOffset.thesis() if offset is None else MountOffset(*(float(x) for x in offset))
+    machine = TruthMachine(maps, effects)
+    rng = np.random.default_rng(seed)
+    plan = _layout(layout)
+    total = 2 * len(plan)
+    cols = {k: [] for k in ("scan_id", "t", "u", "v", "D", "E", "F")}
+    scans = {k: [] for k in ("scan_id", "pose_id", "feature", "position", "ball", "sweep_axis", "sweep_direction", "sweep_speed")}
+    poses: dict[tuple, int] = {}
+    true_xyz = []
+    for k, (position, w_axis) in enumerate(plan):
+        pose = _pose(position, w_axis, layout)
+        pose_id = poses.setdefault(pose, len(poses))
+        for b, centre in enumerate((position.ball1, position.ball2), start=1):
+            scan_id = 2 * k + b - 1
+            ends = layouts.sweep_readings(centre, pose, offset)
+            axis = "XYZ"[int(np.argmax(np.abs(ends[1] - ends[0])))]
+            direction = -1 if bidirectional and scan_id % 2 else 1
+            a = "XYZ".index(axis)
+            lo, hi = sorted((ends[0][a], ends[1][a]))
+            start = ends[0].copy()
+            start[a] = lo - SWEEP_MARGIN if direction == 1 else hi + SWEEP_MARGIN
+            sweep = Sweep(start=tuple(start), axis=axis, length=hi - lo + 2 * SWEEP_MARGIN, speed=speed, direction=direction)
+            d = simulate_sweep(machine, Sphere(centre, BALL_RADIUS), pose, offset, sweep, temperature,
+                               scanner=scanner, t0=scan_id * SCAN_INTERVAL, rng=rng)
+            n = len(d.t)
+            cols["scan_id"].append(np.full(n, scan_id, np.int32))
+            cols["t"].append(d.t)
+            cols["u"].append(d.uv[:, 0])
+            cols["v"].append(d.uv[:, 1])
+            for j, c in enumerate("DEF"):
+                cols[c].append(d.scales[:, j])
+            true_xyz.append(d.true_xyz)
+            for key, value in (("scan_id", scan_id), ("pose_id", pose_id), ("feature", "ball"), ("position", k + 1),
+                               ("ball", b), ("sweep_axis", axis), ("sweep_direction", direction), ("sweep_speed", speed)):
+                scans[key].append(value)
+            if progress:
+                progress(scan_id + 1, total)
+    points = {k: np.concatenate(v) for k, v in cols.items()}
+    pose_items = sorted(poses.items(), key=lambda kv: kv[1])
+    pose_table = {
+        "pose_id": np.array([i for _, i in pose_items], np.int32),
+        **{name: np.array([p[j] for p, _ in pose_items]) for j, name in enumerate(("alpha", "beta", "gamma"))},
+        **{name: np.full(len(pose_items), offset[j]) for j, name in enumerate(("U1", "V1", "W1"))},
+    }
+    duration = total * SCAN_INTERVAL
+    axis_offsets = sum((np.array([e.x, e.y, e.z]) for e in effects if isinstance(e, AxisTemperature)), np.zeros(3))
+    gradient = sum((e.kelvin for e in effects if isinstance(e, GraniteGradient)), 0.0)
+    log = thermocouple_log(duration, temperature, axis_offsets=tuple(axis_offsets), granite_gradient=gradient, rng=rng)
+    lengths = np.array([p.length for p, _ in plan])
+    run = Run(
+        points=points,
+        scans={k: np.array(v) for k, v in scans.items()},
+        poses=pose_table,
+        temperatures=log,
+        temperature_channels=[{"name": c, "role": r} for c, r in CHANNELS],
+        artefact={"kind": "ballbar", "layout": layout, "ball_radius_mm": BALL_RADIUS, "positions": len(plan)},
+        maps={"kind": "bundled", "name": "thesis"} if maps is not None else {},
+        metadata={"simulated": True, "seed": seed, "speed_mm_s": speed,
+                  "temperature_C": temperature if not callable(temperature) else "time series"},
+    )
+    truth = (
+        {"true_xyz": np.concatenate(true_xyz), "ball_centres": np.array([[p.ball1, p.ball2] for p, _ in plan]),
+         "true_lengths": lengths},
+        {"effects": [{"name": e.name, **asdict(e)} for e in effects], "layout": layout},
+    )
+    return run, truth
