@@ -87,3 +87,14 @@ def test_crossed_layout_with_bidirectional_sweeps_compensates_to_noise():
 def test_bad_layout():
     with pytest.raises(cmmpose.InputError, match="layout"):
         sim.simulate_ballbar_run(MAPS, 20.0, layout="spiral")
+
+
+@pytest.mark.parametrize("pose", [(90.0, 90.0, 0.0), (90.0, 90.0, 90.0), (180.0, 90.0, 0.0)])
+def test_reference_sphere_scan_recovers_the_centre(pose):
+    sphere = sim.reference_sphere()
+    d = sim.simulate_reference_scan(MAPS, 21.0, pose, seed=4)
+    assert len(d.t) > 2000
+    xyz = cmmpose.compensate(d.uv, d.scales, MAPS, pose, cmmpose.MountOffset.thesis(), 21.0)
+    centre, radius = fit_sphere_reference(xyz)
+    # 8 um noise over a few thousand points on a cap: centre within a few um
+    assert np.linalg.norm(centre - sphere.centre) < 0.005 and abs(radius - sphere.radius) < 0.005

@@ -20,7 +20,7 @@ from .effects import (
     parse_effect,
 )
 from .machine import TruthMachine, temperature_series
-from .runs import simulate_ballbar_run
+from .runs import simulate_ballbar_run, simulate_reference_scan
 from .scanner import ScanData, Scanner, Sweep, simulate_sweep
 from .thermocouples import CHANNELS, OPEN_CIRCUIT_READING, Fault, thermocouple_log
 
@@ -32,6 +32,7 @@ __all__ = [
     "ScanData",
     "simulate_sweep",
     "simulate_ballbar_run",
+    "simulate_reference_scan",
     "thermocouple_log",
     "Fault",
     "CHANNELS",

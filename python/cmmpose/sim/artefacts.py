@@ -91,6 +91,6 @@ class Plane:
         return [("disc", [*self.centre, *self.normal, self.radius])]
 
 
-def reference_sphere(centre=(450.0, 275.0, -420.0), radius: float = 12.7) -> Sphere:
+def reference_sphere(centre=(450.0, 380.0, -420.0), radius: float = 12.7) -> Sphere:
     """The calibration sphere on its tower (thesis Figure 4-7); default a 1 in ball."""
     return Sphere(centre, radius)

@@ -14,7 +14,7 @@ from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
 from ..pose import MountOffset
 from ..run import Run
-from .artefacts import BALL_RADIUS, Sphere
+from .artefacts import BALL_RADIUS, Sphere, reference_sphere
 from .effects import AxisTemperature, Effect, GraniteGradient
 from .machine import Temperature, TruthMachine
 from .scanner import Scanner, Sweep, simulate_sweep
@@ -161,3 +161,58 @@ def simulate_ballbar_run(
         {"effects": [{"name": e.name, **asdict(e)} for e in effects], "layout": layout},
     )
     return run, truth
+
+
+def simulate_reference_scan(
+    maps: ErrorMap | ErrorMapSet | None = None,
+    temperature: Temperature = 20.0,
+    pose=B89_POSE,
+    offset=None,
+    effects: Sequence[Effect] = (),
+    *,
+    sphere: Sphere | None = None,
+    scanner: Scanner | None = None,
+    speed: float = 10.0,
+    seed: int = 0,
+):
+    """Scan the reference sphere on its tower (thesis Figure 4-7) with the
+    digitizer at ``pose``, sweeping along the axis nearest to w: the data the
+    alignment calibration (D0, E0, F0 and the mount offset) starts from.
+
+    Parameters
+    ----------
+    maps : ErrorMap or ErrorMapSet, optional
+        The machine's real errors; default the thesis maps.
+    temperature : float or callable
+        Machine temperature, C, or a function of time (s).
+    pose : sequence of 3 float
+        Digitizer pose (alpha, beta, gamma), degrees.
+    offset : sequence of 3 float, optional
+        Mount offset, mm; default the thesis digitizer.
+    effects : sequence of Effect
+        Extra physics (e.g. ``AlignmentError`` for a pose to be recovered).
+    sphere : Sphere, optional
+        Default ``reference_sphere()``.
+    scanner : Scanner, optional
+        Default Hyscan 45C.
+    speed : float
+        mm/s.
+    seed : int
+        Noise seed.
+
+    Returns
+    -------
+    ScanData
+        Points, recorded readings and truth; ``sphere.centre`` is the true centre.
+    """
+    maps = ErrorMapSet.thesis() if maps is None else maps
+    sphere = sphere or reference_sphere()
+    offset = MountOffset.thesis() if offset is None else MountOffset(*(float(x) for x in offset))
+    ends = layouts.sweep_readings(sphere.centre, pose, offset, radius=sphere.radius)
+    a = int(np.argmax(np.abs(ends[1] - ends[0])))
+    lo, hi = sorted((ends[0][a], ends[1][a]))
+    start = ends[0].copy()
+    start[a] = lo - SWEEP_MARGIN
+    sweep = Sweep(start=tuple(start), axis="XYZ"[a], length=hi - lo + 2 * SWEEP_MARGIN, speed=speed)
+    return simulate_sweep(TruthMachine(maps, effects), sphere, pose, offset, sweep, temperature,
+                          scanner=scanner, rng=np.random.default_rng(seed))
