@@ -7,6 +7,7 @@
 
 pub mod artefact;
 pub mod error;
+pub mod fit;
 pub mod kernel;
 pub mod map;
 pub mod pose;
