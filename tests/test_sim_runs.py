@@ -17,10 +17,9 @@ MAPS = cmmpose.ErrorMapSet.thesis()
 
 
 def lengths(run, xyz):
-    sid = run.points["scan_id"]
-    order = np.argsort(sid, kind="stable")
-    bounds = np.flatnonzero(np.diff(sid[order])) + 1
-    centres = np.array([fit_sphere_reference(xyz[idx])[0] for idx in np.split(order, bounds)])
+    """Ballbar lengths from geometric sphere fits of each scan (scan ids 2k, 2k+1 = position k)."""
+    fits = cmmpose.fit_spheres(xyz, run.points["scan_id"])
+    centres = np.array([fits[k].centre for k in sorted(fits)])
     return np.linalg.norm(centres[1::2] - centres[0::2], axis=1)
 
 
@@ -51,6 +50,9 @@ def test_default_b89_run_matches_the_thesis_uncompensated_and_falls_to_noise(b89
     # centre within ~0.2 um; a length within ~0.3 um.
     assert rms_comp < 0.001, rms_comp
     np.testing.assert_allclose(l_comp, truth["true_lengths"], atol=0.002)
+    # The package fit and the independent NumPy fit agree on a ball of the run.
+    ball = comp[run.points["scan_id"] == 0]
+    assert np.abs(cmmpose.fit_sphere(ball).centre - fit_sphere_reference(ball)[0]).max() < 1e-9
 
 
 def test_run_round_trips_and_truth_stays_apart(b89_20c, tmp_path):

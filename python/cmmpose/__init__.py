@@ -8,6 +8,7 @@ map tables, degrees for pose angles, degrees C for temperatures.
 from . import layouts
 from ._core import __version__, thread_count
 from .compensation import compensate, uncompensated
+from .fitting import PlaneFit, SphereFit, fit_plane, fit_sphere, fit_spheres
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
 from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
@@ -19,6 +20,11 @@ __all__ = [
     "__version__",
     "compensate",
     "uncompensated",
+    "fit_sphere",
+    "fit_spheres",
+    "fit_plane",
+    "SphereFit",
+    "PlaneFit",
     "layouts",
     "BallbarPosition",
     "b89_positions",

@@ -1,6 +1,6 @@
 """Type stubs of the Rust extension ``cmmpose._core`` (rust/py/src/lib.rs)."""
 
-from typing import Literal, TypedDict, final
+from typing import Any, Literal, TypedDict, final
 
 import numpy as np
 import numpy.typing as npt
@@ -97,3 +97,19 @@ def scan_profiles(
     points_per_profile: int = 1024,
     max_incidence_deg: float = 70.0,
 ) -> tuple[npt.NDArray[np.int64], _F64_2D]: ...
+def fit_sphere(
+    points: _F64_2D,
+    radius: float | None = None,
+    reject: float | None = None,
+    max_iterations: int = 100,
+    min_coverage: float = 2.0,
+) -> dict[str, Any]: ...
+def fit_spheres(
+    points: _F64_2D,
+    bounds: npt.NDArray[np.int64],
+    radius: float | None = None,
+    reject: float | None = None,
+    max_iterations: int = 100,
+    min_coverage: float = 2.0,
+) -> list[dict[str, Any] | Error]: ...
+def fit_plane(points: _F64_2D, reject: float | None = None) -> dict[str, Any]: ...
