@@ -486,7 +486,7 @@ fn surface(kind: &str, params: &[f64]) -> PyResult<Surface> {
 /// pose (deg) and mount offset (mm); `surfaces` a list of (kind, numbers).
 /// Returns (profile index (K,), points (K, 6): u, v mm, cos(incidence), true X, Y, Z mm).
 #[pyfunction]
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
 #[pyo3(signature = (p, r, pose, offset, surfaces, u_range=(-30.0, 30.0), v_range=(-30.0, 30.0), points_per_profile=1024, max_incidence_deg=70.0))]
 fn scan_profiles<'py>(
     py: Python<'py>,
