@@ -8,6 +8,8 @@ map tables, degrees for pose angles, degrees C for temperatures.
 from . import layouts
 from ._core import __version__, thread_count
 from .compensation import compensate, uncompensated
+from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
+from .metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
 from .fitting import PlaneFit, SphereFit, fit_plane, fit_sphere, fit_spheres
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
@@ -20,6 +22,14 @@ __all__ = [
     "__version__",
     "compensate",
     "uncompensated",
+    "evaluate",
+    "Evaluation",
+    "BallbarResult",
+    "SphereResult",
+    "rms_accuracy_error",
+    "b89_value",
+    "improvement",
+    "length_at_20c",
     "fit_sphere",
     "fit_spheres",
     "fit_plane",

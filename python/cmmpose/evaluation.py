@@ -1,0 +1,305 @@
+"""Ballbar evaluation of a measurement run (thesis chapter 6): fit every ball,
+take the centre distance per position, and report the length statistics,
+uncompensated and compensated."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .compensation import compensate, uncompensated
+from .errormap import ErrorMap, ErrorMapSet
+from .errors import InputError
+from .fitting import fit_spheres
+from .metrics import STEEL_EXPANSION, b89_value, improvement, length_at_20c, rms_accuracy_error
+from .run import Run
+
+#: Readings outside this range (C) are not a room temperature (open or shorted thermocouple).
+PLAUSIBLE_TEMPERATURE = (0.0, 50.0)
+
+
+@dataclass(frozen=True)
+class SphereResult:
+    """One fitted ball: ``centre`` (3,) and ``radius`` in mm, fit ``rms`` and
+    ``form`` (max - min residual) in mm, ``n_points`` used, ``rejected`` points,
+    and the ISO 10360-8 style probing errors: form ``pf`` = form, size ``ps`` =
+    radius - nominal radius (mm; NaN without a nominal)."""
+
+    position: int
+    ball: int
+    scan_id: int
+    centre: np.ndarray
+    radius: float
+    rms: float
+    form: float
+    n_points: int
+    rejected: int
+    pf: float
+    ps: float
+
+
+@dataclass(frozen=True)
+class BallbarResult:
+    """The ballbar lengths of one evaluation (one model).
+
+    Attributes
+    ----------
+    label : str
+        'uncompensated' or 'compensated'.
+    positions : ndarray (P,)
+        Position numbers.
+    lengths : ndarray (P,)
+        Centre distances, mm.
+    temperatures : ndarray (P,)
+        Mean machine temperature while each position was scanned, C (NaN if unknown).
+    spheres : tuple of SphereResult
+        Both balls of every position.
+    expansion : float
+        Part expansion coefficient used for lengths at 20 C, 1/K.
+    """
+
+    label: str
+    positions: np.ndarray
+    lengths: np.ndarray
+    temperatures: np.ndarray
+    spheres: tuple[SphereResult, ...] = field(repr=False)
+    expansion: float = STEEL_EXPANSION
+
+    @property
+    def mean_length(self) -> float:
+        """Mean length, mm."""
+        return float(np.mean(self.lengths))
+
+    @property
+    def rms_accuracy_error(self) -> float:
+        """Sample standard deviation (n - 1) of the lengths, mm (eq. 36)."""
+        return rms_accuracy_error(self.lengths)
+
+    @property
+    def b89(self) -> float:
+        """Largest |L - mean|, mm."""
+        return b89_value(self.lengths)
+
+    @property
+    def lengths_at_20c(self) -> np.ndarray:
+        """Lengths at 20 C, mm (NaN where the temperature is unknown)."""
+        return length_at_20c(self.lengths, self.temperatures, self.expansion)
+
+    @property
+    def mean_length_at_20c(self) -> float:
+        return float(np.mean(self.lengths_at_20c))
+
+    def rows(self) -> list[dict]:
+        """One dict per position: lengths and both balls' fit figures (mm)."""
+        balls = {(s.position, s.ball): s for s in self.spheres}
+        out = []
+        for p, length, l20 in zip(self.positions.tolist(), self.lengths, self.lengths_at_20c):
+            row = {"position": p, "length_mm": float(length), "length_20C_mm": float(l20),
+                   "deviation_um": float((length - self.mean_length) * 1e3)}
+            for b in (1, 2):
+                s = balls[(p, b)]
+                row |= {f"ball{b}_{k}": v for k, v in (("x_mm", s.centre[0]), ("y_mm", s.centre[1]), ("z_mm", s.centre[2]),
+                                                        ("radius_mm", s.radius), ("fit_mm", s.rms), ("form_mm", s.form),
+                                                        ("points", s.n_points))}
+            out.append(row)
+        return out
+
+    def summary(self) -> dict:
+        return {"label": self.label, "positions": len(self.positions), "mean_length_mm": self.mean_length,
+                "rms_accuracy_error_mm": self.rms_accuracy_error, "b89_mm": self.b89,
+                "mean_length_20C_mm": self.mean_length_at_20c}
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Uncompensated and (optionally) compensated ballbar results of one run."""
+
+    uncompensated: BallbarResult
+    compensated: BallbarResult | None = None
+
+    @property
+    def results(self) -> tuple[BallbarResult, ...]:
+        return tuple(r for r in (self.uncompensated, self.compensated) if r is not None)
+
+    @property
+    def improvement_rms(self) -> float | None:
+        """1 - compensated / uncompensated rms accuracy error."""
+        c = self.compensated
+        return None if c is None else improvement(self.uncompensated.rms_accuracy_error, c.rms_accuracy_error)
+
+    @property
+    def improvement_b89(self) -> float | None:
+        c = self.compensated
+        return None if c is None else improvement(self.uncompensated.b89, c.b89)
+
+    def to_dict(self) -> dict:
+        return {
+            "results": [{**r.summary(), "rows": r.rows()} for r in self.results],
+            "improvement_rms": self.improvement_rms,
+            "improvement_b89": self.improvement_b89,
+        }
+
+    def to_json(self, **kw) -> str:
+        return json.dumps(self.to_dict(), **kw)
+
+    def to_pandas(self):
+        """One row per (result, position); pandas is needed only here."""
+        import pandas as pd
+
+        return pd.DataFrame([{"result": r.label, **row} for r in self.results for row in r.rows()])
+
+    def __rich__(self):
+        from rich.table import Table
+
+        t = Table(title="Ballbar evaluation")
+        t.add_column("position", justify="right")
+        for r in self.results:
+            t.add_column(f"{r.label}\nlength (mm)", justify="right")
+            t.add_column("dev (um)", justify="right")
+        rows = [r.rows() for r in self.results]
+        for i, p in enumerate(self.uncompensated.positions.tolist()):
+            cells = [str(p)]
+            for rr in rows:
+                cells += [f"{rr[i]['length_mm']:.4f}", f"{rr[i]['deviation_um']:+.1f}"]
+            t.add_row(*cells)
+        t.add_section()
+        for name, get, fmt in (("mean (mm)", lambda r: r.mean_length, "{:.4f}"),
+                               ("rms accuracy error (um)", lambda r: r.rms_accuracy_error * 1e3, "{:.1f}"),
+                               ("B89 (um)", lambda r: r.b89 * 1e3, "{:.1f}"),
+                               ("mean at 20 C (mm)", lambda r: r.mean_length_at_20c, "{:.4f}")):
+            cells = [name]
+            for r in self.results:
+                cells += [fmt.format(get(r)), ""]
+            t.add_row(*cells)
+        if self.compensated is not None:
+            t.caption = f"improvement: rms {self.improvement_rms:.1%}, B89 {self.improvement_b89:.1%}"
+        return t
+
+    def __str__(self) -> str:
+        from rich.console import Console
+
+        console = Console(width=110, record=True, file=open("/dev/null", "w"))  # noqa: SIM115 - render to text only
+        console.print(self)
+        return console.export_text()
+
+
+def machine_temperature(run: Run, t) -> np.ndarray:
+    """Machine mean temperature (C) at times ``t`` (s): the mean of the axis-scale
+    thermocouples (thesis section 6.4), interpolated in time; implausible
+    readings (open circuit) are left out of the mean."""
+    if run.temperatures is None:
+        raise InputError("run has no temperature log: pass temperature= explicitly")
+    names = [c["name"] for c in run.temperature_channels if c["role"] in ("x_scale", "y_scale", "z_scale")]
+    if not names:
+        raise InputError("run's temperature log has no axis-scale channels (roles x_scale, y_scale, z_scale)")
+    lo, hi = PLAUSIBLE_TEMPERATURE
+    log = np.column_stack([run.temperatures[n] for n in names])
+    log = np.where((log >= lo) & (log <= hi), log, np.nan)
+    good = ~np.all(np.isnan(log), axis=1)
+    if not good.any():
+        raise InputError(f"run's temperature log: no plausible reading ({lo:g}..{hi:g} C) on any axis-scale channel")
+    mean = np.nanmean(log[good], axis=1)
+    tt = run.temperatures["t"][good]
+    t = np.asarray(t, dtype=float)
+    if len(tt) and (t.min() < tt[0] or t.max() > tt[-1]):
+        raise InputError(f"points at {t.min():g}..{t.max():g} s lie outside the temperature log {tt[0]:g}..{tt[-1]:g} s")
+    return np.interp(t, tt, mean)
+
+
+def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise") -> np.ndarray:
+    """All points in machine coordinates, compensated with ``maps`` or not (None)."""
+    scan_pose = dict(zip(run.scans["scan_id"].tolist(), run.scans["pose_id"].tolist()))
+    sid = run.points["scan_id"]
+    pose_of_point = np.vectorize(scan_pose.__getitem__, otypes=[np.int64])(sid) if len(sid) else sid
+    out = np.empty((run.n_points, 3))
+    for pose_id in np.unique(pose_of_point):
+        rows = np.flatnonzero(pose_of_point == pose_id)
+        pose, offset = run.pose(int(pose_id))
+        if maps is None:
+            out[rows] = uncompensated(run.uv[rows], run.scales[rows], pose, offset)
+        else:
+            t = temperature if np.ndim(temperature) == 0 else temperature[rows]
+            out[rows] = compensate(run.uv[rows], run.scales[rows], maps, pose, offset, t, out_of_range=out_of_range)
+    return out
+
+
+def _ballbar(run: Run, xyz: np.ndarray, label: str, temps: np.ndarray, nominal_radius, reject, expansion) -> BallbarResult:
+    fits = fit_spheres(xyz, run.points["scan_id"], reject=reject)
+    scans = run.scans
+    by_pos: dict[int, dict[int, SphereResult]] = {}
+    point_t = {}
+    sid = run.points["scan_id"]
+    for scan_id, pos, ball in zip(scans["scan_id"].tolist(), scans["position"].tolist(), scans["ball"].tolist()):
+        if pos < 0 or ball not in (1, 2):
+            continue
+        if scan_id not in fits:
+            raise InputError(f"scan {scan_id} (position {pos}, ball {ball}) has no points")
+        f = fits[scan_id]
+        ps = f.radius - nominal_radius if nominal_radius is not None else float("nan")
+        by_pos.setdefault(pos, {})[ball] = SphereResult(pos, ball, scan_id, f.centre, f.radius, f.rms, f.form,
+                                                        f.n_points, f.rejected, f.form, ps)
+        point_t.setdefault(pos, []).append(scan_id)
+    complete = sorted(p for p, balls in by_pos.items() if set(balls) == {1, 2})
+    if len(complete) < 2:
+        raise InputError(f"run: needs at least 2 positions with both balls scanned, found {len(complete)}")
+    lengths = np.array([np.linalg.norm(by_pos[p][2].centre - by_pos[p][1].centre) for p in complete])
+    pos_temps = np.array([float(np.mean(temps[np.isin(sid, point_t[p])])) if temps is not None else np.nan for p in complete])
+    spheres = tuple(by_pos[p][b] for p in complete for b in (1, 2))
+    return BallbarResult(label, np.array(complete), lengths, pos_temps, spheres, expansion)
+
+
+def evaluate(
+    run: Run,
+    maps: ErrorMap | ErrorMapSet | None = None,
+    temperature: float | None = None,
+    *,
+    nominal_radius: float | None = None,
+    reject: float | None = None,
+    expansion: float = STEEL_EXPANSION,
+    out_of_range: str = "raise",
+) -> Evaluation:
+    """Ballbar evaluation of ``run``: uncompensated, and compensated with ``maps``.
+
+    Parameters
+    ----------
+    run : Run
+        A ballbar run: scans with ``position`` and ``ball`` (1, 2).
+    maps : ErrorMap or ErrorMapSet, optional
+        The compensation model's maps. None: uncompensated only.
+    temperature : float, optional
+        Machine temperature, C, for all points. Default: the machine mean from
+        the run's thermocouple log at each point's time stamp (thesis policy).
+    nominal_radius : float, optional
+        Ball radius for the probing size error, mm; default the run's
+        ``artefact['ball_radius_mm']`` if present.
+    reject : float, optional
+        Robust sphere fits (see ``fit_sphere``), e.g. 3.5 to drop bar points.
+    expansion : float
+        Part expansion coefficient for lengths at 20 C, 1/K (steel 12e-6).
+    out_of_range : {'raise', 'clamp'}
+        Readings or temperatures outside the maps (a log at 19.99 C against maps
+        from 20 C, say) raise, or are clamped with a warning.
+
+    Returns
+    -------
+    Evaluation
+    """
+    if not isinstance(run, Run):
+        raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+    if nominal_radius is None:
+        nominal_radius = run.artefact.get("ball_radius_mm")
+    temps = None
+    if temperature is not None:
+        temps = np.full(run.n_points, float(temperature))
+    elif run.temperatures is not None:
+        temps = machine_temperature(run, run.points["t"])
+    raw = _ballbar(run, _machine_coordinates(run, None, None), "uncompensated", temps, nominal_radius, reject, expansion)
+    if maps is None:
+        return Evaluation(raw)
+    if temps is None and isinstance(maps, ErrorMapSet):
+        raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
+    model_t = None if isinstance(maps, ErrorMap) else (temperature if temperature is not None else temps)
+    comp = _ballbar(run, _machine_coordinates(run, maps, model_t, out_of_range), "compensated", temps, nominal_radius, reject, expansion)
+    return Evaluation(raw, comp)
