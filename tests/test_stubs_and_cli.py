@@ -138,3 +138,29 @@ def test_cli_simulate_writes_a_loadable_run(tmp_path):
 def test_cli_simulate_bad_effect(tmp_path, effect, fragment):
     r = CliRunner().invoke(main, ["simulate", "--effect", effect, "-o", str(tmp_path / "r")])
     assert r.exit_code != 0 and fragment in r.output
+
+
+def test_cli_demo_and_evaluate(tmp_path):
+    report = tmp_path / "demo"
+    r = run("demo", "--report", report, "--seed", "3")
+    assert r.exit_code == 0, r.output
+    assert "rms accuracy error" in r.output and "improvement" in r.output
+    for name in ("evaluation.json", "lengths.csv", "ballbar_lengths.png", "error_map.png", "run/run.json"):
+        assert (report / name).is_file(), name
+    import json
+
+    d = json.loads((report / "evaluation.json").read_text())
+    unc, comp = d["results"]
+    assert 0.060 < unc["rms_accuracy_error_mm"] < 0.080 and comp["rms_accuracy_error_mm"] < 0.001
+    # evaluate the saved run again, maps from run.json, as JSON
+    r = run("evaluate", report / "run", "--json", "--temperature", "22.5")
+    assert r.exit_code == 0, r.output
+    again = json.loads(r.output)
+    assert again["results"][1]["rms_accuracy_error_mm"] == pytest.approx(comp["rms_accuracy_error_mm"], abs=2e-4)
+    r = run("evaluate", report / "run", "--maps", "none", "--report", tmp_path / "rep2")
+    assert r.exit_code == 0 and (tmp_path / "rep2" / "ballbar_lengths.png").is_file()
+
+
+def test_cli_evaluate_errors(tmp_path):
+    r = CliRunner().invoke(main, ["evaluate", str(tmp_path)])
+    assert r.exit_code != 0 and "run.json" in r.output
