@@ -117,5 +117,36 @@ fn bench_blend(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_kernel, bench_blend);
+criterion_group!(benches, bench_kernel, bench_blend, bench_fit_sphere);
 criterion_main!(benches);
+
+/// 20,000 points on a 60 degree cap of the thesis ball (38.125 mm) with
+/// 8 um noise, like benches/compare_scipy_fit.py; one sphere fit.
+fn bench_fit_sphere(c: &mut Criterion) {
+    use cmmpose_core::fit::{fit_sphere, SphereFitOptions};
+    let (radius, centre, noise) = (38.125, [450.0, 380.0, -420.0], 0.008);
+    let mut x = 0.271_828_182_8f64;
+    let mut next = move || {
+        x = (x * 997.0 + 0.618_033_988_7).fract();
+        x
+    };
+    let n = 20_000;
+    let cos_max = 60f64.to_radians().cos();
+    let mut pts = Vec::with_capacity(3 * n);
+    for _ in 0..n {
+        let ct = 1.0 - next() * (1.0 - cos_max);
+        let st = (1.0 - ct * ct).sqrt();
+        let phi = std::f64::consts::TAU * next();
+        // Sum of four uniforms: roughly Gaussian noise with unit variance.
+        let g = ((0..4).map(|_| next()).sum::<f64>() - 2.0) * 3f64.sqrt();
+        let r = radius + noise * g;
+        let u = [st * phi.cos(), st * phi.sin(), ct];
+        for k in 0..3 {
+            pts.push(centre[k] + r * u[k]);
+        }
+    }
+    let opts = SphereFitOptions::default();
+    c.bench_function("fit_sphere_20000", |b| {
+        b.iter(|| fit_sphere(black_box(&pts), &opts).unwrap())
+    });
+}

@@ -12,5 +12,6 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 def test_readme_python_example_runs():
     blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
     assert blocks, "README has a python example"
+    namespace: dict = {}  # blocks build on each other, as a reader runs them
     for code in blocks:
-        exec(compile(code, str(README), "exec"), {})
+        exec(compile(code, str(README), "exec"), namespace)
