@@ -5,7 +5,7 @@ Units throughout: mm for positions and results, um and arc-seconds in error
 map tables, degrees for pose angles, degrees C for temperatures.
 """
 
-from . import layouts
+from . import layouts, uncertainty
 from ._core import __version__, thread_count
 from .compensation import compensate, uncompensated
 from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
@@ -36,6 +36,7 @@ __all__ = [
     "SphereFit",
     "PlaneFit",
     "layouts",
+    "uncertainty",
     "BallbarPosition",
     "b89_positions",
     "crossed_ballbar_positions",
