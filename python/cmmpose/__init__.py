@@ -5,14 +5,14 @@ Units throughout: mm for positions and results, um and arc-seconds in error
 map tables, degrees for pose angles, degrees C for temperatures.
 """
 
-from . import layouts, uncertainty
+from . import calibration, layouts, uncertainty
 from ._core import __version__, thread_count
 from .compensation import compensate, uncompensated
 from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
 from .metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
 from .fitting import PlaneFit, SphereFit, fit_plane, fit_sphere, fit_spheres
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
-from .errors import ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
+from .errors import CalibrationError, ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
 from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
 from .pose import MountOffset, Pose
 from .report import KernelReport
@@ -35,6 +35,7 @@ __all__ = [
     "fit_plane",
     "SphereFit",
     "PlaneFit",
+    "calibration",
     "layouts",
     "uncertainty",
     "BallbarPosition",
@@ -58,5 +59,6 @@ __all__ = [
     "InputError",
     "GeometryError",
     "RunError",
+    "CalibrationError",
     "ClampWarning",
 ]

@@ -249,5 +249,61 @@ def demo_cmd(temperature, seed, report_dir) -> None:
         console.print(f"wrote {f}")
 
 
+@main.command("plot-map")
+@click.argument("maps", nargs=-1, required=True)
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="PNG (or PDF, SVG) to write.")
+def plot_map_cmd(maps, out) -> None:
+    """Plot error-map components against position (like thesis Figures 3-7 to 3-18).
+    MAPS: 'thesis', 'appendix-b', or map files (several make a set)."""
+    from .plots import plot_error_map
+
+    try:
+        plot_error_map(load_maps(tuple(maps)), out)
+    except Error as exc:
+        raise click.ClickException(str(exc)) from None
+    console.print(f"wrote {out}")
+
+
+@main.group("calibrate")
+def calibrate() -> None:
+    """Calibration solvers: digitizer alignment, mount offset, error maps."""
+
+
+@calibrate.command("map")
+@click.argument("run_files", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--squareness", required=True, help="S_xy,S_yz,S_zx in arc-seconds (thesis sign convention).")
+@click.option("--temperature", type=float, default=None, help="Map temperature, C (default: mean material temperature).")
+@click.option("--no-air-correction", is_flag=True, help="Do not correct linear readings for the refractive index of air.")
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
+@click.option("--compare", "compare_to", default=None, help="A map ('thesis@20', 'appendix-b' or a file) to compare with.")
+@click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False), help="Difference plot (with --compare).")
+def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out, compare_to, plot_path) -> None:
+    """Build an error map from raw laser-interferometer RUN_FILES (docs/interferometer.md)."""
+    from .calibration.interferometer import build_map, compare_maps, plot_map_difference, read_run
+
+    sq = triple(squareness, "--squareness")
+    try:
+        runs = [read_run(f) for f in run_files]
+        built = build_map(runs, sq, temperature, air_correction=not no_air_correction)
+        built.map.write(out)
+        if compare_to:
+            if compare_to.startswith("thesis@"):
+                other = ErrorMapSet.thesis().at(float(compare_to.split("@", 1)[1]))
+            else:
+                other = load_maps((compare_to,))
+                if isinstance(other, ErrorMapSet):
+                    raise click.BadParameter("give one map (e.g. thesis@20)", param_hint="--compare")
+            comparison = compare_maps(built.map, other)
+            Console().print(comparison.table())
+            if plot_path:
+                plot_map_difference(built.map, other, plot_path)
+                console.print(f"wrote {plot_path}")
+    except Error as exc:
+        raise click.ClickException(str(exc)) from None
+    for note in built.notes:
+        console.print(f"note: {note}")
+    console.print(f"wrote {out}: {built.map!r}")
+
+
 if __name__ == "__main__":
     main()

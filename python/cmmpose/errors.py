@@ -7,19 +7,27 @@ them; every message names the file, line, row or argument at fault.
 - ``InputError``: wrong shape, dtype, length, NaN, or a bad option value.
 - ``GeometryError``: degenerate geometry (zero normal, coplanar points, ...).
 - ``RunError``: a malformed measurement run directory (Python-side only).
+- ``CalibrationError``: data that cannot give a trustworthy calibration.
 """
 
 import warnings
 
 from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "ClampWarning", "warn_clamped", "read_lines"]
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "ClampWarning", "warn_clamped", "read_lines"]
 
 
 class RunError(Error):
     """A malformed measurement run: a missing or unreadable file, a missing or
     badly typed column, a bad value, or tables that do not fit together. The
     message names the file (or table), the column and the first bad row."""
+
+
+class CalibrationError(Error):
+    """A calibration that cannot give a trustworthy result: data that do not
+    determine the quantity (no motion, a single sweep over a plane of unknown
+    orientation), alignments that disagree beyond the tolerance, a pose that
+    was never aligned, a malformed alignment library."""
 
 
 class ClampWarning(UserWarning):

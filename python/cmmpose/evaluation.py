@@ -16,10 +16,6 @@ from .fitting import fit_spheres
 from .metrics import STEEL_EXPANSION, b89_value, improvement, length_at_20c, rms_accuracy_error
 from .run import Run
 
-#: Readings outside this range (C) are not a room temperature (open or shorted thermocouple).
-PLAUSIBLE_TEMPERATURE = (0.0, 50.0)
-
-
 @dataclass(frozen=True)
 class SphereResult:
     """One fitted ball: ``centre`` (3,) and ``radius`` in mm, fit ``rms`` and
@@ -186,26 +182,16 @@ class Evaluation:
 
 
 def machine_temperature(run: Run, t) -> np.ndarray:
-    """Machine mean temperature (C) at times ``t`` (s): the mean of the axis-scale
-    thermocouples (thesis section 6.4), interpolated in time; implausible
-    readings (open circuit) are left out of the mean."""
+    """Machine mean temperature (C) at times ``t`` (s): the mean of the clean
+    axis-scale thermocouples (thesis section 6.4), interpolated in time; stuck,
+    open-circuit and implausible channels are left out
+    (``cmmpose.calibration.temperatures_at``)."""
+    from .calibration.thermal import temperatures_at
+
     if run.temperatures is None:
         raise InputError("run has no temperature log: pass temperature= explicitly")
-    names = [c["name"] for c in run.temperature_channels if c["role"] in ("x_scale", "y_scale", "z_scale")]
-    if not names:
-        raise InputError("run's temperature log has no axis-scale channels (roles x_scale, y_scale, z_scale)")
-    lo, hi = PLAUSIBLE_TEMPERATURE
-    log = np.column_stack([run.temperatures[n] for n in names])
-    log = np.where((log >= lo) & (log <= hi), log, np.nan)
-    good = ~np.all(np.isnan(log), axis=1)
-    if not good.any():
-        raise InputError(f"run's temperature log: no plausible reading ({lo:g}..{hi:g} C) on any axis-scale channel")
-    mean = np.nanmean(log[good], axis=1)
-    tt = run.temperatures["t"][good]
-    t = np.asarray(t, dtype=float)
-    if len(tt) and (t.min() < tt[0] or t.max() > tt[-1]):
-        raise InputError(f"points at {t.min():g}..{t.max():g} s lie outside the temperature log {tt[0]:g}..{tt[-1]:g} s")
-    return np.interp(t, tt, mean)
+    temps, _ = temperatures_at(t, run.temperatures, run.temperature_channels, policy="machine_mean")
+    return temps
 
 
 def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise") -> np.ndarray:

@@ -19,6 +19,15 @@ from .effects import (
     available_effects,
     parse_effect,
 )
+from .calibration_data import (
+    VERNIER_NOISE,
+    plane_scan,
+    reference_sphere_scans,
+    true_alignment_reading,
+    true_pose_and_offset,
+    vernier_points,
+)
+from .interferometer import interferometer_components, simulate_interferometer_run, simulate_interferometer_runs
 from .machine import TruthMachine, temperature_series
 from .runs import simulate_ballbar_run, simulate_reference_scan
 from .scanner import ScanData, Scanner, Sweep, simulate_sweep
@@ -54,5 +63,14 @@ __all__ = [
     "AlignmentError",
     "MountOffsetError",
     "available_effects",
+    "vernier_points",
+    "plane_scan",
+    "reference_sphere_scans",
+    "true_alignment_reading",
+    "true_pose_and_offset",
+    "VERNIER_NOISE",
+    "simulate_interferometer_run",
+    "simulate_interferometer_runs",
+    "interferometer_components",
     "parse_effect",
 ]

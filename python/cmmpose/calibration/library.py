@@ -1,0 +1,330 @@
+"""The alignment library: one alignment record per indexed trunnion pose, in a
+JSON file. The trunnion repositions the scanner repeatably at each index stop
+(thesis section 4.4: "any coordinate frame transformation that is computed can
+be stored in an alignment file to be recalled later"), so a pose is aligned
+once and recalled by name.
+
+File format (UTF-8 JSON, docs/calibration.md)::
+
+    {"format": "cmmpose-alignment-library", "version": 1,
+     "units": {...},
+     "poses": {"A90B90": {"pose": [90, 90, 0], "reading": [...], ...}, ...}}
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+from ..errors import InputError
+from ..pose import MountOffset, Pose, pose_tuple
+from ..errors import CalibrationError
+from .alignment import CalibratedPose, MountOffsetFit, ReferenceReading
+
+__all__ = ["AlignmentRecord", "AlignmentLibrary", "LIBRARY_FORMAT", "LIBRARY_VERSION"]
+
+LIBRARY_FORMAT = "cmmpose-alignment-library"
+LIBRARY_VERSION = 1
+UNITS = {
+    "pose": "degree (alpha, beta, gamma, Euler 3-1-3)",
+    "pose_uncertainty": "degree",
+    "reading": "mm (D0, E0, F0)",
+    "reading_uncertainty": "mm",
+    "offset": "mm (U1, V1, W1)",
+    "offset_uncertainty": "mm",
+    "temperature": "degree C",
+    "residuals": "mm",
+    "date": "ISO 8601",
+}
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _triple(where: str, name: str, value, *, optional: bool = False, nonnegative: bool = False):
+    if value is None and optional:
+        return None
+    try:
+        vals = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{where}: {name} must be three numbers, got {value!r}") from None
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        raise CalibrationError(f"{where}: {name} must be three finite numbers, got {value!r}")
+    if nonnegative and min(vals) < 0:
+        raise CalibrationError(f"{where}: {name} must be >= 0, got {value!r}")
+    return vals
+
+
+@dataclass(frozen=True)
+class AlignmentRecord:
+    """The stored alignment of one trunnion pose.
+
+    Parameters
+    ----------
+    pose : sequence of 3 float
+        alpha, beta, gamma, degrees.
+    reading : sequence of 3 float
+        D0, E0, F0: the scale reading at which the laser origin sits at the
+        reference-sphere centre, mm.
+    offset : sequence of 3 float
+        Mount offset U1, V1, W1, mm.
+    pose_uncertainty, reading_uncertainty, offset_uncertainty : sequence of 3 float, optional
+        Standard uncertainties, degrees and mm.
+    temperature : float, optional
+        Machine temperature during the alignment, C.
+    date : str
+        When it was aligned, ISO 8601 (default: now, UTC).
+    residuals : dict of str to float
+        Fit residuals worth keeping, mm (e.g. ``vernier_rms``, ``plane_rms``,
+        ``sphere_rms``, ``offset_max_residual``).
+    note : str
+        Free text.
+    """
+
+    pose: tuple
+    reading: tuple
+    offset: tuple
+    pose_uncertainty: tuple | None = None
+    reading_uncertainty: tuple | None = None
+    offset_uncertainty: tuple | None = None
+    temperature: float | None = None
+    date: str = field(default_factory=_now)
+    residuals: dict = field(default_factory=dict)
+    note: str = ""
+
+    def __post_init__(self):
+        raw = {f: getattr(self, f) for f in ("pose", "reading", "offset", "pose_uncertainty", "reading_uncertainty",
+                                              "offset_uncertainty", "temperature", "date", "residuals", "note")}
+        checked = AlignmentRecord._checked(raw, "record")
+        for k, v in checked.items():
+            object.__setattr__(self, k, v)
+
+    # -- conversion --------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """Plain JSON-ready dict."""
+        lst = lambda t: None if t is None else [float(x) for x in t]  # noqa: E731
+        return {
+            "pose": lst(self.pose), "reading": lst(self.reading), "offset": lst(self.offset),
+            "pose_uncertainty": lst(self.pose_uncertainty), "reading_uncertainty": lst(self.reading_uncertainty),
+            "offset_uncertainty": lst(self.offset_uncertainty),
+            "temperature": self.temperature, "date": self.date, "residuals": dict(self.residuals),
+            "note": self.note,
+        }
+
+    @staticmethod
+    def _checked(d, where: str) -> dict:
+        if not isinstance(d, dict):
+            raise CalibrationError(f"{where}: expected an object, got {type(d).__name__}")
+        missing = [k for k in ("pose", "reading", "offset") if k not in d]
+        if missing:
+            raise CalibrationError(f"{where}: missing field(s) {', '.join(missing)}")
+        unknown = sorted(set(d) - {"pose", "reading", "offset", "pose_uncertainty", "reading_uncertainty",
+                                   "offset_uncertainty", "temperature", "date", "residuals", "note"})
+        if unknown:
+            raise CalibrationError(f"{where}: unknown field(s) {', '.join(unknown)}")
+        out = {
+            "pose": _triple(where, "pose", d["pose"]),
+            "reading": _triple(where, "reading", d["reading"]),
+            "offset": _triple(where, "offset", d["offset"]),
+        }
+        for k in ("pose_uncertainty", "reading_uncertainty", "offset_uncertainty"):
+            out[k] = _triple(where, k, d.get(k), optional=True, nonnegative=True)
+        t = d.get("temperature")
+        if t is not None:
+            if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+                raise CalibrationError(f"{where}: temperature must be a finite number (C) or null, got {t!r}")
+            t = float(t)
+        out["temperature"] = t
+        date = d.get("date", _now())
+        if not isinstance(date, str):
+            raise CalibrationError(f"{where}: date must be an ISO 8601 string, got {date!r}")
+        try:
+            datetime.fromisoformat(date)
+        except ValueError:
+            raise CalibrationError(f"{where}: date {date!r} is not ISO 8601 (e.g. 2024-05-01T14:30:00+00:00)") from None
+        out["date"] = date
+        res = d.get("residuals", {}) or {}
+        if not isinstance(res, dict) or not all(isinstance(k, str) for k in res):
+            raise CalibrationError(f"{where}: residuals must be an object of named values (mm)")
+        clean = {}
+        for k, v in res.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise CalibrationError(f"{where}: residual {k!r} must be a finite number (mm), got {v!r}")
+            clean[k] = float(v)
+        out["residuals"] = clean
+        note = d.get("note", "")
+        if not isinstance(note, str):
+            raise CalibrationError(f"{where}: note must be text")
+        out["note"] = note
+        return out
+
+    @classmethod
+    def from_dict(cls, d, where: str = "record") -> AlignmentRecord:
+        """Build from a dict (as read from the file); bad content raises CalibrationError naming ``where``."""
+        return cls(**cls._checked(d, where))
+
+    @classmethod
+    def from_calibration(cls, pose, reading: ReferenceReading, offset, *, temperature: float | None = None,
+                         date: str | None = None, residuals: dict | None = None, note: str = "") -> AlignmentRecord:
+        """A record from the solvers' results.
+
+        Parameters
+        ----------
+        pose : CalibratedPose, Pose or sequence of 3 float
+            The calibrated pose, degrees (a CalibratedPose brings its uncertainty).
+        reading : ReferenceReading
+            From :func:`reference_centre_reading` at that pose.
+        offset : MountOffsetFit, MountOffset or sequence of 3 float
+            The mount offset, mm (a MountOffsetFit brings its uncertainty).
+        temperature : float, optional
+            C; default the reading's temperature.
+        date : str, optional
+            ISO 8601; default now (UTC).
+        residuals : dict, optional
+            Extra named residuals, mm; the sphere fit's rms is added as ``sphere_rms``.
+        note : str
+            Free text.
+        """
+        if isinstance(pose, CalibratedPose):
+            p, pu = pose.pose.as_tuple(), tuple(float(x) for x in pose.uncertainty)
+        else:
+            p, pu = pose_tuple(pose), None
+        if not isinstance(reading, ReferenceReading):
+            raise InputError(f"reading: expected a ReferenceReading, got {type(reading).__name__}")
+        if isinstance(offset, MountOffsetFit):
+            o, ou = tuple(offset.offset), tuple(float(x) for x in offset.uncertainty)
+        else:
+            o, ou = tuple(float(x) for x in offset), None
+        res = {} if reading.fit is None else {"sphere_rms": float(reading.fit.rms)}
+        res.update(residuals or {})
+        return cls(pose=p, reading=tuple(float(x) for x in reading.reading), offset=o, pose_uncertainty=pu,
+                   reading_uncertainty=tuple(float(x) for x in reading.uncertainty), offset_uncertainty=ou,
+                   temperature=reading.temperature if temperature is None else float(temperature),
+                   date=_now() if date is None else date, residuals=res, note=note)
+
+    # -- use --------------------------------------------------------------------
+    def as_pose(self) -> Pose:
+        """The pose, for ``cmmpose.compensate``."""
+        return Pose(*self.pose)
+
+    def as_offset(self) -> MountOffset:
+        """The mount offset, for ``cmmpose.compensate``."""
+        return MountOffset(*self.offset)
+
+
+class AlignmentLibrary:
+    """Alignments stored by trunnion pose name in one JSON file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The library file. It need not exist yet: it is created by the first
+        :meth:`save`.
+
+    Examples
+    --------
+    >>> lib = AlignmentLibrary("alignments.json")            # doctest: +SKIP
+    >>> lib.save("A90B90", record)                           # doctest: +SKIP
+    >>> rec = lib.load("A90B90")                             # doctest: +SKIP
+    >>> xyz = cmmpose.compensate(uv, scales, maps, rec.as_pose(), rec.as_offset(), 22.5)  # doctest: +SKIP
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+
+    def __repr__(self) -> str:
+        return f"AlignmentLibrary({str(self.path)!r})"
+
+    # -- file --------------------------------------------------------------------
+    def _read(self) -> dict:
+        """name -> raw dict; raises CalibrationError for a malformed file."""
+        if not self.path.exists():
+            return {}
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            raise CalibrationError(f"{self.path}: not an alignment library (not UTF-8 text: {exc.reason})") from None
+        except OSError as exc:
+            raise CalibrationError(f"{self.path}: cannot read ({exc.strerror or exc})") from None
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise CalibrationError(
+                f"{self.path}:{exc.lineno}:{exc.colno}: not an alignment library (bad JSON: {exc.msg})") from None
+        if not isinstance(doc, dict) or doc.get("format") != LIBRARY_FORMAT:
+            raise CalibrationError(f"{self.path}: not an alignment library (expected \"format\": \"{LIBRARY_FORMAT}\")")
+        if doc.get("version") != LIBRARY_VERSION:
+            raise CalibrationError(f"{self.path}: alignment library version {doc.get('version')!r} is not supported "
+                                   f"(this cmmpose reads version {LIBRARY_VERSION})")
+        poses = doc.get("poses")
+        if not isinstance(poses, dict):
+            raise CalibrationError(f"{self.path}: \"poses\" must be an object of pose name -> record")
+        return poses
+
+    def _write(self, poses: dict) -> None:
+        doc = {"format": LIBRARY_FORMAT, "version": LIBRARY_VERSION, "units": UNITS,
+               "poses": {k: poses[k] for k in sorted(poses)}}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=self.path.name + ".", suffix=".tmp", dir=self.path.parent)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump(doc, f, indent=2)
+                f.write("\n")
+            os.replace(tmp, self.path)  # atomic: a crash never leaves half a library
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    # -- API ---------------------------------------------------------------------
+    def names(self) -> list[str]:
+        """Pose names stored, sorted."""
+        return sorted(self._read())
+
+    def __contains__(self, name) -> bool:
+        return name in self._read()
+
+    def __len__(self) -> int:
+        return len(self._read())
+
+    def save(self, name: str, record: AlignmentRecord, *, overwrite: bool = True) -> None:
+        """Store ``record`` under ``name`` (e.g. "A90B90"), replacing an older
+        alignment of that pose unless ``overwrite`` is False."""
+        if not isinstance(name, str) or not name.strip():
+            raise InputError(f"name: expected a non-empty pose name, got {name!r}")
+        if not isinstance(record, AlignmentRecord):
+            raise InputError(f"record: expected an AlignmentRecord, got {type(record).__name__}")
+        poses = self._read()
+        if name in poses and not overwrite:
+            raise CalibrationError(
+                f"pose {name!r} is already aligned in {self.path} (pass overwrite=True to replace it)")
+        poses[name] = record.to_dict()
+        self._write(poses)
+
+    def load(self, name: str) -> AlignmentRecord:
+        """The record of pose ``name``; CalibrationError if it was never aligned."""
+        poses = self._read()
+        if name not in poses:
+            known = ", ".join(repr(k) for k in sorted(poses)) if poses else "none; the library is empty"
+            raise CalibrationError(f"pose {name!r} was never aligned (known: {known}) in {self.path}")
+        return AlignmentRecord.from_dict(poses[name], where=f"{self.path}: pose {name!r}")
+
+    def remove(self, name: str) -> None:
+        """Forget pose ``name`` (CalibrationError if it is not stored)."""
+        poses = self._read()
+        if name not in poses:
+            raise CalibrationError(f"pose {name!r} was never aligned in {self.path}")
+        del poses[name]
+        self._write(poses)
+
+    def records(self) -> dict[str, AlignmentRecord]:
+        """Every record, by name."""
+        return {k: AlignmentRecord.from_dict(v, where=f"{self.path}: pose {k!r}")
+                for k, v in sorted(self._read().items())}
+
