@@ -37,3 +37,37 @@ def test_plot_map_and_bad_inputs(tmp_path):
     assert res.exit_code != 0 and "bad.csv" in res.output
     res = CliRunner().invoke(main, ["calibrate", "map", str(bad), "--squareness", "0,0", "-o", str(tmp_path / "x.csv")])
     assert res.exit_code != 0 and "three comma-separated numbers" in res.output
+
+
+def _write_uvdef(path, uv, scales):
+    np.savetxt(path, np.column_stack([uv, scales]), delimiter=",", header="u,v,D,E,F", comments="", fmt="%.9f")
+
+
+def test_calibrate_alignment_and_offset_from_simulated_data(tmp_path):
+    from cmmpose import sim
+    from cmmpose.calibration import STANDARD_POSES
+
+    maps = cmmpose.ErrorMap.zero()  # an error-free machine keeps the check about the solvers and the CLI
+    maps = cmmpose.ErrorMapSet([maps.with_temperature(20.0)])
+    lib = tmp_path / "alignments.json"
+    refs = sim.reference_sphere_scans(STANDARD_POSES, maps=maps, seed=3)
+    for k, (pose, ref) in enumerate(zip(STANDARD_POSES, refs)):
+        vern = sim.vernier_points(pose, maps=maps, seed=k)
+        np.savetxt(tmp_path / f"vernier{k}.csv", vern.points, delimiter=",", header="x,y,z", comments="")
+        plane = sim.plane_scan(pose, maps=maps, seed=k)
+        _write_uvdef(tmp_path / f"plane{k}.csv", plane.uv, plane.scales)
+        _write_uvdef(tmp_path / f"ref{k}.csv", ref.data.uv, ref.data.scales)
+        normal = ",".join(str(x) for x in plane.plane.normal) if hasattr(plane, "plane") else None
+        args = ["calibrate", "alignment", "--vernier", str(tmp_path / f"vernier{k}.csv"), "--reference-scan",
+                str(tmp_path / f"ref{k}.csv"), "--name", f"P{k}", "--library", str(lib), "--temperature", "20"]
+        if normal:
+            args += ["--plane-scan", str(tmp_path / f"plane{k}.csv"), "--plane-normal", normal]
+        res = CliRunner().invoke(main, args, catch_exceptions=False)
+        assert res.exit_code == 0, res.output
+        rec = cmmpose.calibration.AlignmentLibrary(lib).load(f"P{k}")
+        assert np.abs(np.subtract(rec.reading, ref.true_reading)).max() < 0.01  # mm: a fitted sphere centre
+    res = CliRunner().invoke(main, ["calibrate", "offset", "P0", "P1", "P2", "--library", str(lib)], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    assert "U1" in res.output and "chi-square" in res.output
+    res = CliRunner().invoke(main, ["calibrate", "offset", "P0", "P9", "--library", str(lib)])
+    assert res.exit_code != 0 and "P9" in res.output and "never aligned" in res.output

@@ -269,6 +269,121 @@ def calibrate() -> None:
     """Calibration solvers: digitizer alignment, mount offset, error maps."""
 
 
+def _xyz_points(path: str) -> np.ndarray:
+    """CSV with header x,y,z (mm, machine coordinates) or an (N, 3) .npy."""
+    from .errors import InputError
+
+    p = Path(path)
+    if p.suffix.lower() == ".npy":
+        a = np.load(p, allow_pickle=False)
+    else:
+        with p.open(encoding="utf-8") as f:
+            header = [h.strip().lower() for h in f.readline().split(",")]
+        if header[:3] != ["x", "y", "z"]:
+            raise InputError(f"{p}:1: header must start with x,y,z (mm), got {header}")
+        try:
+            a = np.loadtxt(p, delimiter=",", skiprows=1, usecols=(0, 1, 2), ndmin=2)
+        except ValueError as exc:
+            raise InputError(f"{p}: {exc}") from None
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise InputError(f"{p}: expected (N, 3) points, got shape {a.shape}")
+    return a
+
+
+@calibrate.command("alignment")
+@click.option("--vernier", "vernier_file", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Optical-vernier points: CSV x,y,z (mm, machine) or .npy, in order counter-clockwise seen from +w.")
+@click.option("--plane-scan", "plane_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="Scan(s) of a flat plane while moving (CSV u,v,D,E,F): one with --plane-normal, or two sweeps.")
+@click.option("--plane-normal", default=None, help="Known outward normal of the scanned plane, nx,ny,nz.")
+@click.option("--reference-scan", "ref_file", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Reference-sphere scan at this pose (CSV u,v,D,E,F) for D0, E0, F0.")
+@click.option("--offset", default="1.001,264.505,129.575", show_default=True, help="U1,V1,W1 mount offset in mm.")
+@click.option("--name", required=True, help="Name of the indexed trunnion pose, e.g. A90B90.")
+@click.option("--library", "library_file", required=True, type=click.Path(dir_okay=False), help="Alignment library (JSON).")
+@click.option("--temperature", type=float, default=None, help="Machine temperature during the alignment, C.")
+def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, offset, name, library_file, temperature) -> None:
+    """Align the digitizer at one trunnion pose: alpha, beta from vernier points, gamma from plane
+    scans, D0 E0 F0 from a reference-sphere scan; store the result in the library."""
+    from .calibration import (AlignmentLibrary, AlignmentRecord, alpha_beta_from_vernier, calibrated_pose,
+                              gamma_from_plane_scan, reference_centre_reading)
+
+    offset_t = triple(offset, "--offset")
+    normal = triple(plane_normal, "--plane-normal") if plane_normal else None
+    try:
+        vern = alpha_beta_from_vernier(_xyz_points(vernier_file))
+        pose, pose_u, gamma_u = (vern.alpha, vern.beta, 0.0), None, None
+        residuals = {"vernier_rms": float(vern.fit.rms)}
+        if plane_files:
+            scans = [read_points(f) for f in plane_files]
+            uv = np.vstack([sc[0] for sc in scans])
+            scales = np.vstack([sc[1] for sc in scans])
+            gam = gamma_from_plane_scan(uv, scales, vern.alpha, vern.beta, normal=normal, offset=offset_t,
+                                        alpha_beta_covariance=vern.covariance)
+            cp = calibrated_pose(vern, gam)
+            pose = cp.pose.as_tuple()
+            pose_u = tuple(float(x) for x in cp.uncertainty)
+            residuals["plane_rms"] = float(gam.rms)
+        reading, reading_u = (float("nan"),) * 3, None
+        if ref_file:
+            uv, scales, _ = read_points(ref_file)
+            ref = reference_centre_reading(uv, scales, pose, offset_t)
+            reading = tuple(float(x) for x in ref.reading)
+            reading_u = tuple(float(x) for x in ref.uncertainty)
+            residuals["sphere_rms"] = float(ref.fit.rms) if ref.fit is not None else float("nan")
+        if pose_u is None:
+            pose_u = tuple(float(x) for x in np.sqrt(np.diag(vern.covariance))) + (float("nan"),)
+        if not ref_file:
+            raise click.UsageError("--reference-scan is needed to store an alignment (D0, E0, F0)")
+        record = AlignmentRecord(pose=pose, reading=reading, offset=offset_t, pose_uncertainty=pose_u,
+                                 reading_uncertainty=reading_u, temperature=temperature, residuals=residuals)
+        AlignmentLibrary(library_file).save(name, record)
+    except Error as exc:
+        raise click.ClickException(str(exc)) from None
+    table = Table(title=f"alignment {name!r} -> {library_file}", show_header=False)
+    table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in pose))
+    table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in pose_u))
+    table.add_row("D0, E0, F0 (mm)", ", ".join(f"{v:.4f}" for v in reading))
+    table.add_row("u (mm)", ", ".join(f"{v:.4f}" for v in reading_u))
+    Console().print(table)
+
+
+@calibrate.command("offset")
+@click.argument("names", nargs=-1, required=True)
+@click.option("--library", "library_file", required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--tolerance", type=float, default=4.0, show_default=True,
+              help="Largest standardised residual before the alignments count as disagreeing.")
+def calibrate_offset_cmd(names, library_file, tolerance) -> None:
+    """Mount offset U1, V1, W1 by least squares from three or more aligned poses NAMES in the library."""
+    from .calibration import AlignmentLibrary, mount_offset
+    from .calibration.alignment import ReferenceReading
+
+    try:
+        lib = AlignmentLibrary(library_file)
+        readings = []
+        for n in names:
+            rec = lib.load(n)
+            if rec.reading_uncertainty is None:
+                raise click.UsageError(f"alignment {n!r} has no reading uncertainty")
+            pose_cov = np.diag(np.nan_to_num(np.square(rec.pose_uncertainty or (0.0, 0.0, 0.0))))
+            readings.append(ReferenceReading.from_reading(rec.pose, rec.reading, rec.reading_uncertainty,
+                                                          pose_covariance=pose_cov))
+        fit = mount_offset(readings, tolerance=tolerance)
+    except Error as exc:
+        raise click.ClickException(str(exc)) from None
+    table = Table(title=f"mount offset from {', '.join(names)}")
+    table.add_column("")
+    table.add_column("U1 / x", justify="right")
+    table.add_column("V1 / y", justify="right")
+    table.add_column("W1 / z", justify="right")
+    table.add_row("offset (mm)", *(f"{v:.4f}" for v in fit.offset))
+    table.add_row("u (mm)", *(f"{v:.4f}" for v in fit.uncertainty))
+    for n, r in zip(names, fit.residuals):
+        table.add_row(f"residual {n} (um)", *(f"{v * 1e3:+.1f}" for v in r))
+    table.caption = f"chi-square p = {fit.p_value:.3f} ({fit.dof} dof)"
+    Console().print(table)
+
+
 @calibrate.command("map")
 @click.argument("run_files", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
 @click.option("--squareness", required=True, help="S_xy,S_yz,S_zx in arc-seconds (thesis sign convention).")
