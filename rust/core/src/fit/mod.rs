@@ -31,7 +31,7 @@ pub use sphere::{fit_sphere, fit_spheres, SphereFit, SphereFitOptions};
 pub const PARALLEL_MIN_POINTS: usize = 20_000;
 
 /// Points per parallel work item.
-const CHUNK: usize = 4096;
+pub(crate) const CHUNK: usize = 4096;
 
 /// Refits at most this many times when rejecting outliers.
 pub const MAX_REJECT_ROUNDS: usize = 10;
@@ -46,6 +46,19 @@ pub(crate) const FLAT: f64 = 1e-12;
 /// Points as vectors, after checking the shape, the count and finiteness.
 /// `what` names the fitted shape in the count message ("a sphere").
 pub(crate) fn read_points(points: &[f64], min: usize, what: &str) -> Result<Vec<Vector3<f64>>> {
+    check_rows(points, min, what)?;
+    if let Some(e) = non_finite(points) {
+        return Err(e);
+    }
+    Ok(points
+        .chunks_exact(3)
+        .map(|p| Vector3::new(p[0], p[1], p[2]))
+        .collect())
+}
+
+/// The number of N x 3 rows in `points`, after checking the shape and that
+/// there are at least `min` ("a sphere needs at least 4 points").
+pub(crate) fn check_rows(points: &[f64], min: usize, what: &str) -> Result<usize> {
     if points.len() % 3 != 0 {
         return Err(CoreError::invalid_argument(
             "points",
@@ -62,19 +75,22 @@ pub(crate) fn read_points(points: &[f64], min: usize, what: &str) -> Result<Vec<
             format!("{what} needs at least {min} points, got {n}"),
         ));
     }
-    if let Some(row) = points
+    Ok(n)
+}
+
+/// The error naming the first row of `points` with a NaN or infinite
+/// coordinate, if there is one.
+#[cold]
+pub(crate) fn non_finite(points: &[f64]) -> Option<CoreError> {
+    points
         .chunks_exact(3)
         .position(|p| !p.iter().all(|x| x.is_finite()))
-    {
-        return Err(CoreError::invalid_argument(
-            "points",
-            format!("non-finite value (NaN or inf) in row {row}"),
-        ));
-    }
-    Ok(points
-        .chunks_exact(3)
-        .map(|p| Vector3::new(p[0], p[1], p[2]))
-        .collect())
+        .map(|row| {
+            CoreError::invalid_argument(
+                "points",
+                format!("non-finite value (NaN or inf) in row {row}"),
+            )
+        })
 }
 
 /// Folds `f` over the points, in parallel chunks when `parallel` and there
@@ -200,10 +216,7 @@ pub(crate) fn fit_robust<M: Sync>(
     let mut inlier = vec![true; pts.len()];
     if let Some(k) = reject {
         for _ in 0..MAX_REJECT_ROUNDS {
-            let inliers = residuals.iter().zip(&inlier).filter(|(_, &i)| i);
-            let sigma = robust_sigma(inliers.map(|(r, _)| *r)).max(floor(&model));
-            let limit = k * sigma;
-            let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
+            let (next, sigma) = reclassify(&residuals, &inlier, k, floor(&model));
             if next == inlier {
                 break;
             }
@@ -214,12 +227,7 @@ pub(crate) fn fit_robust<M: Sync>(
                 .map(|(p, _)| *p)
                 .collect();
             if kept.len() < min {
-                return Err(CoreError::Degenerate(format!(
-                    "rejecting outliers (reject = {k}, robust sigma {sigma:.3e} mm) left {} of {} \
-                     points, fewer than the {min} the fit needs",
-                    kept.len(),
-                    pts.len()
-                )));
+                return Err(too_few_inliers(k, sigma, kept.len(), pts.len(), min));
             }
             inlier = next;
             model = fit(&kept)?;
@@ -233,6 +241,30 @@ pub(crate) fn fit_robust<M: Sync>(
         inlier,
         rejected,
     })
+}
+
+/// One round of the rejection rule: the points with |r| <= k * sigma, sigma
+/// the robust sigma of the current inliers' residuals (at least `floor`),
+/// and that sigma.
+pub(crate) fn reclassify(
+    residuals: &[f64],
+    inlier: &[bool],
+    k: f64,
+    floor: f64,
+) -> (Vec<bool>, f64) {
+    let inliers = residuals.iter().zip(inlier).filter(|(_, &i)| i);
+    let sigma = robust_sigma(inliers.map(|(r, _)| *r)).max(floor);
+    let limit = k * sigma;
+    (residuals.iter().map(|r| r.abs() <= limit).collect(), sigma)
+}
+
+/// The error when rejection leaves `kept` of `total` points, fewer than `min`.
+#[cold]
+pub(crate) fn too_few_inliers(k: f64, sigma: f64, kept: usize, total: usize, min: usize) -> CoreError {
+    CoreError::Degenerate(format!(
+        "rejecting outliers (reject = {k}, robust sigma {sigma:.3e} mm) left {kept} of {total} \
+         points, fewer than the {min} the fit needs"
+    ))
 }
 
 /// RMS and form (max - min) of the inliers' residuals.

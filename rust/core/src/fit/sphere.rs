@@ -1,8 +1,10 @@
 //! Sphere by orthogonal (geometric) least squares: minimise the sum of
 //! squared residuals r_i = |p_i - c| - R over the centre c and radius R.
 //!
-//! 1. Centre the points on their mean (conditioning); refuse coincident,
-//!    collinear or coplanar points (no unique sphere).
+//! 1. Centre the points on their mean (conditioning): one pass sums the
+//!    points (a NaN or infinity shows in the sums), a second their moments
+//!    about the mean. Refuse coincident, collinear or coplanar points (no
+//!    unique sphere).
 //! 2. Algebraic start: linear least squares of |q|^2 + a.q + d = 0. With
 //!    centred q the normal equations split into S a = -sum q |q|^2 (S the
 //!    scatter matrix) and d = -mean |q|^2; then c = -a/2, R^2 = |c|^2 - d.
@@ -10,31 +12,45 @@
 //! 3. Gauss-Newton on the geometric residuals, analytic Jacobian
 //!    dr/dc = -(p - c)/|p - c|, dr/dR = -1, with Levenberg-Marquardt damping
 //!    (Marquardt's diagonal scaling) switched on after a step that fails to
-//!    lower the cost and off again as steps succeed. Each trial step takes
-//!    one pass over the points, which yields the cost and J^T J, J^T r at the
-//!    trial point together. Converged when the undamped step is below 1e-12
-//!    of the radius, or it or an accepted step lowers the cost by less than
-//!    1e-15 of it, or the residuals' RMS is below 1e-14 of the radius
-//!    (noise-free points), or when damping has shrunk a failing step below
-//!    1e-12 of the radius (the cost is flat to rounding); `converged = false`
-//!    when `max_iterations` steps ran out first. A fit whose normal
-//!    equations stay singular, or whose radius leaves (0, inf), is a
-//!    `Degenerate` error.
-//! 4. Polar coverage of the inliers seen from the fitted centre; a cap below
-//!    `min_coverage_deg` is a `Degenerate` error.
+//!    lower the cost and off again as steps succeed. The parameters are kept
+//!    relative to the mean. Each trial step takes one pass over the points,
+//!    which yields the cost and J^T J, J^T r at the trial point together, and
+//!    also writes the residuals there, with their extremes and the polar
+//!    coverage, so an accepted last step needs no further pass. Converged
+//!    when the undamped step is below 1e-12 of the radius, or it or an
+//!    accepted step lowers the cost by less than 1e-15 of it, or the
+//!    residuals' RMS is below 1e-14 of the radius (noise-free points), or
+//!    when damping has shrunk a failing step below 1e-12 of the radius (the
+//!    cost is flat to rounding); `converged = false` when `max_iterations`
+//!    steps ran out first. A fit whose normal equations stay singular, or
+//!    whose radius leaves (0, inf), is a `Degenerate` error.
+//! 4. Polar coverage of the inliers seen from the fitted centre
+//!    ([`SphereFit::polar_coverage_deg`]); a cap below `min_coverage_deg` is
+//!    a `Degenerate` error.
 //!
 //! With a fixed radius only the centre is fitted (3 x 3 normal equations).
 //! Coplanar points are refused with a fixed radius too: the two mirror-image
 //! centres on either side of the plane fit them equally well. (Three points
 //! are always coplanar, so a fixed-radius fit needs four in practice; fewer
 //! than three is refused as too few.)
+//!
+//! The passes read the N x 3 points where they are (no copy) [`LANES`] at a
+//! time, and keep [`LANES`] independent partial sums (and minima, maxima) of
+//! every quantity, added up in a fixed order at the end, so that they run
+//! on SIMD vectors and the result does not depend on the instruction set: on
+//! x86-64 with AVX when the CPU has it (detected at run time) and SSE2
+//! otherwise, bit for bit the same.
+
+use std::borrow::Cow;
 
 use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 use rayon::prelude::*;
 
+#[cfg(test)]
+use super::mean;
 use super::{
-    accumulate, check_reject, fit_robust, mean, read_points, rms_and_form, sorted_eigen,
-    spread_rank,
+    check_reject, check_rows, non_finite, reclassify, rms_and_form, sorted_eigen, spread_rank,
+    too_few_inliers, CHUNK, MAX_REJECT_ROUNDS, PARALLEL_MIN_POINTS,
 };
 use crate::error::{CoreError, Result};
 
@@ -53,6 +69,16 @@ const LAMBDA_MIN: f64 = 1e-9;
 const LAMBDA_MAX: f64 = 1e16;
 /// Smallest robust sigma used in rejection, relative to the radius.
 const SIGMA_FLOOR: f64 = 1e-12;
+/// The polar coverage is 180 degrees when the points' mean is closer to the
+/// centre than this times the radius (no axis to measure it about).
+const AXIS_FLOOR: f64 = 1e-9;
+
+/// Points per SIMD block, and independent partial sums of every quantity.
+const LANES: usize = 4;
+/// Coordinates of a block of points.
+const BLOCK: usize = 3 * LANES;
+/// Blocks per group in [`evaluate_rows`].
+const GROUP: usize = 64;
 
 /// How to fit a sphere. `Default` gives a free radius, no rejection, 100
 /// iterations and a 2 degree minimum polar coverage.
@@ -107,8 +133,13 @@ pub struct SphereFit {
     /// s^2 = SSR / (N - p), p = 4 (3 with a fixed radius, whose row and
     /// column are then zero). NaN when N = p (no degrees of freedom left).
     pub covariance: [[f64; 4]; 4],
-    /// Half-angle (degrees, 0..=180) of the smallest cone about the mean
-    /// direction of the inliers seen from the centre that holds them all.
+    /// Half-angle (degrees, 0..=180) of the smallest cone with its apex at
+    /// the centre, about the axis from the centre through the inliers' mean
+    /// (centroid), that holds all the inliers: the arccos of the smallest
+    /// cosine between that axis and a point's direction from the centre.
+    /// 180 when the mean is within 1e-9 of the radius of the centre (a
+    /// full sphere's points have no axis). A cap uniform about its axis gives
+    /// its half-angle, a hemisphere 90 degrees.
     pub polar_coverage_deg: f64,
     /// Levenberg-Marquardt steps of the final fit.
     pub iterations: usize,
@@ -170,28 +201,40 @@ fn fit(points: &[f64], opts: &SphereFitOptions, parallel: bool) -> Result<Sphere
         Some(_) => (3, "a sphere of fixed radius"),
         None => (4, "a sphere"),
     };
-    let pts = read_points(points, min, what)?;
-    let robust = fit_robust(
-        &pts,
-        opts.reject,
-        min,
-        |m: &Solved| SIGMA_FLOOR * m.radius,
-        parallel,
-        |p| solve(p, opts.radius, opts.max_iterations, parallel),
-        |m, p| (p - m.centre).norm() - m.radius,
-    )?;
-    let s = robust.model;
-    let coverage = if robust.rejected == 0 {
-        polar_coverage(&pts, &s.centre, parallel)
-    } else {
-        let kept: Vec<Vector3<f64>> = pts
-            .iter()
-            .zip(&robust.inlier)
-            .filter(|(_, &i)| i)
-            .map(|(p, _)| *p)
-            .collect();
-        polar_coverage(&kept, &s.centre, parallel)
-    };
+    let n = check_rows(points, min, what)?;
+    let cloud = Cloud::new(Cow::Borrowed(points), parallel).map_err(|()| {
+        non_finite(points).unwrap_or_else(|| {
+            CoreError::invalid_argument("points", "coordinates too large to average")
+        })
+    })?;
+    let mut residuals = vec![0.0; n];
+    let mut s = solve(&cloud, opts, parallel, &mut residuals)?;
+    // Whether `residuals` came from the pass that gave `s` its sums.
+    let mut same_pass = true;
+    let mut inlier = vec![true; n];
+    let mut rejected = 0;
+    if let Some(k) = opts.reject {
+        for _ in 0..MAX_REJECT_ROUNDS {
+            let (next, sigma) = reclassify(&residuals, &inlier, k, SIGMA_FLOOR * s.radius);
+            if next == inlier {
+                break;
+            }
+            let kept = next.iter().filter(|&&i| i).count();
+            if kept < min {
+                return Err(too_few_inliers(k, sigma, kept, n, min));
+            }
+            inlier = next;
+            let sub = cloud.subset(&inlier, parallel);
+            let mut scratch = vec![0.0; kept];
+            s = solve(&sub, opts, parallel, &mut scratch)?;
+            // Residuals of every point.
+            let t = Trial::new(&s.centre, s.radius, &(cloud.mean - s.centre));
+            evaluate(&cloud, &t, parallel, &mut residuals);
+            same_pass = false;
+        }
+        rejected = inlier.iter().filter(|&&i| !i).count();
+    }
+    let coverage = s.coverage;
     if coverage < opts.min_coverage_deg {
         return Err(CoreError::Degenerate(format!(
             "polar coverage {coverage:.3} deg is below min_coverage_deg = {} deg: the cap is \
@@ -199,30 +242,41 @@ fn fit(points: &[f64], opts: &SphereFitOptions, parallel: bool) -> Result<Sphere
             opts.min_coverage_deg, s.radius
         )));
     }
-    let (rms, form) = rms_and_form(&robust.residuals, &robust.inlier);
+    let (rms, form) = if same_pass {
+        // All points are inliers, and the pass that wrote their residuals
+        // summed their squares and found their extremes.
+        ((s.normal.cost / n as f64).sqrt(), s.hi - s.lo)
+    } else {
+        rms_and_form(&residuals, &inlier)
+    };
     Ok(SphereFit {
         centre: s.centre.into(),
         radius: s.radius,
         covariance: s.covariance(opts.radius.is_some()),
-        residuals: robust.residuals,
-        inlier: robust.inlier,
+        residuals,
+        inlier,
         rms,
         form,
         n_points: s.n,
         polar_coverage_deg: coverage,
         iterations: s.iterations,
         converged: s.converged,
-        rejected: robust.rejected,
+        rejected,
     })
 }
 
-/// One geometric fit to all of `pts`.
+/// One geometric fit to all of a cloud.
 #[derive(Debug, Clone)]
 struct Solved {
     centre: Vector3<f64>,
     radius: f64,
     /// Normal equations at the solution (undamped).
     normal: Normal,
+    /// Smallest and largest residual.
+    lo: f64,
+    hi: f64,
+    /// Polar coverage (degrees).
+    coverage: f64,
     n: usize,
     iterations: usize,
     converged: bool,
@@ -271,7 +325,7 @@ fn invert3(a: &Matrix3<f64>) -> Matrix3<f64> {
 }
 
 /// J^T J (upper triangle, row by row), J^T r and the cost sum r^2 for the
-/// parameters (c_x, c_y, c_z, R), accumulated in one pass.
+/// parameters (c_x, c_y, c_z, R).
 #[derive(Debug, Clone, Copy, Default)]
 struct Normal {
     a: [f64; 10],
@@ -280,44 +334,6 @@ struct Normal {
 }
 
 impl Normal {
-    #[inline(always)]
-    fn add(mut self, q: &Vector3<f64>, c: &Vector3<f64>, radius: f64) -> Self {
-        let d = q - c;
-        let dist = d.norm();
-        let r = dist - radius;
-        // J row = -(u, 1) with u the unit direction (zero at the centre itself).
-        let u = if dist > 0.0 { d / dist } else { d };
-        let (x, y, z) = (u.x, u.y, u.z);
-        let a = &mut self.a;
-        a[0] += x * x;
-        a[1] += x * y;
-        a[2] += x * z;
-        a[3] += x;
-        a[4] += y * y;
-        a[5] += y * z;
-        a[6] += y;
-        a[7] += z * z;
-        a[8] += z;
-        a[9] += 1.0;
-        self.g[0] -= x * r;
-        self.g[1] -= y * r;
-        self.g[2] -= z * r;
-        self.g[3] -= r;
-        self.cost += r * r;
-        self
-    }
-
-    fn merge(mut self, o: Normal) -> Self {
-        for (a, b) in self.a.iter_mut().zip(o.a) {
-            *a += b;
-        }
-        for (a, b) in self.g.iter_mut().zip(o.g) {
-            *a += b;
-        }
-        self.cost += o.cost;
-        self
-    }
-
     fn matrix(&self) -> Matrix4<f64> {
         let a = &self.a;
         Matrix4::new(
@@ -354,27 +370,10 @@ impl Normal {
     }
 }
 
-/// Cost and normal equations at (c, R) over the centred points `q`.
-fn evaluate(q: &[Vector3<f64>], c: &Vector3<f64>, radius: f64, parallel: bool) -> Normal {
-    accumulate(
-        q,
-        parallel,
-        Normal::default,
-        |acc, p| acc.add(p, c, radius),
-        Normal::merge,
-    )
-}
-
-/// The algebraic start in centred coordinates: centre and radius.
-fn algebraic(q: &[Vector3<f64>], parallel: bool) -> Result<(Vector3<f64>, f64)> {
-    let (s, b) = accumulate(
-        q,
-        parallel,
-        || (Matrix3::zeros(), Vector3::zeros()),
-        |(s, b), p| (s + p * p.transpose(), b + p * p.norm_squared()),
-        |(s1, b1), (s2, b2)| (s1 + s2, b1 + b2),
-    );
-    let (values, vectors) = sorted_eigen(s);
+/// The algebraic start in centred coordinates from the moments of `n`
+/// centred points: centre and radius.
+fn algebraic_start(m: &Moments, n: usize) -> Result<(Vector3<f64>, f64)> {
+    let (values, vectors) = sorted_eigen(m.s);
     match spread_rank(&values) {
         0 => Err(CoreError::Degenerate(
             "all points coincide: no unique sphere".into(),
@@ -387,25 +386,30 @@ fn algebraic(q: &[Vector3<f64>], parallel: bool) -> Result<(Vector3<f64>, f64)> 
         )),
         _ => {
             // a = -S^-1 b through the eigen-decomposition; c = -a / 2.
-            let w = vectors.transpose() * b;
+            let w = vectors.transpose() * m.b;
             let w = Vector3::new(w.x / values[0], w.y / values[1], w.z / values[2]);
             let centre = vectors * w * 0.5;
-            let r2 = centre.norm_squared() + s.trace() / q.len() as f64;
+            let r2 = centre.norm_squared() + m.s.trace() / n as f64;
             Ok((centre, r2.max(0.0).sqrt()))
         }
     }
 }
 
-/// The geometric fit of one set of points.
-fn solve(
-    pts: &[Vector3<f64>],
-    fixed: Option<f64>,
-    max_iterations: usize,
-    parallel: bool,
-) -> Result<Solved> {
-    let m = mean(pts, parallel);
-    let q: Vec<Vector3<f64>> = pts.iter().map(|p| p - m).collect();
-    let (mut c, r0) = algebraic(&q, parallel)?;
+/// The algebraic start of the centred points `q`: centre and radius.
+#[cfg(test)]
+fn algebraic(q: &[Vector3<f64>], _parallel: bool) -> Result<(Vector3<f64>, f64)> {
+    let (s, b) = q.iter().fold((Matrix3::zeros(), Vector3::zeros()), |(s, b), p| {
+        (s + p * p.transpose(), b + p * p.norm_squared())
+    });
+    algebraic_start(&Moments { s, b }, q.len())
+}
+
+/// The geometric fit of one cloud; `res` receives the residuals at the
+/// solution.
+fn solve(cloud: &Cloud, opts: &SphereFitOptions, parallel: bool, res: &mut [f64]) -> Result<Solved> {
+    let (fixed, max_iterations) = (opts.radius, opts.max_iterations);
+    let n = cloud.n;
+    let (mut c, r0) = algebraic_start(&cloud.moments, n)?;
     let mut radius = r0;
     if let Some(rf) = fixed {
         // Keep the apex of the cap where the algebraic sphere puts it: move
@@ -417,7 +421,12 @@ fn solve(
         radius = rf;
     }
     let fixed_r = fixed.is_some();
-    let mut cur = evaluate(&q, &c, radius, parallel);
+    // The parameters are relative to the mean; the passes evaluate the
+    // sphere about mean + c.
+    let trial = |c: &Vector3<f64>, radius: f64| Trial::new(&(cloud.mean + c), radius, &-c);
+    let mut cur = evaluate(cloud, &trial(&c, radius), parallel, res);
+    // Whether `res` holds the residuals at (c, radius) (not a failed trial's).
+    let mut res_current = true;
     // Pure Gauss-Newton while it works; damping only after a failed step.
     let mut lambda = 0.0;
     let mut iterations = 0;
@@ -425,13 +434,15 @@ fn solve(
     loop {
         // Converged when the undamped step is negligible, or would lower the
         // cost negligibly, or the residuals are at rounding level already.
-        if cur.cost <= q.len() as f64 * (RMS_FLOOR * radius).powi(2) {
+        let normal = &cur.normal;
+        if normal.cost <= n as f64 * (RMS_FLOOR * radius).powi(2) {
             converged = true;
             break;
         }
-        let gauss_newton = cur.step(0.0, fixed_r);
+        let gauss_newton = normal.step(0.0, fixed_r);
         if let Some(d) = gauss_newton {
-            if d.norm() <= STEP_TOL * radius.abs() || cur.predicted(&d) <= COST_TOL * cur.cost {
+            if d.norm() <= STEP_TOL * radius.abs() || normal.predicted(&d) <= COST_TOL * normal.cost
+            {
                 converged = true;
                 break;
             }
@@ -442,16 +453,17 @@ fn solve(
         let step = if lambda == 0.0 {
             gauss_newton
         } else {
-            cur.step(lambda, fixed_r)
+            normal.step(lambda, fixed_r)
         };
         let accepted = match step {
             Some(d) => {
                 iterations += 1;
                 let (c_try, r_try) = (c + d.fixed_rows::<3>(0), radius + d[3]);
-                let trial = evaluate(&q, &c_try, r_try, parallel);
-                if trial.cost <= cur.cost {
-                    let small = cur.cost - trial.cost <= COST_TOL * cur.cost;
-                    (c, radius, cur) = (c_try, r_try, trial);
+                let next = evaluate(cloud, &trial(&c_try, r_try), parallel, res);
+                res_current = next.normal.cost <= cur.normal.cost;
+                if res_current {
+                    let small = cur.normal.cost - next.normal.cost <= COST_TOL * cur.normal.cost;
+                    (c, radius, cur) = (c_try, r_try, next);
                     if small {
                         converged = true;
                         break;
@@ -477,72 +489,917 @@ fn solve(
         } else {
             lambda = (lambda * 10.0).max(LAMBDA_START);
             if lambda > LAMBDA_MAX {
-                return Err(stalled(pts, &(c + m), radius, parallel));
+                return Err(stalled(cloud, &trial(&c, radius), parallel));
             }
         }
     }
-    let centre = c + m;
-    if !(radius.is_finite() && radius > 0.0 && centre.iter().all(|x| x.is_finite())) {
+    let t = trial(&c, radius);
+    if !(radius.is_finite() && radius > 0.0 && t.c.iter().all(|x| x.is_finite())) {
         return Err(CoreError::Degenerate(format!(
             "sphere fit diverged (radius {radius} mm, polar coverage {:.3} deg): the points \
              do not describe a sphere",
-            polar_coverage(pts, &centre, parallel)
+            coverage(cloud, &t, parallel)
         )));
     }
+    if !res_current {
+        // The same pass as the one that gave `cur`, so the same numbers.
+        cur = evaluate(cloud, &t, parallel, res);
+    }
     Ok(Solved {
-        centre,
+        centre: Vector3::from(t.c),
         radius,
-        normal: cur,
-        n: pts.len(),
+        normal: cur.normal,
+        lo: cur.lo,
+        hi: cur.hi,
+        coverage: cur.coverage,
+        n,
         iterations,
         converged,
     })
 }
 
+/// Polar coverage (degrees) of `cloud` seen from the centre of `t`.
 #[cold]
-fn stalled(pts: &[Vector3<f64>], centre: &Vector3<f64>, radius: f64, parallel: bool) -> CoreError {
+fn coverage(cloud: &Cloud, t: &Trial, parallel: bool) -> f64 {
+    evaluate(cloud, t, parallel, &mut vec![0.0; cloud.n]).coverage
+}
+
+#[cold]
+fn stalled(cloud: &Cloud, t: &Trial, parallel: bool) -> CoreError {
     CoreError::Degenerate(format!(
-        "sphere fit did not converge (stalled at radius {radius:.6} mm, polar coverage {:.3} \
-         deg): the cap is too small or the points do not describe a sphere",
-        polar_coverage(pts, centre, parallel)
+        "sphere fit did not converge (stalled at radius {:.6} mm, polar coverage {:.3} deg): \
+         the cap is too small or the points do not describe a sphere",
+        t.radius,
+        coverage(cloud, t, parallel)
     ))
 }
 
-/// Half-angle (degrees) of the smallest cone about the points' mean direction
-/// from `centre` that contains them all; 180 when the directions cancel.
-fn polar_coverage(pts: &[Vector3<f64>], centre: &Vector3<f64>, parallel: bool) -> f64 {
-    let unit = |p: &Vector3<f64>| {
-        let d = p - centre;
-        let n = d.norm();
-        if n > 0.0 {
-            d / n
-        } else {
-            d
+/// Points (N x 3 row-major, mm) with their mean and their moments about it.
+struct Cloud<'a> {
+    rows: Cow<'a, [f64]>,
+    n: usize,
+    mean: Vector3<f64>,
+    /// Moments about the mean, for the algebraic start.
+    moments: Moments,
+}
+
+/// Scatter matrix S = sum q q^T and b = sum q |q|^2 of centred points q.
+#[derive(Debug, Clone, Copy)]
+struct Moments {
+    s: Matrix3<f64>,
+    b: Vector3<f64>,
+}
+
+impl<'a> Cloud<'a> {
+    /// Two passes: the sums of the coordinates, then the moments about the
+    /// mean. `Err` when a sum is not finite: a NaN or infinite coordinate
+    /// (or an overflow).
+    fn new(rows: Cow<'a, [f64]>, parallel: bool) -> std::result::Result<Cloud<'a>, ()> {
+        let n = rows.len() / 3;
+        let parallel = parallel && n > PARALLEL_MIN_POINTS;
+        let sum = fold_rows(&rows, parallel, sum_chunk, |a, b| {
+            [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+        });
+        // A NaN or an infinity anywhere makes its coordinate's sum NaN or
+        // infinite.
+        if !sum.iter().all(|s| s.is_finite()) {
+            return Err(());
         }
-    };
-    let sum = accumulate(
-        pts,
-        parallel,
-        Vector3::zeros,
-        |s, p| s + unit(p),
-        |a, b| a + b,
-    );
-    let norm = sum.norm();
-    if norm.is_nan() || norm <= 1e-9 * pts.len() as f64 {
-        return 180.0;
+        let mean = Vector3::from(sum) / n as f64;
+        let m = [mean.x, mean.y, mean.z];
+        let moments = fold_rows(&rows, parallel, |r| moments_chunk(r, &m), MomentSums::merge);
+        Ok(Cloud {
+            rows,
+            n,
+            mean,
+            moments: moments.total(),
+        })
     }
-    let axis = sum / norm;
-    let widest = accumulate(
-        pts,
-        parallel,
-        || 0.0f64,
-        |w, p| {
-            let u = unit(p);
-            w.max(u.cross(&axis).norm().atan2(u.dot(&axis)))
+
+    /// The cloud of the points where `keep`.
+    fn subset(&self, keep: &[bool], parallel: bool) -> Cloud<'static> {
+        let rows: Vec<f64> = self
+            .rows
+            .chunks_exact(3)
+            .zip(keep)
+            .filter(|(_, &k)| k)
+            .flat_map(|(p, _)| [p[0], p[1], p[2]])
+            .collect();
+        Cloud::new(Cow::Owned(rows), parallel).expect("finite points have finite sums")
+    }
+}
+
+/// `f` over chunks of [`CHUNK`] rows of `rows`, the results merged, in
+/// parallel when `parallel`; `f` on all the rows otherwise.
+fn fold_rows<A, F, M>(rows: &[f64], parallel: bool, f: F, merge: M) -> A
+where
+    A: Send,
+    F: Fn(&[f64]) -> A + Sync + Send,
+    M: Fn(A, A) -> A + Sync + Send,
+{
+    if parallel {
+        rows.par_chunks(3 * CHUNK)
+            .map(f)
+            .reduce_with(merge)
+            .expect("at least one chunk")
+    } else {
+        f(rows)
+    }
+}
+
+/// A sphere to evaluate, with the unit axis about which the polar coverage
+/// is measured (zero when there is none).
+struct Trial {
+    c: [f64; 3],
+    radius: f64,
+    axis: [f64; 3],
+}
+
+impl Trial {
+    /// The sphere (c, radius); the axis is `towards_mean` (from the centre to
+    /// the points' mean) normalised, or none when it is shorter than
+    /// [`AXIS_FLOOR`] times the radius.
+    fn new(c: &Vector3<f64>, radius: f64, towards_mean: &Vector3<f64>) -> Trial {
+        let norm = towards_mean.norm();
+        let axis = if norm > AXIS_FLOOR * radius.abs() {
+            towards_mean / norm
+        } else {
+            Vector3::zeros()
+        };
+        Trial {
+            c: [c.x, c.y, c.z],
+            radius,
+            axis: [axis.x, axis.y, axis.z],
+        }
+    }
+
+    /// Whether there is an axis to measure the polar coverage about.
+    fn has_axis(&self) -> bool {
+        self.axis != [0.0; 3]
+    }
+}
+
+/// Cost, normal equations, residual extremes and coverage at one sphere.
+#[derive(Debug, Clone, Copy)]
+struct Eval {
+    normal: Normal,
+    lo: f64,
+    hi: f64,
+    /// Polar coverage (degrees) of the points seen from the sphere's centre.
+    coverage: f64,
+}
+
+/// Evaluates the sphere `t` on every point of `cloud`, writing the
+/// residuals to `res`; one pass.
+fn evaluate(cloud: &Cloud, t: &Trial, parallel: bool, res: &mut [f64]) -> Eval {
+    debug_assert_eq!(res.len(), cloud.n);
+    let acc = if parallel && cloud.n > PARALLEL_MIN_POINTS {
+        cloud
+            .rows
+            .par_chunks(3 * CHUNK)
+            .zip(res.par_chunks_mut(CHUNK))
+            .map(|(rows, res)| evaluate_chunk(rows, t, res))
+            .reduce_with(EvalSums::merge)
+            .expect("at least one chunk")
+    } else {
+        evaluate_chunk(&cloud.rows, t, res)
+    };
+    let [xx, xy, xz, yy, yz, zz] = acc.uu.map(lanes_sum);
+    let [x, y, z] = acc.u.map(lanes_sum);
+    let [xr, yr, zr] = acc.ur.map(lanes_sum);
+    let lowest = |v: [f64; LANES]| v.iter().copied().fold(f64::INFINITY, f64::min);
+    let cos = lowest(acc.cos);
+    Eval {
+        normal: Normal {
+            a: [xx, xy, xz, x, yy, yz, y, zz, z, cloud.n as f64],
+            g: [-xr, -yr, -zr, -lanes_sum(acc.r)],
+            cost: lanes_sum(acc.rr),
         },
-        f64::max,
-    );
-    widest.to_degrees()
+        lo: lowest(acc.lo),
+        hi: acc.hi.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        coverage: if t.has_axis() {
+            cos.clamp(-1.0, 1.0).acos().to_degrees()
+        } else {
+            180.0
+        },
+    }
+}
+
+/// The lanes of a partial sum added in a fixed order.
+#[inline(always)]
+fn lanes_sum(v: [f64; LANES]) -> f64 {
+    (v[0] + v[1]) + (v[2] + v[3])
+}
+
+/// Partial sums of one evaluation pass, lane by lane. With u the unit
+/// direction from the centre and r the residual: sums of the products of
+/// u's components, of u, of u r, r and r^2; the smallest and largest r and
+/// the smallest cosine u . axis.
+#[derive(Clone, Copy)]
+struct EvalSums {
+    /// xx, xy, xz, yy, yz, zz.
+    uu: [[f64; LANES]; 6],
+    u: [[f64; LANES]; 3],
+    ur: [[f64; LANES]; 3],
+    r: [f64; LANES],
+    rr: [f64; LANES],
+    lo: [f64; LANES],
+    hi: [f64; LANES],
+    cos: [f64; LANES],
+}
+
+impl EvalSums {
+    fn merge(mut self, o: EvalSums) -> Self {
+        let sums = self.uu.iter_mut().chain(&mut self.u).chain(&mut self.ur);
+        let other = o.uu.iter().chain(&o.u).chain(&o.ur);
+        for (a, b) in sums.zip(other) {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        }
+        for j in 0..LANES {
+            self.r[j] += o.r[j];
+            self.rr[j] += o.rr[j];
+            self.lo[j] = self.lo[j].min(o.lo[j]);
+            self.hi[j] = self.hi[j].max(o.hi[j]);
+            self.cos[j] = self.cos[j].min(o.cos[j]);
+        }
+        self
+    }
+}
+
+/// Partial sums of [`Moments`], lane by lane.
+#[derive(Clone, Copy)]
+struct MomentSums {
+    /// xx, xy, xz, yy, yz, zz.
+    s: [[f64; LANES]; 6],
+    b: [[f64; LANES]; 3],
+}
+
+impl MomentSums {
+    fn merge(mut self, o: MomentSums) -> Self {
+        for (a, b) in self.s.iter_mut().chain(&mut self.b).zip(o.s.iter().chain(&o.b)) {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        }
+        self
+    }
+
+    fn total(&self) -> Moments {
+        let s = self.s.map(lanes_sum);
+        let b = self.b.map(lanes_sum);
+        Moments {
+            s: Matrix3::new(
+                s[0], s[1], s[2], //
+                s[1], s[3], s[4], //
+                s[2], s[4], s[5],
+            ),
+            b: Vector3::from(b),
+        }
+    }
+}
+
+
+/// [`LANES`] f64 values operated on together (a SIMD vector where there is
+/// one). Every operation is the IEEE one lane by lane, so all
+/// implementations give the same bits.
+trait Quad: Copy {
+    fn splat(v: f64) -> Self;
+    fn from_array(a: [f64; LANES]) -> Self;
+    fn store(self, a: &mut [f64; LANES]);
+    /// The x, y and z of the block of [`LANES`] points `rows` (N x 3
+    /// row-major).
+    fn load_rows(rows: &[f64; BLOCK]) -> (Self, Self, Self);
+    fn add(self, o: Self) -> Self;
+    fn sub(self, o: Self) -> Self;
+    fn mul(self, o: Self) -> Self;
+    fn div(self, o: Self) -> Self;
+    fn sqrt(self) -> Self;
+    /// `if self < o { self } else { o }` (the x86 MINPD rule).
+    fn min(self, o: Self) -> Self;
+    /// `if self > o { self } else { o }` (the x86 MAXPD rule).
+    fn max(self, o: Self) -> Self;
+    /// `self` where `m > 0`, zero elsewhere (and where `m` is NaN).
+    fn where_positive(self, m: Self) -> Self;
+
+    #[inline(always)]
+    fn load(a: &[f64]) -> Self {
+        Self::from_array(a[..LANES].try_into().expect("LANES values"))
+    }
+
+    #[inline(always)]
+    fn to_array(self) -> [f64; LANES] {
+        let mut a = [0.0; LANES];
+        self.store(&mut a);
+        a
+    }
+}
+
+/// The portable implementation: plain arrays.
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+impl Quad for [f64; LANES] {
+    #[inline(always)]
+    fn splat(v: f64) -> Self {
+        [v; LANES]
+    }
+    #[inline(always)]
+    fn from_array(a: [f64; LANES]) -> Self {
+        a
+    }
+    #[inline(always)]
+    fn store(self, a: &mut [f64; LANES]) {
+        *a = self;
+    }
+    #[inline(always)]
+    fn load_rows(rows: &[f64; BLOCK]) -> (Self, Self, Self) {
+        (
+            std::array::from_fn(|j| rows[3 * j]),
+            std::array::from_fn(|j| rows[3 * j + 1]),
+            std::array::from_fn(|j| rows[3 * j + 2]),
+        )
+    }
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        std::array::from_fn(|j| self[j] + o[j])
+    }
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        std::array::from_fn(|j| self[j] - o[j])
+    }
+    #[inline(always)]
+    fn mul(self, o: Self) -> Self {
+        std::array::from_fn(|j| self[j] * o[j])
+    }
+    #[inline(always)]
+    fn div(self, o: Self) -> Self {
+        std::array::from_fn(|j| self[j] / o[j])
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        self.map(f64::sqrt)
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        std::array::from_fn(|j| if self[j] < o[j] { self[j] } else { o[j] })
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        std::array::from_fn(|j| if self[j] > o[j] { self[j] } else { o[j] })
+    }
+    #[inline(always)]
+    fn where_positive(self, m: Self) -> Self {
+        std::array::from_fn(|j| if m[j] > 0.0 { self[j] } else { 0.0 })
+    }
+}
+
+/// x86-64 implementations of [`Quad`]: two SSE2 registers (every x86-64
+/// CPU has SSE2) or one AVX register, and the passes compiled for AVX.
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use std::arch::x86_64::*;
+
+    use super::{EvalSums, MomentSums, Quad, Trial, BLOCK, LANES};
+
+    /// Two SSE2 vectors: lanes 0-1 and 2-3.
+    #[derive(Clone, Copy)]
+    pub struct Sse2(__m128d, __m128d);
+
+    // SAFETY (every `unsafe` block in this impl): SSE2 is part of x86-64,
+    // so these intrinsics are available on every CPU this code runs on, and
+    // the loads and stores stay inside the arrays they are given.
+    impl Quad for Sse2 {
+        #[inline(always)]
+        fn splat(v: f64) -> Self {
+            unsafe { Sse2(_mm_set1_pd(v), _mm_set1_pd(v)) }
+        }
+        #[inline(always)]
+        fn from_array(a: [f64; LANES]) -> Self {
+            unsafe { Sse2(_mm_loadu_pd(a.as_ptr()), _mm_loadu_pd(a.as_ptr().add(2))) }
+        }
+        #[inline(always)]
+        fn store(self, a: &mut [f64; LANES]) {
+            unsafe {
+                _mm_storeu_pd(a.as_mut_ptr(), self.0);
+                _mm_storeu_pd(a.as_mut_ptr().add(2), self.1);
+            }
+        }
+        #[inline(always)]
+        fn load_rows(rows: &[f64; BLOCK]) -> (Self, Self, Self) {
+            unsafe {
+                let p = rows.as_ptr();
+                // [x0 y0] [z0 x1] [y1 z1] [x2 y2] [z2 x3] [y3 z3]
+                let (a, b, c) = (_mm_loadu_pd(p), _mm_loadu_pd(p.add(2)), _mm_loadu_pd(p.add(4)));
+                let (d, e, f) = (
+                    _mm_loadu_pd(p.add(6)),
+                    _mm_loadu_pd(p.add(8)),
+                    _mm_loadu_pd(p.add(10)),
+                );
+                (
+                    Sse2(_mm_shuffle_pd::<0b10>(a, b), _mm_shuffle_pd::<0b10>(d, e)),
+                    Sse2(_mm_shuffle_pd::<0b01>(a, c), _mm_shuffle_pd::<0b01>(d, f)),
+                    Sse2(_mm_shuffle_pd::<0b10>(b, c), _mm_shuffle_pd::<0b10>(e, f)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn add(self, o: Self) -> Self {
+            unsafe { Sse2(_mm_add_pd(self.0, o.0), _mm_add_pd(self.1, o.1)) }
+        }
+        #[inline(always)]
+        fn sub(self, o: Self) -> Self {
+            unsafe { Sse2(_mm_sub_pd(self.0, o.0), _mm_sub_pd(self.1, o.1)) }
+        }
+        #[inline(always)]
+        fn mul(self, o: Self) -> Self {
+            unsafe { Sse2(_mm_mul_pd(self.0, o.0), _mm_mul_pd(self.1, o.1)) }
+        }
+        #[inline(always)]
+        fn div(self, o: Self) -> Self {
+            unsafe { Sse2(_mm_div_pd(self.0, o.0), _mm_div_pd(self.1, o.1)) }
+        }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            unsafe { Sse2(_mm_sqrt_pd(self.0), _mm_sqrt_pd(self.1)) }
+        }
+        #[inline(always)]
+        fn min(self, o: Self) -> Self {
+            unsafe { Sse2(_mm_min_pd(self.0, o.0), _mm_min_pd(self.1, o.1)) }
+        }
+        #[inline(always)]
+        fn max(self, o: Self) -> Self {
+            unsafe { Sse2(_mm_max_pd(self.0, o.0), _mm_max_pd(self.1, o.1)) }
+        }
+        #[inline(always)]
+        fn where_positive(self, m: Self) -> Self {
+            unsafe {
+                let zero = _mm_setzero_pd();
+                Sse2(
+                    _mm_and_pd(self.0, _mm_cmpgt_pd(m.0, zero)),
+                    _mm_and_pd(self.1, _mm_cmpgt_pd(m.1, zero)),
+                )
+            }
+        }
+    }
+
+    /// One AVX vector. Only ever created inside the `#[target_feature(enable
+    /// = "avx")]` functions below, which run only where AVX was detected.
+    #[derive(Clone, Copy)]
+    pub struct Avx(__m256d);
+
+    // SAFETY (every `unsafe` block in this impl): `Avx` values exist only
+    // inside the `*_avx` functions below, which are called only after
+    // `is_x86_feature_detected!("avx")`; the loads and stores stay inside
+    // the arrays they are given.
+    impl Quad for Avx {
+        #[inline(always)]
+        fn splat(v: f64) -> Self {
+            unsafe { Avx(_mm256_set1_pd(v)) }
+        }
+        #[inline(always)]
+        fn from_array(a: [f64; LANES]) -> Self {
+            unsafe { Avx(_mm256_loadu_pd(a.as_ptr())) }
+        }
+        #[inline(always)]
+        fn store(self, a: &mut [f64; LANES]) {
+            unsafe { _mm256_storeu_pd(a.as_mut_ptr(), self.0) }
+        }
+        #[inline(always)]
+        fn load_rows(rows: &[f64; BLOCK]) -> (Self, Self, Self) {
+            unsafe {
+                let p = rows.as_ptr();
+                // a = [x0 y0 | z0 x1], b = [y1 z1 | x2 y2], c = [z2 x3 | y3 z3]
+                let (a, b, c) = (
+                    _mm256_loadu_pd(p),
+                    _mm256_loadu_pd(p.add(4)),
+                    _mm256_loadu_pd(p.add(8)),
+                );
+                let xy = _mm256_blend_pd::<0b1100>(a, b); // [x0 y0 | x2 y2]
+                let zx = _mm256_permute2f128_pd::<0x21>(a, c); // [z0 x1 | z2 x3]
+                let yz = _mm256_blend_pd::<0b1100>(b, c); // [y1 z1 | y3 z3]
+                (
+                    Avx(_mm256_shuffle_pd::<0b1010>(xy, zx)),
+                    Avx(_mm256_shuffle_pd::<0b0101>(xy, yz)),
+                    Avx(_mm256_shuffle_pd::<0b1010>(zx, yz)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn add(self, o: Self) -> Self {
+            unsafe { Avx(_mm256_add_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn sub(self, o: Self) -> Self {
+            unsafe { Avx(_mm256_sub_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn mul(self, o: Self) -> Self {
+            unsafe { Avx(_mm256_mul_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn div(self, o: Self) -> Self {
+            unsafe { Avx(_mm256_div_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            unsafe { Avx(_mm256_sqrt_pd(self.0)) }
+        }
+        #[inline(always)]
+        fn min(self, o: Self) -> Self {
+            unsafe { Avx(_mm256_min_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn max(self, o: Self) -> Self {
+            unsafe { Avx(_mm256_max_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn where_positive(self, m: Self) -> Self {
+            unsafe {
+                let positive = _mm256_cmp_pd::<_CMP_GT_OQ>(m.0, _mm256_setzero_pd());
+                Avx(_mm256_and_pd(self.0, positive))
+            }
+        }
+    }
+
+    /// Whether the CPU supports AVX (detected once, then cached by `std`).
+    #[inline]
+    pub fn has_avx() -> bool {
+        std::arch::is_x86_feature_detected!("avx")
+    }
+
+    /// [`super::sum_rows`] compiled for AVX.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[target_feature(enable = "avx")]
+    pub unsafe fn sum_rows_avx(rows: &[f64]) -> [f64; 3] {
+        super::sum_rows(rows)
+    }
+
+    /// [`super::moments_rows`] for AVX.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[target_feature(enable = "avx")]
+    pub unsafe fn moments_rows_avx(rows: &[f64], m: &[f64; 3]) -> MomentSums {
+        super::moments_rows::<Avx>(rows, m)
+    }
+
+    /// [`super::evaluate_rows`] for AVX.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[target_feature(enable = "avx")]
+    pub unsafe fn evaluate_rows_avx(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums {
+        super::evaluate_rows::<Avx>(rows, t, res)
+    }
+}
+
+/// Sum of each coordinate of N x 3 row-major `rows`, [`LANES`] points at a
+/// time.
+#[inline(always)]
+fn sum_rows(rows: &[f64]) -> [f64; 3] {
+    let mut acc = [0.0; BLOCK];
+    let blocks = rows.chunks_exact(BLOCK);
+    let rest = blocks.remainder();
+    for b in blocks {
+        for (a, v) in acc.iter_mut().zip(b) {
+            *a += v;
+        }
+    }
+    let mut s = [0.0; 3];
+    for (k, a) in acc.iter().enumerate() {
+        s[k % 3] += a;
+    }
+    for (k, v) in rest.iter().enumerate() {
+        s[k % 3] += v;
+    }
+    s
+}
+
+/// [`MomentSums`] in vectors. Separate fields, not arrays, so that the
+/// compiler keeps them in registers.
+struct MomentAcc<V> {
+    xx: V,
+    xy: V,
+    xz: V,
+    yy: V,
+    yz: V,
+    zz: V,
+    bx: V,
+    by: V,
+    bz: V,
+}
+
+impl<V: Quad> MomentAcc<V> {
+    #[inline(always)]
+    fn new() -> Self {
+        let zero = V::splat(0.0);
+        MomentAcc {
+            xx: zero,
+            xy: zero,
+            xz: zero,
+            yy: zero,
+            yz: zero,
+            zz: zero,
+            bx: zero,
+            by: zero,
+            bz: zero,
+        }
+    }
+
+    /// Adds the moments of the centred points (x, y, z).
+    #[inline(always)]
+    fn add(&mut self, x: V, y: V, z: V) {
+        let (xx, yy, zz) = (x.mul(x), y.mul(y), z.mul(z));
+        self.xx = self.xx.add(xx);
+        self.xy = self.xy.add(x.mul(y));
+        self.xz = self.xz.add(x.mul(z));
+        self.yy = self.yy.add(yy);
+        self.yz = self.yz.add(y.mul(z));
+        self.zz = self.zz.add(zz);
+        let q2 = xx.add(yy).add(zz);
+        self.bx = self.bx.add(x.mul(q2));
+        self.by = self.by.add(y.mul(q2));
+        self.bz = self.bz.add(z.mul(q2));
+    }
+
+    #[inline(always)]
+    fn sums(&self) -> MomentSums {
+        MomentSums {
+            s: [self.xx, self.xy, self.xz, self.yy, self.yz, self.zz].map(V::to_array),
+            b: [self.bx, self.by, self.bz].map(V::to_array),
+        }
+    }
+}
+
+/// Moments about `m` of N x 3 row-major `rows`.
+#[inline(always)]
+fn moments_rows<V: Quad>(rows: &[f64], m: &[f64; 3]) -> MomentSums {
+    let (mx, my, mz) = (V::splat(m[0]), V::splat(m[1]), V::splat(m[2]));
+    let mut acc = MomentAcc::<V>::new();
+    let blocks = rows.chunks_exact(BLOCK);
+    let rest = blocks.remainder();
+    for b in blocks {
+        let (x, y, z) = V::load_rows(b.try_into().expect("a block"));
+        acc.add(x.sub(mx), y.sub(my), z.sub(mz));
+    }
+    if !rest.is_empty() {
+        // Padded with the mean: centred, the padding is zero and adds nothing.
+        let b: [f64; BLOCK] = std::array::from_fn(|k| rest.get(k).copied().unwrap_or(m[k % 3]));
+        let (x, y, z) = V::load_rows(&b);
+        acc.add(x.sub(mx), y.sub(my), z.sub(mz));
+    }
+    acc.sums()
+}
+
+/// Unit directions u from the centre and residuals r of a block of points.
+#[derive(Clone, Copy)]
+struct Unit<V> {
+    x: V,
+    y: V,
+    z: V,
+    r: V,
+}
+
+/// The [`Unit`] of the points (x, y, z) for the sphere (`c`, `radius`).
+#[inline(always)]
+fn unit<V: Quad>(x: V, y: V, z: V, c: &[V; 3], radius: V) -> Unit<V> {
+    let (dx, dy, dz) = (x.sub(c[0]), y.sub(c[1]), z.sub(c[2]));
+    let dist = dx.mul(dx).add(dy.mul(dy)).add(dz.mul(dz)).sqrt();
+    // J row = -(u, 1) with u the unit direction (zero at the centre itself).
+    let inv = V::splat(1.0).div(dist).where_positive(dist);
+    Unit {
+        x: dx.mul(inv),
+        y: dy.mul(inv),
+        z: dz.mul(inv),
+        r: dist.sub(radius),
+    }
+}
+
+/// The first half of [`EvalSums`] (what needs no products of u's
+/// components), in vectors.
+struct FirstSums<V> {
+    x: V,
+    y: V,
+    z: V,
+    r: V,
+    rr: V,
+    lo: V,
+    hi: V,
+    cos: V,
+}
+
+impl<V: Quad> FirstSums<V> {
+    #[inline(always)]
+    fn new() -> Self {
+        let zero = V::splat(0.0);
+        FirstSums {
+            x: zero,
+            y: zero,
+            z: zero,
+            r: zero,
+            rr: zero,
+            lo: V::splat(f64::INFINITY),
+            hi: V::splat(f64::NEG_INFINITY),
+            cos: V::splat(f64::INFINITY),
+        }
+    }
+
+    /// Adds `u`; `lo`, `hi` and `cos` are its residuals and cosines (or
+    /// +inf, -inf and +inf in lanes that are padding).
+    #[inline(always)]
+    fn add(&mut self, u: &Unit<V>, lo: V, hi: V, cos: V) {
+        self.x = self.x.add(u.x);
+        self.y = self.y.add(u.y);
+        self.z = self.z.add(u.z);
+        self.r = self.r.add(u.r);
+        self.rr = self.rr.add(u.r.mul(u.r));
+        self.lo = lo.min(self.lo);
+        self.hi = hi.max(self.hi);
+        self.cos = cos.min(self.cos);
+    }
+}
+
+/// The second half of [`EvalSums`]: products of u's components with each
+/// other and with r.
+struct SecondSums<V> {
+    xx: V,
+    xy: V,
+    xz: V,
+    yy: V,
+    yz: V,
+    zz: V,
+    xr: V,
+    yr: V,
+    zr: V,
+}
+
+impl<V: Quad> SecondSums<V> {
+    #[inline(always)]
+    fn new() -> Self {
+        let zero = V::splat(0.0);
+        SecondSums {
+            xx: zero,
+            xy: zero,
+            xz: zero,
+            yy: zero,
+            yz: zero,
+            zz: zero,
+            xr: zero,
+            yr: zero,
+            zr: zero,
+        }
+    }
+
+    #[inline(always)]
+    fn add(&mut self, u: &Unit<V>) {
+        let (x, y, z, r) = (u.x, u.y, u.z, u.r);
+        self.xx = self.xx.add(x.mul(x));
+        self.xy = self.xy.add(x.mul(y));
+        self.xz = self.xz.add(x.mul(z));
+        self.yy = self.yy.add(y.mul(y));
+        self.yz = self.yz.add(y.mul(z));
+        self.zz = self.zz.add(z.mul(z));
+        self.xr = self.xr.add(x.mul(r));
+        self.yr = self.yr.add(y.mul(r));
+        self.zr = self.zr.add(z.mul(r));
+    }
+}
+
+/// u . axis.
+#[inline(always)]
+fn cosine<V: Quad>(u: &Unit<V>, axis: &[V; 3]) -> V {
+    u.x.mul(axis[0]).add(u.y.mul(axis[1])).add(u.z.mul(axis[2]))
+}
+
+/// `v` with the lanes from `n` on replaced by `fill`.
+#[inline(always)]
+fn keep<V: Quad>(v: V, n: usize, fill: f64) -> V {
+    let mut a = v.to_array();
+    a[n..].fill(fill);
+    V::from_array(a)
+}
+
+/// Evaluates the sphere `t` on the N x 3 row-major points `rows`, writing
+/// their residuals to `res` (N long).
+///
+/// In groups of [`GROUP`] blocks of points: first the square roots and
+/// divisions (long latency, one unit) and what needs only u and r, keeping
+/// u; then the products. Two short loops with few live sums each, which the
+/// processor overlaps better than one long one.
+#[inline(always)]
+fn evaluate_rows<V: Quad>(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums {
+    let c = t.c.map(V::splat);
+    let axis = t.axis.map(V::splat);
+    let radius = V::splat(t.radius);
+    let mut first = FirstSums::<V>::new();
+    let mut second = SecondSums::<V>::new();
+    let full = res.len() / LANES;
+    let (res_full, res_rest) = res.split_at_mut(full * LANES);
+    let (rows_full, rows_rest) = rows.split_at(full * BLOCK);
+    let mut units = [[0.0; BLOCK]; GROUP];
+    for (rows, res) in rows_full
+        .chunks(GROUP * BLOCK)
+        .zip(res_full.chunks_mut(GROUP * LANES))
+    {
+        let blocks = rows.chunks_exact(BLOCK).zip(res.chunks_exact_mut(LANES));
+        for ((p, r), w) in blocks.zip(&mut units) {
+            let (x, y, z) = V::load_rows(p.try_into().expect("a block"));
+            let u = unit(x, y, z, &c, radius);
+            u.r.store(r.try_into().expect("a block"));
+            let (wx, rest) = w.split_at_mut(LANES);
+            let (wy, wz) = rest.split_at_mut(LANES);
+            u.x.store(wx.try_into().expect("a block"));
+            u.y.store(wy.try_into().expect("a block"));
+            u.z.store(wz.try_into().expect("a block"));
+            first.add(&u, u.r, u.r, cosine(&u, &axis));
+        }
+        for (w, r) in units.iter().zip(res.chunks_exact(LANES)) {
+            let u = Unit {
+                x: V::load(w),
+                y: V::load(&w[LANES..]),
+                z: V::load(&w[2 * LANES..]),
+                r: V::load(r),
+            };
+            second.add(&u);
+        }
+    }
+    if !res_rest.is_empty() {
+        let n = res_rest.len();
+        let mut p = [0.0; BLOCK];
+        p[..rows_rest.len()].copy_from_slice(rows_rest);
+        let (x, y, z) = V::load_rows(&p);
+        let u = unit(x, y, z, &c, radius);
+        res_rest.copy_from_slice(&u.r.to_array()[..n]);
+        // Padding lanes add zero to the sums and nothing to the extremes.
+        let cos = keep(cosine(&u, &axis), n, f64::INFINITY);
+        let (lo, hi) = (keep(u.r, n, f64::INFINITY), keep(u.r, n, f64::NEG_INFINITY));
+        let u = Unit {
+            x: keep(u.x, n, 0.0),
+            y: keep(u.y, n, 0.0),
+            z: keep(u.z, n, 0.0),
+            r: keep(u.r, n, 0.0),
+        };
+        first.add(&u, lo, hi, cos);
+        second.add(&u);
+    }
+    let a = |v: V| v.to_array();
+    EvalSums {
+        uu: [
+            a(second.xx),
+            a(second.xy),
+            a(second.xz),
+            a(second.yy),
+            a(second.yz),
+            a(second.zz),
+        ],
+        u: [a(first.x), a(first.y), a(first.z)],
+        ur: [a(second.xr), a(second.yr), a(second.zr)],
+        r: a(first.r),
+        rr: a(first.rr),
+        lo: a(first.lo),
+        hi: a(first.hi),
+        cos: a(first.cos),
+    }
+}
+
+/// [`sum_rows`] with the best vectors the CPU has.
+fn sum_chunk(rows: &[f64]) -> [f64; 3] {
+    #[cfg(target_arch = "x86_64")]
+    if x86::has_avx() {
+        // SAFETY: the CPU supports AVX (checked just above).
+        return unsafe { x86::sum_rows_avx(rows) };
+    }
+    sum_rows(rows)
+}
+
+/// [`moments_rows`] with the best vectors the CPU has.
+fn moments_chunk(rows: &[f64], m: &[f64; 3]) -> MomentSums {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if x86::has_avx() {
+            // SAFETY: the CPU supports AVX (checked just above).
+            return unsafe { x86::moments_rows_avx(rows, m) };
+        }
+        moments_rows::<x86::Sse2>(rows, m)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    moments_rows::<[f64; LANES]>(rows, m)
+}
+
+/// [`evaluate_rows`] with the best vectors the CPU has.
+fn evaluate_chunk(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if x86::has_avx() {
+            // SAFETY: the CPU supports AVX (checked just above).
+            return unsafe { x86::evaluate_rows_avx(rows, t, res) };
+        }
+        evaluate_rows::<x86::Sse2>(rows, t, res)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    evaluate_rows::<[f64; LANES]>(rows, t, res)
 }
 
 #[cfg(test)]
@@ -1118,5 +1975,29 @@ mod tests {
         let f = fit_sphere(&tetra, &o).unwrap();
         assert!((Vector3::from(f.centre) - Vector3::repeat(0.5)).norm() < 1e-12);
         assert!(f.covariance[0][0].is_nan());
+    }
+
+    #[test]
+    fn zz_timing() {
+        let pts = flatten(&cap([450.0, 380.0, -420.0], BALL, [0.3, 0.5, 0.8], 60.0, 20_000, 0.008, 3));
+        let reps = 2000;
+        let time = |name: &str, f: &mut dyn FnMut()| {
+            f();
+            let t = std::time::Instant::now();
+            for _ in 0..reps { f(); }
+            println!("{name} {:.2} us", t.elapsed().as_secs_f64() * 1e6 / reps as f64);
+        };
+        time("sum_chunk", &mut || { std::hint::black_box(sum_chunk(std::hint::black_box(&pts))); });
+        let m = [450.0, 380.0, -420.0];
+        time("moments_chunk", &mut || { std::hint::black_box(moments_chunk(std::hint::black_box(&pts), &m)); });
+        time("moments sse2", &mut || { std::hint::black_box(moments_rows::<x86::Sse2>(std::hint::black_box(&pts), &m)); });
+        time("Cloud::new", &mut || { std::hint::black_box(Cloud::new(Cow::Borrowed(std::hint::black_box(&pts)), false).unwrap()); });
+        let cloud = Cloud::new(Cow::Borrowed(&pts), false).unwrap();
+        let mut res = vec![0.0; cloud.n];
+        let t = Trial::new(&Vector3::new(451.0, 382.0, -417.0), 38.0, &Vector3::new(0.1, 0.2, 0.3));
+        time("evaluate", &mut || { std::hint::black_box(evaluate(&cloud, &t, false, &mut res)); });
+        time("evaluate sse2", &mut || { std::hint::black_box(evaluate_rows::<x86::Sse2>(&pts, &t, &mut res)); });
+        time("evaluate portable", &mut || { std::hint::black_box(evaluate_rows::<[f64; LANES]>(&pts, &t, &mut res)); });
+        time("fit", &mut || { std::hint::black_box(fit(std::hint::black_box(&pts), &SphereFitOptions::default(), false).unwrap()); });
     }
 }
