@@ -80,7 +80,6 @@ pub(crate) fn check_rows(points: &[f64], min: usize, what: &str) -> Result<usize
 
 /// The error naming the first row of `points` with a NaN or infinite
 /// coordinate, if there is one.
-#[cold]
 pub(crate) fn non_finite(points: &[f64]) -> Option<CoreError> {
     points
         .chunks_exact(3)
@@ -260,7 +259,13 @@ pub(crate) fn reclassify(
 
 /// The error when rejection leaves `kept` of `total` points, fewer than `min`.
 #[cold]
-pub(crate) fn too_few_inliers(k: f64, sigma: f64, kept: usize, total: usize, min: usize) -> CoreError {
+pub(crate) fn too_few_inliers(
+    k: f64,
+    sigma: f64,
+    kept: usize,
+    total: usize,
+    min: usize,
+) -> CoreError {
     CoreError::Degenerate(format!(
         "rejecting outliers (reject = {k}, robust sigma {sigma:.3e} mm) left {kept} of {total} \
          points, fewer than the {min} the fit needs"

@@ -153,7 +153,8 @@ pub struct SphereFit {
 /// points when there are many ([`super::PARALLEL_MIN_POINTS`]).
 ///
 /// Errors: `InvalidArgument` for a bad option, fewer than 4 points (3 with a
-/// fixed radius) or a non-finite coordinate (naming the first bad row);
+/// fixed radius), a non-finite coordinate (naming the first bad row) or
+/// coordinates so large (~1e308 / N) that their sum overflows;
 /// `Degenerate` for coincident, collinear or coplanar points, a cap below
 /// `min_coverage_deg`, a fit that stalls or diverges, or outlier rejection
 /// leaving too few points.
@@ -398,15 +399,22 @@ fn algebraic_start(m: &Moments, n: usize) -> Result<(Vector3<f64>, f64)> {
 /// The algebraic start of the centred points `q`: centre and radius.
 #[cfg(test)]
 fn algebraic(q: &[Vector3<f64>], _parallel: bool) -> Result<(Vector3<f64>, f64)> {
-    let (s, b) = q.iter().fold((Matrix3::zeros(), Vector3::zeros()), |(s, b), p| {
-        (s + p * p.transpose(), b + p * p.norm_squared())
-    });
+    let (s, b) = q
+        .iter()
+        .fold((Matrix3::zeros(), Vector3::zeros()), |(s, b), p| {
+            (s + p * p.transpose(), b + p * p.norm_squared())
+        });
     algebraic_start(&Moments { s, b }, q.len())
 }
 
 /// The geometric fit of one cloud; `res` receives the residuals at the
 /// solution.
-fn solve(cloud: &Cloud, opts: &SphereFitOptions, parallel: bool, res: &mut [f64]) -> Result<Solved> {
+fn solve(
+    cloud: &Cloud,
+    opts: &SphereFitOptions,
+    parallel: bool,
+    res: &mut [f64],
+) -> Result<Solved> {
     let (fixed, max_iterations) = (opts.radius, opts.max_iterations);
     let n = cloud.n;
     let (mut c, r0) = algebraic_start(&cloud.moments, n)?;
@@ -738,7 +746,12 @@ struct MomentSums {
 
 impl MomentSums {
     fn merge(mut self, o: MomentSums) -> Self {
-        for (a, b) in self.s.iter_mut().chain(&mut self.b).zip(o.s.iter().chain(&o.b)) {
+        for (a, b) in self
+            .s
+            .iter_mut()
+            .chain(&mut self.b)
+            .zip(o.s.iter().chain(&o.b))
+        {
             for (x, y) in a.iter_mut().zip(b) {
                 *x += y;
             }
@@ -759,7 +772,6 @@ impl MomentSums {
         }
     }
 }
-
 
 /// [`LANES`] f64 values operated on together (a SIMD vector where there is
 /// one). Every operation is the IEEE one lane by lane, so all
@@ -797,7 +809,6 @@ trait Quad: Copy {
 }
 
 /// The portable implementation: plain arrays.
-#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
 impl Quad for [f64; LANES] {
     #[inline(always)]
     fn splat(v: f64) -> Self {
@@ -889,7 +900,11 @@ mod x86 {
             unsafe {
                 let p = rows.as_ptr();
                 // [x0 y0] [z0 x1] [y1 z1] [x2 y2] [z2 x3] [y3 z3]
-                let (a, b, c) = (_mm_loadu_pd(p), _mm_loadu_pd(p.add(2)), _mm_loadu_pd(p.add(4)));
+                let (a, b, c) = (
+                    _mm_loadu_pd(p),
+                    _mm_loadu_pd(p.add(2)),
+                    _mm_loadu_pd(p.add(4)),
+                );
                 let (d, e, f) = (
                     _mm_loadu_pd(p.add(6)),
                     _mm_loadu_pd(p.add(8)),
@@ -942,10 +957,11 @@ mod x86 {
         }
     }
 
-    /// One AVX vector. Only ever created inside the `#[target_feature(enable
-    /// = "avx")]` functions below, which run only where AVX was detected.
+    /// One AVX vector. Private to this module, so only ever created inside
+    /// the `#[target_feature(enable = "avx")]` functions below, which run
+    /// only where AVX was detected.
     #[derive(Clone, Copy)]
-    pub struct Avx(__m256d);
+    struct Avx(__m256d);
 
     // SAFETY (every `unsafe` block in this impl): `Avx` values exist only
     // inside the `*_avx` functions below, which are called only after
@@ -1138,11 +1154,20 @@ impl<V: Quad> MomentAcc<V> {
 fn moments_rows<V: Quad>(rows: &[f64], m: &[f64; 3]) -> MomentSums {
     let (mx, my, mz) = (V::splat(m[0]), V::splat(m[1]), V::splat(m[2]));
     let mut acc = MomentAcc::<V>::new();
-    let blocks = rows.chunks_exact(BLOCK);
-    let rest = blocks.remainder();
-    for b in blocks {
-        let (x, y, z) = V::load_rows(b.try_into().expect("a block"));
-        acc.add(x.sub(mx), y.sub(my), z.sub(mz));
+    let (full, rest) = rows.split_at(rows.len() / BLOCK * BLOCK);
+    let mut q = [[0.0; BLOCK]; GROUP];
+    for g in full.chunks(GROUP * BLOCK) {
+        for (b, q) in g.chunks_exact(BLOCK).zip(&mut q) {
+            let (x, y, z) = V::load_rows(b.try_into().expect("a block"));
+            let (qx, rest) = q.split_at_mut(LANES);
+            let (qy, qz) = rest.split_at_mut(LANES);
+            x.sub(mx).store(qx.try_into().expect("a block"));
+            y.sub(my).store(qy.try_into().expect("a block"));
+            z.sub(mz).store(qz.try_into().expect("a block"));
+        }
+        for q in &q[..g.len() / BLOCK] {
+            acc.add(V::load(q), V::load(&q[LANES..]), V::load(&q[2 * LANES..]));
+        }
     }
     if !rest.is_empty() {
         // Padded with the mean: centred, the padding is zero and adds nothing.
@@ -1177,93 +1202,113 @@ fn unit<V: Quad>(x: V, y: V, z: V, c: &[V; 3], radius: V) -> Unit<V> {
     }
 }
 
-/// The first half of [`EvalSums`] (what needs no products of u's
-/// components), in vectors.
-struct FirstSums<V> {
-    x: V,
-    y: V,
-    z: V,
+/// The sums of an evaluation pass that need only the residuals r: of r,
+/// of r^2, and the smallest and largest r, in vectors.
+struct ResidualSums<V> {
     r: V,
     rr: V,
     lo: V,
     hi: V,
-    cos: V,
 }
 
-impl<V: Quad> FirstSums<V> {
+impl<V: Quad> ResidualSums<V> {
     #[inline(always)]
     fn new() -> Self {
         let zero = V::splat(0.0);
-        FirstSums {
-            x: zero,
-            y: zero,
-            z: zero,
+        ResidualSums {
             r: zero,
             rr: zero,
             lo: V::splat(f64::INFINITY),
             hi: V::splat(f64::NEG_INFINITY),
-            cos: V::splat(f64::INFINITY),
         }
     }
 
-    /// Adds `u`; `lo`, `hi` and `cos` are its residuals and cosines (or
-    /// +inf, -inf and +inf in lanes that are padding).
+    /// Adds `r`; `lo` and `hi` are `r`, or +inf and -inf in lanes that are
+    /// padding (where `r` is zero).
     #[inline(always)]
-    fn add(&mut self, u: &Unit<V>, lo: V, hi: V, cos: V) {
-        self.x = self.x.add(u.x);
-        self.y = self.y.add(u.y);
-        self.z = self.z.add(u.z);
-        self.r = self.r.add(u.r);
-        self.rr = self.rr.add(u.r.mul(u.r));
+    fn add(&mut self, r: V, lo: V, hi: V) {
+        self.r = self.r.add(r);
+        self.rr = self.rr.add(r.mul(r));
         self.lo = lo.min(self.lo);
         self.hi = hi.max(self.hi);
-        self.cos = cos.min(self.cos);
     }
 }
 
-/// The second half of [`EvalSums`]: products of u's components with each
-/// other and with r.
-struct SecondSums<V> {
+/// The sums of an evaluation pass over u: the products of its components
+/// and the components, in vectors.
+struct DirectionSums<V> {
     xx: V,
     xy: V,
     xz: V,
     yy: V,
     yz: V,
     zz: V,
-    xr: V,
-    yr: V,
-    zr: V,
+    x: V,
+    y: V,
+    z: V,
 }
 
-impl<V: Quad> SecondSums<V> {
+impl<V: Quad> DirectionSums<V> {
     #[inline(always)]
     fn new() -> Self {
         let zero = V::splat(0.0);
-        SecondSums {
+        DirectionSums {
             xx: zero,
             xy: zero,
             xz: zero,
             yy: zero,
             yz: zero,
             zz: zero,
-            xr: zero,
-            yr: zero,
-            zr: zero,
+            x: zero,
+            y: zero,
+            z: zero,
         }
     }
 
     #[inline(always)]
     fn add(&mut self, u: &Unit<V>) {
-        let (x, y, z, r) = (u.x, u.y, u.z, u.r);
+        let (x, y, z) = (u.x, u.y, u.z);
         self.xx = self.xx.add(x.mul(x));
         self.xy = self.xy.add(x.mul(y));
         self.xz = self.xz.add(x.mul(z));
         self.yy = self.yy.add(y.mul(y));
         self.yz = self.yz.add(y.mul(z));
         self.zz = self.zz.add(z.mul(z));
-        self.xr = self.xr.add(x.mul(r));
-        self.yr = self.yr.add(y.mul(r));
-        self.zr = self.zr.add(z.mul(r));
+        self.x = self.x.add(x);
+        self.y = self.y.add(y);
+        self.z = self.z.add(z);
+    }
+}
+
+/// The sums of an evaluation pass over u and r: of u r, and the smallest
+/// cosine u . axis, in vectors.
+struct GradientSums<V> {
+    xr: V,
+    yr: V,
+    zr: V,
+    cos: V,
+}
+
+impl<V: Quad> GradientSums<V> {
+    #[inline(always)]
+    fn new() -> Self {
+        let zero = V::splat(0.0);
+        GradientSums {
+            xr: zero,
+            yr: zero,
+            zr: zero,
+            cos: V::splat(f64::INFINITY),
+        }
+    }
+
+    /// Adds `u`; `cos` is its cosine to the axis, or +inf in lanes that are
+    /// padding.
+    #[inline(always)]
+    fn add(&mut self, u: &Unit<V>, cos: V) {
+        self.xr = self.xr.add(u.x.mul(u.r));
+        self.yr = self.yr.add(u.y.mul(u.r));
+        self.zr = self.zr.add(u.z.mul(u.r));
+        self.cos = cos.min(self.cos);
     }
 }
 
@@ -1284,21 +1329,28 @@ fn keep<V: Quad>(v: V, n: usize, fill: f64) -> V {
 /// Evaluates the sphere `t` on the N x 3 row-major points `rows`, writing
 /// their residuals to `res` (N long).
 ///
-/// In groups of [`GROUP`] blocks of points: first the square roots and
-/// divisions (long latency, one unit) and what needs only u and r, keeping
-/// u; then the products. Two short loops with few live sums each, which the
-/// processor overlaps better than one long one.
+/// In groups of [`GROUP`] blocks of points, three loops: the square roots
+/// and divisions (long latency, one unit) with the sums of r, keeping u;
+/// then the sums over u; then those over u and r. Short loops with few live
+/// sums each, which the processor overlaps better than one long one.
 #[inline(always)]
 fn evaluate_rows<V: Quad>(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums {
     let c = t.c.map(V::splat);
     let axis = t.axis.map(V::splat);
     let radius = V::splat(t.radius);
-    let mut first = FirstSums::<V>::new();
-    let mut second = SecondSums::<V>::new();
+    let mut rs = ResidualSums::<V>::new();
+    let mut us = DirectionSums::<V>::new();
+    let mut gs = GradientSums::<V>::new();
     let full = res.len() / LANES;
     let (res_full, res_rest) = res.split_at_mut(full * LANES);
     let (rows_full, rows_rest) = rows.split_at(full * BLOCK);
     let mut units = [[0.0; BLOCK]; GROUP];
+    let load = |w: &[f64; BLOCK], r: &[f64]| Unit {
+        x: V::load(w),
+        y: V::load(&w[LANES..]),
+        z: V::load(&w[2 * LANES..]),
+        r: V::load(r),
+    };
     for (rows, res) in rows_full
         .chunks(GROUP * BLOCK)
         .zip(res_full.chunks_mut(GROUP * LANES))
@@ -1313,16 +1365,14 @@ fn evaluate_rows<V: Quad>(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums 
             u.x.store(wx.try_into().expect("a block"));
             u.y.store(wy.try_into().expect("a block"));
             u.z.store(wz.try_into().expect("a block"));
-            first.add(&u, u.r, u.r, cosine(&u, &axis));
+            rs.add(u.r, u.r, u.r);
         }
         for (w, r) in units.iter().zip(res.chunks_exact(LANES)) {
-            let u = Unit {
-                x: V::load(w),
-                y: V::load(&w[LANES..]),
-                z: V::load(&w[2 * LANES..]),
-                r: V::load(r),
-            };
-            second.add(&u);
+            us.add(&load(w, r));
+        }
+        for (w, r) in units.iter().zip(res.chunks_exact(LANES)) {
+            let u = load(w, r);
+            gs.add(&u, cosine(&u, &axis));
         }
     }
     if !res_rest.is_empty() {
@@ -1341,26 +1391,20 @@ fn evaluate_rows<V: Quad>(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums 
             z: keep(u.z, n, 0.0),
             r: keep(u.r, n, 0.0),
         };
-        first.add(&u, lo, hi, cos);
-        second.add(&u);
+        rs.add(u.r, lo, hi);
+        us.add(&u);
+        gs.add(&u, cos);
     }
     let a = |v: V| v.to_array();
     EvalSums {
-        uu: [
-            a(second.xx),
-            a(second.xy),
-            a(second.xz),
-            a(second.yy),
-            a(second.yz),
-            a(second.zz),
-        ],
-        u: [a(first.x), a(first.y), a(first.z)],
-        ur: [a(second.xr), a(second.yr), a(second.zr)],
-        r: a(first.r),
-        rr: a(first.rr),
-        lo: a(first.lo),
-        hi: a(first.hi),
-        cos: a(first.cos),
+        uu: [a(us.xx), a(us.xy), a(us.xz), a(us.yy), a(us.yz), a(us.zz)],
+        u: [a(us.x), a(us.y), a(us.z)],
+        ur: [a(gs.xr), a(gs.yr), a(gs.zr)],
+        r: a(rs.r),
+        rr: a(rs.rr),
+        lo: a(rs.lo),
+        hi: a(rs.hi),
+        cos: a(gs.cos),
     }
 }
 
@@ -1385,7 +1429,9 @@ fn moments_chunk(rows: &[f64], m: &[f64; 3]) -> MomentSums {
         moments_rows::<x86::Sse2>(rows, m)
     }
     #[cfg(not(target_arch = "x86_64"))]
-    moments_rows::<[f64; LANES]>(rows, m)
+    {
+        moments_rows::<[f64; LANES]>(rows, m)
+    }
 }
 
 /// [`evaluate_rows`] with the best vectors the CPU has.
@@ -1399,7 +1445,9 @@ fn evaluate_chunk(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums {
         evaluate_rows::<x86::Sse2>(rows, t, res)
     }
     #[cfg(not(target_arch = "x86_64"))]
-    evaluate_rows::<[f64; LANES]>(rows, t, res)
+    {
+        evaluate_rows::<[f64; LANES]>(rows, t, res)
+    }
 }
 
 #[cfg(test)]
@@ -1977,27 +2025,119 @@ mod tests {
         assert!(f.covariance[0][0].is_nan());
     }
 
+    /// Points on a 70 degree cap (8 um noise), N x 3 row-major.
+    fn noisy_rows(n: usize, seed: u64) -> Vec<f64> {
+        flatten(&cap(
+            [450.0, 380.0, -420.0],
+            BALL,
+            [0.3, -0.5, 0.8],
+            70.0,
+            n,
+            0.008,
+            seed,
+        ))
+    }
+
+    /// The bits of every partial sum.
+    fn bits(e: &EvalSums) -> Vec<u64> {
+        let mut v: Vec<&[f64; LANES]> = e.uu.iter().chain(&e.u).chain(&e.ur).collect();
+        v.extend([&e.r, &e.rr, &e.lo, &e.hi, &e.cos]);
+        v.into_iter().flatten().map(|x| x.to_bits()).collect()
+    }
+
     #[test]
-    fn zz_timing() {
-        let pts = flatten(&cap([450.0, 380.0, -420.0], BALL, [0.3, 0.5, 0.8], 60.0, 20_000, 0.008, 3));
-        let reps = 2000;
-        let time = |name: &str, f: &mut dyn FnMut()| {
-            f();
-            let t = std::time::Instant::now();
-            for _ in 0..reps { f(); }
-            println!("{name} {:.2} us", t.elapsed().as_secs_f64() * 1e6 / reps as f64);
-        };
-        time("sum_chunk", &mut || { std::hint::black_box(sum_chunk(std::hint::black_box(&pts))); });
-        let m = [450.0, 380.0, -420.0];
-        time("moments_chunk", &mut || { std::hint::black_box(moments_chunk(std::hint::black_box(&pts), &m)); });
-        time("moments sse2", &mut || { std::hint::black_box(moments_rows::<x86::Sse2>(std::hint::black_box(&pts), &m)); });
-        time("Cloud::new", &mut || { std::hint::black_box(Cloud::new(Cow::Borrowed(std::hint::black_box(&pts)), false).unwrap()); });
-        let cloud = Cloud::new(Cow::Borrowed(&pts), false).unwrap();
-        let mut res = vec![0.0; cloud.n];
-        let t = Trial::new(&Vector3::new(451.0, 382.0, -417.0), 38.0, &Vector3::new(0.1, 0.2, 0.3));
-        time("evaluate", &mut || { std::hint::black_box(evaluate(&cloud, &t, false, &mut res)); });
-        time("evaluate sse2", &mut || { std::hint::black_box(evaluate_rows::<x86::Sse2>(&pts, &t, &mut res)); });
-        time("evaluate portable", &mut || { std::hint::black_box(evaluate_rows::<[f64; LANES]>(&pts, &t, &mut res)); });
-        time("fit", &mut || { std::hint::black_box(fit(std::hint::black_box(&pts), &SphereFitOptions::default(), false).unwrap()); });
+    fn fit_sphere_passes_agree_bit_for_bit_across_instruction_sets() {
+        // Every implementation of the passes (plain arrays, SSE2, AVX where
+        // the CPU has it) does the same IEEE operations lane by lane, so the
+        // sums and residuals are identical, whatever the number of points
+        // (full blocks, a partial last block, several groups).
+        let t = Trial::new(
+            &Vector3::new(451.0, 379.0, -419.5),
+            38.1,
+            &Vector3::new(0.1, -0.2, 0.3),
+        );
+        for n in [1, 2, 3, 4, 5, 7, 255, 256, 257, 1001, 4099] {
+            let rows = noisy_rows(n, n as u64);
+            let mut want = vec![0.0; n];
+            let plain = evaluate_rows::<[f64; LANES]>(&rows, &t, &mut want);
+            // The residuals are |p - c| - R computed point by point.
+            for (p, r) in rows.chunks_exact(3).zip(&want) {
+                let d = [p[0] - t.c[0], p[1] - t.c[1], p[2] - t.c[2]];
+                let direct = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() - t.radius;
+                assert_eq!(r.to_bits(), direct.to_bits(), "n = {n}");
+            }
+            let m = [450.0, 380.0, -420.0];
+            let moments = moments_rows::<[f64; LANES]>(&rows, &m);
+            let mut got = vec![0.0; n];
+            let dispatched = evaluate_chunk(&rows, &t, &mut got);
+            assert_eq!(bits(&plain), bits(&dispatched), "n = {n}");
+            assert_eq!(want, got);
+            assert_eq!(sum_rows(&rows), sum_chunk(&rows));
+            let dispatched = moments_chunk(&rows, &m);
+            assert_eq!(moments.s, dispatched.s);
+            assert_eq!(moments.b, dispatched.b);
+            #[cfg(target_arch = "x86_64")]
+            {
+                let sse2 = evaluate_rows::<x86::Sse2>(&rows, &t, &mut got);
+                assert_eq!(bits(&plain), bits(&sse2), "n = {n}");
+                assert_eq!(want, got);
+                let sse2 = moments_rows::<x86::Sse2>(&rows, &m);
+                assert_eq!(moments.s, sse2.s);
+                assert_eq!(moments.b, sse2.b);
+            }
+        }
+    }
+
+    #[test]
+    fn fit_sphere_sums_match_a_direct_computation() {
+        // The pass against a plain loop over the points: the same sums to
+        // rounding, extremes exactly, whatever the block and group layout.
+        let t = Trial::new(
+            &Vector3::new(450.5, 380.2, -419.0),
+            38.0,
+            &Vector3::new(-0.3, 0.1, -1.0),
+        );
+        let axis = Vector3::from(t.axis);
+        for n in [6, 1003, 20_001] {
+            let rows = noisy_rows(n, 11);
+            let pts: Vec<Vector3<f64>> = rows
+                .chunks_exact(3)
+                .map(|p| Vector3::new(p[0], p[1], p[2]))
+                .collect();
+            let cloud = Cloud::new(Cow::Borrowed(&rows), false).unwrap();
+            // Summed in another order: the same to rounding (n ulp of 450 mm).
+            assert!((cloud.mean - mean(&pts, false)).norm() < 1e-9);
+            let mut res = vec![0.0; n];
+            let e = evaluate(&cloud, &t, false, &mut res);
+            let (mut a, mut g, mut cost) = (Matrix4::zeros(), Vector4::zeros(), 0.0);
+            let (mut lo, mut hi, mut cos) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY);
+            for p in &pts {
+                let d = p - Vector3::from(t.c);
+                let u = d / d.norm();
+                let r = d.norm() - t.radius;
+                let j = Vector4::new(-u.x, -u.y, -u.z, -1.0);
+                a += j * j.transpose();
+                g += j * r;
+                cost += r * r;
+                lo = lo.min(r);
+                hi = hi.max(r);
+                cos = cos.min(u.dot(&axis));
+            }
+            let scale = n as f64;
+            assert!((e.normal.matrix() - a).abs().max() < 1e-12 * scale);
+            assert!((Vector4::from(e.normal.g) - g).abs().max() < 1e-12 * scale);
+            assert!((e.normal.cost - cost).abs() < 1e-12 * cost);
+            assert_eq!((e.lo, e.hi), (lo, hi));
+            let cov = e.coverage.to_radians().cos();
+            assert!((cov - cos).abs() < 1e-15, "{cov} {cos}");
+            // The parallel pass (above PARALLEL_MIN_POINTS) only sums in
+            // another order.
+            let mut par = vec![0.0; n];
+            let p = evaluate(&cloud, &t, true, &mut par);
+            assert_eq!(par, res);
+            assert!((p.normal.matrix() - e.normal.matrix()).abs().max() < 1e-12 * scale);
+            assert!((p.normal.cost - e.normal.cost).abs() < 1e-12 * cost);
+            assert_eq!((p.lo, p.hi, p.coverage), (e.lo, e.hi, e.coverage));
+        }
     }
 }
