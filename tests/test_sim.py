@@ -129,9 +129,10 @@ def test_unmeasured_z_roll_turns_the_digitizer_lever():
 
 def test_axis_temperature_equals_maps_at_the_other_temperature():
     d, res = residual(sim.AxisTemperature(x=1.0, y=1.0, z=1.0), temperature=22.5)
-    # Every carriage's table at 23.5 C while squareness stays at 22.5 C.
+    # Every carriage's table at 23.5 C, and squareness at the thermocouples'
+    # machine mean, which the offsets raise to 23.5 C too.
     hot, mean = MAPS.at(23.5), MAPS.at(22.5)
-    truth_model = cmmpose.ErrorMap(*(hot.table(c) for c in "XYZ"), mean.squareness)
+    truth_model = cmmpose.ErrorMap(*(hot.table(c) for c in "XYZ"), hot.squareness)
     want = cmmpose.compensate(d.uv, d.scales, mean, POSE_X, OFFSET) - cmmpose.compensate(d.uv, d.scales, truth_model, POSE_X, OFFSET)
     # res - want is the noise-free round-trip remainder of the truth machine (< 0.05 um).
     np.testing.assert_allclose(res, want, atol=5e-5)

@@ -5,14 +5,16 @@ Units throughout: mm for positions and results, um and arc-seconds in error
 map tables, degrees for pose angles, degrees C for temperatures.
 """
 
-from . import calibration, layouts, uncertainty
+from . import acquire, calibration, layouts, uncertainty
 from ._core import __version__, thread_count
 from .compensation import compensate, uncompensated
+from .diagnosis import Diagnosis, Model, UserEffect, diagnose
 from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
 from .metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
 from .fitting import PlaneFit, SphereFit, fit_plane, fit_sphere, fit_spheres
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
-from .errors import CalibrationError, ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
+from .acquire import Recorder
+from .errors import AcquisitionError, CalibrationError, ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
 from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
 from .pose import MountOffset, Pose
 from .report import KernelReport
@@ -23,6 +25,10 @@ __all__ = [
     "compensate",
     "uncompensated",
     "evaluate",
+    "diagnose",
+    "Diagnosis",
+    "Model",
+    "UserEffect",
     "Evaluation",
     "BallbarResult",
     "SphereResult",
@@ -36,6 +42,8 @@ __all__ = [
     "SphereFit",
     "PlaneFit",
     "calibration",
+    "acquire",
+    "Recorder",
     "layouts",
     "uncertainty",
     "BallbarPosition",
@@ -60,5 +68,6 @@ __all__ = [
     "GeometryError",
     "RunError",
     "CalibrationError",
+    "AcquisitionError",
     "ClampWarning",
 ]

@@ -75,6 +75,20 @@ def uncompensated(
     offset: tuple[float, float, float],
     nan_policy: _NanPolicy = "raise",
 ) -> tuple[_F64_2D, Report]: ...
+def compensate_model(
+    uv: _F64_2D,
+    scales: _F64_2D,
+    pose_index: npt.NDArray[np.uint32],
+    temperature: npt.NDArray[np.float64],
+    maps: ErrorMap | ErrorMapSet,
+    poses: list[tuple[float, float, float, float, float, float]],
+    effects: dict[str, list[float] | float] | None = None,
+    axis_temperature: _F64_2D | None = None,
+    gradient: npt.NDArray[np.float64] | None = None,
+    velocity: _F64_2D | None = None,
+    incidence: npt.NDArray[np.float64] | None = None,
+    clamp: bool = False,
+) -> tuple[_F64_2D, int]: ...
 def euler313(alpha: float, beta: float, gamma: float) -> _F64_2D: ...
 def pose_from_normal(normal: tuple[float, float, float] | list[float], gamma: float) -> tuple[float, float, float]: ...
 def thread_count() -> int: ...

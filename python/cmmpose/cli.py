@@ -217,6 +217,49 @@ def evaluate_cmd(run_dir, maps, temperature, out_of_range, reject, report_dir, a
         console.print(f"wrote {f}")
 
 
+@main.command("diagnose")
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
+@click.option("--maps", "maps", multiple=True, help="Model maps ('thesis' or files); default: as run.json says.")
+@click.option("--model", "model_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Start from a model saved by an earlier diagnosis (its maps and effects).")
+@click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
+@click.option("--add", "add", multiple=True, help="Add this effect first, whether significant or not (repeatable).")
+@click.option("--no-auto", is_flag=True, help="Only rank the candidates (and add --add ones); add nothing automatically.")
+@click.option("--max-effects", type=int, default=4, show_default=True, help="Most effects added automatically.")
+@click.option("--report", "report_file", type=click.Path(dir_okay=False), default=None, help="Write a self-contained HTML report here.")
+@click.option("--save-model", "model_out", type=click.Path(dir_okay=False), default=None, help="Write the final model (JSON) here.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
+def diagnose_cmd(run_dir, maps, model_file, temperature, add, no_auto, max_effects, report_file, model_out, as_json) -> None:
+    """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall."""
+    from .diagnosis import Model, diagnose
+    from .run import Run
+
+    try:
+        run = Run.load(run_dir)
+        if model_file:
+            model = Model.load(model_file)
+        else:
+            maps_ = _maps_for_run(run, maps)
+            if maps_ is None:
+                raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
+            model = Model(maps_, temperature=temperature)
+        with console.status("diagnosing ..."):
+            diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects)
+        files = []
+        if report_file:
+            files.append(diag.write_report(report_file, run))
+        if model_out:
+            files.append(diag.model.save(model_out))
+    except Error as exc:
+        raise click.ClickException(str(exc)) from None
+    if as_json:
+        click.echo(diag.to_json(indent=1))
+    else:
+        Console(width=150).print(diag)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
 @main.command("demo")
 @click.option("--temperature", type=float, default=22.5, show_default=True, help="Machine temperature, C (between two thesis maps).")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -247,6 +290,47 @@ def demo_cmd(temperature, seed, report_dir) -> None:
                   f"thesis (Table 19, 20 C): 73.2 um uncompensated, 12.8 um compensated")
     for f in [report / "run", *files]:
         console.print(f"wrote {f}")
+
+
+@main.command("acquire")
+@click.option("--scanner", default=None, help="Scanner + scales port: device path or pyserial URL (socket://, rfc2217://).")
+@click.option("--thermo", default=None, help="Thermocouple logger port: device path or pyserial URL.")
+@click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
+@click.option("--duration", type=float, default=None, help="Seconds to record (default: until Ctrl-C).")
+@click.option("--plan", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Plan JSON: scans, poses, channels, artefact, maps (docs/protocols.md).")
+@click.option("--pose", default="90,90,0", show_default=True, help="alpha,beta,gamma in degrees, when the plan has no poses.")
+@click.option("--offset", default="1.001,264.505,129.575", show_default=True, help="U1,V1,W1 in mm, when the plan has no poses.")
+@click.option("--tc-type", default="E", show_default=True, help="Thermocouple type.")
+@click.option("--thermo-interval", type=float, default=1.0, show_default=True, help="Seconds between logger scans.")
+@click.option("--flush-interval", type=float, default=0.2, show_default=True, help="Longest wait before records reach disk, s.")
+@click.option("--scanner-baud", type=int, default=921600, show_default=True)
+@click.option("--thermo-baud", type=int, default=9600, show_default=True)
+@click.option("--overwrite", is_flag=True, help="Replace a recording already in RUN_DIR.")
+@click.option("--recover", is_flag=True, help="Rebuild RUN_DIR from its journal (after a crash); opens no ports.")
+@click.option("--no-display", is_flag=True, help="No live display.")
+def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, tc_type, thermo_interval, flush_interval,
+                scanner_baud, thermo_baud, overwrite, recover, no_display) -> None:
+    """Record the scanner + scales stream and the thermocouple logger into RUN_DIR
+    (live display; Ctrl-C stops cleanly and closes the run)."""
+    from .acquire import recover as recover_run
+    from .acquire.display import record_live, summary_table
+
+    try:
+        if recover:
+            rec = recover_run(run_dir)
+            console.print(repr(rec))
+            run = rec.run
+        else:
+            if not (scanner or thermo):
+                raise click.UsageError("give --scanner, --thermo or both")
+            run = record_live(run_dir, scanner, thermo, duration=duration, console=console, show=not no_display,
+                              plan=plan, pose=triple(pose, "--pose"), offset=triple(offset, "--offset"), tc_type=tc_type,
+                              thermo_interval=thermo_interval, flush_interval=flush_interval,
+                              scanner_baudrate=scanner_baud, thermo_baudrate=thermo_baud, overwrite=overwrite)
+    except Error as exc:
+        raise click.ClickException(str(exc)) from None
+    Console().print(summary_table(run, run_dir))
 
 
 @main.command("plot-map")

@@ -8,13 +8,14 @@ them; every message names the file, line, row or argument at fault.
 - ``GeometryError``: degenerate geometry (zero normal, coplanar points, ...).
 - ``RunError``: a malformed measurement run directory (Python-side only).
 - ``CalibrationError``: data that cannot give a trustworthy calibration.
+- ``AcquisitionError``: serial acquisition: a port, journal or run directory at fault.
 """
 
 import warnings
 
 from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "ClampWarning", "warn_clamped", "read_lines"]
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "ClampWarning", "warn_clamped", "read_lines"]
 
 
 class RunError(Error):
@@ -60,3 +61,9 @@ def read_lines(path) -> list[str]:
         except UnicodeDecodeError as exc:
             raise MapError(f"{path}:{lineno}: not UTF-8 text (byte {chunk[exc.start]:#04x} at column {exc.start + 1})") from None
     return lines
+
+
+class AcquisitionError(Error):
+    """Serial acquisition failed: a port that cannot be opened, a journal that
+    cannot be written or read, a run directory already in use. The message
+    names the port, file or record at fault."""

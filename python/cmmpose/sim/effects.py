@@ -4,9 +4,11 @@ Each effect is a frozen dataclass with named parameters in stated units and
 one or more hooks the simulator calls:
 
 - ``machine(fx)``: add to the truth machine's ``MachineEffects`` arrays;
-- ``states(states)``: change the (K, 5) temperatures the machine really has
-  (carriage X, Y, Z map temperatures, squareness temperature, granite
-  top-minus-bottom), returning a new array;
+- ``states(states, times)``: change the (K, 5) temperatures the machine
+  really has at ``times`` (s) (carriage X, Y, Z map temperatures,
+  squareness temperature, granite top-minus-bottom), returning a new array;
+- ``artefact_scale(temperature)``: the factor by which the artefact's length
+  differs from its length at 20 C;
 - ``pose(pose, offset)``: the true digitizer pose and mount offset;
 - ``latency()``: seconds between the scale reading and the profile;
 - ``scanner(u, v, cos_incidence)``: what the scanner reports for a true (u, v).
@@ -49,8 +51,11 @@ class Effect:
     def machine(self, fx: dict[str, np.ndarray]) -> None:
         pass
 
-    def states(self, states: np.ndarray) -> np.ndarray:
+    def states(self, states: np.ndarray, times: np.ndarray) -> np.ndarray:
         return states
+
+    def artefact_scale(self, temperature: float) -> float:
+        return 1.0
 
     def pose(self, pose: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return pose, offset
@@ -140,34 +145,45 @@ class AxisTemperature(Effect):
     y: float = 0.0
     z: float = 0.0
 
-    def states(self, states):
+    def states(self, states, times):
         out = states.copy()
         out[:, 0:3] += [self.x, self.y, self.z]
+        # Squareness follows the machine mean as the scale thermocouples
+        # see it (thesis 6.4), which includes the carriages' offsets.
+        out[:, 3] += (self.x + self.y + self.z) / 3.0
         return out
 
 
 @dataclass(frozen=True)
 class GraniteGradient(Effect):
     """A granite top-minus-bottom temperature difference (K) bends the base
-    and changes squareness by ``per_kelvin`` (xy, yz, zx) arc-seconds per K.
+    and changes squareness by (xy, yz, zx) arc-seconds per K. The difference
+    is ``kelvin`` at t = 0 and changes by ``kelvin_per_hour`` (the room
+    warming the top through the day).
 
     Physics: the thesis saw S_yz and S_zx vary with temperature (Table 7,
     section 3.4) and suspected the granite. Typical: 0.5-2 K, 5-20 a-s/K.
     """
 
     name: ClassVar[str] = "granite-gradient"
-    units: ClassVar[dict[str, str]] = {"kelvin": "K", "xy": "arc-second/K", "yz": "arc-second/K", "zx": "arc-second/K"}
+    units: ClassVar[dict[str, str]] = {"kelvin": "K", "xy": "arc-second/K", "yz": "arc-second/K",
+                                       "zx": "arc-second/K", "kelvin_per_hour": "K/h"}
     kelvin: float = 0.0
     xy: float = 0.0
     yz: float = 10.0
     zx: float = 10.0
+    kelvin_per_hour: float = 0.0
+
+    def gradient(self, times) -> np.ndarray:
+        """Top minus bottom (K) at ``times`` (s)."""
+        return self.kelvin + self.kelvin_per_hour * np.asarray(times, dtype=float) / 3600.0
 
     def machine(self, fx):
         fx["granite_squareness"] += [self.xy, self.yz, self.zx]
 
-    def states(self, states):
+    def states(self, states, times):
         out = states.copy()
-        out[:, 4] += self.kelvin
+        out[:, 4] += self.gradient(times)
         return out
 
 
@@ -259,6 +275,25 @@ class MountOffsetError(Effect):
 
     def pose(self, pose, offset):
         return pose, offset + [self.u1, self.v1, self.w1]
+
+
+@dataclass(frozen=True)
+class ArtefactExpansion(Effect):
+    """The artefact expands with the part temperature (the machine mean):
+    length = length at 20 C x (1 + ppm_per_kelvin 1e-6 (T - 20)).
+
+    Physics: a steel ballbar (11.5 ppm/K) or an Invar one (~1 ppm/K);
+    the thesis corrected lengths to 20 C with a coefficient (Table 21).
+    Residual: every length off by the same amount, visible only against a
+    calibrated length or across temperatures.
+    """
+
+    name: ClassVar[str] = "artefact-expansion"
+    units: ClassVar[dict[str, str]] = {"ppm_per_kelvin": "ppm/K"}
+    ppm_per_kelvin: float = 0.0
+
+    def artefact_scale(self, temperature):
+        return 1.0 + self.ppm_per_kelvin * 1e-6 * (float(temperature) - 20.0)
 
 
 def available_effects() -> dict[str, type[Effect]]:

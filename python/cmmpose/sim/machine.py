@@ -74,7 +74,7 @@ class TruthMachine:
         states = np.zeros((len(times), 5))
         states[:, 0:4] = mean[:, None]
         for e in self.effects:
-            states = e.states(states)
+            states = e.states(states, times)
         return states
 
     def frames(self, scales, states) -> tuple[np.ndarray, np.ndarray]:

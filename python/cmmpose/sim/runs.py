@@ -54,6 +54,10 @@ def simulate_ballbar_run(
     offset=None,
     speed: float = 35.0,
     bidirectional: bool = False,
+    jitter: float = 0.0,
+    scan_interval: float = SCAN_INTERVAL,
+    calibrated: Sequence[str] = (),
+    reference_poses: Sequence = (),
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[Run, tuple[dict[str, np.ndarray], dict]]:
@@ -79,6 +83,20 @@ def simulate_ballbar_run(
         Sweep speed, mm/s.
     bidirectional : bool
         Alternate forward and reverse sweeps (default: all forward).
+    jitter : float
+        Per-scan standard deviation of where the artefact really sits, mm per
+        axis (fixture and machine repeatability between sweeps): a floor of a
+        few micrometres under the ballbar figures, as on a real machine.
+    scan_interval : float
+        Seconds between the starts of two sweeps (default 20 s: the 20
+        positions take about 13 minutes).
+    calibrated : sequence of {'length', 'radius'}
+        Record the bar length at 20 C and the ball radius as calibrated values
+        in ``run.artefact`` (``calibrated_length_mm``, ``calibrated_radius_mm``).
+    reference_poses : sequence of (alpha, beta, gamma)
+        After the ballbar, scan the reference sphere (``reference_sphere()``)
+        once at each of these poses (feature 'reference', position and ball
+        -1): the same sphere seen from several poses.
     seed : int
         Noise seed; the same seed gives the same run.
     progress : callable, optional
@@ -99,7 +117,25 @@ def simulate_ballbar_run(
     machine = TruthMachine(maps, effects)
     rng = np.random.default_rng(seed)
     plan = _layout(layout)
-    total = 2 * len(plan)
+    calibrated = tuple(calibrated)
+    if set(calibrated) - {"length", "radius"}:
+        raise InputError(f"calibrated: expected a subset of ('length', 'radius'), got {calibrated!r}")
+    if not (scan_interval > 0 and np.isfinite(scan_interval)):
+        raise InputError(f"scan_interval: must be > 0 s, got {scan_interval!r}")
+    if not (jitter >= 0 and np.isfinite(jitter)):
+        raise InputError(f"jitter: must be >= 0 mm, got {jitter!r}")
+    reference_poses = [tuple(float(x) for x in p) for p in reference_poses]
+    total = 2 * len(plan) + len(reference_poses)
+
+    # Jitter has its own stream, drawn up front: the same seed gives the
+    # same artefact placements whatever effects change the point counts.
+    placements = np.random.default_rng([seed, 0x6A17]).normal(0.0, jitter, (total, 3)) if jitter else np.zeros((total, 3))
+
+    def mean_temperature(t):
+        return float(temperature(np.array([t]))[0]) if callable(temperature) else float(temperature)
+
+    def artefact_scale(t):
+        return float(np.prod([e.artefact_scale(mean_temperature(t)) for e in effects]))
     cols = {k: [] for k in ("scan_id", "t", "u", "v", "D", "E", "F")}
     scans = {k: [] for k in ("scan_id", "pose_id", "feature", "position", "ball", "sweep_axis", "sweep_direction", "sweep_speed")}
     poses: dict[tuple, int] = {}
@@ -107,8 +143,11 @@ def simulate_ballbar_run(
     for k, (position, w_axis) in enumerate(plan):
         pose = _pose(position, w_axis, layout)
         pose_id = poses.setdefault(pose, len(poses))
-        for b, centre in enumerate((position.ball1, position.ball2), start=1):
+        c1, c2 = np.asarray(position.ball1, float), np.asarray(position.ball2, float)
+        c2 = c1 + (c2 - c1) * artefact_scale((2 * k) * scan_interval)
+        for b, centre in enumerate((c1, c2), start=1):
             scan_id = 2 * k + b - 1
+            placed = centre + placements[scan_id]
             ends = layouts.sweep_readings(centre, pose, offset)
             axis = "XYZ"[int(np.argmax(np.abs(ends[1] - ends[0])))]
             direction = -1 if bidirectional and scan_id % 2 else 1
@@ -117,8 +156,8 @@ def simulate_ballbar_run(
             start = ends[0].copy()
             start[a] = lo - SWEEP_MARGIN if direction == 1 else hi + SWEEP_MARGIN
             sweep = Sweep(start=tuple(start), axis=axis, length=hi - lo + 2 * SWEEP_MARGIN, speed=speed, direction=direction)
-            d = simulate_sweep(machine, Sphere(centre, BALL_RADIUS), pose, offset, sweep, temperature,
-                               scanner=scanner, t0=scan_id * SCAN_INTERVAL, rng=rng)
+            d = simulate_sweep(machine, Sphere(tuple(placed), BALL_RADIUS), pose, offset, sweep, temperature,
+                               scanner=scanner, t0=scan_id * scan_interval, rng=rng)
             n = len(d.t)
             cols["scan_id"].append(np.full(n, scan_id, np.int32))
             cols["t"].append(d.t)
@@ -132,6 +171,32 @@ def simulate_ballbar_run(
                 scans[key].append(value)
             if progress:
                 progress(scan_id + 1, total)
+    ref = reference_sphere()
+    for j, rpose in enumerate(reference_poses):
+        scan_id = 2 * len(plan) + j
+        pose_id = poses.setdefault(rpose, len(poses))
+        ends = layouts.sweep_readings(ref.centre, rpose, offset, radius=ref.radius)
+        a = int(np.argmax(np.abs(ends[1] - ends[0])))
+        lo, hi = sorted((ends[0][a], ends[1][a]))
+        start = ends[0].copy()
+        start[a] = lo - SWEEP_MARGIN
+        sweep = Sweep(start=tuple(start), axis="XYZ"[a], length=hi - lo + 2 * SWEEP_MARGIN, speed=speed)
+        placed = np.asarray(ref.centre, float) + placements[scan_id]
+        d = simulate_sweep(machine, Sphere(tuple(placed), ref.radius), rpose, offset, sweep, temperature,
+                           scanner=scanner, t0=scan_id * scan_interval, rng=rng)
+        n = len(d.t)
+        cols["scan_id"].append(np.full(n, scan_id, np.int32))
+        cols["t"].append(d.t)
+        cols["u"].append(d.uv[:, 0])
+        cols["v"].append(d.uv[:, 1])
+        for i, c in enumerate("DEF"):
+            cols[c].append(d.scales[:, i])
+        true_xyz.append(d.true_xyz)
+        for key, value in (("scan_id", scan_id), ("pose_id", pose_id), ("feature", "reference"), ("position", -1),
+                           ("ball", -1), ("sweep_axis", "XYZ"[a]), ("sweep_direction", 1), ("sweep_speed", speed)):
+            scans[key].append(value)
+        if progress:
+            progress(scan_id + 1, total)
     points = {k: np.concatenate(v) for k, v in cols.items()}
     pose_items = sorted(poses.items(), key=lambda kv: kv[1])
     pose_table = {
@@ -139,20 +204,31 @@ def simulate_ballbar_run(
         **{name: np.array([p[j] for p, _ in pose_items]) for j, name in enumerate(("alpha", "beta", "gamma"))},
         **{name: np.full(len(pose_items), offset[j]) for j, name in enumerate(("U1", "V1", "W1"))},
     }
-    duration = total * SCAN_INTERVAL
+    duration = total * scan_interval
     axis_offsets = sum((np.array([e.x, e.y, e.z]) for e in effects if isinstance(e, AxisTemperature)), np.zeros(3))
-    gradient = sum((e.kelvin for e in effects if isinstance(e, GraniteGradient)), 0.0)
+    granite = [e for e in effects if isinstance(e, GraniteGradient)]
+
+    def gradient(t):
+        return sum((e.gradient(t) for e in granite), np.zeros(np.shape(t)))
+
     log = thermocouple_log(duration, temperature, axis_offsets=tuple(axis_offsets), granite_gradient=gradient, rng=rng)
     lengths = np.array([p.length for p, _ in plan])
+    artefact = {"kind": "ballbar", "layout": layout, "ball_radius_mm": BALL_RADIUS, "positions": len(plan)}
+    if "length" in calibrated:
+        artefact["calibrated_length_mm"] = float(np.mean(lengths))
+    if "radius" in calibrated:
+        artefact["calibrated_radius_mm"] = BALL_RADIUS
+    if reference_poses:
+        artefact["reference_sphere"] = {"radius_mm": ref.radius}
     run = Run(
         points=points,
         scans={k: np.array(v) for k, v in scans.items()},
         poses=pose_table,
         temperatures=log,
         temperature_channels=[{"name": c, "role": r} for c, r in CHANNELS],
-        artefact={"kind": "ballbar", "layout": layout, "ball_radius_mm": BALL_RADIUS, "positions": len(plan)},
+        artefact=artefact,
         maps={"kind": "bundled", "name": "thesis"} if maps is not None else {},
-        metadata={"simulated": True, "seed": seed, "speed_mm_s": speed,
+        metadata={"simulated": True, "seed": seed, "speed_mm_s": speed, "jitter_mm": jitter,
                   "temperature_C": temperature if not callable(temperature) else "time series"},
     )
     truth = (

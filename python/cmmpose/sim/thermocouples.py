@@ -65,8 +65,9 @@ def thermocouple_log(
         Samples per second, Hz.
     axis_offsets : sequence of 3 float
         How much each axis's scale channels read above the mean, K.
-    granite_gradient : float
-        Granite top minus bottom, K (split evenly around the mean).
+    granite_gradient : float or callable
+        Granite top minus bottom, K (split evenly around the mean), or a
+        function of time (s) giving it.
     noise : float
         Gaussian noise per sample, K.
     drift : float
@@ -88,8 +89,9 @@ def thermocouple_log(
     rng = np.random.default_rng(rng)
     t = t0 + np.arange(int(np.floor(duration * rate)) + 1) / rate
     mean = temperature(t) if callable(temperature) else np.full(t.shape, float(temperature))
+    gradient = granite_gradient(t) if callable(granite_gradient) else float(granite_gradient)
     offsets = {"x_scale": axis_offsets[0], "y_scale": axis_offsets[1], "z_scale": axis_offsets[2],
-               "granite_top": granite_gradient / 2, "granite_bottom": -granite_gradient / 2}
+               "granite_top": gradient / 2, "granite_bottom": -gradient / 2}
     signs = rng.choice([-1.0, 1.0], len(CHANNELS))
     log = {"t": t}
     for (name, role), sign in zip(CHANNELS, signs):

@@ -10,6 +10,7 @@ pub mod error;
 pub mod fit;
 pub mod kernel;
 pub mod map;
+pub mod model;
 pub mod pose;
 pub mod scanner;
 pub mod thermal;

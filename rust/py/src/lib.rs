@@ -7,6 +7,7 @@ use cmmpose_core as core;
 use core::artefact::Surface;
 use core::fit::{self, PlaneFit, PlaneFitOptions, SphereFit, SphereFitOptions};
 use core::kernel::{self, NanPolicy, Options, OutOfRange, Report};
+use core::model::{self, EffectParams, ModelInputs};
 use core::scanner::{self, ScanFrame, ScannerModel};
 use core::truth::{self, MachineEffects};
 use core::{Carriage, CarriageTable, CoreError, Digitizer, ErrorMap, ErrorMapSet, Pose};
@@ -365,6 +366,126 @@ fn compensate<'py>(
     })
 }
 
+fn optional_rows<'a>(
+    name: &str,
+    a: &'a Option<PyReadonlyArray2<'_, f64>>,
+    cols: usize,
+) -> PyResult<Option<&'a [f64]>> {
+    a.as_ref().map(|a| rows(name, a, cols)).transpose()
+}
+
+fn optional_vector<'a>(
+    name: &str,
+    a: &'a Option<PyReadonlyArray1<'_, f64>>,
+) -> PyResult<Option<&'a [f64]>> {
+    a.as_ref()
+        .map(|a| {
+            a.as_slice()
+                .map_err(|_| InputError::new_err(format!("{name}: array must be contiguous")))
+        })
+        .transpose()
+}
+
+/// Kernel-level effect parameters from a dict of name -> value(s).
+fn effect_params(d: Option<&Bound<'_, PyDict>>) -> PyResult<EffectParams> {
+    let mut fx = EffectParams::default();
+    let Some(d) = d else { return Ok(fx) };
+    for (k, v) in d.iter() {
+        let key: String = k.extract()?;
+        let vals: Vec<f64> = v
+            .extract::<Vec<f64>>()
+            .or_else(|_| v.extract::<f64>().map(|x| vec![x]))
+            .map_err(|_| InputError::new_err(format!("effects[{key:?}]: expected numbers")))?;
+        let slot: &mut [f64] = match key.as_str() {
+            "squareness" => &mut fx.squareness,
+            "scale_ppm" => &mut fx.scale_ppm,
+            "roll_slope" => &mut fx.roll_slope,
+            "axis_temperature_gain" => std::slice::from_mut(&mut fx.axis_temperature_gain),
+            "granite_squareness" => &mut fx.granite_squareness,
+            "latency" => std::slice::from_mut(&mut fx.latency),
+            "scanner_scale" => &mut fx.scanner_scale,
+            "incidence" => &mut fx.incidence,
+            other => {
+                return Err(InputError::new_err(format!(
+                    "effects: unknown kernel term {other:?} (known: squareness, scale_ppm, \
+                     roll_slope, axis_temperature_gain, granite_squareness, latency, \
+                     scanner_scale, incidence)"
+                )))
+            }
+        };
+        if vals.len() != slot.len() || !vals.iter().all(|x| x.is_finite()) {
+            return Err(InputError::new_err(format!(
+                "effects[{key:?}]: expected {} finite values, got {vals:?}",
+                slot.len()
+            )));
+        }
+        slot.copy_from_slice(&vals);
+    }
+    Ok(fx)
+}
+
+/// Compensation under a diagnosis model: the thesis kernel plus the
+/// kernel-level effects (rust/core/src/model.rs). `poses` is one
+/// (alpha, beta, gamma, U1, V1, W1) per pose index (degrees, mm). Returns the
+/// (N, 3) coordinates (mm) and the number of clamped points.
+#[pyfunction]
+#[pyo3(signature = (uv, scales, pose_index, temperature, maps, poses, effects=None, axis_temperature=None, gradient=None, velocity=None, incidence=None, clamp=false))]
+#[allow(clippy::too_many_arguments)]
+fn compensate_model<'py>(
+    py: Python<'py>,
+    uv: PyReadonlyArray2<'py, f64>,
+    scales: PyReadonlyArray2<'py, f64>,
+    pose_index: PyReadonlyArray1<'py, u32>,
+    temperature: PyReadonlyArray1<'py, f64>,
+    maps: &Bound<'py, PyAny>,
+    poses: Vec<(f64, f64, f64, f64, f64, f64)>,
+    effects: Option<&Bound<'py, PyDict>>,
+    axis_temperature: Option<PyReadonlyArray2<'py, f64>>,
+    gradient: Option<PyReadonlyArray1<'py, f64>>,
+    velocity: Option<PyReadonlyArray2<'py, f64>>,
+    incidence: Option<PyReadonlyArray1<'py, f64>>,
+    clamp: bool,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, usize)> {
+    let single;
+    let set: &ErrorMapSet = if let Ok(m) = maps.cast::<PyErrorMap>() {
+        single = ErrorMapSet::new(vec![m.get().inner.clone().with_temperature(Some(20.0))])
+            .map_err(to_py)?;
+        &single
+    } else {
+        &maps
+            .cast::<PyErrorMapSet>()
+            .map_err(|_| InputError::new_err("maps: expected an ErrorMap or an ErrorMapSet"))?
+            .get()
+            .inner
+    };
+    let digitizers = poses
+        .iter()
+        .map(|&(a, b, g, u1, v1, w1)| digitizer((a, b, g), (u1, v1, w1)))
+        .collect::<PyResult<Vec<_>>>()?;
+    let fx = effect_params(effects)?;
+    let inputs = ModelInputs {
+        uv: rows("uv", &uv, 2)?,
+        scales: rows("scales", &scales, 3)?,
+        pose_index: pose_index
+            .as_slice()
+            .map_err(|_| InputError::new_err("pose_index: array must be contiguous"))?,
+        temperature: temperature
+            .as_slice()
+            .map_err(|_| InputError::new_err("temperature: array must be contiguous"))?,
+        axis_temperature: optional_rows("axis_temperature", &axis_temperature, 3)?,
+        gradient: optional_vector("gradient", &gradient)?,
+        velocity: optional_rows("velocity", &velocity, 3)?,
+        incidence_deg: optional_vector("incidence", &incidence)?,
+    };
+    let n = inputs.pose_index.len();
+    let out = unsafe { PyArray2::<f64>::new(py, [n, 3], false) };
+    let buf = unsafe { out.as_slice_mut() }.expect("fresh array is contiguous");
+    let clamped = py
+        .detach(|| model::compensate_model(&inputs, set, &digitizers, &fx, clamp, buf))
+        .map_err(to_py)?;
+    Ok((out, clamped))
+}
+
 /// What the digitizer software reports, without compensation (mm).
 #[pyfunction]
 #[pyo3(signature = (uv, scales, pose, offset, nan_policy="raise"))]
@@ -687,6 +808,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyErrorMapSet>()?;
     m.add_function(wrap_pyfunction!(compensate, m)?)?;
     m.add_function(wrap_pyfunction!(uncompensated, m)?)?;
+    m.add_function(wrap_pyfunction!(compensate_model, m)?)?;
     m.add_function(wrap_pyfunction!(euler313, m)?)?;
     m.add_function(wrap_pyfunction!(pose_from_normal, m)?)?;
     m.add_function(wrap_pyfunction!(thread_count, m)?)?;

@@ -1,0 +1,335 @@
+"""``cmmpose.diagnose``: rank the candidate effects, add them one at a time
+(forced ones first, then each significant leader), refit, and keep the
+history of the error falling; say which effects the run cannot show and what
+measurement would."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errormap import ErrorMap, ErrorMapSet
+from ..errors import InputError
+from ..run import Run
+from .identify import OBSERVABLE_AT, Candidate, Problem, check_effect_names, fit_model, rank_candidates
+from .model import Model
+from .observables import ModelFigures, figures
+
+__all__ = ["diagnose", "Diagnosis", "Step"]
+
+
+@dataclass
+class Step:
+    """One model of the history and how it does.
+
+    Attributes
+    ----------
+    label : str
+        'base' or '+ <effect>'.
+    model : Model
+        The model at this step (fitted).
+    figures : ModelFigures
+        Ballbar and sphere figures under it.
+    ranking : list of Candidate
+        The candidates evaluated against it, best first.
+    forced : bool
+        The effect was added on request, not because it was significant.
+    """
+
+    label: str
+    model: Model
+    figures: ModelFigures
+    ranking: list[Candidate]
+    forced: bool = False
+
+    def to_dict(self) -> dict:
+        return {"label": self.label, "forced": self.forced, **self.figures.to_dict(),
+                "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
+                             "units": dict(zip(s.params, s.units))} for s, v in self.model.effects],
+                "ranking": [c.to_dict() for c in self.ranking]}
+
+
+@dataclass
+class Diagnosis:
+    """What :func:`diagnose` found.
+
+    Attributes
+    ----------
+    steps : list of Step
+        Base model, then one step per effect added.
+    unobservable : dict of str -> str
+        Candidates the run cannot show at a typical magnitude (or lacks the
+        inputs for), with the measurement that would reveal each.
+    ambiguous : list of tuple of str
+        Groups of effects the run cannot tell apart (with what separates them).
+    patterns : object or None
+        Residual patterns of the final model (``find_patterns``), if computed.
+    base_patterns : object or None
+        Residual patterns of the base model.
+    elapsed : float
+        Wall time, s.
+    """
+
+    steps: list[Step]
+    unobservable: dict[str, str]
+    ambiguous: list[tuple[str, ...]]
+    patterns: object = None
+    base_patterns: object = None
+    elapsed: float = 0.0
+    n_points: int = 0
+    advice: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def model(self) -> Model:
+        """The final model."""
+        return self.steps[-1].model
+
+    @property
+    def added(self) -> list[str]:
+        return [s.label[2:] for s in self.steps[1:]]
+
+    @property
+    def proposals(self) -> list[Candidate]:
+        """Significant candidates against the final model (empty when the
+        diagnosis stopped because nothing more is significant)."""
+        return [c for c in self.steps[-1].ranking if c.significant]
+
+    def history(self) -> list[dict]:
+        """One dict per step: label and figures in um (for plots and tables)."""
+        return [{"label": s.label, **s.figures.to_dict()} for s in self.steps]
+
+    def to_dict(self) -> dict:
+        return {"steps": [s.to_dict() for s in self.steps], "unobservable": self.unobservable,
+                "ambiguous": [list(a) for a in self.ambiguous], "advice": self.advice,
+                "elapsed_s": self.elapsed, "n_points": self.n_points,
+                "patterns": None if self.patterns is None else self.patterns.to_dict()}
+
+    def to_json(self, **kw) -> str:
+        return json.dumps(self.to_dict(), default=_json_default, **kw)
+
+    def table(self, step: int = 0):
+        """A rich table of the candidates ranked at ``step``."""
+        from rich.table import Table
+
+        s = self.steps[step]
+        t = Table(title=f"Candidate effects against the model '{s.label}'")
+        for col in ("effect", "fitted value ± u", "explains", "of lengths", "LR (dof)", "p", "corr", "cond",
+                    "decision"):
+            t.add_column(col, justify="left" if col in ("effect", "fitted value ± u", "decision") else "right")
+        for c in s.ranking:
+            vals = ", ".join(_value(p, v, u, unit) for p, v, u, unit in zip(c.spec.params, c.values, c.uncertainty,
+                                                                              c.spec.units))
+            if c.significant:
+                decision = "[bold green]proposed[/]" if c is s.ranking[0] else "significant"
+            elif c.observability < OBSERVABLE_AT:
+                decision = "[dim]not observable here[/]"
+            else:
+                decision = "not significant"
+            if c.indistinguishable_from:
+                decision += f" [yellow](same as {', '.join(c.indistinguishable_from)})[/]"
+            t.add_row(c.name, vals, f"{c.explained:.1%}", f"{c.explained_length:.1%}", f"{c.lr:.1f} ({c.dof})",
+                      f"{c.p_value:.1e}", f"{c.correlation:.2f}", f"{c.condition:.0f}", decision)
+        return t
+
+    def history_table(self):
+        from rich.table import Table
+
+        t = Table(title="The error falling as effects are added")
+        for col in ("model", "rms accuracy error (um)", "B89 (um)", "sphere form (um)", "fit rms (um)",
+                    "centre spread (um)", "effect values"):
+            t.add_column(col, justify="left" if col in ("model", "effect values") else "right")
+        for s in self.steps:
+            f = s.figures.to_dict()
+            eff = "; ".join(f"{sp.name}: {sp.describe(v)}" for sp, v in s.model.effects[-1:]) if s.model.effects \
+                and s.label != "base" else ""
+            t.add_row(s.label + (" (forced)" if s.forced else ""), f"{f['rms_accuracy_error_um']:.2f}",
+                      f"{f['b89_um']:.2f}", f"{f['form_um']:.1f}", f"{f['fit_rms_um']:.2f}",
+                      "-" if f["centre_spread_um"] is None else f"{f['centre_spread_um']:.2f}", eff)
+        return t
+
+    def __rich_console__(self, console, options):
+        yield self.history_table()
+        yield self.table(0)
+        if len(self.steps) > 1:
+            yield self.table(len(self.steps) - 1)
+        if self.ambiguous:
+            for group in self.ambiguous:
+                yield f"[yellow]cannot tell apart:[/] {', '.join(group)}: {self.advice.get(group[0], '')}"
+        if self.unobservable:
+            yield "[bold]Not observable in this run[/] (what would reveal each):"
+            for name, why in self.unobservable.items():
+                yield f"  {name}: {why}"
+        if self.patterns is not None and hasattr(self.patterns, "__rich__"):
+            yield self.patterns.__rich__()
+        yield f"{self.n_points} points, {self.elapsed:.1f} s"
+
+    def __str__(self) -> str:
+        from rich.console import Console
+
+        console = Console(width=140, record=True, file=open("/dev/null", "w"))  # noqa: SIM115 - text only
+        console.print(self)
+        return console.export_text()
+
+    def write_report(self, path, run: Run | None = None, *, title: str = "cmmpose diagnosis") -> Path:
+        """A self-contained HTML report (plots embedded) at ``path``."""
+        from .report import write_report
+
+        return write_report(self, path, run=run, title=title)
+
+
+def _value(p, v, u, unit) -> str:
+    if not math.isfinite(u):
+        return f"{p}={v:+.3g} (undetermined) {unit}"
+    return f"{p}={v:+.3g}±{u:.2g} {unit}"
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def diagnose(
+    run: Run,
+    model: Model | ErrorMap | ErrorMapSet | None = None,
+    *,
+    add=(),
+    auto: bool = True,
+    max_effects: int = 4,
+    candidates=None,
+    patterns: bool = True,
+) -> Diagnosis:
+    """Find which physical effects the model misses on ``run``, add them, and
+    keep the history of the error falling.
+
+    Parameters
+    ----------
+    run : Run
+        A measurement run with sphere scans (ballbar balls, reference sphere).
+    model : Model, ErrorMap or ErrorMapSet, optional
+        The starting model; maps alone make the thesis model. Default: the
+        run's bundled maps (``run.maps``) or the thesis set.
+    add : sequence of str or EffectSpec
+        Effects to add first, in order, whether significant or not.
+    auto : bool
+        Then keep adding the most significant candidate while one is left.
+    max_effects : int
+        Most effects added automatically.
+    candidates : sequence of str or EffectSpec, optional
+        Restrict (or extend, with user effects) the candidate library.
+    patterns : bool
+        Also compute the residual patterns of the base and final models.
+
+    Returns
+    -------
+    Diagnosis
+    """
+    import time
+
+    t0 = time.perf_counter()
+    if not isinstance(run, Run):
+        raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+    if model is None:
+        model = Model(ErrorMapSet.thesis())
+    elif isinstance(model, (ErrorMap, ErrorMapSet)):
+        model = Model(model)
+    elif not isinstance(model, Model):
+        raise InputError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
+    cand = None
+    if candidates is not None:
+        from .effects import effect_spec, library
+
+        known = library(model.inputs(run).pose_ids)
+        cand = {}
+        for c in candidates:
+            spec = effect_spec(c, known if isinstance(c, str) else None)
+            cand[spec.name] = spec
+    extra = {}
+    for a in add:
+        if not isinstance(a, str):
+            extra[a.name] = a
+    if extra:
+        from .effects import library
+
+        cand = {**(cand if cand is not None else library(model.inputs(run).pose_ids)), **extra}
+    problem = Problem(model, run, cand)
+    add_names = [a if isinstance(a, str) else a.name for a in add]
+    check_effect_names(add_names, problem)
+    steps = [_step("base", model, problem)]
+    for name in add_names:
+        model = fit_model(model.with_values(problem.candidates[name], np.zeros(problem.candidates[name].size)), run,
+                          problem=problem)
+        steps.append(_step(f"+ {name}", model, problem, forced=True))
+    added = 0
+    while auto and added < max_effects:
+        best = steps[-1].ranking[0] if steps[-1].ranking else None
+        if best is None or not best.significant:
+            break
+        start = model.with_values(best.spec, best.values)
+        model = fit_model(start, run, problem=problem)
+        steps.append(_step(f"+ {best.name}", model, problem))
+        added += 1
+    unobservable, advice, ambiguous = _unobservable(problem, steps)
+    diag = Diagnosis(steps, unobservable, ambiguous, n_points=run.n_points, advice=advice)
+    if patterns:
+        try:
+            from .patterns import find_patterns
+        except ImportError:  # pragma: no cover
+            find_patterns = None
+        if find_patterns is not None:
+            nominal = run.artefact.get("calibrated_radius_mm")
+            for which, m in (("base_patterns", steps[0].model), ("patterns", steps[-1].model)):
+                xyz = m.compensate(problem.inputs)
+                from ..fitting import fit_spheres
+
+                sid = problem.inputs.scan_id
+                keep = np.isin(sid, problem.layout.labels)
+                fits = fit_spheres(xyz[keep], sid[keep])
+                sub = run if keep.all() else _subset(run, keep)
+                setattr(diag, which, find_patterns(sub, xyz[keep], fits, temperature=problem.inputs.temperature[keep],
+                                                   nominal_radius=nominal))
+    diag.elapsed = time.perf_counter() - t0
+    return diag
+
+
+def _subset(run: Run, keep: np.ndarray) -> Run:
+    pts = {k: v[keep] for k, v in run.points.items()}
+    return Run(pts, dict(run.scans), dict(run.poses), run.temperatures, run.temperature_channels, run.artefact,
+               run.maps, run.metadata, run.created)
+
+
+def _step(label: str, model: Model, problem: Problem, forced: bool = False) -> Step:
+    obs = problem.observe(model)
+    figs = figures(problem.layout, None, model, observed=obs)
+    return Step(label, model, figs, rank_candidates(problem, model, obs), forced)
+
+
+def _unobservable(problem: Problem, steps: list[Step]):
+    """Candidates the run cannot show (from the base ranking), and groups
+    that it cannot tell apart, each with the measurement that would help."""
+    out = dict(problem.skipped)
+    advice = {}
+    for c in steps[0].ranking:
+        advice[c.name] = c.spec.reveal
+        if c.name in [s.label[2:] for s in steps[1:]]:
+            continue
+        if c.observability < OBSERVABLE_AT:
+            out[c.name] = (f"a typical {c.spec.describe(c.spec.prior)} would stand only "
+                           f"{math.sqrt(max(c.observability, 0.0)):.1f} sigma above the noise here; {c.spec.reveal}")
+        elif np.all(~np.isfinite(c.uncertainty)):
+            out[c.name] = f"its parameters are not determined by this run; {c.spec.reveal}"
+    ambiguous = []
+    for s in steps:
+        for c in s.ranking[:1]:
+            if c.indistinguishable_from:
+                group = tuple([c.name, *c.indistinguishable_from])
+                if group not in ambiguous:
+                    ambiguous.append(group)
+                    advice[group[0]] = "; ".join(f"{n}: {problem.candidates[n].reveal}" for n in group)
+    return out, advice, ambiguous

@@ -1,0 +1,216 @@
+"""The library of candidate physical effects a diagnosis model can hold.
+
+Each effect is the model-side counterpart of a simulator effect
+(``cmmpose.sim.effects``, same name and, where the physics is the same, the
+same parameters and units), so a value fitted from data compares directly
+with the truth of a simulated run. An effect acts at one of four places:
+
+- ``kernel``: inside the Rust compensation kernel (rust/core/src/model.rs);
+- ``pose``: on the digitizer pose or mount offset handed to that kernel;
+- ``length``: on the predicted artefact length (expansion);
+- ``python``: a user-defined function of the points (:class:`UserEffect`).
+
+``prior`` is a typical magnitude of each parameter: the step of the
+finite-difference sensitivities and the scale at which an effect counts as
+observable. ``reveal`` says what measurement shows the effect when a run
+cannot.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["EffectSpec", "UserEffect", "LIBRARY", "library", "effect_spec", "USER_INPUTS"]
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    """One candidate physical effect.
+
+    Attributes
+    ----------
+    name : str
+        CLI and model name (e.g. 'squareness').
+    params : tuple of str
+        Parameter names.
+    units : tuple of str
+        Unit of each parameter (e.g. 'arc-second').
+    prior : tuple of float
+        Typical magnitude of each parameter, in its unit.
+    kind : {'kernel', 'pose', 'length', 'python'}
+        Where the effect acts.
+    key : str
+        Kernel term (kind 'kernel'), or 'alignment' / 'mount-offset' (kind
+        'pose'), or 'expansion' (kind 'length').
+    physics : str
+        What the effect is, in a sentence.
+    reveal : str
+        The extra measurement that shows it when a run cannot.
+    needs : tuple of str
+        Run inputs it requires: 'axis_temperature', 'gradient', 'velocity',
+        'incidence', 'poses>1'.
+    pose_id : int or None
+        For a per-pose alignment: the pose it belongs to.
+    step : tuple of float or None
+        Finite-difference step of each parameter, if not ``prior`` (where a
+        step of one typical magnitude would leave the maps' range).
+    """
+
+    name: str
+    params: tuple[str, ...]
+    units: tuple[str, ...]
+    prior: tuple[float, ...]
+    kind: str
+    key: str
+    physics: str
+    reveal: str
+    needs: tuple[str, ...] = ()
+    pose_id: int | None = None
+    step: tuple[float, ...] | None = None
+
+    @property
+    def steps(self) -> tuple[float, ...]:
+        return self.prior if self.step is None else self.step
+
+    @property
+    def size(self) -> int:
+        return len(self.params)
+
+    def describe(self, values) -> str:
+        """'xy=+5.2 arc-second, ...' for parameter ``values``."""
+        return ", ".join(f"{p}={v:+.4g} {u}" for p, v, u in zip(self.params, np.ravel(values), self.units))
+
+
+@dataclass(frozen=True)
+class UserEffect(EffectSpec):
+    """A user-defined effect: a Python function of the points.
+
+    ``function(inputs, **params)`` returns an (N, 3) correction in mm, added to
+    the compensated coordinates; ``inputs`` is a dict of (N,) arrays named in
+    ``USER_INPUTS`` (u, v, D, E, F in mm, t in s, temperature in C, x, y, z the
+    compensated coordinates in mm, scan_id, pose_id, incidence in degrees).
+    The slower path (Python, not the Rust kernel), the same workflow.
+
+    Parameters
+    ----------
+    name : str
+        Name of the effect.
+    function : callable
+        ``function(inputs: dict, **params) -> ndarray (N, 3)`` in mm; must be
+        zero when every parameter is zero.
+    params : dict of str -> (unit, prior)
+        Parameter names with their unit and typical magnitude.
+    physics : str
+        What the effect is.
+    reveal : str
+        What measurement shows it.
+    """
+
+    function: Callable | None = field(default=None, compare=False)
+
+    @classmethod
+    def create(cls, name: str, function: Callable, params: dict, physics: str = "user-defined",
+               reveal: str = "") -> UserEffect:
+        if not callable(function):
+            raise InputError(f"user effect {name!r}: function must be callable")
+        if not params:
+            raise InputError(f"user effect {name!r}: give at least one parameter as name -> (unit, prior)")
+        names, units, priors = [], [], []
+        for p, spec in params.items():
+            try:
+                unit, prior = spec
+                prior = float(prior)
+            except (TypeError, ValueError):
+                raise InputError(f"user effect {name!r}: parameter {p!r} must map to (unit, prior)") from None
+            if not (np.isfinite(prior) and prior > 0):
+                raise InputError(f"user effect {name!r}: prior of {p!r} must be a positive magnitude, got {prior}")
+            names.append(str(p))
+            units.append(str(unit))
+            priors.append(prior)
+        if name in LIBRARY:
+            raise InputError(f"user effect {name!r}: the library already has an effect of that name")
+        return cls(name=name, params=tuple(names), units=tuple(units), prior=tuple(priors), kind="python",
+                   key="user", physics=physics, reveal=reveal or "a measurement that exercises its inputs",
+                   function=function)
+
+    def correction(self, inputs: dict, values) -> np.ndarray:
+        out = np.asarray(self.function(dict(inputs), **dict(zip(self.params, (float(v) for v in values)))),
+                         dtype=float)
+        n = len(inputs["u"])
+        if out.shape != (n, 3) or not np.all(np.isfinite(out)):
+            raise InputError(f"user effect {self.name!r}: function must return a finite ({n}, 3) array in mm, "
+                             f"got shape {out.shape}")
+        return out
+
+
+#: Names of the per-point inputs a user effect receives.
+USER_INPUTS = ("u", "v", "D", "E", "F", "t", "temperature", "x", "y", "z", "scan_id", "pose_id", "incidence")
+
+_SECOND_POSE = "the same sphere scanned from two or more poses (e.g. the reference sphere at STANDARD_POSES)"
+
+LIBRARY: dict[str, EffectSpec] = {e.name: e for e in (
+    EffectSpec("squareness", ("xy", "yz", "zx"), ("arc-second",) * 3, (5.0, 5.0, 5.0), "kernel", "squareness",
+               "the machine's squareness differs from the map's (relevelling, a crash)",
+               "ballbar positions on the face diagonals of each plane"),
+    EffectSpec("scale", ("x", "y", "z"), ("ppm",) * 3, (5.0, 5.0, 5.0), "kernel", "scale_ppm",
+               "scale error per axis not in the map (scale at another temperature, pitch)",
+               "a calibrated bar length (the common part of the three scale errors equals a length change)"),
+    EffectSpec("roll", ("x", "y", "z"), ("arc-second/m",) * 3, (10.0, 10.0, 10.0), "kernel", "roll_slope",
+               "unmeasured roll of each carriage, linear in travel, acting through the digitizer lever",
+               "a second digitizer pose with a different lever, or the bar along each axis at two heights"),
+    EffectSpec("axis-temperature", ("gain",), ("1",), (1.0,), "kernel", "axis_temperature_gain",
+               "each carriage's map taken at its own scale thermocouples instead of the machine mean "
+               "(gain 1: fully per axis)",
+               "axis-scale thermocouples that differ between axes (a run with a vertical gradient)",
+               needs=("axis_temperature",), step=(0.25,)),
+    EffectSpec("granite-gradient", ("xy", "yz", "zx"), ("arc-second/K",) * 3, (5.0, 5.0, 5.0), "kernel",
+               "granite_squareness",
+               "granite top-minus-bottom gradient bending the base and changing squareness",
+               "a run over which the granite gradient changes (otherwise it equals a squareness offset)",
+               needs=("gradient",)),
+    EffectSpec("artefact-expansion", ("ppm_per_kelvin",), ("ppm/K",), (5.0,), "length", "expansion",
+               "the artefact's length follows the part temperature: L = L20 (1 + a (T - 20))",
+               "a calibrated bar length at 20 C, or runs at two temperatures"),
+    EffectSpec("latency", ("seconds",), ("s",), (0.005,), "kernel", "latency",
+               "time between the scale latch and the profile: a shift of speed x latency along the sweep",
+               "the same ball swept in both directions (bidirectional sweeps)", needs=("velocity",)),
+    EffectSpec("scanner-scale", ("lateral", "depth"), ("1", "1"), (5e-4, 5e-4), "kernel", "scanner_scale",
+               "triangulation scale errors across (u) and along (v) the beam",
+               "a calibrated sphere radius"),
+    EffectSpec("incidence", ("per_degree", "per_degree_mm"), ("mm/degree", "1/degree"), (2e-4, 2e-5), "kernel",
+               "incidence", "depth error growing with incidence angle and depth (thesis section 7.2)",
+               "a calibrated sphere radius", needs=("incidence",)),
+    EffectSpec("alignment", ("alpha", "beta", "gamma"), ("degree",) * 3, (0.01, 0.01, 0.01), "pose", "alignment",
+               "the digitizer's Euler angles differ from the calibrated ones (all poses alike)", _SECOND_POSE),
+    EffectSpec("mount-offset", ("u1", "v1", "w1"), ("mm",) * 3, (0.02, 0.02, 0.02), "pose", "mount-offset",
+               "the mount offset l1 differs from the calibrated one", _SECOND_POSE),
+)}
+
+
+def library(pose_ids=()) -> dict[str, EffectSpec]:
+    """The candidate library for a run: ``LIBRARY`` plus, when the run has
+    more than one pose, an alignment error per pose ('alignment@<pose_id>')."""
+    out = dict(LIBRARY)
+    pose_ids = [int(p) for p in pose_ids]
+    if len(pose_ids) > 1:
+        base = LIBRARY["alignment"]
+        for p in pose_ids:
+            out[f"alignment@{p}"] = EffectSpec(
+                f"alignment@{p}", base.params, base.units, base.prior, "pose", "alignment", 
+                f"the Euler angles of pose {p} differ from its calibrated ones", _SECOND_POSE, pose_id=p)
+    return out
+
+
+def effect_spec(name, candidates: dict[str, EffectSpec] | None = None) -> EffectSpec:
+    """The spec named ``name`` (or ``name`` itself if it is a spec)."""
+    if isinstance(name, EffectSpec):
+        return name
+    candidates = LIBRARY if candidates is None else candidates
+    if name not in candidates:
+        raise InputError(f"effect {name!r}: unknown; available: {', '.join(sorted(candidates))}")
+    return candidates[name]

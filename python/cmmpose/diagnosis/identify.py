@@ -1,0 +1,443 @@
+"""Which physical effect is missing: sensitivities of the observables to
+every candidate's parameters (finite differences through the Rust kernel
+and the sphere fits), a joint weighted least-squares fit with one noise
+level per observable class, and forward selection by likelihood ratio and
+BIC.
+
+Statistics. Each class c of observables (lengths, centre disagreements,
+radii, point residuals) has its own unknown noise sigma_c, estimated from
+its residuals (iteratively reweighted least squares). The profile
+log-likelihood is -2 log L = sum_c n_c log(RSS_c / n_c); adding an effect
+with k identifiable parameters gains LR = -2 log L(before) + 2 log L(after),
+asymptotically chi-square with k degrees of freedom under "no effect". An
+effect is proposed only if its p-value beats 1e-3 divided by the number of
+candidates (Bonferroni); the BIC change is reported alongside. (BIC alone
+would charge every parameter ln n with n counted over all classes, tens of
+thousands of point residuals, and so miss effects seen only in the 20
+ballbar lengths.) Parameters are
+scaled by their prior magnitude so the design is well conditioned;
+condition numbers are of the whitened, column-normalised design.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import Error, InputError
+from ..run import Run
+from .effects import EffectSpec, library
+from .inputs import RunInputs
+from .observables import CLASSES, ObservationLayout, Observed, observe
+
+__all__ = ["Problem", "Candidate", "rank_candidates", "fit_model", "ALPHA", "OBSERVABLE_AT"]
+
+#: Family-wise false-alarm rate of a proposal.
+ALPHA = 1e-3
+#: Squared signal-to-noise, at the prior magnitude, below which an effect
+#: counts as unobservable in the run (5 sigma).
+OBSERVABLE_AT = 25.0
+#: Two candidates whose fitted contributions correlate above this cannot be
+#: told apart.
+INDISTINGUISHABLE = 0.95
+#: Smallest noise level credited to a class, mm: below 0.1 um the model's
+#: own approximations (second-order kinematics, linearised sensitivities)
+#: are not trustworthy, so residuals that small are not evidence.
+SIGMA_FLOOR = 1e-4
+_RSS_FLOOR = SIGMA_FLOOR ** 2
+#: Weight of the prior on effect parameters, per prior magnitude: a total
+#: value of a few typical magnitudes costs little, hundreds cost more than
+#: any data can gain. Without it a linearised column that happens to carry
+#: the noise (a depth scale scales the depth noise too) could "explain" the
+#: noise by an absurd value.
+PRIOR_WEIGHT = 0.3
+
+
+def _chi2_sf(x: float, k: int) -> float:
+    """Upper tail of chi-square with k dof."""
+    from scipy.stats import chi2
+
+    return float(chi2.sf(x, k))
+
+
+@dataclass
+class Fit:
+    """A weighted least-squares fit of the residual r0 + X beta."""
+
+    beta: np.ndarray
+    cov: np.ndarray
+    residual: np.ndarray
+    sigma: np.ndarray
+    neg2loglik: float
+    rank: int
+    rss: np.ndarray
+
+
+class Problem:
+    """The linearised diagnosis problem of one run at one model.
+
+    Parameters
+    ----------
+    model : Model
+        The current model.
+    run : Run
+        The run.
+    candidates : dict of str -> EffectSpec, optional
+        Default: the whole library for the run (plus per-pose alignments).
+    """
+
+    def __init__(self, model, run: Run, candidates: dict[str, EffectSpec] | None = None):
+        self.run = run
+        self.inputs: RunInputs = model.inputs(run)
+        self.layout = ObservationLayout.from_run(run, self.inputs)
+        self.classes = self.layout.classes
+        self.n_class = np.bincount(self.classes, minlength=len(CLASSES)).astype(float)
+        # Deviations from a group mean have (k - 1) dof per k scans.
+        n_groups = len(np.unique(self.layout.sphere_of_scan[self.layout.repeated]))
+        self.n_eff = self.n_class.copy()
+        self.n_eff[1] = 3 * (len(self.layout.repeated) - n_groups)
+        self.nuisance, self.nuisance_names = self.layout.nuisance()
+        self.candidates = dict(library(self.inputs.pose_ids) if candidates is None else candidates)
+        for spec, _ in model.effects:
+            self.candidates.setdefault(spec.name, spec)
+        self.skipped: dict[str, str] = {}
+        for name, spec in list(self.candidates.items()):
+            missing = [n for n in spec.needs if not self.inputs.available(n)]
+            if missing:
+                self.skipped[name] = f"the run lacks {', '.join(missing)}: {spec.reveal}"
+                del self.candidates[name]
+        self.base = model
+        self.base_obs = self.observe(model)
+        self.columns = self._sensitivities(model, self.base_obs)
+
+    def observe(self, model) -> Observed:
+        return observe(self.layout, model.compensate(self.inputs), model.expansion_ppm_per_kelvin,
+                       self.inputs.scan_id)
+
+    def _sensitivities(self, model, obs: Observed) -> dict[str, np.ndarray]:
+        """Residual change per prior magnitude of each parameter (mm)."""
+        out = {}
+        ref_len = self.layout.calibrated_length or (float(np.mean(obs.lengths)) if len(obs.lengths) else 0.0)
+        for name, spec in self.candidates.items():
+            prior = np.asarray(spec.prior)
+            if spec.kind == "length":
+                out[name] = self.layout.expansion_column(ref_len)[:, None] * prior
+                continue
+            current = model.values(name) if name in model.names else np.zeros(spec.size)
+            out[name] = self._columns(model, spec, current, obs)
+        return out
+
+    def _columns(self, model, spec: EffectSpec, current: np.ndarray, obs: Observed) -> np.ndarray:
+        """Residual change per prior magnitude of each parameter of ``spec``
+        (forward differences of size ``spec.steps``)."""
+        cols = []
+        for j in range(spec.size):
+            v = np.array(current, dtype=float)
+            v[j] += spec.steps[j]
+            cols.append((self.observe(model.with_values(spec, v)).residual - obs.residual) * spec.prior[j] / spec.steps[j])
+        return np.column_stack(cols)
+
+    # -- fitting ------------------------------------------------------------
+
+    def wls(self, r0: np.ndarray, X: np.ndarray, iterations: int = 6, ridge: np.ndarray | None = None,
+            target: np.ndarray | None = None) -> Fit:
+        """Fit r0 + X beta with one noise level per class (IRLS).
+
+        ``ridge`` (one per column, 0 for none) adds the pseudo-observation
+        ridge_j (beta_j - target_j) = 0: a weak prior that keeps directions the
+        data barely sees from wandering (not part of the likelihood)."""
+        cls, n_eff = self.classes, self.n_eff
+        present = self.n_class > 0
+        w = np.ones(len(r0))
+        beta = np.zeros(X.shape[1])
+        rank = 0
+        for _ in range(iterations):
+            Xw = X * w[:, None]
+            rhs = -r0 * w
+            if ridge is not None:
+                Xw = np.vstack([Xw, np.diag(ridge)])
+                rhs = np.concatenate([rhs, ridge * (np.zeros(len(ridge)) if target is None else target)])
+            if X.shape[1]:
+                beta, _, rank, _ = np.linalg.lstsq(Xw, rhs, rcond=1e-10)
+            res = r0 + X @ beta
+            rss = np.bincount(cls, res ** 2, minlength=len(CLASSES))
+            sigma = np.sqrt(np.maximum(rss, _RSS_FLOOR * np.maximum(n_eff, 1)) / np.maximum(n_eff, 1))
+            w = 1.0 / sigma[cls]
+        Xw = X * w[:, None]
+        cov = np.linalg.pinv(Xw.T @ Xw, rcond=1e-10) if X.shape[1] else np.zeros((0, 0))
+        use = present & (n_eff > 0)
+        rss_f = np.maximum(rss, _RSS_FLOOR * np.maximum(n_eff, 1))
+        n2ll = float(np.sum(n_eff[use] * np.log(rss_f[use] / n_eff[use])))
+        return Fit(beta, cov, res, sigma, n2ll, int(rank), rss)
+
+    def model_design(self, model) -> tuple[np.ndarray, list[tuple[str, int]]]:
+        """Nuisance columns and the columns of the effects already in ``model``."""
+        blocks, index = [self.nuisance], []
+        for name in model.names:
+            if name in self.columns:
+                blocks.append(self.columns[name])
+                index.append((name, self.columns[name].shape[1]))
+        return np.column_stack(blocks) if blocks else np.zeros((len(self.classes), 0)), index
+
+    def whitened(self, X: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+        return X / sigma[self.classes][:, None]
+
+
+@dataclass
+class Candidate:
+    """One candidate effect evaluated against the current model.
+
+    Attributes
+    ----------
+    name : str
+        Effect name.
+    values : ndarray
+        Fitted parameter values (current value + fitted change), in the
+        effect's units.
+    uncertainty : ndarray
+        Standard uncertainty of each value, same units (inf where the run
+        does not determine it).
+    lr : float
+        Likelihood-ratio statistic against the current model.
+    dof : int
+        Parameters the run determines (rank gain).
+    p_value : float
+        chi-square upper tail of lr with dof degrees of freedom.
+    delta_bic : float
+        BIC change if added (negative: better).
+    explained : float
+        Share of the remaining whitened residual sum of squares it explains.
+    explained_length : float
+        Share of the remaining ballbar-length residual it explains.
+    correlation : float
+        Largest |correlation| of its columns with the model's columns and
+        nuisances; ``correlated_with`` names that column's effect.
+    condition : float
+        Condition number of the whitened, normalised design with it added.
+    observability : float
+        Squared signal-to-noise of its largest parameter at the prior
+        magnitude, after what the model already explains (< OBSERVABLE_AT:
+        the run cannot show it at a typical size).
+    significant : bool
+        Passes the Bonferroni chi-square test.
+    """
+
+    name: str
+    spec: EffectSpec
+    values: np.ndarray
+    uncertainty: np.ndarray
+    lr: float
+    dof: int
+    p_value: float
+    delta_bic: float
+    explained: float
+    explained_length: float
+    correlation: float
+    correlated_with: str
+    condition: float
+    observability: float
+    significant: bool = False
+    indistinguishable_from: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        def num(x):
+            x = float(x)
+            return x if math.isfinite(x) else None
+
+        return {"name": self.name, "params": dict(zip(self.spec.params, map(num, self.values))),
+                "uncertainty": dict(zip(self.spec.params, map(num, self.uncertainty))),
+                "units": dict(zip(self.spec.params, self.spec.units)), "lr": num(self.lr), "dof": self.dof,
+                "p_value": num(self.p_value), "delta_bic": num(self.delta_bic), "explained": num(self.explained),
+                "explained_length": num(self.explained_length), "correlation": num(self.correlation),
+                "correlated_with": self.correlated_with, "condition": num(self.condition),
+                "observability": num(self.observability), "significant": self.significant,
+                "indistinguishable_from": list(self.indistinguishable_from), "reveal": self.spec.reveal}
+
+
+def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> list[Candidate]:
+    """Every candidate not in ``model``, evaluated against it, best first
+    (significant before not, then by p-value)."""
+    obs = problem.observe(model) if obs is None else obs
+    r0 = obs.residual
+    X0, index = problem.model_design(model)
+    k0 = problem.nuisance.shape[1]
+    now = np.concatenate([model.values(n) / np.asarray(problem.candidates[n].prior) for n, _ in index]) \
+        if index else np.zeros(0)
+    ridge0 = np.r_[np.zeros(k0), np.full(len(now), PRIOR_WEIGHT)]
+    target0 = np.r_[np.zeros(k0), -now]
+    base = problem.wls(r0, X0, ridge=ridge0, target=target0)
+    n_total = float(np.sum(problem.n_eff))
+    todo = [n for n in problem.candidates if n not in model.names]
+    out = []
+    W0 = problem.whitened(X0, base.sigma)
+    q0 = np.linalg.qr(W0)[0] if X0.shape[1] else np.zeros((len(r0), 0))
+    labels = [n for n in problem.nuisance_names] + [name for name, k in index for _ in range(k)]
+    for name in todo:
+        spec = problem.candidates[name]
+        J = problem.columns[name]
+        fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
+                          target=np.r_[target0, np.zeros(J.shape[1])])
+        dof = max(fit.rank - base.rank, 0)
+        lr = max(base.neg2loglik - fit.neg2loglik, 0.0)
+        p = _chi2_sf(lr, dof) if dof else 1.0
+        dbic = -lr + dof * math.log(max(n_total, 2.0))
+        wb = 1.0 / base.sigma[problem.classes] ** 2
+        before = float(np.sum(base.residual ** 2 * wb))
+        after = float(np.sum(fit.residual ** 2 * wb))
+        L = problem.classes == 0
+        lb = float(np.sum(base.residual[L] ** 2))
+        la = float(np.sum(fit.residual[L] ** 2))
+        k = J.shape[1]
+        beta = fit.beta[-k:]
+        sd = np.sqrt(np.clip(np.diag(fit.cov)[-k:], 0, None))
+        current = model.values(name) if name in model.names else np.zeros(spec.size)
+        values = current + beta * np.asarray(spec.prior)
+        unc = sd * np.asarray(spec.prior)
+        # Marginal uncertainty of each parameter: 1 / |whitened column after
+        # projecting out every other column| (exact for weighted LS); inf
+        # where the run does not determine it.
+        Wk = problem.whitened(J, fit.sigma)
+        Wm = problem.whitened(X0, fit.sigma)
+        unc = np.empty(k)
+        for j in range(k):
+            others = np.column_stack([Wm, np.delete(Wk, j, axis=1)])
+            q = np.linalg.qr(others)[0] if others.shape[1] else np.zeros((len(r0), 0))
+            rest = Wk[:, j] - q @ (q.T @ Wk[:, j])
+            s = float(rest @ rest)
+            unc[j] = np.inf if s <= 1e-10 * float(Wk[:, j] @ Wk[:, j]) or s == 0 else spec.prior[j] / math.sqrt(s)
+        # Observability at the prior magnitude, against the current model only.
+        Wb = problem.whitened(J, base.sigma)
+        perp = Wb - q0 @ (q0.T @ Wb)
+        s2 = np.sum(perp ** 2, axis=0)
+        corr, with_ = 0.0, ""
+        if X0.shape[1]:
+            a = Wk / np.maximum(np.linalg.norm(Wk, axis=0), 1e-300)
+            b = W0 / np.maximum(np.linalg.norm(W0, axis=0), 1e-300)
+            c = np.abs(a.T @ b)
+            i, j = np.unravel_index(np.argmax(c), c.shape)
+            corr, with_ = float(c[i, j]), labels[j]
+        full = np.column_stack([W0, Wk])
+        full = full / np.maximum(np.linalg.norm(full, axis=0), 1e-300)
+        sv = np.linalg.svd(full, compute_uv=False)
+        cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+        out.append(Candidate(name, spec, values, unc, lr, dof, p, dbic,
+                             1 - after / before if before > 0 else 0.0,
+                             1 - la / lb if lb > 0 else 0.0, corr, with_, cond, float(np.max(s2)) if k else 0.0))
+    threshold = ALPHA / max(len(todo), 1)
+    for c in out:
+        c.significant = c.dof > 0 and c.p_value < threshold
+    # Significant first; then by p-value, which weighs the likelihood gain
+    # against the parameters spent on it.
+    out.sort(key=lambda c: (not c.significant, c.p_value, -c.lr))
+    _flag_indistinguishable(problem, out, r0, X0, base, ridge0, target0)
+    return out
+
+
+def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, base: Fit, ridge0, target0) -> None:
+    """Mark candidates whose fitted contributions the data cannot tell apart
+    from the leader's: nearly the same likelihood gain and correlated fits."""
+    if not ranked or not ranked[0].significant:
+        return
+    lead = ranked[0]
+
+    def contribution(c: Candidate) -> np.ndarray:
+        J = problem.columns[c.name]
+        fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
+                          target=np.r_[target0, np.zeros(J.shape[1])])
+        return (J @ fit.beta[-J.shape[1]:]) / base.sigma[problem.classes]
+
+    a = contribution(lead)
+    for c in ranked[1:]:
+        if c.lr < 0.8 * lead.lr:
+            continue
+        b = contribution(c)
+        denom = np.linalg.norm(a) * np.linalg.norm(b)
+        if denom > 0 and abs(float(a @ b)) / denom > INDISTINGUISHABLE:
+            lead.indistinguishable_from.append(c.name)
+            c.indistinguishable_from.append(lead.name)
+
+
+def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = None):
+    """Fit the parameters of every effect in ``model`` to ``run`` (Gauss-Newton
+    through the kernel, nuisances and class noise levels estimated alongside).
+
+    Parameters
+    ----------
+    model : Model
+        Its effects' current values are the starting point.
+    run : Run
+        The measurement run.
+    iterations : int
+        Gauss-Newton iterations at most (each recomputes the sensitivities).
+    problem : Problem, optional
+        Reuse its inputs and layout.
+
+    Returns
+    -------
+    Model
+        The same effects with fitted values.
+    """
+    if not model.effects:
+        return model
+    prob = problem if problem is not None else Problem(model, run, candidates={s.name: s for s, _ in model.effects})
+
+    def cost(m):
+        """Profile -2 log L of model m, or None if it cannot be evaluated."""
+        try:
+            o = prob.observe(m)
+        except Error:
+            return None, None
+        return prob.wls(o.residual, prob.nuisance).neg2loglik, o
+
+    current, obs = cost(model)
+    if current is None:
+        # The starting values do not even give fittable spheres: start at zero.
+        model = model.__class__(model.maps, tuple((s, np.zeros(s.size)) for s, _ in model.effects),
+                                model.temperature, model.out_of_range)
+        current, obs = cost(model)
+        if current is None:
+            raise InputError("fit_model: the model cannot be evaluated on this run even with its effects at zero")
+    for _ in range(iterations):
+        cols, specs = [], []
+        for spec, v in model.effects:
+            prior = np.asarray(spec.prior)
+            if spec.kind == "length":
+                ref = prob.layout.calibrated_length or float(np.mean(obs.lengths))
+                cols.append(prob.layout.expansion_column(ref)[:, None] * prior)
+            else:
+                cols.append(prob._columns(model, spec, v, obs))
+            specs.append(spec)
+        X = np.column_stack([prob.nuisance] + cols)
+        # Prior: each parameter within a few typical magnitudes of zero.
+        k0 = prob.nuisance.shape[1]
+        ridge = np.r_[np.zeros(k0), np.full(X.shape[1] - k0, PRIOR_WEIGHT)]
+        now = np.concatenate([np.asarray(v, float) / np.asarray(sp.prior) for sp, v in model.effects])
+        fit = prob.wls(obs.residual, X, ridge=ridge, target=np.r_[np.zeros(k0), -now])
+        beta = fit.beta[k0:]
+        # Step halving: accept the first step that does not raise the cost.
+        for _halving in range(6):
+            trial, at = model, 0
+            for spec in specs:
+                b = beta[at:at + spec.size]
+                at += spec.size
+                trial = trial.with_values(spec, trial.values(spec.name) + b * np.asarray(spec.prior))
+            new, new_obs = cost(trial)
+            if new is not None and new <= current + 1e-9:
+                break
+            beta = beta / 2
+        else:
+            break
+        model, current, obs = trial, new, new_obs
+        if float(np.max(np.abs(beta))) < 1e-3:  # a thousandth of the prior: converged
+            break
+    return model
+
+
+def check_effect_names(names, problem: Problem) -> None:
+    for n in names:
+        if n not in problem.candidates:
+            why = problem.skipped.get(n)
+            raise InputError(f"effect {n!r}: " + (why if why else
+                             f"unknown; available: {', '.join(sorted(problem.candidates))}"))

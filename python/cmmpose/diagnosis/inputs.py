@@ -1,0 +1,176 @@
+"""Per-point inputs of a run that the model kernel needs beyond (u, v) and
+the scale readings: the pose of each point, the machine mean temperature,
+each axis's scale temperature, the granite gradient, the scale velocity and
+the incidence angle. Built once per run, vectorised, read-only."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..run import Run
+
+__all__ = ["RunInputs", "incidence_angles", "GRADIENT_WINDOW"]
+
+#: Width of the running mean of the granite gradient, s.
+GRADIENT_WINDOW = 300.0
+
+
+def _running_mean(t: np.ndarray, y: np.ndarray, window: float) -> np.ndarray:
+    """Mean of y over [t - window/2, t + window/2] at every t (sorted t)."""
+    c = np.concatenate([[0.0], np.cumsum(y)])
+    lo = np.searchsorted(t, t - window / 2, side="left")
+    hi = np.searchsorted(t, t + window / 2, side="right")
+    return (c[hi] - c[lo]) / (hi - lo)
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What the model kernel reads of a run, point by point.
+
+    Attributes
+    ----------
+    uv : ndarray (N, 2)
+        Scan-plane coordinates, mm.
+    t : ndarray (N,)
+        Time stamps, s.
+    scan_id : ndarray (N,)
+        Scan of each point.
+    scales : ndarray (N, 3)
+        Scale readings D, E, F, mm.
+    pose_ids : tuple of int
+        The run's pose ids; ``pose_index`` indexes this tuple.
+    pose_index : ndarray (N,) of uint32
+        Pose of each point.
+    poses : ndarray (P, 6)
+        alpha, beta, gamma (degrees) and U1, V1, W1 (mm) of each pose.
+    temperature : ndarray (N,)
+        Machine mean temperature, C (thesis policy).
+    axis_temperature : ndarray (N, 3) or None
+        Mean of each axis's scale thermocouples, C.
+    gradient : ndarray (N,) or None
+        Granite top minus bottom, K (running mean over ``GRADIENT_WINDOW``).
+    velocity : ndarray (N, 3)
+        Scale velocity of each point's sweep, mm/s.
+    incidence : ndarray (N,) or None
+        Angle between the surface normal and the beam, degrees (from a sphere
+        fit; see :func:`incidence_angles`).
+    """
+
+    uv: np.ndarray
+    scales: np.ndarray
+    t: np.ndarray
+    scan_id: np.ndarray
+    pose_ids: tuple[int, ...]
+    pose_index: np.ndarray
+    poses: np.ndarray
+    temperature: np.ndarray
+    axis_temperature: np.ndarray | None
+    gradient: np.ndarray | None
+    velocity: np.ndarray
+    incidence: np.ndarray | None = None
+
+    @classmethod
+    def from_run(cls, run: Run, temperature: float | None = None) -> RunInputs:
+        """Inputs of ``run``; ``temperature`` (C) overrides the log's machine mean.
+
+        Parameters
+        ----------
+        run : Run
+            The measurement run.
+        temperature : float, optional
+            Machine temperature for every point, degrees C; default the mean of
+            the axis-scale thermocouples at each time stamp.
+        """
+        if not isinstance(run, Run):
+            raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+        n = run.n_points
+        t = run.points["t"]
+        pose_ids = tuple(int(p) for p in np.sort(run.poses["pose_id"]))
+        scan_ids = run.scans["scan_id"]
+        order = np.argsort(scan_ids)
+        pos = np.searchsorted(scan_ids[order], run.points["scan_id"])
+        if n and (np.any(pos >= len(scan_ids)) or np.any(scan_ids[order][np.minimum(pos, len(scan_ids) - 1)]
+                                                          != run.points["scan_id"])):
+            raise InputError("run: points refer to scans missing from the scans table")
+        scan_row = order[pos] if n else np.zeros(0, int)
+        pose_of_scan = np.searchsorted(np.array(pose_ids), run.scans["pose_id"])
+        pose_index = pose_of_scan[scan_row].astype(np.uint32)
+        poses = np.array([[*run.pose(p)[0], *run.pose(p)[1]] for p in pose_ids], dtype=float)
+        axis_of_scan = np.array(["XYZ".index(a) for a in run.scans["sweep_axis"]], dtype=int)
+        v_scan = np.zeros((len(scan_ids), 3))
+        v_scan[np.arange(len(scan_ids)), axis_of_scan] = run.scans["sweep_direction"] * run.scans["sweep_speed"]
+        velocity = np.ascontiguousarray(v_scan[scan_row])
+        axis_t = gradient = None
+        if temperature is not None:
+            temps = np.full(n, float(temperature))
+        elif run.temperatures is None:
+            raise InputError("run has no temperature log: pass temperature= (C)")
+        else:
+            from ..calibration.thermal import temperatures_at
+
+            temps, _ = temperatures_at(t, run, policy="machine_mean", on_gap="interpolate", out_of_range="hold")
+            roles = [c.get("role") for c in run.temperature_channels]
+            if all(r in roles for r in ("x_scale", "y_scale", "z_scale")):
+                axis_t, _ = temperatures_at(t, run, policy="per_axis", on_gap="interpolate", out_of_range="hold")
+            tops = [c["name"] for c in run.temperature_channels if c.get("role") == "granite_top"]
+            bottoms = [c["name"] for c in run.temperature_channels if c.get("role") == "granite_bottom"]
+            if tops and bottoms:
+                # The granite's gradient changes over hours, so the noise of
+                # the two channels is averaged out over GRADIENT_WINDOW first
+                # (0.02 K of noise times 15 arc-second/K is 1 um at 0.7 m).
+                tlog = np.asarray(run.temperatures["t"], dtype=float)
+
+                def mean_of(names):
+                    return np.mean([temperatures_at(tlog, run, policy=f"channel:{c}", on_gap="interpolate",
+                                                    out_of_range="hold")[0] for c in names], axis=0)
+                g = _running_mean(tlog, mean_of(tops) - mean_of(bottoms), GRADIENT_WINDOW)
+                gradient = np.interp(t, tlog, g)
+        return cls(uv=run.uv, scales=run.scales, t=run.points["t"], scan_id=run.points["scan_id"], pose_ids=pose_ids, pose_index=np.ascontiguousarray(pose_index),
+                   poses=poses, temperature=np.ascontiguousarray(temps, dtype=float),
+                   axis_temperature=None if axis_t is None else np.ascontiguousarray(axis_t, dtype=float),
+                   gradient=None if gradient is None else np.ascontiguousarray(gradient, dtype=float),
+                   velocity=velocity)
+
+    def with_incidence(self, incidence: np.ndarray) -> RunInputs:
+        """A copy holding incidence angles (degrees, (N,))."""
+        incidence = np.ascontiguousarray(incidence, dtype=float)
+        if incidence.shape != (len(self.uv),):
+            raise InputError(f"incidence: expected shape ({len(self.uv)},), got {incidence.shape}")
+        return RunInputs(**{**self.__dict__, "incidence": incidence})
+
+    def available(self, need: str) -> bool:
+        """Whether the input an effect ``needs`` is there ('poses>1' too)."""
+        if need == "poses>1":
+            return len(self.pose_ids) > 1
+        return getattr(self, need) is not None
+
+
+def incidence_angles(xyz, labels, centres: dict, inputs: RunInputs) -> np.ndarray:
+    """Angle (degrees) between each point's outward sphere normal and the
+    beam: the scanner looks along -v, so the beam towards the sensor is the
+    pose's v axis (E313 column 2) in machine coordinates.
+
+    Parameters
+    ----------
+    xyz : ndarray (N, 3)
+        Compensated points, mm.
+    labels : ndarray (N,)
+        Sphere of each point (scan id).
+    centres : dict
+        Label -> fitted centre (3,), mm.
+    inputs : RunInputs
+        For each point's pose.
+    """
+    from .._core import euler313
+
+    keys = np.array(sorted(centres))
+    c = np.array([centres[k] for k in keys]).reshape(-1, 3)
+    idx = np.searchsorted(keys, labels)
+    normal = xyz - c[idx]
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    v_dirs = np.array([np.asarray(euler313(*p[:3]))[:, 1] for p in inputs.poses]).reshape(-1, 3)
+    cos = np.einsum("ij,ij->i", normal, v_dirs[inputs.pose_index])
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))

@@ -1,0 +1,318 @@
+"""A compensation model with physical effects: the thesis model (error maps,
+pose, machine-mean temperature) plus named effects with fitted parameters.
+Immutable: :meth:`Model.add` returns a new model."""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import _core
+from ..errormap import ErrorMap, ErrorMapSet
+from ..errors import InputError
+from ..run import Run
+from .effects import LIBRARY, EffectSpec, UserEffect, effect_spec, library
+from .inputs import RunInputs
+
+__all__ = ["Model", "MODEL_SCHEMA"]
+
+#: ``schema`` of a saved model file.
+MODEL_SCHEMA = "cmmpose-model"
+
+
+@dataclass(frozen=True)
+class Model:
+    """Error maps plus physical effects with parameter values.
+
+    Parameters
+    ----------
+    maps : ErrorMap or ErrorMapSet
+        The machine's component errors (a set is interpolated at each point's
+        machine temperature, C).
+    effects : tuple of (EffectSpec, ndarray)
+        Effects in the order added, each with its parameter values in the
+        units of ``EffectSpec.units``.
+    temperature : float, optional
+        Machine temperature for every point, C; default the run's
+        thermocouple log (mean of the axis-scale channels, thesis 6.4).
+    out_of_range : {'raise', 'clamp'}
+        Readings or temperatures outside the maps.
+    """
+
+    maps: ErrorMap | ErrorMapSet
+    effects: tuple[tuple[EffectSpec, np.ndarray], ...] = ()
+    temperature: float | None = None
+    out_of_range: str = "raise"
+    _inputs_cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self):
+        if not isinstance(self.maps, (ErrorMap, ErrorMapSet)):
+            raise InputError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(self.maps).__name__}")
+        if self.out_of_range not in ("raise", "clamp"):
+            raise InputError(f"out_of_range: expected 'raise' or 'clamp', got {self.out_of_range!r}")
+        names = [s.name for s, _ in self.effects]
+        if len(set(names)) != len(names):
+            raise InputError(f"effects: each effect once, got {names}")
+        for spec, values in self.effects:
+            v = np.asarray(values, dtype=float)
+            if v.shape != (spec.size,) or not np.all(np.isfinite(v)):
+                raise InputError(f"effect {spec.name}: expected {spec.size} finite values "
+                                 f"({', '.join(spec.params)}), got {values!r}")
+
+    # -- parameters ---------------------------------------------------------
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of the effects in the model, in the order added."""
+        return tuple(s.name for s, _ in self.effects)
+
+    def values(self, name: str) -> np.ndarray:
+        """Parameter values of effect ``name`` (zeros if absent is an error)."""
+        for s, v in self.effects:
+            if s.name == name:
+                return np.array(v, dtype=float)
+        raise InputError(f"effect {name!r} is not in the model (has: {', '.join(self.names) or 'none'})")
+
+    def with_values(self, spec: EffectSpec | str, values) -> Model:
+        """A model with effect ``spec`` set to ``values`` (added if absent)."""
+        spec = effect_spec(spec, _known(self, spec))
+        values = np.array(values, dtype=float).reshape(-1)
+        effects = [(s, v) for s, v in self.effects if s.name != spec.name]
+        at = next((i for i, (s, _) in enumerate(self.effects) if s.name == spec.name), len(effects))
+        effects.insert(at, (spec, values))
+        return replace(self, effects=tuple(effects), _inputs_cache=self._inputs_cache)
+
+    def without(self, name: str) -> Model:
+        """A model without effect ``name``."""
+        self.values(name)
+        return replace(self, effects=tuple((s, v) for s, v in self.effects if s.name != name),
+                       _inputs_cache=self._inputs_cache)
+
+    def add(self, effect, run: Run | None = None, *, values=None) -> Model:
+        """A new model with ``effect`` added: its parameters given as
+        ``values``, or fitted to ``run`` (jointly with the effects already in
+        the model, by Gauss-Newton through the Rust kernel).
+
+        Parameters
+        ----------
+        effect : str or EffectSpec
+            A library name (see ``cmmpose.diagnosis.LIBRARY``) or a spec
+            (e.g. a :class:`UserEffect`).
+        run : Run, optional
+            The run to fit the parameters to.
+        values : array_like, optional
+            Parameter values in the effect's units, instead of fitting.
+        """
+        spec = effect_spec(effect, _known(self, effect))
+        if spec.name in self.names:
+            raise InputError(f"effect {spec.name!r} is already in the model; use with_values to change it")
+        if values is not None:
+            return self.with_values(spec, values)
+        if run is None:
+            raise InputError(f"add({spec.name!r}): give a run to fit it to, or values=")
+        from .identify import fit_model
+
+        return fit_model(self.with_values(spec, np.zeros(spec.size)), run)
+
+    # -- compensation -------------------------------------------------------
+
+    def inputs(self, run: Run) -> RunInputs:
+        """Per-point inputs of ``run`` (cached per run object)."""
+        key = id(run)
+        cached = self._inputs_cache.get(key)
+        if cached is None or cached[0] is not run:
+            self._inputs_cache.clear()
+            cached = (run, _with_incidence(self, RunInputs.from_run(run, self.temperature)))
+            self._inputs_cache[key] = cached
+        return cached[1]
+
+    def kernel_terms(self) -> dict[str, list[float]]:
+        """The kernel-level effect parameters, as rust/core/src/model.rs takes them."""
+        out: dict[str, list[float]] = {}
+        for spec, v in self.effects:
+            if spec.kind == "kernel":
+                out[spec.key] = [float(x) for x in v]
+        return out
+
+    def poses(self, inputs: RunInputs) -> list[tuple[float, ...]]:
+        """Each pose (degrees, mm) with the pose-level effects applied."""
+        poses = inputs.poses.copy()
+        for spec, v in self.effects:
+            if spec.kind != "pose":
+                continue
+            if spec.key == "mount-offset":
+                poses[:, 3:6] += v
+            elif spec.pose_id is None:
+                poses[:, 0:3] += v
+            elif spec.pose_id in inputs.pose_ids:
+                poses[inputs.pose_ids.index(spec.pose_id), 0:3] += v
+        return [tuple(float(x) for x in p) for p in poses]
+
+    @property
+    def expansion_ppm_per_kelvin(self) -> float:
+        """The artefact expansion coefficient in the model, ppm/K (0 if absent)."""
+        for spec, v in self.effects:
+            if spec.kind == "length":
+                return float(v[0])
+        return 0.0
+
+    def compensate(self, run: Run | RunInputs, *, return_clamped: bool = False):
+        """Compensated machine coordinates of every point of ``run``, mm.
+
+        Parameters
+        ----------
+        run : Run or RunInputs
+            The run (or its prepared inputs).
+        return_clamped : bool
+            Also return how many points were clamped into the maps.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            X, Y, Z in mm, machine frame.
+        """
+        inputs = run if isinstance(run, RunInputs) else self.inputs(run)
+        needs_incidence = any(s.key == "incidence" and np.any(v != 0) for s, v in self.effects)
+        if needs_incidence and inputs.incidence is None:
+            inputs = _with_incidence(self, inputs)
+        xyz, clamped = _core.compensate_model(
+            inputs.uv, inputs.scales, inputs.pose_index, inputs.temperature, self.maps._core,
+            self.poses(inputs), self.kernel_terms(), inputs.axis_temperature, inputs.gradient,
+            inputs.velocity, inputs.incidence, self.out_of_range == "clamp")
+        users = [(s, v) for s, v in self.effects if s.kind == "python"]
+        if users:
+            pts = _user_inputs(inputs, xyz)
+            for spec, v in users:
+                xyz = xyz + spec.correction(pts, v)
+        return (xyz, clamped) if return_clamped else xyz
+
+    def evaluate(self, run: Run):
+        """Ballbar figures of ``run`` under this model (see ``ModelFigures``)."""
+        from .observables import ObservationLayout, figures
+
+        inputs = self.inputs(run)
+        layout = ObservationLayout.from_run(run, inputs)
+        return figures(layout, self.compensate(inputs), self, sid=inputs.scan_id)
+
+    # -- files --------------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        maps = self.maps.maps if isinstance(self.maps, ErrorMapSet) else [self.maps]
+        texts = []
+        with tempfile.TemporaryDirectory() as d:
+            for i, m in enumerate(maps):
+                p = Path(d) / f"map{i}.csv"
+                m.write(p)
+                texts.append(p.read_text())
+        return {
+            "schema": MODEL_SCHEMA,
+            "schema_version": 1,
+            "maps": {"kind": "set" if isinstance(self.maps, ErrorMapSet) else "map", "csv": texts},
+            "temperature": self.temperature,
+            "out_of_range": self.out_of_range,
+            "effects": [{"name": s.name, "kind": s.kind, "params": dict(zip(s.params, map(float, v))),
+                         "units": dict(zip(s.params, s.units))} for s, v in self.effects],
+        }
+
+    def save(self, path) -> Path:
+        """Write the model (maps included) as JSON to ``path``."""
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=1))
+        return path
+
+    @classmethod
+    def load(cls, path, user_effects=()) -> Model:
+        """Read a model written by :meth:`save`; user-defined effects must be
+        passed again (their functions are code, not data).
+
+        Parameters
+        ----------
+        path : path-like
+            The JSON file.
+        user_effects : sequence of UserEffect
+            Specs of the user-defined effects the file names.
+        """
+        path = Path(path)
+        try:
+            doc = json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise InputError(f"{path}: not a readable model file ({e})") from None
+        if not isinstance(doc, dict) or doc.get("schema") != MODEL_SCHEMA or doc.get("schema_version") != 1:
+            raise InputError(f"{path}: not a {MODEL_SCHEMA} version 1 file")
+        try:
+            with tempfile.TemporaryDirectory() as d:
+                maps = []
+                for i, text in enumerate(doc["maps"]["csv"]):
+                    p = Path(d) / f"map{i}.csv"
+                    p.write_text(text)
+                    maps.append(ErrorMap.read(p))
+            model_maps = ErrorMapSet(maps) if doc["maps"]["kind"] == "set" else maps[0]
+            users = {u.name: u for u in user_effects}
+            effects = []
+            for e in doc["effects"]:
+                name = e["name"]
+                if e.get("kind") == "python":
+                    if name not in users:
+                        raise InputError(f"{path}: effect {name!r} is user-defined; pass it in user_effects")
+                    spec = users[name]
+                else:
+                    spec = effect_spec(name, library(_pose_ids_in(name)))
+                if set(e["params"]) != set(spec.params):
+                    raise InputError(f"{path}: effect {name!r} has parameters {sorted(e['params'])}, "
+                                     f"expected {list(spec.params)}")
+                effects.append((spec, np.array([float(e["params"][p]) for p in spec.params])))
+            return cls(model_maps, tuple(effects), doc.get("temperature"), doc.get("out_of_range", "raise"))
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{path}: malformed model file ({type(e).__name__}: {e})") from None
+
+    def __repr__(self) -> str:
+        eff = "; ".join(f"{s.name}: {s.describe(v)}" for s, v in self.effects) or "thesis model, no effects"
+        return f"Model({eff})"
+
+
+def _pose_ids_in(name: str) -> list[int]:
+    if "@" in name:
+        p = int(name.split("@", 1)[1])
+        return [p, p + 1 if p >= 0 else p - 1]  # any two ids make library() add the per-pose specs
+    return []
+
+
+def _known(model: Model, effect) -> dict[str, EffectSpec]:
+    if isinstance(effect, EffectSpec):
+        return {effect.name: effect}
+    known = dict(LIBRARY)
+    if isinstance(effect, str) and "@" in effect:
+        known |= library(_pose_ids_in(effect))
+    known |= {s.name: s for s, _ in model.effects}
+    return known
+
+
+def _user_inputs(inputs: RunInputs, xyz: np.ndarray) -> dict[str, np.ndarray]:
+    out = {"u": inputs.uv[:, 0], "v": inputs.uv[:, 1], "D": inputs.scales[:, 0], "E": inputs.scales[:, 1],
+           "F": inputs.scales[:, 2], "temperature": inputs.temperature, "x": xyz[:, 0], "y": xyz[:, 1],
+           "z": xyz[:, 2], "pose_id": np.asarray(inputs.pose_ids)[inputs.pose_index],
+           "incidence": inputs.incidence if inputs.incidence is not None else np.full(len(xyz), np.nan)}
+    out |= {"t": inputs.t, "scan_id": inputs.scan_id}
+    return out
+
+
+def _with_incidence(model: Model, inputs: RunInputs) -> RunInputs:
+    """Incidence angles from sphere fits of the points compensated by the
+    thesis model (the angle barely depends on the effects); points of scans
+    that cannot be fitted get 0."""
+    from ..fitting import fit_spheres
+    from .inputs import incidence_angles
+
+    base = replace(model, effects=(), _inputs_cache={})
+    xyz = base.compensate(inputs)
+    fits = fit_spheres(xyz, inputs.scan_id, on_error="return")
+    centres = {k: f.centre for k, f in fits.items() if not isinstance(f, Exception)}
+    theta = np.zeros(len(xyz))
+    ok = np.isin(inputs.scan_id, list(centres))
+    if ok.any():
+        theta[ok] = incidence_angles(xyz[ok], inputs.scan_id[ok], centres, replace(inputs, pose_index=inputs.pose_index[ok]))
+    return inputs.with_incidence(theta)

@@ -1,0 +1,313 @@
+"""The observables a diagnosis compares with the model, computed from the
+compensated points of a run: ballbar lengths, centre disagreement between
+scans of the same sphere, radii, and point residuals of the sphere fits.
+
+The vector of observables has four blocks (classes), each with its own
+noise level estimated from the data:
+
+- ``length`` (P): centre distance of each ballbar position, mm (a ball
+  scanned several times counts with its mean centre);
+- ``centre`` (3 per scan of a sphere scanned more than once): the scan's
+  centre minus the mean of that sphere's scans, mm;
+- ``radius`` (one per sphere scan), mm;
+- ``point`` (a fixed subsample of each scan's points): signed residual from
+  the scan's fitted sphere, mm.
+
+What the model predicts for them, with the nuisance parameters that the run
+cannot pin (an uncalibrated bar length or ball radius), is in
+:class:`ObservationLayout`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..fitting import fit_spheres
+from ..metrics import b89_value, rms_accuracy_error
+from ..run import Run
+from .inputs import RunInputs
+
+__all__ = ["ObservationLayout", "Observed", "observe", "figures", "ModelFigures", "CLASSES"]
+
+#: Observable classes, in vector order.
+CLASSES = ("length", "centre", "radius", "point")
+#: Point residuals kept per scan: enough to see a pattern, few enough to be fast.
+POINTS_PER_SCAN = 400
+
+
+@dataclass(frozen=True)
+class ObservationLayout:
+    """Which scans make which observables in one run (fixed for the run).
+
+    Attributes
+    ----------
+    labels : ndarray (S,)
+        Scan ids of the sphere scans, ascending.
+    sphere_of_scan : ndarray (S,)
+        Index of the physical sphere each scan measured.
+    sphere_kind : ndarray (K,) of str
+        'ball' or 'reference' per physical sphere.
+    positions : ndarray (P,)
+        Ballbar positions with both balls scanned.
+    ends : ndarray (P, 2)
+        Physical sphere index of ball 1 and ball 2 of each position.
+    position_temperature : ndarray (P,)
+        Mean machine temperature while each position was scanned, C.
+    repeated : ndarray (R,)
+        Indices into ``labels`` of the scans of spheres scanned more than once.
+    sample : ndarray (M,)
+        Rows of the run's points whose residuals are observed.
+    sample_scan : ndarray (M,)
+        Index into ``labels`` of each sampled point's scan.
+    calibrated_length, calibrated_radius : float or None
+        Calibrated bar length at 20 C and ball radius, mm.
+    """
+
+    labels: np.ndarray
+    sphere_of_scan: np.ndarray
+    sphere_kind: np.ndarray
+    positions: np.ndarray
+    ends: np.ndarray
+    position_temperature: np.ndarray
+    repeated: np.ndarray
+    sample: np.ndarray
+    sample_scan: np.ndarray
+    calibrated_length: float | None
+    calibrated_radius: float | None
+
+    @classmethod
+    def from_run(cls, run: Run, inputs: RunInputs, points_per_scan: int = POINTS_PER_SCAN) -> ObservationLayout:
+        """The observables of ``run``: every scan of a 'ball' or 'reference'
+        feature is a sphere scan.
+
+        Parameters
+        ----------
+        run : Run
+            The run.
+        inputs : RunInputs
+            Its per-point inputs (for the temperatures).
+        points_per_scan : int
+            Point residuals observed per scan (evenly spread over the scan).
+        """
+        sc = run.scans
+        keep = np.isin(sc["feature"], ["ball", "reference"])
+        if not keep.any():
+            raise InputError("run: no scans of a ball or reference sphere to diagnose")
+        order = np.argsort(sc["scan_id"][keep])
+        labels = sc["scan_id"][keep][order]
+        feature = sc["feature"][keep][order]
+        position = sc["position"][keep][order]
+        ball = sc["ball"][keep][order]
+        keys = [(f, int(p), int(b)) if f == "ball" else (f, -1, -1) for f, p, b in zip(feature, position, ball)]
+        uniq = sorted(set(keys))
+        sphere_of_scan = np.array([uniq.index(k) for k in keys])
+        kinds = np.array([k[0] for k in uniq])
+        counts = np.bincount(sphere_of_scan, minlength=len(uniq))
+        repeated = np.flatnonzero(counts[sphere_of_scan] > 1)
+        positions, ends = [], []
+        for p in sorted({k[1] for k in uniq if k[0] == "ball" and k[1] >= 0}):
+            if ("ball", p, 1) in uniq and ("ball", p, 2) in uniq:
+                positions.append(p)
+                ends.append((uniq.index(("ball", p, 1)), uniq.index(("ball", p, 2))))
+        sid = run.points["scan_id"]
+        temp = np.array([inputs.temperature[np.isin(sid, labels[np.isin(sphere_of_scan, e)])].mean()
+                         for e in ends]) if ends else np.zeros(0)
+        # Evenly spread sample of each scan's rows, in the order fit_spheres keeps them.
+        rows = np.argsort(sid, kind="stable")
+        sorted_sid = sid[rows]
+        starts = np.searchsorted(sorted_sid, labels)
+        stops = np.searchsorted(sorted_sid, labels, side="right")
+        if np.any(stops - starts < 4):
+            bad = labels[np.argmax(stops - starts < 4)]
+            raise InputError(f"scan {bad}: fewer than 4 points, cannot fit its sphere")
+        sample, sample_scan = [], []
+        for i, (a, b) in enumerate(zip(starts, stops)):
+            k = min(points_per_scan, b - a)
+            pick = a + (np.arange(k) * (b - a)) // k
+            sample.append(rows[pick])
+            sample_scan.append(np.full(k, i))
+        art = run.artefact
+        return cls(labels, sphere_of_scan, kinds, np.array(positions, int), np.array(ends, int).reshape(-1, 2),
+                   temp, repeated, np.concatenate(sample), np.concatenate(sample_scan),
+                   art.get("calibrated_length_mm"), art.get("calibrated_radius_mm"))
+
+    @property
+    def sizes(self) -> dict[str, int]:
+        return {"length": len(self.positions), "centre": 3 * len(self.repeated), "radius": len(self.labels),
+                "point": len(self.sample)}
+
+    @property
+    def classes(self) -> np.ndarray:
+        """Class index (into CLASSES) of each observable."""
+        return np.repeat(np.arange(len(CLASSES)), [self.sizes[c] for c in CLASSES])
+
+    def nuisance(self) -> tuple[np.ndarray, list[str]]:
+        """Columns of the parameters the run cannot pin: bar length (unless
+        calibrated), ball radius (unless calibrated), reference radius."""
+        n = sum(self.sizes.values())
+        cls = self.classes
+        cols, names = [], []
+        if self.calibrated_length is None and len(self.positions):
+            cols.append((cls == 0).astype(float))
+            names.append("bar length")
+        radius_rows = np.flatnonzero(cls == 2)
+        kind_of_scan = self.sphere_kind[self.sphere_of_scan]
+        for kind in ("ball", "reference"):
+            if kind == "ball" and self.calibrated_radius is not None:
+                continue
+            mine = kind_of_scan == kind
+            if mine.any():
+                c = np.zeros(n)
+                c[radius_rows[mine]] = 1.0
+                cols.append(c)
+                names.append(f"{kind} radius")
+        return (np.column_stack(cols) if cols else np.zeros((n, 0))), names
+
+    def expansion_column(self, reference_length: float) -> np.ndarray:
+        """Change of the residuals per ppm/K of artefact expansion."""
+        col = np.zeros(sum(self.sizes.values()))
+        col[: len(self.positions)] = -reference_length * 1e-6 * (self.position_temperature - 20.0)
+        return col
+
+
+@dataclass(frozen=True)
+class Observed:
+    """Observables of one compensation of a run.
+
+    Attributes
+    ----------
+    values : ndarray
+        The observables in CLASSES order (mm).
+    residual : ndarray
+        Observables minus what the model predicts with the nuisances at zero
+        (a calibrated length or radius subtracted), mm.
+    centres : ndarray (S, 3)
+        Fitted centre of each scan, mm.
+    radii, rms, form : ndarray (S,)
+        Fitted radius, residual rms and form of each scan, mm.
+    lengths : ndarray (P,)
+        Ballbar lengths, mm.
+    """
+
+    values: np.ndarray
+    residual: np.ndarray
+    centres: np.ndarray
+    radii: np.ndarray
+    rms: np.ndarray
+    form: np.ndarray
+    lengths: np.ndarray
+    fits: dict
+
+
+def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin: float = 0.0,
+            sid: np.ndarray | None = None) -> Observed:
+    """The observables of compensated points ``xyz`` (N, 3, mm).
+
+    Parameters
+    ----------
+    layout : ObservationLayout
+        Which scans make which observables.
+    xyz : ndarray (N, 3)
+        Compensated points of the whole run, mm, in the run's point order.
+    expansion_ppm_per_kelvin : float
+        The model's artefact expansion, ppm/K (for the predicted length).
+    sid : ndarray (N,)
+        Scan id of each point.
+    """
+    keep = np.isin(sid, layout.labels)
+    fits = fit_spheres(xyz[keep], sid[keep])
+    centres = np.array([fits[k].centre for k in layout.labels.tolist()])
+    radii = np.array([fits[k].radius for k in layout.labels.tolist()])
+    rms = np.array([fits[k].rms for k in layout.labels.tolist()])
+    form = np.array([fits[k].form for k in layout.labels.tolist()])
+    n_sph = len(layout.sphere_kind)
+    counts = np.bincount(layout.sphere_of_scan, minlength=n_sph)
+    mean_c = np.zeros((n_sph, 3))
+    np.add.at(mean_c, layout.sphere_of_scan, centres)
+    mean_c /= np.maximum(counts, 1)[:, None]
+    lengths = np.linalg.norm(mean_c[layout.ends[:, 1]] - mean_c[layout.ends[:, 0]], axis=1)
+    dev = (centres - mean_c[layout.sphere_of_scan])[layout.repeated].reshape(-1)
+    # Residuals of the sampled points from their scan's sphere.
+    p = xyz[layout.sample]
+    c = centres[layout.sample_scan]
+    point = np.linalg.norm(p - c, axis=1) - radii[layout.sample_scan]
+    values = np.concatenate([lengths, dev, radii, point])
+    residual = values.copy()
+    P = len(lengths)
+    if layout.calibrated_length is not None:
+        residual[:P] -= layout.calibrated_length * (1 + expansion_ppm_per_kelvin * 1e-6 *
+                                                    (layout.position_temperature - 20.0))
+    else:
+        # The bar length is a nuisance; the expansion still shapes lengths
+        # taken at different temperatures.
+        residual[:P] -= np.mean(lengths) * expansion_ppm_per_kelvin * 1e-6 * (layout.position_temperature - 20.0)
+    if layout.calibrated_radius is not None:
+        balls = layout.sphere_kind[layout.sphere_of_scan] == "ball"
+        residual[P + len(dev):P + len(dev) + len(radii)][balls] -= layout.calibrated_radius
+    return Observed(values, residual, centres, radii, rms, form, lengths, fits)
+
+
+@dataclass(frozen=True)
+class ModelFigures:
+    """Ballbar and sphere figures of one model on one run (mm).
+
+    Attributes
+    ----------
+    lengths : ndarray (P,)
+        Ballbar lengths, mm (as measured at the run's temperature).
+    lengths_20c : ndarray (P,)
+        Lengths brought to 20 C with the model's artefact expansion, mm.
+    rms_accuracy_error : float
+        Sample standard deviation (n - 1) of ``lengths_20c``, mm (eq. 36).
+    b89 : float
+        Largest |L - mean| of ``lengths_20c``, mm.
+    length_error : float or None
+        Mean of ``lengths_20c`` minus the calibrated length, mm.
+    form : float
+        Mean form (max - min residual) of the sphere fits, mm.
+    fit_rms : float
+        Mean residual rms of the sphere fits, mm.
+    centre_spread : float or None
+        RMS disagreement of repeated scans of one sphere, mm.
+    """
+
+    lengths: np.ndarray
+    lengths_20c: np.ndarray
+    rms_accuracy_error: float
+    b89: float
+    length_error: float | None
+    form: float
+    fit_rms: float
+    centre_spread: float | None
+
+    def to_dict(self) -> dict:
+        um = 1e3
+        return {"rms_accuracy_error_um": self.rms_accuracy_error * um, "b89_um": self.b89 * um,
+                "length_error_um": None if self.length_error is None else self.length_error * um,
+                "form_um": self.form * um, "fit_rms_um": self.fit_rms * um,
+                "centre_spread_um": None if self.centre_spread is None else self.centre_spread * um}
+
+
+def figures(layout: ObservationLayout, xyz: np.ndarray, model, sid=None, observed: Observed | None = None) -> ModelFigures:
+    """Ballbar figures of compensated points ``xyz`` under ``model``."""
+    if observed is None:
+        if sid is None:
+            raise InputError("figures: give sid (scan id per point) or observed")
+        observed = observe(layout, xyz, model.expansion_ppm_per_kelvin, sid)
+    a = model.expansion_ppm_per_kelvin * 1e-6
+    l20 = observed.lengths / (1 + a * (layout.position_temperature - 20.0))
+    n_rep = len(layout.repeated)
+    spread = None
+    if n_rep:
+        dev = observed.residual[len(l20):len(l20) + 3 * n_rep]
+        spread = float(np.sqrt(np.mean(dev ** 2) * 3))
+    if len(l20) >= 2:
+        rms, b89 = rms_accuracy_error(l20), b89_value(l20)
+    else:
+        rms = b89 = float("nan")
+    err = None if layout.calibrated_length is None or not len(l20) else float(np.mean(l20) - layout.calibrated_length)
+    return ModelFigures(observed.lengths, l20, rms, b89, err, float(np.mean(observed.form)),
+                        float(np.mean(observed.rms)), spread)
