@@ -62,7 +62,7 @@ NEEDS_MEASUREMENT = {
                            "calibrated bar length", {"calibrated": ("length",)}),
     "mount-offset": (lambda r: E.MountOffsetError(*(r.uniform(0.02, 0.05, 3) * r.choice([-1.0, 1.0], 3))),
                      lambda e: [e.u1, e.v1, e.w1], "two or more poses", {"reference_poses": STANDARD_POSES}),
-    "scale": (lambda r: E.ScaleError(**{"xy"[r.integers(2)]: sign(r) * r.uniform(15, 30)}),
+    "scale": (lambda r: E.ScaleError(**{"xy"[r.integers(2)]: sign(r) * r.uniform(20, 35)}),
               lambda e: [e.x, e.y, e.z], "calibrated bar length", {"calibrated": ("length",)}),
 }
 

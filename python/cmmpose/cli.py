@@ -223,13 +223,15 @@ def evaluate_cmd(run_dir, maps, temperature, out_of_range, reject, report_dir, a
 @click.option("--model", "model_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Start from a model saved by an earlier diagnosis (its maps and effects).")
 @click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
+@click.option("--out-of-range", type=click.Choice(["raise", "clamp"]), default="raise", show_default=True,
+              help="Readings or temperatures outside the maps: fail, or clamp to the maps' ends.")
 @click.option("--add", "add", multiple=True, help="Add this effect first, whether significant or not (repeatable).")
 @click.option("--no-auto", is_flag=True, help="Only rank the candidates (and add --add ones); add nothing automatically.")
 @click.option("--max-effects", type=int, default=4, show_default=True, help="Most effects added automatically.")
 @click.option("--report", "report_file", type=click.Path(dir_okay=False), default=None, help="Write a self-contained HTML report here.")
 @click.option("--save-model", "model_out", type=click.Path(dir_okay=False), default=None, help="Write the final model (JSON) here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
-def diagnose_cmd(run_dir, maps, model_file, temperature, add, no_auto, max_effects, report_file, model_out, as_json) -> None:
+def diagnose_cmd(run_dir, maps, model_file, temperature, out_of_range, add, no_auto, max_effects, report_file, model_out, as_json) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall."""
     from .diagnosis import Model, diagnose
     from .run import Run
@@ -242,7 +244,7 @@ def diagnose_cmd(run_dir, maps, model_file, temperature, add, no_auto, max_effec
             maps_ = _maps_for_run(run, maps)
             if maps_ is None:
                 raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
-            model = Model(maps_, temperature=temperature)
+            model = Model(maps_, temperature=temperature, out_of_range=out_of_range)
         with console.status("diagnosing ..."):
             diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects)
         files = []

@@ -472,10 +472,10 @@ mod tests {
         let truth = c.uv.clone();
         let theta: Vec<f64> = (0..50).map(|i| (i as f64) * 1.3).collect();
         let (l, dd, a, b) = (3e-4, -7e-4, 2e-4, 3e-5);
-        for i in 0..50 {
+        for (i, th) in theta.iter().enumerate() {
             c.uv[2 * i] *= 1.0 + l;
             let v2 = c.uv[2 * i + 1] * (1.0 + dd);
-            c.uv[2 * i + 1] = v2 + a * theta[i] + b * v2 * theta[i];
+            c.uv[2 * i + 1] = v2 + a * th + b * v2 * th;
         }
         let mut inp = inputs(&c);
         inp.incidence_deg = Some(&theta);
