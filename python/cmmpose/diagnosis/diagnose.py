@@ -261,7 +261,7 @@ def diagnose(
     problem = Problem(model, run, cand)
     add_names = [a if isinstance(a, str) else a.name for a in add]
     check_effect_names(add_names, problem)
-    steps = [_step("base", model, problem)]
+    steps = [_step("base", model, problem, obs=problem.base_obs)]
     for name in add_names:
         model = fit_model(model.with_values(problem.candidates[name], np.zeros(problem.candidates[name].size)), run,
                           problem=problem)
@@ -304,8 +304,8 @@ def _subset(run: Run, keep: np.ndarray) -> Run:
                run.maps, run.metadata, run.created)
 
 
-def _step(label: str, model: Model, problem: Problem, forced: bool = False) -> Step:
-    obs = problem.observe(model)
+def _step(label: str, model: Model, problem: Problem, forced: bool = False, obs=None) -> Step:
+    obs = problem.observe(model) if obs is None else obs
     figs = figures(problem.layout, None, model, observed=obs)
     return Step(label, model, figs, rank_candidates(problem, model, obs), forced)
 

@@ -42,6 +42,9 @@ OBSERVABLE_AT = 25.0
 #: Two candidates whose fitted contributions correlate above this cannot be
 #: told apart.
 INDISTINGUISHABLE = 0.95
+#: ... and whose likelihood-ratio gains differ by less than this (a
+#: likelihood ratio under e^5, about 150:1, between them).
+INDISTINGUISHABLE_LR = 10.0
 #: Smallest noise level credited to a class, mm: below 0.1 um the model's
 #: own approximations (second-order kinematics, linearised sensitivities)
 #: are not trustworthy, so residuals that small are not evidence.
@@ -337,20 +340,26 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
 
 def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, base: Fit, ridge0, target0) -> None:
     """Mark candidates whose fitted contributions the data cannot tell apart
-    from the leader's: nearly the same likelihood gain and correlated fits."""
+    from the leader's: a likelihood gain within INDISTINGUISHABLE_LR of the
+    leader's and fitted contributions that correlate above INDISTINGUISHABLE."""
     if not ranked or not ranked[0].significant:
         return
     lead = ranked[0]
+
+    # Each class weighs the same in the comparison: 20 ballbar lengths must
+    # agree as well as 16,000 point residuals for two effects to count as
+    # the same (one that fits the spheres but ruins the lengths is not).
+    balance = 1.0 / np.sqrt(np.maximum(problem.n_class, 1.0))[problem.classes]
 
     def contribution(c: Candidate) -> np.ndarray:
         J = problem.columns[c.name]
         fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
                           target=np.r_[target0, np.zeros(J.shape[1])])
-        return (J @ fit.beta[-J.shape[1]:]) / base.sigma[problem.classes]
+        return (J @ fit.beta[-J.shape[1]:]) / base.sigma[problem.classes] * balance
 
     a = contribution(lead)
     for c in ranked[1:]:
-        if c.lr < 0.8 * lead.lr:
+        if lead.lr - c.lr > INDISTINGUISHABLE_LR:
             continue
         b = contribution(c)
         denom = np.linalg.norm(a) * np.linalg.norm(b)
