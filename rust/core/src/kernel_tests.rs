@@ -370,3 +370,46 @@ fn inv_sqrt_one_plus_matches_the_exact_form() {
     }
     assert_eq!(inv_sqrt_one_plus(3.0), 0.5);
 }
+
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn avx2_block_gives_the_same_bits_as_the_portable_one() {
+    if !has_avx2() {
+        return; // nothing to compare on this CPU
+    }
+    let lo = map_from(
+        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
+        [-173.0, -19.0, 21.0],
+        Some(20.0),
+    );
+    let hi = map_from(
+        |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
+        [-178.0, -4.0, 42.0],
+        Some(25.0),
+    );
+    let set = ErrorMapSet::new(vec![lo, hi]).unwrap();
+    let (uv, s) = points(5000);
+    let t: Vec<f64> = (0..5000)
+        .map(|i| 20.0 + 5.0 * (i as f64 * 0.618).fract())
+        .collect();
+    let d = digitizer(90.0, 90.0, 45.0);
+    let inputs = Inputs {
+        uv: Some(&uv),
+        scales: &s,
+        temperatures: Some(&t),
+    };
+    let row_fn =
+        |i: usize, sc: [f64; 3], tt: f64, slot: &mut [f64], report: &mut Report| -> Result<()> {
+            let (c, sq) = set.evaluate(i, sc, tt, false, report)?;
+            let pe = PointError::new(sc, &c, sq);
+            let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
+            slot.copy_from_slice(x.as_slice());
+            Ok(())
+        };
+    let (mut a, mut b) = (vec![0.0; 15000], vec![0.0; 15000]);
+    let ra = block_rows(&inputs, Options::default(), &mut a, 0, 3, &row_fn);
+    // SAFETY: AVX2 detected above.
+    let rb = unsafe { block_avx2(&inputs, Options::default(), &mut b, 0, 3, &row_fn) };
+    assert!(ra.1.is_none() && rb.1.is_none());
+    assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
