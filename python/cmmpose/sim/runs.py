@@ -140,63 +140,47 @@ def simulate_ballbar_run(
     scans = {k: [] for k in ("scan_id", "pose_id", "feature", "position", "ball", "sweep_axis", "sweep_direction", "sweep_speed")}
     poses: dict[tuple, int] = {}
     true_xyz = []
-    for k, (position, w_axis) in enumerate(plan):
-        pose = _pose(position, w_axis, layout)
+
+    def sweep_over(scan_id, pose, centre, radius, direction, feature, position, ball):
+        """Sweep the sphere nominally at ``centre`` (really at ``centre`` plus
+        this scan's placement) along the axis nearest to the scan's travel."""
         pose_id = poses.setdefault(pose, len(poses))
-        c1, c2 = np.asarray(position.ball1, float), np.asarray(position.ball2, float)
-        c2 = c1 + (c2 - c1) * artefact_scale((2 * k) * scan_interval)
-        for b, centre in enumerate((c1, c2), start=1):
-            scan_id = 2 * k + b - 1
-            placed = centre + placements[scan_id]
-            ends = layouts.sweep_readings(centre, pose, offset)
-            axis = "XYZ"[int(np.argmax(np.abs(ends[1] - ends[0])))]
-            direction = -1 if bidirectional and scan_id % 2 else 1
-            a = "XYZ".index(axis)
-            lo, hi = sorted((ends[0][a], ends[1][a]))
-            start = ends[0].copy()
-            start[a] = lo - SWEEP_MARGIN if direction == 1 else hi + SWEEP_MARGIN
-            sweep = Sweep(start=tuple(start), axis=axis, length=hi - lo + 2 * SWEEP_MARGIN, speed=speed, direction=direction)
-            d = simulate_sweep(machine, Sphere(tuple(placed), BALL_RADIUS), pose, offset, sweep, temperature,
-                               scanner=scanner, t0=scan_id * scan_interval, rng=rng)
-            n = len(d.t)
-            cols["scan_id"].append(np.full(n, scan_id, np.int32))
-            cols["t"].append(d.t)
-            cols["u"].append(d.uv[:, 0])
-            cols["v"].append(d.uv[:, 1])
-            for j, c in enumerate("DEF"):
-                cols[c].append(d.scales[:, j])
-            true_xyz.append(d.true_xyz)
-            for key, value in (("scan_id", scan_id), ("pose_id", pose_id), ("feature", "ball"), ("position", k + 1),
-                               ("ball", b), ("sweep_axis", axis), ("sweep_direction", direction), ("sweep_speed", speed)):
-                scans[key].append(value)
-            if progress:
-                progress(scan_id + 1, total)
-    ref = reference_sphere()
-    for j, rpose in enumerate(reference_poses):
-        scan_id = 2 * len(plan) + j
-        pose_id = poses.setdefault(rpose, len(poses))
-        ends = layouts.sweep_readings(ref.centre, rpose, offset, radius=ref.radius)
+        ends = layouts.sweep_readings(centre, pose, offset, radius=radius)
         a = int(np.argmax(np.abs(ends[1] - ends[0])))
         lo, hi = sorted((ends[0][a], ends[1][a]))
         start = ends[0].copy()
-        start[a] = lo - SWEEP_MARGIN
-        sweep = Sweep(start=tuple(start), axis="XYZ"[a], length=hi - lo + 2 * SWEEP_MARGIN, speed=speed)
-        placed = np.asarray(ref.centre, float) + placements[scan_id]
-        d = simulate_sweep(machine, Sphere(tuple(placed), ref.radius), rpose, offset, sweep, temperature,
+        start[a] = lo - SWEEP_MARGIN if direction == 1 else hi + SWEEP_MARGIN
+        sweep = Sweep(start=tuple(start), axis="XYZ"[a], length=hi - lo + 2 * SWEEP_MARGIN, speed=speed,
+                      direction=direction)
+        placed = np.asarray(centre, float) + placements[scan_id]
+        d = simulate_sweep(machine, Sphere(tuple(placed), radius), pose, offset, sweep, temperature,
                            scanner=scanner, t0=scan_id * scan_interval, rng=rng)
         n = len(d.t)
         cols["scan_id"].append(np.full(n, scan_id, np.int32))
         cols["t"].append(d.t)
         cols["u"].append(d.uv[:, 0])
         cols["v"].append(d.uv[:, 1])
-        for i, c in enumerate("DEF"):
-            cols[c].append(d.scales[:, i])
+        for j, c in enumerate("DEF"):
+            cols[c].append(d.scales[:, j])
         true_xyz.append(d.true_xyz)
-        for key, value in (("scan_id", scan_id), ("pose_id", pose_id), ("feature", "reference"), ("position", -1),
-                           ("ball", -1), ("sweep_axis", "XYZ"[a]), ("sweep_direction", 1), ("sweep_speed", speed)):
+        for key, value in (("scan_id", scan_id), ("pose_id", pose_id), ("feature", feature), ("position", position),
+                           ("ball", ball), ("sweep_axis", "XYZ"[a]), ("sweep_direction", direction),
+                           ("sweep_speed", speed)):
             scans[key].append(value)
         if progress:
             progress(scan_id + 1, total)
+
+    for k, (position, w_axis) in enumerate(plan):
+        pose = _pose(position, w_axis, layout)
+        c1, c2 = np.asarray(position.ball1, float), np.asarray(position.ball2, float)
+        c2 = c1 + (c2 - c1) * artefact_scale((2 * k) * scan_interval)
+        for b, centre in enumerate((c1, c2), start=1):
+            scan_id = 2 * k + b - 1
+            direction = -1 if bidirectional and scan_id % 2 else 1
+            sweep_over(scan_id, pose, centre, BALL_RADIUS, direction, "ball", k + 1, b)
+    ref = reference_sphere()
+    for j, rpose in enumerate(reference_poses):
+        sweep_over(2 * len(plan) + j, rpose, ref.centre, ref.radius, 1, "reference", -1, -1)
     points = {k: np.concatenate(v) for k, v in cols.items()}
     pose_items = sorted(poses.items(), key=lambda kv: kv[1])
     pose_table = {
