@@ -121,20 +121,18 @@ class Problem:
 
     def _sensitivities(self, model, obs: Observed) -> dict[str, np.ndarray]:
         """Residual change per prior magnitude of each parameter (mm)."""
-        out = {}
-        ref_len = self.layout.calibrated_length or (float(np.mean(obs.lengths)) if len(obs.lengths) else 0.0)
-        for name, spec in self.candidates.items():
-            prior = np.asarray(spec.prior)
-            if spec.kind == "length":
-                out[name] = self.layout.expansion_column(ref_len)[:, None] * prior
-                continue
-            current = model.values(name) if name in model.names else np.zeros(spec.size)
-            out[name] = self._columns(model, spec, current, obs)
-        return out
+        return {name: self._columns(model, spec, model.values(name) if name in model.names else np.zeros(spec.size),
+                                    obs)
+                for name, spec in self.candidates.items()}
 
     def _columns(self, model, spec: EffectSpec, current: np.ndarray, obs: Observed) -> np.ndarray:
-        """Residual change per prior magnitude of each parameter of ``spec``
-        (forward differences of size ``spec.steps``)."""
+        """Residual change per prior magnitude of each parameter of ``spec``:
+        analytic for the artefact expansion (it acts on the predicted length
+        only), else forward differences of size ``spec.steps`` through the
+        kernel and the sphere fits."""
+        if spec.kind == "length":
+            ref = self.layout.calibrated_length or (float(np.mean(obs.lengths)) if len(obs.lengths) else 0.0)
+            return self.layout.expansion_column(ref)[:, None] * np.asarray(spec.prior)
         cols = []
         for j in range(spec.size):
             v = np.array(current, dtype=float)
@@ -411,12 +409,7 @@ def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = No
     for _ in range(iterations):
         cols, specs = [], []
         for spec, v in model.effects:
-            prior = np.asarray(spec.prior)
-            if spec.kind == "length":
-                ref = prob.layout.calibrated_length or float(np.mean(obs.lengths))
-                cols.append(prob.layout.expansion_column(ref)[:, None] * prior)
-            else:
-                cols.append(prob._columns(model, spec, v, obs))
+            cols.append(prob._columns(model, spec, v, obs))
             specs.append(spec)
         X = np.column_stack([prob.nuisance] + cols)
         # Prior: each parameter within a few typical magnitudes of zero.
