@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 import cmmpose
+from cmmpose.pose import digitizer
 from cmmpose import _core
 from cmmpose.calibration import STANDARD_POSES
 from cmmpose.cli import main
@@ -152,22 +153,28 @@ def test_bad_input_is_named():
     with pytest.raises(cmmpose.InputError, match="u.*\\(N, 3\\)|shape"):
         m.with_values(bad, [1.0]).compensate(run)
     inp = m.inputs(run)
-    args = (inp.uv, inp.scales, inp.pose_index, inp.temperature, MAPS._core, m.poses(inp))
-    with pytest.raises(cmmpose.InputError, match="unknown kernel term"):
-        _core.compensate_model(*args, {"warp": [1.0]})
+    digitizers = [digitizer(p[:3], p[3:]) for p in m.poses(inp)]
+
+    def call(uv=inp.uv, pose_index=inp.pose_index, temperature=inp.temperature, effects=None):
+        return _core.compensate_model(uv, inp.scales, MAPS._core, digitizers, pose_index=pose_index,
+                                      inputs={"temperature": temperature}, effects=effects)
+
+    with pytest.raises(cmmpose.InputError, match="unknown term"):
+        call(effects={"warp": [1.0]})
     with pytest.raises(cmmpose.InputError, match="latency.*1 finite"):
-        _core.compensate_model(*args, {"latency": [1.0, 2.0]})
-    hot = inp.temperature + 20.0
+        call(effects={"latency": [1.0, 2.0]})
     with pytest.raises(cmmpose.OutOfRangeError, match="row 0"):
-        _core.compensate_model(inp.uv, inp.scales, inp.pose_index, hot, MAPS._core, m.poses(inp))
+        call(temperature=inp.temperature + 20.0)
     with pytest.raises(cmmpose.InputError, match="velocity"):
-        _core.compensate_model(*args, {"latency": 0.01})
+        call(effects={"latency": 0.01})
     with pytest.raises(cmmpose.InputError, match="pose_index"):
-        _core.compensate_model(inp.uv, inp.scales, inp.pose_index + 5, inp.temperature, MAPS._core, m.poses(inp))
+        call(pose_index=inp.pose_index + 5)
     nan = inp.uv.copy()
     nan[10, 1] = np.nan
     with pytest.raises(cmmpose.InputError, match="uv.*10|10.*uv"):
-        _core.compensate_model(nan, inp.scales, inp.pose_index, inp.temperature, MAPS._core, m.poses(inp))
+        call(uv=nan)
+    with pytest.raises(cmmpose.InputError, match="inputs.*float64"):
+        _core.compensate_model(inp.uv, inp.scales, MAPS._core, digitizers, inputs={"temperature": [20.0]})
 
 
 def test_library_lists_per_pose_alignment_only_with_several_poses():

@@ -50,7 +50,7 @@ def test_round_trip_other_poses_and_a_temperature_drift(pose):
     d = sim.simulate_sweep(sim.TruthMachine(MAPS), sim.Sphere((400, 275, -350)), pose, OFFSET,
                            ball_sweep((400, 275, -350), pose), drift, scanner=QUIET, rng=1)
     assert len(d.t) > 200
-    xyz = cmmpose.compensate(d.uv, d.scales, MAPS, pose, OFFSET, d.temperatures[:, 3])
+    xyz = cmmpose.compensate(d.uv, d.scales, MAPS, pose, OFFSET, d.temperatures["temperature"])
     assert np.abs(xyz - d.true_xyz).max() < 5e-5
 
 

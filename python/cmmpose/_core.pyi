@@ -1,4 +1,4 @@
-"""Type stubs of the Rust extension ``cmmpose._core`` (rust/py/src/lib.rs)."""
+"""Type stubs of the Rust extension ``cmmpose._core`` (rust/py/src/*.rs)."""
 
 from typing import Any, Literal, TypedDict, final
 
@@ -17,6 +17,7 @@ class Report(TypedDict):
     points: int
     clamped_position: tuple[int, int, int]
     clamped_temperature: int
+    clamped_points: int
     nan_rows: int
 
 _F64_2D = npt.NDArray[np.float64]
@@ -58,12 +59,43 @@ class ErrorMapSet:
     def maps(self) -> list[ErrorMap]: ...
     def at(self, temperature: float, out_of_range: _OutOfRange = "raise") -> ErrorMap: ...
 
+@final
+class Digitizer:
+    def __new__(cls, *, alpha: float, beta: float, gamma: float, offset: tuple[float, float, float] | list[float]) -> Digitizer: ...
+    @property
+    def alpha(self) -> float: ...
+    @property
+    def beta(self) -> float: ...
+    @property
+    def gamma(self) -> float: ...
+    @property
+    def offset(self) -> tuple[float, float, float]: ...
+
+class TrueFrames(TypedDict):
+    p: _F64_2D
+    r: npt.NDArray[np.float64]
+    mount_scale: npt.NDArray[np.float64]
+
+class Profiles(TypedDict):
+    profile: npt.NDArray[np.int64]
+    u: npt.NDArray[np.float64]
+    v: npt.NDArray[np.float64]
+    cos_incidence: npt.NDArray[np.float64]
+    xyz: _F64_2D
+
+class EffectTerm(TypedDict):
+    name: str
+    params: list[str]
+    inputs: list[tuple[str, int]]
+
+_Inputs = dict[str, npt.NDArray[np.float64]]
+_Effects = dict[str, list[float] | float]
+
 def compensate(
     uv: _F64_2D,
     scales: _F64_2D,
     error_map: ErrorMap | ErrorMapSet,
-    pose: tuple[float, float, float],
-    offset: tuple[float, float, float],
+    digitizer: Digitizer,
     temperature: float | npt.NDArray[np.float64] | None = None,
     out_of_range: _OutOfRange = "raise",
     nan_policy: _NanPolicy = "raise",
@@ -71,46 +103,37 @@ def compensate(
 def uncompensated(
     uv: _F64_2D,
     scales: _F64_2D,
-    pose: tuple[float, float, float],
-    offset: tuple[float, float, float],
+    digitizer: Digitizer,
     nan_policy: _NanPolicy = "raise",
 ) -> tuple[_F64_2D, Report]: ...
 def compensate_model(
     uv: _F64_2D,
     scales: _F64_2D,
-    pose_index: npt.NDArray[np.uint32],
-    temperature: npt.NDArray[np.float64],
     maps: ErrorMap | ErrorMapSet,
-    poses: list[tuple[float, float, float, float, float, float]],
-    effects: dict[str, list[float] | float] | None = None,
-    axis_temperature: _F64_2D | None = None,
-    gradient: npt.NDArray[np.float64] | None = None,
-    velocity: _F64_2D | None = None,
-    incidence: npt.NDArray[np.float64] | None = None,
-    clamp: bool = False,
-) -> tuple[_F64_2D, int]: ...
+    digitizers: list[Digitizer],
+    *,
+    pose_index: npt.NDArray[np.uint32] | None = None,
+    inputs: _Inputs | None = None,
+    effects: _Effects | None = None,
+    out_of_range: _OutOfRange = "raise",
+    nan_policy: _NanPolicy = "raise",
+) -> tuple[_F64_2D, Report]: ...
+def effect_terms() -> list[EffectTerm]: ...
 def euler313(alpha: float, beta: float, gamma: float) -> _F64_2D: ...
 def pose_from_normal(normal: tuple[float, float, float] | list[float], gamma: float) -> tuple[float, float, float]: ...
 def thread_count() -> int: ...
-def true_frames(
-    scales: _F64_2D,
-    states: _F64_2D,
-    map_set: ErrorMapSet,
-    effects: tuple[
-        tuple[float, float, float], tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]
-    ],
-) -> tuple[_F64_2D, npt.NDArray[np.float64]]: ...
+def true_frames(scales: _F64_2D, maps: ErrorMapSet, *, inputs: _Inputs, effects: _Effects | None = None) -> TrueFrames: ...
+def scanner_forward(uv: _F64_2D, *, inputs: _Inputs | None = None, effects: _Effects | None = None) -> _F64_2D: ...
 def scan_profiles(
-    p: _F64_2D,
-    r: npt.NDArray[np.float64],
-    pose: tuple[float, float, float],
-    offset: tuple[float, float, float],
+    frames: TrueFrames,
+    digitizer: Digitizer,
     surfaces: list[tuple[str, list[float]]],
+    *,
     u_range: tuple[float, float] = (-30.0, 30.0),
     v_range: tuple[float, float] = (-30.0, 30.0),
     points_per_profile: int = 1024,
     max_incidence_deg: float = 70.0,
-) -> tuple[npt.NDArray[np.int64], _F64_2D]: ...
+) -> Profiles: ...
 def fit_sphere(
     points: _F64_2D,
     radius: float | None = None,

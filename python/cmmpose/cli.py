@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from . import effects as effects_registry
 from .compensation import compensate
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import Error
@@ -115,6 +116,19 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
     Console().print(table)
 
 
+
+@main.command("effects")
+def effects_cmd() -> None:
+    """List the physical effects: name, where each acts, its parameters and what it is."""
+    table = Table(title="Physical effects (cmmpose.effects)")
+    for col in ("effect", "acts", "model parameters (prior)", "simulator fields", "what it is"):
+        table.add_column(col, no_wrap=col == "effect")
+    for name, cls in effects_registry.available().items():
+        params = ", ".join(f"{p} {q.unit} ({q.prior:g})" for p, q in cls.params.items())
+        fields_ = ", ".join(f"{k} {u}".strip() for k, u in cls.units().items())
+        table.add_row(name, cls.acts, params, fields_, cls.summary)
+    Console().print(table)
+
 @main.command("simulate")
 @click.option("--layout", type=click.Choice(["b89", "crossed"]), default="b89", show_default=True,
               help="20 ASME B89.4.1 positions (thesis Appendix C geometry) or the 8 crossed-ballbar positions.")
@@ -122,7 +136,9 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
 @click.option("--maps", "maps", multiple=True, default=("thesis",), show_default=True,
               help="The machine's real maps: 'thesis', 'appendix-b' or map files.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
-              help="Extra physics, repeatable (see docs/simulation.md), e.g. latency:seconds=0.005.")
+              help="Extra physics, repeatable, e.g. latency:seconds=0.005 (`cmmpose effects` lists them). One of: "
+                   + "; ".join(f"{name} ({', '.join(f'{k} {u}'.strip() for k, u in cls.units().items())}): "
+                               f"{cls.summary}" for name, cls in effects_registry.available().items()) + ".")
 @click.option("--speed", type=float, default=35.0, show_default=True, help="Sweep speed, mm/s.")
 @click.option("--bidirectional", is_flag=True, help="Alternate forward and reverse sweeps.")
 @click.option("--seed", type=int, default=0, show_default=True)

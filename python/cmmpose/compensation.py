@@ -8,7 +8,7 @@ from . import _core
 from ._arrays import as_rows, as_triple, as_vector
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import InputError, warn_clamped
-from .pose import pose_tuple
+from .pose import digitizer
 from .report import KernelReport
 
 
@@ -80,8 +80,7 @@ def compensate(
         uv,
         scales,
         error_map._core,
-        pose_tuple(pose),
-        as_triple("offset", offset),
+        digitizer(pose, offset),
         temperature,
         out_of_range,
         nan_policy,
@@ -112,7 +111,5 @@ def uncompensated(uv, scales, pose, offset, *, nan_policy: str = "raise") -> np.
     ndarray, shape (N, 3)
         X, Y, Z in mm, uncorrected for the machine's errors.
     """
-    xyz, _ = _core.uncompensated(
-        as_rows("uv", uv, 2), as_rows("scales", scales, 3), pose_tuple(pose), as_triple("offset", offset), nan_policy
-    )
+    xyz, _ = _core.uncompensated(as_rows("uv", uv, 2), as_rows("scales", scales, 3), digitizer(pose, offset), nan_policy)
     return xyz

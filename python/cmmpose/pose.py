@@ -77,3 +77,17 @@ def pose_tuple(pose) -> tuple[float, float, float]:
     if isinstance(pose, Pose):
         return pose.as_tuple()
     return as_triple("pose", pose)
+
+
+def digitizer(pose, offset) -> _core.Digitizer:
+    """The digitizer as the Rust kernels take it (named, validated there).
+
+    Parameters
+    ----------
+    pose : Pose or sequence of 3 float
+        Euler 3-1-3 angles alpha, beta, gamma in degrees.
+    offset : MountOffset or sequence of 3 float
+        Mount offset l1 = (U1, V1, W1) in mm.
+    """
+    alpha, beta, gamma = pose_tuple(pose)
+    return _core.Digitizer(alpha=alpha, beta=beta, gamma=gamma, offset=as_triple("offset", offset))

@@ -15,6 +15,8 @@ class KernelReport:
         Points whose X, Y, Z scale reading was clamped into the map.
     clamped_temperature : int
         Points whose temperature was clamped into the map set's range.
+    clamped_points : int
+        Points where anything (a reading or a temperature) was clamped.
     nan_rows : int
         Rows returned as NaN under ``nan_policy='propagate'``.
     """
@@ -23,6 +25,7 @@ class KernelReport:
     clamped_position: tuple[int, int, int]
     clamped_temperature: int
     nan_rows: int
+    clamped_points: int = 0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "clamped_position", tuple(self.clamped_position))

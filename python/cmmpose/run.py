@@ -32,6 +32,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
+from .effects import channel_roles as effect_channel_roles
 from .errors import RunError
 
 __all__ = [
@@ -54,8 +55,10 @@ SCHEMA = "cmmpose-run"
 SCHEMA_VERSION = 1
 #: Schema versions :meth:`Run.load` reads.
 SUPPORTED_SCHEMA_VERSIONS = (1,)
-#: Allowed ``role`` of a temperature channel.
-CHANNEL_ROLES = ("x_scale", "y_scale", "z_scale", "granite_top", "granite_bottom", "air", "part", "other")
+#: Allowed ``role`` of a temperature channel: the machine's own, then those
+#: the physical effects bring (e.g. 'mount'; see :mod:`cmmpose.effects`).
+CHANNEL_ROLES = ("x_scale", "y_scale", "z_scale", "granite_top", "granite_bottom", "air", "part", "other",
+                 *effect_channel_roles())
 #: Sweep axes allowed in scans.sweep_axis.
 SWEEP_AXES = ("X", "Y", "Z")
 

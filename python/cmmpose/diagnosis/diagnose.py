@@ -131,7 +131,7 @@ class Diagnosis:
                 decision = "not significant"
             if c.indistinguishable_from:
                 decision += f" [yellow](same as {', '.join(c.indistinguishable_from)})[/]"
-            t.add_row(c.name, vals, f"{c.explained:.1%}", f"{c.explained_length:.1%}", f"{c.lr:.1f} ({c.dof})",
+            t.add_row(f"{c.name}\n[dim]{c.spec.physics}[/]", vals, f"{c.explained:.1%}", f"{c.explained_length:.1%}", f"{c.lr:.1f} ({c.dof})",
                       f"{c.p_value:.1e}", f"{c.correlation:.2f}", f"{c.condition:.0f}", decision)
         return t
 

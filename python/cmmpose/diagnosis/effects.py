@@ -1,11 +1,10 @@
-"""The library of candidate physical effects a diagnosis model can hold.
+"""The library of candidate physical effects a diagnosis model can hold:
+the diagnosis's view of the effects registry (:mod:`cmmpose.effects`, one
+file per effect), so a value fitted from data compares directly with the
+truth of a simulated run. An effect acts at one of four places:
 
-Each effect is the model-side counterpart of a simulator effect
-(``cmmpose.sim.effects``, same name and, where the physics is the same, the
-same parameters and units), so a value fitted from data compares directly
-with the truth of a simulated run. An effect acts at one of four places:
-
-- ``kernel``: inside the Rust compensation kernel (rust/core/src/model.rs);
+- ``kernel``: inside the Rust compensation kernel (its term in
+  rust/core/src/effects.rs, of the same name);
 - ``pose``: on the digitizer pose or mount offset handed to that kernel;
 - ``length``: on the predicted artefact length (expansion);
 - ``python``: a user-defined function of the points (:class:`UserEffect`).
@@ -19,10 +18,12 @@ cannot.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .. import effects as effects_registry
+from ..effects import Effect
 from ..errors import InputError
 
 __all__ = ["EffectSpec", "UserEffect", "LIBRARY", "library", "effect_spec", "USER_INPUTS"]
@@ -59,6 +60,8 @@ class EffectSpec:
     step : tuple of float or None
         Finite-difference step of each parameter, if not ``prior`` (where a
         step of one typical magnitude would leave the maps' range).
+    effect : type or None
+        The effect class of :mod:`cmmpose.effects` it comes from.
     """
 
     name: str
@@ -72,6 +75,18 @@ class EffectSpec:
     needs: tuple[str, ...] = ()
     pose_id: int | None = None
     step: tuple[float, ...] | None = None
+    effect: type | None = field(default=None, compare=False, repr=False)
+
+    @classmethod
+    def from_effect(cls, effect: type[Effect], **changes) -> EffectSpec:
+        """The spec of an effect class of :mod:`cmmpose.effects`."""
+        ps = effect.params
+        steps = tuple(p.step if p.step is not None else p.prior for p in ps.values())
+        spec = cls(name=effect.name, params=tuple(ps), units=tuple(p.unit for p in ps.values()),
+                   prior=tuple(p.prior for p in ps.values()), kind=effect.acts, key=effect.name,
+                   physics=effect.summary, reveal=effect.reveal, needs=effect.needs,
+                   step=None if steps == tuple(p.prior for p in ps.values()) else steps, effect=effect)
+        return replace(spec, **changes) if changes else spec
 
     @property
     def steps(self) -> tuple[float, ...]:
@@ -151,45 +166,8 @@ class UserEffect(EffectSpec):
 #: Names of the per-point inputs a user effect receives.
 USER_INPUTS = ("u", "v", "D", "E", "F", "t", "temperature", "x", "y", "z", "scan_id", "pose_id", "incidence")
 
-_SECOND_POSE = "the same sphere scanned from two or more poses (e.g. the reference sphere at STANDARD_POSES)"
-
-LIBRARY: dict[str, EffectSpec] = {e.name: e for e in (
-    EffectSpec("squareness", ("xy", "yz", "zx"), ("arc-second",) * 3, (5.0, 5.0, 5.0), "kernel", "squareness",
-               "the machine's squareness differs from the map's (relevelling, a crash)",
-               "ballbar positions on the face diagonals of each plane"),
-    EffectSpec("scale", ("x", "y", "z"), ("ppm",) * 3, (5.0, 5.0, 5.0), "kernel", "scale_ppm",
-               "scale error per axis not in the map (scale at another temperature, pitch)",
-               "a calibrated bar length (the common part of the three scale errors equals a length change)"),
-    EffectSpec("roll", ("x", "y", "z"), ("arc-second/m",) * 3, (10.0, 10.0, 10.0), "kernel", "roll_slope",
-               "unmeasured roll of each carriage, linear in travel, acting through the digitizer lever",
-               "a second digitizer pose with a different lever, or the bar along each axis at two heights"),
-    EffectSpec("axis-temperature", ("gain",), ("1",), (1.0,), "kernel", "axis_temperature_gain",
-               "each carriage's map taken at its own scale thermocouples instead of the machine mean "
-               "(gain 1: fully per axis)",
-               "axis-scale thermocouples that differ between axes (a run with a vertical gradient)",
-               needs=("axis_temperature",), step=(0.25,)),
-    EffectSpec("granite-gradient", ("xy", "yz", "zx"), ("arc-second/K",) * 3, (5.0, 5.0, 5.0), "kernel",
-               "granite_squareness",
-               "granite top-minus-bottom gradient bending the base and changing squareness",
-               "a run over which the granite gradient changes (otherwise it equals a squareness offset)",
-               needs=("gradient",)),
-    EffectSpec("artefact-expansion", ("ppm_per_kelvin",), ("ppm/K",), (5.0,), "length", "expansion",
-               "the artefact's length follows the part temperature: L = L20 (1 + a (T - 20))",
-               "a calibrated bar length at 20 C, or runs at two temperatures"),
-    EffectSpec("latency", ("seconds",), ("s",), (0.005,), "kernel", "latency",
-               "time between the scale latch and the profile: a shift of speed x latency along the sweep",
-               "the same ball swept in both directions (bidirectional sweeps)", needs=("velocity",)),
-    EffectSpec("scanner-scale", ("lateral", "depth"), ("1", "1"), (5e-4, 5e-4), "kernel", "scanner_scale",
-               "triangulation scale errors across (u) and along (v) the beam",
-               "a calibrated sphere radius"),
-    EffectSpec("incidence", ("per_degree", "per_degree_mm"), ("mm/degree", "1/degree"), (2e-4, 2e-5), "kernel",
-               "incidence", "depth error growing with incidence angle and depth (thesis section 7.2)",
-               "a calibrated sphere radius", needs=("incidence",)),
-    EffectSpec("alignment", ("alpha", "beta", "gamma"), ("degree",) * 3, (0.01, 0.01, 0.01), "pose", "alignment",
-               "the digitizer's Euler angles differ from the calibrated ones (all poses alike)", _SECOND_POSE),
-    EffectSpec("mount-offset", ("u1", "v1", "w1"), ("mm",) * 3, (0.02, 0.02, 0.02), "pose", "mount-offset",
-               "the mount offset l1 differs from the calibrated one", _SECOND_POSE),
-)}
+#: The library: every effect of the registry (:mod:`cmmpose.effects`).
+LIBRARY: dict[str, EffectSpec] = {name: EffectSpec.from_effect(e) for name, e in effects_registry.available().items()}
 
 
 def library(pose_ids=()) -> dict[str, EffectSpec]:
@@ -200,9 +178,8 @@ def library(pose_ids=()) -> dict[str, EffectSpec]:
     if len(pose_ids) > 1:
         base = LIBRARY["alignment"]
         for p in pose_ids:
-            out[f"alignment@{p}"] = EffectSpec(
-                f"alignment@{p}", base.params, base.units, base.prior, "pose", "alignment", 
-                f"the Euler angles of pose {p} differ from its calibrated ones", _SECOND_POSE, pose_id=p)
+            out[f"alignment@{p}"] = replace(base, name=f"alignment@{p}", pose_id=p,
+                                            physics=f"the Euler angles of pose {p} differ from its calibrated ones")
     return out
 
 

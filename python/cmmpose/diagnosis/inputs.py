@@ -5,14 +5,18 @@ the incidence angle. Built once per run, vectorised, read-only."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..effects import channel_roles
 from ..errors import InputError
 from ..run import Run
 
 __all__ = ["RunInputs", "incidence_angles", "GRADIENT_WINDOW"]
+
+#: Per-point inputs handed to the kernel by name (rust/core/src/effects.rs).
+_NAMED = ("temperature", "axis_temperature", "gradient", "velocity", "incidence")
 
 #: Width of the running mean of the granite gradient, s.
 GRADIENT_WINDOW = 300.0
@@ -57,6 +61,9 @@ class RunInputs:
     incidence : ndarray (N,) or None
         Angle between the surface normal and the beam, degrees (from a sphere
         fit; see :func:`incidence_angles`).
+    role_temperatures : dict of str -> ndarray (N,)
+        ``<role>_temperature``, C: the mean of the channels of each
+        thermocouple role that an effect brings (e.g. 'mount'), per point.
     """
 
     uv: np.ndarray
@@ -71,6 +78,7 @@ class RunInputs:
     gradient: np.ndarray | None
     velocity: np.ndarray
     incidence: np.ndarray | None = None
+    role_temperatures: dict = field(default_factory=dict)
 
     @classmethod
     def from_run(cls, run: Run, temperature: float | None = None) -> RunInputs:
@@ -104,6 +112,7 @@ class RunInputs:
         v_scan[np.arange(len(scan_ids)), axis_of_scan] = run.scans["sweep_direction"] * run.scans["sweep_speed"]
         velocity = np.ascontiguousarray(v_scan[scan_row])
         axis_t = gradient = None
+        role_t: dict[str, np.ndarray] = {}
         if temperature is not None:
             temps = np.full(n, float(temperature))
         elif run.temperatures is None:
@@ -128,11 +137,17 @@ class RunInputs:
                                                     out_of_range="hold")[0] for c in names], axis=0)
                 g = _running_mean(tlog, mean_of(tops) - mean_of(bottoms), GRADIENT_WINDOW)
                 gradient = np.interp(t, tlog, g)
+            for role in channel_roles():
+                names = [c["name"] for c in run.temperature_channels if c.get("role") == role]
+                if names:
+                    role_t[f"{role}_temperature"] = np.ascontiguousarray(np.mean(
+                        [temperatures_at(t, run, policy=f"channel:{c}", on_gap="interpolate", out_of_range="hold")[0]
+                         for c in names], axis=0), dtype=float)
         return cls(uv=run.uv, scales=run.scales, t=run.points["t"], scan_id=run.points["scan_id"], pose_ids=pose_ids, pose_index=np.ascontiguousarray(pose_index),
                    poses=poses, temperature=np.ascontiguousarray(temps, dtype=float),
                    axis_temperature=None if axis_t is None else np.ascontiguousarray(axis_t, dtype=float),
                    gradient=None if gradient is None else np.ascontiguousarray(gradient, dtype=float),
-                   velocity=velocity)
+                   velocity=velocity, role_temperatures=role_t)
 
     def with_incidence(self, incidence: np.ndarray) -> RunInputs:
         """A copy holding incidence angles (degrees, (N,))."""
@@ -145,7 +160,14 @@ class RunInputs:
         """Whether the input an effect ``needs`` is there ('poses>1' too)."""
         if need == "poses>1":
             return len(self.pose_ids) > 1
-        return getattr(self, need) is not None
+        if need in self.role_temperatures:
+            return True
+        return need in _NAMED and getattr(self, need) is not None
+
+    def named(self) -> dict[str, np.ndarray]:
+        """The per-point inputs the kernel's effect terms read, by name."""
+        out = {k: getattr(self, k) for k in _NAMED if getattr(self, k) is not None}
+        return out | self.role_temperatures
 
 
 def incidence_angles(xyz, labels, centres: dict, inputs: RunInputs) -> np.ndarray:

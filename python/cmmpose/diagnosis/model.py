@@ -14,6 +14,7 @@ import numpy as np
 from .. import _core
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
+from ..pose import digitizer
 from ..run import Run
 from .effects import LIBRARY, EffectSpec, UserEffect, effect_spec, library
 from .inputs import RunInputs
@@ -131,26 +132,22 @@ class Model:
         return cached[1]
 
     def kernel_terms(self) -> dict[str, list[float]]:
-        """The kernel-level effect parameters, as rust/core/src/model.rs takes them."""
-        out: dict[str, list[float]] = {}
-        for spec, v in self.effects:
-            if spec.kind == "kernel":
-                out[spec.key] = [float(x) for x in v]
-        return out
+        """The per-point effects' parameters by name, as the Rust terms of
+        rust/core/src/effects.rs take them."""
+        return {spec.key: [float(x) for x in v] for spec, v in self.effects if spec.kind == "kernel"}
 
-    def poses(self, inputs: RunInputs) -> list[tuple[float, ...]]:
-        """Each pose (degrees, mm) with the pose-level effects applied."""
+    def poses(self, inputs: RunInputs) -> np.ndarray:
+        """Each pose (P, 6: alpha, beta, gamma deg, U1, V1, W1 mm) with the
+        pose-level effects applied (each effect's ``adjust_poses``)."""
         poses = inputs.poses.copy()
         for spec, v in self.effects:
             if spec.kind != "pose":
                 continue
-            if spec.key == "mount-offset":
-                poses[:, 3:6] += v
-            elif spec.pose_id is None:
-                poses[:, 0:3] += v
+            if spec.pose_id is None:
+                spec.effect.adjust_poses(v, poses, slice(None))
             elif spec.pose_id in inputs.pose_ids:
-                poses[inputs.pose_ids.index(spec.pose_id), 0:3] += v
-        return [tuple(float(x) for x in p) for p in poses]
+                spec.effect.adjust_poses(v, poses, inputs.pose_ids.index(spec.pose_id))
+        return poses
 
     @property
     def expansion_ppm_per_kelvin(self) -> float:
@@ -179,10 +176,11 @@ class Model:
         needs_incidence = any(s.key == "incidence" and np.any(v != 0) for s, v in self.effects)
         if needs_incidence and inputs.incidence is None:
             inputs = _with_incidence(self, inputs)
-        xyz, clamped = _core.compensate_model(
-            inputs.uv, inputs.scales, inputs.pose_index, inputs.temperature, self.maps._core,
-            self.poses(inputs), self.kernel_terms(), inputs.axis_temperature, inputs.gradient,
-            inputs.velocity, inputs.incidence, self.out_of_range == "clamp")
+        digitizers = [digitizer(p[:3], p[3:]) for p in self.poses(inputs)]
+        xyz, report = _core.compensate_model(
+            inputs.uv, inputs.scales, self.maps._core, digitizers, pose_index=inputs.pose_index,
+            inputs=inputs.named(), effects=self.kernel_terms(), out_of_range=self.out_of_range)
+        clamped = report["clamped_points"]
         users = [(s, v) for s, v in self.effects if s.kind == "python"]
         if users:
             pts = _user_inputs(inputs, xyz)

@@ -22,6 +22,7 @@ def _ranking_rows(ranking) -> list[dict]:
     for c in ranking:
         rows.append({
             "effect": c.name,
+            "what it is": c.spec.physics,
             "fitted value": ", ".join(f"{p}={_num(v)} ± {_num(u, 2)} {unit}" for p, v, u, unit in
                                       zip(c.spec.params, c.values, c.uncertainty, c.spec.units)),
             "explains (all)": f"{c.explained:.1%}", "explains (lengths)": f"{c.explained_length:.1%}",

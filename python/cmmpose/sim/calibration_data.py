@@ -21,7 +21,7 @@ from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
 from ..pose import MountOffset, pose_tuple
 from .artefacts import Plane, Sphere, reference_sphere
-from .effects import Effect
+from ..effects import Effect
 from .machine import Temperature, TruthMachine
 from .runs import simulate_reference_scan
 from .scanner import AXES, ScanData, Scanner, Sweep, simulate_sweep
@@ -74,12 +74,14 @@ def _solve_readings(machine: TruthMachine, targets, local, pose_t, offset_t, tem
     """Readings S (K, 3) at which the true point P(S) + R(S) E ((u, v, 0) - l1)
     lands on ``targets`` (K, 3) for scan-plane coordinates ``local`` (K, 2)."""
     e = np.asarray(_core.euler313(*pose_t))
-    lever = np.column_stack([local, np.zeros(len(local))]) - offset_t  # (K, 3) in u, v, w
+    uvw = np.column_stack([local, np.zeros(len(local))])
+    lever = uvw - offset_t  # (K, 3) in u, v, w
     states = machine.states(np.full(len(targets), float(t)), temperature)
     s = targets - lever @ e.T
     for _ in range(50):  # fixed point: the machine errors are micrometres per mm
-        p, r = machine.frames(s, states)
-        x = p + np.einsum("kij,jl,kl->ki", r, e, lever)
+        f = machine.frames(s, states)
+        lever = uvw - offset_t * f["mount_scale"][:, None]
+        x = f["p"] + np.einsum("kij,jl,kl->ki", f["r"], e, lever)
         ds = targets - x
         s = s + ds
         if np.abs(ds).max() < 1e-12:

@@ -11,7 +11,7 @@ from .. import _core
 from .._arrays import as_rows
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
-from .effects import Effect
+from ..effects import Effect
 
 #: Machine temperature: one value (C), or a function of time (s) -> C.
 Temperature = float | Callable[[np.ndarray], np.ndarray]
@@ -50,7 +50,8 @@ class TruthMachine:
         The machine's real component errors. A single map applies at its own
         temperature only.
     effects : sequence of Effect
-        Extra physics (see ``cmmpose.sim.effects``); machine-side hooks act here.
+        Extra physics (see :mod:`cmmpose.effects`); their Rust terms act
+        here, forward, in exact rigid-body kinematics.
     """
 
     def __init__(self, maps: ErrorMap | ErrorMapSet, effects: Sequence[Effect] = ()):
@@ -62,29 +63,57 @@ class TruthMachine:
             raise InputError(f"maps: expected ErrorMap or ErrorMapSet, got {type(maps).__name__}")
         self.maps = maps
         self.effects = tuple(effects)
-        fx = {k: np.zeros(3) for k in ("squareness_offset", "scale_error_ppm", "roll_slope", "granite_squareness")}
+        terms: dict[str, np.ndarray] = {}
         for e in self.effects:
-            e.machine(fx)
-        self._fx = tuple(tuple(float(x) for x in fx[k]) for k in ("squareness_offset", "scale_error_ppm", "roll_slope", "granite_squareness"))
+            if e.on_scanner:
+                continue  # acts on each profile (cmmpose.sim.scanner), not on the machine
+            for name, values in e.truth_terms().items():
+                terms[name] = terms.get(name, 0.0) + np.asarray(values, dtype=float)
+        self._terms = {k: [float(x) for x in v] for k, v in terms.items()}
 
-    def states(self, times: np.ndarray, temperature: Temperature) -> np.ndarray:
-        """(K, 5) real temperatures at ``times`` (s): carriage X, Y, Z, squareness (C), granite gradient (K)."""
+    def role_offsets(self, times: np.ndarray) -> dict[str, np.ndarray]:
+        """How far each thermocouple role reads above the machine mean (K) at ``times`` (s)."""
+        times = np.asarray(times, dtype=float)
+        out: dict[str, np.ndarray] = {}
+        for e in self.effects:
+            for role, k in e.role_offsets(times).items():
+                out[role] = out.get(role, 0.0) + np.broadcast_to(np.asarray(k, dtype=float), times.shape)
+        return out
+
+    def states(self, times: np.ndarray, temperature: Temperature) -> dict[str, np.ndarray]:
+        """The machine's real temperatures at ``times`` (s), as the truth
+        machine's named inputs: ``temperature`` (C, the machine mean as the
+        scale thermocouples see it), ``axis_temperature`` (K, 3) C,
+        ``gradient`` (granite top minus bottom, K) and ``<role>_temperature``
+        (C) for every other thermocouple role an effect warms."""
         times = np.asarray(times, dtype=float)
         mean = temperature(times) if callable(temperature) else np.full(times.shape, float(temperature))
-        states = np.zeros((len(times), 5))
-        states[:, 0:4] = mean[:, None]
-        for e in self.effects:
-            states = e.states(states, times)
+        mean = np.asarray(mean, dtype=float)
+        off = self.role_offsets(times)
+        zero = np.zeros(times.shape)
+        axes = [off.get(r, zero) for r in ("x_scale", "y_scale", "z_scale")]
+        states = {
+            # Squareness follows the machine mean as the scale thermocouples
+            # see it (thesis 6.4), which includes the carriages' offsets.
+            "temperature": np.ascontiguousarray(mean + (axes[0] + axes[1] + axes[2]) / 3.0),
+            "axis_temperature": np.ascontiguousarray(np.column_stack([mean + a for a in axes])),
+            "gradient": np.ascontiguousarray(off.get("granite_top", zero) - off.get("granite_bottom", zero)),
+        }
+        for role, k in off.items():
+            if role not in ("x_scale", "y_scale", "z_scale", "granite_top", "granite_bottom"):
+                states[f"{role}_temperature"] = np.ascontiguousarray(mean + k)
         return states
 
-    def frames(self, scales, states) -> tuple[np.ndarray, np.ndarray]:
-        """True mount points P (K, 3) mm and ram orientations R (K, 3, 3).
+    def frames(self, scales, states) -> dict[str, np.ndarray]:
+        """True mount points ``p`` (K, 3) mm, ram orientations ``r`` (K, 3, 3)
+        and factors on the mount offset ``mount_scale`` (K,).
 
         Parameters
         ----------
         scales : array_like, shape (K, 3)
             Where the carriages really are, as scale readings D, E, F in mm.
-        states : array_like, shape (K, 5)
+        states : dict
             From :meth:`states`.
         """
-        return _core.true_frames(as_rows("scales", scales, 3), as_rows("states", states, 5), self.maps._core, self._fx)
+        return _core.true_frames(as_rows("scales", scales, 3), self.maps._core, inputs=states,
+                                 effects=self._terms)

@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..pose import MountOffset
 from ..run import Run
 from .artefacts import BALL_RADIUS, Sphere, reference_sphere
-from .effects import AxisTemperature, Effect, GraniteGradient
+from ..effects import Effect, channels as effect_channels
 from .machine import Temperature, TruthMachine
 from .scanner import Scanner, Sweep, simulate_sweep
 from .thermocouples import CHANNELS, thermocouple_log
@@ -189,13 +189,10 @@ def simulate_ballbar_run(
         **{name: np.full(len(pose_items), offset[j]) for j, name in enumerate(("U1", "V1", "W1"))},
     }
     duration = total * scan_interval
-    axis_offsets = sum((np.array([e.x, e.y, e.z]) for e in effects if isinstance(e, AxisTemperature)), np.zeros(3))
-    granite = [e for e in effects if isinstance(e, GraniteGradient)]
-
-    def gradient(t):
-        return sum((e.gradient(t) for e in granite), np.zeros(np.shape(t)))
-
-    log = thermocouple_log(duration, temperature, axis_offsets=tuple(axis_offsets), granite_gradient=gradient, rng=rng)
+    # Each effect says how far each thermocouple role reads above the mean;
+    # channels of roles the effects bring are logged when an effect warms them.
+    extra = [(c, r) for c, r in effect_channels() if r in machine.role_offsets(np.zeros(1))]
+    log = thermocouple_log(duration, temperature, role_offsets=machine.role_offsets, extra_channels=extra, rng=rng)
     lengths = np.array([p.length for p, _ in plan])
     artefact = {"kind": "ballbar", "layout": layout, "ball_radius_mm": BALL_RADIUS, "positions": len(plan)}
     if "length" in calibrated:
@@ -209,7 +206,7 @@ def simulate_ballbar_run(
         scans={k: np.array(v) for k, v in scans.items()},
         poses=pose_table,
         temperatures=log,
-        temperature_channels=[{"name": c, "role": r} for c, r in CHANNELS],
+        temperature_channels=[{"name": c, "role": r} for c, r in (*CHANNELS, *extra)],
         artefact=artefact,
         maps={"kind": "bundled", "name": "thesis"} if maps is not None else {},
         metadata={"simulated": True, "seed": seed, "speed_mm_s": speed, "jitter_mm": jitter,

@@ -10,8 +10,8 @@ import numpy as np
 
 from .. import _core
 from ..errors import InputError
-from ..pose import Pose, pose_tuple
-from .effects import Effect
+from ..pose import Pose, digitizer, pose_tuple
+from ..effects import Effect
 from .machine import Temperature, TruthMachine
 
 AXES = {"X": 0, "Y": 1, "Z": 2}
@@ -109,8 +109,10 @@ class ScanData:
         Profile index of each point.
     true_xyz : ndarray (N, 3)
         Where each point really is (before scanner noise and errors), mm.
-    temperatures : ndarray (N, 5)
-        The machine's real temperatures at each point (see TruthMachine.states).
+    temperatures : dict of str -> ndarray
+        The machine's real temperatures at each point, by name (see
+        TruthMachine.states): ``temperature`` (N,) C, ``axis_temperature``
+        (N, 3) C, ``gradient`` (N,) K, ...
     """
 
     t: np.ndarray
@@ -118,7 +120,7 @@ class ScanData:
     scales: np.ndarray
     profile: np.ndarray
     true_xyz: np.ndarray
-    temperatures: np.ndarray
+    temperatures: dict
 
 
 def simulate_sweep(
@@ -168,18 +170,24 @@ def simulate_sweep(
     t = t0 + dt
     true_scales = sweep.positions(dt)
     states = machine.states(t, temperature)
-    p, r = machine.frames(true_scales, states)
+    frames = machine.frames(true_scales, states)
     true_pose, true_offset = np.array(pose_tuple(pose), dtype=float), np.asarray(offset, dtype=float)
     for e in effects:
         true_pose, true_offset = e.pose(true_pose, true_offset)
     surfaces = [(k, [float(x) for x in v]) for k, v in artefact.surfaces()]
-    index, pts = _core.scan_profiles(
-        p, r, tuple(true_pose), tuple(true_offset), surfaces,
-        tuple(scanner.u_range), tuple(scanner.v_range), scanner.points_per_profile, scanner.max_incidence,
+    pts = _core.scan_profiles(
+        frames, digitizer(true_pose, true_offset), surfaces, u_range=tuple(scanner.u_range),
+        v_range=tuple(scanner.v_range), points_per_profile=scanner.points_per_profile,
+        max_incidence_deg=scanner.max_incidence,
     )
-    u, v, cos_inc = pts[:, 0], pts[:, 1], pts[:, 2]
-    for e in effects:
-        u, v = e.scanner(u, v, cos_inc)
+    index = pts["profile"]
+    uv = np.column_stack([pts["u"], pts["v"]])
+    theta = np.degrees(np.arccos(np.clip(pts["cos_incidence"], -1.0, 1.0)))
+    scanner_terms = {k: v for e in effects if e.on_scanner for k, v in e.truth_terms().items()}
+    if scanner_terms:
+        # The scanner's own errors: the Rust terms, applied forward.
+        uv = _core.scanner_forward(uv, inputs={"incidence": np.ascontiguousarray(theta)}, effects=scanner_terms)
+    u, v = uv[:, 0], uv[:, 1]
     v = v + rng.normal(0.0, scanner.noise, len(v)) if scanner.noise else v
     u = u + rng.normal(0.0, scanner.noise_u, len(u)) if scanner.noise_u else u
     latency = sum(e.latency() for e in effects)
@@ -189,6 +197,6 @@ def simulate_sweep(
         uv=np.column_stack([u, v]),
         scales=recorded[index],
         profile=index,
-        true_xyz=np.ascontiguousarray(pts[:, 3:6]),
-        temperatures=states[index],
+        true_xyz=np.ascontiguousarray(pts["xyz"]),
+        temperatures={k: v[index] for k, v in states.items()},
     )

@@ -47,6 +47,8 @@ def thermocouple_log(
     rate: float = 1.0,
     axis_offsets=(0.0, 0.0, 0.0),
     granite_gradient: float = 0.0,
+    role_offsets=None,
+    extra_channels: tuple = (),
     noise: float = 0.02,
     drift: float = 0.0,
     faults: tuple[Fault, ...] = (),
@@ -68,6 +70,14 @@ def thermocouple_log(
     granite_gradient : float or callable
         Granite top minus bottom, K (split evenly around the mean), or a
         function of time (s) giving it.
+    role_offsets : callable, optional
+        ``role_offsets(t) -> {role: K}``: how far each role's channels read
+        above the mean at times ``t`` (s), as the truth machine's effects say
+        (``TruthMachine.role_offsets``); replaces ``axis_offsets`` and
+        ``granite_gradient``.
+    extra_channels : sequence of (str, str)
+        Channels (name, role) logged after the 11 standard ones, e.g. the
+        ones an effect brings (a 'mount' thermocouple).
     noise : float
         Gaussian noise per sample, K.
     drift : float
@@ -92,10 +102,13 @@ def thermocouple_log(
     gradient = granite_gradient(t) if callable(granite_gradient) else float(granite_gradient)
     offsets = {"x_scale": axis_offsets[0], "y_scale": axis_offsets[1], "z_scale": axis_offsets[2],
                "granite_top": gradient / 2, "granite_bottom": -gradient / 2}
-    signs = rng.choice([-1.0, 1.0], len(CHANNELS))
+    if role_offsets is not None:
+        offsets = {role: 0.0 for role in offsets} | dict(role_offsets(t))
+    channels = (*CHANNELS, *extra_channels)
+    signs = rng.choice([-1.0, 1.0], len(channels))
     log = {"t": t}
-    for (name, role), sign in zip(CHANNELS, signs):
-        log[name] = mean + offsets[role] + sign * drift * (t - t0) / 3600.0 + rng.normal(0.0, noise, t.shape)
+    for (name, role), sign in zip(channels, signs):
+        log[name] = mean + offsets.get(role, 0.0) + sign * drift * (t - t0) / 3600.0 + rng.normal(0.0, noise, t.shape)
     for f in faults:
         after = t >= f.at
         if f.kind == "open":

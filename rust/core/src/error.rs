@@ -39,7 +39,7 @@ pub enum CoreError {
 
     /// NaN or infinity in an input array.
     #[error("{argument}: non-finite value (NaN or inf) in row {row} (pass nan_policy='propagate' to get NaN rows instead)")]
-    NonFinite { argument: &'static str, row: usize },
+    NonFinite { argument: String, row: usize },
 
     /// An argument with the wrong shape, length or value.
     #[error("{argument}: {reason}")]

@@ -1,15 +1,21 @@
-//! Per-point compensation (thesis eqs. 10-13 and 26-35, SPEC.md section 4):
+//! Per-point compensation (thesis eqs. 10-13 and 26-35; docs/conventions.md):
 //!
 //! ```text
 //! X_H = S + e(S) + R(S) . E313 . ((u, v, 0) - l1)
 //! ```
 //!
-//! Points are processed in parallel chunks (rayon) straight from the caller's
-//! buffers into one preallocated output; nothing is allocated per point.
+//! One kernel: the thesis compensation is [`compensate_points`] with no
+//! effect switched on; the diagnosis model switches on terms of
+//! [`crate::effects`]. Every kernel runs through one per-block path
+//! ([`drive`]): one NaN rule, one range / clamp rule, one [`Options`] and
+//! one [`Report`]. Points are processed in parallel chunks (rayon) straight
+//! from the caller's buffers into one preallocated output; nothing is
+//! allocated per point.
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
+use crate::effects::{Columns, Effects, MachineErrors, Temperatures};
 use crate::error::{CoreError, Result};
 use crate::map::{Components, ErrorMap};
 use crate::pose::Digitizer;
@@ -53,6 +59,8 @@ pub struct Report {
     pub clamped_position: [usize; 3],
     /// Points whose temperature was clamped into the map set's range.
     pub clamped_temperature: usize,
+    /// Points where anything (a reading or a temperature) was clamped.
+    pub clamped_points: usize,
     /// Rows written as NaN under [`NanPolicy::Propagate`].
     pub nan_rows: usize,
 }
@@ -64,8 +72,17 @@ impl Report {
             self.clamped_position[k] += o.clamped_position[k];
         }
         self.clamped_temperature += o.clamped_temperature;
+        self.clamped_points += o.clamped_points;
         self.nan_rows += o.nan_rows;
         self
+    }
+
+    #[inline(always)]
+    fn clamped_sum(&self) -> usize {
+        self.clamped_position[0]
+            + self.clamped_position[1]
+            + self.clamped_position[2]
+            + self.clamped_temperature
     }
 }
 
@@ -142,32 +159,33 @@ pub fn inv_sqrt_one_plus(a: f64) -> f64 {
 #[derive(Debug, Clone, Copy)]
 enum Miss {
     Axis(usize),
-    Temperature,
+    Temperature(f64),
 }
 
 type Evaluated = ([Components; 3], [f64; 3]);
 
-/// Where the per-point error components come from.
+/// Where the per-point error components come from: one map, or a map set
+/// interpolated in temperature.
 trait Source: Sync {
     /// Components of the three carriages and squareness at reading `s` and
-    /// temperature `t`; counts clamping in `report`.
+    /// temperatures `t`; counts clamping in `report`.
     fn components(
         &self,
         s: [f64; 3],
-        t: f64,
+        t: &Temperatures,
         clamp: bool,
         report: &mut Report,
     ) -> std::result::Result<Evaluated, Miss>;
 
     /// The readable error for a miss at `row`.
-    fn miss_error(&self, miss: Miss, row: usize, s: [f64; 3], t: f64) -> CoreError;
+    fn miss_error(&self, miss: Miss, row: usize, s: [f64; 3], t: &Temperatures) -> CoreError;
 
     #[inline(always)]
     fn evaluate(
         &self,
         row: usize,
         s: [f64; 3],
-        t: f64,
+        t: &Temperatures,
         clamp: bool,
         report: &mut Report,
     ) -> Result<Evaluated> {
@@ -185,7 +203,7 @@ fn cold_error<S: Source + ?Sized>(
     miss: Miss,
     row: usize,
     s: [f64; 3],
-    t: f64,
+    t: &Temperatures,
 ) -> CoreError {
     source.miss_error(miss, row, s, t)
 }
@@ -205,18 +223,19 @@ const AXES: [char; 3] = ['X', 'Y', 'Z'];
 
 impl Source for ErrorMap {
     #[inline(always)]
-    fn miss_error(&self, miss: Miss, row: usize, s: [f64; 3], _t: f64) -> CoreError {
+    fn miss_error(&self, miss: Miss, row: usize, s: [f64; 3], _t: &Temperatures) -> CoreError {
         match miss {
             Miss::Axis(a) => axis_error(self, a, row, s),
-            Miss::Temperature => unreachable!("a single map has no temperature range"),
+            Miss::Temperature(_) => unreachable!("a single map has no temperature range"),
         }
     }
 
+    /// One map holds at every temperature: `t` is not read.
     #[inline(always)]
     fn components(
         &self,
         s: [f64; 3],
-        _t: f64,
+        _t: &Temperatures,
         clamp: bool,
         report: &mut Report,
     ) -> std::result::Result<Evaluated, Miss> {
@@ -238,19 +257,19 @@ impl Source for ErrorMap {
 
 impl Source for ErrorMapSet {
     #[inline(always)]
-    fn miss_error(&self, miss: Miss, row: usize, s: [f64; 3], t: f64) -> CoreError {
+    fn miss_error(&self, miss: Miss, row: usize, s: [f64; 3], t: &Temperatures) -> CoreError {
         match miss {
-            Miss::Temperature => {
+            Miss::Temperature(value) => {
                 let (lo, hi) = self.temperature_range();
                 CoreError::TemperatureOutOfRange {
                     row: Some(row),
-                    value: t,
+                    value,
                     lo,
                     hi,
                 }
             }
             // Every interval's grid is the same common range, so any map names it.
-            Miss::Axis(a) => match self.interval_of(self.clamp_temperature(t).0) {
+            Miss::Axis(a) => match self.interval_of(self.clamp_temperature(t.squareness).0) {
                 Some((iv, _)) => axis_error(&iv.base, a, row, s),
                 None => axis_error(&self.maps()[0], a, row, s),
             },
@@ -261,24 +280,46 @@ impl Source for ErrorMapSet {
     fn components(
         &self,
         s: [f64; 3],
-        t: f64,
+        t: &Temperatures,
         clamp: bool,
         report: &mut Report,
     ) -> std::result::Result<Evaluated, Miss> {
-        let (tc, moved) = self.clamp_temperature(t);
-        if moved {
-            if !clamp {
-                return Err(Miss::Temperature);
+        let (tc, mut moved) = self.clamp_temperature(t.squareness);
+        if moved && !clamp {
+            return Err(Miss::Temperature(t.squareness));
+        }
+        // Carriages at their own temperatures (an effect's choice) look up
+        // their own interval; the usual case shares the squareness one.
+        let uniform = t.map == [t.squareness; 3];
+        let mut per_axis = [(tc, false); 3];
+        if !uniform {
+            #[allow(clippy::needless_range_loop)]
+            for a in 0..3 {
+                per_axis[a] = self.clamp_temperature(t.map[a]);
+                if per_axis[a].1 {
+                    if !clamp {
+                        return Err(Miss::Temperature(t.map[a]));
+                    }
+                    moved = true;
+                }
             }
+        }
+        if moved {
             report.clamped_temperature += 1;
         }
         let Some((iv, dt)) = self.interval_of(tc) else {
             // A single map: in range means exactly at its temperature.
-            return self.maps()[0].components(s, tc, clamp, report);
+            return self.maps()[0].components(s, t, clamp, report);
         };
         let mut c = [[0.0; 6]; 3];
         for a in 0..3 {
-            let table = &iv.base.tables()[a];
+            let (iva, dta) = if uniform {
+                (iv, dt)
+            } else {
+                self.interval_of(per_axis[a].0)
+                    .expect("a set of two or more maps has intervals")
+            };
+            let table = &iva.base.tables()[a];
             let loc = if clamp {
                 let (loc, moved) = table.locate_clamped(s[a]);
                 report.clamped_position[a] += moved as usize;
@@ -286,20 +327,20 @@ impl Source for ErrorMapSet {
             } else {
                 table.locate(s[a]).ok_or(Miss::Axis(a))?
             };
-            c[a] = iv.at(a, loc, dt);
+            c[a] = iva.at(a, loc, dta);
         }
         Ok((c, iv.squareness(dt)))
     }
 }
 
 /// Input arrays of one call, flat row-major.
-struct Inputs<'a> {
+struct Inputs<'a, 'c> {
     uv: Option<&'a [f64]>,
     scales: &'a [f64],
-    temperatures: Option<&'a [f64]>,
+    columns: &'c Columns<'a>,
 }
 
-impl<'a> Inputs<'a> {
+impl Inputs<'_, '_> {
     fn check(&self, out: &[f64], width: usize) -> Result<usize> {
         if self.scales.len() % 3 != 0 {
             return Err(CoreError::invalid_argument(
@@ -319,14 +360,7 @@ impl<'a> Inputs<'a> {
                 ));
             }
         }
-        if let Some(t) = self.temperatures {
-            if t.len() != n {
-                return Err(CoreError::invalid_argument(
-                    "temperature",
-                    format!("has {} values but scales has {n} rows", t.len()),
-                ));
-            }
-        }
+        self.columns.check(n)?;
         if out.len() != width * n {
             return Err(CoreError::invalid_argument(
                 "out",
@@ -338,7 +372,7 @@ impl<'a> Inputs<'a> {
 
     /// The first non-finite argument in row `i`, if any.
     #[inline(always)]
-    fn non_finite(&self, i: usize) -> Option<&'static str> {
+    fn non_finite(&self, i: usize) -> Option<&str> {
         if let Some(uv) = self.uv {
             if !(uv[2 * i].is_finite() && uv[2 * i + 1].is_finite()) {
                 return Some("uv");
@@ -347,16 +381,12 @@ impl<'a> Inputs<'a> {
         if !self.scales[3 * i..3 * i + 3].iter().all(|x| x.is_finite()) {
             return Some("scales");
         }
-        if let Some(t) = self.temperatures {
-            if !t[i].is_finite() {
-                return Some("temperature");
-            }
-        }
-        None
+        self.columns.non_finite(i)
     }
 }
 
-/// Run `row_fn` over every row in parallel chunks. Each chunk stops at its
+/// Run `row_fn` over every row in parallel chunks: the one per-block path
+/// of every kernel (NaN rule, error order, report). Each chunk stops at its
 /// first error; the error of the lowest row wins, so the message names the
 /// first bad row of the input.
 fn drive<F>(
@@ -367,7 +397,7 @@ fn drive<F>(
     row_fn: F,
 ) -> Result<Report>
 where
-    F: Fn(usize, [f64; 3], f64, &mut [f64], &mut Report) -> Result<()> + Sync,
+    F: Fn(usize, [f64; 3], &mut [f64], &mut Report) -> Result<()> + Sync,
 {
     let n = inputs.check(out, width)?;
     let avx2 = has_avx2();
@@ -418,14 +448,20 @@ fn block_rows<F>(
     row_fn: &F,
 ) -> (Report, Option<CoreError>)
 where
-    F: Fn(usize, [f64; 3], f64, &mut [f64], &mut Report) -> Result<()> + Sync,
+    F: Fn(usize, [f64; 3], &mut [f64], &mut Report) -> Result<()> + Sync,
 {
     let mut report = Report::default();
     for (j, slot) in block.chunks_exact_mut(width).enumerate() {
         let i = start + j;
         if let Some(argument) = inputs.non_finite(i) {
             if opts.nan_policy == NanPolicy::Raise {
-                return (report, Some(CoreError::NonFinite { argument, row: i }));
+                return (
+                    report,
+                    Some(CoreError::NonFinite {
+                        argument: argument.to_string(),
+                        row: i,
+                    }),
+                );
             }
             slot.fill(f64::NAN);
             report.nan_rows += 1;
@@ -436,10 +472,11 @@ where
             inputs.scales[3 * i + 1],
             inputs.scales[3 * i + 2],
         ];
-        let t = inputs.temperatures.map_or(f64::NAN, |t| t[i]);
-        if let Err(e) = row_fn(i, s, t, slot, &mut report) {
+        let before = report.clamped_sum();
+        if let Err(e) = row_fn(i, s, slot, &mut report) {
             return (report, Some(e));
         }
+        report.clamped_points += (report.clamped_sum() != before) as usize;
     }
     report.points = block.len() / width;
     (report, None)
@@ -458,30 +495,137 @@ unsafe fn block_avx2<F>(
     row_fn: &F,
 ) -> (Report, Option<CoreError>)
 where
-    F: Fn(usize, [f64; 3], f64, &mut [f64], &mut Report) -> Result<()> + Sync,
+    F: Fn(usize, [f64; 3], &mut [f64], &mut Report) -> Result<()> + Sync,
 {
     block_rows(inputs, opts, block, start, width, row_fn)
 }
 
+/// The error maps a compensation reads.
+#[derive(Debug, Clone, Copy)]
+pub enum MapSource<'a> {
+    /// One map, at every temperature (no `temperature` input needed).
+    Map(&'a ErrorMap),
+    /// Maps at several temperatures, interpolated at each point's
+    /// `temperature` input (C).
+    Set(&'a ErrorMapSet),
+}
+
+/// The points of one compensation call, flat row-major.
+#[derive(Debug, Clone)]
+pub struct Points<'a> {
+    /// N x 2: scan-plane u, v (mm).
+    pub uv: &'a [f64],
+    /// N x 3: scale readings D, E, F (mm).
+    pub scales: &'a [f64],
+    /// N: index of each point's digitizer; `None`: all at the first.
+    pub pose_index: Option<&'a [u32]>,
+    /// `temperature` (N, C) and the inputs the effects read.
+    pub columns: Columns<'a>,
+}
+
+/// Compensated machine coordinates (N x 3, mm) of `points`: the thesis
+/// compensation (eqs. 10-13, 26-35) with the `effects` switched on, each
+/// point with its digitizer (pose and mount offset). With no effect this is
+/// the thesis model. Per point:
+///
+/// 1. scanner terms undo the scanner's errors on (u, v);
+/// 2. reading terms move the scale reading to the profile's instant;
+/// 3. temperature terms choose each carriage's map temperature;
+/// 4. the maps are read there, machine terms add what the maps lack;
+/// 5. X = S + e + R . E313 . ((u, v, 0) - f l1), f from the mount terms.
+pub fn compensate_points(
+    points: &Points,
+    maps: MapSource,
+    digitizers: &[Digitizer],
+    effects: &Effects,
+    opts: Options,
+    out: &mut [f64],
+) -> Result<Report> {
+    match maps {
+        MapSource::Map(m) => compensate_with(points, m, false, digitizers, effects, opts, out),
+        MapSource::Set(s) => compensate_with(points, s, true, digitizers, effects, opts, out),
+    }
+}
+
 fn compensate_with<S: Source>(
-    uv: &[f64],
-    scales: &[f64],
-    temperatures: Option<&[f64]>,
+    points: &Points,
     source: &S,
-    digitizer: &Digitizer,
+    needs_temperature: bool,
+    digitizers: &[Digitizer],
+    effects: &Effects,
     opts: Options,
     out: &mut [f64],
 ) -> Result<Report> {
     let inputs = Inputs {
-        uv: Some(uv),
-        scales,
-        temperatures,
+        uv: Some(points.uv),
+        scales: points.scales,
+        columns: &points.columns,
     };
+    let n = inputs.check(out, 3)?;
+    if digitizers.is_empty() {
+        return Err(CoreError::invalid_argument("poses", "no digitizer given"));
+    }
+    if let Some(idx) = points.pose_index {
+        if idx.len() != n {
+            return Err(CoreError::invalid_argument(
+                "pose_index",
+                format!("has {} values but scales has {n} rows", idx.len()),
+            ));
+        }
+        if let Some(i) = idx.iter().position(|&p| p as usize >= digitizers.len()) {
+            return Err(CoreError::invalid_argument(
+                "pose_index",
+                format!(
+                    "row {i}: pose {} but only {} poses were given",
+                    idx[i],
+                    digitizers.len()
+                ),
+            ));
+        }
+    }
+    let temperature = match points.columns.get("temperature") {
+        Some(c) if c.width == 1 => Some(c.values),
+        Some(c) => {
+            return Err(CoreError::invalid_argument(
+                "temperature",
+                format!("expected one value per point, got {}", c.width),
+            ))
+        }
+        None if needs_temperature => {
+            return Err(CoreError::invalid_argument(
+                "temperature",
+                "required with an ErrorMapSet (one value per point, C)",
+            ))
+        }
+        None => None,
+    };
+    let bound = effects.bind(&points.columns)?;
     let clamp = opts.out_of_range == OutOfRange::Clamp;
-    drive(&inputs, opts, out, 3, |i, s, t, slot, report| {
-        let (c, sq) = source.evaluate(i, s, t, clamp, report)?;
-        let pe = PointError::new(s, &c, sq);
-        let x = Vector3::from(s) + pe.e + pe.rotate(&digitizer.lever(uv[2 * i], uv[2 * i + 1]));
+    let (uv, idx) = (points.uv, points.pose_index);
+    drive(&inputs, opts, out, 3, |i, s, slot, report| {
+        let d = &digitizers[idx.map_or(0, |p| p[i] as usize)];
+        let t = temperature.map_or(f64::NAN, |t| t[i]);
+        let x = if bound.is_empty() {
+            let (c, sq) = source.evaluate(i, s, &Temperatures::uniform(t), clamp, report)?;
+            let pe = PointError::new(s, &c, sq);
+            Vector3::from(s) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]))
+        } else {
+            let mut p = [uv[2 * i], uv[2 * i + 1]];
+            bound.scanner_inverse(i, &mut p);
+            let mut s = s;
+            bound.reading(i, &mut s);
+            let mut temps = Temperatures::uniform(t);
+            bound.temperatures(i, &mut temps);
+            let (components, squareness) = source.evaluate(i, s, &temps, clamp, report)?;
+            let mut e = MachineErrors {
+                components,
+                squareness,
+            };
+            bound.machine(i, s, &mut e);
+            let pe = PointError::new(s, &e.components, e.squareness);
+            let lever = d.lever_scaled(p[0], p[1], bound.mount(i));
+            Vector3::from(s) + pe.e + pe.rotate(&lever)
+        };
         slot.copy_from_slice(x.as_slice());
         Ok(())
     })
@@ -497,7 +641,20 @@ pub fn compensate(
     opts: Options,
     out: &mut [f64],
 ) -> Result<Report> {
-    compensate_with(uv, scales, None, map, digitizer, opts, out)
+    let points = Points {
+        uv,
+        scales,
+        pose_index: None,
+        columns: Columns::new(),
+    };
+    compensate_points(
+        &points,
+        MapSource::Map(map),
+        std::slice::from_ref(digitizer),
+        &Effects::none(),
+        opts,
+        out,
+    )
 }
 
 /// As [`compensate`], with a map set and one temperature (C) per point.
@@ -510,7 +667,20 @@ pub fn compensate_at_temperatures(
     opts: Options,
     out: &mut [f64],
 ) -> Result<Report> {
-    compensate_with(uv, scales, Some(temperatures), set, digitizer, opts, out)
+    let points = Points {
+        uv,
+        scales,
+        pose_index: None,
+        columns: Columns::new().with("temperature", 1, temperatures),
+    };
+    compensate_points(
+        &points,
+        MapSource::Set(set),
+        std::slice::from_ref(digitizer),
+        &Effects::none(),
+        opts,
+        out,
+    )
 }
 
 /// As [`compensate`], with a map set at one temperature (C) for all points:
@@ -528,10 +698,11 @@ pub fn compensate_at_temperature(
         if opts.nan_policy == NanPolicy::Raise {
             return Err(CoreError::invalid_argument("temperature", format!("{temperature} C is not finite (pass nan_policy='propagate' to get NaN rows instead)")));
         }
+        let columns = Columns::new();
         let n = Inputs {
             uv: Some(uv),
             scales,
-            temperatures: None,
+            columns: &columns,
         }
         .check(out, 3)?;
         out.fill(f64::NAN);
@@ -545,6 +716,7 @@ pub fn compensate_at_temperature(
     let mut report = compensate(uv, scales, &map, digitizer, opts, out)?;
     if set.clamp_temperature(temperature).1 {
         report.clamped_temperature = report.points;
+        report.clamped_points = report.points;
     }
     Ok(report)
 }
@@ -557,12 +729,13 @@ pub fn uncompensated(
     opts: Options,
     out: &mut [f64],
 ) -> Result<Report> {
+    let columns = Columns::new();
     let inputs = Inputs {
         uv: Some(uv),
         scales,
-        temperatures: None,
+        columns: &columns,
     };
-    drive(&inputs, opts, out, 3, |i, s, _t, slot, _| {
+    drive(&inputs, opts, out, 3, |i, s, slot, _| {
         let x = Vector3::from(s) + digitizer.lever(uv[2 * i], uv[2 * i + 1]);
         slot.copy_from_slice(x.as_slice());
         Ok(())
@@ -576,14 +749,15 @@ pub fn position_error(
     opts: Options,
     out: &mut [f64],
 ) -> Result<Report> {
+    let columns = Columns::new();
     let inputs = Inputs {
         uv: None,
         scales,
-        temperatures: None,
+        columns: &columns,
     };
     let clamp = opts.out_of_range == OutOfRange::Clamp;
-    drive(&inputs, opts, out, 3, |i, s, t, slot, report| {
-        let (c, sq) = map.evaluate(i, s, t, clamp, report)?;
+    drive(&inputs, opts, out, 3, |i, s, slot, report| {
+        let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), clamp, report)?;
         slot.copy_from_slice(PointError::new(s, &c, sq).e.as_slice());
         Ok(())
     })
@@ -596,14 +770,15 @@ pub fn rotation_error(
     opts: Options,
     out: &mut [f64],
 ) -> Result<Report> {
+    let columns = Columns::new();
     let inputs = Inputs {
         uv: None,
         scales,
-        temperatures: None,
+        columns: &columns,
     };
     let clamp = opts.out_of_range == OutOfRange::Clamp;
-    drive(&inputs, opts, out, 9, |i, s, t, slot, report| {
-        let (c, sq) = map.evaluate(i, s, t, clamp, report)?;
+    drive(&inputs, opts, out, 9, |i, s, slot, report| {
+        let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), clamp, report)?;
         let pe = PointError::new(s, &c, sq);
         for r in 0..3 {
             slot[3 * r] = pe.x_p[r];

@@ -295,7 +295,7 @@ fn nan_raises_with_first_row_or_propagates() {
     assert_eq!(
         e,
         CoreError::NonFinite {
-            argument: "uv",
+            argument: "uv".into(),
             row: 7000
         }
     );
@@ -393,23 +393,263 @@ fn avx2_block_gives_the_same_bits_as_the_portable_one() {
         .map(|i| 20.0 + 5.0 * (i as f64 * 0.618).fract())
         .collect();
     let d = digitizer(90.0, 90.0, 45.0);
+    let columns = Columns::new().with("temperature", 1, &t);
     let inputs = Inputs {
         uv: Some(&uv),
         scales: &s,
-        temperatures: Some(&t),
+        columns: &columns,
     };
-    let row_fn =
-        |i: usize, sc: [f64; 3], tt: f64, slot: &mut [f64], report: &mut Report| -> Result<()> {
-            let (c, sq) = set.evaluate(i, sc, tt, false, report)?;
-            let pe = PointError::new(sc, &c, sq);
-            let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
-            slot.copy_from_slice(x.as_slice());
-            Ok(())
-        };
+    let row_fn = |i: usize, sc: [f64; 3], slot: &mut [f64], report: &mut Report| -> Result<()> {
+        let tt = Temperatures::uniform(t[i]);
+        let (c, sq) = set.evaluate(i, sc, &tt, false, report)?;
+        let pe = PointError::new(sc, &c, sq);
+        let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
+        slot.copy_from_slice(x.as_slice());
+        Ok(())
+    };
     let (mut a, mut b) = (vec![0.0; 15000], vec![0.0; 15000]);
     let ra = block_rows(&inputs, Options::default(), &mut a, 0, 3, &row_fn);
     // SAFETY: AVX2 detected above.
     let rb = unsafe { block_avx2(&inputs, Options::default(), &mut b, 0, 3, &row_fn) };
     assert!(ra.1.is_none() && rb.1.is_none());
     assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
+
+// ---- the kernel with effects switched on (the diagnosis model) ----------
+
+use crate::effects::Effects;
+use crate::truth::true_frames;
+
+fn two_maps() -> ErrorMapSet {
+    let lo = map_from(
+        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
+        [-173.0, -19.0, 21.0],
+        Some(20.0),
+    );
+    let hi = map_from(
+        |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
+        [-178.0, -4.0, 42.0],
+        Some(30.0),
+    );
+    ErrorMapSet::new(vec![lo, hi]).unwrap()
+}
+
+struct Case {
+    uv: Vec<f64>,
+    s: Vec<f64>,
+    t: Vec<f64>,
+    idx: Vec<u32>,
+}
+
+fn case(n: usize) -> Case {
+    let (uv, s) = points(n);
+    Case {
+        uv,
+        s,
+        t: (0..n)
+            .map(|i| 25.0 + 4.0 * (i as f64 * 1.3).sin())
+            .collect(),
+        idx: (0..n).map(|i| (i % 2) as u32).collect(),
+    }
+}
+
+fn two_digitizers() -> Vec<Digitizer> {
+    vec![digitizer(90.0, 90.0, 0.0), digitizer(180.0, 90.0, 30.0)]
+}
+
+fn model_run(c: &Case, cols: Columns, fx: &Effects, opts: Options) -> Result<(Vec<f64>, Report)> {
+    let set = two_maps();
+    let points = Points {
+        uv: &c.uv,
+        scales: &c.s,
+        pose_index: Some(&c.idx),
+        columns: cols,
+    };
+    let mut out = vec![0.0; c.s.len()];
+    let r = compensate_points(
+        &points,
+        MapSource::Set(&set),
+        &two_digitizers(),
+        fx,
+        opts,
+        &mut out,
+    )?;
+    Ok((out, r))
+}
+
+#[test]
+fn no_effects_is_the_thesis_kernel_bit_for_bit_at_each_pose() {
+    let c = case(10_001);
+    let (got, _) = model_run(
+        &c,
+        Columns::new().with("temperature", 1, &c.t),
+        &Effects::none(),
+        Options::default(),
+    )
+    .unwrap();
+    let set = two_maps();
+    for (p, d) in two_digitizers().iter().enumerate() {
+        let rows: Vec<usize> = (0..c.idx.len())
+            .filter(|&i| c.idx[i] as usize == p)
+            .collect();
+        let pick = |v: &[f64], w: usize| -> Vec<f64> {
+            rows.iter()
+                .flat_map(|&i| v[w * i..w * i + w].to_vec())
+                .collect()
+        };
+        let mut want = vec![0.0; 3 * rows.len()];
+        compensate_at_temperatures(
+            &pick(&c.uv, 2),
+            &pick(&c.s, 3),
+            &pick(&c.t, 1),
+            &set,
+            d,
+            Options::default(),
+            &mut want,
+        )
+        .unwrap();
+        assert!(pick(&got, 3)
+            .iter()
+            .zip(&want)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+}
+
+#[test]
+fn axis_temperature_gain_one_with_equal_axes_is_the_uniform_model() {
+    let c = case(101);
+    let axis: Vec<f64> = c.t.iter().flat_map(|&t| [t, t, t]).collect();
+    let cols = || {
+        Columns::new()
+            .with("temperature", 1, &c.t)
+            .with("axis_temperature", 3, &axis)
+    };
+    let fx = Effects::new([("axis-temperature", vec![1.0])]).unwrap();
+    let (a, _) = model_run(&c, cols(), &fx, Options::default()).unwrap();
+    let (b, _) = model_run(&c, cols(), &Effects::none(), Options::default()).unwrap();
+    assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-12));
+    // Offset axes do change the result.
+    let warm: Vec<f64> = c.t.iter().flat_map(|&t| [t + 1.0, t, t]).collect();
+    let cols = Columns::new()
+        .with("temperature", 1, &c.t)
+        .with("axis_temperature", 3, &warm);
+    let (w, _) = model_run(&c, cols, &fx, Options::default()).unwrap();
+    assert!(w.iter().zip(&b).any(|(x, y)| (x - y).abs() > 1e-6));
+}
+
+#[test]
+fn latency_moves_the_reading_along_the_velocity() {
+    let c = case(20);
+    let vel: Vec<f64> = (0..20).flat_map(|_| [35.0, 0.0, 0.0]).collect();
+    let fx = Effects::new([("latency", vec![0.01])]).unwrap();
+    let cols = Columns::new()
+        .with("temperature", 1, &c.t)
+        .with("velocity", 3, &vel);
+    let (got, _) = model_run(&c, cols, &fx, Options::default()).unwrap();
+    let mut moved = case(20);
+    for i in 0..20 {
+        moved.s[3 * i] += 0.35;
+    }
+    let (want, _) = model_run(
+        &moved,
+        Columns::new().with("temperature", 1, &moved.t),
+        &Effects::none(),
+        Options::default(),
+    )
+    .unwrap();
+    assert!(got.iter().zip(&want).all(|(x, y)| (x - y).abs() < 1e-12));
+}
+
+#[test]
+fn model_inverts_the_truth_machine_with_machine_effects_on() {
+    // The same terms forward in the exact truth machine and inverted by the
+    // first-order kernel: what is left is second order (< 0.05 um).
+    let set = two_maps();
+    let n = 2000;
+    let c = case(n);
+    let grad: Vec<f64> = (0..n).map(|i| 1.5 * (i as f64 * 0.1).cos()).collect();
+    let axis: Vec<f64> =
+        c.t.iter()
+            .flat_map(|&t| [t + 0.7, t - 0.4, t + 0.2])
+            .collect();
+    let fx = Effects::new([
+        ("squareness", vec![5.0, -3.0, 8.0]),
+        ("scale", vec![6.0, -4.0, 9.0]),
+        ("roll", vec![10.0, -7.0, 4.0]),
+        ("granite-gradient", vec![2.0, 10.0, -6.0]),
+        ("axis-temperature", vec![1.0]),
+    ])
+    .unwrap();
+    let cols = || {
+        Columns::new()
+            .with("temperature", 1, &c.t)
+            .with("gradient", 1, &grad)
+            .with("axis_temperature", 3, &axis)
+    };
+    let tf = true_frames(&c.s, &cols(), &set, &fx).unwrap();
+    let (got, _) = model_run(&c, cols(), &fx, Options::default()).unwrap();
+    let (thesis, _) = model_run(
+        &c,
+        Columns::new().with("temperature", 1, &c.t),
+        &Effects::none(),
+        Options::default(),
+    )
+    .unwrap();
+    let ds = two_digitizers();
+    let (mut worst, mut worst_thesis) = (0.0f64, 0.0f64);
+    for i in 0..n {
+        let r = nalgebra::Matrix3::from_row_slice(&tf.r[9 * i..9 * i + 9]);
+        let d = &ds[c.idx[i] as usize];
+        let truth = Vector3::new(tf.p[3 * i], tf.p[3 * i + 1], tf.p[3 * i + 2])
+            + r * d.lever(c.uv[2 * i], c.uv[2 * i + 1]);
+        let at = |v: &[f64]| Vector3::new(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
+        worst = worst.max((truth - at(&got)).norm());
+        worst_thesis = worst_thesis.max((truth - at(&thesis)).norm());
+    }
+    assert!(worst < 5e-5, "{worst:e} mm");
+    assert!(
+        worst_thesis > 1e-3,
+        "the effects must matter: {worst_thesis:e} mm"
+    );
+}
+
+#[test]
+fn model_errors_name_argument_and_row_and_clamping_is_counted() {
+    let mut c = case(10);
+    c.t[4] = 45.0;
+    fn cols(c: &Case) -> Columns<'_> {
+        Columns::new().with("temperature", 1, &c.t)
+    }
+    let e = model_run(&c, cols(&c), &Effects::none(), Options::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("45") && e.contains("row 4"), "{e}");
+    let opts = Options {
+        out_of_range: OutOfRange::Clamp,
+        ..Default::default()
+    };
+    let (_, r) = model_run(&c, cols(&c), &Effects::none(), opts).unwrap();
+    assert_eq!((r.clamped_temperature, r.clamped_points), (1, 1));
+    c.t[4] = 25.0;
+    c.uv[7] = f64::NAN;
+    let e = model_run(&c, cols(&c), &Effects::none(), Options::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("uv") && e.contains("row 3"), "{e}");
+    c.uv[7] = 0.0;
+    c.idx[2] = 9;
+    let e = model_run(&c, cols(&c), &Effects::none(), Options::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("pose_index") && e.contains("row 2"), "{e}");
+    c.idx[2] = 0;
+    let fx = Effects::new([("latency", vec![0.01])]).unwrap();
+    let e = model_run(&c, cols(&c), &fx, Options::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("velocity"), "{e}");
+    let e = model_run(&c, Columns::new(), &Effects::none(), Options::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("temperature"), "{e}");
 }

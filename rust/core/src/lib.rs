@@ -6,19 +6,20 @@
 //! arc-seconds at the API boundary ([`units`]), mm and rad inside.
 
 pub mod artefact;
+pub mod effects;
 pub mod error;
 pub mod fit;
 pub mod kernel;
 pub mod map;
-pub mod model;
 pub mod pose;
 pub mod scanner;
 pub mod thermal;
 pub mod truth;
 pub mod units;
 
+pub use effects::{Columns, Effects};
 pub use error::{CoreError, Result};
-pub use kernel::{NanPolicy, Options, OutOfRange, PointError, Report};
+pub use kernel::{MapSource, NanPolicy, Options, OutOfRange, PointError, Points, Report};
 pub use map::{Carriage, CarriageTable, ErrorMap};
 pub use pose::{Digitizer, Pose};
 pub use thermal::ErrorMapSet;

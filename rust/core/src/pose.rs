@@ -102,6 +102,13 @@ impl Digitizer {
     pub fn lever(&self, u: f64, v: f64) -> Vector3<f64> {
         self.origin + self.u_dir * u + self.v_dir * v
     }
+
+    /// As [`Digitizer::lever`] with the mount offset l1 scaled by `factor`
+    /// (an effect such as the mount's thermal expansion).
+    #[inline(always)]
+    pub fn lever_scaled(&self, u: f64, v: f64, factor: f64) -> Vector3<f64> {
+        self.origin * factor + self.u_dir * u + self.v_dir * v
+    }
 }
 
 #[cfg(test)]

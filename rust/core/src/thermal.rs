@@ -268,7 +268,7 @@ impl ErrorMapSet {
         let (lo, hi) = self.temperature_range();
         if !t.is_finite() {
             return Err(CoreError::NonFinite {
-                argument: "temperature",
+                argument: "temperature".into(),
                 row: 0,
             });
         }

@@ -1,5 +1,6 @@
 //! The truth machine: where the digitizer mount really is, given scale
-//! readings, temperatures, error maps and extra physical effects. Exact
+//! readings, temperatures, error maps and the physical effects of
+//! [`crate::effects`] (the same terms the compensation inverts). Exact
 //! rigid-body kinematics with full rotation matrices; the compensation model
 //! (eqs. 11-13, 29-31) must invert it to second order in the angles.
 //!
@@ -22,31 +23,10 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
+use crate::effects::{Bound, Columns, Effects, MachineErrors, Temperatures};
 use crate::error::{CoreError, Result};
 use crate::map::{Carriage, Components};
 use crate::thermal::ErrorMapSet;
-use crate::units::ARCSEC_TO_RAD;
-
-/// Machine effects beyond the maps. All zero by default.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct MachineEffects {
-    /// Added to S_xy, S_yz, S_zx (arc-second): a squareness the map has wrong.
-    pub squareness_offset: [f64; 3],
-    /// Scale error of X, Y, Z (ppm): the linear error grows by ppm * 1e-6 * reading.
-    pub scale_error_ppm: [f64; 3],
-    /// Unmeasured roll eps_x(X), eps_y(Y), eps_z(Z), linear in the reading
-    /// (arc-second per metre of travel from home).
-    pub roll_slope: [f64; 3],
-    /// Squareness change per kelvin of granite top-minus-bottom gradient
-    /// (arc-second/K) for S_xy, S_yz, S_zx.
-    pub granite_squareness: [f64; 3],
-}
-
-/// Temperatures at one instant, degrees C: the map temperature of each
-/// carriage (its scale thermocouples), the temperature at which squareness is
-/// taken (the machine mean in the thesis), and the granite top-minus-bottom
-/// difference (K).
-pub const STATE_WIDTH: usize = 5;
 
 #[inline]
 fn rot_x(a: f64) -> Matrix3<f64> {
@@ -72,37 +52,79 @@ pub fn carriage_rotation(ex: f64, ey: f64, ez: f64) -> Matrix3<f64> {
     rot_z(ez) * rot_y(ey) * rot_x(ex)
 }
 
-/// True mount point P (mm) and ram orientation R for each reading.
+/// Where the digitizer mount really is at each reading: the true mount
+/// point P (mm), the ram orientation R (row-major) and the factor on the
+/// mount offset l1 from the effects' mount stage.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrueFrames {
+    /// N x 3, mm.
+    pub p: Vec<f64>,
+    /// N x 9, row-major.
+    pub r: Vec<f64>,
+    /// N, dimensionless (1: the calibrated offset).
+    pub mount_scale: Vec<f64>,
+}
+
+/// True mount points, ram orientations and mount factors for each reading.
 ///
-/// `scales` is N x 3 (mm), `states` N x [`STATE_WIDTH`] (see there).
-/// Outputs: `p_out` N x 3, `r_out` N x 9 row-major.
+/// `scales` is N x 3 (mm). `columns` holds `temperature` (N, C: the
+/// machine mean, at which squareness and, unless an effect says otherwise,
+/// every carriage's map are taken) and the inputs of the `effects`, the same
+/// terms the compensation inverts (e.g. `axis-temperature` with gain 1 and
+/// the carriages' real temperatures in `axis_temperature`).
 pub fn true_frames(
     scales: &[f64],
-    states: &[f64],
+    columns: &Columns,
     set: &ErrorMapSet,
-    fx: &MachineEffects,
-    p_out: &mut [f64],
-    r_out: &mut [f64],
-) -> Result<()> {
-    let n = scales.len() / 3;
-    if scales.len() != 3 * n
-        || states.len() != STATE_WIDTH * n
-        || p_out.len() != 3 * n
-        || r_out.len() != 9 * n
-    {
+    effects: &Effects,
+) -> Result<TrueFrames> {
+    if scales.len() % 3 != 0 {
         return Err(CoreError::invalid_argument(
-            "true_frames",
-            format!("inconsistent lengths for {n} points"),
+            "scales",
+            format!("length {} is not a multiple of 3", scales.len()),
         ));
     }
-    let bad = p_out
+    let n = scales.len() / 3;
+    columns.check(n)?;
+    let t = match columns.get("temperature") {
+        Some(c) if c.width == 1 => c.values,
+        _ => {
+            return Err(CoreError::invalid_argument(
+                "temperature",
+                "required, one value per reading (C)",
+            ))
+        }
+    };
+    if let Some(i) = (0..n).find(|&i| !scales[3 * i..3 * i + 3].iter().all(|x| x.is_finite())) {
+        return Err(CoreError::NonFinite {
+            argument: "scales".into(),
+            row: i,
+        });
+    }
+    if let Some(name) = (0..n).find_map(|i| columns.non_finite(i)) {
+        let row = (0..n)
+            .find(|&i| columns.non_finite(i).is_some())
+            .unwrap_or(0);
+        return Err(CoreError::NonFinite {
+            argument: name.to_string(),
+            row,
+        });
+    }
+    let bound = effects.bind(columns)?;
+    let mut out = TrueFrames {
+        p: vec![0.0; 3 * n],
+        r: vec![0.0; 9 * n],
+        mount_scale: vec![1.0; n],
+    };
+    let bad = out
+        .p
         .par_chunks_mut(3)
-        .zip(r_out.par_chunks_mut(9))
+        .zip(out.r.par_chunks_mut(9))
+        .zip(out.mount_scale.par_iter_mut())
         .enumerate()
-        .filter_map(|(i, (p, r))| {
-            let s = &scales[3 * i..3 * i + 3];
-            let st = &states[STATE_WIDTH * i..STATE_WIDTH * (i + 1)];
-            match frame(s, st, set, fx) {
+        .filter_map(|(i, ((p, r), m))| {
+            let s = [scales[3 * i], scales[3 * i + 1], scales[3 * i + 2]];
+            match frame(i, s, t[i], set, &bound) {
                 Ok((pp, rr)) => {
                     p.copy_from_slice(pp.as_slice());
                     for row in 0..3 {
@@ -110,6 +132,7 @@ pub fn true_frames(
                             r[3 * row + col] = rr[(row, col)];
                         }
                     }
+                    *m = bound.mount(i);
                     None
                 }
                 Err(e) => Some((i, e)),
@@ -121,34 +144,41 @@ pub fn true_frames(
             "scales/temperatures",
             format!("row {i}: {what}"),
         )),
-        None => Ok(()),
+        None => Ok(out),
     }
 }
 
 fn frame(
-    s: &[f64],
-    st: &[f64],
+    i: usize,
+    s: [f64; 3],
+    t: f64,
     set: &ErrorMapSet,
-    fx: &MachineEffects,
+    bound: &Bound,
 ) -> std::result::Result<(Vector3<f64>, Matrix3<f64>), String> {
+    let mut temps = Temperatures::uniform(t);
+    bound.temperatures(i, &mut temps);
     let mut c: [Components; 3] = [[0.0; 6]; 3];
     for a in Carriage::ALL {
         let k = a as usize;
-        c[k] = set.carriage_at(a, s[k], st[k]).ok_or_else(|| {
+        let tk = temps.map[k];
+        c[k] = set.carriage_at(a, s[k], tk).ok_or_else(|| {
             let (lo, hi) = set.maps()[0].table(a).range();
             let (tlo, thi) = set.temperature_range();
-            format!("{} reading {} mm or temperature {} C outside the maps ({lo}..{hi} mm, {tlo}..{thi} C)", a.letter(), s[k], st[k])
+            format!("{} reading {} mm or temperature {tk} C outside the maps ({lo}..{hi} mm, {tlo}..{thi} C)", a.letter(), s[k])
         })?;
-        c[k][k] += fx.scale_error_ppm[k] * 1e-6 * s[k];
-        c[k][3 + k] += fx.roll_slope[k] * ARCSEC_TO_RAD * s[k] / 1000.0;
     }
-    let sq = set
-        .squareness_at(st[3])
-        .ok_or_else(|| format!("squareness temperature {} C outside the maps", st[3]))?;
-    let sq: [f64; 3] = std::array::from_fn(|k| {
-        sq[k] + (fx.squareness_offset[k] + fx.granite_squareness[k] * st[4]) * ARCSEC_TO_RAD
-    });
-    let [s_xy, s_yz, s_zx] = sq;
+    let squareness = set.squareness_at(temps.squareness).ok_or_else(|| {
+        format!(
+            "squareness temperature {} C outside the maps",
+            temps.squareness
+        )
+    })?;
+    let mut e = MachineErrors {
+        components: c,
+        squareness,
+    };
+    bound.machine(i, s, &mut e);
+    let (c, [s_xy, s_yz, s_zx]) = (e.components, e.squareness);
     let r: [Matrix3<f64>; 3] =
         std::array::from_fn(|k| carriage_rotation(c[k][3], c[k][4], c[k][5]));
     let d = |k: usize| Vector3::new(c[k][0], c[k][1], c[k][2]);
@@ -210,18 +240,15 @@ mod tests {
             ]);
         }
         let t = 22.0;
-        let states: Vec<f64> = (0..n).flat_map(|_| [t, t, t, t, 0.0]).collect();
-        let mut p = vec![0.0; 3 * n];
-        let mut r = vec![0.0; 9 * n];
-        true_frames(
+        let temps = vec![t; n];
+        let tf = true_frames(
             &scales,
-            &states,
+            &Columns::new().with("temperature", 1, &temps),
             &set,
-            &MachineEffects::default(),
-            &mut p,
-            &mut r,
+            &Effects::none(),
         )
         .unwrap();
+        let (p, r) = (tf.p, tf.r);
         let blended = set.at(t, false).unwrap();
         let mut comp = vec![0.0; 3 * n];
         compensate(&uv, &scales, &blended, &d, Options::default(), &mut comp).unwrap();
@@ -241,21 +268,27 @@ mod tests {
     fn scale_error_and_roll_effects_act_alone() {
         let set = ErrorMapSet::new(vec![map(20.0, 0.0)]).unwrap();
         let s = [450.0, 275.0, -250.0];
-        let st = [20.0, 20.0, 20.0, 20.0, 0.0];
-        let fx = MachineEffects {
-            scale_error_ppm: [10.0, 0.0, 0.0],
-            ..Default::default()
-        };
-        let (p, r) = frame(&s, &st, &set, &fx).unwrap();
+        let b = Effects::new([("scale", vec![10.0, 0.0, 0.0])]).unwrap();
+        let cols = Columns::new();
+        let (p, r) = frame(0, s, 20.0, &set, &b.bind(&cols).unwrap()).unwrap();
         assert!((p - Vector3::from(s) - Vector3::new(450.0 * 10e-6, 0.0, 0.0)).norm() < 1e-12);
         assert_eq!(r, Matrix3::identity());
-        let fx = MachineEffects {
-            roll_slope: [0.0, 0.0, 5.0],
-            ..Default::default()
-        };
-        let (p, r) = frame(&s, &st, &set, &fx).unwrap();
+        let b = Effects::new([("roll", vec![0.0, 0.0, 5.0])]).unwrap();
+        let (p, r) = frame(0, s, 20.0, &set, &b.bind(&cols).unwrap()).unwrap();
         assert!((p - Vector3::from(s)).norm() < 1e-12); // Z roll turns the ram, not P
-        let angle = 5.0 * ARCSEC_TO_RAD * -250.0 / 1000.0;
+        let angle = 5.0 * crate::units::ARCSEC_TO_RAD * -250.0 / 1000.0;
         assert!((r - rot_z(angle)).norm() < 1e-15);
+    }
+
+    #[test]
+    fn missing_temperature_and_inputs_are_named() {
+        let set = ErrorMapSet::new(vec![map(20.0, 0.0)]).unwrap();
+        let s = [450.0, 275.0, -250.0];
+        let e = true_frames(&s, &Columns::new(), &set, &Effects::none()).unwrap_err();
+        assert!(e.to_string().contains("temperature"), "{e}");
+        let t = [20.0];
+        let fx = Effects::new([("granite-gradient", vec![0.0, 10.0, 10.0])]).unwrap();
+        let e = true_frames(&s, &Columns::new().with("temperature", 1, &t), &set, &fx).unwrap_err();
+        assert!(e.to_string().contains("gradient"), "{e}");
     }
 }

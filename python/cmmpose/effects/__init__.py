@@ -1,0 +1,79 @@
+"""The physical effects cmmpose knows, one file per effect, found through
+this registry. ``cmmpose simulate --effect``, the diagnosis library and its
+report all read it; a new module in this package is a new effect
+(docs/adding-an-effect.md)."""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+
+from ..errors import InputError
+from ._base import Effect, Param
+
+__all__ = ["Effect", "Param", "available", "get", "parse", "channel_roles", "channels"]
+
+_REGISTRY: dict[str, type[Effect]] = {}
+
+
+def _discover() -> None:
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        for obj in vars(module).values():
+            if isinstance(obj, type) and issubclass(obj, Effect) and obj is not Effect and obj.name:
+                if obj.name in _REGISTRY and _REGISTRY[obj.name] is not obj:
+                    raise RuntimeError(f"effect name {obj.name!r} is used twice")
+                _REGISTRY[obj.name] = obj
+
+
+def available() -> dict[str, type[Effect]]:
+    """Effect classes by name, in the order of ``ORDER`` then by name."""
+    return {k: _REGISTRY[k] for k in sorted(_REGISTRY, key=_order)}
+
+
+def get(name: str) -> type[Effect]:
+    """The effect class named ``name``."""
+    if name not in _REGISTRY:
+        raise InputError(f"effect {name!r}: unknown; available: {', '.join(available())}")
+    return _REGISTRY[name]
+
+
+def parse(text: str) -> Effect:
+    """``NAME:param=value,param=value`` (the CLI form) -> an effect."""
+    name, _, rest = text.partition(":")
+    cls = get(name.strip())
+    units = cls.units()
+    kwargs = {}
+    for item in filter(None, (p.strip() for p in rest.split(","))):
+        key, eq, value = item.partition("=")
+        if not eq or key.strip() not in units:
+            raise InputError(f"effect {cls.name}: parameter {item!r} is not one of {sorted(units)} (write key=value)")
+        try:
+            kwargs[key.strip()] = float(value)
+        except ValueError:
+            raise InputError(f"effect {cls.name}: {key.strip()}={value!r} is not a number") from None
+    return cls(**kwargs)
+
+
+def channels() -> tuple[tuple[str, str], ...]:
+    """Thermocouple channels (name, role) that effects bring to a run."""
+    return tuple(c for cls in available().values() for c in cls.channels)
+
+
+def channel_roles() -> tuple[str, ...]:
+    """Thermocouple roles that effects introduce."""
+    return tuple(dict.fromkeys(role for _, role in channels()))
+
+
+#: Listing order: machine, thermal, scanner, pose, artefact; new effects last.
+ORDER = ("squareness", "scale", "roll", "axis-temperature", "granite-gradient", "latency", "scanner-scale",
+         "incidence", "alignment", "mount-offset", "artefact-expansion")
+
+
+def _order(name: str):
+    return (ORDER.index(name), "") if name in ORDER else (len(ORDER), name)
+
+
+_discover()

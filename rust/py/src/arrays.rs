@@ -1,0 +1,159 @@
+//! Arrays and named structures across the boundary, validated in one place:
+//! float64 C-contiguous arrays are read without copying (the Python layer
+//! converts other dtypes and layouts explicitly), named per-point inputs
+//! arrive as a dict of arrays, effects as a dict of parameter lists, kernel
+//! options as strings, reports leave as a dict.
+
+use cmmpose_core::kernel::{NanPolicy, Options, OutOfRange, Report};
+use cmmpose_core::{Columns, Effects};
+use numpy::{
+    PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn,
+    PyUntypedArrayMethods,
+};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::errors::{input, Res};
+
+/// Zero-copy view of an (N, cols) float64 C-contiguous array.
+pub fn rows<'a>(name: &str, a: &'a PyReadonlyArray2<'_, f64>, cols: usize) -> Res<&'a [f64]> {
+    let shape = a.shape();
+    if shape[1] != cols {
+        return Err(input(format!(
+            "{name}: expected shape (N, {cols}), got ({}, {})",
+            shape[0], shape[1]
+        )));
+    }
+    a.as_slice().map_err(|_| {
+        input(format!(
+            "{name}: array must be C-contiguous (use numpy.ascontiguousarray)"
+        ))
+    })
+}
+
+/// Zero-copy view of a contiguous 1-D array.
+pub fn vector<'a, T: numpy::Element>(name: &str, a: &'a PyReadonlyArray1<'_, T>) -> Res<&'a [T]> {
+    a.as_slice()
+        .map_err(|_| input(format!("{name}: array must be contiguous")))
+}
+
+pub fn options(out_of_range: &str, nan_policy: &str) -> Res<Options> {
+    let out_of_range = match out_of_range {
+        "raise" => OutOfRange::Raise,
+        "clamp" => OutOfRange::Clamp,
+        other => {
+            return Err(input(format!(
+                "out_of_range: expected 'raise' or 'clamp', got {other:?}"
+            )))
+        }
+    };
+    let nan_policy = match nan_policy {
+        "raise" => NanPolicy::Raise,
+        "propagate" => NanPolicy::Propagate,
+        other => {
+            return Err(input(format!(
+                "nan_policy: expected 'raise' or 'propagate', got {other:?}"
+            )))
+        }
+    };
+    Ok(Options {
+        out_of_range,
+        nan_policy,
+    })
+}
+
+pub fn report_dict<'py>(py: Python<'py>, r: &Report) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("points", r.points)?;
+    d.set_item("clamped_position", r.clamped_position)?;
+    d.set_item("clamped_temperature", r.clamped_temperature)?;
+    d.set_item("clamped_points", r.clamped_points)?;
+    d.set_item("nan_rows", r.nan_rows)?;
+    Ok(d)
+}
+
+/// Allocate the (n, width) output and run `f` on it without the GIL.
+pub fn run_kernel<'py, F>(
+    py: Python<'py>,
+    n: usize,
+    width: usize,
+    f: F,
+) -> Res<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)>
+where
+    F: FnOnce(&mut [f64]) -> cmmpose_core::Result<Report> + Send,
+{
+    // Uninitialised is fine: the kernel writes every element or fails.
+    let out = unsafe { PyArray2::<f64>::new(py, [n, width], false) };
+    let slice = unsafe { out.as_slice_mut() }.expect("fresh array is contiguous");
+    let report = py.detach(|| f(slice))?;
+    Ok((out, report_dict(py, &report)?))
+}
+
+/// Named per-point inputs: a dict of float64 C-contiguous arrays, (N,) for
+/// one value per point or (N, k) for k. Held here so the views stay valid.
+pub struct NamedArrays<'py> {
+    items: Vec<(String, usize, PyReadonlyArrayDyn<'py, f64>)>,
+}
+
+impl<'py> NamedArrays<'py> {
+    pub fn from_dict(arg: &str, d: Option<&Bound<'py, PyDict>>) -> Res<Self> {
+        let mut items = Vec::new();
+        if let Some(d) = d {
+            for (k, v) in d.iter() {
+                let name: String = k
+                    .extract()
+                    .map_err(|_| input(format!("{arg}: keys must be names (str)")))?;
+                let a: PyReadonlyArrayDyn<'py, f64> = v.extract().map_err(|_| {
+                    input(format!("{arg}[{name:?}]: expected a float64 numpy array"))
+                })?;
+                let width = match a.shape() {
+                    [_] => 1,
+                    [_, k] => *k,
+                    other => {
+                        return Err(input(format!(
+                            "{arg}[{name:?}]: expected shape (N,) or (N, k), got {other:?}"
+                        )))
+                    }
+                };
+                if !a.is_c_contiguous() {
+                    return Err(input(format!(
+                        "{arg}[{name:?}]: array must be C-contiguous"
+                    )));
+                }
+                items.push((name, width, a));
+            }
+        }
+        Ok(NamedArrays { items })
+    }
+
+    /// The arrays as the core's named columns.
+    pub fn columns(&self) -> Res<Columns<'_>> {
+        let mut c = Columns::new();
+        for (name, width, a) in &self.items {
+            let values = a
+                .as_slice()
+                .map_err(|_| input(format!("{name}: array must be C-contiguous")))?;
+            c = c.with(name.as_str(), *width, values);
+        }
+        Ok(c)
+    }
+}
+
+/// Effects from a dict of name -> parameter values (a number or a list).
+pub fn effects(d: Option<&Bound<'_, PyDict>>) -> Res<Effects> {
+    let Some(d) = d else {
+        return Ok(Effects::none());
+    };
+    let mut named = Vec::new();
+    for (k, v) in d.iter() {
+        let key: String = k
+            .extract()
+            .map_err(|_| input("effects: keys must be effect names (str)"))?;
+        let vals: Vec<f64> = v
+            .extract::<Vec<f64>>()
+            .or_else(|_| v.extract::<f64>().map(|x| vec![x]))
+            .map_err(|_| input(format!("effects[{key:?}]: expected numbers")))?;
+        named.push((key, vals));
+    }
+    Ok(Effects::new(named)?)
+}

@@ -1,0 +1,92 @@
+//! The thesis compensation across the boundary: one digitizer, an ErrorMap
+//! or an ErrorMapSet at one temperature or one per point; and what the
+//! digitizer software reports without compensation.
+
+use cmmpose_core::kernel;
+use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::arrays::{options, rows, run_kernel, vector};
+use crate::errors::{input, Res};
+use crate::maps::{PyErrorMap, PyErrorMapSet};
+use crate::pose::PyDigitizer;
+
+type Output<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>);
+
+/// Compensated machine coordinates (mm). `error_map` is an ErrorMap or an
+/// ErrorMapSet; with a set, `temperature` is a float or an (N,) array (C).
+#[pyfunction]
+#[pyo3(signature = (uv, scales, error_map, digitizer, temperature=None, out_of_range="raise", nan_policy="raise"))]
+#[allow(clippy::too_many_arguments)]
+fn compensate<'py>(
+    py: Python<'py>,
+    uv: PyReadonlyArray2<'py, f64>,
+    scales: PyReadonlyArray2<'py, f64>,
+    error_map: &Bound<'py, PyAny>,
+    digitizer: PyRef<'py, PyDigitizer>,
+    temperature: Option<&Bound<'py, PyAny>>,
+    out_of_range: &str,
+    nan_policy: &str,
+) -> Res<Output<'py>> {
+    let opts = options(out_of_range, nan_policy)?;
+    let uv_s = rows("uv", &uv, 2)?;
+    let s = rows("scales", &scales, 3)?;
+    let d = digitizer.inner;
+    let n = s.len() / 3;
+    if let Ok(map) = error_map.cast::<PyErrorMap>() {
+        if temperature.is_some() {
+            return Err(input(
+                "temperature: only meaningful with an ErrorMapSet; an ErrorMap has one temperature",
+            ));
+        }
+        let map = &map.get().inner;
+        return run_kernel(py, n, 3, |out| {
+            kernel::compensate(uv_s, s, map, &d, opts, out)
+        });
+    }
+    let set = error_map
+        .cast::<PyErrorMapSet>()
+        .map_err(|_| input("error_map: expected an ErrorMap or an ErrorMapSet"))?;
+    let set = &set.get().inner;
+    let temperature = temperature.ok_or_else(|| {
+        input("temperature: required with an ErrorMapSet (a float or an (N,) array, C)")
+    })?;
+    if let Ok(t) = temperature.extract::<f64>() {
+        return run_kernel(py, n, 3, |out| {
+            kernel::compensate_at_temperature(uv_s, s, t, set, &d, opts, out)
+        });
+    }
+    let t: PyReadonlyArray1<'py, f64> = temperature
+        .extract()
+        .map_err(|_| input("temperature: expected a float or a float64 (N,) array"))?;
+    let t = vector("temperature", &t)?;
+    run_kernel(py, n, 3, |out| {
+        kernel::compensate_at_temperatures(uv_s, s, t, set, &d, opts, out)
+    })
+}
+
+/// What the digitizer software reports, without compensation (mm).
+#[pyfunction]
+#[pyo3(signature = (uv, scales, digitizer, nan_policy="raise"))]
+fn uncompensated<'py>(
+    py: Python<'py>,
+    uv: PyReadonlyArray2<'py, f64>,
+    scales: PyReadonlyArray2<'py, f64>,
+    digitizer: PyRef<'py, PyDigitizer>,
+    nan_policy: &str,
+) -> Res<Output<'py>> {
+    let opts = options("raise", nan_policy)?;
+    let uv_s = rows("uv", &uv, 2)?;
+    let s = rows("scales", &scales, 3)?;
+    let d = digitizer.inner;
+    run_kernel(py, s.len() / 3, 3, |out| {
+        kernel::uncompensated(uv_s, s, &d, opts, out)
+    })
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(compensate, m)?)?;
+    m.add_function(wrap_pyfunction!(uncompensated, m)?)?;
+    Ok(())
+}

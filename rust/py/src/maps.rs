@@ -1,0 +1,201 @@
+//! Error maps across the boundary: `ErrorMap` (one temperature) and
+//! `ErrorMapSet` (several), with the map-level kernels.
+
+use cmmpose_core::kernel::{self, OutOfRange};
+use cmmpose_core::{Carriage, CarriageTable, ErrorMap, ErrorMapSet, MapSource};
+use numpy::{PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::arrays::{options, rows, run_kernel};
+use crate::errors::{input, MapError, Res};
+
+/// The maps a compensation reads: an ErrorMap, or an ErrorMapSet (one map
+/// alone in a set holds at every temperature, as a single map does).
+pub fn map_source<'a>(obj: &'a Bound<'_, PyAny>) -> Res<MapSource<'a>> {
+    if let Ok(m) = obj.cast::<PyErrorMap>() {
+        return Ok(MapSource::Map(&m.get().inner));
+    }
+    let set = &obj
+        .cast::<PyErrorMapSet>()
+        .map_err(|_| input("maps: expected an ErrorMap or an ErrorMapSet"))?
+        .get()
+        .inner;
+    Ok(match set.maps() {
+        [one] => MapSource::Map(one),
+        _ => MapSource::Set(set),
+    })
+}
+
+/// The 21 component errors at one temperature.
+#[pyclass(name = "ErrorMap", module = "cmmpose._core", frozen)]
+pub struct PyErrorMap {
+    pub inner: ErrorMap,
+}
+
+#[pymethods]
+impl PyErrorMap {
+    /// Tables are (n, 7): position mm, dx dy dz um, ex ey ez arc-second;
+    /// squareness (S_xy, S_yz, S_zx) arc-second; temperature C or None.
+    #[new]
+    #[pyo3(signature = (x, y, z, squareness, temperature=None))]
+    fn new(
+        x: PyReadonlyArray2<'_, f64>,
+        y: PyReadonlyArray2<'_, f64>,
+        z: PyReadonlyArray2<'_, f64>,
+        squareness: [f64; 3],
+        temperature: Option<f64>,
+    ) -> Res<Self> {
+        let mut tables = Vec::with_capacity(3);
+        for (c, (name, t)) in Carriage::ALL
+            .into_iter()
+            .zip([("x", &x), ("y", &y), ("z", &z)])
+        {
+            let flat = rows(name, t, 7)?;
+            let table_rows: Vec<[f64; 7]> = flat
+                .chunks_exact(7)
+                .map(|r| r.try_into().unwrap())
+                .collect();
+            tables.push(CarriageTable::from_table_units(c, &table_rows)?);
+        }
+        let tables: [CarriageTable; 3] = tables.try_into().map_err(|_| input("three tables"))?;
+        Ok(PyErrorMap {
+            inner: ErrorMap::new(tables, squareness, temperature)?,
+        })
+    }
+
+    /// The table of one carriage ('X', 'Y' or 'Z') in table units, (n, 7).
+    fn table<'py>(&self, py: Python<'py>, carriage: &str) -> Res<Bound<'py, PyArray2<f64>>> {
+        let c = match carriage {
+            "X" | "x" => Carriage::X,
+            "Y" | "y" => Carriage::Y,
+            "Z" | "z" => Carriage::Z,
+            other => {
+                return Err(input(format!(
+                    "carriage: expected 'X', 'Y' or 'Z', got {other:?}"
+                )))
+            }
+        };
+        let rows: Vec<Vec<f64>> = self
+            .inner
+            .table(c)
+            .to_table_units()
+            .iter()
+            .map(|r| r.to_vec())
+            .collect();
+        Ok(PyArray2::from_vec2(py, &rows).map_err(|e| input(e.to_string()))?)
+    }
+
+    /// (S_xy, S_yz, S_zx) in arc-seconds.
+    #[getter]
+    fn squareness(&self) -> (f64, f64, f64) {
+        let s = self.inner.squareness_arcsec();
+        (s[0], s[1], s[2])
+    }
+
+    #[getter]
+    fn temperature(&self) -> Option<f64> {
+        self.inner.temperature()
+    }
+
+    /// ((lo, hi) mm) for X, Y, Z.
+    #[getter]
+    fn ranges(&self) -> [(f64, f64); 3] {
+        self.inner.ranges()
+    }
+
+    fn with_temperature(&self, temperature: Option<f64>) -> Res<Self> {
+        if let Some(t) = temperature {
+            if !t.is_finite() {
+                return Err(MapError::new_err(format!("temperature: {t} C is not finite")).into());
+            }
+        }
+        Ok(PyErrorMap {
+            inner: self.inner.clone().with_temperature(temperature),
+        })
+    }
+
+    #[pyo3(signature = (scales, out_of_range="raise", nan_policy="raise"))]
+    fn position_error<'py>(
+        &self,
+        py: Python<'py>,
+        scales: PyReadonlyArray2<'py, f64>,
+        out_of_range: &str,
+        nan_policy: &str,
+    ) -> Res<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+        let opts = options(out_of_range, nan_policy)?;
+        let s = rows("scales", &scales, 3)?;
+        let map = &self.inner;
+        run_kernel(py, s.len() / 3, 3, |out| {
+            kernel::position_error(s, map, opts, out)
+        })
+    }
+
+    #[pyo3(signature = (scales, out_of_range="raise", nan_policy="raise"))]
+    fn rotation_error<'py>(
+        &self,
+        py: Python<'py>,
+        scales: PyReadonlyArray2<'py, f64>,
+        out_of_range: &str,
+        nan_policy: &str,
+    ) -> Res<(Bound<'py, PyArray3<f64>>, Bound<'py, PyDict>)> {
+        let opts = options(out_of_range, nan_policy)?;
+        let s = rows("scales", &scales, 3)?;
+        let map = &self.inner;
+        let n = s.len() / 3;
+        let (flat, report) = run_kernel(py, n, 9, |out| kernel::rotation_error(s, map, opts, out))?;
+        Ok((flat.reshape([n, 3, 3])?, report))
+    }
+
+    fn __eq__(&self, other: &Self) -> bool {
+        self.inner == other.inner
+    }
+}
+
+/// Error maps at several temperatures.
+#[pyclass(name = "ErrorMapSet", module = "cmmpose._core", frozen)]
+pub struct PyErrorMapSet {
+    pub inner: ErrorMapSet,
+}
+
+#[pymethods]
+impl PyErrorMapSet {
+    #[new]
+    fn new(maps: Vec<PyRef<'_, PyErrorMap>>) -> Res<Self> {
+        let maps = maps.iter().map(|m| m.inner.clone()).collect();
+        Ok(PyErrorMapSet {
+            inner: ErrorMapSet::new(maps)?,
+        })
+    }
+
+    #[getter]
+    fn temperatures(&self) -> Vec<f64> {
+        self.inner.temperatures()
+    }
+
+    /// The maps, sorted by temperature.
+    #[getter]
+    fn maps(&self) -> Vec<PyErrorMap> {
+        self.inner
+            .maps()
+            .iter()
+            .map(|m| PyErrorMap { inner: m.clone() })
+            .collect()
+    }
+
+    /// The map blended at `temperature` (C).
+    #[pyo3(signature = (temperature, out_of_range="raise"))]
+    fn at(&self, temperature: f64, out_of_range: &str) -> Res<PyErrorMap> {
+        let opts = options(out_of_range, "raise")?;
+        let inner = self
+            .inner
+            .at(temperature, opts.out_of_range == OutOfRange::Clamp)?;
+        Ok(PyErrorMap { inner })
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyErrorMap>()?;
+    m.add_class::<PyErrorMapSet>()?;
+    Ok(())
+}
