@@ -334,6 +334,24 @@ impl Term for Incidence {
     }
 }
 
+/// The mount offset l1 scales by 1 + alpha (T_mount - 20 C): the mount's
+/// thermal expansion (ppm/K), T_mount from its own thermocouple.
+struct MountExpansion;
+impl Term for MountExpansion {
+    fn name(&self) -> &'static str {
+        "mount-expansion"
+    }
+    fn params(&self) -> &'static [&'static str] {
+        &["ppm_per_kelvin"]
+    }
+    fn inputs(&self) -> &'static [(&'static str, usize)] {
+        &[("mount_temperature", 1)]
+    }
+    fn mount(&self, p: &[f64], row: Row) -> f64 {
+        1.0 + p[0] * 1e-6 * (row.scalar(0) - 20.0)
+    }
+}
+
 /// Every term, in stage order of the forward scanner model.
 pub static TERMS: &[&dyn Term] = &[
     &Squareness,
@@ -344,6 +362,7 @@ pub static TERMS: &[&dyn Term] = &[
     &Latency,
     &ScannerScale,
     &Incidence,
+    &MountExpansion,
 ];
 
 /// The term named `name`.
