@@ -13,6 +13,9 @@ arc-seconds (the magnitudes match the thesis tables; the file does not say).
 Squareness sign: the controller states squareness with the opposite sign to
 the thesis's convention (Table 7, eq. 11): the same machine reads XY +169.4
 here and -173 in Table 7. The reader therefore negates all three values.
+
+Registered as the read-only map file format ``'controller'``
+(:mod:`cmmpose.mapformats`).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import mapformats
 from .errormap import CARRIAGES, ErrorMap
 from .errors import MapError, read_lines
 
@@ -153,3 +157,16 @@ def read_controller_file(path: str | PathLike, temperature: float | None = None)
     sq = tuple(SQUARENESS_SIGN * squareness[k] for k in ("XY", "YZ", "ZX"))
     tables = [np.array([row for _, row in blocks[c]]) for c in CARRIAGES]
     return ErrorMap(*tables, sq, temperature, source=f"controller file {path.name}")
+
+
+def is_controller_file(path: str | PathLike) -> bool:
+    """True when the file at ``path`` has a ``Map Data: <axis> Axis`` block line."""
+    try:
+        text = Path(path).read_bytes().decode("utf-8", "replace")
+    except OSError:
+        return False
+    return any(_BLOCK.match(line.strip()) for line in text.splitlines())
+
+
+mapformats.register("controller", sniff=is_controller_file, read=read_controller_file,
+                    description="controller error file (thesis Appendix B)")

@@ -1,6 +1,7 @@
 """The canonical error-map file: one tidy CSV per map, with the temperature
 and squareness in a commented header and units in the column names
-(docs/formats.md)."""
+(docs/formats.md). Registered as the map file format ``'csv'``
+(:mod:`cmmpose.mapformats`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import mapformats
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from .errors import MapError, read_lines
 
@@ -126,3 +128,17 @@ def write_map(error_map: ErrorMap, path: str | PathLike) -> None:
         for row in error_map.table(c):
             lines.append(",".join([c, *(_fmt(v) for v in row)]))
     Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def is_canonical_map(path: str | PathLike) -> bool:
+    """True when the first line of the file at ``path`` is the canonical map's magic line."""
+    try:
+        with open(path, "rb") as f:
+            first = f.readline(256)
+    except OSError:
+        return False
+    return first.decode("utf-8", "replace").strip() == f"# {MAGIC}: {VERSION}"
+
+
+mapformats.register("csv", sniff=is_canonical_map, read=read_map, write=write_map,
+                    description="canonical error-map CSV (docs/formats.md)")
