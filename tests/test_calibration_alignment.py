@@ -363,7 +363,7 @@ def test_closed_form_and_least_squares_agree_on_consistent_data():
     assert all(abs(v) < 1e-9 for v in cf.checks.values())
     ls = mount_offset([ReferenceReading.from_reading(p, sk, 0.01) for p, sk in zip(STANDARD_POSES, s)])
     assert np.allclose(ls.offset, cf.offset, atol=1e-9) and ls.chi2 < 1e-12
-    # eq. 21 as printed gives another W1: the misprint (SPEC.md section 8)
+    # eq. 21 as printed gives another W1: the misprint (docs/conventions.md, Misprints)
     (d1, e1, f1), (d2, e2, f2), (d3, e3, f3) = s
     printed = (d1 + 2 * d3 - e2 + f2 - f1) / 2
     assert abs(printed - OFFSET[2]) > 100.0

@@ -484,7 +484,7 @@ def sweep_readings(ball, pose, offset=None, *, v_near: float = 0.0, radius: floa
     The laser origin is placed so that the ball's surface point nearest the
     sensor has scan-plane coordinates (u, v) = (0, ``v_near``); the ram then
     moves along W from the scan plane touching one side of the ball to the
-    other. Uses the uncompensated model of SPEC section 4,
+    other. Uses the uncompensated model of docs/conventions.md (The compensation),
     X_H = S + E313 . ((u, v, 0) - l1), i.e. an error-free machine.
 
     Parameters

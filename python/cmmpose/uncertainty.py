@@ -289,8 +289,9 @@ def mount_offset_budgets(*, digitizer: float = 9.0, sphere_fit: float = 10.0, sc
     model : {'printed', 'corrected'}
         ``'printed'``: U1 and V1 from eqs. 19-20 (eqs. 22-23); W1 as eq. 24 is
         numbered, 5/4 u^2(D1) + 1/4 u^2(E1) + u^2(F1) (the form the thesis puts
-        numbers into). ``'corrected'``: W1 = D1 - D3 - U1 (SPEC section 8: eq. 21
-        is misprinted), propagated from its six readings. U1 and V1 are the same.
+        numbers into). ``'corrected'``: W1 = D1 - D3 - U1 (eq. 21 is
+        misprinted: docs/conventions.md, Misprints), propagated from its six
+        readings. U1 and V1 are the same.
 
     Returns
     -------
@@ -325,7 +326,7 @@ def mount_offset_budgets(*, digitizer: float = 9.0, sphere_fit: float = 10.0, sc
     else:
         w1 = [*reading("D1", 1.0), *reading("D3", -1.0), *reading("E1", -0.5), *reading("E2", 0.5),
               *reading("F2", -0.5), *reading("F1", 0.5)]
-        w_src = f"{src}, W1 = D1 - D3 - U1 (eqs. 16, 18, 19; SPEC section 8)"
+        w_src = f"{src}, W1 = D1 - D3 - U1 (eqs. 16, 18, 19; docs/conventions.md, Misprints)"
     return {
         "U1": Budget("U1", tuple(u1), "um", f"{src}, eqs. 19 and 22, lines 1446, 1460-1467", _PRINTED_OFFSET["U1"]),
         "V1": Budget("V1", tuple(v1), "um", f"{src}, eqs. 20 and 23, lines 1448, 1469-1473", _PRINTED_OFFSET["V1"]),
