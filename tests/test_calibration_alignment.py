@@ -565,7 +565,7 @@ def test_library_unknown_pose_is_a_clear_error(tmp_path):
     ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3]}}}',
      "pose 'A': missing field"),
     ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2], "reading": [1, 2, 3], '
-     '"offset": [1, 2, 3]}}}', "pose must be three finite numbers"),
+     '"offset": [1, 2, 3]}}}', "pose: expected three finite numbers"),
     ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '
      '"offset": [1, 2, 3], "date": "yesterday"}}}', "not ISO 8601"),
     ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '

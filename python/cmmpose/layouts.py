@@ -27,6 +27,7 @@ from importlib import resources
 import numpy as np
 
 from .errors import InputError
+from ._validate import vector3
 
 __all__ = [
     "BallbarPosition",
@@ -128,12 +129,8 @@ def appendix_c_lengths(state: str = "compensated") -> np.ndarray:
 
 
 def _point(name: str, p) -> np.ndarray:
-    try:
-        a = np.array(p, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected three numbers (mm), got {p!r}") from None
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise InputError(f"{name}: expected three finite numbers (mm), got {p!r}")
+    """A read-only copy of three finite numbers (mm)."""
+    a = vector3(name, p, unit="mm")
     a.flags.writeable = False
     return a
 

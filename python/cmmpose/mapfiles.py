@@ -5,13 +5,13 @@ and squareness in a commented header and units in the column names
 
 from __future__ import annotations
 
-import math
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
 from . import mapformats
+from ._validate import parse_number
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from .errors import MapError, read_lines
 
@@ -19,16 +19,6 @@ MAGIC = "cmmpose-error-map"
 VERSION = "1"
 HEADER = ("carriage",) + TABLE_COLUMNS
 SQUARENESS_KEYS = ("squareness_xy_arcsec", "squareness_yz_arcsec", "squareness_zx_arcsec")
-
-
-def _number(text: str, where: str, what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise MapError(f"{where}: {what} {text.strip()!r} is not a number") from None
-    if not math.isfinite(value):
-        raise MapError(f"{where}: {what} is not finite ({text.strip()})")
-    return value
 
 
 def read_map(path: str | PathLike) -> ErrorMap:
@@ -78,7 +68,7 @@ def read_map(path: str | PathLike) -> ErrorMap:
         carriage = fields[0].upper()
         if carriage not in rows:
             raise MapError(f"{where}: carriage {fields[0]!r} is not X, Y or Z")
-        values = [_number(f, where, name) for f, name in zip(fields[1:], TABLE_COLUMNS)]
+        values = [parse_number(f, where, name) for f, name in zip(fields[1:], TABLE_COLUMNS)]
         previous = rows[carriage][-1][0] if rows[carriage] else None
         if previous is not None and values[0] <= previous:
             kind = "duplicates" if values[0] == previous else "is less than"
@@ -99,11 +89,11 @@ def read_map(path: str | PathLike) -> ErrorMap:
         if key not in meta:
             raise MapError(f"{path}: header line '# {key}: <value>' is missing")
         value, lineno = meta[key]
-        squareness.append(_number(value, f"{path}:{lineno}", key))
+        squareness.append(parse_number(value, f"{path}:{lineno}", key))
     if "temperature_C" not in meta:
         raise MapError(f"{path}: header line '# temperature_C: <value or none>' is missing")
     t_text, t_line = meta["temperature_C"]
-    temperature = None if t_text.lower() == "none" else _number(t_text, f"{path}:{t_line}", "temperature_C")
+    temperature = None if t_text.lower() == "none" else parse_number(t_text, f"{path}:{t_line}", "temperature_C")
     source = meta.get("source", (str(path), 0))[0]
     return ErrorMap(*(np.array(rows[c]) for c in CARRIAGES), squareness, temperature, source=source)
 
