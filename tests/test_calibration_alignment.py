@@ -423,6 +423,19 @@ def test_fourth_noisy_alignment_degrades_gracefully(monte_carlo_alignments):
     assert np.all(m4.contributions[3] < m4.uncertainty)
 
 
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 5, 6, 9, 12, 25, 60])
+def test_chi_square_p_value_is_scipys(dof):
+    """mount_offset's p-value, P(chi^2_dof > chi2), equals scipy.stats.chi2.sf."""
+    from scipy.stats import chi2 as chi2_dist
+
+    from cmmpose.calibration.alignment import _chi2_sf
+
+    for x in np.geomspace(1e-6, 400.0, 60):
+        assert _chi2_sf(float(x), dof) == pytest.approx(chi2_dist.sf(x, dof), rel=1e-12, abs=1e-300)
+    assert _chi2_sf(0.0, dof) == 1.0 and _chi2_sf(-1.0, dof) == 1.0
+    assert _chi2_sf(3.0, 0) == 1.0
+
+
 def test_alignments_that_disagree_raise(monte_carlo_alignments):
     _, al = monte_carlo_alignments[5]
     # A fourth alignment 0.2 mm off (trunnion not seated): named, in standard deviations.

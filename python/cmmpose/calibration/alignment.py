@@ -148,25 +148,14 @@ def _uncertainty_triple(name: str, u) -> np.ndarray:
 
 
 def _chi2_sf(x: float, k: int) -> float:
-    """P(chi^2_k > x), closed forms for integer k (no SciPy at run time)."""
+    """P(chi^2_k > x) (scipy.special.chdtrc); 1 for k <= 0 or x <= 0."""
     if k <= 0:
         return 1.0
     if x <= 0:
         return 1.0
-    h = x / 2.0
-    if k % 2 == 0:
-        term, total = 1.0, 1.0
-        for i in range(1, k // 2):  # k/2 terms, not points
-            term *= h / i
-            total += term
-        return min(1.0, math.exp(-h) * total)
-    r = math.sqrt(x)
-    total = math.erfc(r / math.sqrt(2.0))
-    term = r * math.sqrt(2.0 / math.pi) * math.exp(-h)
-    for j in range(1, (k - 1) // 2 + 1):
-        total += term
-        term *= x / (2 * j + 1)
-    return min(1.0, total)
+    from scipy.special import chdtrc  # SciPy is imported on first use, not with cmmpose
+
+    return float(chdtrc(k, x))
 
 
 def _pose_name(pose) -> str:
