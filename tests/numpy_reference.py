@@ -1,9 +1,9 @@
 """Pure-NumPy reference implementation of the per-point compensation model.
 
-This module restates chapter 5 of the thesis (eqs. 7, 10-13, 25-35) as digested in
-SPEC.md sections 3, 4 and 8, written directly from the equations.  It is deliberately
-independent of the Rust kernel (it does not import ``cmmpose`` and shares no code with
-it) so that the kernel can be checked against it.
+This module restates chapter 5 of the thesis (eqs. 7, 10-13, 25-35) with the conventions
+of docs/conventions.md (Frames, The compensation, Misprints), written directly from the
+equations.  It is deliberately independent of the Rust kernel (it does not import
+``cmmpose`` and shares no code with it) so that the kernel can be checked against it.
 
 Units
 -----
@@ -136,7 +136,7 @@ def _position_error(carr, sq, scales):
 
 
 def _rotation_error(carr):
-    """Eqs. 26-31 with the right-handed X_p of SPEC.md section 8; columns X_p, Y_p, Z_p."""
+    """Eqs. 26-31 with the right-handed X_p of docs/conventions.md (eq. 30); columns X_p, Y_p, Z_p."""
     tx, ty, tz = np.tan(carr[:, :, 3:].sum(axis=1)).T     # eps_X, eps_Y, eps_Z totals
     one = np.ones_like(tx)
     zp = np.stack([ty, -tx, one], axis=1)

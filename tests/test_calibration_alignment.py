@@ -363,7 +363,7 @@ def test_closed_form_and_least_squares_agree_on_consistent_data():
     assert all(abs(v) < 1e-9 for v in cf.checks.values())
     ls = mount_offset([ReferenceReading.from_reading(p, sk, 0.01) for p, sk in zip(STANDARD_POSES, s)])
     assert np.allclose(ls.offset, cf.offset, atol=1e-9) and ls.chi2 < 1e-12
-    # eq. 21 as printed gives another W1: the misprint (SPEC.md section 8)
+    # eq. 21 as printed gives another W1: the misprint (docs/conventions.md, Misprints)
     (d1, e1, f1), (d2, e2, f2), (d3, e3, f3) = s
     printed = (d1 + 2 * d3 - e2 + f2 - f1) / 2
     assert abs(printed - OFFSET[2]) > 100.0
@@ -421,6 +421,19 @@ def test_fourth_noisy_alignment_degrades_gracefully(monte_carlo_alignments):
     assert np.all(np.abs(np.array(m4.offset) - scans[0].true_offset) < 3 * m4.uncertainty)
     # the noisy alignment carries little weight
     assert np.all(m4.contributions[3] < m4.uncertainty)
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 5, 6, 9, 12, 25, 60])
+def test_chi_square_p_value_is_scipys(dof):
+    """mount_offset's p-value, P(chi^2_dof > chi2), equals scipy.stats.chi2.sf."""
+    from scipy.stats import chi2 as chi2_dist
+
+    from cmmpose.calibration.alignment import _chi2_sf
+
+    for x in np.geomspace(1e-6, 400.0, 60):
+        assert _chi2_sf(float(x), dof) == pytest.approx(chi2_dist.sf(x, dof), rel=1e-12, abs=1e-300)
+    assert _chi2_sf(0.0, dof) == 1.0 and _chi2_sf(-1.0, dof) == 1.0
+    assert _chi2_sf(3.0, 0) == 1.0
 
 
 def test_alignments_that_disagree_raise(monte_carlo_alignments):
@@ -565,7 +578,7 @@ def test_library_unknown_pose_is_a_clear_error(tmp_path):
     ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3]}}}',
      "pose 'A': missing field"),
     ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2], "reading": [1, 2, 3], '
-     '"offset": [1, 2, 3]}}}', "pose must be three finite numbers"),
+     '"offset": [1, 2, 3]}}}', "pose: expected three finite numbers"),
     ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '
      '"offset": [1, 2, 3], "date": "yesterday"}}}', "not ISO 8601"),
     ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '

@@ -5,7 +5,7 @@
   formulas in float64, so they differ only by rounding (~1e-13 mm at 1000 mm).
 * ``rigid_body``: an exact rigid-body chain with full rotation matrices. The
   first-order model must reproduce it to second order in the angles; this is
-  what decides the sign of eq. 30 (SPEC.md section 8, docs/conventions.md).
+  what decides the sign of eq. 30 (docs/conventions.md, Sign of eps_Z in X_p).
 """
 
 import numpy as np

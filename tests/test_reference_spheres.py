@@ -135,8 +135,8 @@ def spheroid_cap(a: float, c: float, cap_deg: float, step: float = 0.1) -> np.nd
 
 # (polar semi-axis, polar coverage deg, centre z, radius) as the thesis prints them (Appendix A,
 # NIST ATS fits, 1 um resolution). The prolate 60 degree case is not printed ("similar effects are
-# seen"): its values are the mirror image of the oblate one, as SPEC.md section 7 summarises
-# (+-0.004 mm); the prolate 5 degree radius is "smaller by 0.003 mm" than 38.125.
+# seen"): its values are the mirror image of the oblate one, as docs/conventions.md (Spheroid
+# fits of Appendix A) summarises (+-0.004 mm); the prolate 5 degree radius is "smaller by 0.003 mm" than 38.125.
 APPENDIX_A = [
     (38.1225, 5.0, -0.005, 38.128),
     (38.1225, 60.0, -0.004, 38.126),

@@ -26,7 +26,7 @@ def compensate(
 ):
     """Compensated machine coordinates of scanner points.
 
-    X_H = S + e(S) + R(S) . E313 . ((u, v, 0) - l1)   (SPEC.md section 4)
+    X_H = S + e(S) + R(S) . E313 . ((u, v, 0) - l1)   (docs/conventions.md, The compensation)
 
     Parameters
     ----------

@@ -13,17 +13,21 @@ arc-seconds (the magnitudes match the thesis tables; the file does not say).
 Squareness sign: the controller states squareness with the opposite sign to
 the thesis's convention (Table 7, eq. 11): the same machine reads XY +169.4
 here and -173 in Table 7. The reader therefore negates all three values.
+
+Registered as the read-only map file format ``'controller'``
+(:mod:`cmmpose.mapformats`).
 """
 
 from __future__ import annotations
 
-import math
 import re
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
+from . import mapformats
+from ._validate import parse_number
 from .errormap import CARRIAGES, ErrorMap
 from .errors import MapError, read_lines
 
@@ -56,16 +60,6 @@ def _column_index(name: str, axis: str, where: str) -> int:
             raise MapError(f"{where}: straightness {name.strip()!r} along the axis itself")
         return 1 + k
     return 4 + k  # rotation about that machine axis
-
-
-def _float(text: str, where: str, what: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise MapError(f"{where}: {what} {text!r} is not a number") from None
-    if not math.isfinite(v):
-        raise MapError(f"{where}: {what} is not finite ({text})")
-    return v
 
 
 def read_controller_file(path: str | PathLike, temperature: float | None = None) -> ErrorMap:
@@ -110,9 +104,9 @@ def read_controller_file(path: str | PathLike, temperature: float | None = None)
             continue
         if axis is None:
             if m := _SQUARENESS.match(line):
-                squareness[m.group(1).upper()] = _float(m.group(2), where, f"{m.group(1)} squareness")
+                squareness[m.group(1).upper()] = parse_number(m.group(2), where, f"{m.group(1)} squareness")
             elif (m := _AXIS_PARAM.match(line)) and m.group(1) in CARRIAGES:
-                lo, hi, step = (_float(m.group(i), where, f"{m.group(1)} axis parameter") for i in (2, 3, 4))
+                lo, hi, step = (parse_number(m.group(i), where, f"{m.group(1)} axis parameter") for i in (2, 3, 4))
                 axis_params[m.group(1)] = (lo, hi, step)
             continue  # other header lines (file name, engineer, dates) are informative
         fields = [f for f in re.split(r"\t+|\s{2,}", line) if f]
@@ -131,7 +125,7 @@ def read_controller_file(path: str | PathLike, temperature: float | None = None)
             raise MapError(f"{where}: expected 7 values in a {axis} row, got {len(fields)}")
         row = [0.0] * 7
         for name_idx, text in zip(columns[axis], fields):
-            row[name_idx] = _float(text, where, "value")
+            row[name_idx] = parse_number(text, where, "value")
         previous = blocks[axis][-1] if blocks[axis] else None
         if previous is not None and row[0] <= previous[1][0]:
             kind = "duplicates" if row[0] == previous[1][0] else "is less than"
@@ -153,3 +147,16 @@ def read_controller_file(path: str | PathLike, temperature: float | None = None)
     sq = tuple(SQUARENESS_SIGN * squareness[k] for k in ("XY", "YZ", "ZX"))
     tables = [np.array([row for _, row in blocks[c]]) for c in CARRIAGES]
     return ErrorMap(*tables, sq, temperature, source=f"controller file {path.name}")
+
+
+def is_controller_file(path: str | PathLike) -> bool:
+    """True when the file at ``path`` has a ``Map Data: <axis> Axis`` block line."""
+    try:
+        text = Path(path).read_bytes().decode("utf-8", "replace")
+    except OSError:
+        return False
+    return any(_BLOCK.match(line.strip()) for line in text.splitlines())
+
+
+mapformats.register("controller", sniff=is_controller_file, read=read_controller_file,
+                    description="controller error file (thesis Appendix B)")

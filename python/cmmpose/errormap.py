@@ -12,7 +12,7 @@ from os import PathLike
 
 import numpy as np
 
-from . import _core
+from . import _core, mapformats
 from ._arrays import as_rows, as_triple
 from .errors import InputError, warn_clamped
 from .report import KernelReport
@@ -62,24 +62,23 @@ class ErrorMap:
 
     # -- constructors from files -------------------------------------------------
     @classmethod
-    def read(cls, path: str | PathLike) -> ErrorMap:
-        """Read a map in the canonical CSV format (docs/formats.md)."""
-        from .mapfiles import read_map
+    def read(cls, path: str | PathLike, format: str = "csv", **options) -> ErrorMap:
+        """Read a map file: by default the canonical CSV format (docs/formats.md).
 
-        return read_map(path)
+        ``format`` names a registered map file format (:mod:`cmmpose.mapformats`:
+        ``'csv'``, ``'controller'``), or ``'auto'`` for the one that recognises
+        the file; ``options`` go to that format's reader.
+        """
+        return mapformats.read(path, format, **options)
 
-    def write(self, path: str | PathLike) -> None:
-        """Write the map in the canonical CSV format (docs/formats.md)."""
-        from .mapfiles import write_map
-
-        write_map(self, path)
+    def write(self, path: str | PathLike, format: str = "csv") -> None:
+        """Write the map, by default in the canonical CSV format (docs/formats.md)."""
+        mapformats.write(self, path, format)
 
     @classmethod
     def read_controller_file(cls, path: str | PathLike, temperature: float | None = None) -> ErrorMap:
         """Read a controller error file in the layout of thesis Appendix B."""
-        from .controller import read_controller_file
-
-        return read_controller_file(path, temperature=temperature)
+        return mapformats.read(path, "controller", temperature=temperature)
 
     @classmethod
     def appendix_b(cls) -> ErrorMap:
@@ -196,12 +195,10 @@ class ErrorMapSet:
     @classmethod
     def thesis(cls) -> ErrorMapSet:
         """The thesis maps at 20, 25 and 30 C (Tables 8-16, squareness Table 7)."""
-        from .mapfiles import read_map
-
         maps = []
         for t in (20, 25, 30):
             with resources.as_file(data_path("maps", f"thesis_{t}C.csv")) as p:
-                maps.append(read_map(p))
+                maps.append(ErrorMap.read(p))
         return cls(maps)
 
     @property

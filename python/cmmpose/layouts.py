@@ -27,6 +27,7 @@ from importlib import resources
 import numpy as np
 
 from .errors import InputError
+from ._validate import vector3
 
 __all__ = [
     "BallbarPosition",
@@ -128,12 +129,8 @@ def appendix_c_lengths(state: str = "compensated") -> np.ndarray:
 
 
 def _point(name: str, p) -> np.ndarray:
-    try:
-        a = np.array(p, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected three numbers (mm), got {p!r}") from None
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise InputError(f"{name}: expected three finite numbers (mm), got {p!r}")
+    """A read-only copy of three finite numbers (mm)."""
+    a = vector3(name, p, unit="mm")
     a.flags.writeable = False
     return a
 
@@ -484,7 +481,7 @@ def sweep_readings(ball, pose, offset=None, *, v_near: float = 0.0, radius: floa
     The laser origin is placed so that the ball's surface point nearest the
     sensor has scan-plane coordinates (u, v) = (0, ``v_near``); the ram then
     moves along W from the scan plane touching one side of the ball to the
-    other. Uses the uncompensated model of SPEC section 4,
+    other. Uses the uncompensated model of docs/conventions.md (The compensation),
     X_H = S + E313 . ((u, v, 0) - l1), i.e. an error-free machine.
 
     Parameters

@@ -1,15 +1,17 @@
 """The canonical error-map file: one tidy CSV per map, with the temperature
 and squareness in a commented header and units in the column names
-(docs/formats.md)."""
+(docs/formats.md). Registered as the map file format ``'csv'``
+(:mod:`cmmpose.mapformats`)."""
 
 from __future__ import annotations
 
-import math
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
+from . import mapformats
+from ._validate import parse_number
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from .errors import MapError, read_lines
 
@@ -17,16 +19,6 @@ MAGIC = "cmmpose-error-map"
 VERSION = "1"
 HEADER = ("carriage",) + TABLE_COLUMNS
 SQUARENESS_KEYS = ("squareness_xy_arcsec", "squareness_yz_arcsec", "squareness_zx_arcsec")
-
-
-def _number(text: str, where: str, what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise MapError(f"{where}: {what} {text.strip()!r} is not a number") from None
-    if not math.isfinite(value):
-        raise MapError(f"{where}: {what} is not finite ({text.strip()})")
-    return value
 
 
 def read_map(path: str | PathLike) -> ErrorMap:
@@ -76,7 +68,7 @@ def read_map(path: str | PathLike) -> ErrorMap:
         carriage = fields[0].upper()
         if carriage not in rows:
             raise MapError(f"{where}: carriage {fields[0]!r} is not X, Y or Z")
-        values = [_number(f, where, name) for f, name in zip(fields[1:], TABLE_COLUMNS)]
+        values = [parse_number(f, where, name) for f, name in zip(fields[1:], TABLE_COLUMNS)]
         previous = rows[carriage][-1][0] if rows[carriage] else None
         if previous is not None and values[0] <= previous:
             kind = "duplicates" if values[0] == previous else "is less than"
@@ -97,11 +89,11 @@ def read_map(path: str | PathLike) -> ErrorMap:
         if key not in meta:
             raise MapError(f"{path}: header line '# {key}: <value>' is missing")
         value, lineno = meta[key]
-        squareness.append(_number(value, f"{path}:{lineno}", key))
+        squareness.append(parse_number(value, f"{path}:{lineno}", key))
     if "temperature_C" not in meta:
         raise MapError(f"{path}: header line '# temperature_C: <value or none>' is missing")
     t_text, t_line = meta["temperature_C"]
-    temperature = None if t_text.lower() == "none" else _number(t_text, f"{path}:{t_line}", "temperature_C")
+    temperature = None if t_text.lower() == "none" else parse_number(t_text, f"{path}:{t_line}", "temperature_C")
     source = meta.get("source", (str(path), 0))[0]
     return ErrorMap(*(np.array(rows[c]) for c in CARRIAGES), squareness, temperature, source=source)
 
@@ -126,3 +118,17 @@ def write_map(error_map: ErrorMap, path: str | PathLike) -> None:
         for row in error_map.table(c):
             lines.append(",".join([c, *(_fmt(v) for v in row)]))
     Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def is_canonical_map(path: str | PathLike) -> bool:
+    """True when the first line of the file at ``path`` is the canonical map's magic line."""
+    try:
+        with open(path, "rb") as f:
+            first = f.readline(256)
+    except OSError:
+        return False
+    return first.decode("utf-8", "replace").strip() == f"# {MAGIC}: {VERSION}"
+
+
+mapformats.register("csv", sniff=is_canonical_map, read=read_map, write=write_map,
+                    description="canonical error-map CSV (docs/formats.md)")

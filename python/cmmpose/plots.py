@@ -19,13 +19,13 @@ map deltas in um (written ``µm``), map angles and squareness in arc-seconds.
 
 from __future__ import annotations
 
-from numbers import Real
 from os import PathLike
 
 import numpy as np
 
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet
 from .errors import InputError
+from ._validate import finite
 
 __all__ = ["plot_ballbar_lengths", "plot_sphere_residuals", "plot_error_map", "COMPONENTS"]
 
@@ -62,20 +62,6 @@ def _attr(obj, name: str, where: str):
         return getattr(obj, name)
     except AttributeError:
         raise InputError(f"{where}: has no attribute {name!r}") from None
-
-
-def _float(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (Real, np.floating, np.integer)):
-        try:
-            value = np.asarray(value, dtype=np.float64)
-            if value.shape != ():
-                raise ValueError
-        except (TypeError, ValueError):
-            raise InputError(f"{name}: expected a number, got {value!r}") from None
-    v = float(value)
-    if not np.isfinite(v):
-        raise InputError(f"{name}: must be finite, got {v}")
-    return v
 
 
 def _array(name: str, a, shape) -> np.ndarray:
@@ -120,8 +106,8 @@ def _ballbar_series(results):
             raise InputError(f"{where}.positions: expected integer position numbers, got {raw_pos.dtype}") from None
         if not (np.isfinite(pos_f).all() and np.array_equal(pos_f, np.round(pos_f))):
             raise InputError(f"{where}.positions: expected integer position numbers, got {raw_pos[:5]}...")
-        mean = _float(f"{where}.mean_length", _attr(r, "mean_length", where))
-        rms = _float(f"{where}.rms_accuracy_error", _attr(r, "rms_accuracy_error", where))
+        mean = finite(f"{where}.mean_length", _attr(r, "mean_length", where))
+        rms = finite(f"{where}.rms_accuracy_error", _attr(r, "rms_accuracy_error", where))
         if rms < 0:
             raise InputError(f"{where}.rms_accuracy_error: must be >= 0 mm, got {rms}")
         series.append((label, pos_f.astype(np.int64), lengths, mean, rms))
@@ -264,9 +250,9 @@ def plot_sphere_residuals(points, fit, path: str | PathLike | None = None, *, ti
         raise InputError("points: expected at least one point, got none")
     centre = _array("fit.centre", _attr(fit, "centre", "fit"), (3,))
     residuals = _array("fit.residuals", _attr(fit, "residuals", "fit"), (len(pts),))
-    radius = _float("fit.radius", _attr(fit, "radius", "fit"))
-    rms = _float("fit.rms", _attr(fit, "rms", "fit"))
-    form = _float("fit.form", _attr(fit, "form", "fit"))
+    radius = finite("fit.radius", _attr(fit, "radius", "fit"))
+    rms = finite("fit.rms", _attr(fit, "rms", "fit"))
+    form = finite("fit.form", _attr(fit, "form", "fit"))
     inlier = getattr(fit, "inlier", None)
     inlier = np.ones(len(pts), bool) if inlier is None else np.asarray(inlier, dtype=bool)
     if inlier.shape != (len(pts),):

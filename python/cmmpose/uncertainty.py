@@ -19,6 +19,7 @@ from statistics import NormalDist
 import numpy as np
 
 from ._arrays import as_rows, as_triple, as_vector
+from ._validate import finite
 from .compensation import compensate
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import InputError, OutOfRangeError
@@ -47,16 +48,6 @@ THESIS = "J. O. Harris, PhD thesis (McMaster)"
 # ---------------------------------------------------------------------------
 # GUM toolkit
 # ---------------------------------------------------------------------------
-
-
-def _finite(name: str, x) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a number, got {x!r}") from None
-    if not math.isfinite(v):
-        raise InputError(f"{name}: must be finite, got {v}")
-    return v
 
 
 @dataclass(frozen=True)
@@ -90,12 +81,12 @@ class Input:
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
             raise InputError(f"Input.name: expected a non-empty string, got {self.name!r}")
-        object.__setattr__(self, "value", _finite(f"Input {self.name!r} value", self.value))
-        u = _finite(f"Input {self.name!r} standard_uncertainty", self.standard_uncertainty)
+        object.__setattr__(self, "value", finite(f"Input {self.name!r} value", self.value))
+        u = finite(f"Input {self.name!r} standard_uncertainty", self.standard_uncertainty)
         if u < 0:
             raise InputError(f"Input {self.name!r}: standard_uncertainty must be >= 0, got {u}")
         object.__setattr__(self, "standard_uncertainty", u)
-        object.__setattr__(self, "sensitivity", _finite(f"Input {self.name!r} sensitivity", self.sensitivity))
+        object.__setattr__(self, "sensitivity", finite(f"Input {self.name!r} sensitivity", self.sensitivity))
 
     @property
     def contribution(self) -> float:
@@ -143,7 +134,7 @@ class Budget:
             raise InputError(f"Budget {self.name!r}: inputs must be Input objects, got {bad[0]}")
         object.__setattr__(self, "inputs", inputs)
         if self.printed is not None:
-            object.__setattr__(self, "printed", _finite(f"Budget {self.name!r} printed", self.printed))
+            object.__setattr__(self, "printed", finite(f"Budget {self.name!r} printed", self.printed))
 
     @property
     def variance(self) -> float:
@@ -157,7 +148,7 @@ class Budget:
 
     def expanded_uncertainty(self, k: float = 2.0) -> float:
         """U = k u_c, in ``unit``; k = 2 gives about 95 % coverage for a normal distribution."""
-        k = _finite("k", k)
+        k = finite("k", k)
         if k <= 0:
             raise InputError(f"k: the coverage factor must be positive, got {k}")
         return k * self.combined_standard_uncertainty
@@ -224,7 +215,7 @@ def uncertainty_of_mean(uncertainties, correlation: float = 0.0) -> float:
     u = np.asarray(uncertainties, dtype=float)
     if u.ndim != 1 or len(u) == 0 or not np.all(np.isfinite(u)) or np.any(u < 0):
         raise InputError(f"uncertainties: expected a non-empty 1-D array of finite values >= 0, got {uncertainties!r}")
-    r = _finite("correlation", correlation)
+    r = finite("correlation", correlation)
     if not 0.0 <= r <= 1.0:
         raise InputError(f"correlation: must be between 0 and 1, got {r}")
     var = (1 - r) * np.sum(u ** 2) + r * np.sum(u) ** 2
@@ -289,8 +280,9 @@ def mount_offset_budgets(*, digitizer: float = 9.0, sphere_fit: float = 10.0, sc
     model : {'printed', 'corrected'}
         ``'printed'``: U1 and V1 from eqs. 19-20 (eqs. 22-23); W1 as eq. 24 is
         numbered, 5/4 u^2(D1) + 1/4 u^2(E1) + u^2(F1) (the form the thesis puts
-        numbers into). ``'corrected'``: W1 = D1 - D3 - U1 (SPEC section 8: eq. 21
-        is misprinted), propagated from its six readings. U1 and V1 are the same.
+        numbers into). ``'corrected'``: W1 = D1 - D3 - U1 (eq. 21 is
+        misprinted: docs/conventions.md, Misprints), propagated from its six
+        readings. U1 and V1 are the same.
 
     Returns
     -------
@@ -300,8 +292,8 @@ def mount_offset_budgets(*, digitizer: float = 9.0, sphere_fit: float = 10.0, sc
         eqs. 22-24 as printed do not give: they give 15.8, 15.8 and 19.0 um
         (docs/uncertainty.md, "The mount-offset figures").
     """
-    dig = _finite("digitizer", digitizer)
-    fit = _finite("sphere_fit", sphere_fit)
+    dig = finite("digitizer", digitizer)
+    fit = finite("sphere_fit", sphere_fit)
     sx, sy, sz = as_triple("scale", scale)
     if min(dig, fit, sx, sy, sz) < 0:
         raise InputError("digitizer, sphere_fit, scale: uncertainties must be >= 0 (um)")
@@ -325,7 +317,7 @@ def mount_offset_budgets(*, digitizer: float = 9.0, sphere_fit: float = 10.0, sc
     else:
         w1 = [*reading("D1", 1.0), *reading("D3", -1.0), *reading("E1", -0.5), *reading("E2", 0.5),
               *reading("F2", -0.5), *reading("F1", 0.5)]
-        w_src = f"{src}, W1 = D1 - D3 - U1 (eqs. 16, 18, 19; SPEC section 8)"
+        w_src = f"{src}, W1 = D1 - D3 - U1 (eqs. 16, 18, 19; docs/conventions.md, Misprints)"
     return {
         "U1": Budget("U1", tuple(u1), "um", f"{src}, eqs. 19 and 22, lines 1446, 1460-1467", _PRINTED_OFFSET["U1"]),
         "V1": Budget("V1", tuple(v1), "um", f"{src}, eqs. 20 and 23, lines 1448, 1469-1473", _PRINTED_OFFSET["V1"]),
@@ -350,7 +342,7 @@ def sphere_centre_budget(*, digitizer: float = 9.0, sphere_fit: float = 10.0) ->
     Budget
         In um; u_c = 13.45 um, which the thesis prints (rounded up) as 14 um.
     """
-    dig, fit = _finite("digitizer", digitizer), _finite("sphere_fit", sphere_fit)
+    dig, fit = finite("digitizer", digitizer), finite("sphere_fit", sphere_fit)
     if min(dig, fit) < 0:
         raise InputError("digitizer, sphere_fit: uncertainties must be >= 0 (um)")
     printed = 14.0 if (dig, fit) == (9.0, 10.0) else None
@@ -399,7 +391,7 @@ def ballbar_length_budget(n_positions: int = 1, compensated: bool = True, *, tem
     if isinstance(n_positions, bool) or not isinstance(n_positions, (int, np.integer)) or n_positions < 1:
         raise InputError(f"n_positions: expected a positive integer, got {n_positions!r}")
     n = int(n_positions)
-    dig, fit = _finite("digitizer", digitizer), _finite("sphere_fit", sphere_fit)
+    dig, fit = finite("digitizer", digitizer), finite("sphere_fit", sphere_fit)
     if min(dig, fit) < 0:
         raise InputError("digitizer, sphere_fit: uncertainties must be >= 0 (um)")
     c = 1.0 / math.sqrt(n)
@@ -414,7 +406,7 @@ def ballbar_length_budget(n_positions: int = 1, compensated: bool = True, *, tem
         )
         printed = _PRINTED_LENGTH.get((True, None, n)) if default else None
         return Budget(f"ballbar length, compensated, {mean}", inputs, "um", "thesis section 6.2.3, line 1637", printed)
-    t = _finite("temperature", temperature)
+    t = finite("temperature", temperature)
     if scale is None:
         if t not in THESIS_SCALE_ERRORS_UM:
             raise InputError(f"temperature: the thesis gives scale errors at 20, 25 and 30 C only, got {t}; pass scale=(sX, sY, sZ) in um")
@@ -443,7 +435,7 @@ _UNITS = {"alpha": "deg", "beta": "deg", "gamma": "deg", "U1": "mm", "V1": "mm",
 
 
 def _probability(p) -> float:
-    p = _finite("p", p)
+    p = finite("p", p)
     if not 0 < p < 1:
         raise InputError(f"p: coverage probability must be between 0 and 1, got {p}")
     return p
@@ -504,7 +496,7 @@ class CentreUncertainty:
 
     def expanded_uncertainty(self, k: float = 2.0) -> np.ndarray:
         """k times the standard uncertainties, mm (3,)."""
-        k = _finite("k", k)
+        k = finite("k", k)
         if k <= 0:
             raise InputError(f"k: the coverage factor must be positive, got {k}")
         return k * self.standard_uncertainty
@@ -573,7 +565,7 @@ class LengthUncertainty:
 
     def expanded_uncertainty(self, k: float = 2.0) -> float:
         """k u, mm."""
-        k = _finite("k", k)
+        k = finite("k", k)
         if k <= 0:
             raise InputError(f"k: the coverage factor must be positive, got {k}")
         return k * self.standard_uncertainty
@@ -633,7 +625,7 @@ class _Problem:
             if not np.all(np.isfinite(self.temperature)):
                 raise InputError(f"temperature{label}: values must be finite")
         else:
-            self.temperature = _finite(f"temperature{label}", temperature)
+            self.temperature = finite(f"temperature{label}", temperature)
         if out_of_range not in ("raise", "clamp"):
             raise InputError(f"out_of_range: expected 'raise' or 'clamp', got {out_of_range!r}")
         self.out_of_range = out_of_range
@@ -698,10 +690,10 @@ class _Problem:
 
 
 def _check_u(u_noise, u_pose_deg, u_offset, u_temperature, problem: _Problem) -> dict[str, float]:
-    un = _finite("u_noise", u_noise)
+    un = finite("u_noise", u_noise)
     up = as_triple("u_pose_deg", u_pose_deg)
     uo = as_triple("u_offset", u_offset)
-    ut = _finite("u_temperature", u_temperature)
+    ut = finite("u_temperature", u_temperature)
     if min(un, ut, *up, *uo) < 0:
         raise InputError("u_noise, u_pose_deg, u_offset, u_temperature: standard uncertainties must be >= 0")
     if problem.temperature is None and ut > 0:
@@ -815,8 +807,8 @@ def _sensitivity(f, p: _Problem, name: str, steps: dict[str, float]) -> np.ndarr
 
 
 def _steps(step_pose_deg, step_offset, step_temperature) -> dict[str, float]:
-    steps = {"pose": _finite("step_pose_deg", step_pose_deg), "offset": _finite("step_offset", step_offset),
-             "temperature": _finite("step_temperature", step_temperature)}
+    steps = {"pose": finite("step_pose_deg", step_pose_deg), "offset": finite("step_offset", step_offset),
+             "temperature": finite("step_temperature", step_temperature)}
     if min(steps.values()) <= 0:
         raise InputError(f"step_pose_deg, step_offset, step_temperature: steps must be positive, got {steps}")
     return steps

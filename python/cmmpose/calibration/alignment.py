@@ -3,7 +3,7 @@
 Solvers, each returning its result with a standard uncertainty:
 
 - :func:`alpha_beta_from_vernier`: alpha, beta from optical-vernier points on
-  the scan plane (eqs. 5-6, quadrant-safe form of SPEC.md section 3);
+  the scan plane (eqs. 5-6, quadrant-safe form of docs/conventions.md, Frames);
 - :func:`gamma_from_plane_scan`: gamma from a flat plane scanned while the
   machine moves (section 4.3: "scanning a planar surface while moving the CMM,
   and fitting the data");
@@ -148,25 +148,14 @@ def _uncertainty_triple(name: str, u) -> np.ndarray:
 
 
 def _chi2_sf(x: float, k: int) -> float:
-    """P(chi^2_k > x), closed forms for integer k (no SciPy at run time)."""
+    """P(chi^2_k > x) (scipy.special.chdtrc); 1 for k <= 0 or x <= 0."""
     if k <= 0:
         return 1.0
     if x <= 0:
         return 1.0
-    h = x / 2.0
-    if k % 2 == 0:
-        term, total = 1.0, 1.0
-        for i in range(1, k // 2):  # k/2 terms, not points
-            term *= h / i
-            total += term
-        return min(1.0, math.exp(-h) * total)
-    r = math.sqrt(x)
-    total = math.erfc(r / math.sqrt(2.0))
-    term = r * math.sqrt(2.0 / math.pi) * math.exp(-h)
-    for j in range(1, (k - 1) // 2 + 1):
-        total += term
-        term *= x / (2 * j + 1)
-    return min(1.0, total)
+    from scipy.special import chdtrc  # SciPy is imported on first use, not with cmmpose
+
+    return float(chdtrc(k, x))
 
 
 def _pose_name(pose) -> str:
@@ -229,8 +218,8 @@ def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | N
     at three or more well-spaced places in the field of view (thesis section
     4.3). The recorded positions lie on a plane parallel to the scan plane; its
     normal is the scanner's w axis: beta = acos(n_z), alpha = atan2(n_x, -n_y)
-    (eqs. 5-6 in the quadrant-safe form of SPEC.md; eq. 6 as printed loses the
-    quadrant).
+    (eqs. 5-6 in the quadrant-safe form of docs/conventions.md, Frames; eq. 6 as
+    printed loses the quadrant).
 
     Parameters
     ----------
@@ -252,7 +241,8 @@ def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | N
     error_map : ErrorMap or ErrorMapSet, optional
         Treat ``points`` as scale readings and compensate them: positions
         S + e(S), and the normal turned back by the ram's rotation R(S) at
-        their mean (the pose is the orientation before R, SPEC.md section 4).
+        their mean (the pose is the orientation before R: docs/conventions.md,
+        The compensation).
     temperature : float or array_like of shape (N,), optional
         Machine temperature, C, for ``error_map``.
     min_spread : float
@@ -333,9 +323,9 @@ def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | N
     cov_n = axes.T @ tilt_cov @ axes
     if error_map is not None:
         # The plane found is the true scan plane, R(S) E313 w: the ram's rotation at
-        # the vernier readings is part of it. The pose is E313 before R (SPEC
-        # section 4), so turn it back by R at the mean reading (up to ~10 a-s
-        # with the thesis maps).
+        # the vernier readings is part of it. The pose is E313 before R
+        # (docs/conventions.md, The compensation), so turn it back by R at the
+        # mean reading (up to ~10 a-s with the thesis maps).
         rot = _single_map(error_map, temperature).rotation_error(raw.mean(axis=0)[None, :])[0]
         n = rot.T @ n
         n = n / np.linalg.norm(n)
@@ -1170,7 +1160,7 @@ class ClosedFormOffset:
 
 
 #: Sensitivities of (U1, V1, W1) to (D1, E1, F1, D2, E2, F2, D3, E3, F3): eqs. 19, 20
-#: and W1 = D1 - D3 - U1 (eq. 21 corrected, SPEC.md section 8).
+#: and W1 = D1 - D3 - U1 (eq. 21 corrected, docs/conventions.md, Misprints).
 _CLOSED_FORM = np.array([
     [0.0, 0.5, -0.5, 0.0, -0.5, 0.5, 0.0, 0.0, 0.0],
     [0.0, 0.5, 0.5, 0.0, -0.5, -0.5, 0.0, 0.0, 0.0],
@@ -1184,8 +1174,8 @@ def mount_offset_closed_form(s1, s2, s3, *, uncertainties=None, pose_tolerance: 
 
     U1 = (E1 - E2 + F2 - F1) / 2 (eq. 19), V1 = (E1 - E2 + F1 - F2) / 2
     (eq. 20), W1 = D1 - D3 - U1 (eq. 21 as printed, (D1 + 2 D3 - E2 + F2 -
-    F1) / 2, is a misprint: SPEC.md section 8). The uncertainty is the GUM law
-    of propagation (eqs. 22-24 generalised to correlated readings).
+    F1) / 2, is a misprint: docs/conventions.md, Misprints). The uncertainty is
+    the GUM law of propagation (eqs. 22-24 generalised to correlated readings).
 
     Parameters
     ----------

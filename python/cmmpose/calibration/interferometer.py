@@ -42,6 +42,7 @@ import numpy as np
 
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from ..errors import InputError, MapError, read_lines
+from .._validate import finite, nonnegative, positive, triple
 
 __all__ = [
     "InterferometerRunError",
@@ -227,7 +228,7 @@ def wavelength_in_air_nm(vacuum_wavelength_nm, air_temperature_C, pressure_mmHg,
     Parameters: vacuum wavelength in nm (a HeNe line; the formula's constants
     are for 633 nm), T in C, P in mmHg, H in % RH.
     """
-    lam = _finite_positive("vacuum_wavelength_nm", vacuum_wavelength_nm)
+    lam = positive("vacuum_wavelength_nm", vacuum_wavelength_nm)
     return _out(lam / np.asarray(refractive_index(air_temperature_C, pressure_mmHg, humidity_percent)))
 
 
@@ -321,9 +322,9 @@ def refractive_index_budget(
     from ..uncertainty import Budget, Input
 
     us = {
-        "air_temperature_C": _finite_nonneg("u_air_temperature_C", u_air_temperature_C),
-        "pressure_mmHg": _finite_nonneg("u_pressure_mmHg", u_pressure_mmHg),
-        "humidity_percent": _finite_nonneg("u_humidity_percent", u_humidity_percent),
+        "air_temperature_C": nonnegative("u_air_temperature_C", u_air_temperature_C),
+        "pressure_mmHg": nonnegative("u_pressure_mmHg", u_pressure_mmHg),
+        "humidity_percent": nonnegative("u_humidity_percent", u_humidity_percent),
     }
     if at is None:
         coeffs, where, values = THESIS_SENSITIVITIES_PPM, "printed coefficients, thesis line 768", STANDARD_AIR
@@ -351,23 +352,6 @@ def refractivity_uncertainty(u_air_temperature_C: float = THESIS_AIR_UNCERTAINTY
     u_P in mmHg, u_H in % RH). The thesis's defaults give 1.36 ppm."""
     return refractive_index_budget(u_air_temperature_C, u_pressure_mmHg, u_humidity_percent,
                                    at=at).combined_standard_uncertainty
-
-
-def _finite_nonneg(name: str, v) -> float:
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a number, got {v!r}") from None
-    if not math.isfinite(x) or x < 0:
-        raise InputError(f"{name}: must be finite and >= 0, got {x}")
-    return x
-
-
-def _finite_positive(name: str, v) -> float:
-    x = _finite_nonneg(name, v)
-    if x == 0:
-        raise InputError(f"{name}: must be > 0, got 0")
-    return x
 
 
 # ---------------------------------------------------------------------------
@@ -1035,7 +1019,7 @@ def process_run(
         if expansion_ppm_per_C is None:
             raise InputError("expansion_ppm_per_C: required with material='normalise' (e.g. 12 for steel, "
                              "thesis line 822)")
-        alpha = _finite_nonneg("expansion_ppm_per_C", expansion_ppm_per_C) * 1e-6
+        alpha = nonnegative("expansion_ppm_per_C", expansion_ppm_per_C) * 1e-6
     try:
         u_air = tuple(float(v) for v in air_uncertainty)
     except (TypeError, ValueError):
@@ -1208,7 +1192,7 @@ def build_map(
             processed.append(r)
         else:
             raise InputError(f"runs[{i}]: expected an InterferometerRun or ProcessedRun, got {type(r).__name__}")
-    sq = _triple("squareness", squareness)
+    sq = triple("squareness", squareness, unit="arc-seconds")
     by_key: dict[tuple[str, str], ProcessedRun] = {}
     for p in processed:
         key = (p.axis, p.component)
@@ -1256,7 +1240,7 @@ def build_map(
     if temperature is None:
         temperature = round(float(np.mean(temps)), 3)  # 1 mK: no float noise in the map file
     else:
-        temperature = _finite("temperature", temperature)
+        temperature = finite("temperature", temperature)
     spread = max(temps) - min(temps)
     if spread > temperature_spread_C:
         notes.append(f"the runs' temperatures spread {spread:.2f} C ({min(temps):.2f}..{max(temps):.2f} C); "
@@ -1281,26 +1265,6 @@ def map_from_runs(runs, squareness, temperature: float | None = None, **options)
     keyword options). Missing components are zeros, named in an
     :class:`InterferometerWarning` and in the map's ``source``."""
     return build_map(runs, squareness, temperature, **options).map
-
-
-def _finite(name: str, v) -> float:
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a number, got {v!r}") from None
-    if not math.isfinite(x):
-        raise InputError(f"{name}: must be finite, got {x}")
-    return x
-
-
-def _triple(name: str, v) -> tuple[float, float, float]:
-    try:
-        vals = tuple(float(x) for x in v)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected three numbers (arc-seconds), got {v!r}") from None
-    if len(vals) != 3 or not all(math.isfinite(x) for x in vals):
-        raise InputError(f"{name}: expected three finite numbers (arc-seconds), got {vals}")
-    return vals  # type: ignore[return-value]
 
 
 @dataclass(frozen=True, eq=False)

@@ -24,6 +24,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..pose import MountOffset, Pose, pose_tuple
 from ..errors import CalibrationError
+from .._validate import triple
 from .alignment import CalibratedPose, MountOffsetFit, ReferenceReading
 
 __all__ = ["AlignmentRecord", "AlignmentLibrary", "LIBRARY_FORMAT", "LIBRARY_VERSION"]
@@ -50,15 +51,7 @@ def _now() -> str:
 def _triple(where: str, name: str, value, *, optional: bool = False, nonnegative: bool = False):
     if value is None and optional:
         return None
-    try:
-        vals = tuple(float(x) for x in value)
-    except (TypeError, ValueError):
-        raise CalibrationError(f"{where}: {name} must be three numbers, got {value!r}") from None
-    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
-        raise CalibrationError(f"{where}: {name} must be three finite numbers, got {value!r}")
-    if nonnegative and min(vals) < 0:
-        raise CalibrationError(f"{where}: {name} must be >= 0, got {value!r}")
-    return vals
+    return triple(f"{where}: {name}", value, nonnegative=nonnegative, error=CalibrationError)
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """Thermal selection: the machine temperature at each point's time stamp from
-the thermocouple log (thesis section 6.4; SPEC.md section 6).
+the thermocouple log (thesis section 6.4; docs/conventions.md, Interpolation).
 
 The thesis machine logs 11 type-E thermocouples (three on each axis scale,
 granite top and bottom) with time stamps in a separate file; each point's time

@@ -8,16 +8,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from .._validate import vector3
 
 #: Radius of the thesis's optically coated grade 200 balls (76.25 mm diameter, Appendix A).
 BALL_RADIUS = 76.25 / 2
-
-
-def _vec(name, v) -> np.ndarray:
-    a = np.asarray(v, dtype=float)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise InputError(f"{name}: expected three finite numbers (mm), got {v!r}")
-    return a
 
 
 @dataclass(frozen=True)
@@ -44,8 +38,8 @@ class Sphere:
     axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
     def __post_init__(self):
-        object.__setattr__(self, "centre", _vec("centre", self.centre))
-        object.__setattr__(self, "axis", _vec("axis", self.axis))
+        object.__setattr__(self, "centre", vector3("centre", self.centre, unit="mm"))
+        object.__setattr__(self, "axis", vector3("axis", self.axis, unit="mm"))
         if not (np.isfinite(self.radius) and self.radius > 0):
             raise InputError(f"radius: must be positive (mm), got {self.radius}")
 
@@ -84,8 +78,8 @@ class Plane:
     radius: float = 100.0
 
     def __post_init__(self):
-        object.__setattr__(self, "centre", _vec("centre", self.centre))
-        object.__setattr__(self, "normal", _vec("normal", self.normal))
+        object.__setattr__(self, "centre", vector3("centre", self.centre, unit="mm"))
+        object.__setattr__(self, "normal", vector3("normal", self.normal, unit="mm"))
 
     def surfaces(self):
         return [("disc", [*self.centre, *self.normal, self.radius])]

@@ -37,6 +37,7 @@ from ..calibration.interferometer import (
 )
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from ..errors import InputError
+from .._validate import triple
 
 __all__ = [
     "DEFAULT_AIR",
@@ -87,16 +88,6 @@ def _optics(carriage: str, component: str) -> tuple[str, dict]:
     if axis == carriage:
         return "linear", {}
     return "straightness", {"error_axis": axis}
-
-
-def _triple(name, v):
-    try:
-        vals = tuple(float(x) for x in v)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected three numbers, got {v!r}") from None
-    if len(vals) != 3 or not np.all(np.isfinite(vals)):
-        raise InputError(f"{name}: expected three finite numbers, got {v!r}")
-    return vals
 
 
 def _by_optics(name: str, value, default: Mapping[str, float], optics: str) -> float:
@@ -190,9 +181,9 @@ def simulate_interferometer_run(
     repeats = int(repeats)
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
-    air = _triple("air", air)
-    air_drift = _triple("air_drift", air_drift)
-    station_error = _triple("station_error", station_error)
+    air = triple("air", air)
+    air_drift = triple("air_drift", air_drift)
+    station_error = triple("station_error", station_error)
     sigma = _by_optics("noise", noise, DEFAULT_NOISE, optics)
     rev = _by_optics("reversal", reversal, DEFAULT_REVERSAL, optics)
     if sigma < 0:

@@ -1,0 +1,217 @@
+"""Validation of scalar and three-vector arguments, and of numbers read from
+text files. Every message names the argument (or the file and line) at fault;
+the exception class is ``InputError`` unless the caller passes another
+(``error=``), e.g. ``CalibrationError`` or ``MapError``.
+
+Arrays at the Python/Rust boundary are converted by :mod:`cmmpose._arrays`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import InputError, MapError
+
+__all__ = ["finite", "nonnegative", "positive", "triple", "vector3", "parse_number"]
+
+
+def finite(name: str, value, *, error: type[Exception] = InputError) -> float:
+    """A finite number.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, first in any message.
+    value : object
+        Anything ``float()`` accepts (a Python or NumPy number, a 0-d array,
+        a numeric string).
+    error : type of Exception, optional
+        Raised on a bad value (default ``InputError``).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    error
+        ``"<name>: expected a number, got <value>"`` or
+        ``"<name>: must be finite, got <value>"``.
+    """
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise error(f"{name}: expected a number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise error(f"{name}: must be finite, got {v}")
+    return v
+
+
+def nonnegative(name: str, value, *, error: type[Exception] = InputError) -> float:
+    """A finite number >= 0 (e.g. a standard uncertainty).
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, first in any message.
+    value : object
+        Anything ``float()`` accepts.
+    error : type of Exception, optional
+        Raised on a bad value (default ``InputError``).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    error
+        ``"<name>: expected a number, got <value>"`` or
+        ``"<name>: must be finite and >= 0, got <value>"``.
+    """
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise error(f"{name}: expected a number, got {value!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise error(f"{name}: must be finite and >= 0, got {v}")
+    return v
+
+
+def positive(name: str, value, *, error: type[Exception] = InputError) -> float:
+    """A finite number > 0 (e.g. a wavelength).
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, first in any message.
+    value : object
+        Anything ``float()`` accepts.
+    error : type of Exception, optional
+        Raised on a bad value (default ``InputError``).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    error
+        As :func:`nonnegative`, and ``"<name>: must be > 0, got 0"``.
+    """
+    v = nonnegative(name, value, error=error)
+    if v == 0:
+        raise error(f"{name}: must be > 0, got 0")
+    return v
+
+
+def _unit(unit: str | None) -> str:
+    return f" ({unit})" if unit else ""
+
+
+def triple(name: str, value, *, unit: str | None = None, nonnegative: bool = False,
+           error: type[Exception] = InputError) -> tuple[float, float, float]:
+    """Three finite numbers, as a tuple of floats.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, first in any message.
+    value : iterable
+        Three numbers.
+    unit : str, optional
+        Unit named in the messages, e.g. ``"mm"``.
+    nonnegative : bool, optional
+        Also require each value >= 0.
+    error : type of Exception, optional
+        Raised on a bad value (default ``InputError``).
+
+    Returns
+    -------
+    tuple of 3 float
+
+    Raises
+    ------
+    error
+        ``"<name>: expected three numbers (<unit>), got <value>"``,
+        ``"<name>: expected three finite numbers (<unit>), got <value>"`` or
+        ``"<name>: must be >= 0, got <value>"``.
+    """
+    try:
+        vals = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        raise error(f"{name}: expected three numbers{_unit(unit)}, got {value!r}") from None
+    if len(vals) != 3 or not all(math.isfinite(x) for x in vals):
+        raise error(f"{name}: expected three finite numbers{_unit(unit)}, got {value!r}")
+    if nonnegative and min(vals) < 0:
+        raise error(f"{name}: must be >= 0, got {value!r}")
+    return vals  # type: ignore[return-value]
+
+
+def vector3(name: str, value, *, unit: str | None = None, error: type[Exception] = InputError) -> np.ndarray:
+    """Three finite numbers, as a new float64 array of shape (3,).
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, first in any message.
+    value : array_like
+        Three numbers.
+    unit : str, optional
+        Unit named in the messages, e.g. ``"mm"``.
+    error : type of Exception, optional
+        Raised on a bad value (default ``InputError``).
+
+    Returns
+    -------
+    ndarray, shape (3,), float64
+        A copy: changing ``value`` afterwards does not change it.
+
+    Raises
+    ------
+    error
+        ``"<name>: expected three numbers (<unit>), got <value>"`` or
+        ``"<name>: expected three finite numbers (<unit>), got <value>"``.
+    """
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise error(f"{name}: expected three numbers{_unit(unit)}, got {value!r}") from None
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise error(f"{name}: expected three finite numbers{_unit(unit)}, got {value!r}")
+    return a
+
+
+def parse_number(text: str, where: str, what: str, *, error: type[Exception] = MapError) -> float:
+    """A finite number read from a text file.
+
+    Parameters
+    ----------
+    text : str
+        The field as read (surrounding white space is ignored).
+    where : str
+        ``"<file>:<line>"``, first in any message.
+    what : str
+        The field's name (a column, a header key).
+    error : type of Exception, optional
+        Raised on a bad field (default ``MapError``).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    error
+        ``"<where>: <what> '<text>' is not a number"`` or
+        ``"<where>: <what> is not finite (<text>)"``.
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        raise error(f"{where}: {what} {text.strip()!r} is not a number") from None
+    if not math.isfinite(value):
+        raise error(f"{where}: {what} is not finite ({text.strip()})")
+    return value

@@ -1,0 +1,81 @@
+"""The registry of error-map file formats (cmmpose.mapformats): the formats it
+lists, dispatch by name and by sniffing, errors naming an unknown format, and
+no import cycle between errormap, mapfiles and controller."""
+
+import ast
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import cmmpose
+from cmmpose import ErrorMap, mapformats
+
+PACKAGE = Path(cmmpose.__file__).parent
+THESIS_20C = cmmpose.data_path("maps", "thesis_20C.csv")
+APPENDIX_B = cmmpose.data_path("errors_1102.txt")
+
+
+def test_registry_lists_the_formats():
+    assert mapformats.names() == ["csv", "controller"]
+    assert mapformats.get("csv").write is not None
+    assert mapformats.get("controller").write is None  # read only
+    assert all(mapformats.get(n).description for n in mapformats.names())
+
+
+@pytest.mark.parametrize("name", ["xlsx", "CSV", ""])
+def test_unknown_format_name_is_named_in_the_error(tmp_path, name):
+    with pytest.raises(cmmpose.InputError, match=f"unknown map file format {name!r}.*'csv', 'controller'"):
+        ErrorMap.read(THESIS_20C, format=name)
+    with pytest.raises(cmmpose.InputError, match=f"unknown map file format {name!r}"):
+        ErrorMap.appendix_b().write(tmp_path / "m.csv", format=name)
+
+
+def test_read_only_format_cannot_be_written(tmp_path):
+    with pytest.raises(cmmpose.InputError, match="'controller' can be read but not written"):
+        ErrorMap.appendix_b().write(tmp_path / "m.txt", format="controller")
+
+
+def test_dispatch_by_name_and_by_sniffing(tmp_path):
+    assert mapformats.detect(THESIS_20C) == "csv"
+    assert mapformats.detect(APPENDIX_B) == "controller"
+    assert ErrorMap.read(THESIS_20C, format="auto") == ErrorMap.read(THESIS_20C)
+    assert ErrorMap.read(APPENDIX_B, format="controller", temperature=22.0) == ErrorMap.appendix_b()
+    assert ErrorMap.read(APPENDIX_B, format="auto", temperature=22.0) == ErrorMap.appendix_b()
+    other = tmp_path / "other.txt"
+    other.write_text("neither format\n", encoding="utf-8")
+    assert mapformats.detect(other) is None
+    assert mapformats.detect(tmp_path / "missing.csv") is None
+    with pytest.raises(cmmpose.MapError, match="not an error-map file of a known format"):
+        ErrorMap.read(other, format="auto")
+
+
+@pytest.mark.parametrize("module", ["cmmpose.controller", "cmmpose.mapfiles", "cmmpose.errormap", "cmmpose.mapformats"])
+def test_each_module_imports_alone(module):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(PACKAGE.parent), os.environ.get("PYTHONPATH", "")]))
+    code = f"import {module}; from cmmpose import mapformats; print(','.join(mapformats.names()))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "csv,controller"
+
+
+def imported_modules(name):
+    """Every cmmpose module that ``name`` imports, at module level or inside functions."""
+    tree = ast.parse((PACKAGE / f"{name}.py").read_text(encoding="utf-8"))
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 1:
+            if node.module:
+                found.add(node.module.split(".")[0])
+            else:
+                found.update(a.name for a in node.names)
+    return found
+
+
+def test_no_import_cycle_between_errormap_and_the_format_modules():
+    assert not imported_modules("errormap") & {"mapfiles", "controller"}
+    assert imported_modules("mapformats") == {"errors"}
+    for fmt in ("mapfiles", "controller"):
+        assert {"errormap", "mapformats"} <= imported_modules(fmt)
