@@ -1,6 +1,8 @@
 """Acquisition building blocks without ports: frame parser, SCPI replies,
 journal blocks and torn tails, clock fits."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -117,7 +119,21 @@ def test_clock_fit_lower_envelope():
 
 
 def test_scanner_over_a_socket_url(tmp_path):
-    """Any pyserial URL works: here socket://, a TCP server standing in for a serial-to-Ethernet adapter."""
+    """Any pyserial URL works: here socket://, a TCP server standing in for a
+    serial-to-Ethernet adapter. Run in a fresh interpreter: after the
+    end-to-end acquisition tests in the same process the socket reader saw no
+    bytes (a leftover of those tests, not yet found; noted in the README)."""
+    import subprocess
+    import sys
+
+    here = str(Path(__file__).parent)
+    code = f"import sys; sys.path.insert(0, {here!r}); import test_acquire_protocol as t; " \
+           f"t._socket_roundtrip(__import__('pathlib').Path({str(tmp_path)!r}))"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-3000:]
+
+
+def _socket_roundtrip(tmp_path):
     import socket
     import threading
     import time
@@ -128,12 +144,16 @@ def test_scanner_over_a_socket_url(tmp_path):
     srv = socket.create_server(("127.0.0.1", 0))
     port = srv.getsockname()[1]
 
+    done = threading.Event()
+
     def serve():
         conn, _ = srv.accept()
         with conn:
             for f in fs:
                 conn.sendall(b"\x00noise" + f)
-            time.sleep(1.0)
+            # Hold the line open until the recorder has read everything: a
+            # fixed wait made the test depend on how busy the machine was.
+            done.wait(30.0)
 
     th = threading.Thread(target=serve, daemon=True)
     th.start()
@@ -142,6 +162,7 @@ def test_scanner_over_a_socket_url(tmp_path):
     while rec.stats.scanner.records < len(fs) and time.monotonic() < end:
         time.sleep(0.02)
     run = rec.finish()
+    done.set()
     srv.close()
     assert [f for _, f in read_journal(tmp_path / "run" / "journal.cmmj").scanner] == fs
     assert run.n_points == 3000 and run.metadata["acquisition"]["scanner"]["rejected"] == {"garbage": 30}

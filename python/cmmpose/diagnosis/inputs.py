@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._core import euler313
 from ..effects import channel_roles
 from ..errors import InputError
 from ..run import Run
@@ -186,8 +187,6 @@ def incidence_angles(xyz, labels, centres: dict, inputs: RunInputs) -> np.ndarra
     inputs : RunInputs
         For each point's pose.
     """
-    from .._core import euler313
-
     keys = np.array(sorted(centres))
     c = np.array([centres[k] for k in keys]).reshape(-1, 3)
     idx = np.searchsorted(keys, labels)

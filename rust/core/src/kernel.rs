@@ -101,7 +101,7 @@ impl PointError {
     /// carriages' interpolated components (mm, rad) and squareness (rad).
     ///
     /// X_p is the right-handed form (1, tan eZ, tan eX tan eZ - tan eY)/norm,
-    /// not the printed eq. 30 (SPEC.md section 8, docs/conventions.md).
+    /// not the printed eq. 30 (docs/conventions.md, Sign of eps_Z in X_p).
     #[inline(always)]
     pub fn new(s: [f64; 3], c: &[Components; 3], sq: [f64; 3]) -> Self {
         let [cx, cy, cz] = c;

@@ -1,4 +1,4 @@
-//! Least-squares fits of the evaluation artefacts (SPEC.md section 7).
+//! Least-squares fits of the evaluation artefacts (docs/conventions.md, Evaluation).
 //!
 //! - [`fit_sphere`] / [`fit_spheres`]: orthogonal (geometric) least squares,
 //!   Levenberg-Marquardt from an algebraic start ([`sphere`]).

@@ -1623,7 +1623,7 @@ mod tests {
 
     #[test]
     fn fit_sphere_thesis_appendix_a_spheroids() {
-        // Thesis Appendix A (SPEC.md section 7): caps about the pole of an
+        // Thesis Appendix A (docs/conventions.md, Spheroid fits of Appendix A): caps about the pole of an
         // oblate (38.125 / 38.1225 mm) and a prolate (38.125 / 38.1275 mm)
         // spheroid. The thesis (NIST ATS fit) reports centre z -0.005,
         // -0.004, -0.003 mm (oblate) and +0.005 .. +0.003 (prolate) for 5, 60
