@@ -254,7 +254,7 @@ def test_nan_policy_propagate_in_other_functions(map20):
         assert np.isfinite(np.delete(out, [5001, 9000], axis=0)).all()
 
 
-@pytest.mark.parametrize(("option", "value"), [("out_of_range", "extrapolate"), ("nan_policy", "omit"),
+@pytest.mark.parametrize(("option", "value"), [("out_of_range", "extend"), ("nan_policy", "omit"),
                                                ("out_of_range", "Raise"), ("nan_policy", "")])
 def test_bad_option_strings(thesis, map20, option, value):
     uv, scales = points(4)
@@ -381,13 +381,15 @@ def test_per_point_temperatures_of_wrong_length(thesis, n_temps):
 def test_per_point_temperature_outside_the_set_names_the_row(thesis):
     uv, scales = points(N_BIG)
     temps = temperatures(N_BIG)
-    temps[7000] = 30.5
+    # Beyond the default 0.5 K tolerance (closer is held at the edge: cmmpose.policy).
+    temps[7000] = 30.8
     temps[9001] = 19.0
     msg = message(cmmpose.OutOfRangeError, cmmpose.compensate, uv, scales, thesis, POSE, OFFSET, temperature=temps)
-    assert has_row(msg, 7000) and not has_row(msg, 9001) and "30.5" in msg and "[20, 30]" in msg
+    assert has_row(msg, 7000) and not has_row(msg, 9001) and "30.8" in msg and "[20, 30]" in msg
+    assert "0.800 K outside" in msg and "0.5 K tolerance" in msg and "'extrapolate' extends the maps" in msg
 
 
-@pytest.mark.parametrize("t", [19.75, 30.5])
+@pytest.mark.parametrize("t", [19.25, 30.8])
 def test_scalar_temperature_outside_the_set_names_the_value(thesis, t):
     uv, scales = points(5)
     msg = message(cmmpose.OutOfRangeError, cmmpose.compensate, uv, scales, thesis, POSE, OFFSET, temperature=t)

@@ -18,10 +18,13 @@ class Report(TypedDict):
     clamped_position: tuple[int, int, int]
     clamped_temperature: int
     clamped_points: int
+    held_temperature: int
+    extrapolated_temperature: int
+    max_extrapolation: float
     nan_rows: int
 
 _F64_2D = npt.NDArray[np.float64]
-_OutOfRange = Literal["raise", "clamp"]
+_OutOfRange = Literal["raise", "clamp", "extrapolate"]
 _NanPolicy = Literal["raise", "propagate"]
 
 @final
@@ -57,7 +60,7 @@ class ErrorMapSet:
     def temperatures(self) -> list[float]: ...
     @property
     def maps(self) -> list[ErrorMap]: ...
-    def at(self, temperature: float, out_of_range: _OutOfRange = "raise") -> ErrorMap: ...
+    def at(self, temperature: float, out_of_range: _OutOfRange = "raise", temperature_tolerance: float = 0.0) -> ErrorMap: ...
 
 @final
 class Digitizer:
@@ -99,6 +102,7 @@ def compensate(
     temperature: float | npt.NDArray[np.float64] | None = None,
     out_of_range: _OutOfRange = "raise",
     nan_policy: _NanPolicy = "raise",
+    temperature_tolerance: float = 0.0,
 ) -> tuple[_F64_2D, Report]: ...
 def uncompensated(
     uv: _F64_2D,
@@ -117,6 +121,7 @@ def compensate_model(
     effects: _Effects | None = None,
     out_of_range: _OutOfRange = "raise",
     nan_policy: _NanPolicy = "raise",
+    temperature_tolerance: float = 0.0,
 ) -> tuple[_F64_2D, Report]: ...
 def effect_terms() -> list[EffectTerm]: ...
 def euler313(alpha: float, beta: float, gamma: float) -> _F64_2D: ...

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import click
@@ -12,10 +13,12 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from . import effects as effects_registry
-from .compensation import compensate
+from .compensation import compensate, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import Error
+from .errors import Error, MapTemperatureWarning
+from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
 from .pointfiles import read_points, write_points
+from .metrics import STEEL_EXPANSION
 from .report import KernelReport
 
 console = Console(stderr=True)
@@ -52,6 +55,31 @@ def triple(text: str, name: str) -> tuple[float, float, float]:
     return vals  # type: ignore[return-value]
 
 
+def fail(exc: Exception) -> click.ClickException:
+    """A library error as the CLI reports it: the Python argument names in
+    the message replaced by this interface's flags."""
+    return click.ClickException(cli_wording(str(exc)))
+
+
+def policy_options(log_hold: bool = True):
+    """The temperature policy's flags, the same on every command (cmmpose.policy)."""
+
+    def wrap(f):
+        if log_hold:
+            f = click.option("--log-hold", type=float, default=LOG_HOLD, show_default=True,
+                             help="s: points this far outside the thermocouple log take its nearest reading "
+                                  "(a recovered run); farther is an error.")(f)
+        f = click.option("--temperature-tolerance", type=float, default=TEMPERATURE_TOLERANCE, show_default=True,
+                         help="K: temperatures this close outside the maps are held at the edge and counted.")(f)
+        f = click.option("--out-of-range", type=click.Choice(list(OUT_OF_RANGE)), default="raise",
+                         show_default=True,
+                         help="Beyond the tolerance: stop, clamp to the maps' ends, or extrapolate the maps "
+                              "linearly in temperature (the largest distance is printed).")(f)
+        return f
+
+    return wrap
+
+
 @click.group()
 @click.version_option(package_name="cmmpose")
 def main() -> None:
@@ -67,9 +95,10 @@ def main() -> None:
               help="Machine temperature in C for every point (default: the T column, if the file has one).")
 @click.option("--pose", default="90,90,0", show_default=True, help="alpha,beta,gamma in degrees (Euler 3-1-3).")
 @click.option("--offset", default="1.001,264.505,129.575", show_default=True, help="U1,V1,W1 mount offset in mm.")
-@click.option("--out-of-range", type=click.Choice(["raise", "clamp"]), default="raise", show_default=True)
+@policy_options(log_hold=False)
 @click.option("--nan-policy", type=click.Choice(["raise", "propagate"]), default="raise", show_default=True)
-def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_of_range, nan_policy) -> None:
+def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_of_range, temperature_tolerance,
+                   nan_policy) -> None:
     """Compensate scanner points IN (CSV or NPY: u, v, D, E, F[, T]) into machine
     coordinates OUT (CSV or NPY: X, Y, Z in mm)."""
     pose_t = triple(pose, "--pose")
@@ -83,9 +112,18 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
             t_all = temperature if temperature is not None else temps
         else:
             t_all = None
+            given = temperature if temperature is not None else temps
+            if given is not None:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", MapTemperatureWarning)
+                    note = warn_single_map(error_map, given, temperature_tolerance)
+                if note:
+                    console.print(f"[yellow]warning:[/] {note}")
         n = len(uv)
         out = np.empty((n, 3))
         totals = np.zeros(5, dtype=np.int64)
+        held = extrapolated = 0
+        max_extrapolation = 0.0
         start = time.perf_counter()
         with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,} points"),
                       TimeRemainingColumn(), console=console, disable=n <= CHUNK) as bar:
@@ -94,14 +132,18 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
                 hi = min(lo + CHUNK, n)
                 t = t_all if t_all is None or np.isscalar(t_all) else t_all[lo:hi]
                 xyz, rep = compensate(uv[lo:hi], scales[lo:hi], error_map, pose_t, offset_t, t,
-                                      out_of_range=out_of_range, nan_policy=nan_policy, return_report=True)
+                                      out_of_range=out_of_range, nan_policy=nan_policy,
+                                      temperature_tolerance=temperature_tolerance, return_report=True)
                 out[lo:hi] = xyz
                 totals += [rep.points, *rep.clamped_position, rep.clamped_temperature]
+                held += rep.held_temperature
+                extrapolated += rep.extrapolated_temperature
+                max_extrapolation = max(max_extrapolation, rep.max_extrapolation)
                 bar.advance(task, hi - lo)
         elapsed = time.perf_counter() - start
         write_points(points_out, out)
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
     table.add_row("points", f"{n:,}")
     table.add_row("maps", repr(error_map))
@@ -112,6 +154,10 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
     report = KernelReport(int(totals[0]), tuple(int(x) for x in totals[1:4]), int(totals[4]), 0)
     if report.clamped:
         table.add_row("clamped", f"X {totals[1]}, Y {totals[2]}, Z {totals[3]}, temperature {totals[4]}")
+    if held:
+        table.add_row("held at the maps' edge", f"{held:,} temperatures within {temperature_tolerance:g} K outside")
+    if extrapolated:
+        table.add_row("extrapolated", f"{extrapolated:,} temperatures, up to {max_extrapolation:.2f} K beyond the maps")
     table.add_row("kernel time", f"{elapsed * 1e3:.1f} ms ({n / max(elapsed, 1e-9) / 1e6:.1f} M points/s)")
     Console().print(table)
 
@@ -161,7 +207,7 @@ def simulate_cmd(layout, temperature, maps, effects, speed, bidirectional, seed,
         elapsed = time.perf_counter() - start
         run.save(run_dir, truth=truth, overwrite=overwrite)
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     table = Table(title=f"cmmpose simulate -> {run_dir}", show_header=False)
     table.add_row("layout", f"{layout} ({len(run.scans['scan_id'])} sweeps)")
     table.add_row("points", f"{run.n_points:,} ({run.n_points / len(run.scans['scan_id']):,.0f} per sphere)")
@@ -209,11 +255,14 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
 @click.option("--maps", "maps", multiple=True, help="Compensation maps ('thesis', files, or 'none'); default: as run.json says.")
 @click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
-@click.option("--out-of-range", type=click.Choice(["raise", "clamp"]), default="raise", show_default=True)
+@policy_options()
+@click.option("--expansion", type=float, default=STEEL_EXPANSION * 1e6, show_default=True,
+              help="Artefact expansion coefficient for lengths at 20 C, ppm/K.")
 @click.option("--reject", type=float, default=None, help="Robust sphere fits: reject beyond this many robust sigmas.")
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None, help="Write JSON, CSV and plots here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
-def evaluate_cmd(run_dir, maps, temperature, out_of_range, reject, report_dir, as_json) -> None:
+def evaluate_cmd(run_dir, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion, reject,
+                 report_dir, as_json) -> None:
     """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated."""
     from .evaluation import evaluate
     from .run import Run
@@ -221,10 +270,15 @@ def evaluate_cmd(run_dir, maps, temperature, out_of_range, reject, report_dir, a
     try:
         run = Run.load(run_dir)
         model = _maps_for_run(run, maps)
-        ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MapTemperatureWarning)
+            ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
+                          temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion=expansion * 1e-6)
+        for w in caught:
+            console.print(f"[yellow]warning:[/] {w.message}")
         files = write_report(ev, Path(report_dir), model) if report_dir else []
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     if as_json:
         click.echo(ev.to_json(indent=2))
     else:
@@ -239,15 +293,15 @@ def evaluate_cmd(run_dir, maps, temperature, out_of_range, reject, report_dir, a
 @click.option("--model", "model_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Start from a model saved by an earlier diagnosis (its maps and effects).")
 @click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
-@click.option("--out-of-range", type=click.Choice(["raise", "clamp"]), default="raise", show_default=True,
-              help="Readings or temperatures outside the maps: fail, or clamp to the maps' ends.")
+@policy_options()
 @click.option("--add", "add", multiple=True, help="Add this effect first, whether significant or not (repeatable).")
 @click.option("--no-auto", is_flag=True, help="Only rank the candidates (and add --add ones); add nothing automatically.")
 @click.option("--max-effects", type=int, default=4, show_default=True, help="Most effects added automatically.")
 @click.option("--report", "report_file", type=click.Path(dir_okay=False), default=None, help="Write a self-contained HTML report here.")
 @click.option("--save-model", "model_out", type=click.Path(dir_okay=False), default=None, help="Write the final model (JSON) here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
-def diagnose_cmd(run_dir, maps, model_file, temperature, out_of_range, add, no_auto, max_effects, report_file, model_out, as_json) -> None:
+def diagnose_cmd(run_dir, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold, add, no_auto,
+                 max_effects, report_file, model_out, as_json) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall."""
     from .diagnosis import Model, diagnose
     from .run import Run
@@ -260,7 +314,8 @@ def diagnose_cmd(run_dir, maps, model_file, temperature, out_of_range, add, no_a
             maps_ = _maps_for_run(run, maps)
             if maps_ is None:
                 raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
-            model = Model(maps_, temperature=temperature, out_of_range=out_of_range)
+            model = Model(maps_, temperature=temperature, out_of_range=out_of_range,
+                          temperature_tolerance=temperature_tolerance, log_hold=log_hold)
         with console.status("diagnosing ..."):
             diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects)
         files = []
@@ -269,7 +324,7 @@ def diagnose_cmd(run_dir, maps, model_file, temperature, out_of_range, add, no_a
         if model_out:
             files.append(diag.model.save(model_out))
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     if as_json:
         click.echo(diag.to_json(indent=1))
     else:
@@ -302,7 +357,7 @@ def demo_cmd(temperature, seed, report_dir) -> None:
         ev = evaluate(run, maps, temperature)
         files = write_report(ev, report, maps)
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     Console().print(ev)
     console.print(f"{run.n_points:,} points, 40 spheres, {time.perf_counter() - start:.1f} s; "
                   f"thesis (Table 19, 20 C): 73.2 um uncompensated, 12.8 um compensated")
@@ -347,7 +402,7 @@ def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, tc_type,
                               thermo_interval=thermo_interval, flush_interval=flush_interval,
                               scanner_baudrate=scanner_baud, thermo_baudrate=thermo_baud, overwrite=overwrite)
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     Console().print(summary_table(run, run_dir))
 
 
@@ -362,7 +417,7 @@ def plot_map_cmd(maps, out) -> None:
     try:
         plot_error_map(load_maps(tuple(maps)), out)
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     console.print(f"wrote {out}")
 
 
@@ -441,7 +496,7 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
                                  reading_uncertainty=reading_u, temperature=temperature, residuals=residuals)
         AlignmentLibrary(library_file).save(name, record)
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     table = Table(title=f"alignment {name!r} -> {library_file}", show_header=False)
     table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in pose))
     table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in pose_u))
@@ -472,7 +527,7 @@ def calibrate_offset_cmd(names, library_file, tolerance) -> None:
                                                           pose_covariance=pose_cov))
         fit = mount_offset(readings, tolerance=tolerance)
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     table = Table(title=f"mount offset from {', '.join(names)}")
     table.add_column("")
     table.add_column("U1 / x", justify="right")
@@ -516,7 +571,7 @@ def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out
                 plot_map_difference(built.map, other, plot_path)
                 console.print(f"wrote {plot_path}")
     except Error as exc:
-        raise click.ClickException(str(exc)) from None
+        raise fail(exc) from None
     for note in built.notes:
         console.print(f"note: {note}")
     console.print(f"wrote {out}: {built.map!r}")

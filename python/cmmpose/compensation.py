@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from . import _core
 from ._arrays import as_rows, as_triple, as_vector
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import InputError, warn_clamped
+from .errors import InputError, MapTemperatureWarning, warn_clamped
+from .policy import TEMPERATURE_TOLERANCE, check_policy
 from .pose import digitizer
 from .report import KernelReport
 
@@ -22,6 +25,7 @@ def compensate(
     *,
     out_of_range: str = "raise",
     nan_policy: str = "raise",
+    temperature_tolerance: float = TEMPERATURE_TOLERANCE,
     return_report: bool = False,
 ):
     """Compensated machine coordinates of scanner points.
@@ -44,13 +48,19 @@ def compensate(
         Machine temperature in degrees C, one for all points or one per point;
         only with an ErrorMapSet. The set is blended once per temperature
         interval, never per point.
-    out_of_range : {'raise', 'clamp'}
-        A scale reading outside a table or a temperature outside the set raises
-        ``OutOfRangeError`` naming the first such row, or is clamped to the end
-        value with a ``ClampWarning`` giving the counts.
+    out_of_range : {'raise', 'clamp', 'extrapolate'}
+        A scale reading outside a table or a temperature farther than
+        ``temperature_tolerance`` outside the set raises ``OutOfRangeError``
+        naming the first such row; or is clamped to the end value with a
+        ``ClampWarning`` giving the counts; or (temperatures) the maps are
+        extended linearly, with an ``ExtrapolationWarning`` giving the
+        largest distance (docs/conventions.md).
     nan_policy : {'raise', 'propagate'}
         NaN or inf in a row raises ``InputError`` naming the first such row, or
         gives a NaN output row.
+    temperature_tolerance : float
+        K: temperatures this close outside the set's range are held at the
+        edge and counted in the report (thermocouple noise at 20 C).
     return_report : bool
         Also return a ``KernelReport`` with the clamp and NaN counts.
 
@@ -76,6 +86,7 @@ def compensate(
             temperature = float(temperature)
         except (TypeError, ValueError):
             raise InputError(f"temperature: expected a number or an (N,) array, got {temperature!r}") from None
+    check_policy(out_of_range, temperature_tolerance)
     xyz, report = _core.compensate(
         uv,
         scales,
@@ -84,6 +95,7 @@ def compensate(
         temperature,
         out_of_range,
         nan_policy,
+        float(temperature_tolerance),
     )
     report = KernelReport(**report)
     warn_clamped(report)
@@ -113,3 +125,24 @@ def uncompensated(uv, scales, pose, offset, *, nan_policy: str = "raise") -> np.
     """
     xyz, _ = _core.uncompensated(as_rows("uv", uv, 2), as_rows("scales", scales, 3), digitizer(pose, offset), nan_policy)
     return xyz
+
+
+def warn_single_map(error_map: ErrorMap, temperature, tolerance: float = TEMPERATURE_TOLERANCE) -> str | None:
+    """One map holds at one temperature: say so (a ``MapTemperatureWarning``,
+    whose text is also returned) when the given temperatures (C) are not its
+    own within ``tolerance`` (K), instead of ignoring them silently."""
+    t = np.asarray(temperature, dtype=float)
+    if t.size == 0 or not np.all(np.isfinite(t)):
+        return None
+    lo, hi = float(t.min()), float(t.max())
+    span = f"{lo:.2f} C" if hi - lo < 0.005 else f"{lo:.2f}..{hi:.2f} C"
+    own = error_map.temperature
+    if own is None:
+        msg = f"a single map of unstated temperature was used for points at {span}: its errors are taken as they are"
+    elif max(abs(lo - own), abs(hi - own)) > tolerance:
+        msg = (f"a single map at {own:g} C was used for points at {span}: its errors are taken at {own:g} C "
+               f"(give maps at several temperatures to follow the machine)")
+    else:
+        return None
+    warnings.warn(msg, MapTemperatureWarning, stacklevel=3)
+    return msg

@@ -14,6 +14,7 @@ import numpy as np
 
 from . import _core, mapformats
 from ._arrays import as_rows, as_triple
+from .policy import TEMPERATURE_TOLERANCE, check_policy
 from .errors import InputError, warn_clamped
 from .report import KernelReport
 
@@ -211,13 +212,18 @@ class ErrorMapSet:
         """The maps, sorted by temperature."""
         return [ErrorMap._wrap(m, s) for m, s in zip(self._core.maps, self._sources)]
 
-    def at(self, temperature: float, *, out_of_range: str = "raise") -> ErrorMap:
+    def at(self, temperature: float, *, out_of_range: str = "raise",
+           temperature_tolerance: float = TEMPERATURE_TOLERANCE) -> ErrorMap:
         """The map at ``temperature`` (C), linear between the two closest maps.
 
-        Outside the set's range: ``OutOfRangeError``, or the end map with
-        ``out_of_range='clamp'``.
+        Within ``temperature_tolerance`` (K) outside the set's range: the end
+        map. Beyond it: ``OutOfRangeError``, the end map with
+        ``out_of_range='clamp'``, or the end maps' slope carried on with
+        ``'extrapolate'`` (cmmpose.policy).
         """
-        return ErrorMap._wrap(self._core.at(float(temperature), out_of_range), source=f"blend at {temperature:g} C")
+        check_policy(out_of_range, temperature_tolerance)
+        return ErrorMap._wrap(self._core.at(float(temperature), out_of_range, float(temperature_tolerance)),
+                              source=f"blend at {temperature:g} C")
 
     def __len__(self) -> int:
         return len(self.temperatures)

@@ -11,11 +11,14 @@ them; every message names the file, line, row or argument at fault.
 - ``AcquisitionError``: serial acquisition: a port, journal or run directory at fault.
 """
 
+import logging
 import warnings
 
 from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "ClampWarning", "warn_clamped", "read_lines"]
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "ClampWarning", "ExtrapolationWarning", "MapTemperatureWarning", "warn_clamped", "read_lines"]
+
+_log = logging.getLogger("cmmpose")
 
 
 class RunError(Error):
@@ -35,8 +38,25 @@ class ClampWarning(UserWarning):
     """Points were clamped into the maps because ``out_of_range='clamp'``."""
 
 
+class ExtrapolationWarning(UserWarning):
+    """Temperatures beyond the maps were extrapolated (``out_of_range='extrapolate'``)."""
+
+
+class MapTemperatureWarning(UserWarning):
+    """A single map was used at temperatures other than its own."""
+
+
 def warn_clamped(report) -> None:
-    """Warn once per call when a report says anything was clamped."""
+    """Warn once per call when a report says anything was clamped or
+    extrapolated; log the points held at the edge within the tolerance."""
+    held = getattr(report, "held_temperature", 0)
+    if held:
+        _log.info("%d of %d temperatures within the tolerance outside the maps were held at the edge",
+                  held, report.points)
+    ext = getattr(report, "extrapolated_temperature", 0)
+    if ext:
+        warnings.warn(f"{ext} of {report.points} temperatures extrapolated beyond the maps, up to "
+                      f"{report.max_extrapolation:.2f} K", ExtrapolationWarning, stacklevel=3)
     x, y, z = report.clamped_position
     if x or y or z or report.clamped_temperature:
         warnings.warn(

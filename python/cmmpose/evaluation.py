@@ -5,15 +5,18 @@ uncompensated and compensated."""
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 
 import numpy as np
 
-from .compensation import compensate, uncompensated
+from .compensation import compensate, uncompensated, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import InputError
+from .errors import InputError, MapTemperatureWarning
 from .fitting import fit_spheres
 from .metrics import STEEL_EXPANSION, b89_value, improvement, length_at_20c, rms_accuracy_error
+from .policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy, python_log_hint
 from .run import Run
 
 @dataclass(frozen=True)
@@ -110,10 +113,13 @@ class BallbarResult:
 
 @dataclass(frozen=True)
 class Evaluation:
-    """Uncompensated and (optionally) compensated ballbar results of one run."""
+    """Uncompensated and (optionally) compensated ballbar results of one run,
+    with ``provenance``: what produced them (maps, temperatures and how they
+    were chosen, poses, expansion coefficient, policy, version, date)."""
 
     uncompensated: BallbarResult
     compensated: BallbarResult | None = None
+    provenance: dict = field(default_factory=dict, compare=False)
 
     @property
     def results(self) -> tuple[BallbarResult, ...]:
@@ -131,10 +137,14 @@ class Evaluation:
         return None if c is None else improvement(self.uncompensated.b89, c.b89)
 
     def to_dict(self) -> dict:
+        """Results rounded to what they mean (docs/formats.md): lengths and
+        centres to 0.01 um, deviations and figures to 0.001 um, temperatures
+        to 0.001 C, ratios to 1e-4; plus the provenance."""
         return {
-            "results": [{**r.summary(), "rows": r.rows()} for r in self.results],
-            "improvement_rms": self.improvement_rms,
-            "improvement_b89": self.improvement_b89,
+            "results": [_rounded({**r.summary(), "rows": r.rows()}) for r in self.results],
+            "improvement_rms": _round(self.improvement_rms, 4),
+            "improvement_b89": _round(self.improvement_b89, 4),
+            "provenance": self.provenance,
         }
 
     def to_json(self, **kw) -> str:
@@ -169,8 +179,12 @@ class Evaluation:
             for r in self.results:
                 cells += [fmt.format(get(r)), ""]
             t.add_row(*cells)
+        caption = [f"lengths at 20 C with expansion {self.uncompensated.expansion * 1e6:g} ppm/K"]
         if self.compensated is not None:
-            t.caption = f"improvement: rms {self.improvement_rms:.1%}, B89 {self.improvement_b89:.1%}"
+            caption.insert(0, f"improvement: rms {self.improvement_rms:.1%}, B89 {self.improvement_b89:.1%}")
+        for note in self.provenance.get("notes", []):
+            caption.append(note)
+        t.caption = "\n".join(caption)
         return t
 
     def __str__(self) -> str:
@@ -181,21 +195,26 @@ class Evaluation:
         return console.export_text()
 
 
-def machine_temperature(run: Run, t) -> np.ndarray:
+def machine_temperature(run: Run, t, log_hold: float = LOG_HOLD) -> np.ndarray:
     """Machine mean temperature (C) at times ``t`` (s): the mean of the clean
     axis-scale thermocouples (thesis section 6.4), interpolated in time; stuck,
     open-circuit and implausible channels are left out
-    (``cmmpose.calibration.temperatures_at``)."""
+    (``cmmpose.calibration.temperatures_at``). Points up to ``log_hold`` s
+    outside the log take its nearest reading (cmmpose.policy)."""
     from .calibration.thermal import temperatures_at
 
     if run.temperatures is None:
         raise InputError("run has no temperature log: pass temperature= explicitly")
-    temps, _ = temperatures_at(t, run.temperatures, run.temperature_channels, policy="machine_mean")
+    check_log_coverage(run, t, log_hold)
+    temps, _ = temperatures_at(t, run.temperatures, run.temperature_channels, policy="machine_mean",
+                               out_of_range="hold")
     return temps
 
 
-def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise") -> np.ndarray:
-    """All points in machine coordinates, compensated with ``maps`` or not (None)."""
+def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise",
+                         temperature_tolerance: float = TEMPERATURE_TOLERANCE, reports: list | None = None) -> np.ndarray:
+    """All points in machine coordinates, compensated with ``maps`` or not
+    (None); the kernel reports are appended to ``reports``."""
     scan_pose = dict(zip(run.scans["scan_id"].tolist(), run.scans["pose_id"].tolist()))
     sid = run.points["scan_id"]
     pose_of_point = np.vectorize(scan_pose.__getitem__, otypes=[np.int64])(sid) if len(sid) else sid
@@ -207,7 +226,10 @@ def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise
             out[rows] = uncompensated(run.uv[rows], run.scales[rows], pose, offset)
         else:
             t = temperature if np.ndim(temperature) == 0 else temperature[rows]
-            out[rows] = compensate(run.uv[rows], run.scales[rows], maps, pose, offset, t, out_of_range=out_of_range)
+            out[rows], rep = compensate(run.uv[rows], run.scales[rows], maps, pose, offset, t, out_of_range=out_of_range,
+                                        temperature_tolerance=temperature_tolerance, return_report=True)
+            if reports is not None:
+                reports.append(rep)
     return out
 
 
@@ -245,6 +267,8 @@ def evaluate(
     reject: float | None = None,
     expansion: float = STEEL_EXPANSION,
     out_of_range: str = "raise",
+    temperature_tolerance: float = TEMPERATURE_TOLERANCE,
+    log_hold: float = LOG_HOLD,
 ) -> Evaluation:
     """Ballbar evaluation of ``run``: uncompensated, and compensated with ``maps``.
 
@@ -263,10 +287,18 @@ def evaluate(
     reject : float, optional
         Robust sphere fits (see ``fit_sphere``), e.g. 3.5 to drop bar points.
     expansion : float
-        Part expansion coefficient for lengths at 20 C, 1/K (steel 12e-6).
-    out_of_range : {'raise', 'clamp'}
-        Readings or temperatures outside the maps (a log at 19.99 C against maps
-        from 20 C, say) raise, or are clamped with a warning.
+        Part expansion coefficient for lengths at 20 C, 1/K (steel 12e-6);
+        printed with the results and kept in the provenance.
+    out_of_range : {'raise', 'clamp', 'extrapolate'}
+        Temperatures farther than ``temperature_tolerance`` outside the maps
+        (and readings outside them) raise, are clamped with a warning, or
+        (temperatures) are extrapolated linearly (cmmpose.policy).
+    temperature_tolerance : float
+        K: temperatures this close outside the maps are held at the edge
+        (a log at 19.99 C against maps from 20 C) and counted.
+    log_hold : float
+        s: points this far outside the thermocouple log (a recovered run)
+        take its nearest reading; farther raise.
 
     Returns
     -------
@@ -274,18 +306,130 @@ def evaluate(
     """
     if not isinstance(run, Run):
         raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+    check_policy(out_of_range, temperature_tolerance, log_hold)
+    if not (isinstance(expansion, (int, float)) and np.isfinite(expansion)):
+        raise InputError(f"expansion: expected a finite coefficient in 1/K, got {expansion!r}")
     if nominal_radius is None:
         nominal_radius = run.artefact.get("ball_radius_mm")
     temps = None
     if temperature is not None:
         temps = np.full(run.n_points, float(temperature))
     elif run.temperatures is not None:
-        temps = machine_temperature(run, run.points["t"])
+        temps = machine_temperature(run, run.points["t"], log_hold)
+    prov = _provenance(run, maps, temperature, temps, expansion, out_of_range, temperature_tolerance, log_hold)
     raw = _ballbar(run, _machine_coordinates(run, None, None), "uncompensated", temps, nominal_radius, reject, expansion)
     if maps is None:
-        return Evaluation(raw)
+        return Evaluation(raw, provenance=prov)
     if temps is None and isinstance(maps, ErrorMapSet):
         raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
-    model_t = None if isinstance(maps, ErrorMap) else (temperature if temperature is not None else temps)
-    comp = _ballbar(run, _machine_coordinates(run, maps, model_t, out_of_range), "compensated", temps, nominal_radius, reject, expansion)
-    return Evaluation(raw, comp)
+    if isinstance(maps, ErrorMap):
+        model_t = None
+        if temps is not None:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", MapTemperatureWarning)
+                note = warn_single_map(maps, temps, temperature_tolerance)
+            if note:
+                warnings.warn(note, MapTemperatureWarning, stacklevel=2)
+                prov["notes"].append(note)
+    else:
+        model_t = temperature if temperature is not None else temps
+    reports: list = []
+    xyz = _machine_coordinates(run, maps, model_t, out_of_range, temperature_tolerance, reports)
+    comp = _ballbar(run, xyz, "compensated", temps, nominal_radius, reject, expansion)
+    held = sum(r.held_temperature for r in reports)
+    clamped = sum(r.clamped_points for r in reports)
+    extrapolated = sum(r.extrapolated_temperature for r in reports)
+    prov["points_held_at_maps_edge"] = int(held)
+    prov["points_clamped"] = int(clamped)
+    prov["points_extrapolated"] = int(extrapolated)
+    if extrapolated:
+        prov["max_extrapolation_K"] = round(max(r.max_extrapolation for r in reports), 3)
+    if held:
+        prov["notes"].append(f"{held} points within {temperature_tolerance:g} K outside the maps' temperatures "
+                             f"were held at the edge")
+    if clamped:
+        prov["notes"].append(f"{clamped} points were clamped into the maps")
+    if extrapolated:
+        prov["notes"].append(f"{extrapolated} temperatures extrapolated beyond the maps, up to "
+                             f"{prov['max_extrapolation_K']:g} K")
+    return Evaluation(raw, comp, provenance=prov)
+
+
+def check_log_coverage(run: Run, t, log_hold: float) -> None:
+    """Raise ``InputError`` if a point lies more than ``log_hold`` s outside
+    the run's thermocouple log, naming the first such row and time."""
+    lt = np.asarray(run.temperatures["t"], dtype=float)
+    t = np.asarray(t, dtype=float)
+    if not len(lt) or not len(t):
+        return
+    far = (t < lt[0] - log_hold) | (t > lt[-1] + log_hold)
+    if np.any(far):
+        i = int(np.argmax(far))
+        gap = lt[0] - t[i] if t[i] < lt[0] else t[i] - lt[-1]
+        raise InputError(f"point row {i}: t = {t[i]:g} s is {gap:.1f} s outside the temperature log "
+                         f"({lt[0]:g}..{lt[-1]:g} s), more than the {log_hold:g} s held at its ends "
+                         f"({python_log_hint()}, or give the temperature)")
+
+
+def _provenance(run: Run, maps, temperature, temps, expansion, out_of_range, tolerance, log_hold) -> dict:
+    """What produced an evaluation, for its JSON."""
+    from . import __version__
+
+    if maps is None:
+        m = {"kind": "none"}
+    elif isinstance(maps, ErrorMapSet):
+        m = {"kind": "set", "temperatures_C": [float(x) for x in maps.temperatures]}
+    else:
+        m = {"kind": "map", "temperature_C": maps.temperature}
+    if run.maps:
+        m["run_says"] = run.maps
+    if temperature is not None:
+        source = "given for every point"
+    elif temps is not None:
+        source = "run thermocouple log: machine mean of the axis-scale channels at each point's time (thesis 6.4)"
+    else:
+        source = "none (no log)"
+    t = {"source": source}
+    if temps is not None and len(temps):
+        t |= {"min_C": round(float(np.min(temps)), 3), "max_C": round(float(np.max(temps)), 3),
+              "mean_C": round(float(np.mean(temps)), 3)}
+    poses = []
+    for p in run.poses["pose_id"].tolist():
+        pose, offset = run.pose(int(p))
+        poses.append({"pose_id": int(p), "alpha_beta_gamma_deg": [round(float(x), 6) for x in pose],
+                      "offset_mm": [round(float(x), 6) for x in offset]})
+    return {
+        "cmmpose_version": __version__,
+        "date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "run": {"points": int(run.n_points), "scans": int(len(run.scans["scan_id"])),
+                "metadata": {k: v for k, v in run.metadata.items() if isinstance(v, (str, int, float, bool))}},
+        "maps": m,
+        "temperature": t,
+        "policy": {"out_of_range": out_of_range, "temperature_tolerance_K": tolerance, "log_hold_s": log_hold},
+        "expansion_ppm_per_K": round(expansion * 1e6, 6),
+        "poses": poses,
+        "notes": [],
+    }
+
+
+def _round(x, digits: int):
+    if x is None or not isinstance(x, float) or not np.isfinite(x):
+        return x
+    return round(x, digits)
+
+
+#: Decimals by key suffix: mm to 0.01 um; um to 0.001 um; C to 0.001 C.
+_DIGITS = (("_um", 3), ("_mm", 5), ("_C", 3))
+
+
+def _rounded(d: dict) -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, list):
+            out[k] = [_rounded(x) if isinstance(x, dict) else x for x in v]
+        elif isinstance(v, float):
+            digits = next((n for suffix, n in _DIGITS if k.endswith(suffix)), 6)
+            out[k] = _round(v, digits)
+        else:
+            out[k] = v
+    return out

@@ -17,6 +17,13 @@ class KernelReport:
         Points whose temperature was clamped into the map set's range.
     clamped_points : int
         Points where anything (a reading or a temperature) was clamped.
+    held_temperature : int
+        Points whose temperature lay within the tolerance outside the maps
+        and was held at the edge.
+    extrapolated_temperature : int
+        Points whose temperature was extrapolated beyond the maps.
+    max_extrapolation : float
+        Largest distance of an extrapolated temperature from the maps, K.
     nan_rows : int
         Rows returned as NaN under ``nan_policy='propagate'``.
     """
@@ -26,6 +33,9 @@ class KernelReport:
     clamped_temperature: int
     nan_rows: int
     clamped_points: int = 0
+    held_temperature: int = 0
+    extrapolated_temperature: int = 0
+    max_extrapolation: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "clamped_position", tuple(self.clamped_position))

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -204,6 +204,9 @@ def diagnose(
     max_effects: int = 4,
     candidates=None,
     patterns: bool = True,
+    out_of_range: str | None = None,
+    temperature_tolerance: float | None = None,
+    log_hold: float | None = None,
 ) -> Diagnosis:
     """Find which physical effects the model misses on ``run``, add them, and
     keep the history of the error falling.
@@ -225,6 +228,15 @@ def diagnose(
         Restrict (or extend, with user effects) the candidate library.
     patterns : bool
         Also compute the residual patterns of the base and final models.
+    out_of_range : {'raise', 'clamp', 'extrapolate'}, optional
+        Temperatures beyond the tolerance outside the maps (cmmpose.policy);
+        default the model's ('raise' for a new one).
+    temperature_tolerance : float, optional
+        K: temperatures this close outside the maps are held at the edge;
+        default the model's (0.5 K for a new one).
+    log_hold : float, optional
+        s: points this far outside the thermocouple log take its nearest
+        reading; default the model's (120 s for a new one).
 
     Returns
     -------
@@ -241,6 +253,10 @@ def diagnose(
         model = Model(model)
     elif not isinstance(model, Model):
         raise InputError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
+    policy = {k: v for k, v in (("out_of_range", out_of_range), ("temperature_tolerance", temperature_tolerance),
+                                ("log_hold", log_hold)) if v is not None}
+    if policy:
+        model = replace(model, **policy, _inputs_cache={})
     cand = None
     if candidates is not None:
         from .effects import effect_spec, library

@@ -12,6 +12,7 @@ import numpy as np
 from .._core import euler313
 from ..effects import channel_roles
 from ..errors import InputError
+from ..policy import LOG_HOLD
 from ..run import Run
 
 __all__ = ["RunInputs", "incidence_angles", "GRADIENT_WINDOW"]
@@ -82,7 +83,7 @@ class RunInputs:
     role_temperatures: dict = field(default_factory=dict)
 
     @classmethod
-    def from_run(cls, run: Run, temperature: float | None = None) -> RunInputs:
+    def from_run(cls, run: Run, temperature: float | None = None, *, log_hold: float = LOG_HOLD) -> RunInputs:
         """Inputs of ``run``; ``temperature`` (C) overrides the log's machine mean.
 
         Parameters
@@ -92,6 +93,9 @@ class RunInputs:
         temperature : float, optional
             Machine temperature for every point, degrees C; default the mean of
             the axis-scale thermocouples at each time stamp.
+        log_hold : float
+            s: points this far outside the thermocouple log take its nearest
+            reading; farther raise (cmmpose.policy).
         """
         if not isinstance(run, Run):
             raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
@@ -120,7 +124,9 @@ class RunInputs:
             raise InputError("run has no temperature log: pass temperature= (C)")
         else:
             from ..calibration.thermal import temperatures_at
+            from ..evaluation import check_log_coverage
 
+            check_log_coverage(run, t, log_hold)
             temps, _ = temperatures_at(t, run, policy="machine_mean", on_gap="interpolate", out_of_range="hold")
             roles = [c.get("role") for c in run.temperature_channels]
             if all(r in roles for r in ("x_scale", "y_scale", "z_scale")):

@@ -13,7 +13,8 @@ import numpy as np
 
 from .. import _core
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputError
+from ..errors import InputError, MapError
+from ..policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy
 from ..pose import digitizer
 from ..run import Run
 from .effects import LIBRARY, EffectSpec, UserEffect, effect_spec, library
@@ -40,21 +41,27 @@ class Model:
     temperature : float, optional
         Machine temperature for every point, C; default the run's
         thermocouple log (mean of the axis-scale channels, thesis 6.4).
-    out_of_range : {'raise', 'clamp'}
-        Readings or temperatures outside the maps.
+    out_of_range : {'raise', 'clamp', 'extrapolate'}
+        Readings or temperatures beyond the tolerance outside the maps
+        (cmmpose.policy).
+    temperature_tolerance : float
+        K: temperatures this close outside the maps are held at the edge.
+    log_hold : float
+        s: points this far outside the thermocouple log take its nearest reading.
     """
 
     maps: ErrorMap | ErrorMapSet
     effects: tuple[tuple[EffectSpec, np.ndarray], ...] = ()
     temperature: float | None = None
     out_of_range: str = "raise"
+    temperature_tolerance: float = TEMPERATURE_TOLERANCE
+    log_hold: float = LOG_HOLD
     _inputs_cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):
         if not isinstance(self.maps, (ErrorMap, ErrorMapSet)):
             raise InputError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(self.maps).__name__}")
-        if self.out_of_range not in ("raise", "clamp"):
-            raise InputError(f"out_of_range: expected 'raise' or 'clamp', got {self.out_of_range!r}")
+        check_policy(self.out_of_range, self.temperature_tolerance, self.log_hold)
         names = [s.name for s, _ in self.effects]
         if len(set(names)) != len(names):
             raise InputError(f"effects: each effect once, got {names}")
@@ -127,7 +134,7 @@ class Model:
         cached = self._inputs_cache.get(key)
         if cached is None or cached[0] is not run:
             self._inputs_cache.clear()
-            cached = (run, _with_incidence(self, RunInputs.from_run(run, self.temperature)))
+            cached = (run, _with_incidence(self, RunInputs.from_run(run, self.temperature, log_hold=self.log_hold)))
             self._inputs_cache[key] = cached
         return cached[1]
 
@@ -179,7 +186,8 @@ class Model:
         digitizers = [digitizer(p[:3], p[3:]) for p in self.poses(inputs)]
         xyz, report = _core.compensate_model(
             inputs.uv, inputs.scales, self.maps._core, digitizers, pose_index=inputs.pose_index,
-            inputs=inputs.named(), effects=self.kernel_terms(), out_of_range=self.out_of_range)
+            inputs=inputs.named(), effects=self.kernel_terms(), out_of_range=self.out_of_range,
+            temperature_tolerance=float(self.temperature_tolerance))
         clamped = report["clamped_points"]
         users = [(s, v) for s, v in self.effects if s.kind == "python"]
         if users:
@@ -212,6 +220,8 @@ class Model:
             "maps": {"kind": "set" if isinstance(self.maps, ErrorMapSet) else "map", "csv": texts},
             "temperature": self.temperature,
             "out_of_range": self.out_of_range,
+            "temperature_tolerance_K": self.temperature_tolerance,
+            "log_hold_s": self.log_hold,
             "effects": [{"name": s.name, "kind": s.kind, "params": dict(zip(s.params, map(float, v))),
                          "units": dict(zip(s.params, s.units))} for s, v in self.effects],
         }
@@ -247,8 +257,18 @@ class Model:
                 for i, text in enumerate(doc["maps"]["csv"]):
                     p = Path(d) / f"map{i}.csv"
                     p.write_text(text)
-                    maps.append(ErrorMap.read(p))
-            model_maps = ErrorMapSet(maps) if doc["maps"]["kind"] == "set" else maps[0]
+                    try:
+                        maps.append(ErrorMap.read(p))
+                    except MapError as exc:  # name the user's file, not the temporary one
+                        raise MapError(str(exc).replace(str(p), f"{path} (maps.csv[{i}])")) from None
+            kind = doc["maps"]["kind"]
+            if kind not in ("set", "map"):
+                raise InputError(f"{path}: maps.kind must be 'set' or 'map', got {kind!r}")
+            if not maps:
+                raise InputError(f"{path}: maps.csv lists no map")
+            if kind == "map" and len(maps) != 1:
+                raise InputError(f"{path}: maps.kind 'map' needs exactly one map, got {len(maps)}")
+            model_maps = ErrorMapSet(maps) if kind == "set" else maps[0]
             users = {u.name: u for u in user_effects}
             effects = []
             for e in doc["effects"]:
@@ -263,7 +283,8 @@ class Model:
                     raise InputError(f"{path}: effect {name!r} has parameters {sorted(e['params'])}, "
                                      f"expected {list(spec.params)}")
                 effects.append((spec, np.array([float(e["params"][p]) for p in spec.params])))
-            return cls(model_maps, tuple(effects), doc.get("temperature"), doc.get("out_of_range", "raise"))
+            return cls(model_maps, tuple(effects), doc.get("temperature"), doc.get("out_of_range", "raise"),
+                       doc.get("temperature_tolerance_K", TEMPERATURE_TOLERANCE), doc.get("log_hold_s", LOG_HOLD))
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{path}: malformed model file ({type(e).__name__}: {e})") from None
 

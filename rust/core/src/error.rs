@@ -14,7 +14,7 @@ pub enum CoreError {
     /// A scale reading lies outside the map's table for that carriage.
     #[error(
         "row {row}: {axis} scale reading {value} mm is outside the {axis} map range \
-         [{lo}, {hi}] mm (pass out_of_range='clamp' to clamp instead)"
+         [{lo}, {hi}] mm"
     )]
     PositionOutOfRange {
         row: usize,
@@ -26,15 +26,18 @@ pub enum CoreError {
 
     /// A temperature lies outside the temperatures covered by a map set.
     #[error(
-        "{}temperature {value} C is outside the maps' range [{lo}, {hi}] C \
-         (pass out_of_range='clamp' to clamp instead)",
-        row.map(|r| format!("row {r}: ")).unwrap_or_default()
+        "{}temperature {value} C is {:.3} K outside the maps' range [{lo}, {hi}] C, \
+         more than the {tolerance} K tolerance",
+        row.map(|r| format!("row {r}: ")).unwrap_or_default(),
+        if *value < *lo { lo - value } else { value - hi }
     )]
     TemperatureOutOfRange {
         row: Option<usize>,
         value: f64,
         lo: f64,
         hi: f64,
+        /// K beyond the range within which a temperature is held at the edge.
+        tolerance: f64,
     },
 
     /// NaN or infinity in an input array.

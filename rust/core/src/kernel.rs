@@ -25,7 +25,9 @@ use crate::thermal::ErrorMapSet;
 /// enough to balance two or more threads on a few thousand points.
 const CHUNK: usize = 4096;
 
-/// What to do with a scale reading or temperature outside the maps.
+/// What to do with a scale reading or temperature outside the maps (a
+/// temperature within [`Options::temperature_tolerance`] of the maps' range
+/// is always held at the edge and counted; docs/conventions.md).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum OutOfRange {
     /// Fail, naming the first offending row (default: no silent extrapolation).
@@ -33,6 +35,10 @@ pub enum OutOfRange {
     Raise,
     /// Hold the end value of the table (or the end map) and count the points.
     Clamp,
+    /// Temperatures: extend the maps linearly beyond their range (the two
+    /// end maps' slope), counting the points and the largest distance.
+    /// Scale readings outside a table still fail.
+    Extrapolate,
 }
 
 /// What to do with NaN or infinite inputs.
@@ -45,14 +51,18 @@ pub enum NanPolicy {
     Propagate,
 }
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Options {
     pub out_of_range: OutOfRange,
     pub nan_policy: NanPolicy,
+    /// K: a temperature this close outside the maps' range is held at the
+    /// edge (thermocouple noise at the reference temperature), whatever
+    /// `out_of_range` says.
+    pub temperature_tolerance: f64,
 }
 
 /// What a kernel call did besides its output.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Report {
     pub points: usize,
     /// Points whose X, Y, Z scale reading was clamped into the map.
@@ -61,6 +71,13 @@ pub struct Report {
     pub clamped_temperature: usize,
     /// Points where anything (a reading or a temperature) was clamped.
     pub clamped_points: usize,
+    /// Points with a temperature within the tolerance outside the maps,
+    /// held at the edge.
+    pub held_temperature: usize,
+    /// Points with a temperature extrapolated beyond the maps.
+    pub extrapolated_temperature: usize,
+    /// Largest distance of an extrapolated temperature from the maps, K.
+    pub max_extrapolation: f64,
     /// Rows written as NaN under [`NanPolicy::Propagate`].
     pub nan_rows: usize,
 }
@@ -73,6 +90,9 @@ impl Report {
         }
         self.clamped_temperature += o.clamped_temperature;
         self.clamped_points += o.clamped_points;
+        self.held_temperature += o.held_temperature;
+        self.extrapolated_temperature += o.extrapolated_temperature;
+        self.max_extrapolation = self.max_extrapolation.max(o.max_extrapolation);
         self.nan_rows += o.nan_rows;
         self
     }
@@ -173,12 +193,19 @@ trait Source: Sync {
         &self,
         s: [f64; 3],
         t: &Temperatures,
-        clamp: bool,
+        opts: &Options,
         report: &mut Report,
     ) -> std::result::Result<Evaluated, Miss>;
 
     /// The readable error for a miss at `row`.
-    fn miss_error(&self, miss: Miss, row: usize, s: [f64; 3], t: &Temperatures) -> CoreError;
+    fn miss_error(
+        &self,
+        miss: Miss,
+        row: usize,
+        s: [f64; 3],
+        t: &Temperatures,
+        opts: &Options,
+    ) -> CoreError;
 
     #[inline(always)]
     fn evaluate(
@@ -186,12 +213,12 @@ trait Source: Sync {
         row: usize,
         s: [f64; 3],
         t: &Temperatures,
-        clamp: bool,
+        opts: &Options,
         report: &mut Report,
     ) -> Result<Evaluated> {
-        match self.components(s, t, clamp, report) {
+        match self.components(s, t, opts, report) {
             Ok(v) => Ok(v),
-            Err(m) => Err(cold_error(self, m, row, s, t)),
+            Err(m) => Err(cold_error(self, m, row, s, t, opts)),
         }
     }
 }
@@ -204,8 +231,9 @@ fn cold_error<S: Source + ?Sized>(
     row: usize,
     s: [f64; 3],
     t: &Temperatures,
+    opts: &Options,
 ) -> CoreError {
-    source.miss_error(miss, row, s, t)
+    source.miss_error(miss, row, s, t, opts)
 }
 
 fn axis_error(map: &ErrorMap, a: usize, row: usize, s: [f64; 3]) -> CoreError {
@@ -223,7 +251,14 @@ const AXES: [char; 3] = ['X', 'Y', 'Z'];
 
 impl Source for ErrorMap {
     #[inline(always)]
-    fn miss_error(&self, miss: Miss, row: usize, s: [f64; 3], _t: &Temperatures) -> CoreError {
+    fn miss_error(
+        &self,
+        miss: Miss,
+        row: usize,
+        s: [f64; 3],
+        _t: &Temperatures,
+        _opts: &Options,
+    ) -> CoreError {
         match miss {
             Miss::Axis(a) => axis_error(self, a, row, s),
             Miss::Temperature(_) => unreachable!("a single map has no temperature range"),
@@ -236,9 +271,10 @@ impl Source for ErrorMap {
         &self,
         s: [f64; 3],
         _t: &Temperatures,
-        clamp: bool,
+        opts: &Options,
         report: &mut Report,
     ) -> std::result::Result<Evaluated, Miss> {
+        let clamp = opts.out_of_range == OutOfRange::Clamp;
         let mut c = [[0.0; 6]; 3];
         for a in 0..3 {
             let table = &self.tables()[a];
@@ -257,7 +293,14 @@ impl Source for ErrorMap {
 
 impl Source for ErrorMapSet {
     #[inline(always)]
-    fn miss_error(&self, miss: Miss, row: usize, s: [f64; 3], t: &Temperatures) -> CoreError {
+    fn miss_error(
+        &self,
+        miss: Miss,
+        row: usize,
+        s: [f64; 3],
+        t: &Temperatures,
+        opts: &Options,
+    ) -> CoreError {
         match miss {
             Miss::Temperature(value) => {
                 let (lo, hi) = self.temperature_range();
@@ -266,6 +309,7 @@ impl Source for ErrorMapSet {
                     value,
                     lo,
                     hi,
+                    tolerance: opts.temperature_tolerance,
                 }
             }
             // Every interval's grid is the same common range, so any map names it.
@@ -281,42 +325,32 @@ impl Source for ErrorMapSet {
         &self,
         s: [f64; 3],
         t: &Temperatures,
-        clamp: bool,
+        opts: &Options,
         report: &mut Report,
     ) -> std::result::Result<Evaluated, Miss> {
-        let (tc, mut moved) = self.clamp_temperature(t.squareness);
-        if moved && !clamp {
-            return Err(Miss::Temperature(t.squareness));
-        }
+        let mut fate = Fate::Inside;
+        let tc = self.resolve(t.squareness, opts, &mut fate)?;
         // Carriages at their own temperatures (an effect's choice) look up
         // their own interval; the usual case shares the squareness one.
         let uniform = t.map == [t.squareness; 3];
-        let mut per_axis = [(tc, false); 3];
+        let mut per_axis = [tc; 3];
         if !uniform {
-            #[allow(clippy::needless_range_loop)]
-            for a in 0..3 {
-                per_axis[a] = self.clamp_temperature(t.map[a]);
-                if per_axis[a].1 {
-                    if !clamp {
-                        return Err(Miss::Temperature(t.map[a]));
-                    }
-                    moved = true;
-                }
+            for (a, slot) in per_axis.iter_mut().enumerate() {
+                *slot = self.resolve(t.map[a], opts, &mut fate)?;
             }
         }
-        if moved {
-            report.clamped_temperature += 1;
-        }
+        fate.count(report);
         let Some((iv, dt)) = self.interval_of(tc) else {
-            // A single map: in range means exactly at its temperature.
-            return self.maps()[0].components(s, t, clamp, report);
+            // A single map holds at its own temperature (and within the tolerance).
+            return self.maps()[0].components(s, t, opts, report);
         };
+        let clamp = opts.out_of_range == OutOfRange::Clamp;
         let mut c = [[0.0; 6]; 3];
         for a in 0..3 {
             let (iva, dta) = if uniform {
                 (iv, dt)
             } else {
-                self.interval_of(per_axis[a].0)
+                self.interval_of(per_axis[a])
                     .expect("a set of two or more maps has intervals")
             };
             let table = &iva.base.tables()[a];
@@ -330,6 +364,116 @@ impl Source for ErrorMapSet {
             c[a] = iva.at(a, loc, dta);
         }
         Ok((c, iv.squareness(dt)))
+    }
+}
+
+/// What happened to one point's temperatures (the worst of its carriages').
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Fate {
+    Inside,
+    Held,
+    Clamped,
+    Extrapolated(f64),
+}
+
+impl Fate {
+    #[inline(always)]
+    fn worse(&mut self, other: Fate) {
+        let rank = |f: &Fate| match f {
+            Fate::Inside => 0,
+            Fate::Held => 1,
+            Fate::Clamped => 2,
+            Fate::Extrapolated(_) => 3,
+        };
+        *self = match (*self, other) {
+            (Fate::Extrapolated(a), Fate::Extrapolated(b)) => Fate::Extrapolated(a.max(b)),
+            (a, b) if rank(&b) > rank(&a) => b,
+            (a, _) => a,
+        };
+    }
+
+    #[inline(always)]
+    fn count(self, report: &mut Report) {
+        match self {
+            Fate::Inside => {}
+            Fate::Held => report.held_temperature += 1,
+            Fate::Clamped => report.clamped_temperature += 1,
+            Fate::Extrapolated(d) => {
+                report.extrapolated_temperature += 1;
+                report.max_extrapolation = report.max_extrapolation.max(d);
+            }
+        }
+    }
+}
+
+impl ErrorMapSet {
+    /// The map at temperature `t` (C) under `opts` (tolerance, clamp or
+    /// extrapolate, as per point), and what happened to it, counted as one
+    /// point of a [`Report`].
+    pub fn at_with(&self, t: f64, opts: &Options) -> Result<(ErrorMap, Report)> {
+        if !t.is_finite() {
+            return Err(CoreError::NonFinite {
+                argument: "temperature".into(),
+                row: 0,
+            });
+        }
+        let mut fate = Fate::Inside;
+        let tu = self.resolve(t, opts, &mut fate).map_err(|_| {
+            let (lo, hi) = self.temperature_range();
+            CoreError::TemperatureOutOfRange {
+                row: None,
+                value: t,
+                lo,
+                hi,
+                tolerance: opts.temperature_tolerance,
+            }
+        })?;
+        let mut report = Report {
+            points: 1,
+            ..Default::default()
+        };
+        fate.count(&mut report);
+        report.clamped_points = (fate == Fate::Clamped) as usize;
+        if let Some(m) = self.maps().iter().find(|m| m.temperature() == Some(tu)) {
+            return Ok((m.clone(), report));
+        }
+        let (iv, _) = self
+            .interval_of(tu)
+            .expect("a temperature off the maps' own ones needs two or more maps");
+        Ok((iv.blend(tu), report))
+    }
+
+    /// The temperature at which to read the maps for `t` (C) under `opts`:
+    /// inside the range as is; within the tolerance outside, held at the
+    /// edge; beyond it, an error, the edge (clamp) or `t` itself
+    /// (extrapolate, read off the end interval's slope).
+    #[inline(always)]
+    fn resolve(&self, t: f64, opts: &Options, fate: &mut Fate) -> std::result::Result<f64, Miss> {
+        let (tc, moved) = self.clamp_temperature(t);
+        if !moved {
+            return Ok(t);
+        }
+        let distance = (t - tc).abs();
+        if distance <= opts.temperature_tolerance {
+            fate.worse(Fate::Held);
+            return Ok(tc);
+        }
+        match opts.out_of_range {
+            OutOfRange::Raise => Err(Miss::Temperature(t)),
+            OutOfRange::Clamp => {
+                fate.worse(Fate::Clamped);
+                Ok(tc)
+            }
+            OutOfRange::Extrapolate if self.maps().len() > 1 => {
+                fate.worse(Fate::Extrapolated(distance));
+                Ok(t)
+            }
+            // One map has no slope to extend: it holds.
+            OutOfRange::Extrapolate => {
+                fate.worse(Fate::Clamped);
+                Ok(tc)
+            }
+        }
     }
 }
 
@@ -600,13 +744,12 @@ fn compensate_with<S: Source>(
         None => None,
     };
     let bound = effects.bind(&points.columns)?;
-    let clamp = opts.out_of_range == OutOfRange::Clamp;
     let (uv, idx) = (points.uv, points.pose_index);
     drive(&inputs, opts, out, 3, |i, s, slot, report| {
         let d = &digitizers[idx.map_or(0, |p| p[i] as usize)];
         let t = temperature.map_or(f64::NAN, |t| t[i]);
         let x = if bound.is_empty() {
-            let (c, sq) = source.evaluate(i, s, &Temperatures::uniform(t), clamp, report)?;
+            let (c, sq) = source.evaluate(i, s, &Temperatures::uniform(t), &opts, report)?;
             let pe = PointError::new(s, &c, sq);
             Vector3::from(s) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]))
         } else {
@@ -616,7 +759,7 @@ fn compensate_with<S: Source>(
             bound.reading(i, &mut s);
             let mut temps = Temperatures::uniform(t);
             bound.temperatures(i, &mut temps);
-            let (components, squareness) = source.evaluate(i, s, &temps, clamp, report)?;
+            let (components, squareness) = source.evaluate(i, s, &temps, &opts, report)?;
             let mut e = MachineErrors {
                 components,
                 squareness,
@@ -712,11 +855,15 @@ pub fn compensate_at_temperature(
             ..Default::default()
         });
     }
-    let map = set.at(temperature, opts.out_of_range == OutOfRange::Clamp)?;
+    let (map, one) = set.at_with(temperature, &opts)?;
     let mut report = compensate(uv, scales, &map, digitizer, opts, out)?;
-    if set.clamp_temperature(temperature).1 {
-        report.clamped_temperature = report.points;
-        report.clamped_points = report.points;
+    let n = report.points;
+    report.held_temperature = one.held_temperature * n;
+    report.clamped_temperature = one.clamped_temperature * n;
+    report.extrapolated_temperature = one.extrapolated_temperature * n;
+    report.max_extrapolation = if n > 0 { one.max_extrapolation } else { 0.0 };
+    if one.clamped_temperature > 0 {
+        report.clamped_points = n;
     }
     Ok(report)
 }
@@ -755,9 +902,8 @@ pub fn position_error(
         scales,
         columns: &columns,
     };
-    let clamp = opts.out_of_range == OutOfRange::Clamp;
     drive(&inputs, opts, out, 3, |i, s, slot, report| {
-        let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), clamp, report)?;
+        let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), &opts, report)?;
         slot.copy_from_slice(PointError::new(s, &c, sq).e.as_slice());
         Ok(())
     })
@@ -776,9 +922,8 @@ pub fn rotation_error(
         scales,
         columns: &columns,
     };
-    let clamp = opts.out_of_range == OutOfRange::Clamp;
     drive(&inputs, opts, out, 9, |i, s, slot, report| {
-        let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), clamp, report)?;
+        let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), &opts, report)?;
         let pe = PointError::new(s, &c, sq);
         for r in 0..3 {
             slot[3 * r] = pe.x_p[r];

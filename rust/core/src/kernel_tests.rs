@@ -273,7 +273,7 @@ fn out_of_range_raises_naming_row_or_clamps_and_counts() {
     .unwrap_err();
     assert!(
         e.to_string()
-            .starts_with("row 2: temperature 31 C is outside the maps' range [20, 30] C"),
+            .starts_with("row 2: temperature 31 C is 1.000 K outside the maps' range [20, 30] C"),
         "{e}"
     );
     let r = compensate_at_temperatures(&uv, &s_ok, &[19.0, 25.0, 31.0], &set, &d, opts, &mut out)
@@ -401,7 +401,7 @@ fn avx2_block_gives_the_same_bits_as_the_portable_one() {
     };
     let row_fn = |i: usize, sc: [f64; 3], slot: &mut [f64], report: &mut Report| -> Result<()> {
         let tt = Temperatures::uniform(t[i]);
-        let (c, sq) = set.evaluate(i, sc, &tt, false, report)?;
+        let (c, sq) = set.evaluate(i, sc, &tt, &Options::default(), report)?;
         let pe = PointError::new(sc, &c, sq);
         let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
         slot.copy_from_slice(x.as_slice());
@@ -652,4 +652,76 @@ fn model_errors_name_argument_and_row_and_clamping_is_counted() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("temperature"), "{e}");
+}
+
+// ---- temperatures outside the maps: tolerance, clamp, extrapolate ---------
+
+fn run_t(t: &[f64], opts: Options) -> Result<(Vec<f64>, Report)> {
+    let set = two_maps();
+    let n = t.len();
+    let (uv, s) = points(n);
+    let mut out = vec![0.0; 3 * n];
+    let r = compensate_at_temperatures(
+        &uv,
+        &s,
+        t,
+        &set,
+        &digitizer(90.0, 90.0, 0.0),
+        opts,
+        &mut out,
+    )?;
+    Ok((out, r))
+}
+
+#[test]
+fn a_hair_outside_is_held_at_the_edge_and_counted() {
+    let opts = Options {
+        temperature_tolerance: 0.5,
+        ..Default::default()
+    };
+    let (got, r) = run_t(&[19.9998, 30.3, 25.0], opts).unwrap();
+    assert_eq!(
+        (r.held_temperature, r.clamped_temperature, r.clamped_points),
+        (2, 0, 0)
+    );
+    let (want, _) = run_t(&[20.0, 30.0, 25.0], Options::default()).unwrap();
+    assert!(got
+        .iter()
+        .zip(&want)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+    // Beyond the tolerance: an error naming the row, the distance and the tolerance.
+    let e = run_t(&[25.0, 19.2], opts).unwrap_err().to_string();
+    assert!(
+        e.contains("row 1") && e.contains("0.800 K") && e.contains("0.5 K tolerance"),
+        "{e}"
+    );
+}
+
+#[test]
+fn extrapolation_extends_the_end_slope_and_reports_the_distance() {
+    let opts = Options {
+        out_of_range: OutOfRange::Extrapolate,
+        temperature_tolerance: 0.5,
+        ..Default::default()
+    };
+    let (x, r) = run_t(&[32.0, 18.0, 25.0], opts).unwrap();
+    assert_eq!(r.extrapolated_temperature, 2);
+    assert!((r.max_extrapolation - 2.0).abs() < 1e-12);
+    // Linear in temperature: the 32 C point lies on the line through 28 and 30 C.
+    let (a, _) = run_t(&[28.0, 18.0, 25.0], opts).unwrap();
+    let (b, _) = run_t(&[30.0, 18.0, 25.0], opts).unwrap();
+    // Components are linear in temperature; X is linear in them to first
+    // order (the rotation's second order in arc-second angles: < 1e-9 mm).
+    for k in 0..3 {
+        let d = (x[k] - (b[k] + (b[k] - a[k]))).abs();
+        assert!(d < 1e-7, "{d:e} mm");
+    }
+    // The blended single-temperature path agrees.
+    let set = two_maps();
+    let (m, one) = set.at_with(32.0, &opts).unwrap();
+    assert_eq!(one.extrapolated_temperature, 1);
+    let (uv, s) = points(3);
+    let mut y = vec![0.0; 9];
+    compensate(&uv, &s, &m, &digitizer(90.0, 90.0, 0.0), opts, &mut y).unwrap();
+    assert!((y[0] - x[0]).abs() < 1e-9 && (y[1] - x[1]).abs() < 1e-9);
 }

@@ -62,7 +62,7 @@ impl Interval {
         std::array::from_fn(|k| b[k] + dt * s[k])
     }
 
-    fn blend(&self, t: f64) -> ErrorMap {
+    pub(crate) fn blend(&self, t: f64) -> ErrorMap {
         let dt = t - self.t_lo;
         let tables = std::array::from_fn(|a| {
             let base = &self.base.tables()[a];
@@ -263,31 +263,17 @@ impl ErrorMapSet {
 
     /// The map at temperature `t` (C): linear between the two closest maps
     /// for all 21 components. Outside the range: an error, or the end map
-    /// when `clamp` is set.
+    /// when `clamp` is set (no tolerance; see [`ErrorMapSet::at_with`]).
     pub fn at(&self, t: f64, clamp: bool) -> Result<ErrorMap> {
-        let (lo, hi) = self.temperature_range();
-        if !t.is_finite() {
-            return Err(CoreError::NonFinite {
-                argument: "temperature".into(),
-                row: 0,
-            });
-        }
-        let (tc, moved) = self.clamp_temperature(t);
-        if moved && !clamp {
-            return Err(CoreError::TemperatureOutOfRange {
-                row: None,
-                value: t,
-                lo,
-                hi,
-            });
-        }
-        if let Some(m) = self.maps.iter().find(|m| m.temperature() == Some(tc)) {
-            return Ok(m.clone());
-        }
-        let (iv, _) = self
-            .interval_of(tc)
-            .expect("t strictly inside a range of two or more maps");
-        Ok(iv.blend(tc))
+        let opts = crate::kernel::Options {
+            out_of_range: if clamp {
+                crate::kernel::OutOfRange::Clamp
+            } else {
+                crate::kernel::OutOfRange::Raise
+            },
+            ..Default::default()
+        };
+        Ok(self.at_with(t, &opts)?.0)
     }
 }
 

@@ -164,7 +164,12 @@ fn frame(
         c[k] = set.carriage_at(a, s[k], tk).ok_or_else(|| {
             let (lo, hi) = set.maps()[0].table(a).range();
             let (tlo, thi) = set.temperature_range();
-            format!("{} reading {} mm or temperature {tk} C outside the maps ({lo}..{hi} mm, {tlo}..{thi} C)", a.letter(), s[k])
+            if !(tk >= tlo && tk <= thi) {
+                // The truth machine is the maps themselves: it does not extrapolate.
+                format!("{} carriage temperature {tk} C is outside the maps' {tlo}..{thi} C (the truth machine does not extrapolate)", a.letter())
+            } else {
+                format!("{} reading {} mm is outside the {} map's {lo}..{hi} mm", a.letter(), s[k], a.letter())
+            }
         })?;
     }
     let squareness = set.squareness_at(temps.squareness).ok_or_else(|| {

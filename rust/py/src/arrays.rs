@@ -38,15 +38,30 @@ pub fn vector<'a, T: numpy::Element>(name: &str, a: &'a PyReadonlyArray1<'_, T>)
 }
 
 pub fn options(out_of_range: &str, nan_policy: &str) -> Res<Options> {
+    options_with(out_of_range, nan_policy, 0.0)
+}
+
+/// Options with a temperature tolerance (K; finite, >= 0).
+pub fn options_with(
+    out_of_range: &str,
+    nan_policy: &str,
+    temperature_tolerance: f64,
+) -> Res<Options> {
     let out_of_range = match out_of_range {
         "raise" => OutOfRange::Raise,
         "clamp" => OutOfRange::Clamp,
+        "extrapolate" => OutOfRange::Extrapolate,
         other => {
             return Err(input(format!(
-                "out_of_range: expected 'raise' or 'clamp', got {other:?}"
+                "out_of_range: expected 'raise', 'clamp' or 'extrapolate', got {other:?}"
             )))
         }
     };
+    if !(temperature_tolerance.is_finite() && temperature_tolerance >= 0.0) {
+        return Err(input(format!(
+            "temperature_tolerance: expected a finite number of kelvin >= 0, got {temperature_tolerance}"
+        )));
+    }
     let nan_policy = match nan_policy {
         "raise" => NanPolicy::Raise,
         "propagate" => NanPolicy::Propagate,
@@ -59,6 +74,7 @@ pub fn options(out_of_range: &str, nan_policy: &str) -> Res<Options> {
     Ok(Options {
         out_of_range,
         nan_policy,
+        temperature_tolerance,
     })
 }
 
@@ -68,6 +84,9 @@ pub fn report_dict<'py>(py: Python<'py>, r: &Report) -> PyResult<Bound<'py, PyDi
     d.set_item("clamped_position", r.clamped_position)?;
     d.set_item("clamped_temperature", r.clamped_temperature)?;
     d.set_item("clamped_points", r.clamped_points)?;
+    d.set_item("held_temperature", r.held_temperature)?;
+    d.set_item("extrapolated_temperature", r.extrapolated_temperature)?;
+    d.set_item("max_extrapolation", r.max_extrapolation)?;
     d.set_item("nan_rows", r.nan_rows)?;
     Ok(d)
 }

@@ -7,7 +7,7 @@ use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{options, rows, run_kernel, vector};
+use crate::arrays::{options, options_with, rows, run_kernel, vector};
 use crate::errors::{input, Res};
 use crate::maps::{PyErrorMap, PyErrorMapSet};
 use crate::pose::PyDigitizer;
@@ -17,7 +17,7 @@ type Output<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>);
 /// Compensated machine coordinates (mm). `error_map` is an ErrorMap or an
 /// ErrorMapSet; with a set, `temperature` is a float or an (N,) array (C).
 #[pyfunction]
-#[pyo3(signature = (uv, scales, error_map, digitizer, temperature=None, out_of_range="raise", nan_policy="raise"))]
+#[pyo3(signature = (uv, scales, error_map, digitizer, temperature=None, out_of_range="raise", nan_policy="raise", temperature_tolerance=0.0))]
 #[allow(clippy::too_many_arguments)]
 fn compensate<'py>(
     py: Python<'py>,
@@ -28,8 +28,9 @@ fn compensate<'py>(
     temperature: Option<&Bound<'py, PyAny>>,
     out_of_range: &str,
     nan_policy: &str,
+    temperature_tolerance: f64,
 ) -> Res<Output<'py>> {
-    let opts = options(out_of_range, nan_policy)?;
+    let opts = options_with(out_of_range, nan_policy, temperature_tolerance)?;
     let uv_s = rows("uv", &uv, 2)?;
     let s = rows("scales", &scales, 3)?;
     let d = digitizer.inner;

@@ -43,13 +43,22 @@ pub struct Failure(PyErr);
 
 pub type Res<T> = Result<T, Failure>;
 
+/// The choices after an out-of-range error, in the Python API's words (the
+/// CLI rewrites this one sentence into its flags: cmmpose.cli).
+pub const TEMPERATURE_CHOICES: &str = " (choices: out_of_range='clamp' holds it at the edge, \
+'extrapolate' extends the maps linearly, or a wider temperature_tolerance in K)";
+pub const POSITION_CHOICES: &str = " (choices: out_of_range='clamp' holds it at the table's end)";
+
 impl From<CoreError> for Failure {
     fn from(e: CoreError) -> Self {
         let msg = e.to_string();
         Failure(match e {
             CoreError::InvalidMap { .. } => MapError::new_err(msg),
-            CoreError::PositionOutOfRange { .. } | CoreError::TemperatureOutOfRange { .. } => {
-                OutOfRangeError::new_err(msg)
+            CoreError::PositionOutOfRange { .. } => {
+                OutOfRangeError::new_err(msg + POSITION_CHOICES)
+            }
+            CoreError::TemperatureOutOfRange { .. } => {
+                OutOfRangeError::new_err(msg + TEMPERATURE_CHOICES)
             }
             CoreError::NonFinite { .. } | CoreError::InvalidArgument { .. } => {
                 InputError::new_err(msg)

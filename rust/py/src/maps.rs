@@ -1,13 +1,13 @@
 //! Error maps across the boundary: `ErrorMap` (one temperature) and
 //! `ErrorMapSet` (several), with the map-level kernels.
 
-use cmmpose_core::kernel::{self, OutOfRange};
+use cmmpose_core::kernel;
 use cmmpose_core::{Carriage, CarriageTable, ErrorMap, ErrorMapSet, MapSource};
 use numpy::{PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{options, rows, run_kernel};
+use crate::arrays::{options, options_with, rows, run_kernel};
 use crate::errors::{input, MapError, Res};
 
 /// The maps a compensation reads: an ErrorMap, or an ErrorMapSet (one map
@@ -183,13 +183,18 @@ impl PyErrorMapSet {
             .collect()
     }
 
-    /// The map blended at `temperature` (C).
-    #[pyo3(signature = (temperature, out_of_range="raise"))]
-    fn at(&self, temperature: f64, out_of_range: &str) -> Res<PyErrorMap> {
-        let opts = options(out_of_range, "raise")?;
-        let inner = self
-            .inner
-            .at(temperature, opts.out_of_range == OutOfRange::Clamp)?;
+    /// The map blended at `temperature` (C), held within
+    /// `temperature_tolerance` (K) outside the maps, clamped or extrapolated
+    /// beyond as `out_of_range` says.
+    #[pyo3(signature = (temperature, out_of_range="raise", temperature_tolerance=0.0))]
+    fn at(
+        &self,
+        temperature: f64,
+        out_of_range: &str,
+        temperature_tolerance: f64,
+    ) -> Res<PyErrorMap> {
+        let opts = options_with(out_of_range, "raise", temperature_tolerance)?;
+        let (inner, _) = self.inner.at_with(temperature, &opts)?;
         Ok(PyErrorMap { inner })
     }
 }

@@ -10,7 +10,7 @@ use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{effects, options, rows, run_kernel, vector, NamedArrays};
+use crate::arrays::{effects, options_with, rows, run_kernel, vector, NamedArrays};
 use crate::errors::{input, Res};
 use crate::maps::map_source;
 use crate::pose::PyDigitizer;
@@ -22,7 +22,7 @@ use crate::pose::PyDigitizer;
 /// (N, k) float64 arrays: `temperature` (C) and what the effects read.
 /// Returns the coordinates and the kernel's report (a dict).
 #[pyfunction]
-#[pyo3(signature = (uv, scales, maps, digitizers, *, pose_index=None, inputs=None, effects=None, out_of_range="raise", nan_policy="raise"))]
+#[pyo3(signature = (uv, scales, maps, digitizers, *, pose_index=None, inputs=None, effects=None, out_of_range="raise", nan_policy="raise", temperature_tolerance=0.0))]
 #[allow(clippy::too_many_arguments)]
 fn compensate_model<'py>(
     py: Python<'py>,
@@ -35,8 +35,9 @@ fn compensate_model<'py>(
     effects: Option<&Bound<'py, PyDict>>,
     out_of_range: &str,
     nan_policy: &str,
+    temperature_tolerance: f64,
 ) -> Res<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
-    let opts = options(out_of_range, nan_policy)?;
+    let opts = options_with(out_of_range, nan_policy, temperature_tolerance)?;
     let source = map_source(maps)?;
     let digitizers: Vec<Digitizer> = digitizers.iter().map(|d| d.inner).collect();
     let fx = self::effects(effects)?;

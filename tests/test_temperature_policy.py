@@ -1,0 +1,170 @@
+"""One temperature policy for every command and the API (cmmpose.policy,
+docs/conventions.md): temperatures within the tolerance outside the maps
+are held at the edge and counted; beyond it the user chooses (stop, clamp,
+extrapolate) and the error says how in the words of the interface in use;
+points just outside the thermocouple log (a recovered run) take its nearest
+reading; a single map used at other temperatures says so."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import cmmpose
+from cmmpose.cli import main
+from cmmpose.diagnosis import Model
+from cmmpose.errors import MapTemperatureWarning
+from cmmpose.run import Run
+from cmmpose.sim.runs import simulate_ballbar_run
+from cmmpose.sim.scanner import Scanner
+
+MAPS = cmmpose.ErrorMapSet.thesis()
+COARSE = Scanner(points_per_profile=128)
+
+
+def simulate(temperature, seed=4):
+    run, _ = simulate_ballbar_run(MAPS, temperature, layout="crossed", scanner=COARSE, seed=seed)
+    return run
+
+
+def cli(*args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.mark.parametrize("t", [20.0, 30.0])
+def test_runs_at_the_maps_ends_evaluate_and_diagnose_at_the_defaults(t):
+    run = simulate(t)
+    temps = cmmpose.evaluation.machine_temperature(run, run.points["t"])
+    assert (temps < 20.0).any() if t == 20.0 else (temps > 30.0).any()  # thermocouple noise crosses the edge
+    ev = cmmpose.evaluate(run, MAPS)
+    assert ev.compensated.rms_accuracy_error < 2e-3
+    assert ev.provenance["points_held_at_maps_edge"] > 0 and ev.provenance["points_clamped"] == 0
+    d = cmmpose.diagnose(run, MAPS, patterns=False, max_effects=1)
+    assert d.steps[0].figures.rms_accuracy_error < 2e-3
+
+
+def test_cli_at_20_c_as_a_new_user_would(tmp_path):
+    r = cli("simulate", "--layout", "crossed", "--temperature", 20, "-o", tmp_path / "r20")
+    assert r.exit_code == 0, r.output
+    r = cli("evaluate", tmp_path / "r20", "--json")
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output[r.output.index("{"):])
+    assert doc["provenance"]["policy"] == {"out_of_range": "raise", "temperature_tolerance_K": 0.5, "log_hold_s": 120.0}
+    assert doc["provenance"]["points_held_at_maps_edge"] > 0
+
+
+def test_beyond_the_tolerance_the_error_lists_the_choices_in_each_interface(tmp_path):
+    run = simulate(20.0)
+    run.save(tmp_path / "r")
+    with pytest.raises(cmmpose.OutOfRangeError) as exc:
+        cmmpose.evaluate(run, MAPS, temperature_tolerance=0.0)
+    msg = str(exc.value)
+    assert "outside the maps' range [20, 30] C" in msg and "out_of_range='clamp'" in msg
+    assert "temperature_tolerance" in msg
+    r = cli("evaluate", tmp_path / "r", "--temperature-tolerance", 0)
+    assert r.exit_code != 0
+    assert "--out-of-range clamp" in r.output and "--temperature-tolerance" in r.output
+    assert "out_of_range=" not in r.output and "temperature_tolerance in K" not in r.output
+    r = cli("diagnose", tmp_path / "r", "--temperature-tolerance", 0)
+    assert r.exit_code != 0 and "--out-of-range extrapolate" in r.output
+
+
+def test_extrapolation_reports_the_largest_distance():
+    # Maps at 20 and 25 C only, a machine at 26 C.
+    run = simulate(26.0)
+    maps = cmmpose.ErrorMapSet(MAPS.maps[:2])
+    with pytest.raises(cmmpose.OutOfRangeError, match=r"0\.[5-9].. K outside"):
+        cmmpose.evaluate(run, maps)
+    with pytest.warns(cmmpose.errors.ExtrapolationWarning, match=r"up to 1\.[0-9]+ K"):
+        ev = cmmpose.evaluate(run, maps, out_of_range="extrapolate")
+    assert 0 < ev.provenance["points_extrapolated"] <= run.n_points
+    assert 0.9 < ev.provenance["max_extrapolation_K"] < 1.2
+    with pytest.warns(cmmpose.ClampWarning, match="temperatures"):
+        clamped = cmmpose.evaluate(run, maps, out_of_range="clamp")
+    assert clamped.provenance["points_clamped"] > 0
+    # Both stay near the noise floor here (the thesis maps are not linear in
+    # temperature, so which is closer depends on the machine), and they differ.
+    assert ev.compensated.rms_accuracy_error < 3e-3 and clamped.compensated.rms_accuracy_error < 3e-3
+    assert np.abs(ev.compensated.lengths - clamped.compensated.lengths).max() > 1e-4
+
+
+def _recovered(run: Run, cut_s: float) -> Run:
+    """The run as recovered after the recorder stopped: the thermocouple log
+    ends ``cut_s`` seconds before the last point."""
+    log = dict(run.temperatures)
+    keep = np.asarray(log["t"]) <= run.points["t"].max() - cut_s
+    log = {k: np.asarray(v)[keep] for k, v in log.items()}
+    return Run(points=run.points, scans=run.scans, poses=run.poses, temperatures=log,
+               temperature_channels=run.temperature_channels, artefact=run.artefact, maps=run.maps,
+               metadata=run.metadata)
+
+
+def test_a_recovered_run_evaluates_and_diagnoses(tmp_path):
+    run = simulate(22.5)
+    short = _recovered(run, 60.0)
+    ev = cmmpose.evaluate(short, MAPS)
+    assert ev.compensated.rms_accuracy_error < 2e-3
+    cmmpose.diagnose(short, MAPS, patterns=False, max_effects=0)
+    long = _recovered(run, 200.0)
+    with pytest.raises(cmmpose.InputError, match=r"outside the temperature log.*120 s held.*log_hold="):
+        cmmpose.evaluate(long, MAPS)
+    with pytest.raises(cmmpose.InputError, match="log_hold="):
+        cmmpose.diagnose(long, MAPS, patterns=False, max_effects=0)
+    assert cmmpose.evaluate(long, MAPS, log_hold=300.0).compensated is not None
+    long.save(tmp_path / "long")
+    r = cli("evaluate", tmp_path / "long")
+    assert r.exit_code != 0 and "--log-hold" in r.output and "log_hold=" not in r.output
+    assert cli("evaluate", tmp_path / "long", "--log-hold", 300).exit_code == 0
+
+
+def test_a_single_map_at_another_temperature_is_never_silent(tmp_path):
+    run = simulate(25.0)
+    m20 = MAPS.maps[0]
+    with pytest.warns(MapTemperatureWarning, match="single map at 20 C was used for points at 2[45]"):
+        ev = cmmpose.evaluate(run, m20)
+    assert any("single map at 20 C" in n for n in ev.provenance["notes"])
+    with warnings.catch_warnings():  # at its own temperature (within the tolerance) a map is silent
+        warnings.simplefilter("error", MapTemperatureWarning)
+        cmmpose.evaluate(simulate(20.0), m20)
+    m20.write(tmp_path / "map20.csv")
+    run.save(tmp_path / "r25")
+    r = cli("evaluate", tmp_path / "r25", "--maps", tmp_path / "map20.csv")
+    assert r.exit_code == 0 and "single map at 20 C" in r.output
+    pts = tmp_path / "p.csv"
+    pts.write_text("u,v,D,E,F,T\n0,0,450,275,-250,25\n1,1,451,275,-250,25\n")
+    r = cli("compensate", pts, tmp_path / "o.csv", "--maps", tmp_path / "map20.csv")
+    assert r.exit_code == 0 and "single map at 20 C" in r.output
+
+
+def test_simulating_beyond_the_maps_names_the_temperature_not_the_reading(tmp_path):
+    r = cli("simulate", "--layout", "crossed", "--temperature", 35, "-o", tmp_path / "r35")
+    assert r.exit_code != 0
+    assert "temperature 35 C is outside the maps' 20..30 C" in r.output and "reading" not in r.output
+
+
+def test_evaluation_json_carries_provenance_rounded_numbers_and_the_expansion(tmp_path):
+    run = simulate(22.5)
+    ev = cmmpose.evaluate(run, MAPS, expansion=11.5e-6)
+    doc = json.loads(ev.to_json())
+    p = doc["provenance"]
+    assert p["expansion_ppm_per_K"] == 11.5
+    assert p["maps"]["kind"] == "set" and p["maps"]["temperatures_C"] == [20.0, 25.0, 30.0]
+    assert p["cmmpose_version"] == cmmpose.__version__ and p["date_utc"].endswith("+00:00")
+    assert "thermocouple log" in p["temperature"]["source"] and len(p["poses"]) == len(run.poses["pose_id"])
+    row = doc["results"][1]["rows"][0]
+    assert len(repr(row["length_mm"]).split(".")[1]) <= 5 and len(repr(row["deviation_um"]).split(".")[1]) <= 3
+    assert "11.5 ppm/K" in str(ev)
+
+
+def test_policy_arguments_are_checked():
+    run = simulate(22.5)
+    for kw in ({"out_of_range": "sometimes"}, {"temperature_tolerance": -1.0}, {"log_hold": float("nan")},
+               {"temperature_tolerance": True}):
+        with pytest.raises(cmmpose.InputError, match=next(iter(kw))):
+            cmmpose.evaluate(run, MAPS, **kw)
+        with pytest.raises(cmmpose.InputError, match=next(iter(kw))):
+            Model(MAPS, **kw)
