@@ -15,13 +15,14 @@ from cmmpose.errors import CalibrationError, InputError, MapError
 
 
 @pytest.mark.parametrize("value, expected", [(1, 1.0), (-2.5, -2.5), ("3.25", 3.25), (np.float32(0.5), 0.5),
-                                             (np.int64(7), 7.0), (np.array(4.0), 4.0), (True, 1.0), (0, 0.0)])
+                                             (np.int64(7), 7.0), (np.array(4.0), 4.0), (0, 0.0)])
 def test_finite_accepts_numbers(value, expected):
     out = v.finite("k", value)
     assert out == expected and type(out) is float
 
 
 @pytest.mark.parametrize("value, message", [
+    (True, "k: expected a number, got True"),  # a JSON true is not 1.0 (issue 11)
     ("abc", "k: expected a number, got 'abc'"),
     (None, "k: expected a number, got None"),
     ([1.0, 2.0], "k: expected a number"),

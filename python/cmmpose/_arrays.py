@@ -7,8 +7,23 @@ import numpy as np
 from .errors import InputError
 
 
+def _real(name: str, a):
+    """Refuse what float64 conversion would silently change: complex numbers
+    (the imaginary part dropped), booleans and strings (numbers by accident)."""
+    kind = getattr(getattr(a, "dtype", None), "kind", None)
+    if kind is None and not isinstance(a, (int, float)):
+        kind = np.asarray(a).dtype.kind if not isinstance(a, (str, bytes)) else "U"
+    if kind == "c":
+        raise InputError(f"{name}: complex numbers are not coordinates (got dtype complex); pass the real part "
+                         f"explicitly if that is what you mean")
+    if kind in ("b", "U", "S"):
+        raise InputError(f"{name}: expected numbers, got {'booleans' if kind == 'b' else 'text'}")
+    return a
+
+
 def as_rows(name: str, a, cols: int) -> np.ndarray:
     """``a`` as an (N, cols) float64 C-contiguous array (no copy if it is one)."""
+    _real(name, a)
     try:
         arr = np.asarray(a, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -20,6 +35,7 @@ def as_rows(name: str, a, cols: int) -> np.ndarray:
 
 def as_vector(name: str, a, n: int) -> np.ndarray:
     """``a`` as an (n,) float64 contiguous array."""
+    _real(name, a)
     try:
         arr = np.asarray(a, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -30,7 +46,10 @@ def as_vector(name: str, a, n: int) -> np.ndarray:
 
 
 def as_triple(name: str, a) -> tuple[float, float, float]:
-    """Three finite floats."""
+    """Three finite floats (booleans and text are refused, not read as numbers)."""
+    if isinstance(a, (str, bytes)) or any(isinstance(x, (bool, np.bool_, str, bytes)) for x in np.ravel(
+            np.asarray(a, dtype=object))):
+        raise InputError(f"{name}: expected three numbers, got {a!r}")
     try:
         vals = tuple(float(x) for x in a)
     except (TypeError, ValueError):

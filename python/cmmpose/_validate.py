@@ -9,10 +9,18 @@ Arrays at the Python/Rust boundary are converted by :mod:`cmmpose._arrays`.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
 from .errors import InputError, MapError
+
+#: A decimal number as map and point files write them: sign, digits, point,
+#: exponent; ASCII only.
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
+
+#: Spelled-out non-finite values: numbers, but refused as not finite.
+_NON_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE)
 
 __all__ = ["finite", "nonnegative", "positive", "triple", "vector3", "parse_number"]
 
@@ -40,6 +48,8 @@ def finite(name: str, value, *, error: type[Exception] = InputError) -> float:
         ``"<name>: expected a number, got <value>"`` or
         ``"<name>: must be finite, got <value>"``.
     """
+    if _not_a_number(value):
+        raise error(f"{name}: expected a number, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -47,6 +57,18 @@ def finite(name: str, value, *, error: type[Exception] = InputError) -> float:
     if not math.isfinite(v):
         raise error(f"{name}: must be finite, got {v}")
     return v
+
+
+def _not_a_number(x) -> bool:
+    """Booleans convert to floats by accident (a JSON ``true`` read as 1.0)."""
+    return isinstance(x, (bool, np.bool_))
+
+
+def _items(value) -> list:
+    try:
+        return list(value)
+    except TypeError:
+        return []
 
 
 def nonnegative(name: str, value, *, error: type[Exception] = InputError) -> float:
@@ -139,6 +161,8 @@ def triple(name: str, value, *, unit: str | None = None, nonnegative: bool = Fal
         ``"<name>: expected three finite numbers (<unit>), got <value>"`` or
         ``"<name>: must be >= 0, got <value>"``.
     """
+    if any(_not_a_number(x) for x in _items(value)):
+        raise error(f"{name}: expected three numbers{_unit(unit)}, got {value!r}")
     try:
         vals = tuple(float(x) for x in value)
     except (TypeError, ValueError):
@@ -208,10 +232,11 @@ def parse_number(text: str, where: str, what: str, *, error: type[Exception] = M
         ``"<where>: <what> '<text>' is not a number"`` or
         ``"<where>: <what> is not finite (<text>)"``.
     """
-    try:
-        value = float(text)
-    except ValueError:
-        raise error(f"{where}: {what} {text.strip()!r} is not a number") from None
+    # Plain ASCII decimal numbers only: Python's float() also takes '1_0',
+    # non-ASCII digits and 'infinity', which no map file means.
+    if not (_NUMBER.fullmatch(text.strip()) or _NON_FINITE.fullmatch(text.strip())):
+        raise error(f"{where}: {what} {text.strip()!r} is not a number")
+    value = float(text)
     if not math.isfinite(value):
         raise error(f"{where}: {what} is not finite ({text.strip()})")
     return value

@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -17,7 +18,7 @@ from .compensation import compensate, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import Error, MapTemperatureWarning
 from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
-from .pointfiles import read_points, write_points
+from .pointfiles import check_writable, read_points, write_points
 from .metrics import STEEL_EXPANSION
 from .report import KernelReport
 
@@ -104,6 +105,7 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
     pose_t = triple(pose, "--pose")
     offset_t = triple(offset, "--offset")
     try:
+        check_writable(points_out)  # before any work: a missing folder is found now, not after
         error_map = load_maps(maps)
         uv, scales, temps = read_points(points_in)
         if isinstance(error_map, ErrorMapSet):
@@ -118,7 +120,7 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
                     warnings.simplefilter("ignore", MapTemperatureWarning)
                     note = warn_single_map(error_map, given, temperature_tolerance)
                 if note:
-                    console.print(f"[yellow]warning:[/] {note}")
+                    console.print(f"[yellow]warning:[/] {escape(note)}")
         n = len(uv)
         out = np.empty((n, 3))
         totals = np.zeros(5, dtype=np.int64)
@@ -239,7 +241,7 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
     try:
         import matplotlib  # noqa: F401
     except ImportError:
-        console.print("matplotlib is not installed: no plots (pip install cmmpose[plot])")
+        console.print(escape("matplotlib is not installed: no plots (pip install 'cmmpose[plot]')"))
         return files
     from .plots import plot_ballbar_lengths, plot_error_map
 
@@ -275,7 +277,7 @@ def evaluate_cmd(run_dir, maps, temperature, out_of_range, temperature_tolerance
             ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
                           temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion=expansion * 1e-6)
         for w in caught:
-            console.print(f"[yellow]warning:[/] {w.message}")
+            console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
         files = write_report(ev, Path(report_dir), model) if report_dir else []
     except Error as exc:
         raise fail(exc) from None
@@ -319,10 +321,13 @@ def diagnose_cmd(run_dir, maps, model_file, temperature, out_of_range, temperatu
         with console.status("diagnosing ..."):
             diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects)
         files = []
-        if report_file:
-            files.append(diag.write_report(report_file, run))
         if model_out:
             files.append(diag.model.save(model_out))
+        if report_file:
+            try:
+                files.append(diag.write_report(report_file, run))
+            except ImportError as exc:  # the diagnosis is still printed and the model saved
+                console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
         raise fail(exc) from None
     if as_json:

@@ -152,7 +152,10 @@ class Evaluation:
 
     def to_pandas(self):
         """One row per (result, position); pandas is needed only here."""
-        import pandas as pd
+        try:
+            import pandas as pd
+        except ImportError:
+            raise ImportError("to_pandas needs pandas: pip install pandas") from None
 
         return pd.DataFrame([{"result": r.label, **row} for r in self.results for row in r.rows()])
 

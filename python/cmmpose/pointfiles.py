@@ -1,9 +1,16 @@
 """Point files for the CLI: CSV with a header row (u, v, D, E, F and an
 optional T) or NPY ((N, 5) or (N, 6) in that column order, or a structured
-array with those field names). Units: mm and degrees C."""
+array with those field names). Units: mm and degrees C.
+
+Reading is strict: a CSV must be UTF-8 with every row as wide as the header
+(an extra field would shift the columns) and plain numbers; an NPY must be
+a real-valued array whose header matches the file's size. Writing goes to a
+temporary file renamed into place, so a failure leaves nothing behind."""
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -11,71 +18,140 @@ import numpy as np
 from .errors import InputError
 
 REQUIRED = ("u", "v", "D", "E", "F")
+#: The first bytes of every .npy file.
+_NPY_MAGIC = b"\x93NUMPY"
 
 
 def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Read ``uv`` (N, 2), ``scales`` (N, 3) and temperatures (N,) or None."""
+    """Read ``uv`` (N, 2), ``scales`` (N, 3) and temperatures (N,) or None.
+
+    Parameters
+    ----------
+    path : path-like
+        A .npy file, or a CSV file (any other suffix) with a header row.
+
+    Raises
+    ------
+    InputError
+        Naming the file, and the line and column where it can: a missing
+        file, text that is not UTF-8, a header without u, v, D, E, F, a row
+        of another width than the header, a field that is not a number, an
+        NPY that is not a plain real array of the right shape.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if path.suffix.lower() == ".npy":
-        try:
-            a = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{path}: not a readable .npy file ({exc})") from None
-        if a.dtype.names:
-            names = a.dtype.names
-            missing = [c for c in REQUIRED if c not in names]
-            if missing:
-                raise InputError(f"{path}: fields {missing} missing (have {list(names)})")
-            cols = [a[c] for c in REQUIRED] + ([a["T"]] if "T" in names else [])
-            a = np.column_stack(cols).astype(np.float64)
-        elif a.ndim != 2 or a.shape[1] not in (5, 6):
-            raise InputError(f"{path}: expected shape (N, 5) or (N, 6) with columns u, v, D, E, F[, T], got {a.shape}")
-        a = np.asarray(a, dtype=np.float64)
-        has_t = a.shape[1] == 6
+        a, has_t = _read_npy(path)
     else:
-        with path.open(encoding="utf-8") as f:
-            header = [h.strip() for h in f.readline().strip().split(",")]
-        missing = [c for c in REQUIRED if c not in header]
-        if missing:
-            raise InputError(f"{path}:1: header must name columns u, v, D, E, F (and optionally T); missing {missing}")
-        order = [header.index(c) for c in REQUIRED]
-        has_t = "T" in header
-        if has_t:
-            order.append(header.index("T"))
-        try:
-            a = np.loadtxt(path, delimiter=",", skiprows=1, usecols=order, ndmin=2, dtype=np.float64)
-        except ValueError as exc:
-            raise InputError(_first_bad_line(path, len(header), order) or f"{path}: {exc}") from None
+        a, has_t = _read_csv(path)
     uv = np.ascontiguousarray(a[:, 0:2])
     scales = np.ascontiguousarray(a[:, 2:5])
     temps = np.ascontiguousarray(a[:, 5]) if has_t else None
     return uv, scales, temps
 
 
-def _first_bad_line(path: Path, width: int, used: list[int]) -> str | None:
-    """On the error path only: the first line that is ragged or not numeric."""
-    with path.open(encoding="utf-8") as f:
-        next(f)
-        for lineno, line in enumerate(f, start=2):
-            if not line.strip():
-                continue
-            fields = line.rstrip("\n").split(",")
-            if len(fields) != width:
-                return f"{path}:{lineno}: expected {width} fields like the header, got {len(fields)}"
-            for k in used:
-                try:
-                    float(fields[k])
-                except ValueError:
-                    return f"{path}:{lineno}: value {fields[k].strip()!r} in column {k + 1} is not a number"
+def _read_npy(path: Path) -> tuple[np.ndarray, bool]:
+    with path.open("rb") as f:
+        head = f.read(len(_NPY_MAGIC))
+    if head != _NPY_MAGIC:
+        kind = "a zip archive (an .npz?)" if head.startswith(b"PK") else "empty" if not head else "not NumPy data"
+        raise InputError(f"{path}: not a .npy file ({kind})")
+    try:
+        # Memory-mapped first: a header claiming more rows than the file holds
+        # fails here, before anything is allocated.
+        a = np.load(path, allow_pickle=False, mmap_mode="r")
+    except (OSError, ValueError, EOFError, MemoryError) as exc:
+        raise InputError(f"{path}: not a readable .npy file ({exc})") from None
+    if a.dtype.names:
+        names = a.dtype.names
+        missing = [c for c in REQUIRED if c not in names]
+        if missing:
+            raise InputError(f"{path}: fields {missing} missing (have {list(names)})")
+        cols = [np.asarray(a[c]) for c in REQUIRED] + ([np.asarray(a["T"])] if "T" in names else [])
+        for c, name in zip(cols, [*REQUIRED, "T"]):
+            if c.dtype.kind not in "iuf":
+                raise InputError(f"{path}: field {name!r} holds {c.dtype} values, expected real numbers")
+        return np.column_stack(cols).astype(np.float64), "T" in names
+    if a.dtype.kind not in "iuf":
+        raise InputError(f"{path}: holds {a.dtype} values, expected real numbers (float64)")
+    if a.ndim != 2 or a.shape[1] not in (5, 6):
+        raise InputError(f"{path}: expected shape (N, 5) or (N, 6) with columns u, v, D, E, F[, T], got {a.shape}")
+    return np.array(a, dtype=np.float64), a.shape[1] == 6
+
+
+def _read_csv(path: Path) -> tuple[np.ndarray, bool]:
+    raw = path.read_bytes()
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]  # a byte-order mark some spreadsheets write
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise InputError(f"{path}:{line}: not UTF-8 text (byte {raw[exc.start]:#04x}); save the file as UTF-8 "
+                         f"CSV") from None
+    lines = text.splitlines()
+    if not lines or not lines[0].strip():
+        raise InputError(f"{path}:1: empty file; expected a header row u,v,D,E,F[,T]")
+    header = [h.strip() for h in lines[0].split(",")]
+    missing = [c for c in REQUIRED if c not in header]
+    if missing:
+        raise InputError(f"{path}:1: header must name columns u, v, D, E, F (and optionally T); missing {missing}")
+    dup = sorted({h for h in header if h and header.count(h) > 1})
+    if dup:
+        raise InputError(f"{path}:1: header names {dup} more than once")
+    width = len(header)
+    for lineno, line in enumerate(lines[1:], start=2):
+        if line.strip() and line.count(",") != width - 1:
+            raise InputError(f"{path}:{lineno}: expected {width} fields like the header, got {line.count(',') + 1}")
+    body = [ln for ln in lines[1:] if ln.strip()]
+    if not body:
+        return np.zeros((0, 6 if "T" in header else 5)), "T" in header
+    try:
+        a = np.loadtxt(body, delimiter=",", ndmin=2, dtype=np.float64)
+    except ValueError:
+        raise InputError(_first_bad_field(path, lines) or f"{path}: not numeric") from None
+    order = [header.index(c) for c in REQUIRED] + ([header.index("T")] if "T" in header else [])
+    return a[:, order], "T" in header
+
+
+def _first_bad_field(path: Path, lines: list[str]) -> str | None:
+    """On the error path only: the first field that is not a plain number."""
+    from ._validate import _NUMBER
+
+    for lineno, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        for k, field in enumerate(line.split(",")):
+            if not _NUMBER.fullmatch(field.strip()) and field.strip().lower() not in ("nan", "inf", "-inf", "+inf"):
+                return f"{path}:{lineno}: value {field.strip()!r} in column {k + 1} is not a number"
     return None
 
 
-def write_points(path: str | Path, xyz: np.ndarray) -> None:
-    """Write (N, 3) machine coordinates: CSV with header X,Y,Z (mm, 6 decimals = 1 nm) or NPY."""
+def check_writable(path: str | Path) -> Path:
+    """The output ``path``, or ``InputError`` if its folder does not exist or is not one."""
     path = Path(path)
-    if path.suffix.lower() == ".npy":
-        np.save(path, xyz)
-    else:
-        np.savetxt(path, xyz, delimiter=",", fmt="%.6f", header="X,Y,Z", comments="")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError(f"{path}: the folder {folder} does not exist")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a file name")
+    return path
+
+
+def write_points(path: str | Path, xyz: np.ndarray) -> None:
+    """Write (N, 3) machine coordinates: CSV with header X,Y,Z (mm, 6 decimals
+    = 1 nm) or NPY (suffix .npy in any case, kept as given). The file appears
+    whole or not at all."""
+    path = check_writable(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent if str(path.parent) else ".")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            if path.suffix.lower() == ".npy":
+                np.save(f, np.asarray(xyz, dtype=np.float64))
+            else:
+                np.savetxt(f, xyz, delimiter=",", fmt="%.6f", header="X,Y,Z", comments="")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

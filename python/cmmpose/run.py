@@ -18,6 +18,7 @@ line of the file.
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -285,6 +286,21 @@ def _check_json_value(value, what: str) -> object:
     return back
 
 
+#: Artefact entries the evaluation and diagnosis compute with: positive mm.
+ARTEFACT_NUMBERS = ("ball_radius_mm", "calibrated_length_mm", "calibrated_radius_mm")
+
+
+def _check_artefact_numbers(artefact: dict, what: str) -> None:
+    """The artefact's sizes are numbers (not "12.7", not true), finite and > 0."""
+    items = [(k, artefact[k]) for k in ARTEFACT_NUMBERS if k in artefact]
+    ref = artefact.get("reference_sphere")
+    if isinstance(ref, dict) and "radius_mm" in ref:
+        items.append(("reference_sphere.radius_mm", ref["radius_mm"]))
+    for key, v in items:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise RunError(f"{what}.{key}: expected a positive number of mm, got {v!r}")
+
+
 def _check_created(created, what: str) -> str:
     if not isinstance(created, str):
         raise RunError(f"{what}: expected an ISO-8601 UTC time string, got {type(created).__name__}")
@@ -388,6 +404,7 @@ class Run:
             if not isinstance(value, dict):
                 raise RunError(f"{j}{name}: expected a dict (JSON object), got {type(value).__name__}")
             set_(self, name, _check_json_value(value, f"{j}{name}"))
+        _check_artefact_numbers(self.artefact, f"{j}artefact")
         set_(self, "created", _check_created(self.created, f"{j}created"))
         channels = _check_channels(self.temperature_channels, j)
         set_(self, "temperature_channels", channels)
@@ -542,7 +559,9 @@ class Run:
                     continue
                 spec = _FIXED.get(name) or dict.fromkeys(cols, "float64")
                 table = pa.table({c: pa.array(cols[c], type=_ARROW[dt]) for c, dt in spec.items()})
-                pq.write_table(table, run_dir / f"{name}.parquet")
+                # Page checksums (CRC32), verified on load: a flipped bit
+                # names the damaged file instead of loading changed values.
+                pq.write_table(table, run_dir / f"{name}.parquet", write_page_checksum=True)
             if arrays is not None:
                 tdir = run_dir / _TRUTH_DIR
                 tdir.mkdir(exist_ok=True)
@@ -719,6 +738,8 @@ def _read_run_json(path: Path) -> dict:
         raise RunError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON ({exc.msg})") from None
     except ValueError as exc:
         raise RunError(f"{path}: invalid JSON ({exc})") from None
+    except RecursionError:
+        raise RunError(f"{path}: JSON nested too deeply to be a run header") from None
     if not isinstance(doc, dict):
         raise RunError(f"{path}: expected a JSON object, got {type(doc).__name__}")
     if doc.get("schema") != SCHEMA:
@@ -760,7 +781,7 @@ def _read_table(path: Path, spec: dict[str, str], where: _Where) -> dict[str, np
             )
             table = pa_csv.read_csv(path, convert_options=opts)
         else:
-            table = pq.read_table(path)
+            table = pq.read_table(path, page_checksum_verification=True)
     except (pa.ArrowException, OSError) as exc:
         kind = "CSV" if path.suffix == ".csv" else "Parquet"
         raise RunError(f"{path}: not a readable {kind} file ({exc})") from None

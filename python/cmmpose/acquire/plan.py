@@ -23,6 +23,7 @@ thesis's 11 thermocouples on channels 101..111.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -65,12 +66,31 @@ class Plan:
     temperature_channels: list = field(default_factory=list)
 
     def __post_init__(self):
+        # Every type checked now, not when the run is assembled after the
+        # whole recording.
+        for name in ("artefact", "maps", "metadata"):
+            if not isinstance(getattr(self, name), dict):
+                raise AcquisitionError(f"plan: {name}: expected a JSON object, got {type(getattr(self, name)).__name__}")
+        for name in ("poses", "scans", "temperature_channels"):
+            if not isinstance(getattr(self, name), list):
+                raise AcquisitionError(f"plan: {name}: expected a list, got {type(getattr(self, name)).__name__}")
+        for name, spec in (("poses", POSES_COLUMNS), ("scans", SCANS_COLUMNS)):
+            for k, row in enumerate(getattr(self, name)):
+                if not isinstance(row, dict):
+                    raise AcquisitionError(f"plan: {name}[{k}]: expected an object, got {type(row).__name__}")
+                for c, dt in spec.items():
+                    if c in row and not _fits(row[c], dt):
+                        raise AcquisitionError(f"plan: {name}[{k}]: {c} = {row[c]!r} is not "
+                                               f"{'a string' if dt == 'str' else 'an integer' if dt != 'float64' else 'a finite number'}")
         if not self.temperature_channels:
             self.temperature_channels = [{"name": n, "role": r, "channel": 101 + k} for k, (n, r) in enumerate(DEFAULT_CHANNELS)]
         for k, ch in enumerate(self.temperature_channels):
             if not isinstance(ch, dict) or "name" not in ch or ch.get("role") not in CHANNEL_ROLES:
                 raise AcquisitionError(f"plan: temperature_channels[{k}]: needs 'name' and a 'role' of {', '.join(CHANNEL_ROLES)}")
             ch.setdefault("channel", 101 + k)
+            if not isinstance(ch["name"], str) or not _fits(ch["channel"], "int32"):
+                raise AcquisitionError(f"plan: temperature_channels[{k}]: 'name' must be a string and 'channel' an "
+                                       f"integer, got {ch['name']!r}, {ch['channel']!r}")
         for k, p in enumerate(self.poses):
             missing = [c for c in POSES_COLUMNS if c not in p]
             if missing:
@@ -93,6 +113,8 @@ class Plan:
             doc = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, ValueError) as exc:
             raise AcquisitionError(f"{path}: not a readable plan ({exc})") from None
+        except RecursionError:
+            raise AcquisitionError(f"{path}: not a readable plan (JSON nested too deeply)") from None
         if not isinstance(doc, dict):
             raise AcquisitionError(f"{path}: a plan is a JSON object")
         extra = [k for k in doc if k not in _KEYS]
@@ -111,6 +133,17 @@ class Plan:
     def to_dict(self) -> dict:
         """JSON-ready dict."""
         return {k: getattr(self, k) for k in _KEYS}
+
+
+def _fits(value, dtype: str) -> bool:
+    """Whether a JSON value is of a run column's type (booleans are not numbers)."""
+    if dtype == "str":
+        return isinstance(value, str)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    if dtype == "float64":
+        return math.isfinite(value)
+    return float(value).is_integer()
 
 
 def plan_from_run(run: Run) -> Plan:

@@ -250,6 +250,8 @@ class AlignmentLibrary:
         except json.JSONDecodeError as exc:
             raise CalibrationError(
                 f"{self.path}:{exc.lineno}:{exc.colno}: not an alignment library (bad JSON: {exc.msg})") from None
+        except RecursionError:
+            raise CalibrationError(f"{self.path}: not an alignment library (JSON nested too deeply)") from None
         if not isinstance(doc, dict) or doc.get("format") != LIBRARY_FORMAT:
             raise CalibrationError(f"{self.path}: not an alignment library (expected \"format\": \"{LIBRARY_FORMAT}\")")
         if doc.get("version") != LIBRARY_VERSION:

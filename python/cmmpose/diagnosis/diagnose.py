@@ -176,6 +176,10 @@ class Diagnosis:
 
     def write_report(self, path, run: Run | None = None, *, title: str = "cmmpose diagnosis") -> Path:
         """A self-contained HTML report (plots embedded) at ``path``."""
+        try:
+            import matplotlib  # noqa: F401 - an optional extra
+        except ImportError:
+            raise ImportError("the HTML report needs matplotlib: pip install 'cmmpose[plot]'") from None
         from .report import write_report
 
         return write_report(self, path, run=run, title=title)

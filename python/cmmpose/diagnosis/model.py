@@ -246,8 +246,8 @@ class Model:
         """
         path = Path(path)
         try:
-            doc = json.loads(path.read_text())
-        except (OSError, ValueError) as e:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError, RecursionError) as e:
             raise InputError(f"{path}: not a readable model file ({e})") from None
         if not isinstance(doc, dict) or doc.get("schema") != MODEL_SCHEMA or doc.get("schema_version") != 1:
             raise InputError(f"{path}: not a {MODEL_SCHEMA} version 1 file")

@@ -769,9 +769,24 @@ fn compensate_with<S: Source>(
             let lever = d.lever_scaled(p[0], p[1], bound.mount(i));
             Vector3::from(s) + pe.e + pe.rotate(&lever)
         };
+        if !(x.x.is_finite() && x.y.is_finite() && x.z.is_finite()) {
+            return Err(overflow(i));
+        }
         slot.copy_from_slice(x.as_slice());
         Ok(())
     })
+}
+
+/// Finite inputs whose result is not: readings or (u, v) too large to be
+/// millimetres on a machine.
+#[cold]
+fn overflow(row: usize) -> CoreError {
+    CoreError::invalid_argument(
+        "uv/scales",
+        format!(
+            "row {row}: the compensated point overflows (readings or u, v far too large to be mm)"
+        ),
+    )
 }
 
 /// Compensated machine coordinates (mm) of points `uv` (N x 2, mm) taken at
@@ -884,6 +899,9 @@ pub fn uncompensated(
     };
     drive(&inputs, opts, out, 3, |i, s, slot, _| {
         let x = Vector3::from(s) + digitizer.lever(uv[2 * i], uv[2 * i + 1]);
+        if !(x.x.is_finite() && x.y.is_finite() && x.z.is_finite()) {
+            return Err(overflow(i));
+        }
         slot.copy_from_slice(x.as_slice());
         Ok(())
     })

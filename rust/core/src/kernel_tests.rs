@@ -725,3 +725,25 @@ fn extrapolation_extends_the_end_slope_and_reports_the_distance() {
     compensate(&uv, &s, &m, &digitizer(90.0, 90.0, 0.0), opts, &mut y).unwrap();
     assert!((y[0] - x[0]).abs() < 1e-9 && (y[1] - x[1]).abs() < 1e-9);
 }
+
+#[test]
+fn finite_input_never_gives_a_non_finite_result() {
+    let map = map_from(|_, _| [0.0; 6], [0.0; 3], None);
+    let d = digitizer(90.0, 90.0, 0.0);
+    // Clamping takes the readings into the map; the point itself overflows.
+    let uv = [1.7e308, 1.7e308, 0.0, 0.0];
+    let s = [1.7e308, 1.7e308, 1.7e308, 10.0, 10.0, -10.0];
+    let opts = Options {
+        out_of_range: OutOfRange::Clamp,
+        ..Default::default()
+    };
+    let mut out = vec![0.0; 6];
+    let e = compensate(&uv, &s, &map, &d, opts, &mut out)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("row 0") && e.contains("overflows"), "{e}");
+    let e = uncompensated(&uv, &s, &d, opts, &mut out)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("row 0"), "{e}");
+}
