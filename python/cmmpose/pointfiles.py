@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import tokenize
 from pathlib import Path
 
 import numpy as np
@@ -61,8 +62,9 @@ def _read_npy(path: Path) -> tuple[np.ndarray, bool]:
         # Memory-mapped first: a header claiming more rows than the file holds
         # fails here, before anything is allocated.
         a = np.load(path, allow_pickle=False, mmap_mode="r")
-    except (OSError, ValueError, EOFError, MemoryError) as exc:
-        raise InputError(f"{path}: not a readable .npy file ({exc})") from None
+    except (OSError, ValueError, EOFError, MemoryError, SyntaxError, tokenize.TokenError) as exc:
+        # (a damaged header is parsed as a Python literal: it can fail as a syntax error)
+        raise InputError(f"{path}: not a readable .npy file ({type(exc).__name__}: {exc})") from None
     if a.dtype.names:
         names = a.dtype.names
         missing = [c for c in REQUIRED if c not in names]

@@ -782,17 +782,23 @@ def _read_table(path: Path, spec: dict[str, str], where: _Where) -> dict[str, np
             table = pa_csv.read_csv(path, convert_options=opts)
         else:
             table = pq.read_table(path, page_checksum_verification=True)
-    except (pa.ArrowException, OSError) as exc:
+    except (pa.ArrowException, OSError, UnicodeDecodeError) as exc:
         kind = "CSV" if path.suffix == ".csv" else "Parquet"
         raise RunError(f"{path}: not a readable {kind} file ({exc})") from None
-    names = table.column_names
+    try:
+        names = table.column_names
+    except UnicodeDecodeError as exc:  # a damaged schema (the footer has no checksum)
+        raise RunError(f"{path}: damaged column names ({exc})") from None
     dup = [c for c in names if names.count(c) > 1]
     if dup:
         raise RunError(f"{path}: column {dup[0]!r} appears more than once")
     cols = {}
     for c in names:
         if c in spec:
-            cols[c] = _from_arrow(table.column(c), spec[c], c, where)
+            try:
+                cols[c] = _from_arrow(table.column(c), spec[c], c, where)
+            except (pa.ArrowException, UnicodeDecodeError) as exc:  # damaged bytes outside the checksummed pages
+                raise RunError(f"{path}: column {c!r} is damaged ({exc})") from None
         else:
             cols[c] = None  # reported as unexpected by _table
     return cols

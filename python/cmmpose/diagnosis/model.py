@@ -282,7 +282,12 @@ class Model:
                 if set(e["params"]) != set(spec.params):
                     raise InputError(f"{path}: effect {name!r} has parameters {sorted(e['params'])}, "
                                      f"expected {list(spec.params)}")
-                effects.append((spec, np.array([float(e["params"][p]) for p in spec.params])))
+                values = [e["params"][p] for p in spec.params]
+                bad = [p for p, v in zip(spec.params, values) if isinstance(v, bool) or not isinstance(v, (int, float))]
+                if bad:
+                    raise InputError(f"{path}: effect {name!r}: parameter {bad[0]!r} = {e['params'][bad[0]]!r} "
+                                     f"is not a number")
+                effects.append((spec, np.array([float(v) for v in values])))
             return cls(model_maps, tuple(effects), doc.get("temperature"), doc.get("out_of_range", "raise"),
                        doc.get("temperature_tolerance_K", TEMPERATURE_TOLERANCE), doc.get("log_hold_s", LOG_HOLD))
         except (KeyError, TypeError, ValueError) as e:
