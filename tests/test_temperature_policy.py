@@ -45,6 +45,8 @@ def test_runs_at_the_maps_ends_evaluate_and_diagnose_at_the_defaults(t):
     assert ev.provenance["points_held_at_maps_edge"] > 0 and ev.provenance["points_clamped"] == 0
     d = cmmpose.diagnose(run, MAPS, patterns=False, max_effects=1)
     assert d.steps[0].figures.rms_accuracy_error < 2e-3
+    prov = json.loads(d.to_json())["provenance"]
+    assert prov["policy"]["temperature_tolerance_K"] == 0.5 and prov["maps"]["kind"] == "set"
 
 
 def test_cli_at_20_c_as_a_new_user_would(tmp_path):

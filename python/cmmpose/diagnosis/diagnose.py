@@ -106,7 +106,27 @@ class Diagnosis:
         return {"steps": [s.to_dict() for s in self.steps], "unobservable": self.unobservable,
                 "ambiguous": [list(a) for a in self.ambiguous], "advice": self.advice,
                 "elapsed_s": self.elapsed, "n_points": self.n_points,
-                "patterns": None if self.patterns is None else self.patterns.to_dict()}
+                "patterns": None if self.patterns is None else self.patterns.to_dict(),
+                "provenance": self.provenance()}
+
+    def provenance(self) -> dict:
+        """What produced the diagnosis: version, date, the base model's maps,
+        temperature choice and temperature policy (cmmpose.policy)."""
+        from datetime import datetime, timezone
+
+        from .. import __version__
+
+        m = self.steps[0].model
+        maps = ({"kind": "set", "temperatures_C": [float(t) for t in m.maps.temperatures]}
+                if isinstance(m.maps, ErrorMapSet) else {"kind": "map", "temperature_C": m.maps.temperature})
+        return {"cmmpose_version": __version__,
+                "date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                "maps": maps,
+                "temperature": "given: %g C" % m.temperature if m.temperature is not None else
+                "run thermocouple log: machine mean of the axis-scale channels (thesis 6.4)",
+                "policy": {"out_of_range": m.out_of_range, "temperature_tolerance_K": m.temperature_tolerance,
+                           "log_hold_s": m.log_hold},
+                "base_effects": list(m.names)}
 
     def to_json(self, **kw) -> str:
         return json.dumps(self.to_dict(), default=_json_default, **kw)
