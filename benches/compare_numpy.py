@@ -44,6 +44,18 @@ def inputs(n: int):
     return uv, scales, temps
 
 
+#: Points per scanner profile: a Hyscan 45C profile holds up to 1024 points
+#: that share one scale reading, time and temperature.
+PROFILE = 1000
+
+
+def profile_inputs(n: int):
+    """Scan-structured data: profiles of PROFILE points sharing a reading and a temperature."""
+    uv, scales, temps = inputs(n)
+    k = np.arange(n) // PROFILE
+    return uv, np.ascontiguousarray(scales[k * PROFILE]), np.ascontiguousarray(temps[k * PROFILE])
+
+
 def best_time(fn, repeats: int) -> float:
     fn()  # warm up (page faults, caches, thread pool)
     best = float("inf")
@@ -65,6 +77,7 @@ def peak_bytes(fn) -> int:
 
 def cases(n: int):
     uv, scales, temps = inputs(n)
+    puv, pscales, ptemps = profile_inputs(n)
     maps = cmmpose.ErrorMapSet.thesis()
     blended = maps.at(22.5)
     ref_maps = [{"temperature": m.temperature, "squareness": m.squareness, **{c: m.table(c) for c in "XYZ"}} for m in maps.maps]
@@ -76,6 +89,10 @@ def cases(n: int):
         "per-point temperature": (
             lambda: cmmpose.compensate(uv, scales, maps, POSE, OFFSET, temps),
             lambda: nr.compensate(uv, scales, ref_maps, POSE, OFFSET, temps),
+        ),
+        "profiles, temperature": (
+            lambda: cmmpose.compensate(puv, pscales, maps, POSE, OFFSET, ptemps),
+            lambda: nr.compensate(puv, pscales, ref_maps, POSE, OFFSET, ptemps),
         ),
         "position error only": (
             lambda: blended.position_error(scales),

@@ -97,12 +97,105 @@ impl Report {
         self
     }
 
+    /// What a map evaluation added to the counts since `before`.
+    #[inline(always)]
+    fn counts_since(&self, before: &Report) -> Report {
+        Report {
+            clamped_position: std::array::from_fn(|k| {
+                self.clamped_position[k] - before.clamped_position[k]
+            }),
+            clamped_temperature: self.clamped_temperature - before.clamped_temperature,
+            held_temperature: self.held_temperature - before.held_temperature,
+            extrapolated_temperature: self.extrapolated_temperature
+                - before.extrapolated_temperature,
+            max_extrapolation: if self.extrapolated_temperature > before.extrapolated_temperature {
+                self.max_extrapolation
+            } else {
+                0.0
+            },
+            ..Default::default()
+        }
+    }
+
+    /// Add the counts of one map evaluation (see `counts_since`).
+    #[inline(always)]
+    fn add_counts(&mut self, d: &Report) {
+        for k in 0..3 {
+            self.clamped_position[k] += d.clamped_position[k];
+        }
+        self.clamped_temperature += d.clamped_temperature;
+        self.held_temperature += d.held_temperature;
+        self.extrapolated_temperature += d.extrapolated_temperature;
+        self.max_extrapolation = self.max_extrapolation.max(d.max_extrapolation);
+    }
+
+    /// Every count a map evaluation can change, summed.
+    #[inline(always)]
+    fn tally(&self) -> usize {
+        self.clamped_sum() + self.held_temperature + self.extrapolated_temperature
+    }
+
     #[inline(always)]
     fn clamped_sum(&self) -> usize {
         self.clamped_position[0]
             + self.clamped_position[1]
             + self.clamped_position[2]
             + self.clamped_temperature
+    }
+}
+
+/// The error state of the last row a block computed, keyed by the exact
+/// bits of its scale reading and temperatures, with the counts its map
+/// evaluation added to the report (re-added on a hit, so reports do not
+/// depend on the reuse). Kept small: on random readings every row misses
+/// and stores.
+#[derive(Default)]
+struct LastState {
+    key: [u64; 7],
+    valid: bool,
+    /// The rotation and position error (no effects) ...
+    pe: Option<PointError>,
+    /// ... or the interpolated components (with effects).
+    evaluated: Option<([Components; 3], [f64; 3])>,
+    counts: Option<Report>,
+}
+
+impl LastState {
+    #[inline(always)]
+    fn key(s: [f64; 3], t: &Temperatures) -> [u64; 7] {
+        [
+            s[0].to_bits(),
+            s[1].to_bits(),
+            s[2].to_bits(),
+            t.map[0].to_bits(),
+            t.map[1].to_bits(),
+            t.map[2].to_bits(),
+            t.squareness.to_bits(),
+        ]
+    }
+
+    /// Whether the row keyed `key` is the last one's; re-adds its counts.
+    #[inline(always)]
+    fn hit(&self, key: &[u64; 7], report: &mut Report) -> bool {
+        if self.valid && self.key == *key {
+            if let Some(c) = &self.counts {
+                report.add_counts(c);
+            }
+            true
+        } else {
+            false
+        }
+    }
+
+    #[inline(always)]
+    fn stored(&mut self, key: [u64; 7], report: &Report, before: &Report) {
+        self.key = key;
+        self.valid = true;
+        self.counts = if report.tally() != before.tally() {
+            Some(report.counts_since(before))
+        } else {
+            None
+        };
     }
 }
 
@@ -533,7 +626,7 @@ impl Inputs<'_, '_> {
 /// of every kernel (NaN rule, error order, report). Each chunk stops at its
 /// first error; the error of the lowest row wins, so the message names the
 /// first bad row of the input.
-fn drive<F>(
+fn drive<C, F>(
     inputs: &Inputs,
     opts: Options,
     out: &mut [f64],
@@ -541,7 +634,8 @@ fn drive<F>(
     row_fn: F,
 ) -> Result<Report>
 where
-    F: Fn(usize, [f64; 3], &mut [f64], &mut Report) -> Result<()> + Sync,
+    C: Default,
+    F: Fn(usize, [f64; 3], &mut [f64], &mut Report, &mut C) -> Result<()> + Sync,
 {
     let n = inputs.check(out, width)?;
     let avx2 = has_avx2();
@@ -552,9 +646,11 @@ where
             if avx2 {
                 // SAFETY: AVX2 was detected on this CPU at run time.
                 #[cfg(target_arch = "x86_64")]
-                return unsafe { block_avx2(inputs, opts, block, ci * CHUNK, width, &row_fn) };
+                return unsafe {
+                    block_avx2::<C, F>(inputs, opts, block, ci * CHUNK, width, &row_fn)
+                };
             }
-            block_rows(inputs, opts, block, ci * CHUNK, width, &row_fn)
+            block_rows::<C, F>(inputs, opts, block, ci * CHUNK, width, &row_fn)
         })
         .collect();
     let mut total = Report::default();
@@ -583,7 +679,7 @@ fn has_avx2() -> bool {
 
 /// The rows of one block; stops at its first error.
 #[inline(always)]
-fn block_rows<F>(
+fn block_rows<C, F>(
     inputs: &Inputs,
     opts: Options,
     block: &mut [f64],
@@ -592,9 +688,13 @@ fn block_rows<F>(
     row_fn: &F,
 ) -> (Report, Option<CoreError>)
 where
-    F: Fn(usize, [f64; 3], &mut [f64], &mut Report) -> Result<()> + Sync,
+    C: Default,
+    F: Fn(usize, [f64; 3], &mut [f64], &mut Report, &mut C) -> Result<()> + Sync,
 {
     let mut report = Report::default();
+    // State a row function carries from one row to the next within the
+    // block (the error state of the last scale reading).
+    let mut carry = C::default();
     for (j, slot) in block.chunks_exact_mut(width).enumerate() {
         let i = start + j;
         if let Some(argument) = inputs.non_finite(i) {
@@ -617,7 +717,7 @@ where
             inputs.scales[3 * i + 2],
         ];
         let before = report.clamped_sum();
-        if let Err(e) = row_fn(i, s, slot, &mut report) {
+        if let Err(e) = row_fn(i, s, slot, &mut report, &mut carry) {
             return (report, Some(e));
         }
         report.clamped_points += (report.clamped_sum() != before) as usize;
@@ -630,7 +730,7 @@ where
 /// order (no fused multiply-add), so the same bits, in wider registers.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn block_avx2<F>(
+unsafe fn block_avx2<C, F>(
     inputs: &Inputs,
     opts: Options,
     block: &mut [f64],
@@ -639,9 +739,10 @@ unsafe fn block_avx2<F>(
     row_fn: &F,
 ) -> (Report, Option<CoreError>)
 where
-    F: Fn(usize, [f64; 3], &mut [f64], &mut Report) -> Result<()> + Sync,
+    C: Default,
+    F: Fn(usize, [f64; 3], &mut [f64], &mut Report, &mut C) -> Result<()> + Sync,
 {
-    block_rows(inputs, opts, block, start, width, row_fn)
+    block_rows::<C, F>(inputs, opts, block, start, width, row_fn)
 }
 
 /// The error maps a compensation reads.
@@ -745,36 +846,72 @@ fn compensate_with<S: Source>(
     };
     let bound = effects.bind(&points.columns)?;
     let (uv, idx) = (points.uv, points.pose_index);
-    drive(&inputs, opts, out, 3, |i, s, slot, report| {
-        let d = &digitizers[idx.map_or(0, |p| p[i] as usize)];
-        let t = temperature.map_or(f64::NAN, |t| t[i]);
-        let x = if bound.is_empty() {
-            let (c, sq) = source.evaluate(i, s, &Temperatures::uniform(t), &opts, report)?;
-            let pe = PointError::new(s, &c, sq);
-            Vector3::from(s) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]))
-        } else {
-            let mut p = [uv[2 * i], uv[2 * i + 1]];
-            bound.scanner_inverse(i, &mut p);
-            let mut s = s;
-            bound.reading(i, &mut s);
-            let mut temps = Temperatures::uniform(t);
-            bound.temperatures(i, &mut temps);
-            let (components, squareness) = source.evaluate(i, s, &temps, &opts, report)?;
-            let mut e = MachineErrors {
-                components,
-                squareness,
+    let profiled = has_profiles(points.scales, temperature);
+    drive(
+        &inputs,
+        opts,
+        out,
+        3,
+        |i, s, slot, report, last: &mut LastState| {
+            let d = &digitizers[idx.map_or(0, |p| p[i] as usize)];
+            let t = temperature.map_or(f64::NAN, |t| t[i]);
+            let x = if bound.is_empty() {
+                // Points of one profile share a scale reading and a temperature:
+                // their error state is computed once (the same bits).
+                let temps = Temperatures::uniform(t);
+                let pe = if !profiled {
+                    let (c, sq) = source.evaluate(i, s, &temps, &opts, report)?;
+                    PointError::new(s, &c, sq)
+                } else {
+                    let key = LastState::key(s, &temps);
+                    if last.hit(&key, report) {
+                        last.pe.expect("stored with the key")
+                    } else {
+                        let before = *report;
+                        let (c, sq) = source.evaluate(i, s, &temps, &opts, report)?;
+                        let pe = PointError::new(s, &c, sq);
+                        last.pe = Some(pe);
+                        last.stored(key, report, &before);
+                        pe
+                    }
+                };
+                Vector3::from(s) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]))
+            } else {
+                let mut p = [uv[2 * i], uv[2 * i + 1]];
+                bound.scanner_inverse(i, &mut p);
+                let mut s = s;
+                bound.reading(i, &mut s);
+                let mut temps = Temperatures::uniform(t);
+                bound.temperatures(i, &mut temps);
+                // The maps are read once per reading and temperatures; the
+                // effects' machine terms may read per-point inputs, so they run
+                // for every point.
+                let key = LastState::key(s, &temps);
+                let (components, squareness) = if profiled && last.hit(&key, report) {
+                    last.evaluated.expect("stored with the key")
+                } else {
+                    let before = *report;
+                    let ev = source.evaluate(i, s, &temps, &opts, report)?;
+                    last.evaluated = Some(ev);
+                    last.stored(key, report, &before);
+                    ev
+                };
+                let mut e = MachineErrors {
+                    components,
+                    squareness,
+                };
+                bound.machine(i, s, &mut e);
+                let pe = PointError::new(s, &e.components, e.squareness);
+                let lever = d.lever_scaled(p[0], p[1], bound.mount(i));
+                Vector3::from(s) + pe.e + pe.rotate(&lever)
             };
-            bound.machine(i, s, &mut e);
-            let pe = PointError::new(s, &e.components, e.squareness);
-            let lever = d.lever_scaled(p[0], p[1], bound.mount(i));
-            Vector3::from(s) + pe.e + pe.rotate(&lever)
-        };
-        if !(x.x.is_finite() && x.y.is_finite() && x.z.is_finite()) {
-            return Err(overflow(i));
-        }
-        slot.copy_from_slice(x.as_slice());
-        Ok(())
-    })
+            if !(x.x.is_finite() && x.y.is_finite() && x.z.is_finite()) {
+                return Err(overflow(i));
+            }
+            slot.copy_from_slice(x.as_slice());
+            Ok(())
+        },
+    )
 }
 
 /// Finite inputs whose result is not: readings or (u, v) too large to be
@@ -787,6 +924,24 @@ fn overflow(row: usize) -> CoreError {
             "row {row}: the compensated point overflows (readings or u, v far too large to be mm)"
         ),
     )
+}
+
+/// Whether the points come in profiles that share a scale reading and a
+/// temperature (scanner data: ~1000 points per profile), judged on the first
+/// rows: then the kernel keeps each profile's error state; on random
+/// readings keeping it would only cost.
+fn has_profiles(scales: &[f64], temperature: Option<&[f64]>) -> bool {
+    let n = (scales.len() / 3).min(1 << 16);
+    if n < 2 {
+        return false;
+    }
+    let same = (1..n)
+        .filter(|&i| {
+            scales[3 * i..3 * i + 3] == scales[3 * i - 3..3 * i]
+                && temperature.is_none_or(|t| t[i].to_bits() == t[i - 1].to_bits())
+        })
+        .count();
+    4 * same >= n
 }
 
 /// Compensated machine coordinates (mm) of points `uv` (N x 2, mm) taken at
@@ -897,7 +1052,7 @@ pub fn uncompensated(
         scales,
         columns: &columns,
     };
-    drive(&inputs, opts, out, 3, |i, s, slot, _| {
+    drive(&inputs, opts, out, 3, |i, s, slot, _, _: &mut ()| {
         let x = Vector3::from(s) + digitizer.lever(uv[2 * i], uv[2 * i + 1]);
         if !(x.x.is_finite() && x.y.is_finite() && x.z.is_finite()) {
             return Err(overflow(i));
@@ -920,7 +1075,7 @@ pub fn position_error(
         scales,
         columns: &columns,
     };
-    drive(&inputs, opts, out, 3, |i, s, slot, report| {
+    drive(&inputs, opts, out, 3, |i, s, slot, report, _: &mut ()| {
         let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), &opts, report)?;
         slot.copy_from_slice(PointError::new(s, &c, sq).e.as_slice());
         Ok(())
@@ -940,7 +1095,7 @@ pub fn rotation_error(
         scales,
         columns: &columns,
     };
-    drive(&inputs, opts, out, 9, |i, s, slot, report| {
+    drive(&inputs, opts, out, 9, |i, s, slot, report, _: &mut ()| {
         let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), &opts, report)?;
         let pe = PointError::new(s, &c, sq);
         for r in 0..3 {

@@ -399,18 +399,19 @@ fn avx2_block_gives_the_same_bits_as_the_portable_one() {
         scales: &s,
         columns: &columns,
     };
-    let row_fn = |i: usize, sc: [f64; 3], slot: &mut [f64], report: &mut Report| -> Result<()> {
-        let tt = Temperatures::uniform(t[i]);
-        let (c, sq) = set.evaluate(i, sc, &tt, &Options::default(), report)?;
-        let pe = PointError::new(sc, &c, sq);
-        let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
-        slot.copy_from_slice(x.as_slice());
-        Ok(())
-    };
+    let row_fn =
+        |i: usize, sc: [f64; 3], slot: &mut [f64], report: &mut Report, _: &mut ()| -> Result<()> {
+            let tt = Temperatures::uniform(t[i]);
+            let (c, sq) = set.evaluate(i, sc, &tt, &Options::default(), report)?;
+            let pe = PointError::new(sc, &c, sq);
+            let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
+            slot.copy_from_slice(x.as_slice());
+            Ok(())
+        };
     let (mut a, mut b) = (vec![0.0; 15000], vec![0.0; 15000]);
-    let ra = block_rows(&inputs, Options::default(), &mut a, 0, 3, &row_fn);
+    let ra = block_rows::<(), _>(&inputs, Options::default(), &mut a, 0, 3, &row_fn);
     // SAFETY: AVX2 detected above.
-    let rb = unsafe { block_avx2(&inputs, Options::default(), &mut b, 0, 3, &row_fn) };
+    let rb = unsafe { block_avx2::<(), _>(&inputs, Options::default(), &mut b, 0, 3, &row_fn) };
     assert!(ra.1.is_none() && rb.1.is_none());
     assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
 }
@@ -746,4 +747,63 @@ fn finite_input_never_gives_a_non_finite_result() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("row 0"), "{e}");
+}
+
+#[test]
+fn profiles_reuse_the_error_state_with_the_same_bits_and_counts() {
+    // 12 profiles of 50 points sharing a reading and a temperature, some
+    // outside the map (clamped) and some a hair outside the temperatures
+    // (held): the whole call equals each point alone, bit for bit, and the
+    // report counts every point.
+    let set = two_maps();
+    let d = digitizer(90.0, 90.0, 30.0);
+    let (uv, _) = points(600);
+    let mut s = Vec::new();
+    let mut t = Vec::new();
+    for k in 0..12 {
+        let reading = [
+            100.0 + 70.0 * k as f64,
+            50.0 + 40.0 * k as f64,
+            -20.0 - 30.0 * k as f64,
+        ];
+        let reading = if k == 5 {
+            [950.0, 100.0, -100.0]
+        } else {
+            reading
+        };
+        for _ in 0..50 {
+            s.extend(reading);
+            t.push(if k == 7 { 30.2 } else { 21.0 + 0.5 * k as f64 });
+        }
+    }
+    let opts = Options {
+        out_of_range: OutOfRange::Clamp,
+        temperature_tolerance: 0.5,
+        ..Default::default()
+    };
+    let mut all = vec![0.0; 1800];
+    let r = compensate_at_temperatures(&uv, &s, &t, &set, &d, opts, &mut all).unwrap();
+    assert_eq!(
+        (r.clamped_position[0], r.held_temperature, r.clamped_points),
+        (50, 50, 50)
+    );
+    for i in 0..600 {
+        let mut one = [0.0; 3];
+        compensate_at_temperatures(
+            &uv[2 * i..2 * i + 2],
+            &s[3 * i..3 * i + 3],
+            &t[i..i + 1],
+            &set,
+            &d,
+            opts,
+            &mut one,
+        )
+        .unwrap();
+        assert!(
+            one.iter()
+                .zip(&all[3 * i..3 * i + 3])
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "row {i}"
+        );
+    }
 }
