@@ -218,9 +218,11 @@ def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise
                          temperature_tolerance: float = TEMPERATURE_TOLERANCE, reports: list | None = None) -> np.ndarray:
     """All points in machine coordinates, compensated with ``maps`` or not
     (None); the kernel reports are appended to ``reports``."""
-    scan_pose = dict(zip(run.scans["scan_id"].tolist(), run.scans["pose_id"].tolist()))
+    ids = run.scans["scan_id"]
+    order = np.argsort(ids)
     sid = run.points["scan_id"]
-    pose_of_point = np.vectorize(scan_pose.__getitem__, otypes=[np.int64])(sid) if len(sid) else sid
+    # Run validation guarantees every point's scan exists.
+    pose_of_point = run.scans["pose_id"][order][np.searchsorted(ids[order], sid)] if len(sid) else sid
     out = np.empty((run.n_points, 3))
     for pose_id in np.unique(pose_of_point):
         rows = np.flatnonzero(pose_of_point == pose_id)

@@ -166,11 +166,15 @@ def fit_spheres(points, labels, radius: float | None = None, *, reject: float | 
     labels = np.asarray(labels)
     if labels.shape != (len(pts),):
         raise InputError(f"labels: expected shape ({len(pts)},), got {labels.shape}")
-    order = np.argsort(labels, kind="stable")
-    sorted_labels = labels[order]
+    if len(labels) < 2 or bool(np.all(labels[1:] >= labels[:-1])):
+        # Runs store points scan by scan: already in order, no sort or copy.
+        sorted_labels, sorted_pts = labels, pts
+    else:
+        order = np.argsort(labels, kind="stable")
+        sorted_labels, sorted_pts = labels[order], np.ascontiguousarray(pts[order])
     starts = np.flatnonzero(np.r_[True, sorted_labels[1:] != sorted_labels[:-1]]) if len(labels) else np.array([], int)
     bounds = np.r_[starts, len(labels)].astype(np.int64)
-    results = _core.fit_spheres(np.ascontiguousarray(pts[order]), bounds, *opts)
+    results = _core.fit_spheres(sorted_pts, bounds, *opts)
     out = {}
     for label, r in zip(sorted_labels[starts].tolist(), results):
         if isinstance(r, Exception):

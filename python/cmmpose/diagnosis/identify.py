@@ -59,10 +59,10 @@ PRIOR_WEIGHT = 0.3
 
 
 def _chi2_sf(x: float, k: int) -> float:
-    """Upper tail of chi-square with k dof."""
-    from scipy.stats import chi2
+    """Upper tail of chi-square with k dof (scipy.special: no scipy.stats import)."""
+    from scipy.special import chdtrc
 
-    return float(chi2.sf(x, k))
+    return float(chdtrc(k, x))
 
 
 @dataclass
