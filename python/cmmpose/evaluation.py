@@ -209,9 +209,11 @@ def machine_temperature(run: Run, t, log_hold: float = LOG_HOLD) -> np.ndarray:
     if run.temperatures is None:
         raise InputError("run has no temperature log: pass temperature= explicitly")
     check_log_coverage(run, t, log_hold)
-    temps, _ = temperatures_at(t, run.temperatures, run.temperature_channels, policy="machine_mean",
+    # Points of a profile share a time stamp: interpolate the log once per time.
+    ut, inv = np.unique(np.asarray(t, dtype=float), return_inverse=True)
+    temps, _ = temperatures_at(ut, run.temperatures, run.temperature_channels, policy="machine_mean",
                                out_of_range="hold")
-    return temps
+    return temps[inv].reshape(np.shape(t))
 
 
 def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise",

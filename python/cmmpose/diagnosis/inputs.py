@@ -127,10 +127,14 @@ class RunInputs:
             from ..evaluation import check_log_coverage
 
             check_log_coverage(run, t, log_hold)
-            temps, _ = temperatures_at(t, run, policy="machine_mean", on_gap="interpolate", out_of_range="hold")
+            # Points of a profile share a time stamp: interpolate the log once per time.
+            ut, inv = np.unique(t, return_inverse=True)
+            temps, _ = temperatures_at(ut, run, policy="machine_mean", on_gap="interpolate", out_of_range="hold")
+            temps = temps[inv]
             roles = [c.get("role") for c in run.temperature_channels]
             if all(r in roles for r in ("x_scale", "y_scale", "z_scale")):
-                axis_t, _ = temperatures_at(t, run, policy="per_axis", on_gap="interpolate", out_of_range="hold")
+                axis_t, _ = temperatures_at(ut, run, policy="per_axis", on_gap="interpolate", out_of_range="hold")
+                axis_t = axis_t[inv]
             tops = [c["name"] for c in run.temperature_channels if c.get("role") == "granite_top"]
             bottoms = [c["name"] for c in run.temperature_channels if c.get("role") == "granite_bottom"]
             if tops and bottoms:
@@ -148,8 +152,8 @@ class RunInputs:
                 names = [c["name"] for c in run.temperature_channels if c.get("role") == role]
                 if names:
                     role_t[f"{role}_temperature"] = np.ascontiguousarray(np.mean(
-                        [temperatures_at(t, run, policy=f"channel:{c}", on_gap="interpolate", out_of_range="hold")[0]
-                         for c in names], axis=0), dtype=float)
+                        [temperatures_at(ut, run, policy=f"channel:{c}", on_gap="interpolate", out_of_range="hold")[0]
+                         for c in names], axis=0)[inv], dtype=float)
         return cls(uv=run.uv, scales=run.scales, t=run.points["t"], scan_id=run.points["scan_id"], pose_ids=pose_ids, pose_index=np.ascontiguousarray(pose_index),
                    poses=poses, temperature=np.ascontiguousarray(temps, dtype=float),
                    axis_temperature=None if axis_t is None else np.ascontiguousarray(axis_t, dtype=float),
