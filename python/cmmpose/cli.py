@@ -18,14 +18,11 @@ from .compensation import compensate, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import Error, MapTemperatureWarning
 from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
-from .pointfiles import check_writable, read_points, write_points
+from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
 from .metrics import STEEL_EXPANSION
 from .report import KernelReport
 
 console = Console(stderr=True)
-
-#: Points per call when a progress bar is shown.
-CHUNK = 1_000_000
 
 
 def load_maps(specs: tuple[str, ...]) -> ErrorMap | ErrorMapSet:
@@ -107,50 +104,75 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
     try:
         check_writable(points_out)  # before any work: a missing folder is found now, not after
         error_map = load_maps(maps)
-        uv, scales, temps = read_points(points_in)
-        if isinstance(error_map, ErrorMapSet):
-            if temperature is None and temps is None:
-                raise click.UsageError("a map set needs --temperature or a T column in the input")
-            t_all = temperature if temperature is not None else temps
-        else:
-            t_all = None
-            given = temperature if temperature is not None else temps
-            if given is not None:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", MapTemperatureWarning)
-                    note = warn_single_map(error_map, given, temperature_tolerance)
-                if note:
-                    console.print(f"[yellow]warning:[/] {escape(note)}")
-        n = len(uv)
-        out = np.empty((n, 3))
+        size, chunks = point_chunks(points_in)
+        state = {"t_all": None, "warned": False}
         totals = np.zeros(5, dtype=np.int64)
-        held = extrapolated = 0
-        max_extrapolation = 0.0
-        start = time.perf_counter()
-        with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,} points"),
-                      TimeRemainingColumn(), console=console, disable=n <= CHUNK) as bar:
-            task = bar.add_task("", total=n)
-            for lo in range(0, max(n, 1), CHUNK):
-                hi = min(lo + CHUNK, n)
-                t = t_all if t_all is None or np.isscalar(t_all) else t_all[lo:hi]
-                xyz, rep = compensate(uv[lo:hi], scales[lo:hi], error_map, pose_t, offset_t, t,
-                                      out_of_range=out_of_range, nan_policy=nan_policy,
-                                      temperature_tolerance=temperature_tolerance, return_report=True)
-                out[lo:hi] = xyz
-                totals += [rep.points, *rep.clamped_position, rep.clamped_temperature]
+        held = extrapolated = n = 0
+        max_extrapolation = elapsed = 0.0
+
+        def one(uv, scales, temps):
+            """Compensate one chunk; returns its coordinates and kernel report."""
+            if isinstance(error_map, ErrorMapSet):
+                if temperature is None and temps is None:
+                    raise click.UsageError("a map set needs --temperature or a T column in the input")
+                t = temperature if temperature is not None else temps
+                state["t_all"] = "per point (T column)" if temperature is None else f"{temperature:g} C"
+            else:
+                t = None
+                given = temperature if temperature is not None else temps
+                if given is not None and not state["warned"]:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", MapTemperatureWarning)
+                        note = warn_single_map(error_map, given, temperature_tolerance)
+                    if note:
+                        console.print(f"[yellow]warning:[/] {escape(note)}")
+                    state["warned"] = True
+            return compensate(uv, scales, error_map, pose_t, offset_t, t, out_of_range=out_of_range,
+                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
+                              return_report=True)
+
+        def run(source, writer, bar, task):
+            nonlocal n, held, extrapolated, max_extrapolation, elapsed
+            for uv, scales, temps, done in source:
+                t0 = time.perf_counter()
+                xyz, rep = one(uv, scales, temps)
+                elapsed += time.perf_counter() - t0
+                writer.write(xyz)
+                n += len(uv)
+                totals[:] += [rep.points, *rep.clamped_position, rep.clamped_temperature]
                 held += rep.held_temperature
                 extrapolated += rep.extrapolated_temperature
                 max_extrapolation = max(max_extrapolation, rep.max_extrapolation)
-                bar.advance(task, hi - lo)
-        elapsed = time.perf_counter() - start
-        write_points(points_out, out)
+                bar.update(task, completed=done)
+
+        # One bar over reading, compensating and writing, by bytes of input;
+        # memory stays bounded by the chunk size whatever the file's size.
+        with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                      TimeRemainingColumn(), console=console, disable=size < (32 << 20)) as bar:
+            task = bar.add_task("", total=size)
+            writer = PointWriter(points_out)
+            try:
+                try:
+                    run(chunks, writer, bar, task)
+                except RereadPoints as again:  # the fast reader refused a line the strict one accepts
+                    writer.abort()
+                    writer = PointWriter(points_out)
+                    totals[:] = 0
+                    held = extrapolated = n = 0
+                    max_extrapolation = elapsed = 0.0
+                    run(iter([(*again.points, size)]), writer, bar, task)
+            except BaseException:
+                writer.abort()
+                raise
+            writer.close()
+            bar.update(task, completed=size)
+        t_all = state["t_all"]
     except Error as exc:
         raise fail(exc) from None
     table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
     table.add_row("points", f"{n:,}")
     table.add_row("maps", repr(error_map))
-    table.add_row("temperature", "per point (T column)" if t_all is not None and not np.isscalar(t_all)
-                  else "-" if t_all is None else f"{t_all:g} C")
+    table.add_row("temperature", t_all or "-")
     table.add_row("pose (deg)", ", ".join(f"{v:g}" for v in pose_t))
     table.add_row("offset (mm)", ", ".join(f"{v:g}" for v in offset_t))
     report = KernelReport(int(totals[0]), tuple(int(x) for x in totals[1:4]), int(totals[4]), 0)

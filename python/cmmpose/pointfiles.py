@@ -198,3 +198,146 @@ def write_points(path: str | Path, xyz: np.ndarray) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+#: Points per chunk when a file is streamed.
+CHUNK_POINTS = 1_000_000
+
+
+def point_chunks(path: str | Path, chunk: int | None = None):
+    """The points of ``path`` in chunks of about ``chunk`` rows, so a file of
+    any size is compensated in bounded memory.
+
+    Returns
+    -------
+    size : int
+        The file's size in bytes (for progress).
+    chunks : iterator of (uv, scales, temps, bytes_done)
+        As :func:`read_points` returns them, per chunk, with how far into the
+        file (bytes) the chunk ends. A file the fast reader refuses is read
+        whole by the strict one, which raises naming the line at fault.
+    """
+    path = Path(path)
+    chunk = CHUNK_POINTS if chunk is None else int(chunk)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    size = path.stat().st_size
+    if path.suffix.lower() == ".npy":
+        return size, _npy_chunks(path, chunk, size)
+    return size, _csv_chunks(path, chunk, size)
+
+
+def _split(a: np.ndarray, has_t: bool):
+    return (np.ascontiguousarray(a[:, 0:2]), np.ascontiguousarray(a[:, 2:5]),
+            np.ascontiguousarray(a[:, 5]) if has_t else None)
+
+
+def _npy_chunks(path: Path, chunk: int, size: int):
+    a, has_t = _read_npy_lazy(path)
+    n = len(a)
+    for lo in range(0, max(n, 1), chunk):
+        hi = min(lo + chunk, n)
+        block = np.array(a[lo:hi], dtype=np.float64)
+        yield (*_split(block, has_t), int(size * hi / max(n, 1)))
+
+
+def _read_npy_lazy(path: Path):
+    """A plain (N, 5|6) NPY memory-mapped (checked as :func:`read_points` does);
+    structured arrays are read whole."""
+    a, has_t = _read_npy(path) if _is_structured(path) else (None, None)
+    if a is not None:
+        return a, has_t
+    m = np.load(path, allow_pickle=False, mmap_mode="r")
+    return m, m.shape[1] == 6
+
+
+def _is_structured(path: Path) -> bool:
+    """Whether the NPY holds a structured array; anything unusual takes the checked path."""
+    try:
+        m = np.load(path, allow_pickle=False, mmap_mode="r")
+    except Exception:  # noqa: BLE001 - _read_npy raises the clear error
+        return True
+    return bool(m.dtype.names) or m.dtype.kind not in "iuf" or m.ndim != 2 or m.shape[1] not in (5, 6)
+
+
+def _csv_chunks(path: Path, chunk: int, size: int):
+    with path.open("rb") as f:
+        first = f.readline()
+    if first.startswith(b"\xef\xbb\xbf"):
+        first = first[3:]
+    try:
+        header = [h.strip() for h in first.decode("utf-8").rstrip("\r\n").split(",")]
+    except UnicodeDecodeError:
+        header = []
+    ok = header and all(c in header for c in REQUIRED) and len(set(header)) == len(header) and all(header)
+    if not ok:
+        a, has_t = _read_csv_strict(path)
+        yield (*_split(a, has_t), size)
+        return
+    cols = [*REQUIRED, *(["T"] if "T" in header else [])]
+    has_t = "T" in header
+    try:
+        reader = pa_csv.open_csv(
+            path,
+            read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1, block_size=64 << 20),
+            convert_options=pa_csv.ConvertOptions(
+                column_types=dict.fromkeys(cols, pa.float64()), include_columns=cols, null_values=[],
+                strings_can_be_null=False, quoted_strings_can_be_null=False),
+        )
+        rows = 0
+        for batch in reader:
+            if any(batch.column(c).null_count for c in cols):
+                raise pa.ArrowInvalid("null")
+            a = np.column_stack([batch.column(c).to_numpy() for c in cols]) if batch.num_rows else \
+                np.zeros((0, len(cols)))
+            rows += len(a)
+            for lo in range(0, len(a), chunk):
+                yield (*_split(a[lo:lo + chunk], has_t), min(size, int(size * 0.98 * rows / max(rows, 1))))
+    except (pa.ArrowException, OSError):
+        # The strict reader says which line; if it accepts the file after
+        # all, its values are what the fast reader would have given.
+        a, has_t = _read_csv_strict(path)
+        raise RereadPoints(a, has_t) from None
+
+
+class RereadPoints(Exception):
+    """The fast reader refused part of a file the strict one then read whole."""
+
+    def __init__(self, a, has_t):
+        super().__init__("re-read")
+        self.points = _split(a, has_t)
+
+
+class PointWriter:
+    """Machine coordinates written chunk by chunk to a temporary file renamed
+    over ``path`` on success (CSV, or NPY given the total count)."""
+
+    def __init__(self, path: str | Path, total: int | None = None):
+        self.path = check_writable(path)
+        self.npy = self.path.suffix.lower() == ".npy"
+        self.total = total
+        self._chunks: list[np.ndarray] = []
+        fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=self.path.parent if str(self.path.parent) else ".")
+        self.f = os.fdopen(fd, "wb")
+        if not self.npy:
+            self.f.write(b"X,Y,Z\n")
+
+    def write(self, xyz: np.ndarray) -> None:
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        if self.npy:
+            self._chunks.append(xyz)  # NPY needs the count in its header
+            return
+        r = np.round(xyz, 6) + 0.0
+        if len(r):
+            pa_csv.write_csv(pa.table({"X": r[:, 0], "Y": r[:, 1], "Z": r[:, 2]}), self.f,
+                             pa_csv.WriteOptions(include_header=False))
+
+    def close(self) -> None:
+        if self.npy:
+            np.save(self.f, np.concatenate(self._chunks) if self._chunks else np.zeros((0, 3)))
+        self.f.close()
+        os.replace(self.tmp, self.path)
+
+    def abort(self) -> None:
+        self.f.close()
+        Path(self.tmp).unlink(missing_ok=True)
