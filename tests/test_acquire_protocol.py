@@ -122,7 +122,7 @@ def test_scanner_over_a_socket_url(tmp_path):
     """Any pyserial URL works: here socket://, a TCP server standing in for a
     serial-to-Ethernet adapter. Run in a fresh interpreter: after the
     end-to-end acquisition tests in the same process the socket reader saw no
-    bytes (a leftover of those tests, not yet found; noted in the README)."""
+    bytes (a leftover of those tests: likely a file descriptor closed twice; not yet found)."""
     import subprocess
     import sys
 
