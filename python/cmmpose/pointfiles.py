@@ -41,20 +41,20 @@ def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | 
         of another width than the header, a field that is not a number, an
         NPY that is not a plain real array of the right shape.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    if path.suffix.lower() == ".npy":
-        a, has_t = _read_npy(path)
-    else:
-        a, has_t = _read_csv(path)
-    uv = np.ascontiguousarray(a[:, 0:2])
-    scales = np.ascontiguousarray(a[:, 2:5])
-    temps = np.ascontiguousarray(a[:, 5]) if has_t else None
-    return uv, scales, temps
+    _, chunks = point_chunks(path, chunk=2**62)  # one chunk: the whole file
+    try:
+        parts = [c[:3] for c in chunks]
+    except RereadPoints as again:
+        parts = [again.points]
+    if len(parts) == 1:
+        return parts[0]
+    uv, scales, temps = zip(*parts)
+    return (np.concatenate(uv), np.concatenate(scales), None if temps[0] is None else np.concatenate(temps))
 
 
-def _read_npy(path: Path) -> tuple[np.ndarray, bool]:
+def _read_npy(path: Path, lazy: bool = False) -> tuple[np.ndarray, bool]:
+    """The (N, 5|6) points of an NPY file, checked; ``lazy``: a plain array
+    stays memory-mapped (read chunk by chunk), a structured one is read."""
     with path.open("rb") as f:
         head = f.read(len(_NPY_MAGIC))
     if head != _NPY_MAGIC:
@@ -81,7 +81,7 @@ def _read_npy(path: Path) -> tuple[np.ndarray, bool]:
         raise InputError(f"{path}: holds {a.dtype} values, expected real numbers (float64)")
     if a.ndim != 2 or a.shape[1] not in (5, 6):
         raise InputError(f"{path}: expected shape (N, 5) or (N, 6) with columns u, v, D, E, F[, T], got {a.shape}")
-    return np.array(a, dtype=np.float64), a.shape[1] == 6
+    return (a if lazy else np.array(a, dtype=np.float64)), a.shape[1] == 6
 
 
 def _read_csv_strict(path: Path) -> tuple[np.ndarray, bool]:
@@ -121,9 +121,10 @@ def _read_csv_strict(path: Path) -> tuple[np.ndarray, bool]:
     return a[:, order], "T" in header
 
 
-def _read_csv(path: Path) -> tuple[np.ndarray, bool]:
-    """pyarrow's multi-threaded CSV reader on the columns needed; any file it
-    refuses goes through the strict reader, which names the line at fault."""
+def _csv_header(path: Path) -> list[str] | None:
+    """The header's column names if the fast reader can take the file: UTF-8,
+    u, v, D, E, F present, no name empty or twice; else None (the strict
+    reader then says what is wrong)."""
     with path.open("rb") as f:
         first = f.readline()
     if first.startswith(b"\xef\xbb\xbf"):
@@ -131,25 +132,9 @@ def _read_csv(path: Path) -> tuple[np.ndarray, bool]:
     try:
         header = [h.strip() for h in first.decode("utf-8").rstrip("\r\n").split(",")]
     except UnicodeDecodeError:
-        return _read_csv_strict(path)
-    if any(c not in header for c in REQUIRED) or len(set(header)) != len(header) or any(
-            not h for h in header):
-        return _read_csv_strict(path)
-    cols = [*REQUIRED, *(["T"] if "T" in header else [])]
-    try:
-        table = pa_csv.read_csv(
-            path,
-            read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1),
-            convert_options=pa_csv.ConvertOptions(
-                column_types=dict.fromkeys(cols, pa.float64()), include_columns=cols, null_values=[],
-                strings_can_be_null=False, quoted_strings_can_be_null=False),
-        )
-    except (pa.ArrowException, OSError):
-        return _read_csv_strict(path)
-    if any(table.column(c).null_count for c in cols):
-        return _read_csv_strict(path)
-    a = np.column_stack([table.column(c).to_numpy() for c in cols]) if table.num_rows else np.zeros((0, len(cols)))
-    return np.ascontiguousarray(a, dtype=np.float64), "T" in header
+        return None
+    ok = all(c in header for c in REQUIRED) and len(set(header)) == len(header) and all(header)
+    return header if ok else None
 
 
 def _first_bad_field(path: Path, lines: list[str]) -> str | None:
@@ -177,27 +162,16 @@ def check_writable(path: str | Path) -> Path:
 
 
 def write_points(path: str | Path, xyz: np.ndarray) -> None:
-    """Write (N, 3) machine coordinates: CSV with header X,Y,Z (mm, 6 decimals
-    = 1 nm) or NPY (suffix .npy in any case, kept as given). The file appears
-    whole or not at all."""
-    path = check_writable(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent if str(path.parent) else ".")
+    """Write (N, 3) machine coordinates: CSV with header X,Y,Z (mm, rounded to
+    1 nm, shortest form) or NPY (suffix .npy in any case, kept as given). The
+    file appears whole or not at all."""
+    writer = PointWriter(path)
     try:
-        with os.fdopen(fd, "wb") as f:
-            if path.suffix.lower() == ".npy":
-                np.save(f, np.asarray(xyz, dtype=np.float64))
-            else:
-                # Rounded to 1 nm, then written by pyarrow in the shortest
-                # form that reads back the same (450.1, not 450.100000).
-                r = np.round(np.asarray(xyz, dtype=np.float64).reshape(-1, 3), 6) + 0.0  # no "-0"
-                f.write(b"X,Y,Z\n")
-                if len(r):
-                    pa_csv.write_csv(pa.table({"X": r[:, 0], "Y": r[:, 1], "Z": r[:, 2]}), f,
-                                     pa_csv.WriteOptions(include_header=False))
-        os.replace(tmp, path)
+        writer.write(xyz)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        writer.abort()
         raise
+    writer.close()
 
 
 #: Points per chunk when a file is streamed.
@@ -233,7 +207,7 @@ def _split(a: np.ndarray, has_t: bool):
 
 
 def _npy_chunks(path: Path, chunk: int, size: int):
-    a, has_t = _read_npy_lazy(path)
+    a, has_t = _read_npy(path, lazy=True)
     n = len(a)
     for lo in range(0, max(n, 1), chunk):
         hi = min(lo + chunk, n)
@@ -241,58 +215,35 @@ def _npy_chunks(path: Path, chunk: int, size: int):
         yield (*_split(block, has_t), int(size * hi / max(n, 1)))
 
 
-def _read_npy_lazy(path: Path):
-    """A plain (N, 5|6) NPY memory-mapped (checked as :func:`read_points` does);
-    structured arrays are read whole."""
-    a, has_t = _read_npy(path) if _is_structured(path) else (None, None)
-    if a is not None:
-        return a, has_t
-    m = np.load(path, allow_pickle=False, mmap_mode="r")
-    return m, m.shape[1] == 6
-
-
-def _is_structured(path: Path) -> bool:
-    """Whether the NPY holds a structured array; anything unusual takes the checked path."""
-    try:
-        m = np.load(path, allow_pickle=False, mmap_mode="r")
-    except Exception:  # noqa: BLE001 - _read_npy raises the clear error
-        return True
-    return bool(m.dtype.names) or m.dtype.kind not in "iuf" or m.ndim != 2 or m.shape[1] not in (5, 6)
-
-
 def _csv_chunks(path: Path, chunk: int, size: int):
-    with path.open("rb") as f:
-        first = f.readline()
-    if first.startswith(b"\xef\xbb\xbf"):
-        first = first[3:]
-    try:
-        header = [h.strip() for h in first.decode("utf-8").rstrip("\r\n").split(",")]
-    except UnicodeDecodeError:
-        header = []
-    ok = header and all(c in header for c in REQUIRED) and len(set(header)) == len(header) and all(header)
-    if not ok:
+    header = _csv_header(path)
+    if header is None:
         a, has_t = _read_csv_strict(path)
         yield (*_split(a, has_t), size)
         return
     cols = [*REQUIRED, *(["T"] if "T" in header else [])]
     has_t = "T" in header
     try:
+        src = pa.OSFile(str(path))  # its position tells how far the reader got (progress)
         reader = pa_csv.open_csv(
-            path,
+            src,
             read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1, block_size=64 << 20),
             convert_options=pa_csv.ConvertOptions(
                 column_types=dict.fromkeys(cols, pa.float64()), include_columns=cols, null_values=[],
                 strings_can_be_null=False, quoted_strings_can_be_null=False),
         )
-        rows = 0
+        empty = True
         for batch in reader:
+            empty = False
             if any(batch.column(c).null_count for c in cols):
                 raise pa.ArrowInvalid("null")
             a = np.column_stack([batch.column(c).to_numpy() for c in cols]) if batch.num_rows else \
                 np.zeros((0, len(cols)))
-            rows += len(a)
+            done = min(src.tell(), size)
             for lo in range(0, len(a), chunk):
-                yield (*_split(a[lo:lo + chunk], has_t), min(size, int(size * 0.98 * rows / max(rows, 1))))
+                yield (*_split(a[lo:lo + chunk], has_t), done)
+        if empty:  # a header and no rows
+            yield (*_split(np.zeros((0, len(cols))), has_t), size)
     except (pa.ArrowException, OSError):
         # The strict reader says which line; if it accepts the file after
         # all, its values are what the fast reader would have given.
