@@ -48,15 +48,20 @@ def finite(name: str, value, *, error: type[Exception] = InputError) -> float:
         ``"<name>: expected a number, got <value>"`` or
         ``"<name>: must be finite, got <value>"``.
     """
-    if _not_a_number(value):
-        raise error(f"{name}: expected a number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise error(f"{name}: expected a number, got {value!r}") from None
+    v = _as_float(name, value, error)
     if not math.isfinite(v):
         raise error(f"{name}: must be finite, got {v}")
     return v
+
+
+def _as_float(name: str, value, error: type[Exception]) -> float:
+    """``float(value)``, refusing what converts only by accident (booleans)."""
+    if _not_a_number(value):
+        raise error(f"{name}: expected a number, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise error(f"{name}: expected a number, got {value!r}") from None
 
 
 def _not_a_number(x) -> bool:
@@ -93,10 +98,7 @@ def nonnegative(name: str, value, *, error: type[Exception] = InputError) -> flo
         ``"<name>: expected a number, got <value>"`` or
         ``"<name>: must be finite and >= 0, got <value>"``.
     """
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise error(f"{name}: expected a number, got {value!r}") from None
+    v = _as_float(name, value, error)
     if not math.isfinite(v) or v < 0:
         raise error(f"{name}: must be finite and >= 0, got {v}")
     return v

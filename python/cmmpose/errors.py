@@ -49,11 +49,11 @@ class MapTemperatureWarning(UserWarning):
 def warn_clamped(report) -> None:
     """Warn once per call when a report says anything was clamped or
     extrapolated; log the points held at the edge within the tolerance."""
-    held = getattr(report, "held_temperature", 0)
+    held = report.held_temperature
     if held:
         _log.info("%d of %d temperatures within the tolerance outside the maps were held at the edge",
                   held, report.points)
-    ext = getattr(report, "extrapolated_temperature", 0)
+    ext = report.extrapolated_temperature
     if ext:
         warnings.warn(f"{ext} of {report.points} temperatures extrapolated beyond the maps, up to "
                       f"{report.max_extrapolation:.2f} K", ExtrapolationWarning, stacklevel=3)

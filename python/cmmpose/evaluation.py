@@ -16,7 +16,7 @@ from .errormap import ErrorMap, ErrorMapSet
 from .errors import InputError, MapTemperatureWarning
 from .fitting import fit_spheres
 from .metrics import STEEL_EXPANSION, b89_value, improvement, length_at_20c, rms_accuracy_error
-from .policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy, python_log_hint
+from .policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_log_coverage, check_policy
 from .run import Run
 
 @dataclass(frozen=True)
@@ -360,22 +360,6 @@ def evaluate(
         prov["notes"].append(f"{extrapolated} temperatures extrapolated beyond the maps, up to "
                              f"{prov['max_extrapolation_K']:g} K")
     return Evaluation(raw, comp, provenance=prov)
-
-
-def check_log_coverage(run: Run, t, log_hold: float) -> None:
-    """Raise ``InputError`` if a point lies more than ``log_hold`` s outside
-    the run's thermocouple log, naming the first such row and time."""
-    lt = np.asarray(run.temperatures["t"], dtype=float)
-    t = np.asarray(t, dtype=float)
-    if not len(lt) or not len(t):
-        return
-    far = (t < lt[0] - log_hold) | (t > lt[-1] + log_hold)
-    if np.any(far):
-        i = int(np.argmax(far))
-        gap = lt[0] - t[i] if t[i] < lt[0] else t[i] - lt[-1]
-        raise InputError(f"point row {i}: t = {t[i]:g} s is {gap:.1f} s outside the temperature log "
-                         f"({lt[0]:g}..{lt[-1]:g} s), more than the {log_hold:g} s held at its ends "
-                         f"({python_log_hint()}, or give the temperature)")
 
 
 def _provenance(run: Run, maps, temperature, temps, expansion, out_of_range, tolerance, log_hold) -> dict:

@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .errors import InputError
 
-__all__ = ["TEMPERATURE_TOLERANCE", "LOG_HOLD", "OUT_OF_RANGE", "check_policy", "cli_wording"]
+__all__ = ["TEMPERATURE_TOLERANCE", "LOG_HOLD", "OUT_OF_RANGE", "check_policy", "check_log_coverage", "cli_wording"]
 
 #: K: the thermocouples' uncertainty (thesis 6.4: 0.5 K class), within which
 #: a temperature outside the maps is held at the edge.
@@ -57,8 +59,30 @@ def check_policy(out_of_range: str, temperature_tolerance: float, log_hold: floa
                              f"got {value!r}")
 
 
-def python_log_hint() -> str:
-    return _PYTHON_LOG
+def check_log_coverage(run, t, log_hold: float) -> None:
+    """Raise ``InputError`` if a point lies more than ``log_hold`` s outside
+    the run's thermocouple log, naming the first such row and time.
+
+    Parameters
+    ----------
+    run : Run
+        The run whose ``temperatures['t']`` (s) is the log.
+    t : array_like, shape (N,)
+        The points' time stamps, s.
+    log_hold : float
+        How far outside the log a point may lie, s.
+    """
+    lt = np.asarray(run.temperatures["t"], dtype=float)
+    t = np.asarray(t, dtype=float)
+    if not len(lt) or not len(t):
+        return
+    far = (t < lt[0] - log_hold) | (t > lt[-1] + log_hold)
+    if np.any(far):
+        i = int(np.argmax(far))
+        gap = lt[0] - t[i] if t[i] < lt[0] else t[i] - lt[-1]
+        raise InputError(f"point row {i}: t = {t[i]:g} s is {gap:.1f} s outside the temperature log "
+                         f"({lt[0]:g}..{lt[-1]:g} s), more than the {log_hold:g} s held at its ends "
+                         f"({_PYTHON_LOG}, or give the temperature)")
 
 
 def cli_wording(message: str) -> str:

@@ -12,7 +12,7 @@ import numpy as np
 from .._core import euler313
 from ..effects import channel_roles
 from ..errors import InputError
-from ..policy import LOG_HOLD
+from ..policy import LOG_HOLD, check_log_coverage
 from ..run import Run
 
 __all__ = ["RunInputs", "incidence_angles", "GRADIENT_WINDOW"]
@@ -124,7 +124,6 @@ class RunInputs:
             raise InputError("run has no temperature log: pass temperature= (C)")
         else:
             from ..calibration.thermal import temperatures_at
-            from ..evaluation import check_log_coverage
 
             check_log_coverage(run, t, log_hold)
             # Points of a profile share a time stamp: interpolate the log once per time.

@@ -83,7 +83,7 @@ impl PyErrorMap {
             .iter()
             .map(|r| r.to_vec())
             .collect();
-        Ok(PyArray2::from_vec2(py, &rows).map_err(|e| input(e.to_string()))?)
+        PyArray2::from_vec2(py, &rows).map_err(|e| input(e.to_string()))
     }
 
     /// (S_xy, S_yz, S_zx) in arc-seconds.

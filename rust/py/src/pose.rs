@@ -67,7 +67,7 @@ pub fn euler313<'py>(
     let rows: Vec<Vec<f64>> = (0..3)
         .map(|r| (0..3).map(|c| m[(r, c)]).collect())
         .collect();
-    Ok(PyArray2::from_vec2(py, &rows).map_err(|e| crate::errors::input(e.to_string()))?)
+    PyArray2::from_vec2(py, &rows).map_err(|e| crate::errors::input(e.to_string()))
 }
 
 /// (alpha, beta, gamma) degrees of the pose whose w axis is `normal`.
