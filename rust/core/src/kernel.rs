@@ -12,9 +12,11 @@
 //! from the caller's buffers into one preallocated output; nothing is
 //! allocated per point.
 
+use multiversion::multiversion;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
+use crate::blocks::Plain;
 use crate::effects::{Columns, Effects, MachineErrors, Temperatures};
 use crate::error::{CoreError, Result};
 use crate::map::{Components, ErrorMap};
@@ -127,6 +129,22 @@ impl Report {
         self.held_temperature += d.held_temperature;
         self.extrapolated_temperature += d.extrapolated_temperature;
         self.max_extrapolation = self.max_extrapolation.max(d.max_extrapolation);
+    }
+
+    /// Add the counts of one map evaluation `times` over (the rows of a run
+    /// that share it), as the per-row path would count them.
+    #[inline(always)]
+    pub(crate) fn add_counts_times(&mut self, d: &Report, times: usize) {
+        for k in 0..3 {
+            self.clamped_position[k] += d.clamped_position[k] * times;
+        }
+        self.clamped_temperature += d.clamped_temperature * times;
+        self.held_temperature += d.held_temperature * times;
+        self.extrapolated_temperature += d.extrapolated_temperature * times;
+        self.max_extrapolation = self.max_extrapolation.max(d.max_extrapolation);
+        if d.clamped_sum() > 0 {
+            self.clamped_points += times;
+        }
     }
 
     /// Every count a map evaluation can change, summed.
@@ -270,16 +288,16 @@ pub fn inv_sqrt_one_plus(a: f64) -> f64 {
 
 /// Which input fell outside the maps; the full error is built off the hot path.
 #[derive(Debug, Clone, Copy)]
-enum Miss {
+pub(crate) enum Miss {
     Axis(usize),
     Temperature(f64),
 }
 
-type Evaluated = ([Components; 3], [f64; 3]);
+pub(crate) type Evaluated = ([Components; 3], [f64; 3]);
 
 /// Where the per-point error components come from: one map, or a map set
 /// interpolated in temperature.
-trait Source: Sync {
+pub(crate) trait Source: Sync {
     /// Components of the three carriages and squareness at reading `s` and
     /// temperatures `t`; counts clamping in `report`.
     fn components(
@@ -637,20 +655,33 @@ where
     C: Default,
     F: Fn(usize, [f64; 3], &mut [f64], &mut Report, &mut C) -> Result<()> + Sync,
 {
+    drive_blocks(inputs, opts, out, width, |_, _| None, row_fn)
+}
+
+/// [`drive`] with a block path: `block_fn(start, block)` fills a chunk's
+/// output and returns its report, or `None` to give the chunk to the
+/// per-row path, which then does it again from the start (so errors, the
+/// NaN policy and the report are the per-row path's whatever the block path
+/// does).
+fn drive_blocks<C, B, F>(
+    inputs: &Inputs,
+    opts: Options,
+    out: &mut [f64],
+    width: usize,
+    block_fn: B,
+    row_fn: F,
+) -> Result<Report>
+where
+    C: Default,
+    B: Fn(usize, &mut [f64]) -> Option<Report> + Sync,
+    F: Fn(usize, [f64; 3], &mut [f64], &mut Report, &mut C) -> Result<()> + Sync,
+{
     let n = inputs.check(out, width)?;
-    let avx2 = has_avx2();
     let chunk_results: Vec<(Report, Option<CoreError>)> = out
         .par_chunks_mut(width * CHUNK)
         .enumerate()
         .map(|(ci, block)| {
-            if avx2 {
-                // SAFETY: AVX2 was detected on this CPU at run time.
-                #[cfg(target_arch = "x86_64")]
-                return unsafe {
-                    block_avx2::<C, F>(inputs, opts, block, ci * CHUNK, width, &row_fn)
-                };
-            }
-            block_rows::<C, F>(inputs, opts, block, ci * CHUNK, width, &row_fn)
+            chunk::<C, B, F>(inputs, opts, block, ci * CHUNK, width, &block_fn, &row_fn)
         })
         .collect();
     let mut total = Report::default();
@@ -664,17 +695,29 @@ where
     Ok(total)
 }
 
-/// Whether the per-block loop may run its AVX2 build.
-#[inline]
-fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2")
+/// One chunk: the block path, else the rows. Compiled once per SIMD target
+/// and chosen at run time (multiversion); every target does the same IEEE
+/// operations in the same order (Rust never fuses a multiply and an add on
+/// its own), so the same bits, in wider registers.
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+fn chunk<C, B, F>(
+    inputs: &Inputs,
+    opts: Options,
+    block: &mut [f64],
+    start: usize,
+    width: usize,
+    block_fn: &B,
+    row_fn: &F,
+) -> (Report, Option<CoreError>)
+where
+    C: Default,
+    B: Fn(usize, &mut [f64]) -> Option<Report> + Sync,
+    F: Fn(usize, [f64; 3], &mut [f64], &mut Report, &mut C) -> Result<()> + Sync,
+{
+    if let Some(report) = block_fn(start, block) {
+        return (report, None);
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    block_rows::<C, F>(inputs, opts, block, start, width, row_fn)
 }
 
 /// The rows of one block; stops at its first error.
@@ -724,25 +767,6 @@ where
     }
     report.points = block.len() / width;
     (report, None)
-}
-
-/// [`block_rows`] compiled for AVX2: the same IEEE operations in the same
-/// order (no fused multiply-add), so the same bits, in wider registers.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn block_avx2<C, F>(
-    inputs: &Inputs,
-    opts: Options,
-    block: &mut [f64],
-    start: usize,
-    width: usize,
-    row_fn: &F,
-) -> (Report, Option<CoreError>)
-where
-    C: Default,
-    F: Fn(usize, [f64; 3], &mut [f64], &mut Report, &mut C) -> Result<()> + Sync,
-{
-    block_rows::<C, F>(inputs, opts, block, start, width, row_fn)
 }
 
 /// The error maps a compensation reads.
@@ -847,11 +871,31 @@ fn compensate_with<S: Source>(
     let bound = effects.bind(&points.columns)?;
     let (uv, idx) = (points.uv, points.pose_index);
     let profiled = has_profiles(points.scales, temperature);
-    drive(
+    let plain = Plain {
+        source,
+        uv: points.uv,
+        scales: points.scales,
+        temperature,
+        pose_index: idx,
+        digitizers,
+        opts,
+    };
+    // The block paths cover the plain compensation; an input column beyond
+    // the temperature is checked row by row.
+    let blocks = bound.is_empty() && points.columns.iter().all(|c| c.name == "temperature");
+    drive_blocks(
         &inputs,
         opts,
         out,
         3,
+        // Inlined so that it is compiled for the chunk's SIMD target.
+        #[inline(always)]
+        |start, block| match (blocks, profiled) {
+            (false, _) => None,
+            (true, true) => plain.profiles(start, block),
+            (true, false) => plain.random(start, block),
+        },
+        #[inline(always)]
         |i, s, slot, report, last: &mut LastState| {
             let d = &digitizers[idx.map_or(0, |p| p[i] as usize)];
             let t = temperature.map_or(f64::NAN, |t| t[i]);

@@ -371,12 +371,11 @@ fn inv_sqrt_one_plus_matches_the_exact_form() {
     assert_eq!(inv_sqrt_one_plus(3.0), 0.5);
 }
 
-#[cfg(target_arch = "x86_64")]
+/// The kernel (block paths, dispatched to the CPU's widest SIMD target) and
+/// the portable per-row path give the same bits, on profiles and on random
+/// readings, with one map, a map set and several poses.
 #[test]
-fn avx2_block_gives_the_same_bits_as_the_portable_one() {
-    if !has_avx2() {
-        return; // nothing to compare on this CPU
-    }
+fn block_paths_give_the_same_bits_as_the_rows() {
     let lo = map_from(
         |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
         [-173.0, -19.0, 21.0],
@@ -387,33 +386,87 @@ fn avx2_block_gives_the_same_bits_as_the_portable_one() {
         [-178.0, -4.0, 42.0],
         Some(25.0),
     );
-    let set = ErrorMapSet::new(vec![lo, hi]).unwrap();
-    let (uv, s) = points(5000);
-    let t: Vec<f64> = (0..5000)
+    let set = ErrorMapSet::new(vec![lo.clone(), hi]).unwrap();
+    let n = 10_000;
+    let (uv, s_random) = points(n);
+    // Profiles of 37 rows (runs cross chunk and lane boundaries).
+    let s_profiles: Vec<f64> = (0..3 * n)
+        .map(|k| s_random[3 * (k / 3 / 37 * 37) + k % 3])
+        .collect();
+    let t_random: Vec<f64> = (0..n)
         .map(|i| 20.0 + 5.0 * (i as f64 * 0.618).fract())
         .collect();
-    let d = digitizer(90.0, 90.0, 45.0);
-    let columns = Columns::new().with("temperature", 1, &t);
-    let inputs = Inputs {
-        uv: Some(&uv),
-        scales: &s,
-        columns: &columns,
-    };
-    let row_fn =
-        |i: usize, sc: [f64; 3], slot: &mut [f64], report: &mut Report, _: &mut ()| -> Result<()> {
-            let tt = Temperatures::uniform(t[i]);
-            let (c, sq) = set.evaluate(i, sc, &tt, &Options::default(), report)?;
-            let pe = PointError::new(sc, &c, sq);
-            let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
-            slot.copy_from_slice(x.as_slice());
-            Ok(())
-        };
-    let (mut a, mut b) = (vec![0.0; 15000], vec![0.0; 15000]);
-    let ra = block_rows::<(), _>(&inputs, Options::default(), &mut a, 0, 3, &row_fn);
-    // SAFETY: AVX2 detected above.
-    let rb = unsafe { block_avx2::<(), _>(&inputs, Options::default(), &mut b, 0, 3, &row_fn) };
-    assert!(ra.1.is_none() && rb.1.is_none());
-    assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+    let t_profiles: Vec<f64> = (0..n).map(|i| t_random[i / 37 * 37]).collect();
+    let ds = [digitizer(90.0, 90.0, 45.0), digitizer(0.0, 30.0, -10.0)];
+    let pose_index: Vec<u32> = (0..n).map(|i| ((i / 37) % 2) as u32).collect();
+    for (s, t) in [(&s_random, &t_random), (&s_profiles, &t_profiles)] {
+        for with_set in [false, true] {
+            let columns = if with_set {
+                Columns::new().with("temperature", 1, t)
+            } else {
+                Columns::new()
+            };
+            let pts = Points {
+                uv: &uv,
+                scales: s,
+                pose_index: Some(&pose_index),
+                columns: columns.clone(),
+            };
+            let maps = if with_set {
+                MapSource::Set(&set)
+            } else {
+                MapSource::Map(&lo)
+            };
+            let mut fast = vec![0.0; 3 * n];
+            let rf = compensate_points(
+                &pts,
+                maps,
+                &ds,
+                &Effects::none(),
+                Options::default(),
+                &mut fast,
+            )
+            .unwrap();
+            let inputs = Inputs {
+                uv: Some(&uv),
+                scales: s,
+                columns: &columns,
+            };
+            let row_fn = |i: usize,
+                          sc: [f64; 3],
+                          slot: &mut [f64],
+                          report: &mut Report,
+                          _: &mut ()|
+             -> Result<()> {
+                let tt = Temperatures::uniform(t[i]);
+                let (c, sq) = if with_set {
+                    set.evaluate(i, sc, &tt, &Options::default(), report)?
+                } else {
+                    lo.evaluate(i, sc, &tt, &Options::default(), report)?
+                };
+                let pe = PointError::new(sc, &c, sq);
+                let d = &ds[pose_index[i] as usize];
+                let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
+                slot.copy_from_slice(x.as_slice());
+                Ok(())
+            };
+            let mut rows = vec![0.0; 3 * n];
+            let rr = block_rows::<(), _>(&inputs, Options::default(), &mut rows, 0, 3, &row_fn);
+            assert!(rr.1.is_none());
+            assert_eq!(rf.points, n);
+            let differ = fast
+                .iter()
+                .zip(&rows)
+                .filter(|(x, y)| x.to_bits() != y.to_bits())
+                .count();
+            assert_eq!(
+                differ,
+                0,
+                "set {with_set}, profiles {}",
+                std::ptr::eq(s, &s_profiles)
+            );
+        }
+    }
 }
 
 // ---- the kernel with effects switched on (the diagnosis model) ----------

@@ -6,6 +6,7 @@
 //! arc-seconds at the API boundary ([`units`]), mm and rad inside.
 
 pub mod artefact;
+mod blocks;
 pub mod effects;
 pub mod error;
 pub mod fit;

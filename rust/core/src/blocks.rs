@@ -1,0 +1,310 @@
+//! The compensation kernel's block paths: the same equations as the per-row
+//! path in [`crate::kernel`], the same IEEE operations in the same order (so
+//! the same bits), arranged so that the compiler can keep them in vector
+//! registers.
+//!
+//! * **Profiles.** A line scanner's points come in profiles of ~1000 that
+//!   share one scale reading, time and temperature. The machine's error
+//!   state is computed once per run of equal rows; the points of the run then
+//!   go through one short loop with no branch and no call.
+//! * **Random readings.** Rows are taken 64 at a time: the maps are read row
+//!   by row into structure-of-arrays buffers, then the rotation and the
+//!   lever are computed for the whole block in straight-line loops.
+//!
+//! A block path never reports an error itself: on anything unusual (a
+//! non-finite input, a reading outside a map, an angle past the series'
+//! range, an overflow) it gives the block back and the per-row path, which
+//! names the row and applies the NaN policy, does it again from the start.
+
+use nalgebra::Vector3;
+
+use crate::effects::Temperatures;
+use crate::kernel::{Options, PointError, Report, Source};
+use crate::pose::Digitizer;
+
+/// Rows of one structure-of-arrays block (random readings).
+const LANES: usize = 64;
+
+/// Largest |angle| (rad) for which [`tan_small`](crate::kernel::tan_small) takes its series.
+const TAN_SERIES: f64 = 1.0 / 64.0;
+/// Largest argument for which [`inv_sqrt_one_plus`](crate::kernel::inv_sqrt_one_plus) takes its series.
+const INV_SQRT_SERIES: f64 = 1e-6;
+
+/// What the plain compensation (no effect switched on) reads.
+pub(crate) struct Plain<'a, S: Source> {
+    pub source: &'a S,
+    pub uv: &'a [f64],
+    pub scales: &'a [f64],
+    /// One value per point (C); `None` when no temperature column was given.
+    pub temperature: Option<&'a [f64]>,
+    pub pose_index: Option<&'a [u32]>,
+    pub digitizers: &'a [Digitizer],
+    pub opts: Options,
+}
+
+impl<S: Source> Plain<'_, S> {
+    /// Rows `start..` into `block` (N x 3) with the profile path; `None`
+    /// hands the block to the per-row path.
+    #[inline(always)]
+    pub fn profiles(&self, start: usize, block: &mut [f64]) -> Option<Report> {
+        let n = block.len() / 3;
+        let mut report = Report {
+            points: n,
+            ..Default::default()
+        };
+        let mut finite = true;
+        let mut j = 0;
+        while j < n {
+            let i = start + j;
+            let s = self.reading(i);
+            let t = self.temperature.map_or(f64::NAN, |t| t[i]);
+            let pose = self.pose_index.map_or(0, |p| p[i]);
+            let mut k = j + 1;
+            while k < n && self.same_state(i, start + k, s, t, pose) {
+                k += 1;
+            }
+            let pe = self.state(s, t, k - j, &mut report)?;
+            let se = Vector3::from(s) + pe.e;
+            let d = &self.digitizers[pose as usize];
+            finite &= profile_points(
+                &se,
+                &pe,
+                d,
+                &self.uv[2 * i..2 * (start + k)],
+                &mut block[3 * j..3 * k],
+            );
+            j = k;
+        }
+        finite.then_some(report)
+    }
+
+    /// Rows `start..` into `block` (N x 3), [`LANES`] rows at a time; `None`
+    /// hands the block to the per-row path.
+    #[inline(always)]
+    pub fn random(&self, start: usize, block: &mut [f64]) -> Option<Report> {
+        let n = block.len() / 3;
+        let mut report = Report {
+            points: n,
+            ..Default::default()
+        };
+        let mut lanes = Lanes::default();
+        let mut j = 0;
+        while j < n {
+            let m = LANES.min(n - j);
+            for r in 0..m {
+                self.gather(start + j + r, r, &mut lanes, &mut report)?;
+            }
+            if !lanes.solve(m, &mut block[3 * j..3 * (j + m)]) {
+                return None;
+            }
+            j += m;
+        }
+        Some(report)
+    }
+
+    #[inline(always)]
+    fn reading(&self, i: usize) -> [f64; 3] {
+        [
+            self.scales[3 * i],
+            self.scales[3 * i + 1],
+            self.scales[3 * i + 2],
+        ]
+    }
+
+    /// Whether row `k` has the exact reading, temperature and pose of a run
+    /// that started with `s`, `t`, `pose`.
+    #[inline(always)]
+    fn same_state(&self, _i: usize, k: usize, s: [f64; 3], t: f64, pose: u32) -> bool {
+        let sk = self.reading(k);
+        sk[0].to_bits() == s[0].to_bits()
+            && sk[1].to_bits() == s[1].to_bits()
+            && sk[2].to_bits() == s[2].to_bits()
+            && self
+                .temperature
+                .is_none_or(|tt| tt[k].to_bits() == t.to_bits())
+            && self.pose_index.is_none_or(|p| p[k] == pose)
+    }
+
+    /// The error state of a run of `len` rows at reading `s` and temperature
+    /// `t`; its clamp counts go into `report` once per row.
+    #[inline(always)]
+    fn state(&self, s: [f64; 3], t: f64, len: usize, report: &mut Report) -> Option<PointError> {
+        if !(s.iter().all(|x| x.is_finite()) && (self.temperature.is_none() || t.is_finite())) {
+            return None;
+        }
+        let mut one = Report::default();
+        let (c, sq) = self
+            .source
+            .components(s, &Temperatures::uniform(t), &self.opts, &mut one)
+            .ok()?;
+        if one != Report::default() {
+            report.add_counts_times(&one, len);
+        }
+        Some(PointError::new(s, &c, sq))
+    }
+
+    /// Row `i` into lane `r`: its map components, squareness, reading and
+    /// lever. `None` on a non-finite input or a reading outside the maps.
+    #[inline(always)]
+    fn gather(&self, i: usize, r: usize, lanes: &mut Lanes, report: &mut Report) -> Option<()> {
+        let s = self.reading(i);
+        let (u, v) = (self.uv[2 * i], self.uv[2 * i + 1]);
+        let t = self.temperature.map_or(f64::NAN, |t| t[i]);
+        let finite = s.iter().all(|x| x.is_finite())
+            && u.is_finite()
+            && v.is_finite()
+            && (self.temperature.is_none() || t.is_finite());
+        if !finite {
+            return None;
+        }
+        let mut one = Report::default();
+        let (c, sq) = self
+            .source
+            .components(s, &Temperatures::uniform(t), &self.opts, &mut one)
+            .ok()?;
+        if one != Report::default() {
+            report.add_counts_times(&one, 1);
+        }
+        for a in 0..3 {
+            lanes.s[a][r] = s[a];
+            lanes.sq[a][r] = sq[a];
+            for (lane, value) in lanes.c[a].iter_mut().zip(c[a]) {
+                lane[r] = value;
+            }
+        }
+        let d = &self.digitizers[self.pose_index.map_or(0, |p| p[i] as usize)];
+        let l = d.lever(u, v);
+        for a in 0..3 {
+            lanes.lever[a][r] = l[a];
+        }
+        Some(())
+    }
+}
+
+/// The points of one run: X = (S + e) + R . lever(u, v), as the per-row
+/// path computes it. Returns whether every result is finite.
+#[inline(always)]
+fn profile_points(
+    se: &Vector3<f64>,
+    pe: &PointError,
+    d: &Digitizer,
+    uv: &[f64],
+    out: &mut [f64],
+) -> bool {
+    let mut finite = true;
+    for (p, o) in uv.chunks_exact(2).zip(out.chunks_exact_mut(3)) {
+        let l = d.lever(p[0], p[1]);
+        let x = se + pe.rotate(&l);
+        o[0] = x.x;
+        o[1] = x.y;
+        o[2] = x.z;
+        finite &= x.x.is_finite() & x.y.is_finite() & x.z.is_finite();
+    }
+    finite
+}
+
+/// One block of rows in structure-of-arrays form.
+struct Lanes {
+    /// Scale readings D, E, F (mm).
+    s: [[f64; LANES]; 3],
+    /// Per carriage: dx, dy, dz (mm), ex, ey, ez (rad).
+    c: [[[f64; LANES]; 6]; 3],
+    /// Squareness S_xy, S_yz, S_zx (rad).
+    sq: [[f64; LANES]; 3],
+    /// E313 . ((u, v, 0) - l1) (mm).
+    lever: [[f64; LANES]; 3],
+}
+
+impl Default for Lanes {
+    fn default() -> Self {
+        Lanes {
+            s: [[0.0; LANES]; 3],
+            c: [[[0.0; LANES]; 6]; 3],
+            sq: [[0.0; LANES]; 3],
+            lever: [[0.0; LANES]; 3],
+        }
+    }
+}
+
+impl Lanes {
+    /// [`PointError::new`] and the point, for the first `m` lanes, written
+    /// row-major into `out`. The series of `tan_small` and
+    /// `inv_sqrt_one_plus` are taken without their branch; a lane outside
+    /// their range (or a non-finite result) returns false.
+    #[inline(always)]
+    fn solve(&self, m: usize, out: &mut [f64]) -> bool {
+        let [cx, cy, cz] = &self.c;
+        let [s_xy, s_yz, s_zx] = &self.sq;
+        let mut inside = true;
+        let mut x = [[0.0; LANES]; 3];
+        for r in 0..m {
+            let (e_, f_) = (self.s[1][r], self.s[2][r]);
+            let ex = cx[0][r] + cy[0][r] + cz[0][r] - e_ * cx[5][r] + f_ * cx[4][r] + f_ * cy[4][r]
+                - e_ * s_xy[r]
+                - f_ * s_zx[r];
+            let ey = cx[1][r] + cy[1][r] + cz[1][r] - f_ * cy[3][r] - f_ * cx[3][r] - f_ * s_yz[r];
+            let ez = cx[2][r] + cy[2][r] + cz[2][r] + e_ * cx[3][r];
+            let ax = cx[3][r] + cy[3][r] + cz[3][r];
+            let ay = cx[4][r] + cy[4][r] + cz[4][r];
+            let az = cx[5][r] + cy[5][r] + cz[5][r];
+            inside &= (ax.abs() < TAN_SERIES) & (ay.abs() < TAN_SERIES) & (az.abs() < TAN_SERIES);
+            let tx = tan_series(ax);
+            let ty = tan_series(ay);
+            let tz = tan_series(az);
+            let a_z = tx * tx + ty * ty;
+            let xz = tx * tz - ty;
+            let a_x = tz * tz + xz * xz;
+            inside &= (a_z < INV_SQRT_SERIES) & (a_x < INV_SQRT_SERIES);
+            let nz = inv_sqrt_series(a_z);
+            let nx = inv_sqrt_series(a_x);
+            // Z_p = (ty, -tx, 1) nz; X_p = (1, tz, xz) nx; Y_p = Z_p x X_p.
+            let (zx, zy, zz) = (ty * nz, -tx * nz, 1.0 * nz);
+            let (xx, xy, xzz) = (1.0 * nx, tz * nx, xz * nx);
+            let yx = zy * xzz - zz * xy;
+            let yy = zz * xx - zx * xzz;
+            let yz = zx * xy - zy * xx;
+            let (lx, ly, lz) = (self.lever[0][r], self.lever[1][r], self.lever[2][r]);
+            // (S + e) + (X_p lx + Y_p ly + Z_p lz), in PointError::rotate's order.
+            x[0][r] = (self.s[0][r] + ex) + ((xx * lx + yx * ly) + zx * lz);
+            x[1][r] = (self.s[1][r] + ey) + ((xy * lx + yy * ly) + zy * lz);
+            x[2][r] = (self.s[2][r] + ez) + ((xzz * lx + yz * ly) + zz * lz);
+        }
+        let mut finite = true;
+        for (r, o) in out.chunks_exact_mut(3).enumerate().take(m) {
+            o[0] = x[0][r];
+            o[1] = x[1][r];
+            o[2] = x[2][r];
+            finite &= x[0][r].is_finite() & x[1][r].is_finite() & x[2][r].is_finite();
+        }
+        inside & finite
+    }
+}
+
+/// The series branch of [`tan_small`](crate::kernel::tan_small), with the same operations.
+#[inline(always)]
+fn tan_series(x: f64) -> f64 {
+    let x2 = x * x;
+    x + x * x2 * (1.0 / 3.0 + x2 * (2.0 / 15.0 + x2 * (17.0 / 315.0)))
+}
+
+/// The series branch of [`inv_sqrt_one_plus`](crate::kernel::inv_sqrt_one_plus), with the same operations.
+#[inline(always)]
+fn inv_sqrt_series(a: f64) -> f64 {
+    1.0 - a * (0.5 - 0.375 * a)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernel::{inv_sqrt_one_plus, tan_small};
+
+    #[test]
+    fn series_match_the_scalar_functions_inside_their_range() {
+        for k in -200i32..=200 {
+            let x = k as f64 * (TAN_SERIES / 201.0);
+            assert_eq!(tan_series(x).to_bits(), tan_small(x).to_bits());
+            let a = (k.abs() as f64) * (INV_SQRT_SERIES / 201.0);
+            assert_eq!(inv_sqrt_series(a).to_bits(), inv_sqrt_one_plus(a).to_bits());
+        }
+    }
+}
