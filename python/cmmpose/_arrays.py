@@ -2,6 +2,8 @@
 right shape. Arrays already in that form pass through without a copy; others
 are converted explicitly here and nowhere else."""
 
+import math
+
 import numpy as np
 
 from .errors import InputError
@@ -47,6 +49,12 @@ def as_vector(name: str, a, n: int) -> np.ndarray:
 
 def as_triple(name: str, a) -> tuple[float, float, float]:
     """Three finite floats (booleans and text are refused, not read as numbers)."""
+    if isinstance(a, (tuple, list)) and len(a) == 3 and all(type(x) is float or type(x) is int for x in a):
+        # The common case (plain numbers, a MountOffset) without NumPy's object round trip.
+        vals = (float(a[0]), float(a[1]), float(a[2]))
+        if not all(map(math.isfinite, vals)):
+            raise InputError(f"{name}: values must be finite, got {vals}")
+        return vals
     if isinstance(a, (str, bytes)) or any(isinstance(x, (bool, np.bool_, str, bytes)) for x in np.ravel(
             np.asarray(a, dtype=object))):
         raise InputError(f"{name}: expected three numbers, got {a!r}")

@@ -103,12 +103,14 @@ def compensate(
     out_of_range: _OutOfRange = "raise",
     nan_policy: _NanPolicy = "raise",
     temperature_tolerance: float = 0.0,
+    out: _F64_2D | None = None,
 ) -> tuple[_F64_2D, Report]: ...
 def uncompensated(
     uv: _F64_2D,
     scales: _F64_2D,
     digitizer: Digitizer,
     nan_policy: _NanPolicy = "raise",
+    out: _F64_2D | None = None,
 ) -> tuple[_F64_2D, Report]: ...
 def compensate_model(
     uv: _F64_2D,

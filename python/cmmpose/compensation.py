@@ -27,6 +27,7 @@ def compensate(
     nan_policy: str = "raise",
     temperature_tolerance: float = TEMPERATURE_TOLERANCE,
     return_report: bool = False,
+    out: np.ndarray | None = None,
 ):
     """Compensated machine coordinates of scanner points.
 
@@ -63,6 +64,11 @@ def compensate(
         edge and counted in the report (thermocouple noise at 20 C).
     return_report : bool
         Also return a ``KernelReport`` with the clamp and NaN counts.
+    out : ndarray, shape (N, 3), optional
+        Where to write the result (mm): float64, C-contiguous, writeable and
+        sharing no memory with ``uv`` or ``scales``. It is returned. Saves
+        the allocation when the same buffer serves call after call; after an
+        error its contents are unspecified.
 
     Returns
     -------
@@ -96,13 +102,24 @@ def compensate(
         out_of_range,
         nan_policy,
         float(temperature_tolerance),
+        out,
     )
-    report = KernelReport(**report)
-    warn_clamped(report)
-    return (xyz, report) if return_report else xyz
+    return _finish(xyz, report, return_report)
 
 
-def uncompensated(uv, scales, pose, offset, *, nan_policy: str = "raise") -> np.ndarray:
+def _finish(xyz: np.ndarray, raw: dict, return_report: bool):
+    """The result of a compensation call: warn on what the report says (the
+    KernelReport is only built when something is to be said or returned,
+    which keeps the per-call cost of small calls down)."""
+    if return_report or raw["clamped_points"] or raw["held_temperature"] or raw["extrapolated_temperature"]:
+        report = KernelReport(**raw)
+        warn_clamped(report)
+        if return_report:
+            return xyz, report
+    return xyz
+
+
+def uncompensated(uv, scales, pose, offset, *, nan_policy: str = "raise", out: np.ndarray | None = None) -> np.ndarray:
     """What the digitizer software reports: S + E313 . ((u, v, 0) - l1).
 
     Parameters
@@ -117,13 +134,16 @@ def uncompensated(uv, scales, pose, offset, *, nan_policy: str = "raise") -> np.
         Mount offset l1 = (U1, V1, W1) in mm.
     nan_policy : {'raise', 'propagate'}
         As in :func:`compensate`.
+    out : ndarray, shape (N, 3), optional
+        As in :func:`compensate`.
 
     Returns
     -------
     ndarray, shape (N, 3)
         X, Y, Z in mm, uncorrected for the machine's errors.
     """
-    xyz, _ = _core.uncompensated(as_rows("uv", uv, 2), as_rows("scales", scales, 3), digitizer(pose, offset), nan_policy)
+    xyz, _ = _core.uncompensated(as_rows("uv", uv, 2), as_rows("scales", scales, 3), digitizer(pose, offset), nan_policy,
+                                 out)
     return xyz
 
 

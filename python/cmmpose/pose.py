@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -89,5 +90,12 @@ def digitizer(pose, offset) -> _core.Digitizer:
     offset : MountOffset or sequence of 3 float
         Mount offset l1 = (U1, V1, W1) in mm.
     """
-    alpha, beta, gamma = pose_tuple(pose)
-    return _core.Digitizer(alpha=alpha, beta=beta, gamma=gamma, offset=as_triple("offset", offset))
+    return _built_digitizer(*pose_tuple(pose), *as_triple("offset", offset))
+
+
+@functools.lru_cache(maxsize=256)
+def _built_digitizer(alpha: float, beta: float, gamma: float, u1: float, v1: float, w1: float) -> _core.Digitizer:
+    """The Digitizer for validated angles (degrees) and offset (mm), built
+    once: a run uses a handful of poses over many calls, and building one
+    costs more than compensating a small call's points."""
+    return _core.Digitizer(alpha=alpha, beta=beta, gamma=gamma, offset=(u1, v1, w1))

@@ -18,7 +18,7 @@
 
 use nalgebra::Vector3;
 
-use crate::effects::Temperatures;
+use crate::effects::{Bound, MachineErrors, Temperatures};
 use crate::kernel::{Options, PointError, Report, Source};
 use crate::pose::Digitizer;
 
@@ -30,9 +30,13 @@ const TAN_SERIES: f64 = 1.0 / 64.0;
 /// Largest argument for which [`inv_sqrt_one_plus`](crate::kernel::inv_sqrt_one_plus) takes its series.
 const INV_SQRT_SERIES: f64 = 1e-6;
 
-/// What the plain compensation (no effect switched on) reads.
+/// What a compensation reads (with or without effects switched on).
 pub(crate) struct Plain<'a, S: Source> {
     pub source: &'a S,
+    /// The effects switched on, bound to their inputs.
+    pub bound: &'a Bound<'a>,
+    /// Inputs that the effects' state stages read (values, width).
+    pub state_columns: Vec<(&'a [f64], usize)>,
     pub uv: &'a [f64],
     pub scales: &'a [f64],
     /// One value per point (C); `None` when no temperature column was given.
@@ -63,16 +67,15 @@ impl<S: Source> Plain<'_, S> {
             while k < n && self.same_state(i, start + k, s, t, pose) {
                 k += 1;
             }
-            let pe = self.state(s, t, k - j, &mut report)?;
+            let (s, pe, factor) = self.state(i, s, t, k - j, &mut report)?;
             let se = Vector3::from(s) + pe.e;
             let d = &self.digitizers[pose as usize];
-            finite &= profile_points(
-                &se,
-                &pe,
-                d,
-                &self.uv[2 * i..2 * (start + k)],
-                &mut block[3 * j..3 * k],
-            );
+            let out = &mut block[3 * j..3 * k];
+            finite &= if self.bound.acts_on_scanner() {
+                self.scanned_points(i, &se, &pe, d, factor, out)
+            } else {
+                profile_points(&se, &pe, d, factor, &self.uv[2 * i..2 * (start + k)], out)
+            };
             j = k;
         }
         finite.then_some(report)
@@ -111,10 +114,10 @@ impl<S: Source> Plain<'_, S> {
         ]
     }
 
-    /// Whether row `k` has the exact reading, temperature and pose of a run
-    /// that started with `s`, `t`, `pose`.
+    /// Whether row `k` has the exact reading, temperature, pose and state
+    /// inputs of row `i`, which starts a run with `s`, `t`, `pose`.
     #[inline(always)]
-    fn same_state(&self, _i: usize, k: usize, s: [f64; 3], t: f64, pose: u32) -> bool {
+    fn same_state(&self, i: usize, k: usize, s: [f64; 3], t: f64, pose: u32) -> bool {
         let sk = self.reading(k);
         sk[0].to_bits() == s[0].to_bits()
             && sk[1].to_bits() == s[1].to_bits()
@@ -123,24 +126,93 @@ impl<S: Source> Plain<'_, S> {
                 .temperature
                 .is_none_or(|tt| tt[k].to_bits() == t.to_bits())
             && self.pose_index.is_none_or(|p| p[k] == pose)
+            && self.state_columns.iter().all(|&(values, w)| {
+                values[w * k..w * (k + 1)]
+                    .iter()
+                    .zip(&values[w * i..w * (i + 1)])
+                    .all(|(a, b)| a.to_bits() == b.to_bits())
+            })
     }
 
-    /// The error state of a run of `len` rows at reading `s` and temperature
-    /// `t`; its clamp counts go into `report` once per row.
+    /// The machine state of a run of `len` rows starting at row `i` with
+    /// reading `s` and temperature `t`: the reading after the effects, the
+    /// error state and the mount's scale factor. Its clamp counts go into
+    /// `report` once per row. `None` on a non-finite input or a miss.
     #[inline(always)]
-    fn state(&self, s: [f64; 3], t: f64, len: usize, report: &mut Report) -> Option<PointError> {
-        if !(s.iter().all(|x| x.is_finite()) && (self.temperature.is_none() || t.is_finite())) {
+    fn state(
+        &self,
+        i: usize,
+        s: [f64; 3],
+        t: f64,
+        len: usize,
+        report: &mut Report,
+    ) -> Option<([f64; 3], PointError, f64)> {
+        let finite = s.iter().all(|x| x.is_finite())
+            && (self.temperature.is_none() || t.is_finite())
+            && self
+                .state_columns
+                .iter()
+                .all(|&(values, w)| values[w * i..w * (i + 1)].iter().all(|x| x.is_finite()));
+        if !finite {
             return None;
         }
         let mut one = Report::default();
-        let (c, sq) = self
-            .source
-            .components(s, &Temperatures::uniform(t), &self.opts, &mut one)
-            .ok()?;
-        if one != Report::default() {
+        if self.bound.is_empty() {
+            let (c, sq) = self
+                .source
+                .components(s, &Temperatures::uniform(t), &self.opts, &mut one)
+                .ok()?;
             report.add_counts_times(&one, len);
+            return Some((s, PointError::new(s, &c, sq), 1.0));
         }
-        Some(PointError::new(s, &c, sq))
+        // The per-row path's stages, in its order.
+        let mut s = s;
+        self.bound.reading(i, &mut s);
+        let mut temps = Temperatures::uniform(t);
+        self.bound.temperatures(i, &mut temps);
+        let (components, squareness) = self
+            .source
+            .components(s, &temps, &self.opts, &mut one)
+            .ok()?;
+        report.add_counts_times(&one, len);
+        let mut e = MachineErrors {
+            components,
+            squareness,
+        };
+        self.bound.machine(i, s, &mut e);
+        Some((
+            s,
+            PointError::new(s, &e.components, e.squareness),
+            self.bound.mount(i),
+        ))
+    }
+
+    /// The points of a run starting at row `i` when an effect has a scanner
+    /// stage: (u, v) corrected point by point, then as [`profile_points`].
+    #[inline(always)]
+    fn scanned_points(
+        &self,
+        i: usize,
+        se: &Vector3<f64>,
+        pe: &PointError,
+        d: &Digitizer,
+        factor: f64,
+        out: &mut [f64],
+    ) -> bool {
+        // A few hundred points at a time: (u, v) corrected term by term
+        // over the piece, then the points as without a scanner stage.
+        const PIECE: usize = 256;
+        let mut corrected = [0.0; 2 * PIECE];
+        let mut finite = true;
+        for (k, piece) in out.chunks_mut(3 * PIECE).enumerate() {
+            let first = i + k * PIECE;
+            let m = piece.len() / 3;
+            let buf = &mut corrected[..2 * m];
+            buf.copy_from_slice(&self.uv[2 * first..2 * (first + m)]);
+            self.bound.scanner_inverse_rows(first, buf);
+            finite &= profile_points(se, pe, d, factor, buf, piece);
+        }
+        finite
     }
 
     /// Row `i` into lane `r`: its map components, squareness, reading and
@@ -181,19 +253,23 @@ impl<S: Source> Plain<'_, S> {
     }
 }
 
-/// The points of one run: X = (S + e) + R . lever(u, v), as the per-row
-/// path computes it. Returns whether every result is finite.
+/// The points of one run: X = (S + e) + R . lever(u, v), the lever's mount
+/// offset scaled by `factor`, as the per-row path computes it (origin x 1
+/// is the origin, so with no effect these are `Digitizer::lever`'s bits).
+/// Returns whether every result is finite.
 #[inline(always)]
 fn profile_points(
     se: &Vector3<f64>,
     pe: &PointError,
     d: &Digitizer,
+    factor: f64,
     uv: &[f64],
     out: &mut [f64],
 ) -> bool {
+    let origin = d.origin * factor;
     let mut finite = true;
     for (p, o) in uv.chunks_exact(2).zip(out.chunks_exact_mut(3)) {
-        let l = d.lever(p[0], p[1]);
+        let l = origin + d.u_dir * p[0] + d.v_dir * p[1];
         let x = se + pe.rotate(&l);
         o[0] = x.x;
         o[1] = x.y;

@@ -62,6 +62,13 @@ impl<'a> Columns<'a> {
         self.list.iter().find(|c| c.name == name)
     }
 
+    /// The columns for which `keep(name)` holds.
+    pub(crate) fn only(&self, keep: impl Fn(&str) -> bool) -> Columns<'a> {
+        Columns {
+            list: self.list.iter().filter(|c| keep(c.name)).cloned().collect(),
+        }
+    }
+
     pub fn iter(&self) -> impl Iterator<Item = &Column<'a>> {
         self.list.iter()
     }
@@ -176,6 +183,31 @@ pub trait Term: Sync + Send {
     /// Factor on the mount offset l1 (1: none).
     fn mount(&self, _p: &[f64], _row: Row) -> f64 {
         1.0
+    }
+    /// Whether the stages other than the scanner's read the term's inputs.
+    /// A term whose inputs serve only its scanner stage (a per-point
+    /// quantity such as the angle of incidence) says `false`: the points of
+    /// a profile then share one machine state whatever those inputs are.
+    /// The default, `true`, is always correct.
+    fn state_reads_inputs(&self) -> bool {
+        true
+    }
+    /// [`Term::scanner_inverse`] over consecutive rows `start..` of `uv`
+    /// (N x 2, mm): the same operations per row, in one loop that is
+    /// compiled for the term (no call per point), so it vectorises.
+    fn scanner_inverse_rows(&self, p: &[f64], cols: &[&[f64]], start: usize, uv: &mut [f64]) {
+        for (r, q) in uv.chunks_exact_mut(2).enumerate() {
+            let mut point = [q[0], q[1]];
+            self.scanner_inverse(p, Row { i: start + r, cols }, &mut point);
+            q[0] = point[0];
+            q[1] = point[1];
+        }
+    }
+    /// Whether the term has a scanner stage (overrides `scanner_forward`
+    /// and `scanner_inverse`); the kernel calls only those that do. A
+    /// registry test checks that a term saying `false` leaves (u, v) alone.
+    fn acts_on_scanner(&self) -> bool {
+        false
     }
 }
 
@@ -301,6 +333,9 @@ impl Term for ScannerScale {
     fn params(&self) -> &'static [&'static str] {
         &["lateral", "depth"]
     }
+    fn acts_on_scanner(&self) -> bool {
+        true
+    }
     fn scanner_forward(&self, p: &[f64], _: Row, uv: &mut [f64; 2]) {
         uv[0] *= 1.0 + p[0];
         uv[1] *= 1.0 + p[1];
@@ -324,6 +359,9 @@ impl Term for Incidence {
     fn inputs(&self) -> &'static [(&'static str, usize)] {
         &[("incidence", 1)]
     }
+    fn acts_on_scanner(&self) -> bool {
+        true
+    }
     fn scanner_forward(&self, p: &[f64], row: Row, uv: &mut [f64; 2]) {
         let theta = row.scalar(0);
         uv[1] = uv[1] + p[0] * theta + p[1] * uv[1] * theta;
@@ -331,6 +369,9 @@ impl Term for Incidence {
     fn scanner_inverse(&self, p: &[f64], row: Row, uv: &mut [f64; 2]) {
         let theta = row.scalar(0);
         uv[1] = (uv[1] - p[0] * theta) / (1.0 + p[1] * theta);
+    }
+    fn state_reads_inputs(&self) -> bool {
+        false
     }
 }
 
@@ -439,6 +480,13 @@ impl Effects {
         self.list.is_empty()
     }
 
+    /// Whether a term switched on reads the input `name`.
+    pub fn reads(&self, name: &str) -> bool {
+        self.list
+            .iter()
+            .any(|(k, _)| TERMS[*k].inputs().iter().any(|&(n, _)| n == name))
+    }
+
     /// Names of the terms switched on.
     pub fn names(&self) -> Vec<&'static str> {
         self.list.iter().map(|(k, _)| TERMS[*k].name()).collect()
@@ -489,9 +537,26 @@ pub struct Bound<'a> {
     active: Vec<Active<'a>>,
 }
 
-impl Bound<'_> {
+impl<'a> Bound<'a> {
     pub fn is_empty(&self) -> bool {
         self.active.is_empty()
+    }
+
+    /// The input columns (values, width) that the state stages read:
+    /// points that agree on these (and on the reading, temperature and
+    /// pose) share one machine state.
+    pub(crate) fn state_columns(&self) -> Vec<(&'a [f64], usize)> {
+        self.active
+            .iter()
+            .filter(|a| a.term.state_reads_inputs())
+            .flat_map(|a| {
+                a.term
+                    .inputs()
+                    .iter()
+                    .zip(&a.cols)
+                    .map(|(&(_, width), &values)| (values, width))
+            })
+            .collect()
     }
 
     #[inline(always)]
@@ -503,15 +568,36 @@ impl Bound<'_> {
 
     #[inline]
     pub fn scanner_forward(&self, i: usize, uv: &mut [f64; 2]) {
-        self.each(i, |t, p, r| t.scanner_forward(p, r, uv));
+        self.each(i, |t, p, r| {
+            if t.acts_on_scanner() {
+                t.scanner_forward(p, r, uv)
+            }
+        });
     }
 
     #[inline]
     pub fn scanner_inverse(&self, i: usize, uv: &mut [f64; 2]) {
         for a in self.active.iter().rev() {
-            a.term
-                .scanner_inverse(a.params, Row { i, cols: &a.cols }, uv);
+            if a.term.acts_on_scanner() {
+                a.term
+                    .scanner_inverse(a.params, Row { i, cols: &a.cols }, uv);
+            }
         }
+    }
+
+    /// [`Bound::scanner_inverse`] over consecutive rows `start..` of `uv`
+    /// (N x 2, mm), term by term in the same (reverse) order.
+    pub fn scanner_inverse_rows(&self, start: usize, uv: &mut [f64]) {
+        for a in self.active.iter().rev() {
+            if a.term.acts_on_scanner() {
+                a.term.scanner_inverse_rows(a.params, &a.cols, start, uv);
+            }
+        }
+    }
+
+    /// Whether a term switched on has a scanner stage.
+    pub fn acts_on_scanner(&self) -> bool {
+        self.active.iter().any(|a| a.term.acts_on_scanner())
     }
 
     #[inline]
@@ -578,6 +664,75 @@ mod tests {
         for (k, n) in names.iter().enumerate() {
             assert!(!names[..k].contains(n), "{n} twice");
             assert!(!term(n).unwrap().params().is_empty());
+        }
+    }
+
+    /// The kernel skips the scanner stage of a term that says it has none,
+    /// and shares one machine state across points that differ only in the
+    /// inputs of a term whose state stages do not read them: both claims
+    /// are checked here for every registered term.
+    #[test]
+    fn terms_declare_their_scanner_stage_and_state_inputs_truly() {
+        let n = 8;
+        for t in TERMS {
+            let params: Vec<f64> = (0..t.params().len())
+                .map(|k| 0.3 + 0.1 * k as f64)
+                .collect();
+            let a: Vec<Vec<f64>> = t
+                .inputs()
+                .iter()
+                .map(|&(_, w)| (0..n * w).map(|k| 20.0 + k as f64).collect())
+                .collect();
+            let b: Vec<Vec<f64>> = t
+                .inputs()
+                .iter()
+                .map(|&(_, w)| (0..n * w).map(|k| 35.0 - 2.0 * k as f64).collect())
+                .collect();
+            let ra: Vec<&[f64]> = a.iter().map(|v| v.as_slice()).collect();
+            let rb: Vec<&[f64]> = b.iter().map(|v| v.as_slice()).collect();
+            for i in 0..n {
+                let (row_a, row_b) = (Row { i, cols: &ra }, Row { i, cols: &rb });
+                if !t.acts_on_scanner() {
+                    let mut uv = [12.5, 140.25];
+                    t.scanner_forward(&params, row_a, &mut uv);
+                    t.scanner_inverse(&params, row_a, &mut uv);
+                    assert_eq!(uv, [12.5, 140.25], "{} moves (u, v)", t.name());
+                    let mut fwd = [12.5, 140.25];
+                    t.scanner_forward(&params, row_a, &mut fwd);
+                    assert_eq!(fwd, [12.5, 140.25], "{} moves (u, v)", t.name());
+                }
+                if !t.state_reads_inputs() {
+                    let s0 = [100.0, 200.0, -300.0];
+                    let (mut sa, mut sb) = (s0, s0);
+                    t.reading(&params, row_a, &mut sa);
+                    t.reading(&params, row_b, &mut sb);
+                    assert_eq!(sa, sb, "{}", t.name());
+                    let (mut ta, mut tb) =
+                        (Temperatures::uniform(21.0), Temperatures::uniform(21.0));
+                    t.temperatures(&params, row_a, &mut ta);
+                    t.temperatures(&params, row_b, &mut tb);
+                    assert_eq!(
+                        (ta.map, ta.squareness),
+                        (tb.map, tb.squareness),
+                        "{}",
+                        t.name()
+                    );
+                    let e0 = MachineErrors {
+                        components: [[1e-3; 6]; 3],
+                        squareness: [1e-5; 3],
+                    };
+                    let (mut ea, mut eb) = (e0, e0);
+                    t.machine(&params, row_a, s0, &mut ea);
+                    t.machine(&params, row_b, s0, &mut eb);
+                    assert_eq!(ea, eb, "{}", t.name());
+                    assert_eq!(
+                        t.mount(&params, row_a),
+                        t.mount(&params, row_b),
+                        "{}",
+                        t.name()
+                    );
+                }
+            }
         }
     }
 

@@ -825,12 +825,12 @@ fn compensate_with<S: Source>(
     opts: Options,
     out: &mut [f64],
 ) -> Result<Report> {
-    let inputs = Inputs {
+    let n = Inputs {
         uv: Some(points.uv),
         scales: points.scales,
         columns: &points.columns,
-    };
-    let n = inputs.check(out, 3)?;
+    }
+    .check(out, 3)?;
     if digitizers.is_empty() {
         return Err(CoreError::invalid_argument("poses", "no digitizer given"));
     }
@@ -869,10 +869,22 @@ fn compensate_with<S: Source>(
         None => None,
     };
     let bound = effects.bind(&points.columns)?;
+    // Rows are checked for NaN in the inputs the call reads: the
+    // temperature and the effects' inputs.
+    let read = points
+        .columns
+        .only(|name| name == "temperature" || effects.reads(name));
+    let inputs = Inputs {
+        uv: Some(points.uv),
+        scales: points.scales,
+        columns: &read,
+    };
     let (uv, idx) = (points.uv, points.pose_index);
     let profiled = has_profiles(points.scales, temperature);
     let plain = Plain {
         source,
+        bound: &bound,
+        state_columns: bound.state_columns(),
         uv: points.uv,
         scales: points.scales,
         temperature,
@@ -880,9 +892,9 @@ fn compensate_with<S: Source>(
         digitizers,
         opts,
     };
-    // The block paths cover the plain compensation; an input column beyond
-    // the temperature is checked row by row.
-    let blocks = bound.is_empty() && points.columns.iter().all(|c| c.name == "temperature");
+    // Profiles take the block path with or without effects; random
+    // readings only without (the diagnosis's data are profiles).
+    let random_blocks = bound.is_empty();
     drive_blocks(
         &inputs,
         opts,
@@ -890,10 +902,10 @@ fn compensate_with<S: Source>(
         3,
         // Inlined so that it is compiled for the chunk's SIMD target.
         #[inline(always)]
-        |start, block| match (blocks, profiled) {
-            (false, _) => None,
-            (true, true) => plain.profiles(start, block),
-            (true, false) => plain.random(start, block),
+        |start, block| match (profiled, random_blocks) {
+            (true, _) => plain.profiles(start, block),
+            (false, true) => plain.random(start, block),
+            (false, false) => None,
         },
         #[inline(always)]
         |i, s, slot, report, last: &mut LastState| {

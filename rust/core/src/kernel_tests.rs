@@ -860,3 +860,142 @@ fn profiles_reuse_the_error_state_with_the_same_bits_and_counts() {
         );
     }
 }
+
+/// With effects switched on, profiles share one machine state per run (the
+/// block path) and give the bits of the per-row path, which each row run
+/// alone takes; the angle of incidence varies point by point inside a
+/// profile, as on a real scan, and must not break the runs' sharing.
+#[test]
+fn model_profiles_give_the_bits_of_single_rows() {
+    let lo = map_from(
+        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
+        [-173.0, -19.0, 21.0],
+        Some(20.0),
+    );
+    let hi = map_from(
+        |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
+        [-178.0, -4.0, 42.0],
+        Some(25.0),
+    );
+    let set = ErrorMapSet::new(vec![lo, hi]).unwrap();
+    let n = 3000;
+    let profile = |i: usize| i / 37 * 37;
+    let (uv, s0) = points(n);
+    let s: Vec<f64> = (0..3 * n).map(|k| s0[3 * profile(k / 3) + k % 3]).collect();
+    let t: Vec<f64> = (0..n)
+        .map(|i| 20.5 + 4.0 * (profile(i) as f64 * 0.618).fract())
+        .collect();
+    let axis: Vec<f64> = (0..3 * n)
+        .map(|k| t[k / 3] + 0.1 * (k % 3) as f64)
+        .collect();
+    let gradient: Vec<f64> = (0..n).map(|i| 0.01 * (profile(i) % 7) as f64).collect();
+    let velocity: Vec<f64> = (0..3 * n)
+        .map(|k| ((profile(k / 3) + k % 3) % 5) as f64)
+        .collect();
+    let mount: Vec<f64> = (0..n).map(|i| 21.0 + (profile(i) % 3) as f64).collect();
+    let incidence: Vec<f64> = (0..n).map(|i| (i % 41) as f64).collect();
+    let fx = Effects::new([
+        ("squareness", vec![2.0, -3.0, 4.0]),
+        ("scale", vec![5.0, -6.0, 7.0]),
+        ("roll", vec![1.0, 2.0, -1.0]),
+        ("axis-temperature", vec![0.7]),
+        ("granite-gradient", vec![3.0, 1.0, -2.0]),
+        ("latency", vec![0.002]),
+        ("scanner-scale", vec![3e-4, -7e-4]),
+        ("incidence", vec![2e-4, 3e-5]),
+        ("mount-expansion", vec![23.0]),
+    ])
+    .unwrap();
+    let ds = [digitizer(90.0, 90.0, 45.0), digitizer(0.0, 30.0, -10.0)];
+    let pose_index: Vec<u32> = (0..n).map(|i| ((i / 37) % 2) as u32).collect();
+    let cols = |r: std::ops::Range<usize>| {
+        Columns::new()
+            .with("temperature", 1, &t[r.clone()])
+            .with("axis_temperature", 3, &axis[3 * r.start..3 * r.end])
+            .with("gradient", 1, &gradient[r.clone()])
+            .with("velocity", 3, &velocity[3 * r.start..3 * r.end])
+            .with("mount_temperature", 1, &mount[r.clone()])
+            .with("incidence", 1, &incidence[r.clone()])
+    };
+    let whole = Points {
+        uv: &uv,
+        scales: &s,
+        pose_index: Some(&pose_index),
+        columns: cols(0..n),
+    };
+    let mut fast = vec![0.0; 3 * n];
+    compensate_points(
+        &whole,
+        MapSource::Set(&set),
+        &ds,
+        &fx,
+        Options::default(),
+        &mut fast,
+    )
+    .unwrap();
+    for i in 0..n {
+        let one = Points {
+            uv: &uv[2 * i..2 * i + 2],
+            scales: &s[3 * i..3 * i + 3],
+            pose_index: Some(&pose_index[i..i + 1]),
+            columns: cols(i..i + 1),
+        };
+        let mut row = [0.0; 3];
+        compensate_points(
+            &one,
+            MapSource::Set(&set),
+            &ds,
+            &fx,
+            Options::default(),
+            &mut row,
+        )
+        .unwrap();
+        for k in 0..3 {
+            assert_eq!(fast[3 * i + k].to_bits(), row[k].to_bits(), "row {i}");
+        }
+    }
+}
+
+/// A NaN in an input no switched-on effect reads is not an error; in one
+/// that is read, it is, naming the input and the row.
+#[test]
+fn nan_only_matters_in_inputs_the_call_reads() {
+    let map = map_from(|_, _| [0.0; 6], [0.0; 3], None);
+    let (uv, s) = points(100);
+    let mut gradient = vec![0.0; 100];
+    gradient[42] = f64::NAN;
+    let pts = Points {
+        uv: &uv,
+        scales: &s,
+        pose_index: None,
+        columns: Columns::new().with("gradient", 1, &gradient),
+    };
+    let d = [digitizer(90.0, 90.0, 0.0)];
+    let mut out = vec![0.0; 300];
+    compensate_points(
+        &pts,
+        MapSource::Map(&map),
+        &d,
+        &Effects::none(),
+        Options::default(),
+        &mut out,
+    )
+    .unwrap();
+    let fx = Effects::new([("granite-gradient", vec![1.0, 0.0, 0.0])]).unwrap();
+    let e = compensate_points(
+        &pts,
+        MapSource::Map(&map),
+        &d,
+        &fx,
+        Options::default(),
+        &mut out,
+    )
+    .unwrap_err();
+    assert_eq!(
+        e,
+        CoreError::NonFinite {
+            argument: "gradient".into(),
+            row: 42
+        }
+    );
+}

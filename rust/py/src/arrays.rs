@@ -24,7 +24,10 @@ pub fn rows<'a>(name: &str, a: &'a PyReadonlyArray2<'_, f64>, cols: usize) -> Re
             shape[0], shape[1]
         )));
     }
-    a.as_slice().map_err(|_| {
+    // `as_slice` also accepts a Fortran-ordered array, whose flat order is
+    // not row by row.
+    let c_order = a.is_c_contiguous();
+    a.as_slice().ok().filter(|_| c_order).ok_or_else(|| {
         input(format!(
             "{name}: array must be C-contiguous (use numpy.ascontiguousarray)"
         ))
@@ -101,11 +104,68 @@ pub fn run_kernel<'py, F>(
 where
     F: FnOnce(&mut [f64]) -> cmmpose_core::Result<Report> + Send,
 {
-    // Uninitialised is fine: the kernel writes every element or fails.
-    let out = unsafe { PyArray2::<f64>::new(py, [n, width], false) };
-    let slice = unsafe { out.as_slice_mut() }.expect("fresh array is contiguous");
+    run_kernel_into(py, n, width, None, f)
+}
+
+/// As [`run_kernel`], writing into the caller's `out` when given: an (n,
+/// width) float64 C-contiguous writeable array that shares no memory with
+/// the inputs (numpy's borrow check refuses an overlap, which would have
+/// the kernel read what it has written). It is returned as the result.
+pub fn run_kernel_into<'py, F>(
+    py: Python<'py>,
+    n: usize,
+    width: usize,
+    out: Option<&Bound<'py, PyAny>>,
+    f: F,
+) -> Res<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)>
+where
+    F: FnOnce(&mut [f64]) -> cmmpose_core::Result<Report> + Send,
+{
+    let Some(out) = out else {
+        // Uninitialised is fine: the kernel writes every element or fails.
+        let fresh = unsafe { PyArray2::<f64>::new(py, [n, width], false) };
+        let slice = unsafe { fresh.as_slice_mut() }.expect("fresh array is contiguous");
+        let report = py.detach(|| f(slice))?;
+        return Ok((fresh, report_dict(py, &report)?));
+    };
+    let array = out.cast::<PyArray2<f64>>().map_err(|_| {
+        input(format!(
+            "out: expected a float64 array of shape ({n}, {width}), got {}",
+            describe(out)
+        ))
+    })?;
+    if array.shape() != [n, width] {
+        return Err(input(format!(
+            "out: expected shape ({n}, {width}), got {:?}",
+            array.shape()
+        )));
+    }
+    if !array.is_c_contiguous() {
+        return Err(input("out: must be C-contiguous"));
+    }
+    let mut view = array.try_readwrite().map_err(|e| {
+        input(format!(
+            "out: cannot be written ({e}): it must be writeable and share no memory with the inputs"
+        ))
+    })?;
+    let slice = view
+        .as_slice_mut()
+        .map_err(|_| input("out: must be C-contiguous"))?;
     let report = py.detach(|| f(slice))?;
-    Ok((out, report_dict(py, &report)?))
+    drop(view);
+    Ok((array.clone(), report_dict(py, &report)?))
+}
+
+/// Type and dtype of a Python object, for messages.
+fn describe(x: &Bound<'_, PyAny>) -> String {
+    match x.cast::<numpy::PyUntypedArray>() {
+        Ok(a) => format!("an array of dtype {}", a.dtype()),
+        Err(_) => x
+            .get_type()
+            .name()
+            .map(|n| n.to_string())
+            .unwrap_or_else(|_| "an object".into()),
+    }
 }
 
 /// Named per-point inputs: a dict of float64 C-contiguous arrays, (N,) for

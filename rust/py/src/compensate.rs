@@ -7,7 +7,7 @@ use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{options, options_with, rows, run_kernel, vector};
+use crate::arrays::{options, options_with, rows, run_kernel_into, vector};
 use crate::errors::{input, Res};
 use crate::maps::{PyErrorMap, PyErrorMapSet};
 use crate::pose::PyDigitizer;
@@ -17,7 +17,7 @@ type Output<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>);
 /// Compensated machine coordinates (mm). `error_map` is an ErrorMap or an
 /// ErrorMapSet; with a set, `temperature` is a float or an (N,) array (C).
 #[pyfunction]
-#[pyo3(signature = (uv, scales, error_map, digitizer, temperature=None, out_of_range="raise", nan_policy="raise", temperature_tolerance=0.0))]
+#[pyo3(signature = (uv, scales, error_map, digitizer, temperature=None, out_of_range="raise", nan_policy="raise", temperature_tolerance=0.0, out=None))]
 #[allow(clippy::too_many_arguments)]
 fn compensate<'py>(
     py: Python<'py>,
@@ -29,6 +29,7 @@ fn compensate<'py>(
     out_of_range: &str,
     nan_policy: &str,
     temperature_tolerance: f64,
+    out: Option<&Bound<'py, PyAny>>,
 ) -> Res<Output<'py>> {
     let opts = options_with(out_of_range, nan_policy, temperature_tolerance)?;
     let uv_s = rows("uv", &uv, 2)?;
@@ -42,7 +43,7 @@ fn compensate<'py>(
             ));
         }
         let map = &map.get().inner;
-        return run_kernel(py, n, 3, |out| {
+        return run_kernel_into(py, n, 3, out, |out| {
             kernel::compensate(uv_s, s, map, &d, opts, out)
         });
     }
@@ -54,7 +55,7 @@ fn compensate<'py>(
         input("temperature: required with an ErrorMapSet (a float or an (N,) array, C)")
     })?;
     if let Ok(t) = temperature.extract::<f64>() {
-        return run_kernel(py, n, 3, |out| {
+        return run_kernel_into(py, n, 3, out, |out| {
             kernel::compensate_at_temperature(uv_s, s, t, set, &d, opts, out)
         });
     }
@@ -62,26 +63,27 @@ fn compensate<'py>(
         .extract()
         .map_err(|_| input("temperature: expected a float or a float64 (N,) array"))?;
     let t = vector("temperature", &t)?;
-    run_kernel(py, n, 3, |out| {
+    run_kernel_into(py, n, 3, out, |out| {
         kernel::compensate_at_temperatures(uv_s, s, t, set, &d, opts, out)
     })
 }
 
 /// What the digitizer software reports, without compensation (mm).
 #[pyfunction]
-#[pyo3(signature = (uv, scales, digitizer, nan_policy="raise"))]
+#[pyo3(signature = (uv, scales, digitizer, nan_policy="raise", out=None))]
 fn uncompensated<'py>(
     py: Python<'py>,
     uv: PyReadonlyArray2<'py, f64>,
     scales: PyReadonlyArray2<'py, f64>,
     digitizer: PyRef<'py, PyDigitizer>,
     nan_policy: &str,
+    out: Option<&Bound<'py, PyAny>>,
 ) -> Res<Output<'py>> {
     let opts = options("raise", nan_policy)?;
     let uv_s = rows("uv", &uv, 2)?;
     let s = rows("scales", &scales, 3)?;
     let d = digitizer.inner;
-    run_kernel(py, s.len() / 3, 3, |out| {
+    run_kernel_into(py, s.len() / 3, 3, out, |out| {
         kernel::uncompensated(uv_s, s, &d, opts, out)
     })
 }

@@ -142,9 +142,12 @@ fn scan_profiles<'py>(
             r.shape()
         )));
     }
+    let c_order = r.is_c_contiguous();
     let rs = r
         .as_slice()
-        .map_err(|_| input("frames['r']: array must be C-contiguous"))?;
+        .ok()
+        .filter(|_| c_order)
+        .ok_or_else(|| input("frames['r']: array must be C-contiguous"))?;
     let ms = vector("frames['mount_scale']", &ms)?;
     if ms.len() != m {
         return Err(input(format!(
