@@ -112,6 +112,12 @@ def uncompensated(
     nan_policy: _NanPolicy = "raise",
     out: _F64_2D | None = None,
 ) -> tuple[_F64_2D, Report]: ...
+def streaming_reference(
+    uv: _F64_2D,
+    scales: _F64_2D,
+    temperature: npt.NDArray[np.float64] | None = None,
+    out: _F64_2D | None = None,
+) -> _F64_2D: ...
 def compensate_model(
     uv: _F64_2D,
     scales: _F64_2D,

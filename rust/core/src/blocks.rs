@@ -20,6 +20,7 @@ use nalgebra::Vector3;
 
 use crate::effects::{Bound, MachineErrors, Temperatures};
 use crate::kernel::{Options, PointError, Report, Source};
+use crate::map::ErrorMap;
 use crate::pose::Digitizer;
 
 /// Rows of one structure-of-arrays block (random readings).
@@ -95,8 +96,12 @@ impl<S: Source> Plain<'_, S> {
         while j < n {
             let m = LANES.min(n - j);
             for r in 0..m {
-                self.gather(start + j + r, r, &mut lanes, &mut report)?;
+                self.gather(start + j + r, r, &mut lanes)?;
             }
+            let first = start + j;
+            let t = self.temperature.map(|t| &t[first..first + m]);
+            self.source
+                .fill_lanes(&mut lanes, t, m, &self.opts, &mut report)?;
             if !lanes.solve(m, &mut block[3 * j..3 * (j + m)]) {
                 return None;
             }
@@ -215,10 +220,10 @@ impl<S: Source> Plain<'_, S> {
         finite
     }
 
-    /// Row `i` into lane `r`: its map components, squareness, reading and
-    /// lever. `None` on a non-finite input or a reading outside the maps.
+    /// Row `i` into lane `r`: its reading and lever. `None` on a
+    /// non-finite input.
     #[inline(always)]
-    fn gather(&self, i: usize, r: usize, lanes: &mut Lanes, report: &mut Report) -> Option<()> {
+    fn gather(&self, i: usize, r: usize, lanes: &mut Lanes) -> Option<()> {
         let s = self.reading(i);
         let (u, v) = (self.uv[2 * i], self.uv[2 * i + 1]);
         let t = self.temperature.map_or(f64::NAN, |t| t[i]);
@@ -229,20 +234,8 @@ impl<S: Source> Plain<'_, S> {
         if !finite {
             return None;
         }
-        let mut one = Report::default();
-        let (c, sq) = self
-            .source
-            .components(s, &Temperatures::uniform(t), &self.opts, &mut one)
-            .ok()?;
-        if one != Report::default() {
-            report.add_counts_times(&one, 1);
-        }
-        for a in 0..3 {
-            lanes.s[a][r] = s[a];
-            lanes.sq[a][r] = sq[a];
-            for (lane, value) in lanes.c[a].iter_mut().zip(c[a]) {
-                lane[r] = value;
-            }
+        for (lane, value) in lanes.s.iter_mut().zip(s) {
+            lane[r] = value;
         }
         let d = &self.digitizers[self.pose_index.map_or(0, |p| p[i] as usize)];
         let l = d.lever(u, v);
@@ -279,10 +272,61 @@ fn profile_points(
     finite
 }
 
+/// The components of one map for the first `m` lanes, table by table:
+/// locate every lane's reading, then interpolate (the operations of
+/// `CarriageTable::locate` and `at`). `None` if a reading is outside its
+/// table.
+#[inline(always)]
+pub(crate) fn map_lanes(map: &ErrorMap, lanes: &mut Lanes, m: usize) -> Option<()> {
+    let mut inside = true;
+    for (a, table) in map.tables().iter().enumerate() {
+        let (lo, hi) = table.range();
+        let mut segment = [0usize; LANES];
+        let mut offset = [0.0; LANES];
+        for r in 0..m {
+            inside &= (lanes.s[a][r] >= lo) & (lanes.s[a][r] <= hi);
+        }
+        if !inside {
+            return None;
+        }
+        if let Some((first, inv, last)) = table.uniform_grid() {
+            // locate_inside's segment, (x - first) / pitch truncated: every
+            // reading is inside, so the quotient is a small non-negative
+            // number and a plain truncation gives what `as usize` does.
+            for (k, &x) in segment.iter_mut().zip(&lanes.s[a]).take(m) {
+                let q = (x - first) * inv;
+                debug_assert!((0.0..=(last + 1) as f64 * 1.000_001).contains(&q));
+                // SAFETY: q is finite and within [0, last + 1] (see above).
+                *k = (unsafe { q.to_int_unchecked::<i64>() } as usize).min(last);
+            }
+            for ((o, &x), &k) in offset.iter_mut().zip(&lanes.s[a]).zip(&segment).take(m) {
+                *o = x - table.positions()[k];
+            }
+        } else {
+            for r in 0..m {
+                let at = table.locate_inside(lanes.s[a][r]);
+                segment[r] = at.segment;
+                offset[r] = at.offset;
+            }
+        }
+        for r in 0..m {
+            let (v, slope) = table.segment(segment[r]);
+            for k in 0..6 {
+                lanes.c[a][k][r] = v[k] + offset[r] * slope[k];
+            }
+        }
+    }
+    let sq = map.squareness();
+    for (lane, value) in lanes.sq.iter_mut().zip(sq) {
+        lane[..m].fill(value);
+    }
+    Some(())
+}
+
 /// One block of rows in structure-of-arrays form.
-struct Lanes {
+pub(crate) struct Lanes {
     /// Scale readings D, E, F (mm).
-    s: [[f64; LANES]; 3],
+    pub(crate) s: [[f64; LANES]; 3],
     /// Per carriage: dx, dy, dz (mm), ex, ey, ez (rad).
     c: [[[f64; LANES]; 6]; 3],
     /// Squareness S_xy, S_yz, S_zx (rad).
@@ -303,6 +347,17 @@ impl Default for Lanes {
 }
 
 impl Lanes {
+    /// Lane `r`'s components and squareness.
+    #[inline(always)]
+    pub(crate) fn set(&mut self, r: usize, c: &[[f64; 6]; 3], sq: [f64; 3]) {
+        for a in 0..3 {
+            self.sq[a][r] = sq[a];
+            for (lane, value) in self.c[a].iter_mut().zip(c[a]) {
+                lane[r] = value;
+            }
+        }
+    }
+
     /// [`PointError::new`] and the point, for the first `m` lanes, written
     /// row-major into `out`. The series of `tan_small` and
     /// `inv_sqrt_one_plus` are taken without their branch; a lane outside

@@ -16,7 +16,7 @@ use multiversion::multiversion;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use crate::blocks::Plain;
+use crate::blocks::{Lanes, Plain};
 use crate::effects::{Columns, Effects, MachineErrors, Temperatures};
 use crate::error::{CoreError, Result};
 use crate::map::{Components, ErrorMap};
@@ -308,6 +308,32 @@ pub(crate) trait Source: Sync {
         report: &mut Report,
     ) -> std::result::Result<Evaluated, Miss>;
 
+    /// Components and squareness of the first `m` lanes, whose readings are
+    /// in `lanes.s` (and temperatures in `t`, C, one per lane). `None` on
+    /// anything [`components`](Self::components) would not take quietly;
+    /// the per-row path then does the rows again. Row by row by default.
+    #[inline(always)]
+    fn fill_lanes(
+        &self,
+        lanes: &mut Lanes,
+        t: Option<&[f64]>,
+        m: usize,
+        opts: &Options,
+        report: &mut Report,
+    ) -> Option<()> {
+        for r in 0..m {
+            let s = [lanes.s[0][r], lanes.s[1][r], lanes.s[2][r]];
+            let temps = Temperatures::uniform(t.map_or(f64::NAN, |t| t[r]));
+            let mut one = Report::default();
+            let (c, sq) = self.components(s, &temps, opts, &mut one).ok()?;
+            if one != Report::default() {
+                report.add_counts_times(&one, 1);
+            }
+            lanes.set(r, &c, sq);
+        }
+        Some(())
+    }
+
     /// The readable error for a miss at `row`.
     fn miss_error(
         &self,
@@ -361,6 +387,23 @@ fn axis_error(map: &ErrorMap, a: usize, row: usize, s: [f64; 3]) -> CoreError {
 const AXES: [char; 3] = ['X', 'Y', 'Z'];
 
 impl Source for ErrorMap {
+    /// Table by table over the lanes (see [`crate::blocks::map_lanes`]).
+    #[inline(always)]
+    fn fill_lanes(
+        &self,
+        lanes: &mut Lanes,
+        _t: Option<&[f64]>,
+        m: usize,
+        opts: &Options,
+        _report: &mut Report,
+    ) -> Option<()> {
+        // Clamping counts per row: that case goes row by row.
+        if opts.out_of_range == OutOfRange::Clamp {
+            return None;
+        }
+        crate::blocks::map_lanes(self, lanes, m)
+    }
+
     #[inline(always)]
     fn miss_error(
         &self,

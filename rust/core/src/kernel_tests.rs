@@ -999,3 +999,82 @@ fn nan_only_matters_in_inputs_the_call_reads() {
         }
     );
 }
+
+/// The random-readings block path locates readings as the per-row path
+/// does: on a uniform grid (readings on nodes and at the ends included) and
+/// on an uneven one.
+#[test]
+fn random_blocks_locate_as_the_rows_do() {
+    let uniform = map_from(
+        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
+        [-173.0, -19.0, 21.0],
+        None,
+    );
+    let uneven = {
+        let tables = std::array::from_fn(|a| {
+            let (lo, hi) = RANGES[a];
+            let mut p = lo;
+            let mut rows = Vec::new();
+            let mut k = 0;
+            while p < hi {
+                rows.push([p, p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0]);
+                p += [7.0, 31.0, 18.5][k % 3];
+                k += 1;
+            }
+            rows.push([hi, hi / 40.0, -(a as f64), 3.0, 1.5, 0.5, -hi / 300.0]);
+            CarriageTable::from_table_units(Carriage::ALL[a], &rows).unwrap()
+        });
+        ErrorMap::new(tables, [1.0, 2.0, 3.0], None).unwrap()
+    };
+    let n = 5000;
+    let (uv, mut s) = points(n);
+    // Every 7th row on a 25 mm node, the first rows at the ends.
+    for i in (0..n).step_by(7) {
+        for a in 0..3 {
+            s[3 * i + a] = (s[3 * i + a] / 25.0).round() * 25.0;
+        }
+    }
+    for a in 0..3 {
+        s[a] = RANGES[a].0;
+        s[3 + a] = RANGES[a].1;
+    }
+    let d = digitizer(90.0, 90.0, 45.0);
+    let columns = Columns::new();
+    let inputs = Inputs {
+        uv: Some(&uv),
+        scales: &s,
+        columns: &columns,
+    };
+    for map in [&uniform, &uneven] {
+        let mut fast = vec![0.0; 3 * n];
+        compensate(&uv, &s, map, &d, Options::default(), &mut fast).unwrap();
+        let row_fn = |i: usize,
+                      sc: [f64; 3],
+                      slot: &mut [f64],
+                      report: &mut Report,
+                      _: &mut ()|
+         -> Result<()> {
+            let (c, sq) = map.evaluate(
+                i,
+                sc,
+                &Temperatures::uniform(f64::NAN),
+                &Options::default(),
+                report,
+            )?;
+            let pe = PointError::new(sc, &c, sq);
+            let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
+            slot.copy_from_slice(x.as_slice());
+            Ok(())
+        };
+        let mut rows = vec![0.0; 3 * n];
+        assert!(
+            block_rows::<(), _>(&inputs, Options::default(), &mut rows, 0, 3, &row_fn)
+                .1
+                .is_none()
+        );
+        assert!(fast
+            .iter()
+            .zip(&rows)
+            .all(|(x, y)| x.to_bits() == y.to_bits()));
+    }
+}

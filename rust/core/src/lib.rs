@@ -14,6 +14,7 @@ pub mod kernel;
 pub mod map;
 pub mod pose;
 pub mod scanner;
+pub mod stream;
 pub mod thermal;
 pub mod truth;
 pub mod units;

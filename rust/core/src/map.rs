@@ -204,8 +204,16 @@ impl CarriageTable {
         }
     }
 
+    /// The first node, 1 / pitch and the last segment's index of a uniform
+    /// grid (what `locate_inside` computes a segment from), or `None`.
     #[inline(always)]
-    fn locate_inside(&self, x: f64) -> Located {
+    pub(crate) fn uniform_grid(&self) -> Option<(f64, f64, usize)> {
+        self.inv_pitch
+            .map(|inv| (self.positions[0], inv, self.positions.len() - 2))
+    }
+
+    #[inline(always)]
+    pub(crate) fn locate_inside(&self, x: f64) -> Located {
         let last = self.positions.len() - 2;
         let segment = match self.inv_pitch {
             // O(1) on a uniform grid. Rounding can put a reading that sits

@@ -88,7 +88,32 @@ fn uncompensated<'py>(
     })
 }
 
+/// The compensation's memory traffic without its arithmetic (benches: the
+/// machine's streaming limit for the same arrays).
+#[pyfunction]
+#[pyo3(signature = (uv, scales, temperature=None, out=None))]
+fn streaming_reference<'py>(
+    py: Python<'py>,
+    uv: PyReadonlyArray2<'py, f64>,
+    scales: PyReadonlyArray2<'py, f64>,
+    temperature: Option<PyReadonlyArray1<'py, f64>>,
+    out: Option<&Bound<'py, PyAny>>,
+) -> Res<Bound<'py, PyArray2<f64>>> {
+    let uv_s = rows("uv", &uv, 2)?;
+    let s = rows("scales", &scales, 3)?;
+    let t = match &temperature {
+        Some(t) => Some(vector("temperature", t)?),
+        None => None,
+    };
+    let (out, _) = run_kernel_into(py, s.len() / 3, 3, out, |out| {
+        cmmpose_core::stream::streaming_reference(uv_s, s, t, out)?;
+        Ok(kernel::Report::default())
+    })?;
+    Ok(out)
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(streaming_reference, m)?)?;
     m.add_function(wrap_pyfunction!(compensate, m)?)?;
     m.add_function(wrap_pyfunction!(uncompensated, m)?)?;
     Ok(())
