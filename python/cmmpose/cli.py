@@ -97,8 +97,8 @@ def main() -> None:
 @click.option("--nan-policy", type=click.Choice(["raise", "propagate"]), default="raise", show_default=True)
 def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_of_range, temperature_tolerance,
                    nan_policy) -> None:
-    """Compensate scanner points IN (CSV or NPY: u, v, D, E, F[, T]) into machine
-    coordinates OUT (CSV or NPY: X, Y, Z in mm)."""
+    """Compensate scanner points IN (CSV, NPY or Parquet: u, v, D, E, F[, T]) into
+    machine coordinates OUT (CSV, NPY or Parquet by suffix: X, Y, Z in mm)."""
     pose_t = triple(pose, "--pose")
     offset_t = triple(offset, "--offset")
     try:

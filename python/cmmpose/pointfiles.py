@@ -1,11 +1,14 @@
 """Point files for the CLI: CSV with a header row (u, v, D, E, F and an
-optional T) or NPY ((N, 5) or (N, 6) in that column order, or a structured
-array with those field names). Units: mm and degrees C.
+optional T), NPY ((N, 5) or (N, 6) in that column order, or a structured
+array with those field names) or Parquet (columns with those names). Units:
+mm and degrees C.
 
 Reading is strict: a CSV must be UTF-8 with every row as wide as the header
 (an extra field would shift the columns) and plain numbers; an NPY must be
-a real-valued array whose header matches the file's size. Writing goes to a
-temporary file renamed into place, so a failure leaves nothing behind."""
+a real-valued array whose header matches the file's size; a Parquet file
+must hold real-valued columns without nulls. Every format is read and
+written in chunks, so a file of any size takes bounded memory. Writing goes
+to a temporary file renamed into place, so a failure leaves nothing behind."""
 
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pa_csv
+import pyarrow.parquet as pq
 
 from .errors import InputError
 
@@ -31,7 +35,8 @@ def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | 
     Parameters
     ----------
     path : path-like
-        A .npy file, or a CSV file (any other suffix) with a header row.
+        A .npy or .parquet file, or a CSV file (any other suffix) with a
+        header row.
 
     Raises
     ------
@@ -196,8 +201,11 @@ def point_chunks(path: str | Path, chunk: int | None = None):
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     size = path.stat().st_size
-    if path.suffix.lower() == ".npy":
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
         return size, _npy_chunks(path, chunk, size)
+    if suffix == ".parquet":
+        return size, _parquet_chunks(path, chunk, size)
     return size, _csv_chunks(path, chunk, size)
 
 
@@ -213,6 +221,40 @@ def _npy_chunks(path: Path, chunk: int, size: int):
         hi = min(lo + chunk, n)
         block = np.array(a[lo:hi], dtype=np.float64)
         yield (*_split(block, has_t), int(size * hi / max(n, 1)))
+
+
+def _parquet_chunks(path: Path, chunk: int, size: int):
+    """Row groups read batch by batch; the columns checked first (names,
+    real types), then each batch for nulls (the first null's row named)."""
+    try:
+        f = pq.ParquetFile(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
+    schema = f.schema_arrow
+    missing = [c for c in REQUIRED if c not in schema.names]
+    if missing:
+        raise InputError(f"{path}: columns {missing} missing (have {schema.names})")
+    cols = [*REQUIRED, *(["T"] if "T" in schema.names else [])]
+    for c in cols:
+        kind = schema.field(c).type
+        if not (pa.types.is_floating(kind) or pa.types.is_integer(kind)):
+            raise InputError(f"{path}: column {c!r} holds {kind} values, expected real numbers")
+    has_t, n, first = "T" in cols, max(f.metadata.num_rows, 1), 0
+    try:
+        for batch in f.iter_batches(batch_size=chunk, columns=cols):
+            for c in cols:
+                column = batch.column(c)
+                if column.null_count:
+                    row = first + int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
+                    raise InputError(f"{path}: column {c!r}, row {row}: empty (null)")
+            a = np.column_stack([batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64, copy=False)
+                                 for c in cols]) if batch.num_rows else np.zeros((0, len(cols)))
+            first += batch.num_rows
+            yield (*_split(a, has_t), int(size * first / n))
+        if first == 0:
+            yield (*_split(np.zeros((0, len(cols))), has_t), size)
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
 
 
 def _csv_chunks(path: Path, chunk: int, size: int):
@@ -260,35 +302,63 @@ class RereadPoints(Exception):
 
 
 class PointWriter:
-    """Machine coordinates written chunk by chunk to a temporary file renamed
-    over ``path`` on success (CSV, or NPY given the total count)."""
+    """Machine coordinates (mm) written chunk by chunk to a temporary file
+    renamed over ``path`` on success: CSV (header X,Y,Z, rounded to 1 nm),
+    NPY (N, 3) float64 (suffix .npy) or Parquet columns X, Y, Z float64
+    (suffix .parquet). Memory stays bounded by one chunk in every format."""
 
-    def __init__(self, path: str | Path, total: int | None = None):
+    def __init__(self, path: str | Path):
         self.path = check_writable(path)
-        self.npy = self.path.suffix.lower() == ".npy"
-        self.total = total
-        self._chunks: list[np.ndarray] = []
+        self.kind = {".npy": "npy", ".parquet": "parquet"}.get(self.path.suffix.lower(), "csv")
+        self.rows = 0
         fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=self.path.parent if str(self.path.parent) else ".")
         self.f = os.fdopen(fd, "wb")
-        if not self.npy:
+        self._parquet: pq.ParquetWriter | None = None
+        if self.kind == "csv":
             self.f.write(b"X,Y,Z\n")
+        elif self.kind == "npy":
+            self.f.write(_npy_header(0))  # the count is written in at the end
 
     def write(self, xyz: np.ndarray) -> None:
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-        if self.npy:
-            self._chunks.append(xyz)  # NPY needs the count in its header
-            return
-        r = np.round(xyz, 6) + 0.0
-        if len(r):
+        self.rows += len(xyz)
+        if self.kind == "npy":
+            self.f.write(np.ascontiguousarray(xyz).tobytes())
+        elif self.kind == "parquet":
+            table = pa.table({"X": xyz[:, 0], "Y": xyz[:, 1], "Z": xyz[:, 2]})
+            if self._parquet is None:
+                self._parquet = pq.ParquetWriter(self.f, table.schema)
+            self._parquet.write_table(table)
+        elif len(xyz):
+            r = np.round(xyz, 6) + 0.0
             pa_csv.write_csv(pa.table({"X": r[:, 0], "Y": r[:, 1], "Z": r[:, 2]}), self.f,
                              pa_csv.WriteOptions(include_header=False))
 
     def close(self) -> None:
-        if self.npy:
-            np.save(self.f, np.concatenate(self._chunks) if self._chunks else np.zeros((0, 3)))
+        if self.kind == "npy":
+            self.f.seek(0)
+            self.f.write(_npy_header(self.rows))
+        elif self.kind == "parquet":
+            if self._parquet is None:
+                self._parquet = pq.ParquetWriter(self.f, pa.schema([(c, pa.float64()) for c in "XYZ"]))
+            self._parquet.close()
         self.f.close()
         os.replace(self.tmp, self.path)
 
     def abort(self) -> None:
         self.f.close()
         Path(self.tmp).unlink(missing_ok=True)
+
+
+#: Bytes of the NPY header PointWriter writes: fixed, so that the row count,
+#: known only at the end, is written over the placeholder in place.
+_NPY_HEADER_BYTES = 128
+
+
+def _npy_header(rows: int) -> bytes:
+    """An NPY format 1.0 header for (rows, 3) little-endian float64 in C
+    order, padded with spaces to a fixed 128 bytes (a multiple of 64, as the
+    format asks, and room for any 64-bit count)."""
+    text = f"{{'descr': '<f8', 'fortran_order': False, 'shape': ({rows}, 3), }}".encode("latin1")
+    body = _NPY_HEADER_BYTES - len(_NPY_MAGIC) - 2 - 2
+    return _NPY_MAGIC + b"\x01\x00" + body.to_bytes(2, "little") + text.ljust(body - 1) + b"\n"
