@@ -134,3 +134,17 @@ def test_a_chunk_the_fast_reader_refuses_is_read_again_strictly(tmp_path, points
     r = cli("compensate", points[0], out)
     assert r.exit_code == 0, r.output
     np.testing.assert_array_equal(np.load(out), points[2])
+
+
+def test_quoted_header_names_are_read(tmp_path, points):
+    """pyarrow and spreadsheets quote the names in the header row."""
+    text = points[0].read_text().splitlines()
+    text[0] = ",".join(f'"{c}"' for c in text[0].split(","))
+    quoted = tmp_path / "q.csv"
+    quoted.write_text("\n".join(text) + "\n")
+    uv, scales, temps = pointfiles.read_points(quoted)
+    want = pointfiles.read_points(points[0])
+    assert all(np.array_equal(a, b) for a, b in zip((uv, scales, temps), want))
+    r = cli("compensate", quoted, tmp_path / "o.npy")
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(np.load(tmp_path / "o.npy"), points[2])

@@ -104,7 +104,7 @@ def _read_csv_strict(path: Path) -> tuple[np.ndarray, bool]:
     lines = text.splitlines()
     if not lines or not lines[0].strip():
         raise InputError(f"{path}:1: empty file; expected a header row u,v,D,E,F[,T]")
-    header = [h.strip() for h in lines[0].split(",")]
+    header = [_column_name(h) for h in lines[0].split(",")]
     missing = [c for c in REQUIRED if c not in header]
     if missing:
         raise InputError(f"{path}:1: header must name columns u, v, D, E, F (and optionally T); missing {missing}")
@@ -126,6 +126,15 @@ def _read_csv_strict(path: Path) -> tuple[np.ndarray, bool]:
     return a[:, order], "T" in header
 
 
+def _column_name(field: str) -> str:
+    """A header field without blanks around it or the double quotes many
+    writers put around names (pyarrow, spreadsheets)."""
+    name = field.strip()
+    if len(name) >= 2 and name[0] == name[-1] == '"':
+        name = name[1:-1]
+    return name
+
+
 def _csv_header(path: Path) -> list[str] | None:
     """The header's column names if the fast reader can take the file: UTF-8,
     u, v, D, E, F present, no name empty or twice; else None (the strict
@@ -135,7 +144,7 @@ def _csv_header(path: Path) -> list[str] | None:
     if first.startswith(b"\xef\xbb\xbf"):
         first = first[3:]
     try:
-        header = [h.strip() for h in first.decode("utf-8").rstrip("\r\n").split(",")]
+        header = [_column_name(h) for h in first.decode("utf-8").rstrip("\r\n").split(",")]
     except UnicodeDecodeError:
         return None
     ok = all(c in header for c in REQUIRED) and len(set(header)) == len(header) and all(header)
