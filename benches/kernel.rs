@@ -1,11 +1,13 @@
 //! Criterion benches of the core: the compensation kernel at 1e3, 1e5 and
-//! 1e7 points (one map, and a map set with a temperature per point), and map
-//! blending. `cargo bench` (no Python needed). Thread count: RAYON_NUM_THREADS.
+//! 1e7 points (one map, and a map set with a temperature per point, on random
+//! readings and on profiles of 1000 points), the streaming limit for the
+//! same arrays, and map blending. `cargo bench` (no Python needed). Thread count: RAYON_NUM_THREADS.
 
 use std::hint::black_box;
 use std::time::Duration;
 
 use cmmpose_core::kernel::{compensate, compensate_at_temperatures, Options};
+use cmmpose_core::stream::streaming_reference;
 use cmmpose_core::{Carriage, CarriageTable, Digitizer, ErrorMap, ErrorMapSet, Pose};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 
@@ -102,6 +104,33 @@ fn bench_kernel(c: &mut Criterion) {
                 })
             },
         );
+        // The same reads and writes with one add per value: the machine's
+        // streaming limit for these arrays, to read the kernel's figures by.
+        g.bench_with_input(BenchmarkId::new("streaming_limit", n), &n, |b, _| {
+            b.iter(|| {
+                streaming_reference(black_box(&uv), black_box(&s), Some(black_box(&t)), &mut out)
+                    .unwrap()
+            })
+        });
+        // Scanner data: profiles of 1000 points sharing a reading and a temperature.
+        let ps: Vec<f64> = (0..3 * n)
+            .map(|k| s[3 * (k / 3 / 1000 * 1000) + k % 3])
+            .collect();
+        let pt: Vec<f64> = (0..n).map(|i| t[i / 1000 * 1000]).collect();
+        g.bench_with_input(BenchmarkId::new("set_profiles_of_1000", n), &n, |b, _| {
+            b.iter(|| {
+                compensate_at_temperatures(
+                    black_box(&uv),
+                    black_box(&ps),
+                    black_box(&pt),
+                    &set,
+                    &d,
+                    Options::default(),
+                    &mut out,
+                )
+                .unwrap()
+            })
+        });
     }
     g.finish();
 }
