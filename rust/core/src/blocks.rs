@@ -19,7 +19,7 @@
 use nalgebra::Vector3;
 
 use crate::effects::{Bound, MachineErrors, Temperatures};
-use crate::kernel::{Options, PointError, Report, Source};
+use crate::kernel::{position_error_at, Options, PointError, Report, Source};
 use crate::map::ErrorMap;
 use crate::pose::Digitizer;
 
@@ -34,6 +34,8 @@ const INV_SQRT_SERIES: f64 = 1e-6;
 /// What a compensation reads (with or without effects switched on).
 pub(crate) struct Plain<'a, S: Source> {
     pub source: &'a S,
+    /// The machine's arms (see [`crate::kinematics`]).
+    pub arms: [[f64; 3]; 3],
     /// The effects switched on, bound to their inputs.
     pub bound: &'a Bound<'a>,
     /// Inputs that the effects' state stages read (values, width).
@@ -102,7 +104,7 @@ impl<S: Source> Plain<'_, S> {
             let t = self.temperature.map(|t| &t[first..first + m]);
             self.source
                 .fill_lanes(&mut lanes, t, m, &self.opts, &mut report)?;
-            if !lanes.solve(m, &mut block[3 * j..3 * (j + m)]) {
+            if !lanes.solve(m, &self.arms, &mut block[3 * j..3 * (j + m)]) {
                 return None;
             }
             j += m;
@@ -168,7 +170,7 @@ impl<S: Source> Plain<'_, S> {
                 .components(s, &Temperatures::uniform(t), &self.opts, &mut one)
                 .ok()?;
             report.add_counts_times(&one, len);
-            return Some((s, PointError::new(s, &c, sq), 1.0));
+            return Some((s, PointError::new(s, &c, sq, &self.arms), 1.0));
         }
         // The per-row path's stages, in its order.
         let mut s = s;
@@ -187,7 +189,7 @@ impl<S: Source> Plain<'_, S> {
         self.bound.machine(i, s, &mut e);
         Some((
             s,
-            PointError::new(s, &e.components, e.squareness),
+            PointError::new(s, &e.components, e.squareness, &self.arms),
             self.bound.mount(i),
         ))
     }
@@ -363,18 +365,19 @@ impl Lanes {
     /// `inv_sqrt_one_plus` are taken without their branch; a lane outside
     /// their range (or a non-finite result) returns false.
     #[inline(always)]
-    fn solve(&self, m: usize, out: &mut [f64]) -> bool {
+    fn solve(&self, m: usize, arms: &[[f64; 3]; 3], out: &mut [f64]) -> bool {
         let [cx, cy, cz] = &self.c;
-        let [s_xy, s_yz, s_zx] = &self.sq;
         let mut inside = true;
         let mut x = [[0.0; LANES]; 3];
         for r in 0..m {
-            let (e_, f_) = (self.s[1][r], self.s[2][r]);
-            let ex = cx[0][r] + cy[0][r] + cz[0][r] - e_ * cx[5][r] + f_ * cx[4][r] + f_ * cy[4][r]
-                - e_ * s_xy[r]
-                - f_ * s_zx[r];
-            let ey = cx[1][r] + cy[1][r] + cz[1][r] - f_ * cy[3][r] - f_ * cx[3][r] - f_ * s_yz[r];
-            let ez = cx[2][r] + cy[2][r] + cz[2][r] + e_ * cx[3][r];
+            let s = [self.s[0][r], self.s[1][r], self.s[2][r]];
+            let c = [
+                std::array::from_fn(|k| cx[k][r]),
+                std::array::from_fn(|k| cy[k][r]),
+                std::array::from_fn(|k| cz[k][r]),
+            ];
+            let sq = [self.sq[0][r], self.sq[1][r], self.sq[2][r]];
+            let [ex, ey, ez] = position_error_at(s, &c, sq, arms);
             let ax = cx[3][r] + cy[3][r] + cz[3][r];
             let ay = cx[4][r] + cy[4][r] + cz[4][r];
             let az = cx[5][r] + cy[5][r] + cz[5][r];

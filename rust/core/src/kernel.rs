@@ -228,21 +228,16 @@ pub struct PointError {
 }
 
 impl PointError {
-    /// Position error (eqs. 11-13) and rotation (eqs. 26-31) from the three
+    /// Position error (eqs. 11-13, the arms from the machine's stacking,
+    /// see [`crate::kinematics`]) and rotation (eqs. 26-31) from the three
     /// carriages' interpolated components (mm, rad) and squareness (rad).
     ///
     /// X_p is the right-handed form (1, tan eZ, tan eX tan eZ - tan eY)/norm,
     /// not the printed eq. 30 (docs/conventions.md, Sign of eps_Z in X_p).
     #[inline(always)]
-    pub fn new(s: [f64; 3], c: &[Components; 3], sq: [f64; 3]) -> Self {
+    pub fn new(s: [f64; 3], c: &[Components; 3], sq: [f64; 3], arms: &[[f64; 3]; 3]) -> Self {
         let [cx, cy, cz] = c;
-        let (e_, f_) = (s[1], s[2]);
-        let [s_xy, s_yz, s_zx] = sq;
-        let e = Vector3::new(
-            cx[0] + cy[0] + cz[0] - e_ * cx[5] + f_ * cx[4] + f_ * cy[4] - e_ * s_xy - f_ * s_zx,
-            cx[1] + cy[1] + cz[1] - f_ * cy[3] - f_ * cx[3] - f_ * s_yz,
-            cx[2] + cy[2] + cz[2] + e_ * cx[3],
-        );
+        let e = Vector3::from(position_error_at(s, c, sq, arms));
         let tx = tan_small(cx[3] + cy[3] + cz[3]);
         let ty = tan_small(cx[4] + cy[4] + cz[4]);
         let tz = tan_small(cx[5] + cy[5] + cz[5]);
@@ -258,6 +253,42 @@ impl PointError {
     pub fn rotate(&self, q: &Vector3<f64>) -> Vector3<f64> {
         self.x_p * q.x + self.y_p * q.y + self.z_p * q.z
     }
+}
+
+/// Position error e(S) (mm) at reading `s` (mm) from the carriages'
+/// components `c` (mm, rad), squareness `sq` (rad) and `arms` (see
+/// [`crate::kinematics::Kinematics::arms`]):
+/// e = sum d + sum_A eps(A) x arm(A) + shear.
+///
+/// The terms are summed in the order of eqs. 11-13 (x and z: carriages X,
+/// Y, Z; y: Z, Y, X), so the thesis machine gets the printed equations' bits
+/// (a zero arm adds a signed zero, which changes no sum).
+#[inline(always)]
+pub fn position_error_at(
+    s: [f64; 3],
+    c: &[Components; 3],
+    sq: [f64; 3],
+    arms: &[[f64; 3]; 3],
+) -> [f64; 3] {
+    let [cx, cy, cz] = c;
+    let (e_, f_) = (s[1], s[2]);
+    let [s_xy, s_yz, s_zx] = sq;
+    let arm = |a: usize| [arms[a][0] * s[0], arms[a][1] * s[1], arms[a][2] * s[2]];
+    let (rx, ry, rz) = (arm(0), arm(1), arm(2));
+    [
+        cx[0] + cy[0] + cz[0] - rx[1] * cx[5] + rx[2] * cx[4] - ry[1] * cy[5] + ry[2] * cy[4]
+            - rz[1] * cz[5]
+            + rz[2] * cz[4]
+            - e_ * s_xy
+            - f_ * s_zx,
+        cx[1] + cy[1] + cz[1] + rz[0] * cz[5] - rz[2] * cz[3] + ry[0] * cy[5] - ry[2] * cy[3]
+            + rx[0] * cx[5]
+            - rx[2] * cx[3]
+            - f_ * s_yz,
+        cx[2] + cy[2] + cz[2] + rx[1] * cx[3] - rx[0] * cx[4] + ry[1] * cy[3] - ry[0] * cy[4]
+            + rz[1] * cz[3]
+            - rz[0] * cz[4],
+    ]
 }
 
 /// tan(x) to full double precision. Machine angles are arc-seconds, far below
@@ -298,6 +329,9 @@ pub(crate) type Evaluated = ([Components; 3], [f64; 3]);
 /// Where the per-point error components come from: one map, or a map set
 /// interpolated in temperature.
 pub(crate) trait Source: Sync {
+    /// How the machine the maps describe is stacked.
+    fn kinematics(&self) -> crate::kinematics::Kinematics;
+
     /// Components of the three carriages and squareness at reading `s` and
     /// temperatures `t`; counts clamping in `report`.
     fn components(
@@ -387,6 +421,10 @@ fn axis_error(map: &ErrorMap, a: usize, row: usize, s: [f64; 3]) -> CoreError {
 const AXES: [char; 3] = ['X', 'Y', 'Z'];
 
 impl Source for ErrorMap {
+    fn kinematics(&self) -> crate::kinematics::Kinematics {
+        ErrorMap::kinematics(self)
+    }
+
     /// Table by table over the lanes (see [`crate::blocks::map_lanes`]).
     #[inline(always)]
     fn fill_lanes(
@@ -446,6 +484,10 @@ impl Source for ErrorMap {
 }
 
 impl Source for ErrorMapSet {
+    fn kinematics(&self) -> crate::kinematics::Kinematics {
+        ErrorMapSet::kinematics(self)
+    }
+
     #[inline(always)]
     fn miss_error(
         &self,
@@ -924,8 +966,10 @@ fn compensate_with<S: Source>(
     };
     let (uv, idx) = (points.uv, points.pose_index);
     let profiled = has_profiles(points.scales, temperature);
+    let arms = source.kinematics().arms();
     let plain = Plain {
         source,
+        arms,
         bound: &bound,
         state_columns: bound.state_columns(),
         uv: points.uv,
@@ -960,7 +1004,7 @@ fn compensate_with<S: Source>(
                 let temps = Temperatures::uniform(t);
                 let pe = if !profiled {
                     let (c, sq) = source.evaluate(i, s, &temps, &opts, report)?;
-                    PointError::new(s, &c, sq)
+                    PointError::new(s, &c, sq, &arms)
                 } else {
                     let key = LastState::key(s, &temps);
                     if last.hit(&key, report) {
@@ -968,7 +1012,7 @@ fn compensate_with<S: Source>(
                     } else {
                         let before = *report;
                         let (c, sq) = source.evaluate(i, s, &temps, &opts, report)?;
-                        let pe = PointError::new(s, &c, sq);
+                        let pe = PointError::new(s, &c, sq, &arms);
                         last.pe = Some(pe);
                         last.stored(key, report, &before);
                         pe
@@ -1000,7 +1044,7 @@ fn compensate_with<S: Source>(
                     squareness,
                 };
                 bound.machine(i, s, &mut e);
-                let pe = PointError::new(s, &e.components, e.squareness);
+                let pe = PointError::new(s, &e.components, e.squareness, &arms);
                 let lever = d.lever_scaled(p[0], p[1], bound.mount(i));
                 Vector3::from(s) + pe.e + pe.rotate(&lever)
             };
@@ -1174,9 +1218,10 @@ pub fn position_error(
         scales,
         columns: &columns,
     };
+    let arms = map.kinematics().arms();
     drive(&inputs, opts, out, 3, |i, s, slot, report, _: &mut ()| {
         let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), &opts, report)?;
-        slot.copy_from_slice(PointError::new(s, &c, sq).e.as_slice());
+        slot.copy_from_slice(PointError::new(s, &c, sq, &arms).e.as_slice());
         Ok(())
     })
 }
@@ -1194,9 +1239,10 @@ pub fn rotation_error(
         scales,
         columns: &columns,
     };
+    let arms = map.kinematics().arms();
     drive(&inputs, opts, out, 9, |i, s, slot, report, _: &mut ()| {
         let (c, sq) = map.evaluate(i, s, &Temperatures::uniform(f64::NAN), &opts, report)?;
-        let pe = PointError::new(s, &c, sq);
+        let pe = PointError::new(s, &c, sq, &arms);
         for r in 0..3 {
             slot[3 * r] = pe.x_p[r];
             slot[3 * r + 1] = pe.y_p[r];

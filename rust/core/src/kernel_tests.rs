@@ -444,7 +444,8 @@ fn block_paths_give_the_same_bits_as_the_rows() {
                 } else {
                     lo.evaluate(i, sc, &tt, &Options::default(), report)?
                 };
-                let pe = PointError::new(sc, &c, sq);
+                let pe =
+                    PointError::new(sc, &c, sq, &crate::kinematics::Kinematics::thesis().arms());
                 let d = &ds[pose_index[i] as usize];
                 let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
                 slot.copy_from_slice(x.as_slice());
@@ -1061,7 +1062,7 @@ fn random_blocks_locate_as_the_rows_do() {
                 &Options::default(),
                 report,
             )?;
-            let pe = PointError::new(sc, &c, sq);
+            let pe = PointError::new(sc, &c, sq, &crate::kinematics::Kinematics::thesis().arms());
             let x = Vector3::from(sc) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]));
             slot.copy_from_slice(x.as_slice());
             Ok(())

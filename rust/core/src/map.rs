@@ -5,6 +5,7 @@
 //! segment, so evaluating a component is one multiply-add.
 
 use crate::error::{CoreError, Result};
+use crate::kinematics::Kinematics;
 use crate::units::{component_from_kernel, component_to_kernel, ARCSEC_TO_RAD};
 
 /// The three carriages of the CMM, in kinematic order (X on the table, Y on
@@ -265,6 +266,8 @@ pub struct ErrorMap {
     /// The same as given, in arc-seconds (kept for exact round trips).
     squareness_arcsec: [f64; 3],
     temperature: Option<f64>,
+    /// How the carriages are stacked: over which arms the angles act.
+    kinematics: Kinematics,
 }
 
 impl ErrorMap {
@@ -296,6 +299,7 @@ impl ErrorMap {
             squareness: squareness_arcsec.map(|s| s * ARCSEC_TO_RAD),
             squareness_arcsec,
             temperature,
+            kinematics: Kinematics::thesis(),
         })
     }
 
@@ -312,6 +316,7 @@ impl ErrorMap {
             squareness: [0.0; 3],
             squareness_arcsec: [0.0; 3],
             temperature: None,
+            kinematics: Kinematics::thesis(),
         }
     }
 
@@ -341,6 +346,18 @@ impl ErrorMap {
         self
     }
 
+    /// How the machine's carriages are stacked (the thesis's X-Y-Z chain
+    /// unless set).
+    pub fn kinematics(&self) -> Kinematics {
+        self.kinematics
+    }
+
+    /// The same map for a machine stacked as `kinematics`.
+    pub fn with_kinematics(mut self, kinematics: Kinematics) -> Self {
+        self.kinematics = kinematics;
+        self
+    }
+
     /// (lo, hi) scale range in mm for each carriage.
     pub fn ranges(&self) -> [(f64, f64); 3] {
         std::array::from_fn(|a| self.tables[a].range())
@@ -351,12 +368,14 @@ impl ErrorMap {
         tables: [CarriageTable; 3],
         squareness: [f64; 3],
         temperature: Option<f64>,
+        kinematics: Kinematics,
     ) -> Self {
         ErrorMap {
             tables,
             squareness,
             squareness_arcsec: squareness.map(|s| s / ARCSEC_TO_RAD),
             temperature,
+            kinematics,
         }
     }
 }

@@ -8,6 +8,7 @@
 //! of base and slope.
 
 use crate::error::{CoreError, Result};
+use crate::kinematics::Kinematics;
 use crate::map::{Carriage, CarriageTable, Components, ErrorMap, Located};
 
 /// Base map at `t_lo` and its rate of change per degree C up to `t_hi`.
@@ -76,7 +77,7 @@ impl Interval {
             CarriageTable::new(Carriage::ALL[a], base.positions().to_vec(), values)
                 .expect("blend of valid tables is valid")
         });
-        ErrorMap::from_parts(tables, self.squareness(dt), Some(t))
+        ErrorMap::from_parts(tables, self.squareness(dt), Some(t), self.base.kinematics())
     }
 }
 
@@ -142,6 +143,19 @@ impl ErrorMapSet {
                 ));
             }
         }
+        if let Some(i) = maps
+            .iter()
+            .position(|m| m.kinematics() != maps[0].kinematics())
+        {
+            return Err(CoreError::invalid_map(
+                "error map set",
+                format!(
+                    "the maps are for differently stacked machines ({:?} and {:?})",
+                    maps[0].kinematics(),
+                    maps[i].kinematics()
+                ),
+            ));
+        }
         let mut intervals = Vec::with_capacity(maps.len().saturating_sub(1));
         for w in maps.windows(2) {
             intervals.push(Self::interval(&w[0], &w[1])?);
@@ -180,17 +194,33 @@ impl ErrorMapSet {
         Ok(Interval::new(
             t_lo,
             t_hi,
-            ErrorMap::from_parts(to_array(base_tables), sa, Some(t_lo)),
+            ErrorMap::from_parts(to_array(base_tables), sa, Some(t_lo), lo.kinematics()),
             ErrorMap::from_parts(
                 to_array(slope_tables),
                 std::array::from_fn(|k| (sb[k] - sa[k]) * inv_dt),
                 None,
+                lo.kinematics(),
             ),
         ))
     }
 
     pub fn maps(&self) -> &[ErrorMap] {
         &self.maps
+    }
+
+    /// How the machine's carriages are stacked (every map's).
+    pub fn kinematics(&self) -> Kinematics {
+        self.maps[0].kinematics()
+    }
+
+    /// The same set for a machine stacked as `kinematics`.
+    pub fn with_kinematics(&self, kinematics: Kinematics) -> Self {
+        let maps = self
+            .maps
+            .iter()
+            .map(|m| m.clone().with_kinematics(kinematics))
+            .collect();
+        ErrorMapSet::new(maps).expect("the same maps, restacked, are a valid set")
     }
 
     pub fn temperatures(&self) -> Vec<f64> {
