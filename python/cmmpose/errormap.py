@@ -113,6 +113,21 @@ class ErrorMap:
         """Covered scale range (lo, hi) in mm for X, Y, Z."""
         return self._core.ranges
 
+    @property
+    def kinematics(self) -> str:
+        """The machine configuration the map is for: how the carriages are
+        stacked, which decides over which arms their angular errors act (a
+        name of :func:`cmmpose.machine.configurations`; ``'thesis'``, the
+        X-Y-Z moving bridge, unless set)."""
+        return self._core.kinematics
+
+    def with_kinematics(self, kinematics: str) -> ErrorMap:
+        """The same map for a machine configured as ``kinematics`` (a name of
+        :func:`cmmpose.machine.configurations`)."""
+        if not isinstance(kinematics, str):
+            raise InputError(f"kinematics: expected a configuration name, got {kinematics!r}")
+        return ErrorMap._wrap(self._core.with_kinematics(kinematics), self.source)
+
     def with_temperature(self, temperature: float | None) -> ErrorMap:
         """The same map labelled with another temperature (C)."""
         return ErrorMap._wrap(self._core.with_temperature(temperature), self.source)
@@ -169,7 +184,8 @@ class ErrorMap:
         rng = ", ".join(f"{c} {lo:g}..{hi:g}" for c, (lo, hi) in zip(CARRIAGES, self.ranges))
         sq = ", ".join(f"{v:g}" for v in self.squareness)
         src = f", source={self.source!r}" if self.source else ""
-        return f"ErrorMap({t}; {rng} mm; squareness {sq} a-s{src})"
+        kin = "" if self.kinematics == "thesis" else f"; {self.kinematics}"
+        return f"ErrorMap({t}; {rng} mm; squareness {sq} a-s{kin}{src})"
 
 
 class ErrorMapSet:
@@ -212,6 +228,20 @@ class ErrorMapSet:
         """The maps, sorted by temperature."""
         return [ErrorMap._wrap(m, s) for m, s in zip(self._core.maps, self._sources)]
 
+    @property
+    def kinematics(self) -> str:
+        """The machine configuration of the set's maps (see ``ErrorMap.kinematics``)."""
+        return self._core.kinematics
+
+    def with_kinematics(self, kinematics: str) -> ErrorMapSet:
+        """The same set for a machine configured as ``kinematics``."""
+        if not isinstance(kinematics, str):
+            raise InputError(f"kinematics: expected a configuration name, got {kinematics!r}")
+        out = object.__new__(ErrorMapSet)
+        out._core = self._core.with_kinematics(kinematics)
+        out._sources = list(self._sources)
+        return out
+
     def at(self, temperature: float, *, out_of_range: str = "raise",
            temperature_tolerance: float = TEMPERATURE_TOLERANCE) -> ErrorMap:
         """The map at ``temperature`` (C), linear between the two closest maps.
@@ -229,4 +259,5 @@ class ErrorMapSet:
         return len(self.temperatures)
 
     def __repr__(self) -> str:
-        return f"ErrorMapSet(temperatures={[float(t) for t in self.temperatures]})"
+        kin = "" if self.kinematics == "thesis" else f", kinematics={self.kinematics!r}"
+        return f"ErrorMapSet(temperatures={[float(t) for t in self.temperatures]}{kin})"

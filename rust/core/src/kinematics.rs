@@ -40,11 +40,17 @@ pub enum Side {
 pub struct Kinematics {
     /// (carriage 0 = X, 1 = Y, 2 = Z; what it carries), from the base up:
     /// within each side, a carriage rides on the one before it.
-    stack: [(usize, Side); 3],
+    stack: Stack,
+    /// The configuration's name, when it is a named one (a gantry and a
+    /// moving bridge share a stacking but not a name).
+    name: Option<&'static str>,
 }
 
+/// A stacking from the base up: (carriage, what it carries).
+type Stack = [(usize, Side); 3];
+
 /// The named configurations: (name, stacking, one line).
-const NAMED: &[(&str, [(usize, Side); 3], &str)] = &[
+const NAMED: &[(&str, Stack, &str)] = &[
     (
         "thesis",
         [(0, Side::Probe), (1, Side::Probe), (2, Side::Probe)],
@@ -81,7 +87,10 @@ impl Default for Kinematics {
 impl Kinematics {
     /// The thesis machine: X, Y, Z all on the probe side, X at the base.
     pub fn thesis() -> Self {
-        Kinematics { stack: NAMED[0].1 }
+        Kinematics {
+            stack: NAMED[0].1,
+            name: Some(NAMED[0].0),
+        }
     }
 
     /// A stacking from the base up; each carriage exactly once.
@@ -96,7 +105,7 @@ impl Kinematics {
             }
             seen[a] = true;
         }
-        Ok(Kinematics { stack })
+        Ok(Kinematics { stack, name: None })
     }
 
     /// The named configuration `name` (see [`Kinematics::names`]).
@@ -104,7 +113,10 @@ impl Kinematics {
         NAMED
             .iter()
             .find(|(n, _, _)| *n == name)
-            .map(|(_, stack, _)| Kinematics { stack: *stack })
+            .map(|(n, stack, _)| Kinematics {
+                stack: *stack,
+                name: Some(*n),
+            })
             .ok_or_else(|| {
                 CoreError::invalid_argument(
                     "kinematics",
@@ -125,13 +137,10 @@ impl Kinematics {
         NAMED.iter().map(|(n, _, d)| (*n, *d)).collect()
     }
 
-    /// The first name whose stacking this is (a configuration may have
-    /// several names, e.g. moving bridge and gantry), or `None`.
+    /// The configuration's name, or `None` for a stacking built with
+    /// [`Kinematics::new`].
     pub fn name(&self) -> Option<&'static str> {
-        NAMED
-            .iter()
-            .find(|(_, stack, _)| *stack == self.stack)
-            .map(|(n, _, _)| *n)
+        self.name
     }
 
     /// The stacking from the base up.
@@ -189,6 +198,15 @@ mod tests {
             [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 0.0, 0.0]]
         );
         assert_eq!(k.arms(), Kinematics::named("moving-bridge").unwrap().arms());
+        let (gantry, bridge) = (
+            Kinematics::named("gantry").unwrap(),
+            Kinematics::named("moving-bridge").unwrap(),
+        );
+        assert_eq!(gantry.stack(), bridge.stack());
+        assert_eq!(
+            (gantry.name(), bridge.name()),
+            (Some("gantry"), Some("moving-bridge"))
+        );
         let arm = Kinematics::named("horizontal-arm").unwrap().arms();
         assert_eq!(arm, [[0.0, 1.0, 1.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
     }

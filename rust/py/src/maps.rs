@@ -2,7 +2,7 @@
 //! `ErrorMapSet` (several), with the map-level kernels.
 
 use cmmpose_core::kernel;
-use cmmpose_core::{Carriage, CarriageTable, ErrorMap, ErrorMapSet, MapSource};
+use cmmpose_core::{Carriage, CarriageTable, ErrorMap, ErrorMapSet, Kinematics, MapSource, Side};
 use numpy::{PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -147,9 +147,61 @@ impl PyErrorMap {
         Ok((flat.reshape([n, 3, 3])?, report))
     }
 
+    /// The machine configuration the map is for (a name of
+    /// `kinematics_configurations()`).
+    #[getter]
+    fn kinematics(&self) -> &'static str {
+        kinematics_name(self.inner.kinematics())
+    }
+
+    /// The same map for a machine configured as `kinematics` (a name).
+    fn with_kinematics(&self, kinematics: &str) -> Res<Self> {
+        Ok(PyErrorMap {
+            inner: self
+                .inner
+                .clone()
+                .with_kinematics(Kinematics::named(kinematics)?),
+        })
+    }
+
     fn __eq__(&self, other: &Self) -> bool {
         self.inner == other.inner
     }
+}
+
+/// The name of a map's stacking (maps are only stacked by name here).
+fn kinematics_name(k: Kinematics) -> &'static str {
+    k.name().unwrap_or("custom")
+}
+
+/// The named machine configurations: name, description and the stacking
+/// from the base up as (carriage letter, 'probe' or 'part').
+#[pyfunction]
+fn kinematics_configurations<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    Kinematics::names()
+        .into_iter()
+        .map(|(name, description)| {
+            let d = PyDict::new(py);
+            d.set_item("name", name)?;
+            d.set_item("description", description)?;
+            let stack: Vec<(String, &str)> = Kinematics::named(name)
+                .expect("a listed name")
+                .stack()
+                .iter()
+                .map(|&(a, side)| {
+                    (
+                        Carriage::ALL[a].letter().to_string(),
+                        match side {
+                            Side::Probe => "probe",
+                            Side::Part => "part",
+                        },
+                    )
+                })
+                .collect();
+            d.set_item("stack", stack)?;
+            Ok(d)
+        })
+        .collect()
 }
 
 /// Error maps at several temperatures.
@@ -183,6 +235,19 @@ impl PyErrorMapSet {
             .collect()
     }
 
+    /// The machine configuration of the set's maps.
+    #[getter]
+    fn kinematics(&self) -> &'static str {
+        kinematics_name(self.inner.kinematics())
+    }
+
+    /// The same set for a machine configured as `kinematics` (a name).
+    fn with_kinematics(&self, kinematics: &str) -> Res<Self> {
+        Ok(PyErrorMapSet {
+            inner: self.inner.with_kinematics(Kinematics::named(kinematics)?),
+        })
+    }
+
     /// The map blended at `temperature` (C), held within
     /// `temperature_tolerance` (K) outside the maps, clamped or extrapolated
     /// beyond as `out_of_range` says.
@@ -202,5 +267,6 @@ impl PyErrorMapSet {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyErrorMap>()?;
     m.add_class::<PyErrorMapSet>()?;
+    m.add_function(wrap_pyfunction!(kinematics_configurations, m)?)?;
     Ok(())
 }
