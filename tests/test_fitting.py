@@ -114,6 +114,88 @@ def test_batch_errors_name_the_label_or_are_returned():
     assert isinstance(out[1], cmmpose.SphereFit) and isinstance(out[2], cmmpose.GeometryError)
 
 
+def test_batch_arrays_equal_single_fits_with_labels_unsorted():
+    # Every column entry is what fit_sphere gives that label's points (the
+    # same serial path in Rust: equal to the last bit), and the per-point
+    # arrays follow the input's order, whatever the order of the labels.
+    rng = np.random.default_rng(7)
+    sets = {12: cap(rng, n=400, centre=(0, 0, 0)), -4: cap(rng, n=90, centre=(100, 0, 0), half_angle=40),
+            3: cap(rng, n=1000, centre=(0, 200, 0), radius=12.5)}
+    sets[-4][5] += 0.5  # an outlier for the rejection
+    labels = np.concatenate([np.full(len(p), k) for k, p in sets.items()])
+    perm = rng.permutation(len(labels))
+    pts, labels = np.vstack(list(sets.values()))[perm], labels[perm]
+    fits = cmmpose.fit_spheres(pts, labels, reject=3.5)
+    assert isinstance(fits, cmmpose.SphereFits)
+    np.testing.assert_array_equal(fits.labels, [-4, 3, 12])
+    assert fits.centre.shape == (3, 3) and fits.covariance.shape == (3, 4, 4)
+    assert fits.residuals.shape == fits.inlier.shape == (len(pts),)
+    assert list(fits) == [-4, 3, 12] and fits.ok.all() and all(e is None for e in fits.error)
+    for k, label in enumerate(fits.labels.tolist()):
+        mask = labels == label
+        single = cmmpose.fit_sphere(pts[mask], reject=3.5)
+        np.testing.assert_array_equal(fits.centre[k], single.centre)
+        np.testing.assert_array_equal(fits.covariance[k], single.covariance)
+        for name in ("radius", "rms", "form", "n_points", "polar_coverage", "iterations", "converged", "rejected"):
+            assert getattr(fits, name)[k] == getattr(single, name), name
+        np.testing.assert_array_equal(fits.residuals[mask], single.residuals)
+        np.testing.assert_array_equal(fits.inlier[mask], single.inlier)
+        np.testing.assert_array_equal(fits.centre_uncertainty[k], single.centre_uncertainty)
+        assert fits.radius_uncertainty[k] == single.radius_uncertainty
+        # The mapping builds the same SphereFit; a NumPy integer finds it too.
+        assert fits[label].radius == single.radius and np.int32(label) in fits
+        np.testing.assert_array_equal(fits[np.int64(label)].residuals, single.residuals)
+        np.testing.assert_array_equal(np.flatnonzero(mask), fits.rows(label))
+    # The outlier, row 400 + 5 before the shuffle.
+    assert fits.rejected[0] >= 1 and not fits.inlier[np.flatnonzero(perm == 405)[0]]
+
+
+def test_batch_arrays_in_label_order_give_slices():
+    rng = np.random.default_rng(8)
+    pts = np.vstack([cap(rng, n=50, centre=(0, 0, 0)), cap(rng, n=60, centre=(90, 0, 0))])
+    labels = np.r_[np.full(50, "ball 1"), np.full(60, "ball 2")]
+    fits = cmmpose.fit_spheres(pts, labels)
+    assert fits.rows("ball 2") == slice(50, 110)
+    np.testing.assert_array_equal(fits["ball 2"].residuals, cmmpose.fit_sphere(pts[50:]).residuals)
+    assert "ball 3" not in fits and [] not in fits
+    with pytest.raises(KeyError):
+        fits["ball 3"]
+    np.testing.assert_array_equal(fits.positions(["ball 2", "ball 1", "ball 2"]), [1, 0, 1])
+    with pytest.raises(KeyError, match="ball 0"):
+        fits.positions(["ball 1", "ball 0"])
+
+
+def test_batch_arrays_return_errors_with_nan_fields():
+    rng = np.random.default_rng(9)
+    good = cap(rng, n=300)
+    coplanar = np.c_[rng.uniform(size=(20, 2)), np.zeros(20)]
+    pts = np.vstack([coplanar[:10], good, coplanar[10:], good[:3] + 100.0])
+    labels = np.r_[np.full(10, 5), np.full(len(good), 1), np.full(10, 5), np.full(3, 9)]
+    with pytest.raises(cmmpose.GeometryError, match="sphere 5: points are coplanar"):
+        cmmpose.fit_spheres(pts, labels)
+    fits = cmmpose.fit_spheres(pts, labels, on_error="return")
+    np.testing.assert_array_equal(fits.labels, [1, 5, 9])
+    np.testing.assert_array_equal(fits.ok, [True, False, False])
+    assert fits.error[0] is None
+    assert isinstance(fits.error[1], cmmpose.GeometryError) and "coplanar" in str(fits.error[1])
+    assert isinstance(fits.error[2], cmmpose.InputError) and "at least 4 points" in str(fits.error[2])
+    assert fits[5] is fits.error[1] and isinstance(fits[1], cmmpose.SphereFit)
+    for k in (1, 2):
+        assert np.isnan(fits.centre[k]).all() and np.isnan(fits.radius[k]) and np.isnan(fits.rms[k])
+        assert np.isnan(fits.covariance[k]).all() and np.isnan(fits.polar_coverage[k])
+        assert fits.n_points[k] == fits.iterations[k] == fits.rejected[k] == 0 and not fits.converged[k]
+    failed = labels != 1
+    assert np.isnan(fits.residuals[failed]).all() and not fits.inlier[failed].any()
+    np.testing.assert_array_equal(fits.residuals[~failed], cmmpose.fit_sphere(good).residuals)
+
+
+def test_batch_arrays_of_no_points():
+    fits = cmmpose.fit_spheres(np.empty((0, 3)), np.empty(0, dtype=int))
+    assert len(fits) == 0 and list(fits) == [] and fits.labels.shape == (0,)
+    assert fits.centre.shape == (0, 3) and fits.covariance.shape == (0, 4, 4)
+    assert fits.radius.shape == fits.error.shape == fits.residuals.shape == (0,)
+
+
 def test_bad_plane_inputs():
     with pytest.raises(cmmpose.InputError, match="at least 3"):
         cmmpose.fit_plane(np.eye(2, 3))

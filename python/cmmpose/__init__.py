@@ -12,7 +12,7 @@ from .compensation import compensate, uncompensated
 from .diagnosis import Diagnosis, Model, UserEffect, diagnose
 from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
 from .metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
-from .fitting import PlaneFit, SphereFit, fit_plane, fit_sphere, fit_spheres
+from .fitting import PlaneFit, SphereFit, SphereFits, fit_plane, fit_sphere, fit_spheres
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .acquire import Recorder
 from .errors import AcquisitionError, CalibrationError, ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
@@ -41,6 +41,7 @@ __all__ = [
     "fit_spheres",
     "fit_plane",
     "SphereFit",
+    "SphereFits",
     "PlaneFit",
     "calibration",
     "acquire",

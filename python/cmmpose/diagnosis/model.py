@@ -334,7 +334,7 @@ def _with_incidence(model: Model, inputs: RunInputs) -> RunInputs:
     base = replace(model, effects=(), _inputs_cache={})
     xyz = base.compensate(inputs)
     fits = fit_spheres(xyz, inputs.scan_id, on_error="return")
-    centres = {k: f.centre for k, f in fits.items() if not isinstance(f, Exception)}
+    centres = {k: c for k, c, e in zip(fits.labels.tolist(), fits.centre, fits.error) if e is None}
     theta = np.zeros(len(xyz))
     ok = np.isin(inputs.scan_id, list(centres))
     if ok.any():

@@ -219,10 +219,8 @@ def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin
     """
     keep = np.isin(sid, layout.labels)
     fits = fit_spheres(xyz[keep], sid[keep])
-    centres = np.array([fits[k].centre for k in layout.labels.tolist()])
-    radii = np.array([fits[k].radius for k in layout.labels.tolist()])
-    rms = np.array([fits[k].rms for k in layout.labels.tolist()])
-    form = np.array([fits[k].form for k in layout.labels.tolist()])
+    at = fits.positions(layout.labels)
+    centres, radii, rms, form = fits.centre[at], fits.radius[at], fits.rms[at], fits.form[at]
     n_sph = len(layout.sphere_kind)
     counts = np.bincount(layout.sphere_of_scan, minlength=n_sph)
     mean_c = np.zeros((n_sph, 3))

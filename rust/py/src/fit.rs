@@ -1,8 +1,9 @@
 //! Fits across the boundary: sphere (one, or one per group in parallel) and
-//! plane; results leave as dicts of named fields.
+//! plane; results leave as dicts of named fields (for many spheres, named
+//! columns: one array per field).
 
 use cmmpose_core::fit::{self, PlaneFit, PlaneFitOptions, SphereFit, SphereFitOptions};
-use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -62,8 +63,11 @@ fn fit_sphere<'py>(
 }
 
 /// One sphere per group: `points` (N, 3) sorted by group, `bounds` (G + 1,)
-/// row offsets. Fits run in parallel across groups; a failed group gives
-/// its error message instead of a dict.
+/// row offsets. Fits run in parallel across groups with the GIL released.
+/// The result is a dict of named columns, one entry per group (centre
+/// (G, 3), radius (G,), ..., covariance (G, 4, 4)), the per-point
+/// `residuals` and `inlier` (N,) in the rows' order, and `error`: a list of
+/// the exception of each group that failed, None for the others.
 #[pyfunction]
 #[pyo3(signature = (points, bounds, radius=None, reject=None, max_iterations=100, min_coverage=2.0))]
 #[allow(clippy::too_many_arguments)]
@@ -75,38 +79,57 @@ fn fit_spheres<'py>(
     reject: Option<f64>,
     max_iterations: usize,
     min_coverage: f64,
-) -> Res<Vec<Bound<'py, PyAny>>> {
+) -> Res<Bound<'py, PyDict>> {
     let p = rows("points", &points, 3)?;
     let b = bounds
         .as_slice()
         .map_err(|_| input("bounds: array must be contiguous"))?;
-    let n = p.len() / 3;
-    if b.is_empty()
-        || b[0] != 0
-        || *b.last().unwrap() as usize != n
-        || b.windows(2).any(|w| w[1] < w[0])
-    {
-        return Err(input(format!(
-            "bounds: must rise from 0 to the number of points ({n})"
-        )));
-    }
-    let sets: Vec<&[f64]> = b
-        .windows(2)
-        .map(|w| &p[3 * w[0] as usize..3 * w[1] as usize])
+    // A negative offset cannot rise from 0; the core checks the rest.
+    let b: Vec<usize> = b
+        .iter()
+        .map(|&v| usize::try_from(v).unwrap_or(usize::MAX))
         .collect();
     let opts = sphere_options(radius, reject, max_iterations, min_coverage);
-    let fits = py.detach(|| fit::fit_spheres(&sets, &opts));
-    let out: PyResult<Vec<_>> = fits
+    let f = py.detach(|| fit::fit_sphere_groups(p, &b, &opts))?;
+    let k = f.radius.len();
+    let counts = |v: Vec<usize>| PyArray1::from_vec(py, v.into_iter().map(|c| c as i64).collect());
+    let d = PyDict::new(py);
+    d.set_item(
+        "centre",
+        PyArray1::from_vec(py, f.centre.into_flattened()).reshape([k, 3])?,
+    )?;
+    d.set_item("radius", PyArray1::from_vec(py, f.radius))?;
+    d.set_item("rms", PyArray1::from_vec(py, f.rms))?;
+    d.set_item("form", PyArray1::from_vec(py, f.form))?;
+    d.set_item("n_points", counts(f.n_points))?;
+    d.set_item(
+        "covariance",
+        PyArray1::from_vec(py, f.covariance.into_flattened().into_flattened())
+            .reshape([k, 4, 4])?,
+    )?;
+    d.set_item(
+        "polar_coverage",
+        PyArray1::from_vec(py, f.polar_coverage_deg),
+    )?;
+    d.set_item("iterations", counts(f.iterations))?;
+    d.set_item("converged", PyArray1::from_vec(py, f.converged))?;
+    d.set_item("rejected", counts(f.rejected))?;
+    d.set_item("residuals", PyArray1::from_vec(py, f.residuals))?;
+    d.set_item("inlier", PyArray1::from_vec(py, f.inlier))?;
+    let error: Vec<Option<Bound<'py, PyAny>>> = f
+        .error
         .into_iter()
-        .map(|r| match r {
-            Ok(f) => Ok(sphere_dict(py, f)?.into_any()),
-            Err(e) => Ok(PyErr::from(Failure::from(e))
-                .into_value(py)
-                .into_bound(py)
-                .into_any()),
+        .map(|e| {
+            e.map(|e| {
+                PyErr::from(Failure::from(e))
+                    .into_value(py)
+                    .into_bound(py)
+                    .into_any()
+            })
         })
         .collect();
-    Ok(out?)
+    d.set_item("error", error)?;
+    Ok(d)
 }
 
 /// Total least-squares plane through (N, 3) points (mm).

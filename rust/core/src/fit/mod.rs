@@ -1,6 +1,7 @@
 //! Least-squares fits of the evaluation artefacts (docs/conventions.md, Evaluation).
 //!
-//! - [`fit_sphere`] / [`fit_spheres`]: orthogonal (geometric) least squares,
+//! - [`fit_sphere`] / [`fit_spheres`] / [`fit_sphere_groups`] (columns of
+//!   results, [`SphereFits`]): orthogonal (geometric) least squares,
 //!   Levenberg-Marquardt from an algebraic start ([`sphere`]).
 //! - [`fit_plane`]: total least squares from the centred scatter matrix
 //!   ([`plane`]).
@@ -24,7 +25,9 @@ pub mod plane;
 pub mod sphere;
 
 pub use plane::{fit_plane, PlaneFit, PlaneFitOptions};
-pub use sphere::{fit_sphere, fit_spheres, SphereFit, SphereFitOptions};
+pub use sphere::{
+    fit_sphere, fit_sphere_groups, fit_spheres, SphereFit, SphereFitOptions, SphereFits,
+};
 
 /// Above this many points a pass over them runs in parallel (rayon
 /// fold/reduce); below it the scheduling costs more than it saves.

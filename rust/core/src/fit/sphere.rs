@@ -38,11 +38,13 @@
 //! time, and keep [`LANES`] independent partial sums (and minima, maxima) of
 //! every quantity, added up in a fixed order at the end, so that they run
 //! on SIMD vectors and the result does not depend on the instruction set: on
-//! x86-64 with AVX when the CPU has it (detected at run time) and SSE2
-//! otherwise, bit for bit the same.
+//! x86-64 with AVX when the CPU has it (detected at run time by
+//! multiversion, as for the compensation kernel) and SSE2 otherwise, bit for
+//! bit the same.
 
 use std::borrow::Cow;
 
+use multiversion::{multiversion, target::match_target};
 use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 use rayon::prelude::*;
 
@@ -77,7 +79,7 @@ const AXIS_FLOOR: f64 = 1e-9;
 const LANES: usize = 4;
 /// Coordinates of a block of points.
 const BLOCK: usize = 3 * LANES;
-/// Blocks per group in [`evaluate_rows`].
+/// Blocks per group in [`moments_rows`] and [`evaluate_rows`].
 const GROUP: usize = 64;
 
 /// How to fit a sphere. `Default` gives a free radius, no rejection, 100
@@ -168,6 +170,137 @@ pub fn fit_sphere(points: &[f64], opts: &SphereFitOptions) -> Result<SphereFit> 
 /// `fit_sphere` sums in parallel, in another order, so to rounding).
 pub fn fit_spheres(sets: &[&[f64]], opts: &SphereFitOptions) -> Vec<Result<SphereFit>> {
     sets.par_iter().map(|s| fit(s, opts, false)).collect()
+}
+
+/// Sphere fits of many groups of points, one entry per group in each field
+/// (columns, in the order of the groups), and the per-point fields for all
+/// points in input order. A group that could not be fitted has its error in
+/// [`SphereFits::error`], NaN in the float fields, zero counts,
+/// `converged = false`, and NaN residuals and `false` inlier flags for its
+/// points. Each field means what it does in [`SphereFit`].
+#[derive(Debug, Clone, Default)]
+pub struct SphereFits {
+    /// Centre of each sphere (mm).
+    pub centre: Vec<[f64; 3]>,
+    /// Radius (mm); the given one when it was fixed.
+    pub radius: Vec<f64>,
+    /// Root mean square of the inliers' residuals (mm).
+    pub rms: Vec<f64>,
+    /// Largest minus smallest inlier residual (mm).
+    pub form: Vec<f64>,
+    /// Points fitted (the inliers).
+    pub n_points: Vec<usize>,
+    /// Covariance of (centre x, y, z, radius), mm^2.
+    pub covariance: Vec<[[f64; 4]; 4]>,
+    /// Polar coverage of the inliers (degrees, 0..=180).
+    pub polar_coverage_deg: Vec<f64>,
+    /// Levenberg-Marquardt steps of the final fit.
+    pub iterations: Vec<usize>,
+    /// `false` when `max_iterations` stopped a fit still improving, or the
+    /// group failed.
+    pub converged: Vec<bool>,
+    /// Points rejected as outliers.
+    pub rejected: Vec<usize>,
+    /// Why each group could not be fitted; `None` for a fitted one.
+    pub error: Vec<Option<CoreError>>,
+    /// Signed residual |p - c| - R of every input point (mm, input order).
+    pub residuals: Vec<f64>,
+    /// Whether each input point was used in its group's final fit.
+    pub inlier: Vec<bool>,
+}
+
+/// Fits one sphere to each group of `points` (N x 3 row-major, mm), the
+/// groups being the runs of rows `bounds[k]..bounds[k + 1]` (`bounds` rises
+/// from 0 to N), in parallel over the groups (each fit serial, as in
+/// [`fit_spheres`]: entry k equals `fit_sphere` on group k, bit for bit below
+/// [`super::PARALLEL_MIN_POINTS`] points).
+///
+/// Errors: `InvalidArgument` for a bad option, or `points` or `bounds` of
+/// the wrong shape. A group that cannot be fitted does not stop the others:
+/// its error is in [`SphereFits::error`].
+pub fn fit_sphere_groups(
+    points: &[f64],
+    bounds: &[usize],
+    opts: &SphereFitOptions,
+) -> Result<SphereFits> {
+    check_options(opts)?;
+    let n = check_rows(points, 0, "a set of spheres")?;
+    if bounds.first() != Some(&0)
+        || bounds.last() != Some(&n)
+        || bounds.windows(2).any(|w| w[1] < w[0])
+    {
+        return Err(CoreError::invalid_argument(
+            "bounds",
+            format!("must rise from 0 to the number of points ({n})"),
+        ));
+    }
+    let k = bounds.len() - 1;
+    // Each group's fit writes its residuals and inlier flags straight into
+    // its own part of the output, so nothing per point is copied twice.
+    let mut residuals = vec![f64::NAN; n];
+    let mut inlier = vec![false; n];
+    let mut parts = Vec::with_capacity(k);
+    let (mut res_rest, mut inl_rest) = (residuals.as_mut_slice(), inlier.as_mut_slice());
+    for w in bounds.windows(2) {
+        let len = w[1] - w[0];
+        let (r, rr) = std::mem::take(&mut res_rest).split_at_mut(len);
+        let (i, ir) = std::mem::take(&mut inl_rest).split_at_mut(len);
+        (res_rest, inl_rest) = (rr, ir);
+        parts.push((&points[3 * w[0]..3 * w[1]], r, i));
+    }
+    let fits: Vec<Result<SphereFit>> = parts
+        .into_par_iter()
+        .map(|(set, res, inl)| {
+            let mut f = fit(set, opts, false)?;
+            res.copy_from_slice(&f.residuals);
+            inl.copy_from_slice(&f.inlier);
+            // Already copied out: free the group's vectors here, in parallel.
+            f.residuals = Vec::new();
+            f.inlier = Vec::new();
+            Ok(f)
+        })
+        .collect();
+    let mut out = SphereFits {
+        residuals,
+        inlier,
+        ..SphereFits::default()
+    };
+    for r in fits {
+        let (f, e) = match r {
+            Ok(f) => (f, None),
+            Err(e) => (failed_fit(), Some(e)),
+        };
+        out.centre.push(f.centre);
+        out.radius.push(f.radius);
+        out.rms.push(f.rms);
+        out.form.push(f.form);
+        out.n_points.push(f.n_points);
+        out.covariance.push(f.covariance);
+        out.polar_coverage_deg.push(f.polar_coverage_deg);
+        out.iterations.push(f.iterations);
+        out.converged.push(f.converged);
+        out.rejected.push(f.rejected);
+        out.error.push(e);
+    }
+    Ok(out)
+}
+
+/// The fields of a group that could not be fitted: NaN, zero, `false`.
+fn failed_fit() -> SphereFit {
+    SphereFit {
+        centre: [f64::NAN; 3],
+        radius: f64::NAN,
+        residuals: Vec::new(),
+        inlier: Vec::new(),
+        rms: f64::NAN,
+        form: f64::NAN,
+        n_points: 0,
+        covariance: [[f64::NAN; 4]; 4],
+        polar_coverage_deg: f64::NAN,
+        iterations: 0,
+        converged: false,
+        rejected: 0,
+    }
 }
 
 fn check_options(opts: &SphereFitOptions) -> Result<()> {
@@ -865,12 +998,12 @@ impl Quad for [f64; LANES] {
 }
 
 /// x86-64 implementations of [`Quad`]: two SSE2 registers (every x86-64
-/// CPU has SSE2) or one AVX register, and the passes compiled for AVX.
+/// CPU has SSE2) or one AVX register.
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
 
-    use super::{EvalSums, MomentSums, Quad, Trial, BLOCK, LANES};
+    use super::{Quad, BLOCK, LANES};
 
     /// Two SSE2 vectors: lanes 0-1 and 2-3.
     #[derive(Clone, Copy)]
@@ -957,16 +1090,16 @@ mod x86 {
         }
     }
 
-    /// One AVX vector. Private to this module, so only ever created inside
-    /// the `#[target_feature(enable = "avx")]` functions below, which run
-    /// only where AVX was detected.
+    /// One AVX vector. Used only inside the AVX clones of the dispatched
+    /// passes ([`super::evaluate_chunk`] and the others, `match_target!`
+    /// arms for `x86_64+avx`), which run only where multiversion detected AVX.
     #[derive(Clone, Copy)]
-    struct Avx(__m256d);
+    pub struct Avx(__m256d);
 
     // SAFETY (every `unsafe` block in this impl): `Avx` values exist only
-    // inside the `*_avx` functions below, which are called only after
-    // `is_x86_feature_detected!("avx")`; the loads and stores stay inside
-    // the arrays they are given.
+    // inside the AVX clones of the multiversioned passes, compiled with AVX
+    // enabled and called only after multiversion detected AVX on the CPU;
+    // the loads and stores stay inside the arrays they are given.
     impl Quad for Avx {
         #[inline(always)]
         fn splat(v: f64) -> Self {
@@ -1035,39 +1168,6 @@ mod x86 {
                 Avx(_mm256_and_pd(self.0, positive))
             }
         }
-    }
-
-    /// Whether the CPU supports AVX (detected once, then cached by `std`).
-    #[inline]
-    pub fn has_avx() -> bool {
-        std::arch::is_x86_feature_detected!("avx")
-    }
-
-    /// [`super::sum_rows`] compiled for AVX.
-    ///
-    /// # Safety
-    /// The CPU must support AVX.
-    #[target_feature(enable = "avx")]
-    pub unsafe fn sum_rows_avx(rows: &[f64]) -> [f64; 3] {
-        super::sum_rows(rows)
-    }
-
-    /// [`super::moments_rows`] for AVX.
-    ///
-    /// # Safety
-    /// The CPU must support AVX.
-    #[target_feature(enable = "avx")]
-    pub unsafe fn moments_rows_avx(rows: &[f64], m: &[f64; 3]) -> MomentSums {
-        super::moments_rows::<Avx>(rows, m)
-    }
-
-    /// [`super::evaluate_rows`] for AVX.
-    ///
-    /// # Safety
-    /// The CPU must support AVX.
-    #[target_feature(enable = "avx")]
-    pub unsafe fn evaluate_rows_avx(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums {
-        super::evaluate_rows::<Avx>(rows, t, res)
     }
 }
 
@@ -1408,45 +1508,36 @@ fn evaluate_rows<V: Quad>(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums 
     }
 }
 
+// The passes below are compiled once per SIMD target and chosen at run time
+// by multiversion, the dispatch the compensation kernel uses too
+// (`crate::kernel`). Every target does the same IEEE operations lane by
+// lane in the same order (Rust never fuses a multiply and an add on its
+// own), so every target gives the same bits; the AVX clones only hold the
+// [`LANES`] lanes in one register instead of two.
+
 /// [`sum_rows`] with the best vectors the CPU has.
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
 fn sum_chunk(rows: &[f64]) -> [f64; 3] {
-    #[cfg(target_arch = "x86_64")]
-    if x86::has_avx() {
-        // SAFETY: the CPU supports AVX (checked just above).
-        return unsafe { x86::sum_rows_avx(rows) };
-    }
     sum_rows(rows)
 }
 
 /// [`moments_rows`] with the best vectors the CPU has.
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
 fn moments_chunk(rows: &[f64], m: &[f64; 3]) -> MomentSums {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if x86::has_avx() {
-            // SAFETY: the CPU supports AVX (checked just above).
-            return unsafe { x86::moments_rows_avx(rows, m) };
-        }
-        moments_rows::<x86::Sse2>(rows, m)
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        moments_rows::<[f64; LANES]>(rows, m)
+    match_target! {
+        "x86_64+avx" => moments_rows::<x86::Avx>(rows, m),
+        "x86_64" => moments_rows::<x86::Sse2>(rows, m),
+        _ => moments_rows::<[f64; LANES]>(rows, m),
     }
 }
 
 /// [`evaluate_rows`] with the best vectors the CPU has.
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
 fn evaluate_chunk(rows: &[f64], t: &Trial, res: &mut [f64]) -> EvalSums {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if x86::has_avx() {
-            // SAFETY: the CPU supports AVX (checked just above).
-            return unsafe { x86::evaluate_rows_avx(rows, t, res) };
-        }
-        evaluate_rows::<x86::Sse2>(rows, t, res)
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        evaluate_rows::<[f64; LANES]>(rows, t, res)
+    match_target! {
+        "x86_64+avx" => evaluate_rows::<x86::Avx>(rows, t, res),
+        "x86_64" => evaluate_rows::<x86::Sse2>(rows, t, res),
+        _ => evaluate_rows::<[f64; LANES]>(rows, t, res),
     }
 }
 
@@ -1830,6 +1921,102 @@ mod tests {
             assert_eq!(got, &fit_sphere(set, &opts));
         }
         assert!(many[2].is_err());
+    }
+
+    #[test]
+    fn fit_sphere_groups_columns_equal_individual_fits() {
+        // The groups' columns hold exactly what fit_sphere gives each group
+        // (same serial path), a failed group its error with NaN fields, and
+        // the per-point fields follow the input rows.
+        let a = flatten(&cap([0.0; 3], 10.0, [0.0, 0.0, 1.0], 60.0, 800, 0.005, 1));
+        let collinear: Vec<f64> = (0..5).flat_map(|i| [i as f64, 0.0, 0.0]).collect();
+        let mut b = flatten(&cap(
+            [100.0, 0.0, 5.0],
+            BALL,
+            [1.0, 0.0, 0.0],
+            85.0,
+            300,
+            0.008,
+            2,
+        ));
+        // An outlier for the rejection to find.
+        b[30] += 2.0;
+        let too_few = vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
+        let points: Vec<f64> = [&a, &collinear, &b, &too_few]
+            .into_iter()
+            .flatten()
+            .copied()
+            .collect();
+        let bounds = [0, 800, 805, 1105, 1107];
+        let opts = SphereFitOptions {
+            reject: Some(3.0),
+            ..Default::default()
+        };
+        let fits = fit_sphere_groups(&points, &bounds, &opts).unwrap();
+        assert_eq!(fits.radius.len(), 4);
+        assert_eq!((fits.residuals.len(), fits.inlier.len()), (1107, 1107));
+        for (k, w) in bounds.windows(2).enumerate() {
+            let (lo, hi) = (w[0], w[1]);
+            match fit_sphere(&points[3 * lo..3 * hi], &opts) {
+                Ok(f) => {
+                    assert!(fits.error[k].is_none());
+                    assert_eq!(fits.centre[k], f.centre);
+                    assert_eq!(fits.radius[k].to_bits(), f.radius.to_bits());
+                    assert_eq!(fits.rms[k].to_bits(), f.rms.to_bits());
+                    assert_eq!(fits.form[k].to_bits(), f.form.to_bits());
+                    assert_eq!(fits.n_points[k], f.n_points);
+                    assert_eq!(fits.covariance[k], f.covariance);
+                    assert_eq!(fits.polar_coverage_deg[k], f.polar_coverage_deg);
+                    assert_eq!(fits.iterations[k], f.iterations);
+                    assert_eq!(fits.converged[k], f.converged);
+                    assert_eq!(fits.rejected[k], f.rejected);
+                    assert_eq!(&fits.residuals[lo..hi], f.residuals.as_slice());
+                    assert_eq!(&fits.inlier[lo..hi], f.inlier.as_slice());
+                }
+                Err(e) => {
+                    assert_eq!(fits.error[k].as_ref(), Some(&e));
+                    assert!(fits.centre[k].iter().all(|c| c.is_nan()));
+                    assert!(fits.radius[k].is_nan() && fits.rms[k].is_nan());
+                    assert!(fits.covariance[k].iter().flatten().all(|c| c.is_nan()));
+                    assert_eq!((fits.n_points[k], fits.iterations[k]), (0, 0));
+                    assert!(!fits.converged[k]);
+                    assert!(fits.residuals[lo..hi].iter().all(|r| r.is_nan()));
+                    assert!(fits.inlier[lo..hi].iter().all(|&i| !i));
+                }
+            }
+        }
+        assert!(fits.error[1]
+            .as_ref()
+            .unwrap()
+            .to_string()
+            .contains("collinear"));
+        assert!(fits.error[3]
+            .as_ref()
+            .unwrap()
+            .to_string()
+            .contains("at least 4 points"));
+        assert!(fits.rejected[2] >= 1);
+        assert!(!fits.inlier[805 + 10]);
+    }
+
+    #[test]
+    fn fit_sphere_groups_empty_and_bad_bounds() {
+        // No points, no groups: empty columns.
+        let opts = SphereFitOptions::default();
+        let none = fit_sphere_groups(&[], &[0], &opts).unwrap();
+        assert!(none.radius.is_empty() && none.error.is_empty() && none.residuals.is_empty());
+        let pts = flatten(&cap([0.0; 3], 10.0, [0.0, 0.0, 1.0], 60.0, 10, 0.005, 1));
+        for bounds in [&[][..], &[0, 5], &[1, 10], &[0, 6, 4, 10], &[0, 11]] {
+            let e = fit_sphere_groups(&pts, bounds, &opts).unwrap_err();
+            assert!(e.to_string().starts_with("bounds: must rise from 0"), "{e}");
+        }
+        // A bad option is refused once, not per group.
+        let bad = SphereFitOptions {
+            max_iterations: 0,
+            ..opts
+        };
+        let e = fit_sphere_groups(&pts, &[0, 10], &bad).unwrap_err();
+        assert!(e.to_string().starts_with("max_iterations"), "{e}");
     }
 
     #[test]
