@@ -16,7 +16,7 @@ from rich.table import Table
 from . import effects as effects_registry
 from .compensation import compensate, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import Error, MapTemperatureWarning
+from .errors import Error, InputError, MapTemperatureWarning
 from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
 from .metrics import STEEL_EXPANSION
@@ -25,22 +25,32 @@ from .report import KernelReport
 console = Console(stderr=True)
 
 
-def load_maps(specs: tuple[str, ...]) -> ErrorMap | ErrorMapSet:
+def load_maps(specs: tuple[str, ...], machine=None) -> ErrorMap | ErrorMapSet:
     """'thesis' (bundled 20/25/30 C set), 'appendix-b' (22 C controller map),
-    or paths: canonical .csv maps or controller .txt files; several make a set."""
-    maps = []
-    for spec in specs:
-        if spec == "thesis":
-            if len(specs) > 1:
-                raise click.BadParameter("'thesis' is a whole set; give it alone", param_hint="--maps")
-            return ErrorMapSet.thesis()
-        if spec == "appendix-b":
-            maps.append(ErrorMap.appendix_b())
-        elif Path(spec).suffix.lower() == ".txt":
-            maps.append(ErrorMap.read_controller_file(spec))
-        else:
-            maps.append(ErrorMap.read(spec))
-    return maps[0] if len(maps) == 1 else ErrorMapSet(maps)
+    or paths: canonical .csv maps or controller .txt files; several make a
+    set. With a machine: its maps when none are named, stacked as it is."""
+    from .machine import read_maps
+
+    try:
+        if machine is not None:
+            return machine.maps(specs)
+        return read_maps(specs)
+    except InputError as exc:
+        if "whole set" in str(exc):
+            raise click.BadParameter("'thesis' is a whole set; give it alone", param_hint="--maps") from None
+        raise
+
+
+def machine_option(f):
+    """--machine FILE, the same on every command."""
+    return click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
+                        help="Machine file (TOML: configuration, travel, maps, scanner, mount; "
+                             "`cmmpose machine example`). Default: the thesis machine.")(f)
+
+
+def machine_row(table, machine) -> None:
+    """The machine a command used, in its summary table."""
+    table.add_row("machine", f"{machine.name} ({machine.kinematics}; {machine.source})")
 
 
 def triple(text: str, name: str) -> tuple[float, float, float]:
@@ -87,23 +97,31 @@ def main() -> None:
 @main.command("compensate")
 @click.argument("points_in", metavar="IN", type=click.Path(dir_okay=False))
 @click.argument("points_out", metavar="OUT", type=click.Path(dir_okay=False, writable=True))
-@click.option("--maps", "maps", multiple=True, default=("thesis",), show_default=True,
-              help="'thesis', 'appendix-b', or map files (.csv canonical, .txt controller); repeat for a set.")
+@machine_option
+@click.option("--maps", "maps", multiple=True,
+              help="'thesis', 'appendix-b', or map files (.csv canonical, .txt controller); repeat for a set. "
+                   "Default: the machine's maps.")
 @click.option("--temperature", type=float, default=None,
               help="Machine temperature in C for every point (default: the T column, if the file has one).")
-@click.option("--pose", default="90,90,0", show_default=True, help="alpha,beta,gamma in degrees (Euler 3-1-3).")
-@click.option("--offset", default="1.001,264.505,129.575", show_default=True, help="U1,V1,W1 mount offset in mm.")
+@click.option("--pose", default=None, help="alpha,beta,gamma in degrees (Euler 3-1-3). Default: the machine's.")
+@click.option("--offset", default=None, help="U1,V1,W1 mount offset in mm. Default: the machine's.")
 @policy_options(log_hold=False)
 @click.option("--nan-policy", type=click.Choice(["raise", "propagate"]), default="raise", show_default=True)
-def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_of_range, temperature_tolerance,
-                   nan_policy) -> None:
+def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, out_of_range,
+                   temperature_tolerance, nan_policy) -> None:
     """Compensate scanner points IN (CSV, NPY or Parquet: u, v, D, E, F[, T]) into
     machine coordinates OUT (CSV, NPY or Parquet by suffix: X, Y, Z in mm)."""
-    pose_t = triple(pose, "--pose")
-    offset_t = triple(offset, "--offset")
+    from .machine import load_machine
+
+    try:
+        machine = load_machine(machine_file)
+    except Error as exc:
+        raise fail(exc) from None
+    pose_t = triple(pose, "--pose") if pose else machine.pose.as_tuple()
+    offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
     try:
         check_writable(points_out)  # before any work: a missing folder is found now, not after
-        error_map = load_maps(maps)
+        error_map = load_maps(maps, machine)
         size, chunks = point_chunks(points_in)
         state = {"t_all": None, "warned": False}
         totals = np.zeros(5, dtype=np.int64)
@@ -170,6 +188,7 @@ def compensate_cmd(points_in, points_out, maps, temperature, pose, offset, out_o
     except Error as exc:
         raise fail(exc) from None
     table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
+    machine_row(table, machine)
     table.add_row("points", f"{n:,}")
     table.add_row("maps", repr(error_map))
     table.add_row("temperature", t_all or "-")
@@ -203,8 +222,9 @@ def effects_cmd() -> None:
 @click.option("--layout", type=click.Choice(["b89", "crossed"]), default="b89", show_default=True,
               help="20 ASME B89.4.1 positions (thesis Appendix C geometry) or the 8 crossed-ballbar positions.")
 @click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
-@click.option("--maps", "maps", multiple=True, default=("thesis",), show_default=True,
-              help="The machine's real maps: 'thesis', 'appendix-b' or map files.")
+@machine_option
+@click.option("--maps", "maps", multiple=True,
+              help="The machine's real maps: 'thesis', 'appendix-b' or map files. Default: the machine's.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
               help="Extra physics, repeatable, e.g. latency:seconds=0.005 (`cmmpose effects` lists them). One of: "
                    + "; ".join(f"{name} ({', '.join(f'{k} {u}'.strip() for k, u in cls.units().items())}): "
@@ -214,25 +234,32 @@ def effects_cmd() -> None:
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing run in RUN_DIR.")
-def simulate_cmd(layout, temperature, maps, effects, speed, bidirectional, seed, run_dir, overwrite) -> None:
-    """Simulate a ballbar run on the virtual Iota 1102 + Hyscan 45C and write it as a run directory."""
+def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidirectional, seed, run_dir,
+                 overwrite) -> None:
+    """Simulate a ballbar run on a virtual machine (default: the thesis's Iota 1102 + Hyscan 45C) and write it
+    as a run directory."""
+    from .machine import load_machine
     from .sim import parse_effect, simulate_ballbar_run
 
     try:
+        machine = load_machine(machine_file)
         parsed = [parse_effect(e) for e in effects]
-        machine_maps = load_maps(maps)
+        machine_maps = load_maps(maps, machine)
         start = time.perf_counter()
         with Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.completed}/{task.total} sweeps"),
                       console=console) as bar:
             task = bar.add_task("", total=None)
             run, truth = simulate_ballbar_run(
                 machine_maps, temperature, parsed, layout=layout, speed=speed, bidirectional=bidirectional, seed=seed,
+                scanner=machine.scanner, offset=tuple(machine.offset),
                 progress=lambda done, total: bar.update(task, completed=done, total=total))
+        run = _with_machine(run, machine, maps)
         elapsed = time.perf_counter() - start
         run.save(run_dir, truth=truth, overwrite=overwrite)
     except Error as exc:
         raise fail(exc) from None
     table = Table(title=f"cmmpose simulate -> {run_dir}", show_header=False)
+    machine_row(table, machine)
     table.add_row("layout", f"{layout} ({len(run.scans['scan_id'])} sweeps)")
     table.add_row("points", f"{run.n_points:,} ({run.n_points / len(run.scans['scan_id']):,.0f} per sphere)")
     table.add_row("temperature", f"{temperature:g} C")
@@ -241,15 +268,30 @@ def simulate_cmd(layout, temperature, maps, effects, speed, bidirectional, seed,
     Console().print(table)
 
 
-def _maps_for_run(run, specs: tuple[str, ...]):
-    """--maps as given, 'none' for uncompensated only, or what run.json names."""
+def _with_machine(run, machine, specs):
+    """The simulated run's record of its maps: the bundled thesis set on
+    another configuration says which (so that evaluate finds it); maps from
+    files are not named (evaluate then needs --maps or --machine)."""
+    import dataclasses
+
+    if specs or machine.bundled_maps != "thesis":
+        return dataclasses.replace(run, maps={})
+    record = {"kind": "bundled", "name": "thesis"}
+    if machine.kinematics != "thesis":
+        record["kinematics"] = machine.kinematics
+    return dataclasses.replace(run, maps=record)
+
+
+def _maps_for_run(run, specs: tuple[str, ...], machine=None):
+    """--maps as given (stacked as --machine says), 'none' for uncompensated
+    only, the machine's maps, or what run.json names."""
     if specs == ("none",):
         return None
-    if specs:
-        return load_maps(specs)
+    if specs or (machine is not None and not machine.is_default):
+        return load_maps(specs, machine)
     if run.maps.get("kind") == "bundled" and run.maps.get("name") == "thesis":
-        return ErrorMapSet.thesis()
-    raise click.UsageError("the run does not name bundled maps: give --maps (or --maps none)")
+        return ErrorMapSet.thesis().with_kinematics(run.maps.get("kinematics", "thesis"))
+    raise click.UsageError("the run does not name bundled maps: give --maps or --machine (or --maps none)")
 
 
 def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
@@ -277,23 +319,30 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 
 @main.command("evaluate")
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
-@click.option("--maps", "maps", multiple=True, help="Compensation maps ('thesis', files, or 'none'); default: as run.json says.")
+@machine_option
+@click.option("--maps", "maps", multiple=True,
+              help="Compensation maps ('thesis', files, or 'none'); default: the machine's, or as run.json says.")
 @click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
 @policy_options()
-@click.option("--expansion", type=float, default=STEEL_EXPANSION * 1e6, show_default=True,
-              help="Artefact expansion coefficient for lengths at 20 C, ppm/K.")
+@click.option("--expansion", type=float, default=None,
+              help=f"Artefact expansion coefficient for lengths at 20 C, ppm/K (default: the machine's, "
+                   f"{STEEL_EXPANSION * 1e6:g} for the thesis machine).")
 @click.option("--reject", type=float, default=None, help="Robust sphere fits: reject beyond this many robust sigmas.")
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None, help="Write JSON, CSV and plots here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
-def evaluate_cmd(run_dir, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion, reject,
-                 report_dir, as_json) -> None:
+def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
+                 reject, report_dir, as_json) -> None:
     """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated."""
     from .evaluation import evaluate
+    from .machine import load_machine
     from .run import Run
 
     try:
+        machine = load_machine(machine_file)
+        if expansion is None:
+            expansion = machine.artefact_expansion * 1e6
         run = Run.load(run_dir)
-        model = _maps_for_run(run, maps)
+        model = _maps_for_run(run, maps, machine)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", MapTemperatureWarning)
             ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
@@ -313,7 +362,9 @@ def evaluate_cmd(run_dir, maps, temperature, out_of_range, temperature_tolerance
 
 @main.command("diagnose")
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
-@click.option("--maps", "maps", multiple=True, help="Model maps ('thesis' or files); default: as run.json says.")
+@machine_option
+@click.option("--maps", "maps", multiple=True,
+              help="Model maps ('thesis' or files); default: the machine's, or as run.json says.")
 @click.option("--model", "model_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Start from a model saved by an earlier diagnosis (its maps and effects).")
 @click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
@@ -324,18 +375,20 @@ def evaluate_cmd(run_dir, maps, temperature, out_of_range, temperature_tolerance
 @click.option("--report", "report_file", type=click.Path(dir_okay=False), default=None, help="Write a self-contained HTML report here.")
 @click.option("--save-model", "model_out", type=click.Path(dir_okay=False), default=None, help="Write the final model (JSON) here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
-def diagnose_cmd(run_dir, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold, add, no_auto,
-                 max_effects, report_file, model_out, as_json) -> None:
+def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
+                 add, no_auto, max_effects, report_file, model_out, as_json) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall."""
     from .diagnosis import Model, diagnose
+    from .machine import load_machine
     from .run import Run
 
     try:
+        machine = load_machine(machine_file)
         run = Run.load(run_dir)
         if model_file:
             model = Model.load(model_file)
         else:
-            maps_ = _maps_for_run(run, maps)
+            maps_ = _maps_for_run(run, maps, machine)
             if maps_ is None:
                 raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
             model = Model(maps_, temperature=temperature, out_of_range=out_of_range,
@@ -602,6 +655,77 @@ def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out
     for note in built.notes:
         console.print(f"note: {note}")
     console.print(f"wrote {out}: {built.map!r}")
+
+
+
+@main.group("machine")
+def machine_group() -> None:
+    """Machine files: one CMM with its scanner (configuration, travel, maps, scanner, mount, thermocouples)."""
+
+
+@machine_group.command("example")
+@click.argument("name", type=click.Choice(sorted(["thesis", "moving-bridge", "gantry", "fixed-bridge",
+                                                  "horizontal-arm"])))
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Machine file to write.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing file.")
+def machine_example_cmd(name, out, overwrite) -> None:
+    """Write the bundled example machine NAME to a file, to edit into your own."""
+    from .machine import example_text
+
+    path = Path(out)
+    if path.exists() and not overwrite:
+        raise click.ClickException(f"{path}: exists (give --overwrite to replace it)")
+    try:
+        check_writable(path)
+        path.write_text(example_text(name), encoding="utf-8")
+    except Error as exc:
+        raise fail(exc) from None
+    console.print(f"wrote {path}: the {name} example (cmmpose machine show {path})")
+
+
+def _show_machine(machine_file, check: bool) -> None:
+    from .machine import load_machine
+
+    try:
+        machine = load_machine(machine_file)
+        notes = machine.check() if check else []
+    except Error as exc:
+        raise fail(exc) from None
+    table = Table(title=f"cmmpose machine: {machine.source}", show_header=False)
+    for key, value in machine.describe():
+        table.add_row(key, value)
+    Console().print(table)
+    for note in notes:
+        console.print(f"note: {note}")
+    if check:
+        console.print("ok: the file reads, its maps load and cover the travel")
+
+
+@machine_group.command("show")
+@click.argument("machine_file", metavar="FILE", required=False, type=click.Path(dir_okay=False))
+def machine_show_cmd(machine_file) -> None:
+    """Print what FILE says about the machine (default: the thesis machine)."""
+    _show_machine(machine_file, check=False)
+
+
+@machine_group.command("check")
+@click.argument("machine_file", metavar="FILE", type=click.Path(dir_okay=False))
+def machine_check_cmd(machine_file) -> None:
+    """Check FILE: every key known and well-formed, the maps readable and covering the travel."""
+    _show_machine(machine_file, check=True)
+
+
+@machine_group.command("configurations")
+def machine_configurations_cmd() -> None:
+    """List the machine configurations (how the carriages are stacked)."""
+    from .machine import configurations
+
+    table = Table(title="Machine configurations (kinematics = ...)")
+    for col in ("name", "stacking, base up", "what it is"):
+        table.add_column(col)
+    for c in configurations():
+        table.add_row(c["name"], ", ".join(f"{a} ({side})" for a, side in c["stack"]), c["description"])
+    Console().print(table)
 
 
 if __name__ == "__main__":

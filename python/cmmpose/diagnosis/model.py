@@ -217,7 +217,8 @@ class Model:
         return {
             "schema": MODEL_SCHEMA,
             "schema_version": 1,
-            "maps": {"kind": "set" if isinstance(self.maps, ErrorMapSet) else "map", "csv": texts},
+            "maps": {"kind": "set" if isinstance(self.maps, ErrorMapSet) else "map", "csv": texts,
+                     "kinematics": self.maps.kinematics},
             "temperature": self.temperature,
             "out_of_range": self.out_of_range,
             "temperature_tolerance_K": self.temperature_tolerance,
@@ -269,6 +270,10 @@ class Model:
             if kind == "map" and len(maps) != 1:
                 raise InputError(f"{path}: maps.kind 'map' needs exactly one map, got {len(maps)}")
             model_maps = ErrorMapSet(maps) if kind == "set" else maps[0]
+            kinematics = doc["maps"].get("kinematics", "thesis")  # files before machine configurations: thesis
+            if not isinstance(kinematics, str):
+                raise InputError(f"{path}: maps.kinematics must be a configuration name, got {kinematics!r}")
+            model_maps = model_maps.with_kinematics(kinematics)
             users = {u.name: u for u in user_effects}
             effects = []
             for e in doc["effects"]:

@@ -1,0 +1,329 @@
+"""A machine file: one CMM with its scanner, in TOML (docs/your-machine.md).
+
+It says how the carriages are stacked (the machine configuration), each
+axis's travel, which error maps describe the machine, the scanner's optics
+and noise, the mount (offset, pose, alignment library), the thermocouple
+channels and their roles, and the artefact's expansion coefficient. Every
+command takes ``--machine FILE``; without one the thesis machine (DEA Iota
+1102 with a Hyscan 45C) is used, and said so. Bundled examples:
+:func:`example_names`.
+
+Units: mm, um, degrees, degrees C, ppm/K, converted to the package's units
+(mm, degrees C, 1/K) here and nowhere else.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import _core
+from .effects import channel_roles
+from .errormap import ErrorMap, ErrorMapSet, data_path
+from .errors import InputError
+from .pose import MountOffset, Pose
+from .sim.scanner import Scanner
+from .sim.thermocouples import CHANNELS
+
+__all__ = ["Machine", "configurations", "example_names", "example_text", "load_machine", "read_maps"]
+
+_log = logging.getLogger(__name__)
+
+#: Keys a machine file may hold, per table ('' is the top level).
+_KEYS = {
+    "": {"name", "kinematics", "travel", "maps", "scanner", "mount", "thermocouples", "expansion"},
+    "travel": {"x", "y", "z"},
+    "maps": {"bundled", "files"},
+    "scanner": {"field_of_view_mm", "depth_of_view_mm", "points_per_profile", "profile_rate_hz", "noise_um"},
+    "mount": {"offset_mm", "pose_deg", "alignments"},
+    "expansion": {"artefact"},
+}
+
+
+def configurations() -> list[dict]:
+    """The machine configurations the kernel knows: name, description and the
+    stacking from the base up as (carriage, 'probe' or 'part')."""
+    return _core.kinematics_configurations()
+
+
+def example_names() -> list[str]:
+    """Names of the bundled example machine files."""
+    return sorted(p.name[: -len(".toml")] for p in data_path("machines").iterdir() if p.name.endswith(".toml"))
+
+
+def example_text(name: str) -> str:
+    """The text of the bundled example machine file ``name``."""
+    if name not in example_names():
+        raise InputError(f"machine example {name!r}: not one of {', '.join(example_names())}")
+    return data_path("machines", f"{name}.toml").read_text(encoding="utf-8")
+
+
+@dataclass(frozen=True)
+class Machine:
+    """One CMM with its scanner.
+
+    Attributes
+    ----------
+    name : str
+        What the machine is called.
+    kinematics : str
+        Machine configuration (a name of :func:`configurations`).
+    travel : tuple of 3 (float, float)
+        Scale range of X, Y, Z, mm.
+    map_files : tuple of Path
+        Error map files (canonical CSV or controller files); empty for the
+        bundled ``bundled_maps``.
+    bundled_maps : str or None
+        ``'thesis'`` (the bundled 20/25/30 C set) or ``'appendix-b'``.
+    scanner : Scanner
+        Field and depth of view (mm), points per profile, profile rate (Hz),
+        noise (mm).
+    offset : MountOffset
+        Mount offset l1, mm.
+    pose : Pose
+        Default digitizer pose, degrees.
+    alignments : Path or None
+        Alignment library (JSON).
+    thermocouples : dict of str -> str
+        Channel name -> role.
+    artefact_expansion : float
+        Expansion coefficient of the artefact, 1/K.
+    source : str
+        Where the machine came from (a file, or the default).
+    """
+
+    name: str
+    kinematics: str
+    travel: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
+    map_files: tuple[Path, ...] = ()
+    bundled_maps: str | None = "thesis"
+    scanner: Scanner = field(default_factory=Scanner)
+    offset: MountOffset = MountOffset.thesis()
+    pose: Pose = Pose(90.0, 90.0, 0.0)
+    alignments: Path | None = None
+    thermocouples: dict = field(default_factory=lambda: dict(CHANNELS))
+    artefact_expansion: float = 12e-6
+    source: str = "default"
+
+    @classmethod
+    def thesis(cls) -> Machine:
+        """The thesis machine, the default of every command."""
+        return _parse(tomllib.loads(example_text("thesis")), "the thesis machine (default)", None)
+
+    @classmethod
+    def example(cls, name: str) -> Machine:
+        """The bundled example machine ``name`` (see :func:`example_names`)."""
+        return _parse(tomllib.loads(example_text(name)), f"bundled example {name!r}", None)
+
+    @property
+    def is_default(self) -> bool:
+        return self.source == "the thesis machine (default)"
+
+    def maps(self, specs=()) -> ErrorMap | ErrorMapSet:
+        """The machine's error maps (or those named by ``specs``, as
+        :func:`read_maps` takes them), stacked as its configuration says."""
+        maps = read_maps(specs or (self.map_files or (self.bundled_maps,)))
+        return maps.with_kinematics(self.kinematics)
+
+    def check(self) -> list[str]:
+        """What is worth knowing about the machine beyond its own checks (the
+        maps loaded and compared with the travel); raises on an error."""
+        notes = []
+        maps = self.maps()
+        ranges = (maps.maps[0] if isinstance(maps, ErrorMapSet) else maps).ranges
+        for axis, (lo, hi), (mlo, mhi) in zip("XYZ", self.travel, ranges):
+            if lo < mlo - 1e-9 or hi > mhi + 1e-9:
+                raise InputError(f"{self.source}: travel.{axis.lower()} {lo:g}..{hi:g} mm goes beyond the maps' "
+                                 f"{mlo:g}..{mhi:g} mm: points there cannot be compensated")
+            if lo > mlo + 1e-9 or hi < mhi - 1e-9:
+                notes.append(f"the maps cover {axis} {mlo:g}..{mhi:g} mm, more than its travel {lo:g}..{hi:g} mm")
+        roles = set(self.thermocouples.values())
+        for role in ("x_scale", "y_scale", "z_scale"):
+            if role not in roles:
+                notes.append(f"no thermocouple has the role {role!r}: the machine temperature is the mean of the others")
+        return notes
+
+    def describe(self) -> list[tuple[str, str]]:
+        """(field, value) rows for a table."""
+        kin = {c["name"]: c for c in configurations()}[self.kinematics]
+        maps = ", ".join(str(p) for p in self.map_files) if self.map_files else f"bundled {self.bundled_maps!r}"
+        s = self.scanner
+        return [
+            ("machine", f"{self.name} ({self.source})"),
+            ("configuration", f"{self.kinematics}: {kin['description']}"),
+            ("stacking (base up)", ", ".join(f"{a} ({side})" for a, side in kin["stack"])),
+            ("travel (mm)", ", ".join(f"{a} {lo:g}..{hi:g}" for a, (lo, hi) in zip("XYZ", self.travel))),
+            ("maps", maps),
+            ("scanner", f"u {s.u_range[0]:g}..{s.u_range[1]:g} mm, v {s.v_range[0]:g}..{s.v_range[1]:g} mm, "
+                        f"{s.points_per_profile} points x {s.profile_rate:g} Hz, noise {s.noise * 1e3:g} um"),
+            ("mount offset (mm)", ", ".join(f"{v:g}" for v in self.offset)),
+            ("pose (deg)", ", ".join(f"{v:g}" for v in self.pose.as_tuple())),
+            ("alignments", str(self.alignments) if self.alignments else "-"),
+            ("thermocouples", ", ".join(f"{c}={r}" for c, r in self.thermocouples.items())),
+            ("artefact expansion", f"{self.artefact_expansion * 1e6:g} ppm/K"),
+        ]
+
+
+def load_machine(path: str | Path | None) -> Machine:
+    """The machine of the file at ``path``, or the thesis machine for None.
+
+    Raises
+    ------
+    InputError
+        Naming the file and the key at fault: not TOML, an unknown key, a
+        missing or malformed value, an unknown configuration or role, a map
+        file that does not exist.
+    """
+    if path is None:
+        return Machine.thesis()
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such machine file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot be read as UTF-8 text ({exc})") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not a TOML file ({exc})") from None
+    return _parse(doc, str(path), path.parent)
+
+
+def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
+    for table, allowed in _KEYS.items():
+        part = doc if table == "" else doc.get(table, {})
+        if not isinstance(part, dict):
+            raise InputError(f"{where}: [{table}] must be a table")
+        unknown = sorted(set(part) - allowed)
+        if unknown:
+            prefix = f"{table}." if table else ""
+            raise InputError(f"{where}: unknown key {prefix}{unknown[0]} (known: {', '.join(sorted(allowed))})")
+    name = _text(doc, "name", where, default="unnamed machine")
+    kinematics = _text(doc, "kinematics", where, default="thesis")
+    known = [c["name"] for c in configurations()]
+    if kinematics not in known:
+        raise InputError(f"{where}: kinematics = {kinematics!r} is not one of {', '.join(known)}")
+    travel_table = doc.get("travel", {})
+    travel = tuple(_pair(travel_table, axis, f"{where}: travel.{axis}", increasing=True) for axis in "xyz")
+    maps = doc.get("maps", {"bundled": "thesis"})
+    if ("bundled" in maps) == ("files" in maps):
+        raise InputError(f"{where}: [maps] needs one of bundled = 'thesis' | 'appendix-b' or files = [...]")
+    bundled, files = None, ()
+    if "bundled" in maps:
+        bundled = maps["bundled"]
+        if bundled not in ("thesis", "appendix-b"):
+            raise InputError(f"{where}: maps.bundled = {bundled!r} is not 'thesis' or 'appendix-b'")
+    else:
+        if not (isinstance(maps["files"], list) and maps["files"] and all(isinstance(f, str) for f in maps["files"])):
+            raise InputError(f"{where}: maps.files must be a non-empty list of file names")
+        files = tuple((folder or Path(".")) / f for f in maps["files"])
+        missing = [str(f) for f in files if not f.is_file()]
+        if missing:
+            raise InputError(f"{where}: maps.files: no such file {missing[0]}")
+    sc = doc.get("scanner", {})
+    defaults = Scanner()
+    scanner = Scanner(
+        u_range=_pair(sc, "field_of_view_mm", f"{where}: scanner.field_of_view_mm", increasing=True,
+                      default=defaults.u_range),
+        v_range=_pair(sc, "depth_of_view_mm", f"{where}: scanner.depth_of_view_mm", increasing=True,
+                      default=defaults.v_range),
+        points_per_profile=_integer(sc, "points_per_profile", f"{where}: scanner.points_per_profile",
+                                    defaults.points_per_profile),
+        profile_rate=_number(sc, "profile_rate_hz", f"{where}: scanner.profile_rate_hz", defaults.profile_rate,
+                             positive=True),
+        noise=_number(sc, "noise_um", f"{where}: scanner.noise_um", defaults.noise * 1e3, nonnegative=True) * 1e-3,
+    )
+    mount = doc.get("mount", {})
+    offset = MountOffset(*_triple(mount, "offset_mm", f"{where}: mount.offset_mm", tuple(MountOffset.thesis())))
+    pose = Pose(*_triple(mount, "pose_deg", f"{where}: mount.pose_deg", (90.0, 90.0, 0.0)))
+    alignments = None
+    if "alignments" in mount:
+        if not isinstance(mount["alignments"], str):
+            raise InputError(f"{where}: mount.alignments must be a file name")
+        alignments = (folder or Path(".")) / mount["alignments"]
+    tc = doc.get("thermocouples", dict(CHANNELS))
+    if not isinstance(tc, dict) or not tc:
+        raise InputError(f"{where}: [thermocouples] must name at least one channel = role")
+    roles = {r for _, r in CHANNELS} | set(channel_roles())
+    for channel, role in tc.items():
+        if role not in roles:
+            raise InputError(f"{where}: thermocouples.{channel} = {role!r} is not a known role "
+                             f"({', '.join(sorted(roles))})")
+    expansion = _number(doc.get("expansion", {}), "artefact", f"{where}: expansion.artefact", 12.0) * 1e-6
+    machine = Machine(name=name, kinematics=kinematics, travel=travel, map_files=files, bundled_maps=bundled,
+                      scanner=scanner, offset=offset, pose=pose, alignments=alignments, thermocouples=dict(tc),
+                      artefact_expansion=expansion, source=where)
+    _log.info("machine %s: %s, %s", where, name, kinematics)
+    return machine
+
+
+def read_maps(specs) -> ErrorMap | ErrorMapSet:
+    """Error maps from names and files: ``'thesis'`` (the bundled 20/25/30 C
+    set, alone), ``'appendix-b'`` (the 22 C controller map), controller
+    files (``.txt``) and canonical maps (any other suffix); several make a
+    set."""
+    specs = [str(s) for s in specs]
+    if not specs:
+        raise InputError("maps: none given")
+    if "thesis" in specs:
+        if len(specs) > 1:
+            raise InputError("maps: 'thesis' is a whole set; give it alone")
+        return ErrorMapSet.thesis()
+    maps = []
+    for spec in specs:
+        if spec == "appendix-b":
+            maps.append(ErrorMap.appendix_b())
+        elif Path(spec).suffix.lower() == ".txt":
+            maps.append(ErrorMap.read_controller_file(spec))
+        else:
+            maps.append(ErrorMap.read(spec))
+    return maps[0] if len(maps) == 1 else ErrorMapSet(maps)
+
+
+def _text(doc: dict, key: str, where: str, default: str) -> str:
+    value = doc.get(key, default)
+    if not isinstance(value, str) or not value:
+        raise InputError(f"{where}: {key} must be a non-empty text, got {value!r}")
+    return value
+
+
+def _real(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _number(table: dict, key: str, where: str, default: float, *, positive=False, nonnegative=False) -> float:
+    value = table.get(key, default)
+    if not _real(value) or (positive and value <= 0) or (nonnegative and value < 0):
+        need = "a positive number" if positive else "a number >= 0" if nonnegative else "a finite number"
+        raise InputError(f"{where}: expected {need}, got {value!r}")
+    return float(value)
+
+
+def _integer(table: dict, key: str, where: str, default: int) -> int:
+    value = table.get(key, default)
+    if not isinstance(value, int) or isinstance(value, bool) or value < 2:
+        raise InputError(f"{where}: expected a whole number >= 2, got {value!r}")
+    return value
+
+
+def _pair(table: dict, key: str, where: str, *, increasing: bool, default=None) -> tuple[float, float]:
+    if key not in table and default is None:
+        raise InputError(f"{where}: missing (expected [low, high])")
+    value = table.get(key, default)
+    if not (isinstance(value, (list, tuple)) and len(value) == 2 and all(map(_real, value))):
+        raise InputError(f"{where}: expected [low, high] numbers, got {value!r}")
+    if increasing and not value[0] < value[1]:
+        raise InputError(f"{where}: low must be below high, got {list(value)}")
+    return float(value[0]), float(value[1])
+
+
+def _triple(table: dict, key: str, where: str, default) -> tuple[float, float, float]:
+    value = table.get(key, default)
+    if not (isinstance(value, (list, tuple)) and len(value) == 3 and all(map(_real, value))):
+        raise InputError(f"{where}: expected three numbers, got {value!r}")
+    return float(value[0]), float(value[1]), float(value[2])
+
