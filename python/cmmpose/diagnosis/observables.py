@@ -218,7 +218,8 @@ def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin
         Scan id of each point.
     """
     keep = np.isin(sid, layout.labels)
-    fits = fit_spheres(xyz[keep], sid[keep])
+    # Usually every point is on a sphere: fit in place rather than copy the run.
+    fits = fit_spheres(xyz, sid) if keep.all() else fit_spheres(xyz[keep], sid[keep])
     centres = np.array([fits[k].centre for k in layout.labels.tolist()])
     radii = np.array([fits[k].radius for k in layout.labels.tolist()])
     rms = np.array([fits[k].rms for k in layout.labels.tolist()])
