@@ -39,7 +39,10 @@ def numpy_evaluation(run, maps_np, n_spheres):
     fits of each with SciPy; returns the compensated coordinates."""
     from scipy.optimize import least_squares
 
-    temps = machine_temperature(run, run.points["t"])
+    # Log readings a little outside the maps are held at their edge, as the
+    # kernel does within its temperature tolerance.
+    lo, hi = min(m["temperature"] for m in maps_np), max(m["temperature"] for m in maps_np)
+    temps = np.clip(machine_temperature(run, run.points["t"]), lo, hi)
     raw = np.empty((run.n_points, 3))
     comp = np.empty((run.n_points, 3))
     pose_of_scan = dict(zip(run.scans["scan_id"].tolist(), run.scans["pose_id"].tolist()))
