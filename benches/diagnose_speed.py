@@ -5,7 +5,13 @@ every point, fit every sphere), against the NumPy way of doing that same
 evaluation (tests/numpy_reference.py for the compensation, SciPy
 least_squares for the geometric sphere fits), in the same run.
 
-    python benches/diagnose_speed.py [--repeats 3] [--reference-spheres 4]
+    python benches/diagnose_speed.py [--repeats 5] [--cold 5] [--reference-spheres 4]
+
+The diagnosis is timed warm (in this process, after one call that loads
+what it loads on first use: min-max of --repeats calls) and cold (--cold
+fresh interpreters running this script with --cold-child: every import of
+the script from its first line, cmmpose's and cmmpose.sim's among them,
+plus the first call; the simulation of the run is not counted; min-max).
 
 The diagnosis needs about 30 such evaluations for the sensitivities plus a
 few per effect added; the NumPy way would take that many times the
@@ -14,30 +20,66 @@ reference figure printed here.
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
-from pathlib import Path
 
-import numpy as np
+_START = time.perf_counter()  # a cold run counts every import from here
 
-import cmmpose
-from cmmpose.diagnosis import Model
-from cmmpose.diagnosis.identify import Problem
-from cmmpose.sim import effects as E
-from cmmpose.sim.runs import simulate_ballbar_run
+import argparse  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import cmmpose  # noqa: E402
+from cmmpose.diagnosis import Model  # noqa: E402
+from cmmpose.diagnosis.identify import Problem  # noqa: E402
+from cmmpose.sim import effects as E  # noqa: E402
+from cmmpose.sim.runs import simulate_ballbar_run  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import numpy_reference as nr  # noqa: E402
 
 
 def best_of(f, repeats):
+    min_max, out = spread_of(f, repeats)
+    return min_max[0], out
+
+
+def spread_of(f, repeats):
+    """(min, max) wall time in s of ``repeats`` calls of f, and its last result."""
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
         out = f()
         times.append(time.perf_counter() - t)
-    return min(times), out
+    return (min(times), max(times)), out
+
+
+def simulated_run():
+    return simulate_ballbar_run(temperature=22.5, effects=[E.SquarenessOffset(yz=20.0)], jitter=0.0015, seed=1)[0]
+
+
+def cold_diagnosis(runs):
+    """(import s, first diagnose s) of ``runs`` fresh interpreters running
+    this script with --cold-child."""
+    out = []
+    for _ in range(runs):
+        text = subprocess.run([sys.executable, __file__, "--cold-child"], check=True, capture_output=True,
+                              text=True).stdout
+        out.append(tuple(float(x) for x in text.split()))
+    return out
+
+
+def cold_child() -> None:
+    """Print the import time (this script's imports, cmmpose's among them,
+    from its first line) and the first diagnosis's time, s; the simulation
+    between them is not counted."""
+    t_import = time.perf_counter() - _START
+    run = simulated_run()
+    t = time.perf_counter()
+    cmmpose.diagnose(run)
+    print(t_import, time.perf_counter() - t)
 
 
 def numpy_evaluation(run, maps_np, temperature, n_spheres):
@@ -61,17 +103,28 @@ def numpy_evaluation(run, maps_np, temperature, n_spheres):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=5, help="warm diagnoses (and Rust evaluations) timed")
+    ap.add_argument("--cold", type=int, default=5, help="fresh interpreters timed for the cold diagnosis")
     ap.add_argument("--reference-spheres", type=int, default=4,
                     help="spheres the SciPy reference fits (scaled up to all of them in the ratio)")
+    ap.add_argument("--cold-child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.cold_child:
+        cold_child()
+        return
 
-    run, _ = simulate_ballbar_run(temperature=22.5, effects=[E.SquarenessOffset(yz=20.0)], jitter=0.0015, seed=1)
+    run = simulated_run()
     n_spheres = len(np.unique(run.points["scan_id"]))
     print(f"run: {run.n_points} points, {n_spheres} spheres, {cmmpose.thread_count()} threads")
 
-    t_diag, d = best_of(lambda: cmmpose.diagnose(run), 1)
-    print(f"diagnose (full library, patterns, report data): {t_diag:.2f} s "
+    cold = cold_diagnosis(args.cold)
+    total = [a + b for a, b in cold]
+    print(f"diagnose cold (fresh interpreter: import cmmpose + first call), {args.cold} runs: "
+          f"{min(total):.2f}-{max(total):.2f} s (import {min(a for a, _ in cold):.2f}-{max(a for a, _ in cold):.2f} s, "
+          f"first call {min(b for _, b in cold):.2f}-{max(b for _, b in cold):.2f} s)")
+    cmmpose.diagnose(run)  # first use: lazy imports, caches
+    (t_lo, t_hi), d = spread_of(lambda: cmmpose.diagnose(run), args.repeats)
+    print(f"diagnose warm (full library, patterns, report data), {args.repeats} runs: {t_lo:.2f}-{t_hi:.2f} s "
           f"-> added {d.added}, rms {d.steps[0].figures.rms_accuracy_error * 1e3:.2f} -> "
           f"{d.steps[-1].figures.rms_accuracy_error * 1e3:.2f} um")
     model = Model(cmmpose.ErrorMapSet.thesis())

@@ -5,21 +5,42 @@ Units throughout: mm for positions and results, um and arc-seconds in error
 map tables, degrees for pose angles, degrees C for temperatures.
 """
 
+from typing import TYPE_CHECKING
+
 from . import mapfiles, controller  # noqa: F401  (each registers its map file format, cmmpose.mapformats)
-from . import acquire, calibration, layouts, uncertainty
+from . import layouts
 from ._core import __version__, thread_count
+from ._lazy import lazy_attributes
 from .compensation import compensate, uncompensated
-from .diagnosis import Diagnosis, Model, UserEffect, diagnose
 from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
 from .metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
 from .fitting import PlaneFit, SphereFit, SphereFits, fit_plane, fit_sphere, fit_spheres
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
-from .acquire import Recorder
 from .errors import AcquisitionError, CalibrationError, ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
 from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
 from .pose import MountOffset, Pose
 from .report import KernelReport
 from .run import Run, load_truth
+
+# The acquisition, calibration, uncertainty and diagnosis modules load on
+# first use: together about 70 ms of imports that `cmmpose simulate`,
+# `compensate` or `evaluate` never need (the command line imports this
+# package first).
+__getattr__, __dir__ = lazy_attributes(__name__, {
+    "acquire": ("acquire", None),
+    "Recorder": ("acquire", "Recorder"),
+    "calibration": ("calibration", None),
+    "uncertainty": ("uncertainty", None),
+    "Diagnosis": ("diagnosis", "Diagnosis"),
+    "Model": ("diagnosis", "Model"),
+    "UserEffect": ("diagnosis", "UserEffect"),
+    "diagnose": ("diagnosis", "diagnose"),
+}, globals())
+
+if TYPE_CHECKING:
+    from . import acquire, calibration, uncertainty
+    from .acquire import Recorder
+    from .diagnosis import Diagnosis, Model, UserEffect, diagnose
 
 __all__ = [
     "__version__",

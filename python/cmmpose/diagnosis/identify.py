@@ -76,6 +76,9 @@ class Fit:
     neg2loglik: float
     rank: int
     rss: np.ndarray
+    #: The whitened design (X over each row's final sigma) reduced to the R
+    #: factors of its classes: the same inner products of columns.
+    whitened_r: np.ndarray | None = None
 
 
 class Problem:
@@ -97,6 +100,7 @@ class Problem:
         self.layout = ObservationLayout.from_run(run, self.inputs)
         self.classes = self.layout.classes
         self.n_class = np.bincount(self.classes, minlength=len(CLASSES)).astype(float)
+        self._class_rows = [np.flatnonzero(self.classes == c) for c in range(len(CLASSES))]
         # Deviations from a group mean have (k - 1) dof per k scans.
         n_groups = len(np.unique(self.layout.sphere_of_scan[self.layout.repeated]))
         self.n_eff = self.n_class.copy()
@@ -148,30 +152,46 @@ class Problem:
 
         ``ridge`` (one per column, 0 for none) adds the pseudo-observation
         ridge_j (beta_j - target_j) = 0: a weak prior that keeps directions the
-        data barely sees from wandering (not part of the likelihood)."""
+        data barely sees from wandering (not part of the likelihood).
+
+        The rows of one class share their weight in every iteration, so each
+        class enters the least squares as the R factor of the QR of
+        [X_c | r0_c] (at most one row per column) instead of its rows: the
+        block-diagonal Q has orthonormal columns, so the reduced design has the
+        singular values of the whitened one (the same rank at the same
+        ``rcond``) and the same minimiser; what of r0_c lies outside the span
+        of X_c only adds a constant to the objective."""
         cls, n_eff = self.classes, self.n_eff
         present = self.n_class > 0
-        w = np.ones(len(r0))
-        beta = np.zeros(X.shape[1])
+        k = X.shape[1]
+        blocks = []  # (class, R_c, Q_c^T r0_c)
+        if k:
+            for c in np.flatnonzero(present):
+                rows = self._class_rows[c]
+                r = np.linalg.qr(np.column_stack([X[rows], r0[rows]]), mode="r")
+                m = min(len(rows), k)
+                blocks.append((c, r[:m, :k], r[:m, k]))
+        w = np.ones(len(CLASSES))
+        beta = np.zeros(k)
         rank = 0
         for _ in range(iterations):
-            Xw = X * w[:, None]
-            rhs = -r0 * w
-            if ridge is not None:
-                Xw = np.vstack([Xw, np.diag(ridge)])
-                rhs = np.concatenate([rhs, ridge * (np.zeros(len(ridge)) if target is None else target)])
-            if X.shape[1]:
-                beta, _, rank, _ = np.linalg.lstsq(Xw, rhs, rcond=1e-10)
+            if k:
+                A = [w[c] * R for c, R, _ in blocks]
+                rhs = [-w[c] * qr0 for c, _, qr0 in blocks]
+                if ridge is not None:
+                    A.append(np.diag(ridge))
+                    rhs.append(ridge * (np.zeros(len(ridge)) if target is None else target))
+                beta, _, rank, _ = np.linalg.lstsq(np.vstack(A), np.concatenate(rhs), rcond=1e-10)
             res = r0 + X @ beta
             rss = np.bincount(cls, res ** 2, minlength=len(CLASSES))
             sigma = np.sqrt(np.maximum(rss, _RSS_FLOOR * np.maximum(n_eff, 1)) / np.maximum(n_eff, 1))
-            w = 1.0 / sigma[cls]
-        Xw = X * w[:, None]
-        cov = np.linalg.pinv(Xw.T @ Xw, rcond=1e-10) if X.shape[1] else np.zeros((0, 0))
+            w = 1.0 / sigma
+        Rw = np.vstack([w[c] * R for c, R, _ in blocks]) if blocks else np.zeros((0, k))
+        cov = np.linalg.pinv(Rw.T @ Rw, rcond=1e-10) if k else np.zeros((0, 0))
         use = present & (n_eff > 0)
         rss_f = np.maximum(rss, _RSS_FLOOR * np.maximum(n_eff, 1))
         n2ll = float(np.sum(n_eff[use] * np.log(rss_f[use] / n_eff[use])))
-        return Fit(beta, cov, res, sigma, n2ll, int(rank), rss)
+        return Fit(beta, cov, res, sigma, n2ll, int(rank), rss, Rw)
 
     def model_design(self, model) -> tuple[np.ndarray, list[tuple[str, int]]]:
         """Nuisance columns and the columns of the effects already in ``model``."""
@@ -299,15 +319,19 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
         # Marginal uncertainty of each parameter: 1 / |whitened column after
         # projecting out every other column| (exact for weighted LS); inf
         # where the run does not determine it.
+        # Projections depend only on the columns' inner products, so they are
+        # taken on the fit's reduced whitened design [X0 | J] (a few rows per
+        # column), which has the inner products of its thousands of rows.
         Wk = problem.whitened(J, fit.sigma)
-        Wm = problem.whitened(X0, fit.sigma)
+        Rf = fit.whitened_r
+        Rm, Rk = Rf[:, :X0.shape[1]], Rf[:, X0.shape[1]:]
         unc = np.empty(k)
         for j in range(k):
-            others = np.column_stack([Wm, np.delete(Wk, j, axis=1)])
-            q = np.linalg.qr(others)[0] if others.shape[1] else np.zeros((len(r0), 0))
-            rest = Wk[:, j] - q @ (q.T @ Wk[:, j])
-            s = float(rest @ rest)
-            unc[j] = np.inf if s <= 1e-10 * float(Wk[:, j] @ Wk[:, j]) or s == 0 else spec.prior[j] / math.sqrt(s)
+            others = np.column_stack([Rm, np.delete(Rk, j, axis=1)])
+            q = np.linalg.qr(others)[0] if others.shape[1] else np.zeros((len(Rf), 0))
+            rest = Rk[:, j] - q @ (q.T @ Rk[:, j])
+            s = float(np.sum(rest * rest))
+            unc[j] = np.inf if s <= 1e-10 * float(np.sum(Rk[:, j] ** 2)) or s == 0 else spec.prior[j] / math.sqrt(s)
         # Observability at the prior magnitude, against the current model only.
         Wb = problem.whitened(J, base.sigma)
         perp = Wb - q0 @ (q0.T @ Wb)

@@ -218,7 +218,8 @@ def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin
         Scan id of each point.
     """
     keep = np.isin(sid, layout.labels)
-    fits = fit_spheres(xyz[keep], sid[keep])
+    # Usually every point is on a sphere: fit in place rather than copy the run.
+    fits = fit_spheres(xyz, sid) if keep.all() else fit_spheres(xyz[keep], sid[keep])
     at = fits.positions(layout.labels)
     centres, radii, rms, form = fits.centre[at], fits.radius[at], fits.rms[at], fits.form[at]
     n_sph = len(layout.sphere_kind)

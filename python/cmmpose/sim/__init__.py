@@ -3,6 +3,9 @@ machine with exact rigid-body kinematics, extra physical effects, artefacts and
 a line scanner sweeping over them. Data with a known truth, for testing
 compensation, fitting, calibration and diagnosis."""
 
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_attributes
 from .artefacts import BALL_RADIUS, Ballbar, Plane, Sphere, reference_sphere
 from .effects import (
     AlignmentError,
@@ -27,11 +30,20 @@ from .calibration_data import (
     true_pose_and_offset,
     vernier_points,
 )
-from .interferometer import interferometer_components, simulate_interferometer_run, simulate_interferometer_runs
 from .machine import TruthMachine, temperature_series
 from .runs import simulate_ballbar_run, simulate_reference_scan
 from .scanner import ScanData, Scanner, Sweep, simulate_sweep
 from .thermocouples import CHANNELS, OPEN_CIRCUIT_READING, Fault, thermocouple_log
+
+# The interferometer simulator loads on first use: it imports the calibration
+# solvers (about 30 ms), which a simulated ballbar run never needs.
+__getattr__, __dir__ = lazy_attributes(__name__, {
+    name: ("interferometer", name)
+    for name in ("interferometer_components", "simulate_interferometer_run", "simulate_interferometer_runs")
+}, globals())
+
+if TYPE_CHECKING:
+    from .interferometer import interferometer_components, simulate_interferometer_run, simulate_interferometer_runs
 
 __all__ = [
     "TruthMachine",
