@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 import cmmpose
 from cmmpose.cli import main
+from cmmpose.diagnosis import Model
 from cmmpose.errors import InputError
 from cmmpose.machine import Machine, configurations, example_names, example_text, load_machine
 
@@ -49,8 +50,8 @@ def test_maps_keep_their_configuration_through_sets_blends_and_models(tmp_path):
     assert maps.at(22.5).kinematics == "horizontal-arm"
     assert all(m.kinematics == "horizontal-arm" for m in maps.maps)
     assert "horizontal-arm" in repr(maps)
-    model = cmmpose.diagnosis.Model(maps)
-    back = cmmpose.diagnosis.Model.load(model.save(tmp_path / "model.json"))
+    model = Model(maps)
+    back = Model.load(model.save(tmp_path / "model.json"))
     assert back.maps.kinematics == "horizontal-arm"
     with pytest.raises(InputError, match="unknown configuration .cantilever."):
         maps.with_kinematics("cantilever")
@@ -89,7 +90,7 @@ def test_the_configuration_changes_the_compensation_by_its_arms():
         (lambda t: t.replace('bundled = "thesis"', 'bundled = "thesis"\nfiles = ["a.csv"]'), r"\[maps\] needs one"),
         (lambda t: t.replace('bundled = "thesis"', 'files = ["nowhere.csv"]'), "no such file"),
         (lambda t: t.replace('GB = "granite_bottom"', 'GB = "basement"'), "'basement' is not a known role"),
-        (lambda t: t.replace("noise_um = 8.0", "noise_um = -1.0"), "noise_um: expected a number >= 0"),
+        (lambda t: t.replace("noise_um = 8.0", "noise_um = -1.0"), "noise_um: must be finite and >= 0"),
         (lambda t: t.replace("profile_rate_hz = 6.6", "profile_rate_hz = true"), "profile_rate_hz"),
         (lambda t: t.replace("points_per_profile = 1024", "points_per_profile = 10.5"), "points_per_profile"),
         (lambda t: t.replace("offset_mm = [1.001, 264.505, 129.575]", "offset_mm = [1.0, 2.0]"), "mount.offset_mm"),

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import _core
+from ._validate import finite, nonnegative, positive, triple
 from .effects import channel_roles
 from .errormap import ErrorMap, ErrorMapSet, data_path
 from .errors import InputError
@@ -233,9 +234,9 @@ def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
                       default=defaults.v_range),
         points_per_profile=_integer(sc, "points_per_profile", f"{where}: scanner.points_per_profile",
                                     defaults.points_per_profile),
-        profile_rate=_number(sc, "profile_rate_hz", f"{where}: scanner.profile_rate_hz", defaults.profile_rate,
-                             positive=True),
-        noise=_number(sc, "noise_um", f"{where}: scanner.noise_um", defaults.noise * 1e3, nonnegative=True) * 1e-3,
+        profile_rate=_setting(sc, "profile_rate_hz", f"{where}: scanner.profile_rate_hz", defaults.profile_rate,
+                              positive),
+        noise=_setting(sc, "noise_um", f"{where}: scanner.noise_um", defaults.noise * 1e3, nonnegative) * 1e-3,
     )
     mount = doc.get("mount", {})
     offset = MountOffset(*_triple(mount, "offset_mm", f"{where}: mount.offset_mm", tuple(MountOffset.thesis())))
@@ -253,7 +254,7 @@ def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
         if role not in roles:
             raise InputError(f"{where}: thermocouples.{channel} = {role!r} is not a known role "
                              f"({', '.join(sorted(roles))})")
-    expansion = _number(doc.get("expansion", {}), "artefact", f"{where}: expansion.artefact", 12.0) * 1e-6
+    expansion = _setting(doc.get("expansion", {}), "artefact", f"{where}: expansion.artefact", 12.0) * 1e-6
     machine = Machine(name=name, kinematics=kinematics, travel=travel, map_files=files, bundled_maps=bundled,
                       scanner=scanner, offset=offset, pose=pose, alignments=alignments, thermocouples=dict(tc),
                       artefact_expansion=expansion, source=where)
@@ -295,12 +296,9 @@ def _real(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _number(table: dict, key: str, where: str, default: float, *, positive=False, nonnegative=False) -> float:
-    value = table.get(key, default)
-    if not _real(value) or (positive and value <= 0) or (nonnegative and value < 0):
-        need = "a positive number" if positive else "a number >= 0" if nonnegative else "a finite number"
-        raise InputError(f"{where}: expected {need}, got {value!r}")
-    return float(value)
+def _setting(table: dict, key: str, where: str, default: float, check=finite) -> float:
+    """``table[key]`` (or ``default``) through one of the package's checks."""
+    return check(where, table.get(key, default))
 
 
 def _integer(table: dict, key: str, where: str, default: int) -> int:
@@ -322,8 +320,4 @@ def _pair(table: dict, key: str, where: str, *, increasing: bool, default=None) 
 
 
 def _triple(table: dict, key: str, where: str, default) -> tuple[float, float, float]:
-    value = table.get(key, default)
-    if not (isinstance(value, (list, tuple)) and len(value) == 3 and all(map(_real, value))):
-        raise InputError(f"{where}: expected three numbers, got {value!r}")
-    return float(value[0]), float(value[1]), float(value[2])
-
+    return triple(where, table.get(key, default))
