@@ -5,7 +5,8 @@ Units throughout: mm for positions and results, um and arc-seconds in error
 map tables, degrees for pose angles, degrees C for temperatures.
 """
 
-from . import mapfiles, controller  # noqa: F401  (each registers its map file format, cmmpose.mapformats)
+from . import mapfiles, controller, iso230  # noqa: F401  (each registers its map file format, cmmpose.mapformats)
+from . import linuxcnc  # noqa: F401  (LinuxCNC compensation tables: one file per axis, not a registered format)
 from . import acquire, calibration, layouts, uncertainty
 from ._core import __version__, thread_count
 from .compensation import compensate, uncompensated
