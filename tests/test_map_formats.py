@@ -19,9 +19,10 @@ APPENDIX_B = cmmpose.data_path("errors_1102.txt")
 
 
 def test_registry_lists_the_formats():
-    assert mapformats.names() == ["csv", "controller"]
+    assert mapformats.names() == ["csv", "controller", "iso230-2"]
     assert mapformats.get("csv").write is not None
     assert mapformats.get("controller").write is None  # read only
+    assert mapformats.get("iso230-2").write is not None
     assert all(mapformats.get(n).description for n in mapformats.names())
 
 
@@ -58,7 +59,7 @@ def test_each_module_imports_alone(module):
     code = f"import {module}; from cmmpose import mapformats; print(','.join(mapformats.names()))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "csv,controller"
+    assert out.stdout.strip() == "csv,controller,iso230-2"
 
 
 def imported_modules(name):
@@ -75,7 +76,7 @@ def imported_modules(name):
 
 
 def test_no_import_cycle_between_errormap_and_the_format_modules():
-    assert not imported_modules("errormap") & {"mapfiles", "controller"}
+    assert not imported_modules("errormap") & {"mapfiles", "controller", "iso230", "linuxcnc", "linearaxis"}
     assert imported_modules("mapformats") == {"errors"}
-    for fmt in ("mapfiles", "controller"):
+    for fmt in ("mapfiles", "controller", "iso230"):
         assert {"errormap", "mapformats"} <= imported_modules(fmt)

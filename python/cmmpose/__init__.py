@@ -7,7 +7,8 @@ map tables, degrees for pose angles, degrees C for temperatures.
 
 from typing import TYPE_CHECKING
 
-from . import mapfiles, controller  # noqa: F401  (each registers its map file format, cmmpose.mapformats)
+from . import mapfiles, controller, iso230  # noqa: F401  (each registers its map file format, cmmpose.mapformats)
+from . import linuxcnc  # noqa: F401  (LinuxCNC compensation tables: one file per axis, not a registered format)
 from . import layouts
 from ._core import __version__, thread_count
 from ._lazy import lazy_attributes

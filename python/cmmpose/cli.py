@@ -728,5 +728,146 @@ def machine_configurations_cmd() -> None:
     Console().print(table)
 
 
+# -- cmmpose map: exchange of linear-axis results (docs/formats.md) ------------------------------
+# It uses this module's `main`, `console` and `fail` (and click, Path); its library imports are
+# local, so that a reorganisation of the imports above leaves it alone.
+
+_MAP_IMPORT_FORMATS = ("iso230-2", "linuxcnc")
+_MAP_EXPORT_FORMATS = ("csv", "iso230-2", "linuxcnc")
+
+
+def _map_spec(spec: str, what: str):
+    """One map: 'appendix-b', 'thesis@T' (the bundled set at T degrees C) or a map file of any registered format."""
+    from .errormap import ErrorMap, ErrorMapSet
+
+    if spec == "appendix-b":
+        return ErrorMap.appendix_b()
+    if spec.startswith("thesis@"):
+        try:
+            t = float(spec.split("@", 1)[1])
+        except ValueError:
+            raise click.BadParameter(f"expected thesis@<temperature C>, got {spec!r}", param_hint=what) from None
+        return ErrorMapSet.thesis().at(t)
+    return ErrorMap.read(spec, format="auto")
+
+
+class _ConsoleLog:
+    """Library log lines (level INFO and above) printed as notes while a map command runs."""
+
+    def __enter__(self):
+        import logging
+
+        from rich.markup import escape
+
+        class Handler(logging.Handler):
+            def emit(self, record):
+                level = "warning" if record.levelno >= logging.WARNING else "note"
+                console.print(f"{level}: {escape(record.getMessage())}")
+
+        self.logger = logging.getLogger("cmmpose")
+        self.handler = Handler(logging.INFO)
+        self.level = self.logger.level
+        self.logger.addHandler(self.handler)
+        if self.logger.getEffectiveLevel() > logging.INFO:
+            self.logger.setLevel(logging.INFO)
+        return self
+
+    def __exit__(self, *exc):
+        self.logger.removeHandler(self.handler)
+        self.logger.setLevel(self.level)
+        return False
+
+
+@main.group("map")
+def map_group() -> None:
+    """Import and export linear-axis results (ISO 230-2 style CSV, LinuxCNC compensation files)."""
+
+
+@map_group.command("import")
+@click.argument("fmt", metavar="FORMAT", type=click.Choice(_MAP_IMPORT_FORMATS))
+@click.argument("files", metavar="FILE...", nargs=-1, required=True)
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
+@click.option("--base", default=None,
+              help="Replace only the linear components of this map ('appendix-b', 'thesis@T' or a map file); "
+                   "the results are interpolated onto its grid.")
+@click.option("--temperature", type=float, default=None, help="Map temperature, C (default: the base's, else none).")
+@click.option("--comp-file-type", type=click.Choice(["0", "1"]), default="0", show_default=True,
+              help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
+@click.option("--units", type=click.Choice(["mm", "inch"]), default="mm", show_default=True,
+              help="linuxcnc: machine units of the files.")
+@click.option("--hold-ends", is_flag=True, help="With --base: hold the end values where its grid runs beyond the targets.")
+def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, hold_ends) -> None:
+    """Build a canonical map from linear-axis results in FORMAT.
+
+    iso230-2: one CSV file. linuxcnc: one AXIS=FILE per axis, e.g. X=x.comp Y=y.comp.
+    The map keeps the mean of the two approach directions; axes without results
+    are zero (or, with --base, keep the base's component).
+    """
+    from .errors import Error
+    from .iso230 import read_iso230
+    from .linuxcnc import read_comp_files
+
+    try:
+        base_map = None if base is None else _map_spec(base, "--base")
+        with _ConsoleLog():
+            if fmt == "iso230-2":
+                if len(files) != 1:
+                    raise click.UsageError(f"iso230-2 takes one FILE, got {len(files)}")
+                built = read_iso230(files[0], base=base_map, temperature=temperature, hold_ends=hold_ends)
+            else:
+                pairs = {}
+                for item in files:
+                    axis, sep, path = item.partition("=")
+                    if not sep or not path or axis.upper() not in ("X", "Y", "Z"):
+                        raise click.BadParameter(f"expected AXIS=FILE with AXIS X, Y or Z, got {item!r}",
+                                                 param_hint="FILE")
+                    if axis.upper() in pairs:
+                        raise click.BadParameter(f"axis {axis.upper()} given twice", param_hint="FILE")
+                    pairs[axis.upper()] = path
+                built = read_comp_files(pairs, comp_file_type=int(comp_file_type), units=units, base=base_map,
+                                        temperature=temperature, hold_ends=hold_ends)
+        built.write(out)
+    except Error as exc:
+        raise fail(exc) from None
+    console.print(f"wrote {out}: {built!r}")
+
+
+@map_group.command("export")
+@click.argument("map_spec", metavar="MAP")
+@click.option("--format", "fmt", type=click.Choice(_MAP_EXPORT_FORMATS), required=True,
+              help="Format to write (linuxcnc: one file per axis in the directory OUT).")
+@click.option("-o", "--output", "out", required=True, type=click.Path(), help="File to write (linuxcnc: a directory).")
+@click.option("--comp-file-type", type=click.Choice(["0", "1"]), default="0", show_default=True,
+              help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
+@click.option("--units", type=click.Choice(["mm", "inch"]), default="mm", show_default=True,
+              help="linuxcnc: machine units to write.")
+def map_export_cmd(map_spec, fmt, out, comp_file_type, units) -> None:
+    """Write the linear components of MAP ('appendix-b', 'thesis@T' or a map file) in FORMAT.
+
+    iso230-2 and linuxcnc carry delta_x of X, delta_y of Y and delta_z of Z only,
+    the same value in both approach directions; linuxcnc writes x.comp, y.comp
+    and z.comp into the directory OUT.
+    """
+    from .errors import Error
+    from .linuxcnc import write_comp_files
+
+    try:
+        source = _map_spec(map_spec, "MAP")
+        if fmt == "linuxcnc":
+            folder = Path(out)
+            folder.mkdir(parents=True, exist_ok=True)
+            files = {a: folder / f"{a.lower()}.comp" for a in ("X", "Y", "Z")}
+            write_comp_files(source, files, comp_file_type=int(comp_file_type), units=units)
+            written = ", ".join(str(p) for p in files.values())
+        else:
+            source.write(out, format=fmt)
+            written = out
+    except Error as exc:
+        raise fail(exc) from None
+    except OSError as exc:
+        raise click.ClickException(f"{out}: {exc.strerror or exc}") from None
+    console.print(f"wrote {written}")
+
+
 if __name__ == "__main__":
     main()

@@ -67,7 +67,7 @@ class ErrorMap:
         """Read a map file: by default the canonical CSV format (docs/formats.md).
 
         ``format`` names a registered map file format (:mod:`cmmpose.mapformats`:
-        ``'csv'``, ``'controller'``), or ``'auto'`` for the one that recognises
+        ``'csv'``, ``'controller'``, ``'iso230-2'``), or ``'auto'`` for the one that recognises
         the file; ``options`` go to that format's reader.
         """
         return mapformats.read(path, format, **options)
