@@ -256,10 +256,13 @@ def _parquet_chunks(path: Path, chunk: int, size: int):
                 if column.null_count:
                     row = first + int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
                     raise InputError(f"{path}: column {c!r}, row {row}: empty (null)")
-            a = np.column_stack([batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64, copy=False)
-                                 for c in cols]) if batch.num_rows else np.zeros((0, len(cols)))
+            # Straight into the kernel's arrays: one copy per column, no (N, 6) in between.
+            col = {c: batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64, copy=False) for c in cols}
+            uv = np.column_stack([col["u"], col["v"]])
+            scales = np.column_stack([col["D"], col["E"], col["F"]])
+            temps = np.ascontiguousarray(col["T"]) if has_t else None
             first += batch.num_rows
-            yield (*_split(a, has_t), int(size * first / n))
+            yield uv, scales, temps, int(size * first / n)
         if first == 0:
             yield (*_split(np.zeros((0, len(cols))), has_t), size)
     except (pa.ArrowException, OSError) as exc:
