@@ -25,6 +25,21 @@ fn map_from(f: impl Fn(usize, f64) -> [f64; 6], squareness: [f64; 3], t: Option<
     ErrorMap::new(tables, squareness, t).unwrap()
 }
 
+/// Two maps, at 20 and 25 C, that differ in every component.
+fn maps_at_20_and_25() -> (ErrorMap, ErrorMap) {
+    let lo = map_from(
+        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
+        [-173.0, -19.0, 21.0],
+        Some(20.0),
+    );
+    let hi = map_from(
+        |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
+        [-178.0, -4.0, 42.0],
+        Some(25.0),
+    );
+    (lo, hi)
+}
+
 /// Deterministic pseudo-random points inside the volume.
 fn points(n: usize) -> (Vec<f64>, Vec<f64>) {
     let mut state = 0x2545F4914F6CDD1Du64;
@@ -171,16 +186,7 @@ fn rotation_is_orthonormal_and_right_handed() {
 
 #[test]
 fn midpoint_temperature_gives_mean_of_neighbours() {
-    let lo = map_from(
-        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
-        [-173.0, -19.0, 21.0],
-        Some(20.0),
-    );
-    let hi = map_from(
-        |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
-        [-178.0, -4.0, 42.0],
-        Some(25.0),
-    );
+    let (lo, hi) = maps_at_20_and_25();
     let set = ErrorMapSet::new(vec![lo.clone(), hi.clone()]).unwrap();
     let (uv, s) = points(2000);
     let d = digitizer(90.0, 90.0, 45.0);
@@ -376,16 +382,7 @@ fn inv_sqrt_one_plus_matches_the_exact_form() {
 /// readings, with one map, a map set and several poses.
 #[test]
 fn block_paths_give_the_same_bits_as_the_rows() {
-    let lo = map_from(
-        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
-        [-173.0, -19.0, 21.0],
-        Some(20.0),
-    );
-    let hi = map_from(
-        |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
-        [-178.0, -4.0, 42.0],
-        Some(25.0),
-    );
+    let (lo, hi) = maps_at_20_and_25();
     let set = ErrorMapSet::new(vec![lo.clone(), hi]).unwrap();
     let n = 10_000;
     let (uv, s_random) = points(n);
@@ -868,16 +865,7 @@ fn profiles_reuse_the_error_state_with_the_same_bits_and_counts() {
 /// profile, as on a real scan, and must not break the runs' sharing.
 #[test]
 fn model_profiles_give_the_bits_of_single_rows() {
-    let lo = map_from(
-        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
-        [-173.0, -19.0, 21.0],
-        Some(20.0),
-    );
-    let hi = map_from(
-        |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
-        [-178.0, -4.0, 42.0],
-        Some(25.0),
-    );
+    let (lo, hi) = maps_at_20_and_25();
     let set = ErrorMapSet::new(vec![lo, hi]).unwrap();
     let n = 3000;
     let profile = |i: usize| i / 37 * 37;

@@ -267,11 +267,8 @@ mod tests {
     /// inverts its truth machine to < 1 nm (what is left is second order:
     /// angles of about 1 arc-second, (5e-6 rad)^2 x 1000 mm ~ 3e-8 mm); the
     /// thesis's arms on another machine leave a first-order error.
-    #[test]
-    fn each_configuration_inverts_its_truth_machine() {
-        let pose = Pose::new(90.0, 90.0, 30.0).unwrap();
-        let d = Digitizer::new(&pose, [1.001, 264.505, 129.575]).unwrap();
-        let n = 2000;
+    /// `n` readings (N x 3) and scan-plane points (N x 2) across the volume.
+    fn sweep(n: usize) -> (Vec<f64>, Vec<f64>) {
         let mut scales = Vec::new();
         let mut uv = Vec::new();
         for i in 0..n {
@@ -282,6 +279,15 @@ mod tests {
                 110.0 + 60.0 * (f * 5.0).fract(),
             ]);
         }
+        (scales, uv)
+    }
+
+    #[test]
+    fn each_configuration_inverts_its_truth_machine() {
+        let pose = Pose::new(90.0, 90.0, 30.0).unwrap();
+        let d = Digitizer::new(&pose, [1.001, 264.505, 129.575]).unwrap();
+        let n = 2000;
+        let (scales, uv) = sweep(n);
         let temps = vec![22.0; n];
         let columns = Columns::new().with("temperature", 1, &temps);
         let residual = |set: &ErrorMapSet, model: &ErrorMap| {
@@ -323,16 +329,7 @@ mod tests {
         let offset = [1.001, 264.505, 129.575];
         let d = Digitizer::new(&pose, offset).unwrap();
         let n = 2000;
-        let mut scales = Vec::new();
-        let mut uv = Vec::new();
-        for i in 0..n {
-            let f = i as f64 / n as f64;
-            scales.extend([900.0 * f, 550.0 * (1.0 - f), -500.0 * (f * 7.0).fract()]);
-            uv.extend([
-                -30.0 + 60.0 * (f * 13.0).fract(),
-                110.0 + 60.0 * (f * 5.0).fract(),
-            ]);
-        }
+        let (scales, uv) = sweep(n);
         let t = 22.0;
         let temps = vec![t; n];
         let tf = true_frames(
