@@ -161,3 +161,37 @@ def test_another_machine_end_to_end_from_the_command_line(tmp_path, name):
     r = cli("evaluate", tmp_path / "run", "--maps", "thesis", "--json")
     wrong = json.loads(r.output)["results"][1]["rms_accuracy_error_mm"] * 1e3
     assert wrong > 2 * after, (wrong, after)
+
+
+def test_compensate_takes_pose_and_offset_from_the_alignment_library(tmp_path):
+    from cmmpose.calibration.library import AlignmentLibrary, AlignmentRecord
+
+    pose, offset = (180.0, 90.0, 1.5), (1.2, 264.0, 130.0)
+    lib = AlignmentLibrary(tmp_path / "align.json")
+    lib.save("A180B90", AlignmentRecord(
+        pose=pose, reading=(448.999, 509.575, -155.495), offset=offset, pose_uncertainty=(0.01, 0.01, 0.001),
+        reading_uncertainty=(0.0002, 0.0002, 0.0005), offset_uncertainty=(0.02, 0.02, 0.04), temperature=21.0,
+        date="2026-11-24T12:00:00+00:00", residuals={}, note=""))
+    scan = tmp_path / "scan.csv"
+    rng = np.random.default_rng(2)
+    pts = np.column_stack([rng.uniform(-30, 30, 50), rng.uniform(-30, 30, 50), rng.uniform(100, 800, 50),
+                           rng.uniform(100, 500, 50), rng.uniform(-450, -50, 50)]).round(4)
+    scan.write_text("u,v,D,E,F\n" + "".join(",".join(map(repr, r)) + "\n" for r in pts.tolist()))
+    r = cli("compensate", scan, tmp_path / "a.npy", "--alignment", "A180B90", "--library", tmp_path / "align.json",
+            "--temperature", 22.0)
+    assert r.exit_code == 0, r.output
+    want = cmmpose.compensate(pts[:, :2], pts[:, 2:5], cmmpose.ErrorMapSet.thesis(), pose, offset, 22.0)
+    np.testing.assert_array_equal(np.load(tmp_path / "a.npy"), want)
+    # the machine file's library serves too
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_text("thesis").replace('# alignments = "alignments.json"', 'alignments = "align.json"'))
+    r = cli("compensate", scan, tmp_path / "b.npy", "--alignment", "A180B90", "--machine", machine, "--temperature", 22.0)
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(np.load(tmp_path / "b.npy"), want)
+    r = cli("compensate", scan, tmp_path / "c.npy", "--alignment", "A90B0", "--library", tmp_path / "align.json")
+    assert r.exit_code != 0 and "never aligned" in r.output and not (tmp_path / "c.npy").exists()
+    r = cli("compensate", scan, tmp_path / "c.npy", "--alignment", "A180B90")
+    assert r.exit_code != 0 and "--library" in r.output
+    r = cli("compensate", scan, tmp_path / "c.npy", "--alignment", "A180B90", "--pose", "0,0,0",
+            "--library", tmp_path / "align.json")
+    assert r.exit_code != 0 and "not both" in r.output

@@ -105,16 +105,24 @@ def main() -> None:
               help="Machine temperature in C for every point (default: the T column, if the file has one).")
 @click.option("--pose", default=None, help="alpha,beta,gamma in degrees (Euler 3-1-3). Default: the machine's.")
 @click.option("--offset", default=None, help="U1,V1,W1 mount offset in mm. Default: the machine's.")
+@click.option("--alignment", default=None,
+              help="Pose and offset from this alignment in the library (`cmmpose calibrate alignment --name`).")
+@click.option("--library", "library_file", type=click.Path(dir_okay=False), default=None,
+              help="Alignment library (JSON) for --alignment. Default: the machine file's mount.alignments.")
 @policy_options(log_hold=False)
 @click.option("--nan-policy", type=click.Choice(["raise", "propagate"]), default="raise", show_default=True)
-def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, out_of_range,
-                   temperature_tolerance, nan_policy) -> None:
+def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
+                   out_of_range, temperature_tolerance, nan_policy) -> None:
     """Compensate scanner points IN (CSV, NPY or Parquet: u, v, D, E, F[, T]) into
     machine coordinates OUT (CSV, NPY or Parquet by suffix: X, Y, Z in mm)."""
     from .machine import load_machine
 
     try:
         machine = load_machine(machine_file)
+        if alignment is not None:
+            if pose or offset:
+                raise click.UsageError("give --alignment or --pose/--offset, not both")
+            pose, offset = _aligned(alignment, library_file or machine.alignments)
     except Error as exc:
         raise fail(exc) from None
     pose_t = triple(pose, "--pose") if pose else machine.pose.as_tuple()
@@ -266,6 +274,18 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
     table.add_row("effects", ", ".join(effects) or "none")
     table.add_row("time", f"{elapsed:.2f} s")
     Console().print(table)
+
+
+def _aligned(name: str, library_file) -> tuple[str, str]:
+    """--pose and --offset text of the alignment ``name`` in the library."""
+    from .calibration.library import AlignmentLibrary
+
+    if library_file is None:
+        raise click.UsageError("--alignment needs --library FILE (or mount.alignments in the machine file)")
+    if not Path(library_file).is_file():
+        raise click.BadParameter(f"{library_file}: no such alignment library", param_hint="--library")
+    record = AlignmentLibrary(library_file).load(name)
+    return ",".join(map(repr, record.as_pose().as_tuple())), ",".join(map(repr, record.as_offset()))
 
 
 def _with_machine(run, machine, specs):
