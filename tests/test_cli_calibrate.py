@@ -71,3 +71,48 @@ def test_calibrate_alignment_and_offset_from_simulated_data(tmp_path):
     assert "U1" in res.output and "chi-square" in res.output
     res = CliRunner().invoke(main, ["calibrate", "offset", "P0", "P9", "--library", str(lib)])
     assert res.exit_code != 0 and "P9" in res.output and "never aligned" in res.output
+
+
+def test_calibrate_alignment_with_the_maps_and_a_stated_vernier_uncertainty(tmp_path):
+    """With the machine's maps the readings are compensated before alpha and
+    beta are fitted: the squareness shear no longer biases alpha. Three
+    vernier points (the thesis's procedure) need a stated uncertainty."""
+    import json
+
+    from cmmpose import sim
+    from cmmpose.calibration import STANDARD_POSES
+
+    maps = cmmpose.ErrorMapSet.thesis()
+    pose = STANDARD_POSES[0]
+    ref = sim.reference_sphere_scans([pose], maps=maps, temperature=20.0, seed=5)[0]
+    _write_uvdef(tmp_path / "ref.csv", ref.data.uv, ref.data.scales)
+    plane = sim.plane_scan(pose, maps=maps, temperature=20.0, seed=1)
+    _write_uvdef(tmp_path / "plane.csv", plane.uv, plane.scales)
+    normal = ",".join(str(x) for x in plane.plane.normal)
+    alphas = {}
+    for n in (5, 3):
+        vern = sim.vernier_points(pose, n=n, maps=maps, temperature=20.0, seed=n)
+        np.savetxt(tmp_path / f"v{n}.csv", vern.points, delimiter=",", header="x,y,z", comments="")
+    base = ["calibrate", "alignment", "--reference-scan", str(tmp_path / "ref.csv"), "--library",
+            str(tmp_path / "lib.json"), "--temperature", "20", "--json", "--plane-scan", str(tmp_path / "plane.csv"),
+            "--plane-normal", normal]
+    for label, extra in (("no map", []), ("maps", ["--maps", "thesis"])):
+        res = CliRunner().invoke(main, base + ["--vernier", str(tmp_path / "v5.csv"), "--name", label, *extra],
+                                 catch_exceptions=False)
+        assert res.exit_code == 0, res.output
+        alphas[label] = json.loads(res.output[res.output.index("{"):])["pose"][0]
+    true_alpha = pose.alpha if hasattr(pose, "alpha") else pose[0]
+    assert abs(alphas["maps"] - true_alpha) < abs(alphas["no map"] - true_alpha) / 3, alphas
+    res = CliRunner().invoke(main, ["calibrate", "alignment", "--vernier", str(tmp_path / "v5.csv"), "--reference-scan",
+                                    str(tmp_path / "ref.csv"), "--library", str(tmp_path / "lib.json"), "--name", "n"])
+    assert res.exit_code != 0 and "--plane-scan is needed" in res.output
+    res = CliRunner().invoke(main, base + ["--vernier", str(tmp_path / "v3.csv"), "--name", "three", "--maps", "thesis"])
+    assert res.exit_code != 0 and "Traceback" not in res.output
+    res = CliRunner().invoke(main, base + ["--vernier", str(tmp_path / "v3.csv"), "--name", "three", "--maps", "thesis",
+                                           "--vernier-uncertainty", "5"], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    record = json.loads(res.output)
+    assert np.isfinite(record["pose_uncertainty"][:2]).all()
+    res = CliRunner().invoke(main, base + ["--vernier", str(tmp_path / "v3.csv"), "--name", "x", "--maps", "thesis",
+                                           "--vernier-uncertainty", "-1"])
+    assert res.exit_code != 0 and "--vernier-uncertainty" in res.output

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 import warnings
 from pathlib import Path
@@ -551,24 +552,48 @@ def _xyz_points(path: str) -> np.ndarray:
 @click.option("--vernier", "vernier_file", required=True, type=click.Path(exists=True, dir_okay=False),
               help="Optical-vernier points: CSV x,y,z (mm, machine) or .npy, in order counter-clockwise seen from +w.")
 @click.option("--plane-scan", "plane_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
-              help="Scan(s) of a flat plane while moving (CSV u,v,D,E,F): one with --plane-normal, or two sweeps.")
+              help="Scan(s) of a flat plane while moving (CSV u,v,D,E,F), for gamma: one with --plane-normal, or two "
+                   "sweeps. Required to store an alignment.")
 @click.option("--plane-normal", default=None, help="Known outward normal of the scanned plane, nx,ny,nz.")
 @click.option("--reference-scan", "ref_file", default=None, type=click.Path(exists=True, dir_okay=False),
               help="Reference-sphere scan at this pose (CSV u,v,D,E,F) for D0, E0, F0.")
-@click.option("--offset", default="1.001,264.505,129.575", show_default=True, help="U1,V1,W1 mount offset in mm.")
+@click.option("--offset", default=None, help="U1,V1,W1 mount offset in mm. Default: the machine's.")
 @click.option("--name", required=True, help="Name of the indexed trunnion pose, e.g. A90B90.")
 @click.option("--library", "library_file", required=True, type=click.Path(dir_okay=False), help="Alignment library (JSON).")
-@click.option("--temperature", type=float, default=None, help="Machine temperature during the alignment, C.")
-def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, offset, name, library_file, temperature) -> None:
+@click.option("--temperature", type=float, default=None,
+              help="Machine temperature during the alignment, C (needed with a map set).")
+@machine_option
+@click.option("--maps", "maps", multiple=True,
+              help="Error maps the readings are compensated with ('thesis' or files); default: the machine's "
+                   "when --machine is given, else none (then the squareness shear biases alpha: a warning says so).")
+@click.option("--vernier-uncertainty", type=float, default=None,
+              help="Standard uncertainty of one vernier position along the normal, um (Type B). Default: from the "
+                   "fit's residuals (N - 3 degrees of freedom; three points need this option).")
+@click.option("--json", "as_json", is_flag=True, help="Print the stored record as JSON instead of the table.")
+def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, offset, name, library_file, temperature,
+                            machine_file, maps, vernier_uncertainty, as_json) -> None:
     """Align the digitizer at one trunnion pose: alpha, beta from vernier points, gamma from plane
     scans, D0 E0 F0 from a reference-sphere scan; store the result in the library."""
     from .calibration import (AlignmentLibrary, AlignmentRecord, alpha_beta_from_vernier, calibrated_pose,
                               gamma_from_plane_scan, reference_centre_reading)
+    from .machine import load_machine
 
-    offset_t = triple(offset, "--offset")
     normal = triple(plane_normal, "--plane-normal") if plane_normal else None
+    if vernier_uncertainty is not None and not (vernier_uncertainty > 0 and np.isfinite(vernier_uncertainty)):
+        raise click.BadParameter(f"expected a positive number of um, got {vernier_uncertainty}",
+                                 param_hint="--vernier-uncertainty")
     try:
-        vern = alpha_beta_from_vernier(_xyz_points(vernier_file))
+        machine = load_machine(machine_file)
+        offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
+        error_map = load_maps(maps, machine) if (maps or machine_file) else None
+        if error_map is None:
+            console.print("[yellow]warning:[/] no error map: the readings are taken as positions, and the "
+                          "squareness shear biases alpha (give --maps or --machine)")
+        elif isinstance(error_map, ErrorMapSet) and temperature is None:
+            raise click.UsageError("a map set needs --temperature (the machine's during the alignment, C)")
+        em = {"error_map": error_map, "temperature": temperature if error_map is not None else None}
+        point_u = None if vernier_uncertainty is None else vernier_uncertainty * 1e-3
+        vern = alpha_beta_from_vernier(_xyz_points(vernier_file), point_uncertainty=point_u, **em)
         pose, pose_u, gamma_u = (vern.alpha, vern.beta, 0.0), None, None
         residuals = {"vernier_rms": float(vern.fit.rms)}
         if plane_files:
@@ -576,7 +601,7 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
             uv = np.vstack([sc[0] for sc in scans])
             scales = np.vstack([sc[1] for sc in scans])
             gam = gamma_from_plane_scan(uv, scales, vern.alpha, vern.beta, normal=normal, offset=offset_t,
-                                        alpha_beta_covariance=vern.covariance)
+                                        alpha_beta_covariance=vern.covariance, **em)
             cp = calibrated_pose(vern, gam)
             pose = cp.pose.as_tuple()
             pose_u = tuple(float(x) for x in cp.uncertainty)
@@ -584,12 +609,13 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
         reading, reading_u = (float("nan"),) * 3, None
         if ref_file:
             uv, scales, _ = read_points(ref_file)
-            ref = reference_centre_reading(uv, scales, pose, offset_t)
+            ref = reference_centre_reading(uv, scales, pose, offset_t, **em)
             reading = tuple(float(x) for x in ref.reading)
             reading_u = tuple(float(x) for x in ref.uncertainty)
             residuals["sphere_rms"] = float(ref.fit.rms) if ref.fit is not None else float("nan")
-        if pose_u is None:
-            pose_u = tuple(float(x) for x in np.sqrt(np.diag(vern.covariance))) + (float("nan"),)
+        if not plane_files:
+            raise click.UsageError("--plane-scan is needed to store an alignment (gamma; with --plane-normal, or two "
+                                   "sweeps along different axes)")
         if not ref_file:
             raise click.UsageError("--reference-scan is needed to store an alignment (D0, E0, F0)")
         record = AlignmentRecord(pose=pose, reading=reading, offset=offset_t, pose_uncertainty=pose_u,
@@ -597,6 +623,9 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
         AlignmentLibrary(library_file).save(name, record)
     except Error as exc:
         raise fail(exc) from None
+    if as_json:
+        click.echo(json.dumps({"name": name, "library": str(library_file), **record.to_dict()}, indent=2))
+        return
     table = Table(title=f"alignment {name!r} -> {library_file}", show_header=False)
     table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in pose))
     table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in pose_u))
