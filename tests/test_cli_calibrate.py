@@ -1,5 +1,7 @@
 """CLI: building a map from interferometer runs, and plotting maps."""
 
+import json
+
 import numpy as np
 from click.testing import CliRunner
 
@@ -69,6 +71,12 @@ def test_calibrate_alignment_and_offset_from_simulated_data(tmp_path):
     res = CliRunner().invoke(main, ["calibrate", "offset", "P0", "P1", "P2", "--library", str(lib)], catch_exceptions=False)
     assert res.exit_code == 0, res.output
     assert "U1" in res.output and "chi-square" in res.output
+    res = CliRunner().invoke(main, ["calibrate", "offset", "P0", "P1", "P2", "--library", str(lib), "--json"],
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    fit = json.loads(res.output)
+    assert set(fit["residuals"]) == {"P0", "P1", "P2"} and np.shape(fit["covariance"]) == (3, 3)
+    assert 0 <= fit["p_value"] <= 1 and np.allclose(np.sqrt(np.diag(fit["covariance"])), fit["uncertainty"])
     res = CliRunner().invoke(main, ["calibrate", "offset", "P0", "P9", "--library", str(lib)])
     assert res.exit_code != 0 and "P9" in res.output and "never aligned" in res.output
 

@@ -639,7 +639,8 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
 @click.option("--library", "library_file", required=True, type=click.Path(exists=True, dir_okay=False))
 @click.option("--tolerance", type=float, default=4.0, show_default=True,
               help="Largest standardised residual before the alignments count as disagreeing.")
-def calibrate_offset_cmd(names, library_file, tolerance) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print the fit (offset, covariances, residuals, chi-square) as JSON.")
+def calibrate_offset_cmd(names, library_file, tolerance, as_json) -> None:
     """Mount offset U1, V1, W1 by least squares from three or more aligned poses NAMES in the library."""
     from .calibration import AlignmentLibrary, mount_offset
     from .calibration.alignment import ReferenceReading
@@ -657,6 +658,16 @@ def calibrate_offset_cmd(names, library_file, tolerance) -> None:
         fit = mount_offset(readings, tolerance=tolerance)
     except Error as exc:
         raise fail(exc) from None
+    if as_json:
+        click.echo(json.dumps({
+            "poses": list(names), "units": {"offset": "mm", "centre": "mm", "residuals": "mm"},
+            "offset": [float(v) for v in fit.offset], "covariance": np.asarray(fit.covariance).tolist(),
+            "uncertainty": [float(v) for v in fit.uncertainty], "centre": [float(v) for v in fit.centre],
+            "centre_covariance": np.asarray(fit.centre_covariance).tolist(),
+            "residuals": {n: [float(v) for v in r] for n, r in zip(names, fit.residuals)},
+            "chi2": float(fit.chi2), "dof": int(fit.dof), "p_value": float(fit.p_value),
+        }, indent=2))
+        return
     table = Table(title=f"mount offset from {', '.join(names)}")
     table.add_column("")
     table.add_column("U1 / x", justify="right")
