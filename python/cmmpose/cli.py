@@ -32,14 +32,7 @@ def load_maps(specs: tuple[str, ...], machine=None) -> ErrorMap | ErrorMapSet:
     set. With a machine: its maps when none are named, stacked as it is."""
     from .machine import read_maps
 
-    try:
-        if machine is not None:
-            return machine.maps(specs)
-        return read_maps(specs)
-    except InputError as exc:
-        if "whole set" in str(exc):
-            raise click.BadParameter("'thesis' is a whole set; give it alone", param_hint="--maps") from None
-        raise
+    return machine.maps(specs) if machine is not None else read_maps(specs)
 
 
 def machine_option(f):
@@ -529,8 +522,6 @@ def calibrate() -> None:
 
 def _xyz_points(path: str) -> np.ndarray:
     """CSV with header x,y,z (mm, machine coordinates) or an (N, 3) .npy."""
-    from .errors import InputError
-
     p = Path(path)
     if p.suffix.lower() == ".npy":
         a = np.load(p, allow_pickle=False)

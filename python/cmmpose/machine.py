@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from . import _core
@@ -32,6 +32,9 @@ from .sim.thermocouples import CHANNELS
 __all__ = ["Machine", "configurations", "example_names", "example_text", "load_machine", "read_maps"]
 
 _log = logging.getLogger(__name__)
+
+#: Where the machine comes from when no file is given.
+_DEFAULT_SOURCE = "the thesis machine (default)"
 
 #: Keys a machine file may hold, per table ('' is the top level).
 _KEYS = {
@@ -96,23 +99,25 @@ class Machine:
         Where the machine came from (a file, or the default).
     """
 
+    # No defaults here: a machine is built from a file (the thesis's is a
+    # bundled one), so the file and _parse are the one place they live.
     name: str
     kinematics: str
     travel: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
-    map_files: tuple[Path, ...] = ()
-    bundled_maps: str | None = "thesis"
-    scanner: Scanner = field(default_factory=Scanner)
-    offset: MountOffset = MountOffset.thesis()
-    pose: Pose = Pose(90.0, 90.0, 0.0)
-    alignments: Path | None = None
-    thermocouples: dict = field(default_factory=lambda: dict(CHANNELS))
-    artefact_expansion: float = 12e-6
-    source: str = "default"
+    map_files: tuple[Path, ...]
+    bundled_maps: str | None
+    scanner: Scanner
+    offset: MountOffset
+    pose: Pose
+    alignments: Path | None
+    thermocouples: dict
+    artefact_expansion: float
+    source: str
 
     @classmethod
     def thesis(cls) -> Machine:
         """The thesis machine, the default of every command."""
-        return _parse(tomllib.loads(example_text("thesis")), "the thesis machine (default)", None)
+        return _parse(tomllib.loads(example_text("thesis")), _DEFAULT_SOURCE, None)
 
     @classmethod
     def example(cls, name: str) -> Machine:
@@ -121,7 +126,8 @@ class Machine:
 
     @property
     def is_default(self) -> bool:
-        return self.source == "the thesis machine (default)"
+        """Whether no machine file was given (the thesis machine stands in)."""
+        return self.source == _DEFAULT_SOURCE
 
     def maps(self, specs=()) -> ErrorMap | ErrorMapSet:
         """The machine's error maps (or those named by ``specs``, as

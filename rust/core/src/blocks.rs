@@ -31,8 +31,9 @@ const TAN_SERIES: f64 = 1.0 / 64.0;
 /// Largest argument for which [`inv_sqrt_one_plus`](crate::kernel::inv_sqrt_one_plus) takes its series.
 const INV_SQRT_SERIES: f64 = 1e-6;
 
-/// What a compensation reads (with or without effects switched on).
-pub(crate) struct Plain<'a, S: Source> {
+/// One compensation call, as the block paths read it (with or without
+/// effects switched on).
+pub(crate) struct Call<'a, S: Source> {
     pub source: &'a S,
     /// The machine's arms (see [`crate::kinematics`]).
     pub arms: [[f64; 3]; 3],
@@ -49,7 +50,7 @@ pub(crate) struct Plain<'a, S: Source> {
     pub opts: Options,
 }
 
-impl<S: Source> Plain<'_, S> {
+impl<S: Source> Call<'_, S> {
     /// Rows `start..` into `block` (N x 3) with the profile path; `None`
     /// hands the block to the per-row path.
     #[inline(always)]

@@ -16,7 +16,7 @@ use multiversion::multiversion;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use crate::blocks::{Lanes, Plain};
+use crate::blocks::{Call, Lanes};
 use crate::effects::{Columns, Effects, MachineErrors, Temperatures};
 use crate::error::{CoreError, Result};
 use crate::map::{Components, ErrorMap};
@@ -99,38 +99,6 @@ impl Report {
         self
     }
 
-    /// What a map evaluation added to the counts since `before`.
-    #[inline(always)]
-    fn counts_since(&self, before: &Report) -> Report {
-        Report {
-            clamped_position: std::array::from_fn(|k| {
-                self.clamped_position[k] - before.clamped_position[k]
-            }),
-            clamped_temperature: self.clamped_temperature - before.clamped_temperature,
-            held_temperature: self.held_temperature - before.held_temperature,
-            extrapolated_temperature: self.extrapolated_temperature
-                - before.extrapolated_temperature,
-            max_extrapolation: if self.extrapolated_temperature > before.extrapolated_temperature {
-                self.max_extrapolation
-            } else {
-                0.0
-            },
-            ..Default::default()
-        }
-    }
-
-    /// Add the counts of one map evaluation (see `counts_since`).
-    #[inline(always)]
-    fn add_counts(&mut self, d: &Report) {
-        for k in 0..3 {
-            self.clamped_position[k] += d.clamped_position[k];
-        }
-        self.clamped_temperature += d.clamped_temperature;
-        self.held_temperature += d.held_temperature;
-        self.extrapolated_temperature += d.extrapolated_temperature;
-        self.max_extrapolation = self.max_extrapolation.max(d.max_extrapolation);
-    }
-
     /// Add the counts of one map evaluation `times` over (the rows of a run
     /// that share it), as the per-row path would count them.
     #[inline(always)]
@@ -147,73 +115,12 @@ impl Report {
         }
     }
 
-    /// Every count a map evaluation can change, summed.
-    #[inline(always)]
-    fn tally(&self) -> usize {
-        self.clamped_sum() + self.held_temperature + self.extrapolated_temperature
-    }
-
     #[inline(always)]
     fn clamped_sum(&self) -> usize {
         self.clamped_position[0]
             + self.clamped_position[1]
             + self.clamped_position[2]
             + self.clamped_temperature
-    }
-}
-
-/// The error state of the last row a block computed, keyed by the exact
-/// bits of its scale reading and temperatures, with the counts its map
-/// evaluation added to the report (re-added on a hit, so reports do not
-/// depend on the reuse). Kept small: on random readings every row misses
-/// and stores.
-#[derive(Default)]
-struct LastState {
-    key: [u64; 7],
-    valid: bool,
-    /// The rotation and position error (no effects) ...
-    pe: Option<PointError>,
-    /// ... or the interpolated components (with effects).
-    evaluated: Option<([Components; 3], [f64; 3])>,
-    counts: Option<Report>,
-}
-
-impl LastState {
-    #[inline(always)]
-    fn key(s: [f64; 3], t: &Temperatures) -> [u64; 7] {
-        [
-            s[0].to_bits(),
-            s[1].to_bits(),
-            s[2].to_bits(),
-            t.map[0].to_bits(),
-            t.map[1].to_bits(),
-            t.map[2].to_bits(),
-            t.squareness.to_bits(),
-        ]
-    }
-
-    /// Whether the row keyed `key` is the last one's; re-adds its counts.
-    #[inline(always)]
-    fn hit(&self, key: &[u64; 7], report: &mut Report) -> bool {
-        if self.valid && self.key == *key {
-            if let Some(c) = &self.counts {
-                report.add_counts(c);
-            }
-            true
-        } else {
-            false
-        }
-    }
-
-    #[inline(always)]
-    fn stored(&mut self, key: [u64; 7], report: &Report, before: &Report) {
-        self.key = key;
-        self.valid = true;
-        self.counts = if report.tally() != before.tally() {
-            Some(report.counts_since(before))
-        } else {
-            None
-        };
     }
 }
 
@@ -967,7 +874,7 @@ fn compensate_with<S: Source>(
     let (uv, idx) = (points.uv, points.pose_index);
     let profiled = has_profiles(points.scales, temperature);
     let arms = source.kinematics().arms();
-    let plain = Plain {
+    let call = Call {
         source,
         arms,
         bound: &bound,
@@ -990,64 +897,32 @@ fn compensate_with<S: Source>(
         // Inlined so that it is compiled for the chunk's SIMD target.
         #[inline(always)]
         |start, block| match (profiled, random_blocks) {
-            (true, _) => plain.profiles(start, block),
-            (false, true) => plain.random(start, block),
+            (true, _) => call.profiles(start, block),
+            (false, true) => call.random(start, block),
             (false, false) => None,
         },
         #[inline(always)]
-        |i, s, slot, report, last: &mut LastState| {
+        // Row by row (a block the block paths gave back): the same stages in
+        // the same order, so the same bits; with no effect every stage but
+        // the maps' is the identity and the mount factor is 1.
+        |i, s, slot, report, _: &mut ()| {
             let d = &digitizers[idx.map_or(0, |p| p[i] as usize)];
             let t = temperature.map_or(f64::NAN, |t| t[i]);
-            let x = if bound.is_empty() {
-                // Points of one profile share a scale reading and a temperature:
-                // their error state is computed once (the same bits).
-                let temps = Temperatures::uniform(t);
-                let pe = if !profiled {
-                    let (c, sq) = source.evaluate(i, s, &temps, &opts, report)?;
-                    PointError::new(s, &c, sq, &arms)
-                } else {
-                    let key = LastState::key(s, &temps);
-                    if last.hit(&key, report) {
-                        last.pe.expect("stored with the key")
-                    } else {
-                        let before = *report;
-                        let (c, sq) = source.evaluate(i, s, &temps, &opts, report)?;
-                        let pe = PointError::new(s, &c, sq, &arms);
-                        last.pe = Some(pe);
-                        last.stored(key, report, &before);
-                        pe
-                    }
-                };
-                Vector3::from(s) + pe.e + pe.rotate(&d.lever(uv[2 * i], uv[2 * i + 1]))
-            } else {
-                let mut p = [uv[2 * i], uv[2 * i + 1]];
-                bound.scanner_inverse(i, &mut p);
-                let mut s = s;
-                bound.reading(i, &mut s);
-                let mut temps = Temperatures::uniform(t);
-                bound.temperatures(i, &mut temps);
-                // The maps are read once per reading and temperatures; the
-                // effects' machine terms may read per-point inputs, so they run
-                // for every point.
-                let key = LastState::key(s, &temps);
-                let (components, squareness) = if profiled && last.hit(&key, report) {
-                    last.evaluated.expect("stored with the key")
-                } else {
-                    let before = *report;
-                    let ev = source.evaluate(i, s, &temps, &opts, report)?;
-                    last.evaluated = Some(ev);
-                    last.stored(key, report, &before);
-                    ev
-                };
-                let mut e = MachineErrors {
-                    components,
-                    squareness,
-                };
-                bound.machine(i, s, &mut e);
-                let pe = PointError::new(s, &e.components, e.squareness, &arms);
-                let lever = d.lever_scaled(p[0], p[1], bound.mount(i));
-                Vector3::from(s) + pe.e + pe.rotate(&lever)
+            let mut p = [uv[2 * i], uv[2 * i + 1]];
+            bound.scanner_inverse(i, &mut p);
+            let mut s = s;
+            bound.reading(i, &mut s);
+            let mut temps = Temperatures::uniform(t);
+            bound.temperatures(i, &mut temps);
+            let (components, squareness) = source.evaluate(i, s, &temps, &opts, report)?;
+            let mut e = MachineErrors {
+                components,
+                squareness,
             };
+            bound.machine(i, s, &mut e);
+            let pe = PointError::new(s, &e.components, e.squareness, &arms);
+            let lever = d.lever_scaled(p[0], p[1], bound.mount(i));
+            let x = Vector3::from(s) + pe.e + pe.rotate(&lever);
             if !(x.x.is_finite() && x.y.is_finite() && x.z.is_finite()) {
                 return Err(overflow(i));
             }

@@ -25,8 +25,8 @@ fn map_from(f: impl Fn(usize, f64) -> [f64; 6], squareness: [f64; 3], t: Option<
     ErrorMap::new(tables, squareness, t).unwrap()
 }
 
-/// Two maps, at 20 and 25 C, that differ in every component.
-fn maps_at_20_and_25() -> (ErrorMap, ErrorMap) {
+/// Two maps, at 20 C and `t_hi`, that differ in every component.
+fn two_maps_at(t_hi: f64) -> (ErrorMap, ErrorMap) {
     let lo = map_from(
         |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
         [-173.0, -19.0, 21.0],
@@ -35,7 +35,7 @@ fn maps_at_20_and_25() -> (ErrorMap, ErrorMap) {
     let hi = map_from(
         |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
         [-178.0, -4.0, 42.0],
-        Some(25.0),
+        Some(t_hi),
     );
     (lo, hi)
 }
@@ -186,7 +186,7 @@ fn rotation_is_orthonormal_and_right_handed() {
 
 #[test]
 fn midpoint_temperature_gives_mean_of_neighbours() {
-    let (lo, hi) = maps_at_20_and_25();
+    let (lo, hi) = two_maps_at(25.0);
     let set = ErrorMapSet::new(vec![lo.clone(), hi.clone()]).unwrap();
     let (uv, s) = points(2000);
     let d = digitizer(90.0, 90.0, 45.0);
@@ -382,7 +382,7 @@ fn inv_sqrt_one_plus_matches_the_exact_form() {
 /// readings, with one map, a map set and several poses.
 #[test]
 fn block_paths_give_the_same_bits_as_the_rows() {
-    let (lo, hi) = maps_at_20_and_25();
+    let (lo, hi) = two_maps_at(25.0);
     let set = ErrorMapSet::new(vec![lo.clone(), hi]).unwrap();
     let n = 10_000;
     let (uv, s_random) = points(n);
@@ -473,16 +473,7 @@ use crate::effects::Effects;
 use crate::truth::true_frames;
 
 fn two_maps() -> ErrorMapSet {
-    let lo = map_from(
-        |a, p| [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0],
-        [-173.0, -19.0, 21.0],
-        Some(20.0),
-    );
-    let hi = map_from(
-        |a, p| [p / 40.0, -(a as f64), 3.0, 1.5, 0.5, -p / 300.0],
-        [-178.0, -4.0, 42.0],
-        Some(30.0),
-    );
+    let (lo, hi) = two_maps_at(30.0);
     ErrorMapSet::new(vec![lo, hi]).unwrap()
 }
 
@@ -865,7 +856,7 @@ fn profiles_reuse_the_error_state_with_the_same_bits_and_counts() {
 /// profile, as on a real scan, and must not break the runs' sharing.
 #[test]
 fn model_profiles_give_the_bits_of_single_rows() {
-    let (lo, hi) = maps_at_20_and_25();
+    let (lo, hi) = two_maps_at(25.0);
     let set = ErrorMapSet::new(vec![lo, hi]).unwrap();
     let n = 3000;
     let profile = |i: usize| i / 37 * 37;
