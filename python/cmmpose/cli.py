@@ -17,7 +17,7 @@ from rich.table import Table
 from . import effects as effects_registry
 from .compensation import compensate, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import Error, InputError, MapTemperatureWarning
+from .errors import CalibrationError, Error, InputError, MapTemperatureWarning
 from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
 from .metrics import STEEL_EXPANSION
@@ -268,6 +268,68 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
     table.add_row("effects", ", ".join(effects) or "none")
     table.add_row("time", f"{elapsed:.2f} s")
     Console().print(table)
+
+
+@main.command("simulate-alignment")
+@machine_option
+@click.option("--pose", "pose_text", required=True, help="Nominal pose alpha,beta,gamma of the trunnion stop, degrees.")
+@click.option("--name", required=True, help="Name of the pose, e.g. A90B90: the files are NAME-vernier.csv, ...")
+@click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
+@click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
+              help="What the calibration should find, e.g. alignment:alpha=0.03 or mount-offset:u=0.02 "
+                   "(`cmmpose effects`); repeatable.")
+@click.option("--vernier-points", type=click.IntRange(3), default=3, show_default=True,
+              help="Optical-vernier positions (the thesis uses 3).")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Folder for the measurement files.")
+def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, vernier_points, seed, out_dir) -> None:
+    """Simulate the measurements that align the scanner at one pose (thesis chapter 4): optical-vernier
+    positions, a plane scan and a reference-sphere scan, as `cmmpose calibrate alignment` reads them.
+
+    Writes NAME-vernier.csv (x,y,z, mm), NAME-plane.csv and NAME-sphere.csv (u,v,D,E,F, mm) and
+    NAME-truth.json (the plane's normal, the true pose, reading and offset), and prints the command
+    that calibrates from them."""
+    from .machine import load_machine
+    from .sim import parse_effect
+    from .sim.calibration_data import VERNIER_NOISE, plane_scan, reference_sphere_scans, vernier_points as vernier
+
+    nominal = triple(pose_text, "--pose")
+    try:
+        machine = load_machine(machine_file)
+        parsed = [parse_effect(e) for e in effects]
+        maps = machine.maps()
+        offset = tuple(machine.offset)
+        rng = np.random.default_rng(seed)
+        common = {"maps": maps, "temperature": temperature, "effects": parsed}
+        v = vernier(nominal, offset, n=vernier_points, seed=rng, **common)
+        plane = plane_scan(nominal, offset, scanner=machine.scanner, seed=rng, **common)
+        sphere = reference_sphere_scans([nominal], offset, scanner=machine.scanner,
+                                        seed=int(rng.integers(1 << 30)), **common)[0]
+        folder = Path(out_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        files = {k: folder / f"{name}-{k}.csv" for k in ("vernier", "plane", "sphere")}
+        np.savetxt(files["vernier"], v.points, delimiter=",", header="x,y,z", comments="", fmt="%.9f")
+        for k, d in (("plane", plane), ("sphere", sphere.data)):
+            np.savetxt(files[k], np.column_stack([d.uv, d.scales]), delimiter=",", header="u,v,D,E,F",
+                       comments="", fmt="%.9f")
+        normal = [float(c) for c in plane.plane.normal]
+        truth = {"units": {"pose": "degree", "reading": "mm", "offset": "mm", "vernier_uncertainty": "um"},
+                 "nominal_pose": list(nominal), "plane_normal": normal,
+                 "true_pose": [float(c) for c in sphere.true_pose], "true_reading": [float(c) for c in sphere.true_reading],
+                 "true_offset": [float(c) for c in sphere.true_offset], "vernier_uncertainty": VERNIER_NOISE * 1e3,
+                 "temperature": temperature, "effects": list(effects), "seed": seed}
+        (folder / f"{name}-truth.json").write_text(json.dumps(truth, indent=2), encoding="utf-8")
+    except Error as exc:
+        raise fail(exc) from None
+    for f in files.values():
+        console.print(f"wrote {f}")
+    machine_arg = f" --machine {machine_file}" if machine_file else " --maps thesis"
+    console.print("calibrate with:\n  cmmpose calibrate alignment" + machine_arg
+                  + f" --temperature {temperature:g} --vernier {files['vernier']} --vernier-uncertainty "
+                  f"{VERNIER_NOISE * 1e3:g} --plane-scan {files['plane']} --plane-normal "
+                  + ",".join(f"{c + 0.0:.6g}" for c in normal) + f" --reference-scan {files['sphere']} --name {name} "
+                  "--library LIBRARY", soft_wrap=True)
 
 
 def _aligned(name: str, library_file) -> tuple[str, str]:
@@ -570,6 +632,11 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
     from .machine import load_machine
 
     normal = triple(plane_normal, "--plane-normal") if plane_normal else None
+    if not plane_files:
+        raise click.UsageError("--plane-scan is needed to store an alignment (gamma; with --plane-normal, or two "
+                               "sweeps along different axes)")
+    if not ref_file:
+        raise click.UsageError("--reference-scan is needed to store an alignment (D0, E0, F0)")
     if vernier_uncertainty is not None and not (vernier_uncertainty > 0 and np.isfinite(vernier_uncertainty)):
         raise click.BadParameter(f"expected a positive number of um, got {vernier_uncertainty}",
                                  param_hint="--vernier-uncertainty")
@@ -585,32 +652,17 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
         em = {"error_map": error_map, "temperature": temperature if error_map is not None else None}
         point_u = None if vernier_uncertainty is None else vernier_uncertainty * 1e-3
         vern = alpha_beta_from_vernier(_xyz_points(vernier_file), point_uncertainty=point_u, **em)
-        pose, pose_u, gamma_u = (vern.alpha, vern.beta, 0.0), None, None
-        residuals = {"vernier_rms": float(vern.fit.rms)}
-        if plane_files:
-            scans = [read_points(f) for f in plane_files]
-            uv = np.vstack([sc[0] for sc in scans])
-            scales = np.vstack([sc[1] for sc in scans])
-            gam = gamma_from_plane_scan(uv, scales, vern.alpha, vern.beta, normal=normal, offset=offset_t,
-                                        alpha_beta_covariance=vern.covariance, **em)
-            cp = calibrated_pose(vern, gam)
-            pose = cp.pose.as_tuple()
-            pose_u = tuple(float(x) for x in cp.uncertainty)
-            residuals["plane_rms"] = float(gam.rms)
-        reading, reading_u = (float("nan"),) * 3, None
-        if ref_file:
-            uv, scales, _ = read_points(ref_file)
-            ref = reference_centre_reading(uv, scales, pose, offset_t, **em)
-            reading = tuple(float(x) for x in ref.reading)
-            reading_u = tuple(float(x) for x in ref.uncertainty)
-            residuals["sphere_rms"] = float(ref.fit.rms) if ref.fit is not None else float("nan")
-        if not plane_files:
-            raise click.UsageError("--plane-scan is needed to store an alignment (gamma; with --plane-normal, or two "
-                                   "sweeps along different axes)")
-        if not ref_file:
-            raise click.UsageError("--reference-scan is needed to store an alignment (D0, E0, F0)")
-        record = AlignmentRecord(pose=pose, reading=reading, offset=offset_t, pose_uncertainty=pose_u,
-                                 reading_uncertainty=reading_u, temperature=temperature, residuals=residuals)
+        scans = [read_points(f) for f in plane_files]
+        gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
+                                    vern.alpha, vern.beta, normal=normal, offset=offset_t,
+                                    alpha_beta_covariance=vern.covariance, **em)
+        cp = calibrated_pose(vern, gam)
+        uv, scales, _ = read_points(ref_file)
+        # The pose's covariance goes into the reading through its Jacobian; the
+        # record keeps both apart (reading_uncertainty is the reading's own).
+        ref = reference_centre_reading(uv, scales, cp.pose, offset_t, pose_covariance=cp.covariance, **em)
+        residuals = {"vernier_rms": float(vern.fit.rms), "plane_rms": float(gam.rms)}
+        record = AlignmentRecord.from_calibration(cp, ref, offset_t, temperature=temperature, residuals=residuals)
         AlignmentLibrary(library_file).save(name, record)
     except Error as exc:
         raise fail(exc) from None
@@ -618,10 +670,12 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
         click.echo(json.dumps({"name": name, "library": str(library_file), **record.to_dict()}, indent=2))
         return
     table = Table(title=f"alignment {name!r} -> {library_file}", show_header=False)
-    table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in pose))
-    table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in pose_u))
-    table.add_row("D0, E0, F0 (mm)", ", ".join(f"{v:.4f}" for v in reading))
-    table.add_row("u (mm)", ", ".join(f"{v:.4f}" for v in reading_u))
+    table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in record.pose))
+    table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in record.pose_uncertainty))
+    table.add_row("D0, E0, F0 (mm)", ", ".join(f"{v:.4f}" for v in record.reading))
+    table.add_row("u, the reading's own (mm)", ", ".join(f"{v:.4f}" for v in record.reading_uncertainty))
+    total = np.sqrt(np.diag(ref.covariance))
+    table.add_row("u, with the pose's (mm)", ", ".join(f"{v:.4f}" for v in total))
     Console().print(table)
 
 
@@ -634,18 +688,15 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
 def calibrate_offset_cmd(names, library_file, tolerance, as_json) -> None:
     """Mount offset U1, V1, W1 by least squares from three or more aligned poses NAMES in the library."""
     from .calibration import AlignmentLibrary, mount_offset
-    from .calibration.alignment import ReferenceReading
 
     try:
         lib = AlignmentLibrary(library_file)
         readings = []
         for n in names:
-            rec = lib.load(n)
-            if rec.reading_uncertainty is None:
-                raise click.UsageError(f"alignment {n!r} has no reading uncertainty")
-            pose_cov = np.diag(np.nan_to_num(np.square(rec.pose_uncertainty or (0.0, 0.0, 0.0))))
-            readings.append(ReferenceReading.from_reading(rec.pose, rec.reading, rec.reading_uncertainty,
-                                                          pose_covariance=pose_cov))
+            try:  # the solver's reading back: full pose covariance, its Jacobian, the lever
+                readings.append(lib.load(n).reference_reading())
+            except CalibrationError as exc:
+                raise CalibrationError(f"{library_file}: alignment {n!r}: {exc}") from None
         fit = mount_offset(readings, tolerance=tolerance)
     except Error as exc:
         raise fail(exc) from None
