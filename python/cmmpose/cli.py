@@ -47,6 +47,16 @@ def machine_row(table, machine) -> None:
     table.add_row("machine", f"{machine.name} ({machine.kinematics}; {machine.source})")
 
 
+def travel_notes(machine, built) -> list[str]:
+    """Where a map misses the machine's travel (a point there cannot be compensated)."""
+    notes = []
+    for axis, (lo, hi), (mlo, mhi) in zip("XYZ", machine.travel, built.ranges):
+        if lo < mlo - 1e-9 or hi > mhi + 1e-9:
+            notes.append(f"the map covers {axis} {mlo:g}..{mhi:g} mm, less than {machine.name}'s travel "
+                         f"{lo:g}..{hi:g} mm ({machine.source}): points beyond it cannot be compensated")
+    return notes
+
+
 def triple(text: str, name: str) -> tuple[float, float, float]:
     try:
         vals = tuple(float(x) for x in text.split(","))
@@ -494,20 +504,26 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default="cmmpose-demo", show_default=True,
               help="Folder for the run, JSON, CSV and plots.")
-def demo_cmd(temperature, seed, report_dir) -> None:
-    """Simulate the default B89 ballbar run on the bundled thesis maps and evaluate it
-    uncompensated and compensated: the error falls from about 70 um to the noise floor."""
+@machine_option
+def demo_cmd(temperature, seed, report_dir, machine_file) -> None:
+    """Simulate the default B89 ballbar run on the bundled thesis maps (or the machine's) and evaluate
+    it uncompensated and compensated: the error falls from about 70 um to the noise floor."""
     from .evaluation import evaluate
+    from .machine import load_machine
     from .sim import simulate_ballbar_run
 
     start = time.perf_counter()
-    maps = ErrorMapSet.thesis()
     try:
+        machine = load_machine(machine_file)
+        maps = load_maps((), machine)
+        console.print(f"machine: {machine.name} ({machine.kinematics}; {machine.source})")
         with Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.completed}/{task.total} sweeps"),
                       console=console) as bar:
             task = bar.add_task("", total=None)
-            run, truth = simulate_ballbar_run(maps, temperature, seed=seed,
+            run, truth = simulate_ballbar_run(maps, temperature, seed=seed, scanner=machine.scanner,
+                                              offset=tuple(machine.offset),
                                               progress=lambda d, n: bar.update(task, completed=d, total=n))
+        run = _with_machine(run, machine, ())
         report = Path(report_dir)
         run.save(report / "run", truth=truth, overwrite=True)
         ev = evaluate(run, maps, temperature)
@@ -515,8 +531,9 @@ def demo_cmd(temperature, seed, report_dir) -> None:
     except Error as exc:
         raise fail(exc) from None
     Console().print(ev)
-    console.print(f"{run.n_points:,} points, 40 spheres, {time.perf_counter() - start:.1f} s; "
-                  f"thesis (Table 19, 20 C): 73.2 um uncompensated, 12.8 um compensated")
+    thesis = ("; thesis (Table 19, 20 C): 73.2 um uncompensated, 12.8 um compensated" if machine.is_default
+              else "")
+    console.print(f"{run.n_points:,} points, 40 spheres, {time.perf_counter() - start:.1f} s{thesis}")
     for f in [report / "run", *files]:
         console.print(f"wrote {f}")
 
@@ -528,8 +545,9 @@ def demo_cmd(temperature, seed, report_dir) -> None:
 @click.option("--duration", type=float, default=None, help="Seconds to record (default: until Ctrl-C).")
 @click.option("--plan", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Plan JSON: scans, poses, channels, artefact, maps (docs/protocols.md).")
-@click.option("--pose", default="90,90,0", show_default=True, help="alpha,beta,gamma in degrees, when the plan has no poses.")
-@click.option("--offset", default="1.001,264.505,129.575", show_default=True, help="U1,V1,W1 in mm, when the plan has no poses.")
+@click.option("--pose", default=None, help="alpha,beta,gamma in degrees, when the plan has no poses. Default: the machine's.")
+@click.option("--offset", default=None, help="U1,V1,W1 in mm, when the plan has no poses. Default: the machine's.")
+@machine_option
 @click.option("--tc-type", default="E", show_default=True, help="Thermocouple type.")
 @click.option("--thermo-interval", type=float, default=1.0, show_default=True, help="Seconds between logger scans.")
 @click.option("--flush-interval", type=float, default=0.2, show_default=True, help="Longest wait before records reach disk, s.")
@@ -538,12 +556,13 @@ def demo_cmd(temperature, seed, report_dir) -> None:
 @click.option("--overwrite", is_flag=True, help="Replace a recording already in RUN_DIR.")
 @click.option("--recover", is_flag=True, help="Rebuild RUN_DIR from its journal (after a crash); opens no ports.")
 @click.option("--no-display", is_flag=True, help="No live display.")
-def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, tc_type, thermo_interval, flush_interval,
-                scanner_baud, thermo_baud, overwrite, recover, no_display) -> None:
+def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, machine_file, tc_type, thermo_interval,
+                flush_interval, scanner_baud, thermo_baud, overwrite, recover, no_display) -> None:
     """Record the scanner + scales stream and the thermocouple logger into RUN_DIR
     (live display; Ctrl-C stops cleanly and closes the run)."""
     from .acquire import recover as recover_run
     from .acquire.display import record_live, summary_table
+    from .machine import load_machine
 
     try:
         if recover:
@@ -553,8 +572,11 @@ def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, tc_type,
         else:
             if not (scanner or thermo):
                 raise click.UsageError("give --scanner, --thermo or both")
+            machine = load_machine(machine_file)
+            pose_t = triple(pose, "--pose") if pose else machine.pose.as_tuple()
+            offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
             run = record_live(run_dir, scanner, thermo, duration=duration, console=console, show=not no_display,
-                              plan=plan, pose=triple(pose, "--pose"), offset=triple(offset, "--offset"), tc_type=tc_type,
+                              plan=_plan_for(plan, machine, machine_file), pose=pose_t, offset=offset_t, tc_type=tc_type,
                               thermo_interval=thermo_interval, flush_interval=flush_interval,
                               scanner_baudrate=scanner_baud, thermo_baudrate=thermo_baud, overwrite=overwrite)
     except Error as exc:
@@ -562,16 +584,37 @@ def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, tc_type,
     Console().print(summary_table(run, run_dir))
 
 
+def _plan_for(plan_file, machine, machine_file):
+    """The plan to record with: the plan file's, with the machine file's
+    thermocouple channels (in the file's order, multiplexer channels 101, 102,
+    ...) where the plan lists none."""
+    from .acquire.plan import Plan
+
+    if machine_file is None:
+        return plan_file
+    plan = Plan.read(plan_file) if plan_file else Plan()
+    listed = plan_file and json.loads(Path(plan_file).read_text(encoding="utf-8")).get("temperature_channels")
+    if not listed:
+        plan.temperature_channels = [{"name": name, "role": role, "channel": 101 + k}
+                                     for k, (name, role) in enumerate(machine.thermocouples.items())]
+        plan.__post_init__()  # the same checks as a plan file's channels
+    return plan
+
+
 @main.command("plot-map")
-@click.argument("maps", nargs=-1, required=True)
+@click.argument("maps", nargs=-1)
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="PNG (or PDF, SVG) to write.")
-def plot_map_cmd(maps, out) -> None:
+@machine_option
+def plot_map_cmd(maps, out, machine_file) -> None:
     """Plot error-map components against position (like thesis Figures 3-7 to 3-18).
-    MAPS: 'thesis', 'appendix-b', or map files (several make a set)."""
+    MAPS: 'thesis', 'appendix-b', or map files (several make a set); default: the machine's."""
+    from .machine import load_machine
     from .plots import plot_error_map
 
     try:
-        plot_error_map(load_maps(tuple(maps)), out)
+        if not maps and machine_file is None:
+            raise click.UsageError("give MAPS or --machine")
+        plot_error_map(load_maps(tuple(maps), load_machine(machine_file) if machine_file else None), out)
     except Error as exc:
         raise fail(exc) from None
     console.print(f"wrote {out}")
@@ -612,7 +655,8 @@ def _xyz_points(path: str) -> np.ndarray:
               help="Reference-sphere scan at this pose (CSV u,v,D,E,F) for D0, E0, F0.")
 @click.option("--offset", default=None, help="U1,V1,W1 mount offset in mm. Default: the machine's.")
 @click.option("--name", required=True, help="Name of the indexed trunnion pose, e.g. A90B90.")
-@click.option("--library", "library_file", required=True, type=click.Path(dir_okay=False), help="Alignment library (JSON).")
+@click.option("--library", "library_file", default=None, type=click.Path(dir_okay=False),
+              help="Alignment library (JSON). Default: the machine file's mount.alignments.")
 @click.option("--temperature", type=float, default=None,
               help="Machine temperature during the alignment, C (needed with a map set).")
 @machine_option
@@ -642,6 +686,10 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
                                  param_hint="--vernier-uncertainty")
     try:
         machine = load_machine(machine_file)
+        if library_file is None:
+            if machine_file is None or machine.alignments is None:
+                raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
+            library_file = machine.alignments
         offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
         error_map = load_maps(maps, machine) if (maps or machine_file) else None
         if error_map is None:
@@ -681,15 +729,23 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
 
 @calibrate.command("offset")
 @click.argument("names", nargs=-1, required=True)
-@click.option("--library", "library_file", required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--library", "library_file", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Alignment library (JSON). Default: the machine file's mount.alignments.")
+@machine_option
 @click.option("--tolerance", type=float, default=4.0, show_default=True,
               help="Largest standardised residual before the alignments count as disagreeing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the fit (offset, covariances, residuals, chi-square) as JSON.")
-def calibrate_offset_cmd(names, library_file, tolerance, as_json) -> None:
+def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) -> None:
     """Mount offset U1, V1, W1 by least squares from three or more aligned poses NAMES in the library."""
     from .calibration import AlignmentLibrary, mount_offset
+    from .machine import load_machine
 
     try:
+        if library_file is None:
+            machine = load_machine(machine_file)
+            if machine.alignments is None:
+                raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
+            library_file = machine.alignments
         lib = AlignmentLibrary(library_file)
         readings = []
         for n in names:
@@ -731,14 +787,19 @@ def calibrate_offset_cmd(names, library_file, tolerance, as_json) -> None:
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
 @click.option("--compare", "compare_to", default=None, help="A map ('thesis@20', 'appendix-b' or a file) to compare with.")
 @click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False), help="Difference plot (with --compare).")
-def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out, compare_to, plot_path) -> None:
-    """Build an error map from raw laser-interferometer RUN_FILES (docs/interferometer.md)."""
+@machine_option
+def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out, compare_to, plot_path,
+                      machine_file) -> None:
+    """Build an error map from raw laser-interferometer RUN_FILES (docs/interferometer.md). With
+    --machine, the map is checked against the machine's travel."""
     from .calibration.interferometer import build_map, compare_maps, plot_map_difference, read_run
+    from .machine import load_machine
 
     sq = triple(squareness, "--squareness")
     try:
         runs = [read_run(f) for f in run_files]
         built = build_map(runs, sq, temperature, air_correction=not no_air_correction)
+        notes = list(built.notes) + (travel_notes(load_machine(machine_file), built.map) if machine_file else [])
         built.map.write(out)
         if compare_to:
             if compare_to.startswith("thesis@"):
@@ -754,7 +815,7 @@ def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out
                 console.print(f"wrote {plot_path}")
     except Error as exc:
         raise fail(exc) from None
-    for note in built.notes:
+    for note in notes:
         console.print(f"note: {note}")
     console.print(f"wrote {out}: {built.map!r}")
 
@@ -898,16 +959,19 @@ def map_group() -> None:
 @click.option("--units", type=click.Choice(["mm", "inch"]), default="mm", show_default=True,
               help="linuxcnc: machine units of the files.")
 @click.option("--hold-ends", is_flag=True, help="With --base: hold the end values where its grid runs beyond the targets.")
-def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, hold_ends) -> None:
+@machine_option
+def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, hold_ends, machine_file) -> None:
     """Build a canonical map from linear-axis results in FORMAT.
 
     iso230-2: one CSV file. linuxcnc: one AXIS=FILE per axis, e.g. X=x.comp Y=y.comp.
     The map keeps the mean of the two approach directions; axes without results
-    are zero (or, with --base, keep the base's component).
+    are zero (or, with --base, keep the base's component). With --machine, the
+    map is checked against the machine's travel.
     """
     from .errors import Error
     from .iso230 import read_iso230
     from .linuxcnc import read_comp_files
+    from .machine import load_machine
 
     try:
         base_map = None if base is None else _map_spec(base, "--base")
@@ -928,14 +992,17 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
                     pairs[axis.upper()] = path
                 built = read_comp_files(pairs, comp_file_type=int(comp_file_type), units=units, base=base_map,
                                         temperature=temperature, hold_ends=hold_ends)
+        notes = travel_notes(load_machine(machine_file), built) if machine_file else []
         built.write(out)
     except Error as exc:
         raise fail(exc) from None
+    for note in notes:
+        console.print(f"[yellow]warning:[/] {escape(note)}")
     console.print(f"wrote {out}: {built!r}")
 
 
 @map_group.command("export")
-@click.argument("map_spec", metavar="MAP")
+@click.argument("map_spec", metavar="MAP", required=False)
 @click.option("--format", "fmt", type=click.Choice(_MAP_EXPORT_FORMATS), required=True,
               help="Format to write (linuxcnc: one file per axis in the directory OUT).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(), help="File to write (linuxcnc: a directory).")
@@ -943,8 +1010,12 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
               help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
 @click.option("--units", type=click.Choice(["mm", "inch"]), default="mm", show_default=True,
               help="linuxcnc: machine units to write.")
-def map_export_cmd(map_spec, fmt, out, comp_file_type, units) -> None:
-    """Write the linear components of MAP ('appendix-b', 'thesis@T' or a map file) in FORMAT.
+@machine_option
+@click.option("--temperature", type=float, default=None,
+              help="With --machine and a map set: the temperature to export the map at, C.")
+def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temperature) -> None:
+    """Write the linear components of MAP ('appendix-b', 'thesis@T' or a map file) in FORMAT;
+    without MAP, the machine's map (--machine; a set at --temperature).
 
     iso230-2 and linuxcnc carry delta_x of X, delta_y of Y and delta_z of Z only,
     the same value in both approach directions; linuxcnc writes x.comp, y.comp
@@ -953,8 +1024,19 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units) -> None:
     from .errors import Error
     from .linuxcnc import write_comp_files
 
+    from .machine import load_machine
+
     try:
-        source = _map_spec(map_spec, "MAP")
+        if map_spec is not None:
+            source = _map_spec(map_spec, "MAP")
+        elif machine_file is None:
+            raise click.UsageError("give MAP or --machine")
+        else:
+            source = load_maps((), load_machine(machine_file))
+            if isinstance(source, ErrorMapSet):
+                if temperature is None:
+                    raise click.UsageError("the machine's maps are a set: give --temperature (C)")
+                source = source.at(temperature)
         if fmt == "linuxcnc":
             folder = Path(out)
             folder.mkdir(parents=True, exist_ok=True)
