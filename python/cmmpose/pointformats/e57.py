@@ -113,6 +113,8 @@ def _chunks(path, e57, headers, plans, chunk, size, add_scan_id):
     done = 0
     try:
         for k, (header, (spherical, plan, count)) in enumerate(zip(headers, plans)):
+            if count == 0:
+                continue  # libE57Format cannot read an empty compressed vector
             cap = max(min(chunk, count), 1)
             arrays = {f: np.empty(cap, dt) for f, dt in plan}
             buffers = libe57.VectorSourceDestBuffer()
@@ -192,11 +194,12 @@ class Writer(ColumnWriter):
         imf = self.e57.image_file
         fields = [(f, np.dtype(np.float64)) for f in _CARTESIAN]
         extra = {}
+        ns = NAMESPACE[0] + ":"
         for name, dt in self.schema:
             field = _e57_name(self.path, name)
             if field in ("colorRed", "colorGreen", "colorBlue", "rowIndex", "columnIndex") and dt.kind == "f":
                 raise InputError(f"{self.path}: column {name!r} must hold whole numbers for E57's {field}")
-            if field.startswith(NAMESPACE[0] + ":") and not extra:
+            if field.startswith(ns) and not any(f.startswith(ns) for f in extra.values()):
                 imf.extensionsAdd(*NAMESPACE)
             extra[name] = field
             fields.append((field, _INT64 if dt.kind in "iu" else np.dtype(np.float64)))

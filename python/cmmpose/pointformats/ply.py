@@ -167,8 +167,8 @@ class Writer(ColumnWriter):
                                      f"({v.min()}..{v.max()})")
         if self.encoding == "ascii":
             if len(xyz):
-                table = pa.table({"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
-                                  **{n: v.astype(self.dtype.fields[n][0].newbyteorder("=")) for n, v in extras.items()}})
+                native = {n: v.astype(self.dtype.fields[n][0].newbyteorder("=")) for n, v in extras.items()}
+                table = pa.table({"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], **native})
                 pa_csv.write_csv(table, self.f, pa_csv.WriteOptions(include_header=False, delimiter=" ",
                                                                     quoting_style="none"))
             return
