@@ -317,13 +317,15 @@ def scanner_points():
     return a, extras, want
 
 
+def _csv_text(cols):
+    body = np.column_stack([np.asarray(v, dtype=object) for v in cols.values()])
+    return ",".join(cols) + "\n" + "".join(",".join(str(x) for x in row) + "\n" for row in body.tolist())
+
+
 def _write_input(path: Path, a, extras):
     cols = {**{c: a[:, k] for k, c in enumerate("uvDEFT")}, **extras}
     if path.suffix == ".csv":
-        text = ",".join(cols) + "\n"
-        body = np.column_stack([np.asarray(v, dtype=object) for v in cols.values()])
-        text += "".join(",".join(str(x) for x in row) + "\n" for row in body.tolist())
-        path.write_text(text)
+        path.write_text(_csv_text(cols))
     elif path.suffix == ".npy":
         rec = np.empty(len(a), [(c, np.asarray(v).dtype) for c, v in cols.items()])
         for c, v in cols.items():
@@ -331,6 +333,8 @@ def _write_input(path: Path, a, extras):
         np.save(path, rec)
     elif path.suffix == ".parquet":
         pq.write_table(pa.table(cols), path, row_group_size=25)
+    elif path.suffix == ".xyz":
+        path.write_text(_csv_text(cols).replace(",", " "))
     elif path.suffix == ".ply":
         import plyfile
 
@@ -340,7 +344,7 @@ def _write_input(path: Path, a, extras):
         plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
 
 
-@pytest.mark.parametrize("src_suffix", [".csv", ".npy", ".parquet", ".ply"])
+@pytest.mark.parametrize("src_suffix", [".csv", ".npy", ".parquet", ".ply", ".xyz"])
 @pytest.mark.parametrize("out_suffix", [".csv", ".npy", ".parquet", ".ply"])
 def test_compensate_passes_scan_id_and_intensity_through(tmp_path, scanner_points, monkeypatch, src_suffix,
                                                          out_suffix):
@@ -357,6 +361,33 @@ def test_compensate_passes_scan_id_and_intensity_through(tmp_path, scanner_point
     np.testing.assert_array_equal(got.columns["scan_id"], extras["scan_id"])
     assert got.columns["scan_id"].dtype.kind == "i"
     np.testing.assert_array_equal(got.columns["intensity"], extras["intensity"])
+
+
+def test_a_csv_the_fast_reader_refuses_keeps_its_extra_columns(tmp_path, scanner_points, monkeypatch):
+    """scan_id read as whole numbers first; a later block the fast reader
+    refuses is read again by the strict reader, which keeps scan_id int."""
+    from cmmpose.pointformats import csv as csvformat
+
+    a, extras, want = scanner_points
+    src = tmp_path / "in.csv"
+    _write_input(src, a, extras)
+    real = csvformat.pa_csv.open_csv
+
+    def refusing(*args, **kw):
+        reader = real(*args, **kw)
+        yield next(iter(reader))
+        raise pa.ArrowInvalid("refused")
+
+    monkeypatch.setattr(csvformat.pa_csv, "open_csv", refusing)
+    monkeypatch.setattr(pointfiles, "CHUNK_POINTS", 7)
+    r = cli("compensate", src, tmp_path / "o.parquet", "--maps", "thesis", "--pose", "90,90,0", "--offset",
+            "1.001,264.505,129.575")
+    assert r.exit_code == 0, r.output
+    t = pq.read_table(tmp_path / "o.parquet")
+    assert t.schema.names == ["X", "Y", "Z", "scan_id", "intensity"] and t.schema.field("scan_id").type == pa.int64()
+    np.testing.assert_array_equal(t["scan_id"].to_numpy(), extras["scan_id"])
+    np.testing.assert_array_equal(t["intensity"].to_numpy(), extras["intensity"])
+    np.testing.assert_array_equal(np.column_stack([t[c].to_numpy() for c in "XYZ"]), want)
 
 
 def test_compensate_into_e57_and_xyz_writes_the_standard_units(tmp_path, scanner_points):

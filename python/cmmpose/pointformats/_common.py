@@ -61,7 +61,6 @@ class ColumnWriter:
     Subclasses implement ``_start()`` (after the schema is known),
     ``_write(xyz, extras)`` and ``_finish()``."""
 
-    #: The text file formats open their temporary file in binary mode too.
     def __init__(self, path: str | Path):
         self.path = check_writable(path)
         self.rows = 0
@@ -107,14 +106,15 @@ class ColumnWriter:
         Path(self.tmp).unlink(missing_ok=True)
 
     # -- for subclasses
-    def _start(self) -> None:  # pragma: no cover - every format overrides what it needs
-        pass
+    def _start(self) -> None:
+        """Write what comes before the points (a header), once the schema is known."""
 
     def _write(self, xyz: np.ndarray, extras: dict[str, np.ndarray]) -> None:
-        raise NotImplementedError
+        """Append one chunk (extras already in the schema's types)."""
+        raise NotImplementedError(f"{type(self).__name__} writes no points")
 
     def _finish(self) -> None:
-        pass
+        """Complete the file (a count in its header) before it is renamed."""
 
 
 def plain_text_names(path, names) -> None:
