@@ -291,6 +291,56 @@ def test_e57_without_cartesian_fields(tmp_path):
         read_point_cloud(path)
 
 
+def _raw_e57(path, fields, values, invalid=None):
+    """A one-scan E57 written with libE57Format: ``fields`` maps a field name
+    to a prototype node maker, ``values`` to its data."""
+    import uuid
+
+    from pye57 import E57, libe57 as lib
+
+    e = E57(str(path), mode="w")
+    imf = e.image_file
+    proto = lib.StructureNode(imf)
+    for name, make in fields.items():
+        proto.set(name, make(lib, imf))
+    scan = lib.StructureNode(imf)
+    scan.set("guid", lib.StringNode(imf, "{%s}" % uuid.uuid4()))
+    points = lib.CompressedVectorNode(imf, proto, lib.VectorNode(imf, True))
+    scan.set("points", points)
+    e.data3d.append(scan)
+    n = len(next(iter(values.values())))
+    arrays = {k: np.ascontiguousarray(v) for k, v in values.items()}
+    buffers = lib.VectorSourceDestBuffer()
+    for k, a in arrays.items():
+        buffers.append(lib.SourceDestBuffer(imf, k, a, n, True, True))
+    w = points.writer(buffers)
+    w.write(n)
+    w.close()
+    e.close()
+
+
+def test_e57_scaled_integer_and_spherical_scans_and_invalid_points(tmp_path):
+    """What scanners write: coordinates as scaled integers (0.1 mm steps), or
+    only spherical ones; points flagged invalid are dropped."""
+    scaled = {f: (lambda lib, imf: lib.ScaledIntegerNode(imf, 0, -10**6, 10**6, 1e-4, 0.0))
+              for f in ("cartesianX", "cartesianY", "cartesianZ")}
+    scaled["cartesianInvalidState"] = lambda lib, imf: lib.IntegerNode(imf, 0, 0, 2)
+    xyz = np.array([[1.2345, -0.5, 2.0], [9.9, 9.9, 9.9], [0.0001, 0.0, -3.0]])
+    _raw_e57(tmp_path / "s.e57", scaled, {"cartesianX": xyz[:, 0], "cartesianY": xyz[:, 1], "cartesianZ": xyz[:, 2],
+                                         "cartesianInvalidState": np.array([0, 2, 0], dtype="q")})
+    got = read_point_cloud(tmp_path / "s.e57")
+    np.testing.assert_allclose(got.xyz, xyz[[0, 2]] * 1000, atol=1e-9)
+    assert got.columns == {}
+
+    spherical = {f: (lambda lib, imf: lib.FloatNode(imf, 0.0, lib.E57_DOUBLE))
+                 for f in ("sphericalRange", "sphericalAzimuth", "sphericalElevation")}
+    _raw_e57(tmp_path / "r.e57", spherical, {"sphericalRange": np.array([2.0, 5.0]),
+                                            "sphericalAzimuth": np.array([0.0, np.pi / 2]),
+                                            "sphericalElevation": np.array([0.0, np.pi / 6])})
+    got = read_point_cloud(tmp_path / "r.e57")
+    np.testing.assert_allclose(got.xyz, [[2000, 0, 0], [0, 5000 * np.cos(np.pi / 6), 2500]], atol=1e-9)
+
+
 def test_an_unknown_format_name_is_refused(tmp_path):
     (tmp_path / "c.xyz").write_text("1 2 3\n")
     with pytest.raises(cmmpose.InputError, match=r"unknown point-file format 'las'; known: csv"):
