@@ -35,7 +35,7 @@ from ._common import ColumnWriter, check_file
 _log = logging.getLogger("cmmpose")
 
 #: The namespace of cmmpose's extension fields.
-NAMESPACE = ("cmmpose", "https://github.com/cmmpose/cmmpose/e57/1")
+NAMESPACE = ("cmmpose", "urn:cmmpose:e57:1")  # an identifier (a URI, as E57 asks), not a web address
 #: Standard E57 fields and the column names they are read and written under.
 _STANDARD = {"intensity": "intensity", "colorRed": "red", "colorGreen": "green", "colorBlue": "blue",
              "rowIndex": "row", "columnIndex": "column"}
