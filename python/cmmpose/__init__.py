@@ -19,6 +19,7 @@ from .fitting import PlaneFit, SphereFit, SphereFits, fit_plane, fit_sphere, fit
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import AcquisitionError, CalibrationError, ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
 from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
+from .pointclouds import PointCloud, read_point_cloud, write_point_cloud
 from .pose import MountOffset, Pose
 from .report import KernelReport
 from .run import Run, load_truth
@@ -45,6 +46,9 @@ if TYPE_CHECKING:
 
 __all__ = [
     "__version__",
+    "PointCloud",
+    "read_point_cloud",
+    "write_point_cloud",
     "compensate",
     "uncompensated",
     "evaluate",

@@ -117,8 +117,10 @@ def main() -> None:
 @click.option("--nan-policy", type=click.Choice(["raise", "propagate"]), default="raise", show_default=True)
 def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
                    out_of_range, temperature_tolerance, nan_policy) -> None:
-    """Compensate scanner points IN (CSV, NPY or Parquet: u, v, D, E, F[, T]) into
-    machine coordinates OUT (CSV, NPY or Parquet by suffix: X, Y, Z in mm)."""
+    """Compensate scanner points IN (CSV, NPY, Parquet, PLY or XYZ: u, v, D, E, F[, T])
+    into machine coordinates OUT (by suffix: CSV, NPY, Parquet, PLY, XYZ, PTS or E57;
+    X, Y, Z in mm, E57 in metres). Any other column of IN (scan_id, intensity, ...)
+    is written to OUT unchanged."""
     from .machine import load_machine
 
     try:
@@ -134,7 +136,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
     try:
         check_writable(points_out)  # before any work: a missing folder is found now, not after
         error_map = load_maps(maps, machine)
-        size, chunks = point_chunks(points_in)
+        size, chunks = point_chunks(points_in, extras=True)
         state = {"t_all": None, "warned": False}
         totals = np.zeros(5, dtype=np.int64)
         held = extrapolated = n = 0
@@ -163,11 +165,11 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
 
         def run(source, writer, bar, task):
             nonlocal n, held, extrapolated, max_extrapolation, elapsed
-            for uv, scales, temps, done in source:
+            for uv, scales, temps, extras, done in source:
                 t0 = time.perf_counter()
                 xyz, rep = one(uv, scales, temps)
                 elapsed += time.perf_counter() - t0
-                writer.write(xyz)
+                writer.write(xyz, extras)  # scan_id, intensity, ... unchanged
                 n += len(uv)
                 totals[:] += [rep.points, *rep.clamped_position, rep.clamped_temperature]
                 held += rep.held_temperature
@@ -190,7 +192,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                     totals[:] = 0
                     held = extrapolated = n = 0
                     max_extrapolation = elapsed = 0.0
-                    run(iter([(*again.points, size)]), writer, bar, task)
+                    run(iter([(*again.points, again.extras, size)]), writer, bar, task)
             except BaseException:
                 writer.abort()
                 raise
