@@ -488,7 +488,7 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
             files.append(diag.model.save(model_out))
         if report_file:
             try:
-                files.append(diag.write_report(report_file, run))
+                files.append(diag.write_report(report_file, run, run_dir=run_dir, model_file=model_out))
             except ImportError as exc:  # the diagnosis is still printed and the model saved
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:

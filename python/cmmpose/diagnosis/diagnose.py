@@ -246,15 +246,19 @@ class Diagnosis:
         console.print(self)
         return console.export_text()
 
-    def write_report(self, path, run: Run | None = None, *, title: str = "cmmpose diagnosis") -> Path:
-        """A self-contained HTML report (plots embedded) at ``path``."""
+    def write_report(self, path, run: Run | None = None, *, run_dir=None, model_file=None,
+                     title: str = "cmmpose diagnosis") -> Path:
+        """A self-contained HTML report (plots embedded) at ``path``: the
+        verdict, the decision on every candidate, the error falling, the
+        residual patterns and the provenance (``run_dir``, ``model_file``); a
+        simulated run's truth (beside ``run_dir``) against what was found."""
         try:
             import matplotlib  # noqa: F401 - an optional extra
         except ImportError:
             raise ImportError("the HTML report needs matplotlib: pip install 'cmmpose[plot]'") from None
         from .report import write_report
 
-        return write_report(self, path, run=run, title=title)
+        return write_report(self, path, run=run, run_dir=run_dir, model_file=model_file, title=title)
 
 
 def _value(p, v, u, unit) -> str:

@@ -265,16 +265,20 @@ class Candidate:
     observability: float
     significant: bool = False
     indistinguishable_from: list = field(default_factory=list)
+    #: Leaders whose fitted contribution this one repeats, though the data
+    #: prefer the leader (it "stands for" the leader's physics).
+    stands_for: list = field(default_factory=list)
     threshold: float = ALPHA
     model_effects: tuple = ()
 
     @property
     def aliases(self) -> list[str]:
         """Effects this one cannot be told apart from: those the data cannot
-        separate from the leader (``indistinguishable_from``) and an effect
+        separate from the leader (``indistinguishable_from``), the leader whose
+        contribution it repeats less well (``stands_for``), and an effect
         already in the model whose fitted columns its own repeat (|correlation|
         above INDISTINGUISHABLE)."""
-        out = list(self.indistinguishable_from)
+        out = list(self.indistinguishable_from) + [n for n in self.stands_for if n not in self.indistinguishable_from]
         if self.correlation > INDISTINGUISHABLE and self.correlated_with in self.model_effects \
                 and self.correlated_with not in out:
             out.append(self.correlated_with)
@@ -295,10 +299,10 @@ class Candidate:
         (not significant on its own and repeating an effect already in the
         model), 'not significant' (determined, but p above the threshold) or
         'not observable' (the run's design cannot determine it)."""
-        if not self.observable:
-            return "not observable"
         if self.significant:
             return "significant, aliased" if self.aliases else "significant"
+        if not self.observable:
+            return "not observable"
         if self.aliases:
             return "aliased"
         return "not significant"
@@ -457,13 +461,17 @@ def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, b
 
     a = contribution(lead)
     for c in ranked[1:]:
-        if lead.lr - c.lr > INDISTINGUISHABLE_LR:
+        close = lead.lr - c.lr <= INDISTINGUISHABLE_LR
+        if not (close or c.significant):
             continue
         b = contribution(c)
         denom = np.linalg.norm(a) * np.linalg.norm(b)
         if denom > 0 and abs(float(a @ b)) / denom > INDISTINGUISHABLE:
-            lead.indistinguishable_from.append(c.name)
-            c.indistinguishable_from.append(lead.name)
+            if close:  # the data cannot choose between them
+                lead.indistinguishable_from.append(c.name)
+                c.indistinguishable_from.append(lead.name)
+            else:  # the same physics, which the leader explains better
+                c.stands_for.append(lead.name)
 
 
 def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = None):
