@@ -494,6 +494,29 @@ mod tests {
     }
 
     #[test]
+    fn fit_reclassify_centres_on_the_median() {
+        // Residuals 1 mm +- 0.01 mm (a fit pulled off by outliers), and one
+        // point at 3 mm: about zero nothing would be within 3.5 sigma; about
+        // the median all but the far point are.
+        let mut r: Vec<f64> = (0..100).map(|i| 1.0 + 0.0002 * (i as f64 - 50.0)).collect();
+        r.push(3.0);
+        let all = vec![true; r.len()];
+        let (keep, sigma) = reclassify(&r, &all, &Rejection::Mad(3.5), 0.0);
+        assert!(keep[..100].iter().all(|&k| k) && !keep[100]);
+        assert!(sigma > 0.0 && sigma < 0.02, "{sigma}");
+        // The single pass: about zero, s the sample standard deviation.
+        let (keep, s) = reclassify(&r, &all, &Rejection::SinglePass(3.0), 0.0);
+        let want = sample_std(r.iter().copied());
+        assert_eq!(s, want);
+        assert_eq!(
+            keep,
+            r.iter().map(|x| x.abs() <= 3.0 * want).collect::<Vec<_>>()
+        );
+        assert_eq!(sample_std([1.0, 2.0, 3.0].into_iter()), 1.0);
+        assert_eq!(sample_std([5.0].into_iter()), 0.0);
+    }
+
+    #[test]
     fn fit_read_points_checks_shape_count_and_finiteness() {
         let e = read_points(&[0.0; 7], 1, "a thing").unwrap_err();
         assert!(e.to_string().contains("multiple of 3"), "{e}");
