@@ -24,8 +24,8 @@ _log = logging.getLogger(__name__)
 #: A free-radius fit warns (:class:`IllConditionedFit`) when the centre-radius
 #: correlation exceeds this: fixing the radius would then shrink the variance
 #: of the centre along the cap axis by 1 / (1 - 0.99^2) = 50 (its standard
-#: uncertainty by 7x). A uniform cap reaches it at about a 50 degree
-#: half-angle; docs/fitting.md.
+#: uncertainty by 7x). A uniform cap reaches it at a 53 degree half-angle;
+#: docs/fitting.md.
 ILL_CONDITIONED_CORRELATION = 0.99
 
 RULES = ("none", "mad", "e3125")
