@@ -95,3 +95,30 @@ def test_segmentation_details_on_a_scan_with_a_stray_point_in_front(reference):
     assert np.array_equal(points, before)
     assert np.allclose(shifted.centre - [100.0, -200.0, 300.0], seg.centre, atol=1e-6, rtol=0)
     assert shifted.n_points == seg.n_points
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_robust_fit_recovers_the_clean_centre_of_real_scans_up_to_40_percent_one_sided(reference, name):
+    # The E3125 segment of each real scan, with 10-40 % of its points (all on
+    # one side of the line of sight) pushed 5 mm outward: with the radius
+    # fixed, the least-median start and the median-centred rule give the fit
+    # of the points left clean, and keep none of the pushed ones.
+    points = scan_mm(name)
+    seg = cmmpose.segment_sphere(points, 50.0, (0, 0, 0))
+    q, c = points[seg.mask], seg.centre
+    d = q - c
+    across = np.cross(c / np.linalg.norm(c), [0.0, 0.0, 1.0])
+    side = np.argsort(d @ across)
+    for frac in (0.1, 0.2, 0.3, 0.4):
+        pushed = side[len(q) - int(frac * len(q)):]
+        x = q.copy()
+        x[pushed] = c + d[pushed] * (55.0 / np.linalg.norm(d[pushed], axis=1))[:, None]
+        clean = np.ones(len(q), bool)
+        clean[pushed] = False
+        want = cmmpose.fit_sphere(q[clean], 50.0, rule="mad")
+        got = cmmpose.fit_sphere(x, 50.0, start="lmeds", rule="mad")
+        assert not got.inlier[pushed].any()
+        assert np.linalg.norm(got.centre - want.centre) < 1e-6, (name, frac)
+        if frac == 0.4:
+            plain = cmmpose.fit_sphere(x, 50.0)
+            assert np.linalg.norm(plain.centre - want.centre) > 0.5
