@@ -28,6 +28,11 @@
 //!    ([`SphereFit::polar_coverage_deg`]); a cap below `min_coverage_deg` is
 //!    a `Degenerate` error.
 //!
+//! [`Start`] replaces step 2 by a given centre, or by the least-median
+//! sphere of [`super::lmeds`] (the fit then uses its inliers only); a
+//! [`super::Rejection`] rule refits from the previous solution
+//! (docs/fitting.md).
+//!
 //! With a fixed radius only the centre is fitted (3 x 3 normal equations).
 //! Coplanar points are refused with a fixed radius too: the two mirror-image
 //! centres on either side of the plane fit them equally well. (Three points
