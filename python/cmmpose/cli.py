@@ -545,9 +545,14 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
 @click.option("--max-effects", type=int, default=4, show_default=True, help="Most effects added automatically.")
 @click.option("--report", "report_file", type=click.Path(dir_okay=False), default=None, help="Write a self-contained HTML report here.")
 @click.option("--save-model", "model_out", type=click.Path(dir_okay=False), default=None, help="Write the final model (JSON) here.")
+@click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="A Python file defining EFFECT (a cmmpose.diagnosis.UserEffect), added to the candidates "
+                   "(repeatable; docs/user-effects.md).")
+@click.option("--user-effect-skeleton", "skeleton_out", type=click.Path(dir_okay=False), default=None,
+              help="Write a user-effect draft (Python) built on the first unexplained finding here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
 def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
-                 add, no_auto, max_effects, report_file, model_out, as_json) -> None:
+                 add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, as_json) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall."""
     from .diagnosis import Model, diagnose
     from .machine import load_machine
@@ -556,8 +561,9 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
     try:
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
+        user = [_load_user_effect(f) for f in user_files]
         if model_file:
-            model = Model.load(model_file)
+            model = Model.load(model_file, user_effects=user)
         else:
             maps_ = _maps_for_run(run, maps, machine)
             if maps_ is None:
@@ -565,8 +571,18 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
             model = Model(maps_, temperature=temperature, out_of_range=out_of_range,
                           temperature_tolerance=temperature_tolerance, log_hold=log_hold)
         with console.status("diagnosing ..."):
-            diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects)
+            known = set(model.names)
+            diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects,
+                            user_effects=[u for u in user if u.name not in known])
         files = []
+        if skeleton_out:
+            from .diagnosis.unexplained import user_effect_skeleton
+
+            if diag.unexplained:
+                Path(skeleton_out).write_text(user_effect_skeleton(diag.unexplained[0]), encoding="utf-8")
+                files.append(skeleton_out)
+            else:
+                console.print("no unexplained structure: no user-effect draft written")
         if model_out:
             files.append(diag.model.save(model_out))
         if report_file:
@@ -582,6 +598,26 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
         Console(width=150).print(diag)
     for f in files:
         console.print(f"wrote {f}")
+
+
+def _load_user_effect(path: str):
+    """The EFFECT a user-effect file defines (the file is the user's own code, run as such)."""
+    import importlib.util
+
+    from .diagnosis import UserEffect
+
+    spec = importlib.util.spec_from_file_location(f"cmmpose_user_effect_{Path(path).stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Error:
+        raise
+    except Exception as exc:  # the user's file: say where it failed
+        raise InputError(f"{path}: the user effect file failed to run: {type(exc).__name__}: {exc}") from None
+    effect = getattr(module, "EFFECT", None)
+    if not isinstance(effect, UserEffect):
+        raise InputError(f"{path}: must define EFFECT = UserEffect.create(...) (see docs/user-effects.md)")
+    return effect
 
 
 @main.command("demo")

@@ -19,6 +19,7 @@ from .identify import (ALPHA, Candidate, Problem, _value_text, check_effect_name
                        rank_candidates)
 from .model import Model
 from .observables import ModelFigures, figures
+from .unexplained import periodic_errors, unexplained_findings
 
 __all__ = ["diagnose", "Diagnosis", "Step"]
 
@@ -69,6 +70,11 @@ class Diagnosis:
         Groups of effects the run cannot tell apart (with what separates them).
     patterns : object or None
         Residual patterns of the final model (``find_patterns``), if computed.
+    unexplained : list of Finding
+        Structure the final model's residuals still hold (periodic errors
+        along an axis, significant patterns), each naming the input it
+        follows, its size and significance (:mod:`cmmpose.diagnosis.unexplained`);
+        empty when there is none (or patterns were not computed).
     base_patterns : object or None
         Residual patterns of the base model.
     elapsed : float
@@ -85,6 +91,7 @@ class Diagnosis:
     advice: dict[str, str] = field(default_factory=dict)
     final_uncertainty: dict = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
+    unexplained: list = field(default_factory=list)
 
     def decisions(self) -> list[dict]:
         """The decision on every candidate, with its reason, in one list:
@@ -156,6 +163,7 @@ class Diagnosis:
         threshold = self.steps[-1].ranking[0].threshold if self.steps[-1].ranking else ALPHA
         return {"steps": [s.to_dict() for s in self.steps], "decisions": decisions,
                 "significance": {"family_wise_alpha": ALPHA, "per_candidate_threshold": threshold},
+                "unexplained": [f.to_dict() for f in self.unexplained],
                 "unobservable": self.unobservable,
                 "ambiguous": [list(a) for a in self.ambiguous], "advice": self.advice,
                 "elapsed_s": self.elapsed, "n_points": self.n_points,
@@ -231,6 +239,10 @@ class Diagnosis:
         if self.ambiguous:
             for group in self.ambiguous:
                 yield f"[yellow]cannot tell apart:[/] {', '.join(group)}: {self.advice.get(group[0], '')}"
+        if self.unexplained:
+            yield "[bold]Structure the final model does not explain[/] (diagnose --user-effect-skeleton FILE drafts an effect):"
+            for f in self.unexplained:
+                yield f"  {f.input}: {f.description} (p {f.p_value:.1e})"
         if self.unobservable:
             yield "[bold]Not observable in this run[/] (what would reveal each):"
             for name, why in self.unobservable.items():
@@ -283,6 +295,7 @@ def diagnose(
     auto: bool = True,
     max_effects: int = 4,
     candidates=None,
+    user_effects=(),
     patterns: bool = True,
     out_of_range: str | None = None,
     temperature_tolerance: float | None = None,
@@ -306,6 +319,9 @@ def diagnose(
         Most effects added automatically.
     candidates : sequence of str or EffectSpec, optional
         Restrict (or extend, with user effects) the candidate library.
+    user_effects : sequence of UserEffect
+        Added to the candidates (the library's or ``candidates``): each is
+        added to the model when significant, like a library effect.
     patterns : bool
         Also compute the residual patterns of the base and final models.
     out_of_range : {'raise', 'clamp', 'extrapolate'}, optional
@@ -350,6 +366,12 @@ def diagnose(
     for a in add:
         if not isinstance(a, str):
             extra[a.name] = a
+    from .effects import UserEffect
+
+    for u in user_effects:
+        if not isinstance(u, UserEffect):
+            raise InputError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
+        extra[u.name] = u
     if extra:
         from .effects import library
 
@@ -391,6 +413,8 @@ def diagnose(
                 sub = run if keep.all() else _subset(run, keep)
                 setattr(diag, which, find_patterns(sub, xyz[keep], fits, temperature=problem.inputs.temperature[keep],
                                                    nominal_radius=nominal))
+            diag.unexplained = unexplained_findings(diag.patterns, periodic_errors(sub, xyz[keep], fits),
+                                                    steps[-1].model.names)
     diag.elapsed = time.perf_counter() - t0
     return diag
 

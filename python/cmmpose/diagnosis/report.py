@@ -97,10 +97,10 @@ def _verdict(d, model_file, run_dir) -> str:
     if still:
         lines.append("Still significant against the final model: " + ", ".join(x["name"] for x in still)
                      + " (more effects than --max-effects, or aliases the run cannot tell apart).")
-    if d.patterns is not None and getattr(d.patterns, "strongest", None) is not None:
-        s = d.patterns.strongest
-        lines.append(f"Structure remains in the final model's residuals: {s.title} ({s.amplitude_um:.1f} um, "
-                     f"p {s.p_value:.1e}).")
+    for f in d.unexplained[:3]:
+        lines.append(f"Structure the final model does not explain: {f.description} (p {f.p_value:.1e}); "
+                     "cmmpose diagnose RUN --user-effect-skeleton FILE.py drafts a user effect on it "
+                     "(docs/user-effects.md).")
     nxt = []
     if added:
         target = model_file or "MODEL.json (save it with diagnose --save-model)"
@@ -208,6 +208,16 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
                      "observable: the run cannot determine it at a typical size (what would is said).",
                      "table": [{"effect": x["name"], "decision": x["decision"], "why": x["reason"]}
                                for x in d.decisions()]})
+    if d.unexplained:
+        sections.append({"heading": "Structure the final model does not explain", "text":
+                         "Each row is structure the final model's residuals still hold, with the input it follows: "
+                         "a periodic error along an axis (searched from 2 to 40 mm on each scale reading), or a "
+                         "significant residual pattern with the library effects that could make it and those the "
+                         "model already holds. 'cmmpose diagnose RUN --user-effect-skeleton FILE.py' drafts a user "
+                         "effect on the first; docs/user-effects.md goes through one.",
+                         "table": [{"input": f.input, "what": f.description, "size (um)": round(f.size_um, 3),
+                                    "p": f"{f.p_value:.1e}", "threshold": f"{f.threshold:.1e}"}
+                                   for f in d.unexplained]})
     truth = _truth_rows(d, run_dir)
     if truth is not None:
         sections.append({"heading": "Found against the simulator's truth", "table": truth})
