@@ -158,6 +158,57 @@ impl CarriageTable {
         &self.positions
     }
 
+    /// Change of each component per mm, one per segment (kernel units).
+    pub fn slopes(&self) -> &[Components] {
+        &self.slopes
+    }
+
+    /// 1 / pitch (1/mm) when the grid is uniform.
+    pub fn inv_pitch(&self) -> Option<f64> {
+        self.inv_pitch
+    }
+
+    /// Rebuild a table bit for bit from what [`positions`](Self::positions),
+    /// [`values`](Self::values), [`slopes`](Self::slopes),
+    /// [`inv_pitch`](Self::inv_pitch) and
+    /// [`to_table_units`](Self::to_table_units) return (serialising: a
+    /// blended table's slopes are not recomputed, so results stay equal to
+    /// the last bit). The grid is checked as [`new`](Self::new) checks it.
+    pub fn from_saved(
+        carriage: Carriage,
+        positions: Vec<f64>,
+        values: Vec<Components>,
+        slopes: Vec<Components>,
+        inv_pitch: Option<f64>,
+        table_rows: Vec<[f64; 7]>,
+    ) -> Result<Self> {
+        let mut table = Self::new(carriage, positions, values)?;
+        let n = table.positions.len();
+        if slopes.len() != n - 1 || table_rows.len() != n {
+            return Err(CoreError::invalid_map(
+                format!("{} carriage table", carriage.letter()),
+                format!(
+                    "saved state: {n} positions need {} slopes and {n} table rows, got {} and {}",
+                    n - 1,
+                    slopes.len(),
+                    table_rows.len()
+                ),
+            ));
+        }
+        if slopes.iter().flatten().any(|v| !v.is_finite())
+            || inv_pitch.is_some_and(|p| !(p.is_finite() && p > 0.0))
+        {
+            return Err(CoreError::invalid_map(
+                format!("{} carriage table", carriage.letter()),
+                "saved state: slopes and 1/pitch must be finite",
+            ));
+        }
+        table.slopes = slopes;
+        table.inv_pitch = inv_pitch;
+        table.table_rows = table_rows;
+        Ok(table)
+    }
+
     /// Components in kernel units (mm, rad), one per grid position.
     pub fn values(&self) -> &[Components] {
         &self.values
@@ -361,6 +412,28 @@ impl ErrorMap {
     /// (lo, hi) scale range in mm for each carriage.
     pub fn ranges(&self) -> [(f64, f64); 3] {
         std::array::from_fn(|a| self.tables[a].range())
+    }
+
+    /// Rebuild a map bit for bit from its parts (serialising): tables as
+    /// [`CarriageTable::from_saved`] makes them, squareness in radians and
+    /// as given in arc-seconds, temperature (C) and stacking.
+    pub fn from_saved(
+        tables: [CarriageTable; 3],
+        squareness: [f64; 3],
+        squareness_arcsec: [f64; 3],
+        temperature: Option<f64>,
+        kinematics: Kinematics,
+    ) -> Result<Self> {
+        let mut map = Self::new(tables, squareness_arcsec, temperature)?;
+        if squareness.iter().any(|s| !s.is_finite()) {
+            return Err(CoreError::invalid_map(
+                "squareness",
+                "saved state: radians must be finite",
+            ));
+        }
+        map.squareness = squareness;
+        map.kinematics = kinematics;
+        Ok(map)
     }
 
     /// Build a map with `squareness` in radians (internal use by blending).
