@@ -502,7 +502,7 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
             table.add_row(escape(row.run), row.created, "-" if row.temperature != row.temperature else f"{row.temperature:.2f}",
                           um(row.rms_uncompensated), um(row.b89_uncompensated), um(row.rms_compensated),
                           um(row.b89_compensated))
-        Console().print(table)
+        Console(width=max(120, Console().width)).print(table)
     for f in files:
         console.print(f"wrote {f}")
 

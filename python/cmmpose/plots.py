@@ -468,7 +468,8 @@ def plot_fleet_trend(rows, path: str | PathLike | None = None, *, title: str | N
         tx = ax.twinx()
         tx.plot(x, t, "^:", color="0.4", label="temperature")
         tx.set_ylabel("mean machine temperature (\u00b0C)")
-        tx.legend(loc="upper right", fontsize="small", frameon=False)
-    ax.legend(loc="upper left", fontsize="small", frameon=False)
+    handles = [h for a in fig.axes for h in a.get_lines()]
+    fig.legend(handles, [h.get_label() for h in handles], loc="outside lower center", ncol=3,
+               fontsize="small", frameon=False)
     fig.suptitle(title or f"Ballbar figures over {len(rows)} runs")
     return _save(fig, path)

@@ -115,11 +115,11 @@ def scheduler_client(scheduler="threads", *, n_workers: int | None = None):
     with contextlib.ExitStack() as stack:
         if scheduler == "threads":
             cluster = stack.enter_context(distributed.LocalCluster(
-                processes=False, n_workers=1, threads_per_worker=cores, dashboard_address=None))
+                processes=False, n_workers=1, threads_per_worker=cores, dashboard_address=":0"))
             address = cluster
         elif scheduler == "processes":
             cluster = stack.enter_context(distributed.LocalCluster(
-                processes=True, n_workers=n_workers or cores, threads_per_worker=1, dashboard_address=None))
+                processes=True, n_workers=n_workers or cores, threads_per_worker=1, dashboard_address=":0"))
             address = cluster
         else:
             address = scheduler
