@@ -74,6 +74,7 @@ def test_dataset_on_worker_processes_equals_the_kernel(client, dataset, tmp_path
     assert [p.name for p in result.outputs] == sorted(files)
     assert result.points == sum(len(c["u"]) for c in files.values()) == result.report.points
     assert seen[-1] == (result.points, result.points) and all(a <= b for a, b in seen)
+    assert len(seen) > len(files)  # batch by batch, not only at the end
     for name, cols in files.items():
         table, xyz = _xyz(tmp_path / "out" / name)
         assert table.column_names == ["X", "Y", "Z", "scan_id", "intensity"]

@@ -135,21 +135,17 @@ def scheduler_client(scheduler="threads", *, n_workers: int | None = None):
         yield client
 
 
-def _ask(client, futures, progress=None, total=None, weights=None):
-    """Results of ``futures`` in order; ``progress(done, total)`` after each
-    (``weights``: how much each counts, default 1). On an error the rest are
-    cancelled and the first error is raised."""
+def _ask(client, futures, progress=None):
+    """Results of ``futures`` in order; ``progress(done, total)`` after each.
+    On an error the rest are cancelled and the first error is raised."""
     distributed = _distributed()
     index = {f.key: i for i, f in enumerate(futures)}
     out = [None] * len(futures)
-    done = 0
     try:
-        for fut in distributed.as_completed(futures):
-            i = index[fut.key]
-            out[i] = fut.result()
-            done += 1 if weights is None else weights[i]
+        for done, fut in enumerate(distributed.as_completed(futures), start=1):
+            out[index[fut.key]] = fut.result()
             if progress is not None:
-                progress(done, len(futures) if total is None else total)
+                progress(done, len(futures))
     except BaseException:
         client.cancel(futures)
         raise
@@ -434,12 +430,13 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
     out.mkdir(parents=True, exist_ok=True)
     outputs = [out / f.name for f in files]
     topic = f"cmmpose-progress-{uuid.uuid4().hex}"
-    done = 0
+    done, finished = 0, False
 
     def on_event(event):
+        """A worker finished a batch (called on the client's event loop)."""
         nonlocal done
         done += int(event[1])
-        if progress is not None:
+        if not finished:
             progress(min(done, total), total)
 
     with scheduler_client(scheduler) as client:
@@ -447,11 +444,14 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         if progress is not None:
             client.subscribe_topic(topic, on_event)
         try:
-            futures = [client.submit(_compensate_file, shared, str(f), str(o), passthrough, int(batch_rows), topic,
+            # absolute paths: a cluster's workers do not share this process's working folder
+            futures = [client.submit(_compensate_file, shared, str(f.absolute()), str(o.absolute()), passthrough,
+                                     int(batch_rows), topic,
                                      key=f"cmmpose-compensate-{f.name}-{topic[-8:]}", pure=False)
                        for f, o, (_, passthrough) in zip(files, outputs, plans)]
             results = _ask(client, futures)
         finally:
+            finished = True
             if progress is not None:
                 client.unsubscribe_topic(topic)
     if progress is not None:
@@ -609,7 +609,7 @@ def map_runs(func, run_dirs, *shared, scheduler="threads", progress=None, **kwar
     RunError, Error
         The first run's error, its message naming the run folder.
     """
-    run_dirs = [str(Path(r)) for r in run_dirs]
+    run_dirs = [str(Path(r).absolute()) for r in run_dirs]  # a cluster's workers have another working folder
     if not run_dirs:
         raise InputError("run_dirs: no run folders given")
     with scheduler_client(scheduler) as client:

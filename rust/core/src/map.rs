@@ -481,6 +481,43 @@ mod tests {
     }
 
     #[test]
+    fn saved_parts_rebuild_the_same_table_and_map() {
+        let t = table(&[0.0, 10.0, 35.0, 75.0]).unwrap();
+        let back = CarriageTable::from_saved(
+            Carriage::Y,
+            t.positions().to_vec(),
+            t.values().to_vec(),
+            t.slopes().to_vec(),
+            t.inv_pitch(),
+            t.to_table_units(),
+        )
+        .unwrap();
+        assert_eq!(back, t);
+        let short = CarriageTable::from_saved(
+            Carriage::Y,
+            t.positions().to_vec(),
+            t.values().to_vec(),
+            t.slopes()[1..].to_vec(),
+            t.inv_pitch(),
+            t.to_table_units(),
+        );
+        assert!(short.unwrap_err().to_string().contains("slopes"));
+        let tables = [0.0, 1.0, 2.0].map(|_| table(&[0.0, 25.0, 50.0]).unwrap());
+        let map = ErrorMap::new(tables.clone(), [1.5, -2.0, 0.25], Some(21.0)).unwrap();
+        let k = Kinematics::named("gantry").unwrap();
+        let map = map.with_kinematics(k);
+        let back = ErrorMap::from_saved(
+            tables,
+            map.squareness(),
+            map.squareness_arcsec(),
+            map.temperature(),
+            k,
+        )
+        .unwrap();
+        assert_eq!(back, map);
+    }
+
+    #[test]
     fn clamping_reports_and_holds_end_values() {
         let t = table(&[0.0, 25.0, 50.0]).unwrap();
         let (l, c) = t.locate_clamped(60.0);
