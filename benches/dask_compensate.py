@@ -2,7 +2,7 @@
 (default 1e9) on this machine's cores, in bounded memory, against the
 single-process kernel measured in the same run.
 
-    python benches/dask_compensate.py [--points 1e9] [--scheduler processes] [--dir DIR]
+    python benches/dask_compensate.py [--points 1e9] [--scheduler threads] [--dir DIR]
     python benches/dask_compensate.py --points 2e6        # a smoke run (CI)
 
 The dataset is scanner-like: profiles of 256 points (u across the line, v the
@@ -170,7 +170,7 @@ def main() -> None:
     ap.add_argument("--points", type=float, default=1e9)
     ap.add_argument("--round-points", type=float, default=2e8)
     ap.add_argument("--file-points", type=float, default=FILE_POINTS)
-    ap.add_argument("--scheduler", default="processes", help="threads, processes or tcp://host:port")
+    ap.add_argument("--scheduler", default="threads", help="threads, processes or tcp://host:port")
     ap.add_argument("--dir", type=Path, default=None, help="work folder (default: a temporary one, removed)")
     a = ap.parse_args()
     n, per_round = int(a.points), int(a.round_points)
