@@ -214,6 +214,13 @@ def test_cli_dataset_on_an_address_equals_threads(client, dataset, tmp_path):
     c = runner.invoke(main, ["compensate", str(src / "scan_000.parquet"), str(tmp_path / "c.parquet"),
                              "--scheduler", "processes"])
     assert c.exit_code != 0 and "--scheduler is for a folder" in c.output
+    d = runner.invoke(main, ["compensate", str(src), str(tmp_path / "d"), "--maps", "appendix-b", "--pose", "90,90,0",
+                             "--scheduler", "processes"])  # a local cluster of its own, one kernel thread per worker
+    assert d.exit_code == 0, d.output
+    lo = min(float(c["T"].min()) for c in files.values())
+    assert f"a single map at 22 C was used for points at {lo:.2f}.." in d.output.replace("\n", " ")
+    for name, cols in files.items():
+        assert _same_bits(_xyz(tmp_path / "d" / name)[1], _reference(cols, cmmpose.ErrorMap.appendix_b()))
 
 
 def test_cli_evaluate_fleet(client, runs, tmp_path):

@@ -288,15 +288,16 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
     """`compensate DATASET_DIR OUT_DIR`: a folder of Parquet files on a Dask scheduler (cmmpose.scale)."""
     import logging
 
-    from .scale import compensate_dataset
+    from .scale import compensate_dataset, dataset_temperature_range
 
     logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
     try:
         error_map = load_maps(maps, machine)
-        if isinstance(error_map, ErrorMap) and temperature is not None:
+        given = temperature if temperature is not None else dataset_temperature_range(points_in)
+        if isinstance(error_map, ErrorMap) and given is not None:  # T from the files' statistics, no data read
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", MapTemperatureWarning)
-                note = warn_single_map(error_map, temperature, temperature_tolerance)
+                note = warn_single_map(error_map, given, temperature_tolerance)
             if note:
                 console.print(f"[yellow]warning:[/] {escape(note)}")
         with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),

@@ -56,7 +56,8 @@ from .pose import pose_tuple
 from ._arrays import as_triple
 from .report import KernelReport
 
-__all__ = ["SCHEDULERS", "scheduler_client", "Compensator", "DatasetResult", "compensate_dataset",
+__all__ = ["SCHEDULERS", "scheduler_client", "Compensator", "DatasetResult", "compensate_dataset", "dataset_files",
+           "dataset_temperature_range",
            "compensate_array", "compensate_dataframe", "map_runs", "evaluate_runs", "diagnose_runs",
            "FleetRow", "fleet_summary", "INPUT_COLUMNS", "OUTPUT_COLUMNS"]
 
@@ -276,6 +277,28 @@ def dataset_files(dataset_dir) -> list[Path]:
     if not files:
         raise InputError(f"{folder}: no .parquet files in the folder")
     return files
+
+
+def dataset_temperature_range(dataset_dir) -> tuple[float, float] | None:
+    """(lowest, highest) T (C) over a dataset, from the files' Parquet
+    statistics alone (no data read); None when a file has no T column or
+    no statistics for it."""
+    lo, hi = math.inf, -math.inf
+    for path in dataset_files(dataset_dir):
+        try:
+            meta = pq.read_metadata(path)
+        except (OSError, pa.ArrowException) as exc:
+            raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
+        names = meta.schema.to_arrow_schema().names
+        if "T" not in names:
+            return None
+        k = names.index("T")
+        for g in range(meta.num_row_groups):
+            stats = meta.row_group(g).column(k).statistics
+            if stats is None or not stats.has_min_max:
+                return None
+            lo, hi = min(lo, float(stats.min)), max(hi, float(stats.max))
+    return (lo, hi) if lo <= hi else None
 
 
 def _plan_file(path: Path, needs_t: bool) -> tuple[int, list[str]]:
