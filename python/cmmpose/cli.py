@@ -489,7 +489,8 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
         except (ImportError, InputError) as exc:  # the table is still printed
             console.print(f"[yellow]no trend plot:[/] {escape(str(exc))}")
     if as_json:
-        click.echo(json.dumps([row.__dict__ for row in rows], indent=2))
+        click.echo(json.dumps([{k: (None if isinstance(v, float) and v != v else v) for k, v in row.__dict__.items()}
+                               for row in rows], indent=2))  # NaN (no value) as null: strict JSON
     else:
         table = Table(title=f"cmmpose evaluate: {len(rows)} runs on {scheduler}")
         table.add_column("run")
