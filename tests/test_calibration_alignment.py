@@ -583,6 +583,17 @@ def test_library_unknown_pose_is_a_clear_error(tmp_path):
      '"offset": [1, 2, 3], "date": "yesterday"}}}', "not ISO 8601"),
     ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '
      '"offset": [1, 2, 3], "reading_uncertainty": [1, -2, 3]}}}', "must be >= 0"),
+    ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '
+     '"offset": [1, 2, 3], "pose_covariance": [[1, 0], [0, 1]]}}}', "pose_covariance must be a finite 3 x 3"),
+    ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '
+     '"offset": [1, 2, 3], "pose_covariance": [[1, 0, 0], [0.5, 1, 0], [0, 0, 1]]}}}', "symmetric positive"),
+    ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '
+     '"offset": [1, 2, 3], "reading_covariance": [[1, 0, 0], [0, -1, 0], [0, 0, 1]]}}}', "symmetric positive"),
+    ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '
+     '"offset": [1, 2, 3], "reading_covariance": [[4, 0, 0], [0, 4, 0], [0, 0, 4]], '
+     '"reading_uncertainty": [1, 1, 1]}}}', "reading_uncertainty .* disagrees"),
+    ('{"format": "cmmpose-alignment-library", "version": 1, "poses": {"A": {"pose": [1, 2, 3], "reading": [1, 2, 3], '
+     '"offset": [1, 2, 3], "lever": [[1, 0, "x"], [0, 1, 0], [0, 0, 1]]}}}', "lever must be"),
 ])
 def test_library_malformed_file(tmp_path, content, message):
     path = tmp_path / "lib.json"
@@ -605,3 +616,37 @@ def test_library_record_from_calibration(tmp_path):
         record(pose=(1.0, 2.0))
     with pytest.raises(CalibrationError, match="temperature"):
         record(temperature=float("nan"))
+
+
+def test_library_record_keeps_the_solvers_reading_whole(tmp_path):
+    """A record from the solvers gives mount_offset the very reading it was made
+    from (pose covariance in full, pose Jacobian, lever, position), through the
+    library file; reading_uncertainty is the reading's own, the pose's share apart."""
+    readings, records = [], []
+    lib = AlignmentLibrary(tmp_path / "lib.json")
+    for k, nominal in enumerate(STANDARD_POSES):
+        x = reference_sphere_scans([nominal], maps=MAPS, temperature=T, seed=10 + k, scanner=FAST)[0]
+        pc = np.array([[2.8e-4, 1e-5, 3e-7], [1e-5, 2.8e-4, -2e-7], [3e-7, -2e-7, 1e-8]])  # deg^2, correlated
+        r = reference_centre_reading(x.data.uv, x.data.scales, x.pose, offset=OFFSET, error_map=MAPS,
+                                     temperature=T, pose_covariance=pc)
+        rec = AlignmentRecord.from_calibration(x.pose, r, OFFSET)
+        np.testing.assert_allclose(rec.pose_covariance, pc)
+        np.testing.assert_allclose(rec.reading_uncertainty, np.sqrt(np.diag(r.fit_covariance)))
+        assert np.all(np.asarray(rec.reading_uncertainty) < r.uncertainty)  # the pose's share is apart
+        lib.save(f"P{k}", rec)
+        readings.append(r)
+        records.append(lib.load(f"P{k}"))
+    for r, rec in zip(readings, records):
+        back = rec.reference_reading()
+        for f in ("reading", "covariance", "fit_covariance", "pose_covariance", "pose_jacobian", "position", "lever"):
+            np.testing.assert_allclose(getattr(back, f), getattr(r, f), rtol=1e-12, atol=1e-18, err_msg=f)
+    a, b = mount_offset(readings), mount_offset([rec.reference_reading() for rec in records])
+    np.testing.assert_allclose(b.offset, a.offset, rtol=0, atol=1e-9)  # mm: rounding (the file symmetrises covariances)
+    np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-10)
+    # a hand-written record (standard uncertainties only) is read as from_reading reads it
+    hand = record()
+    back = hand.reference_reading()
+    np.testing.assert_allclose(back.fit_covariance, np.diag(np.square(hand.reading_uncertainty)))
+    np.testing.assert_allclose(back.pose_covariance, np.diag(np.square(hand.pose_uncertainty)))
+    with pytest.raises(CalibrationError, match="no reading uncertainty"):
+        record(reading_uncertainty=None).reference_reading()

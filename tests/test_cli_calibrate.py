@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 import cmmpose
@@ -124,3 +125,28 @@ def test_calibrate_alignment_with_the_maps_and_a_stated_vernier_uncertainty(tmp_
     res = CliRunner().invoke(main, base + ["--vernier", str(tmp_path / "v3.csv"), "--name", "x", "--maps", "thesis",
                                            "--vernier-uncertainty", "-1"])
     assert res.exit_code != 0 and "--vernier-uncertainty" in res.output
+
+
+def test_simulate_alignment_writes_what_calibrate_alignment_reads(tmp_path):
+    res = CliRunner().invoke(main, ["simulate-alignment", "--pose", "90,90,0", "--name", "A90B90", "--temperature", "21",
+                                    "--effect", "alignment:alpha=0.03", "-o", str(tmp_path / "m")],
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    truth = json.loads((tmp_path / "m" / "A90B90-truth.json").read_text())
+    assert truth["true_pose"] == pytest.approx([90.03, 90.0, 0.0])
+    assert "cmmpose calibrate alignment --maps thesis --temperature 21" in res.output
+    normal = ",".join(repr(c) for c in truth["plane_normal"])
+    res = CliRunner().invoke(main, ["calibrate", "alignment", "--maps", "thesis", "--temperature", "21", "--vernier",
+                                    str(tmp_path / "m" / "A90B90-vernier.csv"), "--vernier-uncertainty", "9",
+                                    "--plane-scan", str(tmp_path / "m" / "A90B90-plane.csv"), "--plane-normal", normal,
+                                    "--reference-scan", str(tmp_path / "m" / "A90B90-sphere.csv"), "--name", "A90B90",
+                                    "--library", str(tmp_path / "lib.json"), "--json"], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    rec = json.loads(res.output)
+    assert abs(rec["pose"][0] - 90.03) < 3 * rec["pose_uncertainty"][0]
+    assert np.shape(rec["pose_covariance"]) == (3, 3) and np.shape(rec["pose_jacobian"]) == (3, 3)
+    for args, message in ((["--pose", "90,90"], "--pose"), (["--pose", "90,90,0", "--effect", "nonsense:x=1"],
+                                                            "nonsense"),
+                          (["--pose", "90,90,0", "--vernier-points", "2"], "--vernier-points")):
+        res = CliRunner().invoke(main, ["simulate-alignment", "--name", "X", "-o", str(tmp_path / "bad"), *args])
+        assert res.exit_code != 0 and message in res.output and "Traceback" not in res.output, res.output

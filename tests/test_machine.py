@@ -195,3 +195,61 @@ def test_compensate_takes_pose_and_offset_from_the_alignment_library(tmp_path):
     r = cli("compensate", scan, tmp_path / "c.npy", "--alignment", "A180B90", "--pose", "0,0,0",
             "--library", tmp_path / "align.json")
     assert r.exit_code != 0 and "not both" in r.output
+
+
+def test_every_machine_dependent_command_takes_the_machine_file(tmp_path):
+    """--machine on the commands beyond simulate/evaluate/compensate: each uses
+    what the file says (maps, travel, thermocouples, alignment library)."""
+    from cmmpose.acquire.plan import Plan
+    from cmmpose.cli import _plan_for
+
+    path = tmp_path / "m.toml"
+    text = example_text("gantry").replace('# alignments = "alignments.json"', 'alignments = "align.json"')
+    text = text.replace('GB = "granite_bottom"', 'GB = "granite_bottom"\nXR = "x_scale"')
+    path.write_text(text, encoding="utf-8")
+    machine = load_machine(path)
+    # acquire: the machine file's thermocouples become the plan's channels, unless the plan lists its own
+    plan = _plan_for(None, machine, path)
+    assert [ch["name"] for ch in plan.temperature_channels] == list(machine.thermocouples)
+    assert plan.temperature_channels[-1] == {"name": "XR", "role": "x_scale", "channel": 112}
+    own = tmp_path / "plan.json"
+    Plan(temperature_channels=[{"name": "A", "role": "x_scale", "channel": 7}]).write(own)
+    assert _plan_for(own, machine, path).channels == [("A", 7)]
+    assert _plan_for(own, machine, None) == own
+    # plot-map: the machine's maps
+    r = cli("plot-map", "-o", tmp_path / "maps.png", "--machine", path)
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "maps.png").stat().st_size > 10_000
+    r = cli("plot-map", "-o", tmp_path / "x.png")
+    assert r.exit_code != 0 and "--machine" in r.output
+    # map export: the machine's set at a temperature
+    r = cli("map", "export", "--format", "iso230-2", "-o", tmp_path / "x.csv", "--machine", path)
+    assert r.exit_code != 0 and "--temperature" in r.output
+    r = cli("map", "export", "--format", "iso230-2", "-o", tmp_path / "x.csv", "--machine", path, "--temperature", 22)
+    assert r.exit_code == 0, r.output
+    # map import: a map short of the travel is reported
+    short = tmp_path / "short.toml"
+    short.write_text(text.replace("x = [0.0, 900.0]", "x = [-50.0, 900.0]"), encoding="utf-8")
+    r = cli("map", "import", "iso230-2", tmp_path / "x.csv", "-o", tmp_path / "back.csv", "--machine", short)
+    assert r.exit_code == 0 and "less than" in r.output and "travel" in r.output, r.output
+    # calibrate offset: the machine file's alignment library
+    r = cli("calibrate", "offset", "A", "B", "C", "--machine", path)
+    assert r.exit_code != 0 and "align.json" in r.output
+    r = cli("calibrate", "offset", "A", "B", "C")
+    assert r.exit_code != 0 and "--library" in r.output
+
+
+@pytest.mark.slow
+def test_demo_on_another_machine(tmp_path):
+    path = tmp_path / "m.toml"
+    path.write_text(example_text("horizontal-arm"), encoding="utf-8")
+    r = cli("demo", "--machine", path, "--report", tmp_path / "demo")
+    assert r.exit_code == 0, r.output
+    out = " ".join(r.output.split())
+    assert "horizontal-arm" in out and "thesis (Table 19" not in out
+    ev = json.loads((tmp_path / "demo" / "evaluation.json").read_text())
+    before, after = (res["rms_accuracy_error_mm"] * 1e3 for res in ev["results"])
+    assert before > 30 and after < 0.6, (before, after)
+    r = cli("demo", "--report", tmp_path / "default")
+    out = " ".join(r.output.split())  # the console wraps lines
+    assert r.exit_code == 0 and "the thesis machine (default)" in out and "thesis (Table 19" in out

@@ -3,6 +3,7 @@ fresh folder, on a machine that is not the thesis's."""
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
@@ -26,3 +27,9 @@ def test_your_machine_walkthrough_runs(tmp_path):
     assert (tmp_path / "b89-report" / "evaluation.json").is_file()
     assert (tmp_path / "my-cmm-model.json").is_file()
     assert len((tmp_path / "scan-xyz.csv").read_text().splitlines()) == 3905
+    assert len((tmp_path / "scan-aligned-xyz.csv").read_text().splitlines()) == 3905
+    # the CLI calibration found the simulated offset error within its stated uncertainty (k = 3)
+    fit = json.loads((tmp_path / "offset.json").read_text())
+    truth = json.loads((tmp_path / "align" / "A90B90-truth.json").read_text())
+    for est, true, u in zip(fit["offset"], truth["true_offset"], fit["uncertainty"]):
+        assert abs(est - true) < 3 * u, (fit, truth)

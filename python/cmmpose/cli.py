@@ -17,7 +17,7 @@ from rich.table import Table
 from . import effects as effects_registry
 from .compensation import compensate, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import Error, InputError, MapTemperatureWarning
+from .errors import CalibrationError, Error, InputError, MapTemperatureWarning
 from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
 from .metrics import STEEL_EXPANSION
@@ -45,6 +45,16 @@ def machine_option(f):
 def machine_row(table, machine) -> None:
     """The machine a command used, in its summary table."""
     table.add_row("machine", f"{machine.name} ({machine.kinematics}; {machine.source})")
+
+
+def travel_notes(machine, built) -> list[str]:
+    """Where a map misses the machine's travel (a point there cannot be compensated)."""
+    notes = []
+    for axis, (lo, hi), (mlo, mhi) in zip("XYZ", machine.travel, built.ranges):
+        if lo < mlo - 1e-9 or hi > mhi + 1e-9:
+            notes.append(f"the map covers {axis} {mlo:g}..{mhi:g} mm, less than {machine.name}'s travel "
+                         f"{lo:g}..{hi:g} mm ({machine.source}): points beyond it cannot be compensated")
+    return notes
 
 
 def triple(text: str, name: str) -> tuple[float, float, float]:
@@ -110,8 +120,10 @@ def main() -> None:
                    "(needs the dask extra).")
 def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
                    out_of_range, temperature_tolerance, nan_policy, scheduler) -> None:
-    """Compensate scanner points IN (CSV, NPY or Parquet: u, v, D, E, F[, T]) into
-    machine coordinates OUT (CSV, NPY or Parquet by suffix: X, Y, Z in mm).
+    """Compensate scanner points IN (CSV, NPY, Parquet, PLY or XYZ: u, v, D, E, F[, T])
+    into machine coordinates OUT (by suffix: CSV, NPY, Parquet, PLY, XYZ, PTS or E57;
+    X, Y, Z in mm, E57 in metres). Any other column of IN (scan_id, intensity, ...)
+    is written to OUT unchanged.
 
     IN may be a folder of Parquet files (a dataset): OUT is then a folder that
     gets one Parquet file per input, named after it, with X, Y, Z and the
@@ -137,7 +149,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
     try:
         check_writable(points_out)  # before any work: a missing folder is found now, not after
         error_map = load_maps(maps, machine)
-        size, chunks = point_chunks(points_in)
+        size, chunks = point_chunks(points_in, extras=True)
         state = {"t_all": None, "warned": False}
         totals = np.zeros(5, dtype=np.int64)
         held = extrapolated = n = 0
@@ -166,11 +178,11 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
 
         def run(source, writer, bar, task):
             nonlocal n, held, extrapolated, max_extrapolation, elapsed
-            for uv, scales, temps, done in source:
+            for uv, scales, temps, extras, done in source:
                 t0 = time.perf_counter()
                 xyz, rep = one(uv, scales, temps)
                 elapsed += time.perf_counter() - t0
-                writer.write(xyz)
+                writer.write(xyz, extras)  # scan_id, intensity, ... unchanged
                 n += len(uv)
                 totals[:] += [rep.points, *rep.clamped_position, rep.clamped_temperature]
                 held += rep.held_temperature
@@ -193,7 +205,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                     totals[:] = 0
                     held = extrapolated = n = 0
                     max_extrapolation = elapsed = 0.0
-                    run(iter([(*again.points, size)]), writer, bar, task)
+                    run(iter([(*again.points, again.extras, size)]), writer, bar, task)
             except BaseException:
                 writer.abort()
                 raise
@@ -332,6 +344,151 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
                                       f"{report.max_extrapolation:.2f} K beyond the maps")
     table.add_row("wall time", f"{result.elapsed:.1f} s ({result.points / max(result.elapsed, 1e-9) / 1e6:.1f} M points/s)")
     Console().print(table)
+
+
+@main.command("simulate-alignment")
+@machine_option
+@click.option("--pose", "pose_text", required=True, help="Nominal pose alpha,beta,gamma of the trunnion stop, degrees.")
+@click.option("--name", required=True, help="Name of the pose, e.g. A90B90: the files are NAME-vernier.csv, ...")
+@click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
+@click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
+              help="What the calibration should find, e.g. alignment:alpha=0.03 or mount-offset:u=0.02 "
+                   "(`cmmpose effects`); repeatable.")
+@click.option("--vernier-points", type=click.IntRange(3), default=3, show_default=True,
+              help="Optical-vernier positions (the thesis uses 3).")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Folder for the measurement files.")
+def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, vernier_points, seed, out_dir) -> None:
+    """Simulate the measurements that align the scanner at one pose (thesis chapter 4): optical-vernier
+    positions, a plane scan and a reference-sphere scan, as `cmmpose calibrate alignment` reads them.
+
+    Writes NAME-vernier.csv (x,y,z, mm), NAME-plane.csv and NAME-sphere.csv (u,v,D,E,F, mm) and
+    NAME-truth.json (the plane's normal, the true pose, reading and offset), and prints the command
+    that calibrates from them."""
+    from .machine import load_machine
+    from .sim import parse_effect
+    from .sim.calibration_data import VERNIER_NOISE, plane_scan, reference_sphere_scans, vernier_points as vernier
+
+    nominal = triple(pose_text, "--pose")
+    try:
+        machine = load_machine(machine_file)
+        parsed = [parse_effect(e) for e in effects]
+        maps = machine.maps()
+        offset = tuple(machine.offset)
+        rng = np.random.default_rng(seed)
+        common = {"maps": maps, "temperature": temperature, "effects": parsed}
+        v = vernier(nominal, offset, n=vernier_points, seed=rng, **common)
+        plane = plane_scan(nominal, offset, scanner=machine.scanner, seed=rng, **common)
+        sphere = reference_sphere_scans([nominal], offset, scanner=machine.scanner,
+                                        seed=int(rng.integers(1 << 30)), **common)[0]
+        folder = Path(out_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        files = {k: folder / f"{name}-{k}.csv" for k in ("vernier", "plane", "sphere")}
+        np.savetxt(files["vernier"], v.points, delimiter=",", header="x,y,z", comments="", fmt="%.9f")
+        for k, d in (("plane", plane), ("sphere", sphere.data)):
+            np.savetxt(files[k], np.column_stack([d.uv, d.scales]), delimiter=",", header="u,v,D,E,F",
+                       comments="", fmt="%.9f")
+        normal = [float(c) for c in plane.plane.normal]
+        truth = {"units": {"pose": "degree", "reading": "mm", "offset": "mm", "vernier_uncertainty": "um"},
+                 "nominal_pose": list(nominal), "plane_normal": normal,
+                 "true_pose": [float(c) for c in sphere.true_pose], "true_reading": [float(c) for c in sphere.true_reading],
+                 "true_offset": [float(c) for c in sphere.true_offset], "vernier_uncertainty": VERNIER_NOISE * 1e3,
+                 "temperature": temperature, "effects": list(effects), "seed": seed}
+        (folder / f"{name}-truth.json").write_text(json.dumps(truth, indent=2), encoding="utf-8")
+    except Error as exc:
+        raise fail(exc) from None
+    for f in files.values():
+        console.print(f"wrote {f}")
+    machine_arg = f" --machine {machine_file}" if machine_file else " --maps thesis"
+    console.print("calibrate with:\n  cmmpose calibrate alignment" + machine_arg
+                  + f" --temperature {temperature:g} --vernier {files['vernier']} --vernier-uncertainty "
+                  f"{VERNIER_NOISE * 1e3:g} --plane-scan {files['plane']} --plane-normal "
+                  + ",".join(f"{c + 0.0:.6g}" for c in normal) + f" --reference-scan {files['sphere']} --name {name} "
+                  "--library LIBRARY", soft_wrap=True)
+
+
+_UNIT_MM = {"mm": 1.0, "m": 1e3, "um": 1e-3, "in": 25.4}
+
+
+@main.command("fit")
+@click.argument("scan", type=click.Path(exists=True, dir_okay=False))
+@click.option("--units", type=click.Choice(sorted(_UNIT_MM)), default=None,
+              help="Units of the file's coordinates (and of --scanner-origin, --start). Default: the format's "
+                   "(mm; metres for E57).")
+@click.option("--radius", type=float, default=None,
+              help="Calibrated sphere radius, mm (fixed in the fit). Default: fitted (free radius).")
+@click.option("--segment", type=click.Choice(["none", "e3125"]), default="none", show_default=True,
+              help="e3125: segment the sphere from a raw scan about the scanner's line of sight (needs --radius).")
+@click.option("--scanner-origin", default="0,0,0", show_default=True,
+              help="The scanner's origin in the file's frame, x,y,z in --units (for --segment e3125).")
+@click.option("--rule", type=click.Choice(["none", "mad", "e3125"]), default=None,
+              help="Outlier rule without segmentation (docs/fitting.md): mad (repeated, median-centred) or e3125 "
+                   "(one pass at 3 standard deviations).")
+@click.option("--reject", type=float, default=None, help="Multiple k of the rule's sigma (default 3.5 for mad, 3 for e3125).")
+@click.option("--start", default=None,
+              help="Where the fit starts: algebraic, lmeds (high breakdown: for heavy outliers) or a centre x,y,z "
+                   "in --units.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, as_json) -> None:
+    """Fit a sphere to the point cloud SCAN (CSV, NPY, Parquet, PLY, XYZ, PTS, E57): centre (mm), radius,
+    points used and the centre's standard uncertainty. With --segment e3125 a raw scan is segmented in the
+    manner of ASTM E3125 first (closest-point start, cone and cylinder about the line of sight, radius fixed)."""
+    import warnings as _warnings
+
+    from .errors import IllConditionedFit
+    from .fitting import e3125, fit_sphere
+    from .pointclouds import read_point_cloud
+
+    if radius is not None and not (np.isfinite(radius) and radius > 0):
+        raise click.BadParameter(f"expected a positive radius in mm, got {radius}", param_hint="--radius")
+    if segment == "e3125" and radius is None:
+        raise click.UsageError("--segment e3125 fits with the radius fixed at its calibrated value: give --radius (mm)")
+    if segment == "e3125" and (rule or reject is not None):
+        raise click.UsageError("--segment e3125 applies the standard's own rule: --rule and --reject do not apply")
+    scale = _UNIT_MM[units] if units else 1.0
+    start_value = None
+    if start is not None:
+        start_value = start if start in ("algebraic", "lmeds") else tuple(v * scale for v in triple(start, "--start"))
+        if segment == "e3125" and isinstance(start_value, str):
+            raise click.BadParameter("with --segment e3125 give a centre x,y,z (or nothing: the closest-point start)",
+                                     param_hint="--start")
+    origin = tuple(v * scale for v in triple(scanner_origin, "--scanner-origin"))
+    try:
+        cloud = read_point_cloud(scan, units=units)
+        with _warnings.catch_warnings(record=True) as caught:
+            _warnings.simplefilter("always", IllConditionedFit)
+            if segment == "e3125":
+                res = e3125(cloud.xyz, radius, origin, start=start_value)
+                out = {"file": str(scan), "method": "e3125 segmentation, radius fixed", **res.to_dict()}
+            else:
+                f = fit_sphere(cloud.xyz, radius, rule=rule, reject=reject, start=start_value)
+                out = {"file": str(scan), "method": "least squares" + (f", rule {rule or 'mad'}" if (rule or reject)
+                                                                        else "") + (", radius fixed" if radius else ""),
+                       "centre_mm": f.centre.tolist(), "radius_mm": float(f.radius), "n_points": int(f.n_points),
+                       "n_raw": len(cloud.xyz), "centre_uncertainty_mm": f.centre_uncertainty.tolist(),
+                       "radius_uncertainty_mm": f.radius_uncertainty if radius is None else 0.0,
+                       "rms_mm": float(f.rms), "polar_coverage_deg": float(f.polar_coverage),
+                       "centre_radius_correlation": (None if radius is not None
+                                                     else float(f.centre_radius_correlation))}
+    except Error as exc:
+        raise fail(exc) from None
+    notes = [str(w.message) for w in caught if issubclass(w.category, IllConditionedFit)]
+    out["warnings"] = notes
+    if as_json:
+        click.echo(json.dumps(out, indent=2))
+    else:
+        table = Table(title=f"sphere fit of {scan}", show_header=False)
+        table.add_row("method", out["method"])
+        table.add_row("centre (mm)", ", ".join(f"{v:.6f}" for v in out["centre_mm"]))
+        u = out.get("centre_uncertainty_mm")
+        if u is not None:
+            table.add_row("u(centre) (um)", ", ".join(f"{v * 1e3:.2f}" for v in u))
+        table.add_row("radius (mm)", f"{out['radius_mm']:.6f}")
+        table.add_row("points used / in file", f"{out['n_points']} / {out['n_raw']}")
+        Console().print(table)
+    for note in notes:
+        console.print(f"[yellow]warning:[/] {escape(note)}")
 
 
 def _aligned(name: str, library_file) -> tuple[str, str]:
@@ -549,7 +706,7 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
             files.append(diag.model.save(model_out))
         if report_file:
             try:
-                files.append(diag.write_report(report_file, run))
+                files.append(diag.write_report(report_file, run, run_dir=run_dir, model_file=model_out))
             except ImportError as exc:  # the diagnosis is still printed and the model saved
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
@@ -567,20 +724,26 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default="cmmpose-demo", show_default=True,
               help="Folder for the run, JSON, CSV and plots.")
-def demo_cmd(temperature, seed, report_dir) -> None:
-    """Simulate the default B89 ballbar run on the bundled thesis maps and evaluate it
-    uncompensated and compensated: the error falls from about 70 um to the noise floor."""
+@machine_option
+def demo_cmd(temperature, seed, report_dir, machine_file) -> None:
+    """Simulate the default B89 ballbar run on the bundled thesis maps (or the machine's) and evaluate
+    it uncompensated and compensated: the error falls from about 70 um to the noise floor."""
     from .evaluation import evaluate
+    from .machine import load_machine
     from .sim import simulate_ballbar_run
 
     start = time.perf_counter()
-    maps = ErrorMapSet.thesis()
     try:
+        machine = load_machine(machine_file)
+        maps = load_maps((), machine)
+        console.print(f"machine: {machine.name} ({machine.kinematics}; {machine.source})")
         with Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.completed}/{task.total} sweeps"),
                       console=console) as bar:
             task = bar.add_task("", total=None)
-            run, truth = simulate_ballbar_run(maps, temperature, seed=seed,
+            run, truth = simulate_ballbar_run(maps, temperature, seed=seed, scanner=machine.scanner,
+                                              offset=tuple(machine.offset),
                                               progress=lambda d, n: bar.update(task, completed=d, total=n))
+        run = _with_machine(run, machine, ())
         report = Path(report_dir)
         run.save(report / "run", truth=truth, overwrite=True)
         ev = evaluate(run, maps, temperature)
@@ -588,8 +751,9 @@ def demo_cmd(temperature, seed, report_dir) -> None:
     except Error as exc:
         raise fail(exc) from None
     Console().print(ev)
-    console.print(f"{run.n_points:,} points, 40 spheres, {time.perf_counter() - start:.1f} s; "
-                  f"thesis (Table 19, 20 C): 73.2 um uncompensated, 12.8 um compensated")
+    thesis = ("; thesis (Table 19, 20 C): 73.2 um uncompensated, 12.8 um compensated" if machine.is_default
+              else "")
+    console.print(f"{run.n_points:,} points, 40 spheres, {time.perf_counter() - start:.1f} s{thesis}")
     for f in [report / "run", *files]:
         console.print(f"wrote {f}")
 
@@ -601,8 +765,9 @@ def demo_cmd(temperature, seed, report_dir) -> None:
 @click.option("--duration", type=float, default=None, help="Seconds to record (default: until Ctrl-C).")
 @click.option("--plan", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Plan JSON: scans, poses, channels, artefact, maps (docs/protocols.md).")
-@click.option("--pose", default="90,90,0", show_default=True, help="alpha,beta,gamma in degrees, when the plan has no poses.")
-@click.option("--offset", default="1.001,264.505,129.575", show_default=True, help="U1,V1,W1 in mm, when the plan has no poses.")
+@click.option("--pose", default=None, help="alpha,beta,gamma in degrees, when the plan has no poses. Default: the machine's.")
+@click.option("--offset", default=None, help="U1,V1,W1 in mm, when the plan has no poses. Default: the machine's.")
+@machine_option
 @click.option("--tc-type", default="E", show_default=True, help="Thermocouple type.")
 @click.option("--thermo-interval", type=float, default=1.0, show_default=True, help="Seconds between logger scans.")
 @click.option("--flush-interval", type=float, default=0.2, show_default=True, help="Longest wait before records reach disk, s.")
@@ -611,12 +776,13 @@ def demo_cmd(temperature, seed, report_dir) -> None:
 @click.option("--overwrite", is_flag=True, help="Replace a recording already in RUN_DIR.")
 @click.option("--recover", is_flag=True, help="Rebuild RUN_DIR from its journal (after a crash); opens no ports.")
 @click.option("--no-display", is_flag=True, help="No live display.")
-def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, tc_type, thermo_interval, flush_interval,
-                scanner_baud, thermo_baud, overwrite, recover, no_display) -> None:
+def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, machine_file, tc_type, thermo_interval,
+                flush_interval, scanner_baud, thermo_baud, overwrite, recover, no_display) -> None:
     """Record the scanner + scales stream and the thermocouple logger into RUN_DIR
     (live display; Ctrl-C stops cleanly and closes the run)."""
     from .acquire import recover as recover_run
     from .acquire.display import record_live, summary_table
+    from .machine import load_machine
 
     try:
         if recover:
@@ -626,8 +792,11 @@ def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, tc_type,
         else:
             if not (scanner or thermo):
                 raise click.UsageError("give --scanner, --thermo or both")
+            machine = load_machine(machine_file)
+            pose_t = triple(pose, "--pose") if pose else machine.pose.as_tuple()
+            offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
             run = record_live(run_dir, scanner, thermo, duration=duration, console=console, show=not no_display,
-                              plan=plan, pose=triple(pose, "--pose"), offset=triple(offset, "--offset"), tc_type=tc_type,
+                              plan=_plan_for(plan, machine, machine_file), pose=pose_t, offset=offset_t, tc_type=tc_type,
                               thermo_interval=thermo_interval, flush_interval=flush_interval,
                               scanner_baudrate=scanner_baud, thermo_baudrate=thermo_baud, overwrite=overwrite)
     except Error as exc:
@@ -635,16 +804,37 @@ def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, tc_type,
     Console().print(summary_table(run, run_dir))
 
 
+def _plan_for(plan_file, machine, machine_file):
+    """The plan to record with: the plan file's, with the machine file's
+    thermocouple channels (in the file's order, multiplexer channels 101, 102,
+    ...) where the plan lists none."""
+    from .acquire.plan import Plan
+
+    if machine_file is None:
+        return plan_file
+    plan = Plan.read(plan_file) if plan_file else Plan()
+    listed = plan_file and json.loads(Path(plan_file).read_text(encoding="utf-8")).get("temperature_channels")
+    if not listed:
+        plan.temperature_channels = [{"name": name, "role": role, "channel": 101 + k}
+                                     for k, (name, role) in enumerate(machine.thermocouples.items())]
+        plan.__post_init__()  # the same checks as a plan file's channels
+    return plan
+
+
 @main.command("plot-map")
-@click.argument("maps", nargs=-1, required=True)
+@click.argument("maps", nargs=-1)
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="PNG (or PDF, SVG) to write.")
-def plot_map_cmd(maps, out) -> None:
+@machine_option
+def plot_map_cmd(maps, out, machine_file) -> None:
     """Plot error-map components against position (like thesis Figures 3-7 to 3-18).
-    MAPS: 'thesis', 'appendix-b', or map files (several make a set)."""
+    MAPS: 'thesis', 'appendix-b', or map files (several make a set); default: the machine's."""
+    from .machine import load_machine
     from .plots import plot_error_map
 
     try:
-        plot_error_map(load_maps(tuple(maps)), out)
+        if not maps and machine_file is None:
+            raise click.UsageError("give MAPS or --machine")
+        plot_error_map(load_maps(tuple(maps), load_machine(machine_file) if machine_file else None), out)
     except Error as exc:
         raise fail(exc) from None
     console.print(f"wrote {out}")
@@ -685,7 +875,8 @@ def _xyz_points(path: str) -> np.ndarray:
               help="Reference-sphere scan at this pose (CSV u,v,D,E,F) for D0, E0, F0.")
 @click.option("--offset", default=None, help="U1,V1,W1 mount offset in mm. Default: the machine's.")
 @click.option("--name", required=True, help="Name of the indexed trunnion pose, e.g. A90B90.")
-@click.option("--library", "library_file", required=True, type=click.Path(dir_okay=False), help="Alignment library (JSON).")
+@click.option("--library", "library_file", default=None, type=click.Path(dir_okay=False),
+              help="Alignment library (JSON). Default: the machine file's mount.alignments.")
 @click.option("--temperature", type=float, default=None,
               help="Machine temperature during the alignment, C (needed with a map set).")
 @machine_option
@@ -705,11 +896,20 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
     from .machine import load_machine
 
     normal = triple(plane_normal, "--plane-normal") if plane_normal else None
+    if not plane_files:
+        raise click.UsageError("--plane-scan is needed to store an alignment (gamma; with --plane-normal, or two "
+                               "sweeps along different axes)")
+    if not ref_file:
+        raise click.UsageError("--reference-scan is needed to store an alignment (D0, E0, F0)")
     if vernier_uncertainty is not None and not (vernier_uncertainty > 0 and np.isfinite(vernier_uncertainty)):
         raise click.BadParameter(f"expected a positive number of um, got {vernier_uncertainty}",
                                  param_hint="--vernier-uncertainty")
     try:
         machine = load_machine(machine_file)
+        if library_file is None:
+            if machine_file is None or machine.alignments is None:
+                raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
+            library_file = machine.alignments
         offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
         error_map = load_maps(maps, machine) if (maps or machine_file) else None
         if error_map is None:
@@ -720,32 +920,17 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
         em = {"error_map": error_map, "temperature": temperature if error_map is not None else None}
         point_u = None if vernier_uncertainty is None else vernier_uncertainty * 1e-3
         vern = alpha_beta_from_vernier(_xyz_points(vernier_file), point_uncertainty=point_u, **em)
-        pose, pose_u, gamma_u = (vern.alpha, vern.beta, 0.0), None, None
-        residuals = {"vernier_rms": float(vern.fit.rms)}
-        if plane_files:
-            scans = [read_points(f) for f in plane_files]
-            uv = np.vstack([sc[0] for sc in scans])
-            scales = np.vstack([sc[1] for sc in scans])
-            gam = gamma_from_plane_scan(uv, scales, vern.alpha, vern.beta, normal=normal, offset=offset_t,
-                                        alpha_beta_covariance=vern.covariance, **em)
-            cp = calibrated_pose(vern, gam)
-            pose = cp.pose.as_tuple()
-            pose_u = tuple(float(x) for x in cp.uncertainty)
-            residuals["plane_rms"] = float(gam.rms)
-        reading, reading_u = (float("nan"),) * 3, None
-        if ref_file:
-            uv, scales, _ = read_points(ref_file)
-            ref = reference_centre_reading(uv, scales, pose, offset_t, **em)
-            reading = tuple(float(x) for x in ref.reading)
-            reading_u = tuple(float(x) for x in ref.uncertainty)
-            residuals["sphere_rms"] = float(ref.fit.rms) if ref.fit is not None else float("nan")
-        if not plane_files:
-            raise click.UsageError("--plane-scan is needed to store an alignment (gamma; with --plane-normal, or two "
-                                   "sweeps along different axes)")
-        if not ref_file:
-            raise click.UsageError("--reference-scan is needed to store an alignment (D0, E0, F0)")
-        record = AlignmentRecord(pose=pose, reading=reading, offset=offset_t, pose_uncertainty=pose_u,
-                                 reading_uncertainty=reading_u, temperature=temperature, residuals=residuals)
+        scans = [read_points(f) for f in plane_files]
+        gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
+                                    vern.alpha, vern.beta, normal=normal, offset=offset_t,
+                                    alpha_beta_covariance=vern.covariance, **em)
+        cp = calibrated_pose(vern, gam)
+        uv, scales, _ = read_points(ref_file)
+        # The pose's covariance goes into the reading through its Jacobian; the
+        # record keeps both apart (reading_uncertainty is the reading's own).
+        ref = reference_centre_reading(uv, scales, cp.pose, offset_t, pose_covariance=cp.covariance, **em)
+        residuals = {"vernier_rms": float(vern.fit.rms), "plane_rms": float(gam.rms)}
+        record = AlignmentRecord.from_calibration(cp, ref, offset_t, temperature=temperature, residuals=residuals)
         AlignmentLibrary(library_file).save(name, record)
     except Error as exc:
         raise fail(exc) from None
@@ -753,34 +938,41 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
         click.echo(json.dumps({"name": name, "library": str(library_file), **record.to_dict()}, indent=2))
         return
     table = Table(title=f"alignment {name!r} -> {library_file}", show_header=False)
-    table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in pose))
-    table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in pose_u))
-    table.add_row("D0, E0, F0 (mm)", ", ".join(f"{v:.4f}" for v in reading))
-    table.add_row("u (mm)", ", ".join(f"{v:.4f}" for v in reading_u))
+    table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in record.pose))
+    table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in record.pose_uncertainty))
+    table.add_row("D0, E0, F0 (mm)", ", ".join(f"{v:.4f}" for v in record.reading))
+    table.add_row("u, the reading's own (mm)", ", ".join(f"{v:.4f}" for v in record.reading_uncertainty))
+    total = np.sqrt(np.diag(ref.covariance))
+    table.add_row("u, with the pose's (mm)", ", ".join(f"{v:.4f}" for v in total))
     Console().print(table)
 
 
 @calibrate.command("offset")
 @click.argument("names", nargs=-1, required=True)
-@click.option("--library", "library_file", required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--library", "library_file", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Alignment library (JSON). Default: the machine file's mount.alignments.")
+@machine_option
 @click.option("--tolerance", type=float, default=4.0, show_default=True,
               help="Largest standardised residual before the alignments count as disagreeing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the fit (offset, covariances, residuals, chi-square) as JSON.")
-def calibrate_offset_cmd(names, library_file, tolerance, as_json) -> None:
+def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) -> None:
     """Mount offset U1, V1, W1 by least squares from three or more aligned poses NAMES in the library."""
     from .calibration import AlignmentLibrary, mount_offset
-    from .calibration.alignment import ReferenceReading
+    from .machine import load_machine
 
     try:
+        if library_file is None:
+            machine = load_machine(machine_file)
+            if machine.alignments is None:
+                raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
+            library_file = machine.alignments
         lib = AlignmentLibrary(library_file)
         readings = []
         for n in names:
-            rec = lib.load(n)
-            if rec.reading_uncertainty is None:
-                raise click.UsageError(f"alignment {n!r} has no reading uncertainty")
-            pose_cov = np.diag(np.nan_to_num(np.square(rec.pose_uncertainty or (0.0, 0.0, 0.0))))
-            readings.append(ReferenceReading.from_reading(rec.pose, rec.reading, rec.reading_uncertainty,
-                                                          pose_covariance=pose_cov))
+            try:  # the solver's reading back: full pose covariance, its Jacobian, the lever
+                readings.append(lib.load(n).reference_reading())
+            except CalibrationError as exc:
+                raise CalibrationError(f"{library_file}: alignment {n!r}: {exc}") from None
         fit = mount_offset(readings, tolerance=tolerance)
     except Error as exc:
         raise fail(exc) from None
@@ -815,14 +1007,19 @@ def calibrate_offset_cmd(names, library_file, tolerance, as_json) -> None:
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
 @click.option("--compare", "compare_to", default=None, help="A map ('thesis@20', 'appendix-b' or a file) to compare with.")
 @click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False), help="Difference plot (with --compare).")
-def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out, compare_to, plot_path) -> None:
-    """Build an error map from raw laser-interferometer RUN_FILES (docs/interferometer.md)."""
+@machine_option
+def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out, compare_to, plot_path,
+                      machine_file) -> None:
+    """Build an error map from raw laser-interferometer RUN_FILES (docs/interferometer.md). With
+    --machine, the map is checked against the machine's travel."""
     from .calibration.interferometer import build_map, compare_maps, plot_map_difference, read_run
+    from .machine import load_machine
 
     sq = triple(squareness, "--squareness")
     try:
         runs = [read_run(f) for f in run_files]
         built = build_map(runs, sq, temperature, air_correction=not no_air_correction)
+        notes = list(built.notes) + (travel_notes(load_machine(machine_file), built.map) if machine_file else [])
         built.map.write(out)
         if compare_to:
             if compare_to.startswith("thesis@"):
@@ -838,7 +1035,7 @@ def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out
                 console.print(f"wrote {plot_path}")
     except Error as exc:
         raise fail(exc) from None
-    for note in built.notes:
+    for note in notes:
         console.print(f"note: {note}")
     console.print(f"wrote {out}: {built.map!r}")
 
@@ -982,16 +1179,19 @@ def map_group() -> None:
 @click.option("--units", type=click.Choice(["mm", "inch"]), default="mm", show_default=True,
               help="linuxcnc: machine units of the files.")
 @click.option("--hold-ends", is_flag=True, help="With --base: hold the end values where its grid runs beyond the targets.")
-def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, hold_ends) -> None:
+@machine_option
+def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, hold_ends, machine_file) -> None:
     """Build a canonical map from linear-axis results in FORMAT.
 
     iso230-2: one CSV file. linuxcnc: one AXIS=FILE per axis, e.g. X=x.comp Y=y.comp.
     The map keeps the mean of the two approach directions; axes without results
-    are zero (or, with --base, keep the base's component).
+    are zero (or, with --base, keep the base's component). With --machine, the
+    map is checked against the machine's travel.
     """
     from .errors import Error
     from .iso230 import read_iso230
     from .linuxcnc import read_comp_files
+    from .machine import load_machine
 
     try:
         base_map = None if base is None else _map_spec(base, "--base")
@@ -1012,14 +1212,17 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
                     pairs[axis.upper()] = path
                 built = read_comp_files(pairs, comp_file_type=int(comp_file_type), units=units, base=base_map,
                                         temperature=temperature, hold_ends=hold_ends)
+        notes = travel_notes(load_machine(machine_file), built) if machine_file else []
         built.write(out)
     except Error as exc:
         raise fail(exc) from None
+    for note in notes:
+        console.print(f"[yellow]warning:[/] {escape(note)}")
     console.print(f"wrote {out}: {built!r}")
 
 
 @map_group.command("export")
-@click.argument("map_spec", metavar="MAP")
+@click.argument("map_spec", metavar="MAP", required=False)
 @click.option("--format", "fmt", type=click.Choice(_MAP_EXPORT_FORMATS), required=True,
               help="Format to write (linuxcnc: one file per axis in the directory OUT).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(), help="File to write (linuxcnc: a directory).")
@@ -1027,8 +1230,12 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
               help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
 @click.option("--units", type=click.Choice(["mm", "inch"]), default="mm", show_default=True,
               help="linuxcnc: machine units to write.")
-def map_export_cmd(map_spec, fmt, out, comp_file_type, units) -> None:
-    """Write the linear components of MAP ('appendix-b', 'thesis@T' or a map file) in FORMAT.
+@machine_option
+@click.option("--temperature", type=float, default=None,
+              help="With --machine and a map set: the temperature to export the map at, C.")
+def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temperature) -> None:
+    """Write the linear components of MAP ('appendix-b', 'thesis@T' or a map file) in FORMAT;
+    without MAP, the machine's map (--machine; a set at --temperature).
 
     iso230-2 and linuxcnc carry delta_x of X, delta_y of Y and delta_z of Z only,
     the same value in both approach directions; linuxcnc writes x.comp, y.comp
@@ -1037,8 +1244,19 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units) -> None:
     from .errors import Error
     from .linuxcnc import write_comp_files
 
+    from .machine import load_machine
+
     try:
-        source = _map_spec(map_spec, "MAP")
+        if map_spec is not None:
+            source = _map_spec(map_spec, "MAP")
+        elif machine_file is None:
+            raise click.UsageError("give MAP or --machine")
+        else:
+            source = load_maps((), load_machine(machine_file))
+            if isinstance(source, ErrorMapSet):
+                if temperature is None:
+                    raise click.UsageError("the machine's maps are a set: give --temperature (C)")
+                source = source.at(temperature)
         if fmt == "linuxcnc":
             folder = Path(out)
             folder.mkdir(parents=True, exist_ok=True)

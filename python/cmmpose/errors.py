@@ -18,7 +18,7 @@ import warnings
 
 from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "SchedulerError", "ClampWarning", "ExtrapolationWarning", "MapTemperatureWarning", "warn_clamped", "read_lines"]
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "SchedulerError", "ClampWarning", "ExtrapolationWarning", "IllConditionedFit", "MapTemperatureWarning", "warn_clamped", "read_lines"]
 
 _log = logging.getLogger("cmmpose")
 
@@ -42,6 +42,12 @@ class ClampWarning(UserWarning):
 
 class ExtrapolationWarning(UserWarning):
     """Temperatures beyond the maps were extrapolated (``out_of_range='extrapolate'``)."""
+
+
+class IllConditionedFit(UserWarning):
+    """A free-radius sphere fit whose centre is ill-determined: the centre and
+    the radius are so correlated (a small cap) that the centre moves with the
+    radius; fix the radius at its calibrated value (docs/fitting.md)."""
 
 
 class MapTemperatureWarning(UserWarning):

@@ -21,11 +21,17 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import InputError
 from ..pose import MountOffset, Pose, pose_tuple
 from ..errors import CalibrationError
 from .._validate import triple
 from .alignment import CalibratedPose, MountOffsetFit, ReferenceReading
+
+_FIELDS = ("pose", "reading", "offset", "pose_uncertainty", "reading_uncertainty", "offset_uncertainty",
+           "temperature", "date", "residuals", "note", "pose_covariance", "reading_covariance", "pose_jacobian",
+           "position", "lever")
 
 __all__ = ["AlignmentRecord", "AlignmentLibrary", "LIBRARY_FORMAT", "LIBRARY_VERSION"]
 
@@ -34,8 +40,13 @@ LIBRARY_VERSION = 1
 UNITS = {
     "pose": "degree (alpha, beta, gamma, Euler 3-1-3)",
     "pose_uncertainty": "degree",
+    "pose_covariance": "degree^2",
     "reading": "mm (D0, E0, F0)",
-    "reading_uncertainty": "mm",
+    "reading_uncertainty": "mm (the reading's own: sphere fit and stated terms, not the pose's)",
+    "reading_covariance": "mm^2 (the reading's own, as reading_uncertainty)",
+    "pose_jacobian": "mm/degree (d reading / d alpha, beta, gamma; columns)",
+    "position": "mm (the mount point's position with the laser origin at the sphere centre)",
+    "lever": "1 (d sphere centre / d(-offset))",
     "offset": "mm (U1, V1, W1)",
     "offset_uncertainty": "mm",
     "temperature": "degree C",
@@ -54,6 +65,37 @@ def _triple(where: str, name: str, value, *, optional: bool = False, nonnegative
     return triple(f"{where}: {name}", value, nonnegative=nonnegative, error=CalibrationError)
 
 
+def _matrix(where: str, name: str, value, *, covariance: bool = False):
+    """A 3 x 3 matrix as a tuple of row tuples (None stays None); a covariance
+    must be symmetric positive semi-definite."""
+    if value is None:
+        return None
+    try:
+        m = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{where}: {name} must be a 3 x 3 matrix of numbers, got {value!r}") from None
+    if m.shape != (3, 3) or not np.isfinite(m).all():
+        raise CalibrationError(f"{where}: {name} must be a finite 3 x 3 matrix, got {value!r}")
+    if covariance:
+        scale = max(float(np.abs(m).max()), 1e-300)
+        if np.abs(m - m.T).max() > 1e-9 * scale or np.linalg.eigvalsh((m + m.T) / 2).min() < -1e-9 * scale:
+            raise CalibrationError(f"{where}: {name} must be symmetric positive semi-definite, got {m.tolist()}")
+        m = (m + m.T) / 2
+    return tuple(tuple(float(x) for x in row) for row in m)
+
+
+def _agree(where: str, name: str, uncertainty, covariance):
+    """The standard uncertainties implied by ``covariance`` (if given), checked
+    against ``uncertainty`` (if also given): one number, one meaning."""
+    if covariance is None:
+        return uncertainty
+    implied = tuple(math.sqrt(max(covariance[i][i], 0.0)) for i in range(3))
+    if uncertainty is not None and not np.allclose(uncertainty, implied, rtol=1e-6, atol=1e-15):
+        raise CalibrationError(f"{where}: {name}_uncertainty {list(uncertainty)} disagrees with the square roots "
+                               f"of the diagonal of {name}_covariance {list(implied)}")
+    return implied
+
+
 @dataclass(frozen=True)
 class AlignmentRecord:
     """The stored alignment of one trunnion pose.
@@ -68,7 +110,23 @@ class AlignmentRecord:
     offset : sequence of 3 float
         Mount offset U1, V1, W1, mm.
     pose_uncertainty, reading_uncertainty, offset_uncertainty : sequence of 3 float, optional
-        Standard uncertainties, degrees and mm.
+        Standard uncertainties, degrees and mm. ``reading_uncertainty`` is
+        the reading's own (the sphere fit's and any stated terms): the pose's
+        share is not in it but in ``pose_covariance`` acting through
+        ``pose_jacobian``, so that the mount-offset fit counts it once, with
+        its correlations.
+    pose_covariance : 3 x 3 nested sequence of float, optional
+        Covariance of (alpha, beta, gamma), degree^2 (gamma is correlated with
+        alpha and beta through the plane scan).
+    reading_covariance : 3 x 3 nested sequence of float, optional
+        Covariance of D0, E0, F0 without the pose term, mm^2.
+    pose_jacobian : 3 x 3 nested sequence of float, optional
+        d (D0, E0, F0) / d (alpha, beta, gamma), mm/degree.
+    position : sequence of 3 float, optional
+        The mount point's position with the laser origin at the sphere centre,
+        mm (``ReferenceReading.position``; equals ``reading`` without a map).
+    lever : 3 x 3 nested sequence of float, optional
+        d sphere centre / d(-offset) (``ReferenceReading.lever``), 1.
     temperature : float, optional
         Machine temperature during the alignment, C.
     date : str
@@ -90,10 +148,14 @@ class AlignmentRecord:
     date: str = field(default_factory=_now)
     residuals: dict = field(default_factory=dict)
     note: str = ""
+    pose_covariance: tuple | None = None
+    reading_covariance: tuple | None = None
+    pose_jacobian: tuple | None = None
+    position: tuple | None = None
+    lever: tuple | None = None
 
     def __post_init__(self):
-        raw = {f: getattr(self, f) for f in ("pose", "reading", "offset", "pose_uncertainty", "reading_uncertainty",
-                                              "offset_uncertainty", "temperature", "date", "residuals", "note")}
+        raw = {f: getattr(self, f) for f in _FIELDS}
         checked = AlignmentRecord._checked(raw, "record")
         for k, v in checked.items():
             object.__setattr__(self, k, v)
@@ -102,12 +164,15 @@ class AlignmentRecord:
     def to_dict(self) -> dict:
         """Plain JSON-ready dict."""
         lst = lambda t: None if t is None else [float(x) for x in t]  # noqa: E731
+        mat = lambda m: None if m is None else [lst(row) for row in m]  # noqa: E731
         return {
             "pose": lst(self.pose), "reading": lst(self.reading), "offset": lst(self.offset),
             "pose_uncertainty": lst(self.pose_uncertainty), "reading_uncertainty": lst(self.reading_uncertainty),
             "offset_uncertainty": lst(self.offset_uncertainty),
             "temperature": self.temperature, "date": self.date, "residuals": dict(self.residuals),
             "note": self.note,
+            "pose_covariance": mat(self.pose_covariance), "reading_covariance": mat(self.reading_covariance),
+            "pose_jacobian": mat(self.pose_jacobian), "position": lst(self.position), "lever": mat(self.lever),
         }
 
     @staticmethod
@@ -117,8 +182,7 @@ class AlignmentRecord:
         missing = [k for k in ("pose", "reading", "offset") if k not in d]
         if missing:
             raise CalibrationError(f"{where}: missing field(s) {', '.join(missing)}")
-        unknown = sorted(set(d) - {"pose", "reading", "offset", "pose_uncertainty", "reading_uncertainty",
-                                   "offset_uncertainty", "temperature", "date", "residuals", "note"})
+        unknown = sorted(set(d) - set(_FIELDS))
         if unknown:
             raise CalibrationError(f"{where}: unknown field(s) {', '.join(unknown)}")
         out = {
@@ -128,6 +192,12 @@ class AlignmentRecord:
         }
         for k in ("pose_uncertainty", "reading_uncertainty", "offset_uncertainty"):
             out[k] = _triple(where, k, d.get(k), optional=True, nonnegative=True)
+        for k in ("pose", "reading"):
+            out[f"{k}_covariance"] = _matrix(where, f"{k}_covariance", d.get(f"{k}_covariance"), covariance=True)
+            out[f"{k}_uncertainty"] = _agree(where, k, out[f"{k}_uncertainty"], out[f"{k}_covariance"])
+        out["pose_jacobian"] = _matrix(where, "pose_jacobian", d.get("pose_jacobian"))
+        out["lever"] = _matrix(where, "lever", d.get("lever"))
+        out["position"] = _triple(where, "position", d.get("position"), optional=True)
         t = d.get("temperature")
         if t is not None:
             if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
@@ -185,21 +255,60 @@ class AlignmentRecord:
             Free text.
         """
         if isinstance(pose, CalibratedPose):
-            p, pu = pose.pose.as_tuple(), tuple(float(x) for x in pose.uncertainty)
+            p, pc = pose.pose.as_tuple(), pose.covariance
         else:
-            p, pu = pose_tuple(pose), None
+            p, pc = pose_tuple(pose), None
         if not isinstance(reading, ReferenceReading):
             raise InputError(f"reading: expected a ReferenceReading, got {type(reading).__name__}")
+        if pc is None and np.any(reading.pose_covariance != 0):
+            pc = reading.pose_covariance
         if isinstance(offset, MountOffsetFit):
             o, ou = tuple(offset.offset), tuple(float(x) for x in offset.uncertainty)
         else:
             o, ou = tuple(float(x) for x in offset), None
         res = {} if reading.fit is None else {"sphere_rms": float(reading.fit.rms)}
         res.update(residuals or {})
-        return cls(pose=p, reading=tuple(float(x) for x in reading.reading), offset=o, pose_uncertainty=pu,
-                   reading_uncertainty=tuple(float(x) for x in reading.uncertainty), offset_uncertainty=ou,
+        return cls(pose=p, reading=tuple(float(x) for x in reading.reading), offset=o,
+                   pose_covariance=None if pc is None else np.asarray(pc).tolist(),
+                   reading_covariance=np.asarray(reading.fit_covariance).tolist(), offset_uncertainty=ou,
+                   pose_jacobian=np.asarray(reading.pose_jacobian).tolist(),
+                   position=tuple(float(x) for x in reading.position), lever=np.asarray(reading.lever).tolist(),
                    temperature=reading.temperature if temperature is None else float(temperature),
                    date=_now() if date is None else date, residuals=res, note=note)
+
+    def reference_reading(self) -> ReferenceReading:
+        """The alignment as :func:`cmmpose.calibration.mount_offset` takes it.
+
+        A record written by the solvers (``from_calibration``, ``cmmpose
+        calibrate alignment``) gives back the solver's reading exactly: its
+        position, lever, own covariance, and the pose's full covariance acting
+        through the pose Jacobian. A record written by hand (readings and
+        standard uncertainties only) is taken as ``ReferenceReading.from_reading``
+        takes it: uncorrelated uncertainties, the pose acting through the lever.
+
+        Raises
+        ------
+        CalibrationError
+            The record states no reading uncertainty.
+        """
+        if self.reading_uncertainty is None:
+            raise CalibrationError("the record states no reading uncertainty (mm): the mount-offset fit weighs "
+                                   "each alignment by it")
+        pc = self.pose_covariance
+        if pc is None:
+            pc = np.diag(np.square(self.pose_uncertainty or (0.0, 0.0, 0.0)))
+        pc = np.array(pc, dtype=float)
+        if self.reading_covariance is None or self.position is None or self.lever is None or self.pose_jacobian is None:
+            cov = None if self.reading_covariance is None else np.array(self.reading_covariance)
+            return ReferenceReading.from_reading(self.pose, self.reading,
+                                                 None if cov is not None else self.reading_uncertainty,
+                                                 covariance=cov, pose_covariance=pc, temperature=self.temperature)
+        fit_cov = np.array(self.reading_covariance, dtype=float)
+        jac = np.array(self.pose_jacobian, dtype=float)
+        return ReferenceReading(pose=self.pose, reading=np.array(self.reading, dtype=float),
+                                covariance=fit_cov + jac @ pc @ jac.T, fit_covariance=fit_cov, pose_covariance=pc,
+                                pose_jacobian=jac, position=np.array(self.position, dtype=float),
+                                lever=np.array(self.lever, dtype=float), temperature=self.temperature)
 
     # -- use --------------------------------------------------------------------
     def as_pose(self) -> Pose:
