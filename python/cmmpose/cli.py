@@ -99,8 +99,8 @@ def main() -> None:
 
 
 @main.command("compensate")
-@click.argument("points_in", metavar="IN", type=click.Path(dir_okay=False))
-@click.argument("points_out", metavar="OUT", type=click.Path(dir_okay=False, writable=True))
+@click.argument("points_in", metavar="IN", type=click.Path())
+@click.argument("points_out", metavar="OUT", type=click.Path(writable=True))
 @machine_option
 @click.option("--maps", "maps", multiple=True,
               help="'thesis', 'appendix-b', or map files (.csv canonical, .txt controller); repeat for a set. "
@@ -115,12 +115,19 @@ def main() -> None:
               help="Alignment library (JSON) for --alignment. Default: the machine file's mount.alignments.")
 @policy_options(log_hold=False)
 @click.option("--nan-policy", type=click.Choice(["raise", "propagate"]), default="raise", show_default=True)
+@click.option("--scheduler", default=None,
+              help="For a folder IN: 'threads' (default), 'processes', or a Dask scheduler address tcp://host:port "
+                   "(needs the dask extra).")
 def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
-                   out_of_range, temperature_tolerance, nan_policy) -> None:
+                   out_of_range, temperature_tolerance, nan_policy, scheduler) -> None:
     """Compensate scanner points IN (CSV, NPY, Parquet, PLY or XYZ: u, v, D, E, F[, T])
     into machine coordinates OUT (by suffix: CSV, NPY, Parquet, PLY, XYZ, PTS or E57;
     X, Y, Z in mm, E57 in metres). Any other column of IN (scan_id, intensity, ...)
-    is written to OUT unchanged."""
+    is written to OUT unchanged.
+
+    IN may be a folder of Parquet files (a dataset): OUT is then a folder that
+    gets one Parquet file per input, named after it, with X, Y, Z and the
+    input's other columns, compensated on the --scheduler in bounded memory."""
     from .machine import load_machine
 
     try:
@@ -133,6 +140,12 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         raise fail(exc) from None
     pose_t = triple(pose, "--pose") if pose else machine.pose.as_tuple()
     offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
+    if Path(points_in).is_dir():
+        return _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
+                                   temperature_tolerance, nan_policy, scheduler or "threads")
+    if scheduler is not None:
+        raise click.BadParameter(f"{points_in} is a file; --scheduler is for a folder of Parquet files",
+                                 param_hint="--scheduler")
     try:
         check_writable(points_out)  # before any work: a missing folder is found now, not after
         error_map = load_maps(maps, machine)
@@ -279,6 +292,57 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
     table.add_row("temperature", f"{temperature:g} C")
     table.add_row("effects", ", ".join(effects) or "none")
     table.add_row("time", f"{elapsed:.2f} s")
+    Console().print(table)
+
+
+def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
+                        temperature_tolerance, nan_policy, scheduler) -> None:
+    """`compensate DATASET_DIR OUT_DIR`: a folder of Parquet files on a Dask scheduler (cmmpose.scale)."""
+    import logging
+
+    from .scale import compensate_dataset, dataset_temperature_range
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
+    try:
+        error_map = load_maps(maps, machine)
+        given = temperature if temperature is not None else dataset_temperature_range(points_in)
+        if isinstance(error_map, ErrorMap) and given is not None:  # T from the files' statistics, no data read
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", MapTemperatureWarning)
+                note = warn_single_map(error_map, given, temperature_tolerance)
+            if note:
+                console.print(f"[yellow]warning:[/] {escape(note)}")
+        with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                      TextColumn("{task.completed:,.0f} points"),
+                      TimeRemainingColumn(), console=console) as bar:
+            task = bar.add_task("", total=None)
+            result = compensate_dataset(points_in, points_out, error_map, pose_t, offset_t, temperature,
+                                        out_of_range=out_of_range, nan_policy=nan_policy,
+                                        temperature_tolerance=temperature_tolerance, scheduler=scheduler,
+                                        progress=lambda done, total: bar.update(task, completed=done, total=total))
+    except Error as exc:
+        raise fail(exc) from None
+    report = result.report
+    table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
+    machine_row(table, machine)
+    table.add_row("files", f"{len(result.outputs)}")
+    table.add_row("points", f"{result.points:,}")
+    table.add_row("maps", repr(error_map))
+    t_text = f"{temperature:g} C" if temperature is not None else "per point (T column)"
+    table.add_row("temperature", t_text if isinstance(error_map, ErrorMapSet) else "-")
+    table.add_row("pose (deg)", ", ".join(f"{v:g}" for v in pose_t))
+    table.add_row("offset (mm)", ", ".join(f"{v:g}" for v in offset_t))
+    table.add_row("scheduler", scheduler)
+    if report.clamped:
+        x, y, z = report.clamped_position
+        table.add_row("clamped", f"X {x}, Y {y}, Z {z}, temperature {report.clamped_temperature}")
+    if report.held_temperature:
+        table.add_row("held at the maps' edge",
+                      f"{report.held_temperature:,} temperatures within {temperature_tolerance:g} K outside")
+    if report.extrapolated_temperature:
+        table.add_row("extrapolated", f"{report.extrapolated_temperature:,} temperatures, up to "
+                                      f"{report.max_extrapolation:.2f} K beyond the maps")
+    table.add_row("wall time", f"{result.elapsed:.1f} s ({result.points / max(result.elapsed, 1e-9) / 1e6:.1f} M points/s)")
     Console().print(table)
 
 
@@ -489,7 +553,7 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 
 
 @main.command("evaluate")
-@click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
+@click.argument("run_dir", metavar="RUN_DIR...", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
 @machine_option
 @click.option("--maps", "maps", multiple=True,
               help="Compensation maps ('thesis', files, or 'none'); default: the machine's, or as run.json says.")
@@ -501,9 +565,16 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @click.option("--reject", type=float, default=None, help="Robust sphere fits: reject beyond this many robust sigmas.")
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None, help="Write JSON, CSV and plots here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+@click.option("--scheduler", default=None,
+              help="Evaluate the runs on Dask: 'threads', 'processes' or a scheduler address tcp://host:port "
+                   "(default with several runs: threads; needs the dask extra).")
 def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
-                 reject, report_dir, as_json) -> None:
-    """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated."""
+                 reject, report_dir, as_json, scheduler) -> None:
+    """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated.
+
+    With several runs (a fleet, or a day's runs), each is evaluated on the
+    --scheduler and a summary table across them is printed; --report writes
+    the summary (CSV), each run's report and a plot of the trend."""
     from .evaluation import evaluate
     from .machine import load_machine
     from .run import Run
@@ -512,6 +583,12 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         machine = load_machine(machine_file)
         if expansion is None:
             expansion = machine.artefact_expansion * 1e6
+        if len(run_dir) > 1 or scheduler is not None:
+            return _evaluate_fleet(run_dir, machine, maps, scheduler or "threads", report_dir, as_json,
+                                   temperature=temperature, reject=reject, out_of_range=out_of_range,
+                                   temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+                                   expansion=expansion * 1e-6)
+        run_dir = run_dir[0]
         run = Run.load(run_dir)
         model = _maps_for_run(run, maps, machine)
         with warnings.catch_warnings(record=True) as caught:
@@ -527,6 +604,64 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         click.echo(ev.to_json(indent=2))
     else:
         Console().print(ev)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
+def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **options) -> None:
+    """`evaluate RUN...`: every run on a Dask scheduler (cmmpose.scale), then one table across them."""
+    import logging
+
+    from .scale import evaluate_runs, fleet_summary
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
+    if maps == ("none",):
+        model = None
+    elif maps or not machine.is_default:
+        model = load_maps(maps, machine)
+    else:
+        model = "run"  # each run.json names its bundled maps
+    with Progress(TextColumn("evaluating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} runs"),
+                  console=console) as bar:
+        task = bar.add_task("", total=len(run_dirs))
+        evaluations = evaluate_runs(run_dirs, model, scheduler=scheduler,
+                                    progress=lambda done, total: bar.update(task, completed=done), **options)
+    rows = fleet_summary(run_dirs, evaluations)
+    files = []
+    if report_dir:
+        from .plots import plot_fleet_trend
+
+        directory = Path(report_dir)
+        directory.mkdir(parents=True, exist_ok=True)
+        for r, ev in zip(run_dirs, evaluations):
+            files += write_report(ev, directory / Path(r).name, model if not isinstance(model, str) else None)
+        summary = directory / "summary.csv"
+        fields = list(rows[0].__dataclass_fields__)
+        summary.write_text("\n".join([",".join(fields)] + [",".join(str(getattr(row, f)) for f in fields)
+                                                            for row in rows]) + "\n")
+        files.append(summary)
+        try:
+            plot_fleet_trend(rows, directory / "trend.png")
+            files.append(directory / "trend.png")
+        except (ImportError, InputError) as exc:  # the table is still printed
+            console.print(f"[yellow]no trend plot:[/] {escape(str(exc))}")
+    if as_json:
+        click.echo(json.dumps([{k: (None if isinstance(v, float) and v != v else v) for k, v in row.__dict__.items()}
+                               for row in rows], indent=2))  # NaN (no value) as null: strict JSON
+    else:
+        table = Table(title=f"cmmpose evaluate: {len(rows)} runs on {scheduler}")
+        table.add_column("run")
+        table.add_column("created")
+        table.add_column("temperature (C)", justify="right")
+        for what in ("uncompensated", "compensated"):
+            table.add_column(f"{what}\nrms (um)", justify="right")
+            table.add_column("B89 (um)", justify="right")
+        um = lambda x: "-" if x != x else f"{x * 1e3:.1f}"  # noqa: E731 - NaN: no value
+        for row in rows:
+            table.add_row(escape(row.run), row.created, "-" if row.temperature != row.temperature else f"{row.temperature:.2f}",
+                          um(row.rms_uncompensated), um(row.b89_uncompensated), um(row.rms_compensated),
+                          um(row.b89_compensated))
+        Console(width=max(120, Console().width)).print(table)
     for f in files:
         console.print(f"wrote {f}")
 
