@@ -237,3 +237,19 @@ def test_cli_evaluate_fleet(client, runs, tmp_path):
     assert res.exit_code == 0, res.output
     rows = json.loads(res.output[res.output.index("["):])
     assert [r["run"] for r in rows] == [str(r) for r in runs[:2]]
+
+
+def test_cli_diagnose_fleet(client, runs, tmp_path):
+    runner = CliRunner()
+    res = runner.invoke(main, ["diagnose", *map(str, runs[:2]), "--scheduler", client.scheduler.address,
+                               "--no-auto", "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert list(doc) == [str(r) for r in runs[:2]]
+    one = cmmpose.diagnose(cmmpose.Run.load(runs[1]), auto=False)
+    assert doc[str(runs[1])]["steps"][0]["rms_accuracy_error_um"] == pytest.approx(
+        one.steps[0].figures.rms_accuracy_error * 1e3, rel=1e-12)
+    res = runner.invoke(main, ["diagnose", *map(str, runs[:2]), "--max-effects", "1"])
+    assert res.exit_code == 0 and "diagnosis of 2 runs" in res.output, res.output
+    res = runner.invoke(main, ["diagnose", *map(str, runs[:2]), "--report", str(tmp_path / "r.html")])
+    assert res.exit_code != 0 and "--report takes one run" in res.output

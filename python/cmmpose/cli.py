@@ -667,7 +667,7 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
 
 
 @main.command("diagnose")
-@click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
+@click.argument("run_dirs", metavar="RUN_DIR...", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
 @machine_option
 @click.option("--maps", "maps", multiple=True,
               help="Model maps ('thesis' or files); default: the machine's, or as run.json says.")
@@ -685,14 +685,28 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
                    "(repeatable; docs/user-effects.md).")
 @click.option("--user-effect-skeleton", "skeleton_out", type=click.Path(dir_okay=False), default=None,
               help="Write a user-effect draft (Python) built on the first unexplained finding here.")
+@click.option("--scheduler", default=None,
+              help="With several runs: where each run's diagnosis runs (threads, processes or tcp://host:port; "
+                   "the [dask] extra; docs/scale-out.md).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
-def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
-                 add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, as_json) -> None:
-    """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall."""
+def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
+                 add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, scheduler, as_json) -> None:
+    """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall.
+    Several RUN_DIRs are diagnosed one by one on a Dask scheduler, with one table across them."""
     from .diagnosis import Model, diagnose
     from .machine import load_machine
     from .run import Run
 
+    if len(run_dirs) > 1 or scheduler:
+        for flag, given in (("--report", report_file), ("--save-model", model_out), ("--user-effect", user_files),
+                            ("--user-effect-skeleton", skeleton_out)):
+            if given:
+                raise click.UsageError(f"{flag} takes one run: diagnose the run of interest on its own")
+        return _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler or "threads", as_json,
+                               temperature=temperature, out_of_range=out_of_range,
+                               temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
+                               auto=not no_auto, max_effects=max_effects)
+    run_dir = run_dirs[0]
     try:
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
@@ -733,6 +747,44 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
         Console(width=150).print(diag)
     for f in files:
         console.print(f"wrote {f}")
+
+
+def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json, *, temperature, out_of_range,
+                    temperature_tolerance, log_hold, **options) -> None:
+    """`diagnose RUN...`: each run's diagnosis on a Dask scheduler (cmmpose.scale), one table across them."""
+    from .diagnosis import Model
+    from .machine import load_machine
+    from .scale import diagnose_runs
+
+    try:
+        machine = load_machine(machine_file)
+        model = None
+        if model_file:
+            model = Model.load(model_file)
+        elif maps or machine_file:
+            model = Model(load_maps(maps, machine), temperature=temperature, out_of_range=out_of_range,
+                          temperature_tolerance=temperature_tolerance, log_hold=log_hold)
+        with Progress(TextColumn("diagnosing"), BarColumn(), TextColumn("{task.completed}/{task.total} runs"),
+                      console=console) as bar:
+            task = bar.add_task("", total=len(run_dirs))
+            diags = diagnose_runs(run_dirs, model, scheduler=scheduler,
+                                  progress=lambda done, total: bar.update(task, completed=done, total=total),
+                                  **options)
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(json.dumps({str(r): json.loads(d.to_json()) for r, d in zip(run_dirs, diags)}, indent=1))
+        return
+    table = Table(title=f"diagnosis of {len(run_dirs)} runs ({scheduler})")
+    for col in ("run", "added (final values ± u)", "rms before (um)", "rms after (um)", "unexplained"):
+        table.add_column(col, justify="left" if col in ("run", "added (final values ± u)", "unexplained") else "right")
+    for r, d in zip(run_dirs, diags):
+        added = "; ".join(f"{x['name']}: {x['reason'].split(' (final model)')[0]}" for x in d.decisions()
+                          if x["decision"].startswith("added")) or "-"
+        table.add_row(str(r), added, f"{d.steps[0].figures.rms_accuracy_error * 1e3:.2f}",
+                      f"{d.steps[-1].figures.rms_accuracy_error * 1e3:.2f}",
+                      "; ".join(f.input + ": " + f.description.split(":")[0] for f in d.unexplained) or "-")
+    Console(width=160).print(table)
 
 
 def _load_user_effect(path: str):
