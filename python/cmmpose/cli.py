@@ -787,6 +787,43 @@ def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json
     Console(width=160).print(table)
 
 
+@main.command("diagnose-fits")
+@click.argument("fits_file", metavar="FITS")
+@click.option("--state", default=None, help="Rows of this state only (a 'state' column, e.g. compensated).")
+@click.option("--nominal-radius", type=float, default=None, help="Calibrated ball radius, mm.")
+@click.option("--reference-length", type=float, default=None, help="Calibrated bar length, mm (default: the mean).")
+@click.option("--json", "as_json", is_flag=True)
+def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, as_json) -> None:
+    """Diagnose a ballbar run from its sphere fits alone (centres, radii, points, fit rms per ball): FITS is a
+    CSV (docs/appendix-c.md) or 'appendix-c' (thesis Appendix C, 20 C, nominal radius 38.125 mm)."""
+    from .diagnosis.spheres import NOMINAL_RADIUS_MM, appendix_c_sphere_fits, diagnose_sphere_fits, read_sphere_fits
+
+    try:
+        if fits_file == "appendix-c":
+            fits = appendix_c_sphere_fits(state or "compensated")
+            nominal_radius = NOMINAL_RADIUS_MM if nominal_radius is None else nominal_radius
+        else:
+            if not Path(fits_file).is_file():
+                raise click.BadParameter(f"{fits_file}: no such file", param_hint="FITS")
+            fits = read_sphere_fits(fits_file, state)
+        d = diagnose_sphere_fits(fits["centres"], fits["radii"], nominal_radius=nominal_radius,
+                                 reference_length=reference_length, points=fits.get("points"),
+                                 fit_rms=fits.get("fit_rms"))
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(json.dumps(d.to_dict(), indent=1))
+        return
+    table = Table(title=f"sphere fits of {fits_file}" + (f" ({state})" if state else ""), show_header=False)
+    table.add_row("positions", str(len(d.lengths)))
+    table.add_row("rms accuracy error (um)", f"{d.rms_um:.2f}")
+    table.add_row("mean radius (mm)", f"{d.radius_mean:.4f}" + ("" if d.nominal_radius is None else
+                  f" ({d.radius_excess_um:+.1f} ± {d.radius_excess_u_um:.1f} um over {d.nominal_radius:g})"))
+    table.add_row("radius scatter between balls (um)", f"{d.radius_sd_um:.1f}")
+    Console().print(table)
+    Console(width=150).print(d.patterns)
+
+
 def _load_user_effect(path: str):
     """The EFFECT a user-effect file defines (the file is the user's own code, run as such)."""
     import importlib.util
