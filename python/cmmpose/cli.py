@@ -685,18 +685,30 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
                    "(repeatable; docs/user-effects.md).")
 @click.option("--user-effect-skeleton", "skeleton_out", type=click.Path(dir_okay=False), default=None,
               help="Write a user-effect draft (Python) built on the first unexplained finding here.")
+@click.option("--joint", is_flag=True,
+              help="With several runs: one model for all (shared effect parameters, per-run noise levels; the same "
+                   "artefact: one bar length), instead of one diagnosis per run.")
+@click.option("--separate-artefacts", is_flag=True, help="With --joint: each run measured its own artefact.")
 @click.option("--scheduler", default=None,
               help="With several runs: where each run's diagnosis runs (threads, processes or tcp://host:port; "
                    "the [dask] extra; docs/scale-out.md).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
 def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
-                 add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, scheduler, as_json) -> None:
+                 add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, joint, separate_artefacts,
+                 scheduler, as_json) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall.
     Several RUN_DIRs are diagnosed one by one on a Dask scheduler, with one table across them."""
     from .diagnosis import Model, diagnose
     from .machine import load_machine
     from .run import Run
 
+    if joint:
+        if len(run_dirs) < 2 or scheduler:
+            raise click.UsageError("--joint takes two or more runs and runs in this process (no --scheduler)")
+        return _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json,
+                               temperature=temperature, out_of_range=out_of_range,
+                               temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
+                               auto=not no_auto, max_effects=max_effects, same_artefact=not separate_artefacts)
     if len(run_dirs) > 1 or scheduler:
         for flag, given in (("--report", report_file), ("--save-model", model_out), ("--user-effect", user_files),
                             ("--user-effect-skeleton", skeleton_out)):
@@ -739,6 +751,40 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
                 files.append(diag.write_report(report_file, run, run_dir=run_dir, model_file=model_out))
             except ImportError as exc:  # the diagnosis is still printed and the model saved
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(diag.to_json(indent=1))
+    else:
+        Console(width=150).print(diag)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
+def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, *, temperature,
+                    out_of_range, temperature_tolerance, log_hold, **options) -> None:
+    """`diagnose RUN... --joint`: one model for several runs (cmmpose.diagnosis.joint)."""
+    from .diagnosis import Model
+    from .diagnosis.joint import diagnose_jointly
+    from .machine import load_machine
+    from .run import Run
+
+    try:
+        machine = load_machine(machine_file)
+        runs = [Run.load(r) for r in run_dirs]
+        user = [_load_user_effect(f) for f in user_files]
+        if model_file:
+            model = Model.load(model_file, user_effects=user)
+        else:
+            maps_ = _maps_for_run(runs[0], maps, machine)
+            if maps_ is None:
+                raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
+            model = Model(maps_, temperature=temperature, out_of_range=out_of_range,
+                          temperature_tolerance=temperature_tolerance, log_hold=log_hold)
+        with console.status(f"diagnosing {len(runs)} runs together ..."):
+            diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
+                                    run_names=[str(r) for r in run_dirs], **options)
+        files = [diag.model.save(model_out)] if model_out else []
     except Error as exc:
         raise fail(exc) from None
     if as_json:

@@ -175,7 +175,7 @@ class Problem:
                 r = np.linalg.qr(np.column_stack([X[rows], r0[rows]]), mode="r")
                 m = min(len(rows), k)
                 blocks.append((c, r[:m, :k], r[:m, k]))
-        w = np.ones(len(CLASSES))
+        w = np.ones(len(self.n_class))
         beta = np.zeros(k)
         rank = 0
         for _ in range(iterations):
@@ -187,7 +187,7 @@ class Problem:
                     rhs.append(ridge * (np.zeros(len(ridge)) if target is None else target))
                 beta, _, rank, _ = np.linalg.lstsq(np.vstack(A), np.concatenate(rhs), rcond=1e-10)
             res = r0 + X @ beta
-            rss = np.bincount(cls, res ** 2, minlength=len(CLASSES))
+            rss = np.bincount(cls, res ** 2, minlength=len(self.n_class))
             sigma = np.sqrt(np.maximum(rss, _RSS_FLOOR * np.maximum(n_eff, 1)) / np.maximum(n_eff, 1))
             w = 1.0 / sigma
         Rw = np.vstack([w[c] * R for c, R, _ in blocks]) if blocks else np.zeros((0, k))
@@ -385,7 +385,7 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
         wb = 1.0 / base.sigma[problem.classes] ** 2
         before = float(np.sum(base.residual ** 2 * wb))
         after = float(np.sum(fit.residual ** 2 * wb))
-        L = problem.classes == 0
+        L = problem.classes % len(CLASSES) == 0  # lengths (of every run, in a joint problem)
         lb = float(np.sum(base.residual[L] ** 2))
         la = float(np.sum(fit.residual[L] ** 2))
         k = J.shape[1]
