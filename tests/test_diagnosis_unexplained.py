@@ -112,3 +112,24 @@ def test_bad_user_effect_files_are_clear(tmp_path):
         res = CliRunner().invoke(main, ["diagnose", str(run_dir), "--user-effect", str(path)])
         assert res.exit_code != 0 and words in res.output and "effect.py" in res.output, res.output
         assert "Traceback" not in res.output
+
+
+def test_two_hidden_effects_both_found_and_no_invented_structure():
+    """The issue's case: squareness yz and a lateral scanner scale. Both are
+    found; the final model's own parameter imprecision (a depth scale fitted
+    on 400 points per scan) no longer shows up as a 'consistent with depth
+    scale' pattern on every point, since the scanner effects are refitted on
+    POLISH_POINTS_PER_SCAN points."""
+    from cmmpose.sim import effects as E
+
+    # `cmmpose simulate --effect squareness:yz=20 --effect scanner-scale:lateral=0.0006`: the CLI's defaults
+    run, _ = simulate_ballbar_run(MAPS, 20.0, [E.SquarenessOffset(yz=20.0), E.ScannerScale(lateral=6e-4)], seed=0)
+    unpolished = cmmpose.diagnose(run, max_effects=3, polish=False)
+    assert {f.input for f in unpolished.unexplained} == {"v", "incidence"}  # what the issue saw
+    d = cmmpose.diagnose(run, max_effects=3)
+    assert sorted(d.added) == ["scanner-scale", "squareness"]
+    assert d.unexplained == [], [f.description for f in d.unexplained]
+    assert not [p.title for p in d.patterns if p.significant]
+    lat = next(x for x in d.decisions() if x["name"] == "scanner-scale")
+    assert abs(lat["values"]["lateral"] - 6e-4) < 4 * lat["uncertainty"]["lateral"]
+    assert abs(lat["values"]["depth"]) < 4 * lat["uncertainty"]["depth"]

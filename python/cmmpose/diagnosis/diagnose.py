@@ -21,7 +21,10 @@ from .model import Model
 from .observables import ModelFigures, figures
 from .unexplained import periodic_errors, unexplained_findings
 
-__all__ = ["diagnose", "Diagnosis", "Step"]
+__all__ = ["diagnose", "Diagnosis", "Step", "POLISH_POINTS_PER_SCAN"]
+
+#: Point residuals per scan the final model's effects are refitted on.
+POLISH_POINTS_PER_SCAN = 3000
 
 
 @dataclass
@@ -297,6 +300,7 @@ def diagnose(
     candidates=None,
     user_effects=(),
     patterns: bool = True,
+    polish: bool = True,
     out_of_range: str | None = None,
     temperature_tolerance: float | None = None,
     log_hold: float | None = None,
@@ -324,6 +328,12 @@ def diagnose(
         added to the model when significant, like a library effect.
     patterns : bool
         Also compute the residual patterns of the base and final models.
+    polish : bool
+        Refit the final model's effects that shape the points within a scan
+        (scanner and user effects) on POLISH_POINTS_PER_SCAN points of each
+        scan (the selection uses POINTS_PER_SCAN): the residual patterns and
+        findings look at every point, and those values and their
+        uncertainties then come from as many.
     out_of_range : {'raise', 'clamp', 'extrapolate'}, optional
         Temperatures beyond the tolerance outside the maps (cmmpose.policy);
         default the model's ('raise' for a new one).
@@ -393,9 +403,27 @@ def diagnose(
         model = fit_model(start, run, problem=problem)
         steps.append(_step(f"+ {best.name}", model, problem))
         added += 1
+    uncertainty_problem = problem
+    # Only the effects that shape the points within a scan (on the scanner,
+    # or user-defined) gain from more point residuals; the others are fixed
+    # by lengths and centres, which do not grow with the points.
+    shaping = {spec.name for spec, _ in model.effects
+               if spec.kind == "python" or getattr(spec.effect, "on_scanner", False)}
+    if polish and shaping:
+        # The selection fits the effects to POINTS_PER_SCAN points of each scan;
+        # the residual patterns and the findings look at every point. Refit the
+        # final model's effects on many more points so that its own parameters'
+        # imprecision does not show up as structure (a depth scale off by its
+        # uncertainty leaves a v pattern that 400 points cannot see but all can).
+        fine = Problem(model, run, {s.name: s for s, _ in model.effects}, points_per_scan=POLISH_POINTS_PER_SCAN)
+        model = fit_model(model, run, iterations=2, problem=fine, only=shaping)
+        last = steps[-1]
+        steps[-1] = _step(last.label, model, problem, forced=last.forced)
+        uncertainty_problem = fine
     unobservable, advice, ambiguous = _unobservable(problem, steps)
     diag = Diagnosis(steps, unobservable, ambiguous, n_points=run.n_points, advice=advice,
-                     final_uncertainty=model_uncertainties(problem, model), skipped=dict(problem.skipped))
+                     final_uncertainty=model_uncertainties(uncertainty_problem, model),
+                     skipped=dict(problem.skipped))
     if patterns:
         try:
             from .patterns import find_patterns

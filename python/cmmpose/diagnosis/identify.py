@@ -98,10 +98,12 @@ class Problem:
         Default: the whole library for the run (plus per-pose alignments).
     """
 
-    def __init__(self, model, run: Run, candidates: dict[str, EffectSpec] | None = None):
+    def __init__(self, model, run: Run, candidates: dict[str, EffectSpec] | None = None, *,
+                 points_per_scan: int | None = None):
         self.run = run
         self.inputs: RunInputs = model.inputs(run)
-        self.layout = ObservationLayout.from_run(run, self.inputs)
+        self.layout = (ObservationLayout.from_run(run, self.inputs) if points_per_scan is None
+                       else ObservationLayout.from_run(run, self.inputs, points_per_scan))
         self.classes = self.layout.classes
         self.n_class = np.bincount(self.classes, minlength=len(CLASSES)).astype(float)
         self._class_rows = [np.flatnonzero(self.classes == c) for c in range(len(CLASSES))]
@@ -474,7 +476,7 @@ def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, b
                 c.stands_for.append(lead.name)
 
 
-def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = None):
+def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = None, only=None):
     """Fit the parameters of every effect in ``model`` to ``run`` (Gauss-Newton
     through the kernel, nuisances and class noise levels estimated alongside).
 
@@ -488,6 +490,8 @@ def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = No
         Gauss-Newton iterations at most (each recomputes the sensitivities).
     problem : Problem, optional
         Reuse its inputs and layout.
+    only : collection of str, optional
+        Fit only these effects; the others keep their values.
 
     Returns
     -------
@@ -514,16 +518,19 @@ def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = No
         current, obs = cost(model)
         if current is None:
             raise InputError("fit_model: the model cannot be evaluated on this run even with its effects at zero")
+    free = [(spec, v) for spec, v in model.effects if only is None or spec.name in only]
+    if not free:
+        return model
     for _ in range(iterations):
         cols, specs = [], []
-        for spec, v in model.effects:
-            cols.append(prob._columns(model, spec, v, obs))
+        for spec, _v in free:
+            cols.append(prob._columns(model, spec, model.values(spec.name), obs))
             specs.append(spec)
         X = np.column_stack([prob.nuisance] + cols)
         # Prior: each parameter within a few typical magnitudes of zero.
         k0 = prob.nuisance.shape[1]
         ridge = np.r_[np.zeros(k0), np.full(X.shape[1] - k0, PRIOR_WEIGHT)]
-        now = np.concatenate([np.asarray(v, float) / np.asarray(sp.prior) for sp, v in model.effects])
+        now = np.concatenate([np.asarray(model.values(sp.name), float) / np.asarray(sp.prior) for sp in specs])
         fit = prob.wls(obs.residual, X, ridge=ridge, target=np.r_[np.zeros(k0), -now])
         beta = fit.beta[k0:]
         # Step halving: accept the first step that does not raise the cost.
