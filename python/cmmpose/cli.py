@@ -22,6 +22,7 @@ from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
 from .metrics import STEEL_EXPANSION
 from .report import KernelReport
+from .cli_standards import iso230_2_cmd
 
 console = Console(stderr=True)
 
@@ -1051,6 +1052,9 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temp
     except OSError as exc:
         raise click.ClickException(f"{out}: {exc.strerror or exc}") from None
     console.print(f"wrote {written}")
+
+
+main.add_command(iso230_2_cmd)
 
 
 if __name__ == "__main__":
