@@ -22,7 +22,7 @@ from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
 from .metrics import STEEL_EXPANSION
 from .report import KernelReport
-from .cli_standards import iso230_2_cmd
+from .cli_standards import acceptance_cmd, iso230_2_cmd
 
 console = Console(stderr=True)
 
@@ -244,11 +244,16 @@ def effects_cmd() -> None:
                                f"{cls.summary}" for name, cls in effects_registry.available().items()) + ".")
 @click.option("--speed", type=float, default=35.0, show_default=True, help="Sweep speed, mm/s.")
 @click.option("--bidirectional", is_flag=True, help="Alternate forward and reverse sweeps.")
+@click.option("--jitter", type=float, default=0.0, show_default=True,
+              help="Per-scan reproducibility: sd of where the artefact really sits at each sweep, um per axis.")
+@click.option("--calibrated", is_flag=True, help="Record the bar length at 20 C and the ball radius as calibrated values.")
+@click.option("--reference-pose", "reference_poses", multiple=True, metavar="A,B,G",
+              help="After the ballbar, scan the reference sphere at this pose (degrees; repeatable).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing run in RUN_DIR.")
-def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidirectional, seed, run_dir,
-                 overwrite) -> None:
+def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidirectional, jitter, calibrated,
+                 reference_poses, seed, run_dir, overwrite) -> None:
     """Simulate a ballbar run on a virtual machine (default: the thesis's Iota 1102 + Hyscan 45C) and write it
     as a run directory."""
     from .machine import load_machine
@@ -264,7 +269,9 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
             task = bar.add_task("", total=None)
             run, truth = simulate_ballbar_run(
                 machine_maps, temperature, parsed, layout=layout, speed=speed, bidirectional=bidirectional, seed=seed,
-                scanner=machine.scanner, offset=tuple(machine.offset),
+                scanner=machine.scanner, offset=tuple(machine.offset), jitter=jitter * 1e-3,
+                calibrated=("length", "radius") if calibrated else (),
+                reference_poses=[triple(p, "--reference-pose") for p in reference_poses],
                 progress=lambda done, total: bar.update(task, completed=done, total=total))
         run = _with_machine(run, machine, maps)
         elapsed = time.perf_counter() - start
@@ -1055,6 +1062,7 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temp
 
 
 main.add_command(iso230_2_cmd)
+main.add_command(acceptance_cmd)
 
 
 if __name__ == "__main__":

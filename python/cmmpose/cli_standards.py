@@ -14,7 +14,7 @@ from rich.console import Console
 from .errors import Error
 from .policy import cli_wording
 
-__all__ = ["iso230_2_cmd"]
+__all__ = ["iso230_2_cmd", "acceptance_cmd"]
 
 console = Console(stderr=True)
 
@@ -49,6 +49,63 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, as_j
         result = evaluate_iso230_2(data, test_uncertainty_um=u, test_uncertainty_note=note)
         if plot_path:
             result.plot(plot_path, data)
+    except Error as exc:
+        raise _fail(exc) from None
+    except OSError as exc:
+        raise click.ClickException(f"{plot_path}: {exc.strerror or exc}") from None
+    if as_json:
+        click.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        Console(width=max(Console().width, 120)).print(result)
+    if plot_path:
+        console.print(f"wrote {Path(plot_path)}")
+
+
+@click.command("acceptance")
+@click.argument("run_dir", metavar="RUN", type=click.Path(exists=True, file_okay=False))
+@click.option("--mpe-form", required=True, help="MPE of the probing form error, um (e.g. 12).")
+@click.option("--mpe-size", required=True, help="MPE of the probing size error, um (e.g. 10).")
+@click.option("--mpe-length", required=True, help="MPE of the length measurement error, um: A or A+L/K, L in mm (e.g. 8+L/300).")
+@click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
+              help="Machine file (kinematics, maps, artefact expansion); default the thesis machine.")
+@click.option("--maps", "maps", multiple=True,
+              help="Compensation maps ('thesis', files, or 'none' to test the uncompensated points); default: the "
+                   "machine's, or as run.json says.")
+@click.option("--temperature", type=float, default=None, help="Machine and part temperature, C (default: the run's log).")
+@click.option("--calibrated-length", type=float, default=None, help="Certified centre distance at 20 C, mm (default: the run's).")
+@click.option("--calibrated-radius", type=float, default=None, help="Certified ball radius, mm (default: the run's).")
+@click.option("--expansion", type=float, default=None,
+              help="Artefact expansion coefficient for lengths at 20 C, ppm/K (default: the machine's).")
+@click.option("--u-length-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the certified length, um.")
+@click.option("--u-diameter-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of a certified diameter, um.")
+@click.option("--u-form-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the spheres' form, um.")
+@click.option("--u-expansion", type=float, default=1.0, show_default=True, help="Standard uncertainty of the expansion coefficient, ppm/K.")
+@click.option("--u-part-temperature", type=float, default=0.2, show_default=True, help="Standard uncertainty of the part temperature, K.")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Plot to write (PNG, PDF, SVG).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, temperature, calibrated_length,
+                   calibrated_radius, expansion, u_length_cert, u_diameter_cert, u_form_cert, u_expansion, u_part_temperature,
+                   plot_path, as_json) -> None:
+    """Probing form and size errors and length measurement errors of RUN (in the manner of ISO 10360-8),
+    each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven."""
+    from .cli import _maps_for_run
+    from .machine import load_machine
+    from .run import Run
+    from .standards.acceptance import acceptance_test
+
+    try:
+        machine = load_machine(machine_file)
+        run = Run.load(run_dir)
+        model = _maps_for_run(run, maps, machine)
+        result = acceptance_test(
+            run, model, temperature, mpe_form=mpe_form, mpe_size=mpe_size, mpe_length=mpe_length,
+            calibrated_length_mm=calibrated_length, calibrated_radius_mm=calibrated_radius,
+            u_length_certificate_um=u_length_cert, u_diameter_certificate_um=u_diameter_cert,
+            u_form_certificate_um=u_form_cert,
+            expansion=machine.artefact_expansion if expansion is None else expansion * 1e-6,
+            u_expansion_ppm_per_K=u_expansion, u_part_temperature_K=u_part_temperature)
+        if plot_path:
+            result.plot(plot_path)
     except Error as exc:
         raise _fail(exc) from None
     except OSError as exc:

@@ -7,6 +7,7 @@ acceptance test asks for (docs/standards.md):
 - :mod:`.interim`: squareness and scale from one ballbar run.
 """
 
+from .acceptance import MPE, AcceptanceResult, Check, acceptance_test, decide, parse_mpe
 from .iso230_2 import (
     PositioningData,
     PositioningError,
@@ -19,6 +20,12 @@ from .iso230_2 import (
 )
 
 __all__ = [
+    "MPE",
+    "AcceptanceResult",
+    "Check",
+    "acceptance_test",
+    "decide",
+    "parse_mpe",
     "PositioningData",
     "PositioningError",
     "PositioningResult",
