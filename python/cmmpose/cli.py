@@ -423,9 +423,15 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
                    f"{STEEL_EXPANSION * 1e6:g} for the thesis machine).")
 @click.option("--reject", type=float, default=None, help="Robust sphere fits: reject beyond this many robust sigmas.")
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None, help="Write JSON, CSV and plots here.")
+@click.option("--u-temperature", type=float, default=None,
+              help="Standard uncertainty of the machine temperature reading, K (default 0.2).")
+@click.option("--u-map", type=float, default=None,
+              help="Standard uncertainty of each axis's map scale, ppm (default: the interferometer's air, ~1.4).")
+@click.option("--u-model", type=float, default=0.0, show_default=True,
+              help="Standard uncertainty of the residual model error, ppm of the length (0: left out of the budget).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
 def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
-                 reject, report_dir, as_json) -> None:
+                 reject, u_temperature, u_map, u_model, report_dir, as_json) -> None:
     """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated."""
     from .evaluation import evaluate
     from .machine import load_machine
@@ -443,15 +449,29 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
                           temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion=expansion * 1e-6)
         for w in caught:
             console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
+        unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
+                                      log_hold, u_temperature, u_map, u_model)
         files = write_report(ev, Path(report_dir), model) if report_dir else []
     except Error as exc:
         raise fail(exc) from None
     if as_json:
-        click.echo(ev.to_json(indent=2))
+        click.echo(json.dumps({**ev.to_dict(), "uncertainty": unc.to_dict()}, indent=2))
     else:
         Console().print(ev)
+        Console(width=max(Console().width, 130)).print(unc)
     for f in files:
         console.print(f"wrote {f}")
+
+
+def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance, log_hold,
+                            u_temperature, u_map, u_model):
+    """u (k = 2) and budgets of every figure of ``ev`` (cmmpose.evaluation_uncertainty)."""
+    from .evaluation_uncertainty import DEFAULT_U_TEMPERATURE_K, evaluation_uncertainty
+
+    return evaluation_uncertainty(
+        run, ev, model, temperature, reject=reject, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+        log_hold=log_hold, u_temperature_K=DEFAULT_U_TEMPERATURE_K if u_temperature is None else u_temperature,
+        u_map_ppm=u_map, u_model_ppm=u_model)
 
 
 @main.command("diagnose")
