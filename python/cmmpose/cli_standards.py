@@ -14,7 +14,7 @@ from rich.console import Console
 from .errors import Error
 from .policy import cli_wording
 
-__all__ = ["iso230_2_cmd", "acceptance_cmd"]
+__all__ = ["iso230_2_cmd", "acceptance_cmd", "interim_cmd"]
 
 console = Console(stderr=True)
 
@@ -116,3 +116,40 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
         Console(width=max(Console().width, 120)).print(result)
     if plot_path:
         console.print(f"wrote {Path(plot_path)}")
+
+
+@click.command("interim-check")
+@click.argument("run_dir", metavar="RUN", type=click.Path(exists=True, file_okay=False))
+@click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
+              help="Machine file (kinematics, maps, artefact expansion); default the thesis machine.")
+@click.option("--maps", "maps", multiple=True,
+              help="Compensation maps: the check is of what they leave ('none': of the raw machine); default: the "
+                   "machine's, or as run.json says.")
+@click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's log).")
+@click.option("--calibrated-length", type=float, default=None,
+              help="Certified bar length at 20 C, mm (default: the run's); without one, scale mismatches.")
+@click.option("--u-length-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the certified length, um.")
+@click.option("--u-temperature", type=float, default=0.2, show_default=True, help="Standard uncertainty of the temperature, K.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_length_cert, u_temperature,
+                as_json) -> None:
+    """Interim check of RUN, in the manner of the ballbar and gauge products: three scale and three
+    squareness values with their uncertainties (k = 2). Next to it, 'cmmpose diagnose' gives the full diagnosis."""
+    from .cli import _maps_for_run
+    from .machine import load_machine
+    from .run import Run
+    from .standards.interim import interim_check
+
+    try:
+        machine = load_machine(machine_file)
+        run = Run.load(run_dir)
+        model = _maps_for_run(run, maps, machine)
+        result = interim_check(run, model, temperature, calibrated_length_mm=calibrated_length,
+                               u_length_certificate_um=u_length_cert, expansion=machine.artefact_expansion,
+                               u_temperature_K=u_temperature)
+    except Error as exc:
+        raise _fail(exc) from None
+    if as_json:
+        click.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        Console(width=max(Console().width, 100)).print(result)

@@ -8,6 +8,7 @@ acceptance test asks for (docs/standards.md):
 """
 
 from .acceptance import MPE, AcceptanceResult, Check, acceptance_test, decide, parse_mpe
+from .interim import InterimCheck, InterimValue, interim_check
 from .iso230_2 import (
     PositioningData,
     PositioningError,
@@ -26,6 +27,9 @@ __all__ = [
     "acceptance_test",
     "decide",
     "parse_mpe",
+    "InterimCheck",
+    "InterimValue",
+    "interim_check",
     "PositioningData",
     "PositioningError",
     "PositioningResult",
