@@ -42,11 +42,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .calibration.interferometer import THESIS_AIR_UNCERTAINTY, refractivity_uncertainty
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import Error, InputError
 from .evaluation import BallbarResult, Evaluation, _machine_coordinates, machine_temperature
 from .fitting import fit_spheres
-from .policy import TEMPERATURE_TOLERANCE
+from .policy import LOG_HOLD, TEMPERATURE_TOLERANCE
 from .run import Run
 from .uncertainty import Budget, Input
 
@@ -78,8 +79,6 @@ _B89_SEED = 0xB89
 def default_map_ppm() -> float:
     """The refractive-index uncertainty u_N of the interferometer calibration
     with the thesis's weather station, ppm (thesis line 768; about 1.4 ppm)."""
-    from .calibration.interferometer import THESIS_AIR_UNCERTAINTY, refractivity_uncertainty
-
     return float(refractivity_uncertainty(*THESIS_AIR_UNCERTAINTY))
 
 
@@ -317,8 +316,6 @@ def evaluation_uncertainty(
     -------
     EvaluationUncertainty
     """
-    from .policy import LOG_HOLD
-
     if not isinstance(run, Run):
         raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     if not isinstance(evaluation, Evaluation):

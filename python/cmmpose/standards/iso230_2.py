@@ -44,7 +44,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import Error, InputError, read_lines, MapError
+from ..calibration.interferometer import (
+    MAGIC,
+    THESIS_AIR_UNCERTAINTY,
+    InterferometerRun,
+    positional_deviations,
+    read_run,
+    refractivity_uncertainty,
+)
+from ..errors import Error, InputError, MapError, read_lines
 
 __all__ = [
     "ISO230_2_CLAUSE",
@@ -497,13 +505,6 @@ def positioning_from_interferometer(run, *, air_correction: bool = True, materia
     note : str
         What that uncertainty covers.
     """
-    from ..calibration.interferometer import (
-        InterferometerRun,
-        THESIS_AIR_UNCERTAINTY,
-        positional_deviations,
-        refractivity_uncertainty,
-    )
-
     if not isinstance(run, InterferometerRun):
         raise InputError(f"run: expected an InterferometerRun, got {type(run).__name__}")
     dev = positional_deviations(run, air_correction=air_correction, material=material,
@@ -534,8 +535,6 @@ def load_positioning(path: str | PathLike, *, air_correction: bool = True) -> tu
         U (k = 2), um, for interferometer runs; None for a table.
     note : str
     """
-    from ..calibration.interferometer import MAGIC, read_run
-
     path = Path(path)
     try:
         with open(path, "rb") as fh:
