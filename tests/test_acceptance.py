@@ -134,5 +134,11 @@ def test_cli_acceptance(sim, tmp_path):
     assert set(doc["tests"]) == {"probing form, single view", "probing size, single view", "probing form, all points",
                                  "probing size, all points", "length"}
     assert doc["mpe"]["length"] == "8 + L/300 um (L in mm)"
+    rep = CliRunner().invoke(main, ["acceptance", str(path), "--mpe-form", "200", "--mpe-size", "10", "--mpe-length",
+                                    "8+L/300", "--report", str(tmp_path / "rep")])
+    assert rep.exit_code == 0, rep.output
+    md = (tmp_path / "rep" / "acceptance.md").read_text()
+    assert md.startswith(f"## Acceptance (compensated points): {doc['decision']}") and "Decision rule:" in md
+    assert (tmp_path / "rep" / "acceptance.png").is_file()
     bad = CliRunner().invoke(main, ["acceptance", str(path), "--mpe-form", "x", "--mpe-size", "1", "--mpe-length", "1"])
     assert bad.exit_code != 0 and "mpe_form" in bad.output

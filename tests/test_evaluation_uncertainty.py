@@ -129,6 +129,10 @@ def test_cli_evaluate_prints_u_and_budget(tmp_path):
     assert len(comp["lengths"]) == 20 and all(f["k"] == 2 and f["U_um"] > 0 for f in comp["lengths"])
     assert [f["name"] for f in comp["figures"]] == ["mean length", "mean length at 20 C", "rms accuracy error", "B89"]
     assert "left_out" in u and doc["results"][1]["label"] == "compensated"
-    table = CliRunner().invoke(main, ["evaluate", str(tmp_path / "run"), "--temperature", "22.5"])
+    table = CliRunner().invoke(main, ["evaluate", str(tmp_path / "run"), "--temperature", "22.5", "--report",
+                                      str(tmp_path / "rep")])
     assert table.exit_code == 0
     assert "Uncertainty budget: mean length" in table.stdout and "left out:" in table.stdout
+    assert json.loads((tmp_path / "rep" / "uncertainty.json").read_text())["coverage_factor"] == 2
+    md = (tmp_path / "rep" / "uncertainty.md").read_text()
+    assert "| compensated | mean length |" in md and "Left out:" in md

@@ -80,3 +80,8 @@ def test_cli(run, tmp_path):
     doc = json.loads(out.stdout)
     assert [v["name"] for v in doc["values"]] == list(SCALE) + list(SQUARENESS)
     assert doc["values"][3]["words"] == "squareness XY" and doc["values"][0]["words"] == "scaling error X"
+    rep = CliRunner().invoke(main, ["interim-check", str(tmp_path / "run"), "--temperature", "20", "--report",
+                                    str(tmp_path / "rep")])
+    assert rep.exit_code == 0, rep.output
+    md = (tmp_path / "rep" / "interim-check.md").read_text()
+    assert "| squareness XY | squareness XY |" in md

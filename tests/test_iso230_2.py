@@ -140,6 +140,12 @@ def test_csv_round_trip_and_cli_json(tmp_path):
     assert (tmp_path / "p.png").stat().st_size > 0
     table = CliRunner().invoke(main, ["iso230-2", str(path)])
     assert table.exit_code == 0 and "ISO 230-2" in table.stdout
+    rep = CliRunner().invoke(main, ["iso230-2", str(path), "--report", str(tmp_path / "rep")])
+    assert rep.exit_code == 0, rep.output
+    md = (tmp_path / "rep" / "iso230-2.md").read_text()
+    assert "| A | A_up |" in md and "| 9.00 | 4.00 | 9.00 |" in md  # the hand-worked A, A_up, A_down
+    assert json.loads((tmp_path / "rep" / "iso230-2.json").read_text())["E"] == 6
+    assert (tmp_path / "rep" / "iso230-2.png").is_file()
 
 
 def test_interferometer_run_agrees_with_process_run(tmp_path):

@@ -452,6 +452,10 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
                                       log_hold, u_temperature, u_map, u_model)
         files = write_report(ev, Path(report_dir), model) if report_dir else []
+        if report_dir:
+            files += [Path(report_dir) / "uncertainty.json", Path(report_dir) / "uncertainty.md"]
+            files[-2].write_text(unc.to_json(indent=2))
+            files[-1].write_text(unc.to_markdown())
     except Error as exc:
         raise fail(exc) from None
     if as_json:

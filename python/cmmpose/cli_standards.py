@@ -23,6 +23,25 @@ def _fail(exc: Exception) -> click.ClickException:
     return click.ClickException(cli_wording(str(exc)))
 
 
+def _write_report(result, directory, stem: str, plot=None) -> list[Path]:
+    """``<stem>.json``, ``<stem>.md`` (a report section) and, given ``plot``
+    (a callable taking the path) and matplotlib, ``<stem>.png`` in ``directory``."""
+    folder = Path(directory)
+    folder.mkdir(parents=True, exist_ok=True)
+    files = [folder / f"{stem}.json", folder / f"{stem}.md"]
+    files[0].write_text(json.dumps(result.to_dict(), indent=2))
+    files[1].write_text(result.to_markdown())
+    if plot is not None:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            console.print("matplotlib is not installed: no plot (pip install 'cmmpose[plot]')")
+            return files
+        plot(folder / f"{stem}.png")
+        files.append(folder / f"{stem}.png")
+    return files
+
+
 @click.command("iso230-2")
 @click.argument("data_file", metavar="FILE", type=click.Path(exists=True, dir_okay=False))
 @click.option("--no-air-correction", is_flag=True,
@@ -31,8 +50,10 @@ def _fail(exc: Exception) -> click.ClickException:
               help="Expanded uncertainty (k = 2) of a measured deviation, um, stated with the results "
                    "(default for interferometer runs: the air correction's over the travel).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Plot to write (PNG, PDF, SVG).")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
+              help="Write iso230-2.json, iso230-2.md (a report section) and iso230-2.png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON (the axis figures at the top level, um).")
-def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, as_json) -> None:
+def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, report_dir, as_json) -> None:
     """ISO 230-2:2014 positioning accuracy and repeatability of one axis.
 
     FILE is a CSV with columns target_mm, direction (+1/-1), cycle,
@@ -47,18 +68,21 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, as_j
         if test_uncertainty is not None:
             u, note = test_uncertainty, "given (--test-uncertainty)"
         result = evaluate_iso230_2(data, test_uncertainty_um=u, test_uncertainty_note=note)
+        files = [Path(plot_path)] if plot_path else []
         if plot_path:
             result.plot(plot_path, data)
+        if report_dir:
+            files += _write_report(result, report_dir, "iso230-2", lambda p: result.plot(p, data))
     except Error as exc:
         raise _fail(exc) from None
     except OSError as exc:
-        raise click.ClickException(f"{plot_path}: {exc.strerror or exc}") from None
+        raise click.ClickException(f"{exc.filename or plot_path}: {exc.strerror or exc}") from None
     if as_json:
         click.echo(json.dumps(result.to_dict(), indent=2))
     else:
         Console(width=max(Console().width, 120)).print(result)
-    if plot_path:
-        console.print(f"wrote {Path(plot_path)}")
+    for f in files:
+        console.print(f"wrote {f}")
 
 
 @click.command("acceptance")
@@ -82,10 +106,12 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, as_j
 @click.option("--u-expansion", type=float, default=1.0, show_default=True, help="Standard uncertainty of the expansion coefficient, ppm/K.")
 @click.option("--u-part-temperature", type=float, default=0.2, show_default=True, help="Standard uncertainty of the part temperature, K.")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Plot to write (PNG, PDF, SVG).")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
+              help="Write acceptance.json, acceptance.md (a report section) and acceptance.png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
 def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, temperature, calibrated_length,
                    calibrated_radius, expansion, u_length_cert, u_diameter_cert, u_form_cert, u_expansion, u_part_temperature,
-                   plot_path, as_json) -> None:
+                   plot_path, report_dir, as_json) -> None:
     """Probing form and size errors and length measurement errors of RUN (in the manner of ISO 10360-8),
     each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven."""
     from .cli import _maps_for_run
@@ -104,18 +130,21 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
             u_form_certificate_um=u_form_cert,
             expansion=machine.artefact_expansion if expansion is None else expansion * 1e-6,
             u_expansion_ppm_per_K=u_expansion, u_part_temperature_K=u_part_temperature)
+        files = [Path(plot_path)] if plot_path else []
         if plot_path:
             result.plot(plot_path)
+        if report_dir:
+            files += _write_report(result, report_dir, "acceptance", result.plot)
     except Error as exc:
         raise _fail(exc) from None
     except OSError as exc:
-        raise click.ClickException(f"{plot_path}: {exc.strerror or exc}") from None
+        raise click.ClickException(f"{exc.filename or plot_path}: {exc.strerror or exc}") from None
     if as_json:
         click.echo(json.dumps(result.to_dict(), indent=2))
     else:
         Console(width=max(Console().width, 120)).print(result)
-    if plot_path:
-        console.print(f"wrote {Path(plot_path)}")
+    for f in files:
+        console.print(f"wrote {f}")
 
 
 @click.command("interim-check")
@@ -130,9 +159,11 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
               help="Certified bar length at 20 C, mm (default: the run's); without one, scale mismatches.")
 @click.option("--u-length-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the certified length, um.")
 @click.option("--u-temperature", type=float, default=0.2, show_default=True, help="Standard uncertainty of the temperature, K.")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
+              help="Write interim-check.json and interim-check.md (a report section) here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
 def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_length_cert, u_temperature,
-                as_json) -> None:
+                report_dir, as_json) -> None:
     """Interim check of RUN, in the manner of the ballbar and gauge products: three scale and three
     squareness values with their uncertainties (k = 2). Next to it, 'cmmpose diagnose' gives the full diagnosis."""
     from .cli import _maps_for_run
@@ -147,9 +178,14 @@ def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_l
         result = interim_check(run, model, temperature, calibrated_length_mm=calibrated_length,
                                u_length_certificate_um=u_length_cert, expansion=machine.artefact_expansion,
                                u_temperature_K=u_temperature)
+        files = _write_report(result, report_dir, "interim-check") if report_dir else []
     except Error as exc:
         raise _fail(exc) from None
+    except OSError as exc:
+        raise click.ClickException(f"{exc.filename}: {exc.strerror or exc}") from None
     if as_json:
         click.echo(json.dumps(result.to_dict(), indent=2))
     else:
         Console(width=max(Console().width, 100)).print(result)
+    for f in files:
+        console.print(f"wrote {f}")

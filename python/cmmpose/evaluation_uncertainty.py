@@ -201,6 +201,20 @@ class EvaluationUncertainty:
     def to_json(self, **kw) -> str:
         return json.dumps(self.to_dict(), **kw)
 
+    def to_markdown(self) -> str:
+        """A report section: the figures with u and U (k = 2), the budgets of a length and of the mean, and
+        what the budgets leave out."""
+        lines = ["## Uncertainties (k = 2)", "", "| result | figure | value | u (um) | U (um) |", "|---|---|---|---|---|"]
+        for r in self.results:
+            for f in (*r.figures, *r.lengths):
+                value = f"{f.value:.4f} mm" if f.unit == "mm" else f"{f.value:.2f} um"
+                lines.append(f"| {r.label} | {f.name} | {value} | {f.u:.2f} | {f.U:.2f} |")
+        for r in self.results:
+            for key in ("length", "mean length", "mean length at 20 C"):
+                lines += ["", f"[{r.label}]", "```", r.budgets[key].table(), "```"]
+        lines += ["", "Left out:"] + [f"- {x}" for x in self.left_out]
+        return "\n".join(lines) + "\n"
+
     def __rich__(self):
         from rich.console import Group
         from rich.table import Table

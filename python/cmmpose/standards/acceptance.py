@@ -250,6 +250,18 @@ class AcceptanceResult:
     def to_json(self, **kw) -> str:
         return json.dumps(self.to_dict(), **kw)
 
+    def to_markdown(self) -> str:
+        """A report section: one row per test (its largest error), the decision rule, U's makeup, notes."""
+        lines = [f"## Acceptance ({self.label} points): {self.decision}", "", ACCEPTANCE_CLAUSE + ".", "",
+                 f"Decision rule: {DECISION_RULE}.", "",
+                 "| test | values | largest error (um) | at | MPE (um) | U, k = 2 (um) | decision |", "|" + "---|" * 7]
+        for test, s in self.summary().items():
+            c = s["largest"]
+            lines.append(f"| {test} | {s['n']} | {c.error_um:+.2f} | {c.item} | {c.mpe_um:.2f} | {c.U_um:.2f} | "
+                         f"{s['decision']} |")
+        lines += [""] + [f"- {n}" for n in (*self.uncertainty_notes, *self.notes)]
+        return "\n".join(lines) + "\n"
+
     def __rich__(self):
         from rich.table import Table
 

@@ -128,6 +128,16 @@ class InterimCheck:
     def to_json(self, **kw) -> str:
         return json.dumps(self.to_dict(), **kw)
 
+    def to_markdown(self) -> str:
+        """A report section: the six values with u and U (k = 2), and the notes."""
+        lines = [f"## Interim check ({self.label} lengths, {self.positions} positions)", "",
+                 "| value | as the products say | value | u | U, k = 2 | um/m |", "|" + "---|" * 6]
+        lines += [f"| {v.name} | {v.words} | {v.value:+.2f} {v.unit} | {v.u:.2f} | {v.U:.2f} | {v.um_per_m:+.2f} |"
+                  for v in self.values]
+        lines += ["", f"Rms residual of the lengths after the fit: {self.residual_um:.2f} um.", ""]
+        lines += [f"- {n}" for n in self.notes]
+        return "\n".join(lines) + "\n"
+
     def __rich__(self):
         from rich.table import Table
 

@@ -227,6 +227,22 @@ class PositioningResult:
     def to_json(self, **kw) -> str:
         return json.dumps(self.to_dict(), **kw)
 
+    def to_markdown(self) -> str:
+        """A report section: the axis figures, the per-target table, the clause and the notes."""
+        axis = " | ".join(f"{v:.2f}" for v in self.axis_values.values())
+        lines = [f"## ISO 230-2 positioning: {self.source}", "",
+                 f"{ISO230_2_CLAUSE}; {self.cycles} cycles; um.", "",
+                 "| " + " | ".join(AXIS_KEYS) + " |", "|" + "---|" * len(AXIS_KEYS), f"| {axis} |", "",
+                 "| target (mm) | n up/down | mean up | mean down | mean | B_i | s up | s down | R up | R down | R_i |",
+                 "|" + "---|" * 11]
+        lines += [f"| {r.target_mm:.3f} | {r.n_up}/{r.n_down} | {r.mean_up:+.2f} | {r.mean_down:+.2f} | {r.mean:+.2f} | "
+                  f"{r.reversal:+.2f} | {r.s_up:.2f} | {r.s_down:.2f} | {r.R_up:.2f} | {r.R_down:.2f} | {r.R:.2f} |"
+                  for r in self.targets]
+        if self.test_uncertainty_um is not None:
+            lines += ["", f"Test uncertainty U (k = 2) = {self.test_uncertainty_um:.2f} um: {self.test_uncertainty_note}."]
+        lines += [f"- {n}" for n in self.notes]
+        return "\n".join(lines) + "\n"
+
     def __rich__(self):
         from rich.table import Table
 
