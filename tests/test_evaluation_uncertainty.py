@@ -136,3 +136,13 @@ def test_cli_evaluate_prints_u_and_budget(tmp_path):
     assert json.loads((tmp_path / "rep" / "uncertainty.json").read_text())["coverage_factor"] == 2
     md = (tmp_path / "rep" / "uncertainty.md").read_text()
     assert "| compensated | mean length |" in md and "Left out:" in md
+
+
+def test_temperature_sensitivity_at_the_maps_edge_is_one_sided():
+    run, _ = simulate_ballbar_run(MAPS, 30.0, jitter=0.003, scanner=Scanner(points_per_profile=128), seed=6)
+    ev = cmmpose.evaluate(run, MAPS, 30.0)
+    unc = evaluation_uncertainty(run, ev, MAPS, 30.0)  # 30.5 C is outside the maps: 29.5 C only
+    c = (ev.compensated.lengths - cmmpose.evaluate(run, MAPS, 29.5).compensated.lengths) / 0.5 * 1e3
+    rows = [{i.name: i for i in f.budget.inputs}["machine temperature reading (through the maps)"]
+            for f in unc["compensated"].lengths]
+    np.testing.assert_allclose([i.sensitivity for i in rows], c, rtol=1e-6, atol=1e-6)

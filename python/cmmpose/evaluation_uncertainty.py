@@ -340,6 +340,7 @@ def evaluation_uncertainty(
     u_alpha = _nonneg("u_expansion_ppm_per_K", u_expansion_ppm_per_K)
     log_hold = LOG_HOLD if log_hold is None else log_hold
     out = []
+    no_sensitivity = False
     for res in evaluation.results:
         compensated = res.label == "compensated"
         model = maps if compensated else None
@@ -352,6 +353,9 @@ def evaluation_uncertainty(
         c_t = np.zeros(len(lengths))
         if model_t is not None:
             c_t = _temperature_sensitivity(run, model, model_t, res, reject, out_of_range, temperature_tolerance, lengths)
+            if c_t is None:
+                c_t = np.zeros(len(lengths))
+                no_sensitivity = True
         out.append(_result_uncertainty(res, lengths, bar, var_fit, c_t, compensated, u_t, u_map, u_model, u_alpha))
     left_out = [
         "the artefact's certificate (these figures are measured lengths, not errors against a calibrated length; "
@@ -365,14 +369,18 @@ def evaluation_uncertainty(
         left_out.append("the residual model error (no u_model_ppm given)")
     if isinstance(maps, ErrorMap):
         left_out.append("a single map's temperature mismatch (no temperature sensitivity without a map set)")
+    if no_sensitivity:
+        left_out.append("the temperature reading through the maps: neither +-0.5 K about the machine temperature is "
+                        "inside them")
+        _log.warning("no temperature sensitivity: +-%g K about the machine temperature leaves the maps", _STEP_K)
     inputs = {"u_temperature_K": u_t, "u_map_ppm": round(u_map, 4), "u_model_ppm": u_model,
               "u_expansion_ppm_per_K": u_alpha}
     return EvaluationUncertainty(tuple(out), inputs, tuple(left_out))
 
 
-def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, tolerance, lengths) -> np.ndarray:
+def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, tolerance, lengths) -> np.ndarray | None:
     """d(length)/d(machine temperature), um/K, by a central difference, or a
-    one-sided one where a step leaves the maps."""
+    one-sided one where a step leaves the maps; None where both do."""
     got = {}
     for step in (_STEP_K, -_STEP_K):
         try:
@@ -385,7 +393,7 @@ def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, tole
     if len(got) == 1:
         (step, shifted), = got.items()
         return (shifted - lengths) / step * 1e3
-    raise InputError("temperature: neither +-0.5 K around the machine temperature is inside the maps: no sensitivity")
+    return None
 
 
 def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensated, u_t, u_map, u_model,
