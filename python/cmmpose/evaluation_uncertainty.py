@@ -352,7 +352,7 @@ def evaluation_uncertainty(
                              "same run, maps, temperature and reject as to evaluate")
         c_t = np.zeros(len(lengths))
         if model_t is not None:
-            c_t = _temperature_sensitivity(run, model, model_t, res, reject, out_of_range, temperature_tolerance, lengths)
+            c_t = _temperature_sensitivity(run, model, model_t, res, reject, out_of_range, lengths)
             if c_t is None:
                 c_t = np.zeros(len(lengths))
                 no_sensitivity = True
@@ -378,13 +378,16 @@ def evaluation_uncertainty(
     return EvaluationUncertainty(tuple(out), inputs, tuple(left_out))
 
 
-def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, tolerance, lengths) -> np.ndarray | None:
+def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, lengths) -> np.ndarray | None:
     """d(length)/d(machine temperature), um/K, by a central difference, or a
-    one-sided one where a step leaves the maps; None where both do."""
+    one-sided one where a step leaves the maps; None where both do. A step
+    is never held or clamped at the maps' edge (that would halve the slope):
+    it raises and is not taken, unless the evaluation extrapolates."""
+    policy = "extrapolate" if out_of_range == "extrapolate" else "raise"
     got = {}
     for step in (_STEP_K, -_STEP_K):
         try:
-            xyz = _machine_coordinates(run, maps, np.asarray(model_t) + step, out_of_range, tolerance)
+            xyz = _machine_coordinates(run, maps, np.asarray(model_t) + step, policy, 0.0)
         except Error:
             continue
         got[step] = _lengths_from(xyz, run, res, reject)[0]
