@@ -477,8 +477,8 @@ def acceptance_test(
 def _reference_checks(run: Run, maps, temperature, out_of_range, ref_ids: np.ndarray, radius: float, mpes,
                       U_form: float, U_size: float) -> list[Check]:
     """Probing tests on the reference sphere: every scan alone and all together."""
-    if maps is None:
-        xyz = _machine_coordinates(run, None, None)
+    if maps is None or isinstance(maps, ErrorMap):
+        xyz = _machine_coordinates(run, maps, None, out_of_range)
     else:
         if temperature is not None:
             model_t = float(temperature)
@@ -486,7 +486,7 @@ def _reference_checks(run: Run, maps, temperature, out_of_range, ref_ids: np.nda
             model_t = machine_temperature(run, run.points["t"])
         else:
             raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
-        xyz = _machine_coordinates(run, maps, None if isinstance(maps, ErrorMap) else model_t, out_of_range)
+        xyz = _machine_coordinates(run, maps, model_t, out_of_range)
     sid = run.points["scan_id"]
     out = []
     views = []
