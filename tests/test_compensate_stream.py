@@ -15,6 +15,7 @@ from click.testing import CliRunner
 
 import cmmpose
 from cmmpose import pointfiles
+from cmmpose.pointformats import csv as csvformat
 from cmmpose.cli import main
 
 MAPS = cmmpose.ErrorMapSet.thesis()
@@ -112,7 +113,7 @@ def test_a_bad_line_late_in_the_file_names_it_and_leaves_nothing(tmp_path, point
 
 
 def test_a_chunk_the_fast_reader_refuses_is_read_again_strictly(tmp_path, points, monkeypatch):
-    real = pointfiles.pa_csv.open_csv
+    real = csvformat.pa_csv.open_csv
 
     class Flaky:
         def __init__(self, *a, **k):
@@ -128,7 +129,7 @@ def test_a_chunk_the_fast_reader_refuses_is_read_again_strictly(tmp_path, points
                 raise pa.ArrowInvalid("refused")
             return next(self.inner)
 
-    monkeypatch.setattr(pointfiles.pa_csv, "open_csv", Flaky)
+    monkeypatch.setattr(csvformat.pa_csv, "open_csv", Flaky)
     monkeypatch.setattr(pointfiles, "CHUNK_POINTS", 7)
     out = tmp_path / "o.npy"
     r = cli("compensate", points[0], out)

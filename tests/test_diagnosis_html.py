@@ -99,7 +99,11 @@ def test_plot_point_residuals_shows_u_v_and_incidence():
 def test_plot_history_draws_the_three_figures_of_merit_per_step(tmp_path):
     fig = plot_history(STEPS, tmp_path / "history.png")
     ax = fig.axes[0]
-    lines = {ln.get_label(): ln for ln in ax.get_lines()}
+    # rms and B89 on the left axis; the form (mostly noise) on its own right axis
+    lines = {ln.get_label(): ln for a in fig.axes for ln in a.get_lines()}
+    assert {ln.get_label() for ln in ax.get_lines()} >= {"rms accuracy error", "B89 value"}
+    assert [ln.get_label() for ln in fig.axes[1].get_lines()] == ["form"]
+    assert fig.legends and not ax.get_legend()  # below the axes, covering no point
     np.testing.assert_allclose(lines["rms accuracy error"].get_ydata(), [9.1, 2.3, 0.4])
     np.testing.assert_allclose(lines["B89 value"].get_ydata(), [15.2, 4.1, 0.8])
     np.testing.assert_allclose(lines["form"].get_ydata(), [80.0, 79.0, 58.0])

@@ -15,10 +15,11 @@ from ._lazy import lazy_attributes
 from .compensation import compensate, uncompensated
 from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
 from .metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
-from .fitting import PlaneFit, SphereFit, SphereFits, fit_plane, fit_sphere, fit_spheres
+from .fitting import E3125Result, PlaneFit, SphereFit, SphereFits, SphereSegmentation, e3125, fit_plane, fit_sphere, fit_spheres, segment_sphere
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
-from .errors import AcquisitionError, CalibrationError, ClampWarning, Error, GeometryError, InputError, MapError, OutOfRangeError, RunError
+from .errors import AcquisitionError, CalibrationError, ClampWarning, Error, GeometryError, IllConditionedFit, InputError, MapError, OutOfRangeError, RunError
 from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
+from .pointclouds import PointCloud, read_point_cloud, write_point_cloud
 from .pose import MountOffset, Pose
 from .report import KernelReport
 from .run import Run, load_truth
@@ -48,6 +49,9 @@ if TYPE_CHECKING:
 
 __all__ = [
     "__version__",
+    "PointCloud",
+    "read_point_cloud",
+    "write_point_cloud",
     "compensate",
     "uncompensated",
     "evaluate",
@@ -65,8 +69,12 @@ __all__ = [
     "fit_sphere",
     "fit_spheres",
     "fit_plane",
+    "segment_sphere",
+    "e3125",
     "SphereFit",
     "SphereFits",
+    "SphereSegmentation",
+    "E3125Result",
     "PlaneFit",
     "calibration",
     "acquire",
@@ -99,4 +107,5 @@ __all__ = [
     "CalibrationError",
     "AcquisitionError",
     "ClampWarning",
+    "IllConditionedFit",
 ]

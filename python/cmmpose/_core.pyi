@@ -67,6 +67,10 @@ class ErrorMapSet:
     def kinematics(self) -> str: ...
     def with_kinematics(self, kinematics: str) -> ErrorMapSet: ...
     def at(self, temperature: float, out_of_range: _OutOfRange = "raise", temperature_tolerance: float = 0.0) -> ErrorMap: ...
+    def __eq__(self, other: object) -> bool: ...
+
+def _error_map_from_state(state: Any) -> ErrorMap: ...
+def _error_map_set_from_state(states: list[Any]) -> ErrorMapSet: ...
 
 class KinematicsConfiguration(TypedDict):
     name: str
@@ -163,7 +167,13 @@ def scan_profiles(
 def fit_sphere(
     points: _F64_2D,
     radius: float | None = None,
+    *,
     reject: float | None = None,
+    rule: str | None = None,
+    start: str = "algebraic",
+    centre: tuple[float, float, float] | None = None,
+    samples: int = 500,
+    seed: int = 0,
     max_iterations: int = 100,
     min_coverage: float = 2.0,
 ) -> dict[str, Any]: ...
@@ -171,8 +181,27 @@ def fit_spheres(
     points: _F64_2D,
     bounds: npt.NDArray[np.int64],
     radius: float | None = None,
+    *,
     reject: float | None = None,
+    rule: str | None = None,
+    start: str = "algebraic",
+    samples: int = 500,
+    seed: int = 0,
     max_iterations: int = 100,
     min_coverage: float = 2.0,
+) -> dict[str, Any]: ...
+def segment_sphere(
+    points: _F64_2D,
+    radius: float,
+    origin: tuple[float, float, float],
+    *,
+    start: tuple[float, float, float] | None = None,
+    half_angle: float = 60.0,
+    rule: str = "e3125",
+    reject: float | None = None,
+    max_rounds: int = 50,
+    samples: int = 500,
+    seed: int = 0,
+    max_iterations: int = 100,
 ) -> dict[str, Any]: ...
 def fit_plane(points: _F64_2D, reject: float | None = None) -> dict[str, Any]: ...

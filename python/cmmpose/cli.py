@@ -100,8 +100,8 @@ def main() -> None:
 
 
 @main.command("compensate")
-@click.argument("points_in", metavar="IN", type=click.Path(dir_okay=False))
-@click.argument("points_out", metavar="OUT", type=click.Path(dir_okay=False, writable=True))
+@click.argument("points_in", metavar="IN", type=click.Path())
+@click.argument("points_out", metavar="OUT", type=click.Path(writable=True))
 @machine_option
 @click.option("--maps", "maps", multiple=True,
               help="'thesis', 'appendix-b', or map files (.csv canonical, .txt controller); repeat for a set. "
@@ -116,10 +116,19 @@ def main() -> None:
               help="Alignment library (JSON) for --alignment. Default: the machine file's mount.alignments.")
 @policy_options(log_hold=False)
 @click.option("--nan-policy", type=click.Choice(["raise", "propagate"]), default="raise", show_default=True)
+@click.option("--scheduler", default=None,
+              help="For a folder IN: 'threads' (default), 'processes', or a Dask scheduler address tcp://host:port "
+                   "(needs the dask extra).")
 def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
-                   out_of_range, temperature_tolerance, nan_policy) -> None:
-    """Compensate scanner points IN (CSV, NPY or Parquet: u, v, D, E, F[, T]) into
-    machine coordinates OUT (CSV, NPY or Parquet by suffix: X, Y, Z in mm)."""
+                   out_of_range, temperature_tolerance, nan_policy, scheduler) -> None:
+    """Compensate scanner points IN (CSV, NPY, Parquet, PLY or XYZ: u, v, D, E, F[, T])
+    into machine coordinates OUT (by suffix: CSV, NPY, Parquet, PLY, XYZ, PTS or E57;
+    X, Y, Z in mm, E57 in metres). Any other column of IN (scan_id, intensity, ...)
+    is written to OUT unchanged.
+
+    IN may be a folder of Parquet files (a dataset): OUT is then a folder that
+    gets one Parquet file per input, named after it, with X, Y, Z and the
+    input's other columns, compensated on the --scheduler in bounded memory."""
     from .machine import load_machine
 
     try:
@@ -132,10 +141,16 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         raise fail(exc) from None
     pose_t = triple(pose, "--pose") if pose else machine.pose.as_tuple()
     offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
+    if Path(points_in).is_dir():
+        return _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
+                                   temperature_tolerance, nan_policy, scheduler or "threads")
+    if scheduler is not None:
+        raise click.BadParameter(f"{points_in} is a file; --scheduler is for a folder of Parquet files",
+                                 param_hint="--scheduler")
     try:
         check_writable(points_out)  # before any work: a missing folder is found now, not after
         error_map = load_maps(maps, machine)
-        size, chunks = point_chunks(points_in)
+        size, chunks = point_chunks(points_in, extras=True)
         state = {"t_all": None, "warned": False}
         totals = np.zeros(5, dtype=np.int64)
         held = extrapolated = n = 0
@@ -164,11 +179,11 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
 
         def run(source, writer, bar, task):
             nonlocal n, held, extrapolated, max_extrapolation, elapsed
-            for uv, scales, temps, done in source:
+            for uv, scales, temps, extras, done in source:
                 t0 = time.perf_counter()
                 xyz, rep = one(uv, scales, temps)
                 elapsed += time.perf_counter() - t0
-                writer.write(xyz)
+                writer.write(xyz, extras)  # scan_id, intensity, ... unchanged
                 n += len(uv)
                 totals[:] += [rep.points, *rep.clamped_position, rep.clamped_temperature]
                 held += rep.held_temperature
@@ -191,7 +206,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                     totals[:] = 0
                     held = extrapolated = n = 0
                     max_extrapolation = elapsed = 0.0
-                    run(iter([(*again.points, size)]), writer, bar, task)
+                    run(iter([(*again.points, again.extras, size)]), writer, bar, task)
             except BaseException:
                 writer.abort()
                 raise
@@ -288,6 +303,57 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
     Console().print(table)
 
 
+def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
+                        temperature_tolerance, nan_policy, scheduler) -> None:
+    """`compensate DATASET_DIR OUT_DIR`: a folder of Parquet files on a Dask scheduler (cmmpose.scale)."""
+    import logging
+
+    from .scale import compensate_dataset, dataset_temperature_range
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
+    try:
+        error_map = load_maps(maps, machine)
+        given = temperature if temperature is not None else dataset_temperature_range(points_in)
+        if isinstance(error_map, ErrorMap) and given is not None:  # T from the files' statistics, no data read
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", MapTemperatureWarning)
+                note = warn_single_map(error_map, given, temperature_tolerance)
+            if note:
+                console.print(f"[yellow]warning:[/] {escape(note)}")
+        with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                      TextColumn("{task.completed:,.0f} points"),
+                      TimeRemainingColumn(), console=console) as bar:
+            task = bar.add_task("", total=None)
+            result = compensate_dataset(points_in, points_out, error_map, pose_t, offset_t, temperature,
+                                        out_of_range=out_of_range, nan_policy=nan_policy,
+                                        temperature_tolerance=temperature_tolerance, scheduler=scheduler,
+                                        progress=lambda done, total: bar.update(task, completed=done, total=total))
+    except Error as exc:
+        raise fail(exc) from None
+    report = result.report
+    table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
+    machine_row(table, machine)
+    table.add_row("files", f"{len(result.outputs)}")
+    table.add_row("points", f"{result.points:,}")
+    table.add_row("maps", repr(error_map))
+    t_text = f"{temperature:g} C" if temperature is not None else "per point (T column)"
+    table.add_row("temperature", t_text if isinstance(error_map, ErrorMapSet) else "-")
+    table.add_row("pose (deg)", ", ".join(f"{v:g}" for v in pose_t))
+    table.add_row("offset (mm)", ", ".join(f"{v:g}" for v in offset_t))
+    table.add_row("scheduler", scheduler)
+    if report.clamped:
+        x, y, z = report.clamped_position
+        table.add_row("clamped", f"X {x}, Y {y}, Z {z}, temperature {report.clamped_temperature}")
+    if report.held_temperature:
+        table.add_row("held at the maps' edge",
+                      f"{report.held_temperature:,} temperatures within {temperature_tolerance:g} K outside")
+    if report.extrapolated_temperature:
+        table.add_row("extrapolated", f"{report.extrapolated_temperature:,} temperatures, up to "
+                                      f"{report.max_extrapolation:.2f} K beyond the maps")
+    table.add_row("wall time", f"{result.elapsed:.1f} s ({result.points / max(result.elapsed, 1e-9) / 1e6:.1f} M points/s)")
+    Console().print(table)
+
+
 @main.command("simulate-alignment")
 @machine_option
 @click.option("--pose", "pose_text", required=True, help="Nominal pose alpha,beta,gamma of the trunnion stop, degrees.")
@@ -348,6 +414,89 @@ def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, 
                   f"{VERNIER_NOISE * 1e3:g} --plane-scan {files['plane']} --plane-normal "
                   + ",".join(f"{c + 0.0:.6g}" for c in normal) + f" --reference-scan {files['sphere']} --name {name} "
                   "--library LIBRARY", soft_wrap=True)
+
+
+_UNIT_MM = {"mm": 1.0, "m": 1e3, "um": 1e-3, "in": 25.4}
+
+
+@main.command("fit")
+@click.argument("scan", type=click.Path(exists=True, dir_okay=False))
+@click.option("--units", type=click.Choice(sorted(_UNIT_MM)), default=None,
+              help="Units of the file's coordinates (and of --scanner-origin, --start). Default: the format's "
+                   "(mm; metres for E57).")
+@click.option("--radius", type=float, default=None,
+              help="Calibrated sphere radius, mm (fixed in the fit). Default: fitted (free radius).")
+@click.option("--segment", type=click.Choice(["none", "e3125"]), default="none", show_default=True,
+              help="e3125: segment the sphere from a raw scan about the scanner's line of sight (needs --radius).")
+@click.option("--scanner-origin", default="0,0,0", show_default=True,
+              help="The scanner's origin in the file's frame, x,y,z in --units (for --segment e3125).")
+@click.option("--rule", type=click.Choice(["none", "mad", "e3125"]), default=None,
+              help="Outlier rule without segmentation (docs/fitting.md): mad (repeated, median-centred) or e3125 "
+                   "(one pass at 3 standard deviations).")
+@click.option("--reject", type=float, default=None, help="Multiple k of the rule's sigma (default 3.5 for mad, 3 for e3125).")
+@click.option("--start", default=None,
+              help="Where the fit starts: algebraic, lmeds (high breakdown: for heavy outliers) or a centre x,y,z "
+                   "in --units.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, as_json) -> None:
+    """Fit a sphere to the point cloud SCAN (CSV, NPY, Parquet, PLY, XYZ, PTS, E57): centre (mm), radius,
+    points used and the centre's standard uncertainty. With --segment e3125 a raw scan is segmented in the
+    manner of ASTM E3125 first (closest-point start, cone and cylinder about the line of sight, radius fixed)."""
+    import warnings as _warnings
+
+    from .errors import IllConditionedFit
+    from .fitting import e3125, fit_sphere
+    from .pointclouds import read_point_cloud
+
+    if radius is not None and not (np.isfinite(radius) and radius > 0):
+        raise click.BadParameter(f"expected a positive radius in mm, got {radius}", param_hint="--radius")
+    if segment == "e3125" and radius is None:
+        raise click.UsageError("--segment e3125 fits with the radius fixed at its calibrated value: give --radius (mm)")
+    if segment == "e3125" and (rule or reject is not None):
+        raise click.UsageError("--segment e3125 applies the standard's own rule: --rule and --reject do not apply")
+    scale = _UNIT_MM[units] if units else 1.0
+    start_value = None
+    if start is not None:
+        start_value = start if start in ("algebraic", "lmeds") else tuple(v * scale for v in triple(start, "--start"))
+        if segment == "e3125" and isinstance(start_value, str):
+            raise click.BadParameter("with --segment e3125 give a centre x,y,z (or nothing: the closest-point start)",
+                                     param_hint="--start")
+    origin = tuple(v * scale for v in triple(scanner_origin, "--scanner-origin"))
+    try:
+        cloud = read_point_cloud(scan, units=units)
+        with _warnings.catch_warnings(record=True) as caught:
+            _warnings.simplefilter("always", IllConditionedFit)
+            if segment == "e3125":
+                res = e3125(cloud.xyz, radius, origin, start=start_value)
+                out = {"file": str(scan), "method": "e3125 segmentation, radius fixed", **res.to_dict()}
+            else:
+                f = fit_sphere(cloud.xyz, radius, rule=rule, reject=reject, start=start_value)
+                out = {"file": str(scan), "method": "least squares" + (f", rule {rule or 'mad'}" if (rule or reject)
+                                                                        else "") + (", radius fixed" if radius else ""),
+                       "centre_mm": f.centre.tolist(), "radius_mm": float(f.radius), "n_points": int(f.n_points),
+                       "n_raw": len(cloud.xyz), "centre_uncertainty_mm": f.centre_uncertainty.tolist(),
+                       "radius_uncertainty_mm": f.radius_uncertainty if radius is None else 0.0,
+                       "rms_mm": float(f.rms), "polar_coverage_deg": float(f.polar_coverage),
+                       "centre_radius_correlation": (None if radius is not None
+                                                     else float(f.centre_radius_correlation))}
+    except Error as exc:
+        raise fail(exc) from None
+    notes = [str(w.message) for w in caught if issubclass(w.category, IllConditionedFit)]
+    out["warnings"] = notes
+    if as_json:
+        click.echo(json.dumps(out, indent=2))
+    else:
+        table = Table(title=f"sphere fit of {scan}", show_header=False)
+        table.add_row("method", out["method"])
+        table.add_row("centre (mm)", ", ".join(f"{v:.6f}" for v in out["centre_mm"]))
+        u = out.get("centre_uncertainty_mm")
+        if u is not None:
+            table.add_row("u(centre) (um)", ", ".join(f"{v * 1e3:.2f}" for v in u))
+        table.add_row("radius (mm)", f"{out['radius_mm']:.6f}")
+        table.add_row("points used / in file", f"{out['n_points']} / {out['n_raw']}")
+        Console().print(table)
+    for note in notes:
+        console.print(f"[yellow]warning:[/] {escape(note)}")
 
 
 def _aligned(name: str, library_file) -> tuple[str, str]:
@@ -412,7 +561,7 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 
 
 @main.command("evaluate")
-@click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
+@click.argument("run_dir", metavar="RUN_DIR...", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
 @machine_option
 @click.option("--maps", "maps", multiple=True,
               help="Compensation maps ('thesis', files, or 'none'); default: the machine's, or as run.json says.")
@@ -430,9 +579,17 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @click.option("--u-model", type=float, default=0.0, show_default=True,
               help="Standard uncertainty of the residual model error, ppm of the length (0: left out of the budget).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+@click.option("--scheduler", default=None,
+              help="Evaluate the runs on Dask: 'threads', 'processes' or a scheduler address tcp://host:port "
+                   "(default with several runs: threads; needs the dask extra).")
 def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
-                 reject, u_temperature, u_map, u_model, report_dir, as_json) -> None:
-    """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated."""
+                 reject, u_temperature, u_map, u_model, report_dir, as_json, scheduler) -> None:
+    """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated.
+
+    With several runs (a fleet, or a day's runs), each is evaluated on the
+    --scheduler and a summary table across them is printed; --report writes
+    the summary (CSV), each run's report and a plot of the trend. One run:
+    every figure with its uncertainty (k = 2) and budget (docs/uncertainty.md)."""
     from .evaluation import evaluate
     from .machine import load_machine
     from .run import Run
@@ -441,6 +598,12 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         machine = load_machine(machine_file)
         if expansion is None:
             expansion = machine.artefact_expansion * 1e6
+        if len(run_dir) > 1 or scheduler is not None:
+            return _evaluate_fleet(run_dir, machine, maps, scheduler or "threads", report_dir, as_json,
+                                   temperature=temperature, reject=reject, out_of_range=out_of_range,
+                                   temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+                                   expansion=expansion * 1e-6)
+        run_dir = run_dir[0]
         run = Run.load(run_dir)
         model = _maps_for_run(run, maps, machine)
         with warnings.catch_warnings(record=True) as caught:
@@ -478,8 +641,66 @@ def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, t
         u_map_ppm=u_map, u_model_ppm=u_model)
 
 
+def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **options) -> None:
+    """`evaluate RUN...`: every run on a Dask scheduler (cmmpose.scale), then one table across them."""
+    import logging
+
+    from .scale import evaluate_runs, fleet_summary
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
+    if maps == ("none",):
+        model = None
+    elif maps or not machine.is_default:
+        model = load_maps(maps, machine)
+    else:
+        model = "run"  # each run.json names its bundled maps
+    with Progress(TextColumn("evaluating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} runs"),
+                  console=console) as bar:
+        task = bar.add_task("", total=len(run_dirs))
+        evaluations = evaluate_runs(run_dirs, model, scheduler=scheduler,
+                                    progress=lambda done, total: bar.update(task, completed=done), **options)
+    rows = fleet_summary(run_dirs, evaluations)
+    files = []
+    if report_dir:
+        from .plots import plot_fleet_trend
+
+        directory = Path(report_dir)
+        directory.mkdir(parents=True, exist_ok=True)
+        for r, ev in zip(run_dirs, evaluations):
+            files += write_report(ev, directory / Path(r).name, model if not isinstance(model, str) else None)
+        summary = directory / "summary.csv"
+        fields = list(rows[0].__dataclass_fields__)
+        summary.write_text("\n".join([",".join(fields)] + [",".join(str(getattr(row, f)) for f in fields)
+                                                            for row in rows]) + "\n")
+        files.append(summary)
+        try:
+            plot_fleet_trend(rows, directory / "trend.png")
+            files.append(directory / "trend.png")
+        except (ImportError, InputError) as exc:  # the table is still printed
+            console.print(f"[yellow]no trend plot:[/] {escape(str(exc))}")
+    if as_json:
+        click.echo(json.dumps([{k: (None if isinstance(v, float) and v != v else v) for k, v in row.__dict__.items()}
+                               for row in rows], indent=2))  # NaN (no value) as null: strict JSON
+    else:
+        table = Table(title=f"cmmpose evaluate: {len(rows)} runs on {scheduler}")
+        table.add_column("run")
+        table.add_column("created")
+        table.add_column("temperature (C)", justify="right")
+        for what in ("uncompensated", "compensated"):
+            table.add_column(f"{what}\nrms (um)", justify="right")
+            table.add_column("B89 (um)", justify="right")
+        um = lambda x: "-" if x != x else f"{x * 1e3:.1f}"  # noqa: E731 - NaN: no value
+        for row in rows:
+            table.add_row(escape(row.run), row.created, "-" if row.temperature != row.temperature else f"{row.temperature:.2f}",
+                          um(row.rms_uncompensated), um(row.b89_uncompensated), um(row.rms_compensated),
+                          um(row.b89_compensated))
+        Console(width=max(120, Console().width)).print(table)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
 @main.command("diagnose")
-@click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
+@click.argument("run_dirs", metavar="RUN_DIR...", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
 @machine_option
 @click.option("--maps", "maps", multiple=True,
               help="Model maps ('thesis' or files); default: the machine's, or as run.json says.")
@@ -492,19 +713,51 @@ def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, t
 @click.option("--max-effects", type=int, default=4, show_default=True, help="Most effects added automatically.")
 @click.option("--report", "report_file", type=click.Path(dir_okay=False), default=None, help="Write a self-contained HTML report here.")
 @click.option("--save-model", "model_out", type=click.Path(dir_okay=False), default=None, help="Write the final model (JSON) here.")
+@click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="A Python file defining EFFECT (a cmmpose.diagnosis.UserEffect), added to the candidates "
+                   "(repeatable; docs/user-effects.md).")
+@click.option("--user-effect-skeleton", "skeleton_out", type=click.Path(dir_okay=False), default=None,
+              help="Write a user-effect draft (Python) built on the first unexplained finding here.")
+@click.option("--joint", is_flag=True,
+              help="With several runs: one model for all (shared effect parameters, per-run noise levels; the same "
+                   "artefact: one bar length), instead of one diagnosis per run.")
+@click.option("--separate-artefacts", is_flag=True, help="With --joint: each run measured its own artefact.")
+@click.option("--scheduler", default=None,
+              help="With several runs: where each run's diagnosis runs (threads, processes or tcp://host:port; "
+                   "the [dask] extra; docs/scale-out.md).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
-def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
-                 add, no_auto, max_effects, report_file, model_out, as_json) -> None:
-    """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall."""
+def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
+                 add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, joint, separate_artefacts,
+                 scheduler, as_json) -> None:
+    """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall.
+    Several RUN_DIRs are diagnosed one by one on a Dask scheduler, with one table across them."""
     from .diagnosis import Model, diagnose
     from .machine import load_machine
     from .run import Run
 
+    if joint:
+        if len(run_dirs) < 2 or scheduler:
+            raise click.UsageError("--joint takes two or more runs and runs in this process (no --scheduler)")
+        return _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json,
+                               temperature=temperature, out_of_range=out_of_range,
+                               temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
+                               auto=not no_auto, max_effects=max_effects, same_artefact=not separate_artefacts)
+    if len(run_dirs) > 1 or scheduler:
+        for flag, given in (("--report", report_file), ("--save-model", model_out), ("--user-effect", user_files),
+                            ("--user-effect-skeleton", skeleton_out)):
+            if given:
+                raise click.UsageError(f"{flag} takes one run: diagnose the run of interest on its own")
+        return _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler or "threads", as_json,
+                               temperature=temperature, out_of_range=out_of_range,
+                               temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
+                               auto=not no_auto, max_effects=max_effects)
+    run_dir = run_dirs[0]
     try:
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
+        user = [_load_user_effect(f) for f in user_files]
         if model_file:
-            model = Model.load(model_file)
+            model = Model.load(model_file, user_effects=user)
         else:
             maps_ = _maps_for_run(run, maps, machine)
             if maps_ is None:
@@ -512,13 +765,23 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
             model = Model(maps_, temperature=temperature, out_of_range=out_of_range,
                           temperature_tolerance=temperature_tolerance, log_hold=log_hold)
         with console.status("diagnosing ..."):
-            diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects)
+            known = set(model.names)
+            diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects,
+                            user_effects=[u for u in user if u.name not in known])
         files = []
+        if skeleton_out:
+            from .diagnosis.unexplained import user_effect_skeleton
+
+            if diag.unexplained:
+                Path(skeleton_out).write_text(user_effect_skeleton(diag.unexplained[0]), encoding="utf-8")
+                files.append(skeleton_out)
+            else:
+                console.print("no unexplained structure: no user-effect draft written")
         if model_out:
             files.append(diag.model.save(model_out))
         if report_file:
             try:
-                files.append(diag.write_report(report_file, run))
+                files.append(diag.write_report(report_file, run, run_dir=run_dir, model_file=model_out))
             except ImportError as exc:  # the diagnosis is still printed and the model saved
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
@@ -529,6 +792,135 @@ def diagnose_cmd(run_dir, machine_file, maps, model_file, temperature, out_of_ra
         Console(width=150).print(diag)
     for f in files:
         console.print(f"wrote {f}")
+
+
+def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, *, temperature,
+                    out_of_range, temperature_tolerance, log_hold, **options) -> None:
+    """`diagnose RUN... --joint`: one model for several runs (cmmpose.diagnosis.joint)."""
+    from .diagnosis import Model
+    from .diagnosis.joint import diagnose_jointly
+    from .machine import load_machine
+    from .run import Run
+
+    try:
+        machine = load_machine(machine_file)
+        runs = [Run.load(r) for r in run_dirs]
+        user = [_load_user_effect(f) for f in user_files]
+        if model_file:
+            model = Model.load(model_file, user_effects=user)
+        else:
+            maps_ = _maps_for_run(runs[0], maps, machine)
+            if maps_ is None:
+                raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
+            model = Model(maps_, temperature=temperature, out_of_range=out_of_range,
+                          temperature_tolerance=temperature_tolerance, log_hold=log_hold)
+        with console.status(f"diagnosing {len(runs)} runs together ..."):
+            diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
+                                    run_names=[str(r) for r in run_dirs], **options)
+        files = [diag.model.save(model_out)] if model_out else []
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(diag.to_json(indent=1))
+    else:
+        Console(width=150).print(diag)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
+def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json, *, temperature, out_of_range,
+                    temperature_tolerance, log_hold, **options) -> None:
+    """`diagnose RUN...`: each run's diagnosis on a Dask scheduler (cmmpose.scale), one table across them."""
+    from .diagnosis import Model
+    from .machine import load_machine
+    from .scale import diagnose_runs
+
+    try:
+        machine = load_machine(machine_file)
+        model = None
+        if model_file:
+            model = Model.load(model_file)
+        elif maps or machine_file:
+            model = Model(load_maps(maps, machine), temperature=temperature, out_of_range=out_of_range,
+                          temperature_tolerance=temperature_tolerance, log_hold=log_hold)
+        with Progress(TextColumn("diagnosing"), BarColumn(), TextColumn("{task.completed}/{task.total} runs"),
+                      console=console) as bar:
+            task = bar.add_task("", total=len(run_dirs))
+            diags = diagnose_runs(run_dirs, model, scheduler=scheduler,
+                                  progress=lambda done, total: bar.update(task, completed=done, total=total),
+                                  **options)
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(json.dumps({str(r): json.loads(d.to_json()) for r, d in zip(run_dirs, diags)}, indent=1))
+        return
+    table = Table(title=f"diagnosis of {len(run_dirs)} runs ({scheduler})")
+    for col in ("run", "added (final values ± u)", "rms before (um)", "rms after (um)", "unexplained"):
+        table.add_column(col, justify="left" if col in ("run", "added (final values ± u)", "unexplained") else "right")
+    for r, d in zip(run_dirs, diags):
+        added = "; ".join(f"{x['name']}: {x['reason'].split(' (final model)')[0]}" for x in d.decisions()
+                          if x["decision"].startswith("added")) or "-"
+        table.add_row(str(r), added, f"{d.steps[0].figures.rms_accuracy_error * 1e3:.2f}",
+                      f"{d.steps[-1].figures.rms_accuracy_error * 1e3:.2f}",
+                      "; ".join(f.input + ": " + f.description.split(":")[0] for f in d.unexplained) or "-")
+    Console(width=160).print(table)
+
+
+@main.command("diagnose-fits")
+@click.argument("fits_file", metavar="FITS")
+@click.option("--state", default=None, help="Rows of this state only (a 'state' column, e.g. compensated).")
+@click.option("--nominal-radius", type=float, default=None, help="Calibrated ball radius, mm.")
+@click.option("--reference-length", type=float, default=None, help="Calibrated bar length, mm (default: the mean).")
+@click.option("--json", "as_json", is_flag=True)
+def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, as_json) -> None:
+    """Diagnose a ballbar run from its sphere fits alone (centres, radii, points, fit rms per ball): FITS is a
+    CSV (docs/appendix-c.md) or 'appendix-c' (thesis Appendix C, 20 C, nominal radius 38.125 mm)."""
+    from .diagnosis.spheres import NOMINAL_RADIUS_MM, appendix_c_sphere_fits, diagnose_sphere_fits, read_sphere_fits
+
+    try:
+        if fits_file == "appendix-c":
+            fits = appendix_c_sphere_fits(state or "compensated")
+            nominal_radius = NOMINAL_RADIUS_MM if nominal_radius is None else nominal_radius
+        else:
+            if not Path(fits_file).is_file():
+                raise click.BadParameter(f"{fits_file}: no such file", param_hint="FITS")
+            fits = read_sphere_fits(fits_file, state)
+        d = diagnose_sphere_fits(fits["centres"], fits["radii"], nominal_radius=nominal_radius,
+                                 reference_length=reference_length, points=fits.get("points"),
+                                 fit_rms=fits.get("fit_rms"))
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(json.dumps(d.to_dict(), indent=1))
+        return
+    table = Table(title=f"sphere fits of {fits_file}" + (f" ({state})" if state else ""), show_header=False)
+    table.add_row("positions", str(len(d.lengths)))
+    table.add_row("rms accuracy error (um)", f"{d.rms_um:.2f}")
+    table.add_row("mean radius (mm)", f"{d.radius_mean:.4f}" + ("" if d.nominal_radius is None else
+                  f" ({d.radius_excess_um:+.1f} ± {d.radius_excess_u_um:.1f} um over {d.nominal_radius:g})"))
+    table.add_row("radius scatter between balls (um)", f"{d.radius_sd_um:.1f}")
+    Console().print(table)
+    Console(width=150).print(d.patterns)
+
+
+def _load_user_effect(path: str):
+    """The EFFECT a user-effect file defines (the file is the user's own code, run as such)."""
+    import importlib.util
+
+    from .diagnosis import UserEffect
+
+    spec = importlib.util.spec_from_file_location(f"cmmpose_user_effect_{Path(path).stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Error:
+        raise
+    except Exception as exc:  # the user's file: say where it failed
+        raise InputError(f"{path}: the user effect file failed to run: {type(exc).__name__}: {exc}") from None
+    effect = getattr(module, "EFFECT", None)
+    if not isinstance(effect, UserEffect):
+        raise InputError(f"{path}: must define EFFECT = UserEffect.create(...) (see docs/user-effects.md)")
+    return effect
 
 
 @main.command("demo")

@@ -9,6 +9,8 @@ them; every message names the file, line, row or argument at fault.
 - ``RunError``: a malformed measurement run directory (Python-side only).
 - ``CalibrationError``: data that cannot give a trustworthy calibration.
 - ``AcquisitionError``: serial acquisition: a port, journal or run directory at fault.
+- ``SchedulerError``: scaling out (cmmpose.scale): the dask extra missing, a bad
+  scheduler spec, a scheduler that cannot be reached.
 """
 
 import logging
@@ -16,7 +18,7 @@ import warnings
 
 from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "ClampWarning", "ExtrapolationWarning", "MapTemperatureWarning", "warn_clamped", "read_lines"]
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "SchedulerError", "ClampWarning", "ExtrapolationWarning", "IllConditionedFit", "MapTemperatureWarning", "warn_clamped", "read_lines"]
 
 _log = logging.getLogger("cmmpose")
 
@@ -40,6 +42,12 @@ class ClampWarning(UserWarning):
 
 class ExtrapolationWarning(UserWarning):
     """Temperatures beyond the maps were extrapolated (``out_of_range='extrapolate'``)."""
+
+
+class IllConditionedFit(UserWarning):
+    """A free-radius sphere fit whose centre is ill-determined: the centre and
+    the radius are so correlated (a small cap) that the centre moves with the
+    radius; fix the radius at its calibrated value (docs/fitting.md)."""
 
 
 class MapTemperatureWarning(UserWarning):
@@ -87,3 +95,10 @@ class AcquisitionError(Error):
     """Serial acquisition failed: a port that cannot be opened, a journal that
     cannot be written or read, a run directory already in use. The message
     names the port, file or record at fault."""
+
+
+class SchedulerError(Error):
+    """Scaling out failed before any work: the ``dask`` extra is not installed
+    (``pip install 'cmmpose[dask]'``), the scheduler spec is not one of
+    'threads', 'processes' or an address, or the scheduler at the address
+    cannot be reached. The message names the spec or the address."""

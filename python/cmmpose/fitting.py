@@ -1,9 +1,13 @@
 """Least-squares fits of measured artefacts: spheres (geometric, Rust core:
-rust/core/src/fit/sphere.rs) and planes (total least squares). Lengths in mm,
-angles in degrees."""
+rust/core/src/fit/sphere.rs) with robust rules and a high-breakdown start,
+the ASTM E3125-style segmentation of a sphere from a raw scan
+(rust/core/src/fit/segment.rs), and planes (total least squares). Lengths in
+mm, angles in degrees; docs/fitting.md describes the rules."""
 
 from __future__ import annotations
 
+import logging
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -12,7 +16,37 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_rows
-from .errors import InputError
+from ._validate import vector3
+from .errors import IllConditionedFit, InputError
+
+_log = logging.getLogger(__name__)
+
+#: A free-radius fit warns (:class:`IllConditionedFit`) when the centre-radius
+#: correlation exceeds this: fixing the radius would then shrink the variance
+#: of the centre along the cap axis by 1 / (1 - 0.99^2) = 50 (its standard
+#: uncertainty by 7x). A uniform cap reaches it at a 53 degree half-angle;
+#: docs/fitting.md.
+ILL_CONDITIONED_CORRELATION = 0.99
+
+RULES = ("none", "mad", "e3125")
+STARTS = ("algebraic", "lmeds")
+
+
+def _correlation(cov: np.ndarray) -> np.ndarray:
+    """Multiple correlation between the radius and the centre of (..., 4, 4)
+    covariances: the largest correlation of the radius with any combination
+    of the centre coordinates. NaN where the radius was fixed or the
+    covariance is not finite."""
+    cov = np.asarray(cov, dtype=float)
+    out = np.full(cov.shape[:-2], np.nan)
+    var_r = cov[..., 3, 3]
+    ok = np.isfinite(cov).all(axis=(-1, -2)) & (var_r > 0)
+    if ok.any():
+        c = cov[ok]
+        s = c[:, :3, 3]
+        rho2 = np.einsum("ki,ki->k", s, np.linalg.solve(c[:, :3, :3], s[..., None])[..., 0]) / c[:, 3, 3]
+        out[ok] = np.sqrt(np.clip(rho2, 0.0, 1.0))
+    return out
 
 
 @dataclass(frozen=True)
@@ -38,13 +72,19 @@ class SphereFit:
     covariance : ndarray (4, 4)
         Covariance of (centre x, y, z, radius), mm^2, from s^2 (J^T J)^-1.
     polar_coverage : float
-        Half-angle of the cap the points cover, degrees (180: whole sphere).
+        Half-angle of the cap the points cover (the cap angle), degrees (180:
+        whole sphere).
     iterations : int
         Levenberg-Marquardt iterations of the final fit.
     converged : bool
         The stopping rule was met before the iteration cap.
     rejected : int
         Points set aside by the robust option.
+
+    Notes
+    -----
+    :attr:`centre_radius_correlation` tells how well a free-radius fit
+    determines the centre (docs/fitting.md, Conditioning).
     """
 
     centre: np.ndarray
@@ -73,6 +113,15 @@ class SphereFit:
     def radius_uncertainty(self) -> float:
         """Standard uncertainty of the radius, mm (0 for a fixed radius)."""
         return float(np.sqrt(self.covariance[3, 3]))
+
+    @property
+    def centre_radius_correlation(self) -> float:
+        """Multiple correlation (0..1) between the fitted radius and centre,
+        from the covariance: the largest correlation of the radius with any
+        combination of the centre coordinates (on a cap, the centre's
+        component along the cap axis). Fixing the radius shrinks that
+        combination's variance by 1 - rho^2. NaN for a fixed radius."""
+        return float(_correlation(self.covariance))
 
 
 @dataclass(frozen=True, eq=False)
@@ -167,6 +216,12 @@ class SphereFits(Mapping):
         """Standard uncertainty of the radii, mm (K,) (0 for a fixed radius)."""
         return np.sqrt(self.covariance[:, 3, 3])
 
+    @property
+    def centre_radius_correlation(self) -> np.ndarray:
+        """Centre-radius multiple correlation of each sphere, (K,) (NaN for a
+        fixed radius or a failed fit); see :attr:`SphereFit.centre_radius_correlation`."""
+        return _correlation(self.covariance)
+
     def positions(self, labels) -> np.ndarray:
         """Entry of each of ``labels`` in the per-sphere arrays, (M,) int64:
         ``fits.centre[fits.positions(labels)]`` are their centres (mm).
@@ -237,30 +292,87 @@ class PlaneFit:
     rejected: int
 
 
-def _check(radius, reject, max_iterations, min_coverage):
+def _check(radius, reject, rule, max_iterations, min_coverage, samples, seed) -> dict:
+    """The shared options as the extension's keywords, checked."""
     if radius is not None and not (np.isfinite(radius) and radius > 0):
         raise InputError(f"radius: must be a positive length in mm, got {radius}")
     if reject is not None and not (np.isfinite(reject) and reject > 0):
-        raise InputError(f"reject: must be a positive multiple of the robust sigma, got {reject}")
+        raise InputError(f"reject: must be a positive multiple of the rule's sigma, got {reject}")
+    if rule is not None and rule not in RULES:
+        raise InputError(f"rule: expected one of {', '.join(map(repr, RULES))}, got {rule!r}")
     if int(max_iterations) < 1:
         raise InputError(f"max_iterations: must be at least 1, got {max_iterations}")
-    return (None if radius is None else float(radius), None if reject is None else float(reject),
-            int(max_iterations), float(min_coverage))
+    if int(samples) < 1:
+        raise InputError(f"samples: the high-breakdown start needs at least 1 sample, got {samples}")
+    if int(seed) < 0:
+        raise InputError(f"seed: must be a non-negative integer, got {seed}")
+    return dict(radius=None if radius is None else float(radius), reject=None if reject is None else float(reject),
+                rule=rule, max_iterations=int(max_iterations), min_coverage=float(min_coverage),
+                samples=int(samples), seed=int(seed))
 
 
-def fit_sphere(points, radius: float | None = None, *, reject: float | None = None, max_iterations: int = 100,
+def _start(start) -> dict:
+    """``start`` as the extension's keywords: a method name, or a centre (mm)."""
+    if start is None:
+        return dict(start="algebraic")
+    if isinstance(start, str):
+        if start not in STARTS:
+            raise InputError(f"start: expected 'algebraic', 'lmeds' or a centre (x, y, z) in mm, got {start!r}")
+        return dict(start=start)
+    return dict(start="centre", centre=tuple(vector3("start", start, unit="mm").tolist()))
+
+
+def _ill_conditioned(rho: float, cap: float, what: str) -> str:
+    gain = 1.0 / np.sqrt(max(1.0 - rho * rho, 1e-300))
+    return (f"{what}: the free-radius centre is ill-determined (centre-radius correlation {rho:.4f} over a "
+            f"{cap:.1f} deg cap: the centre moves with the radius, its uncertainty along the cap axis "
+            f"{gain:.0f}x what a fixed radius gives); fit with the radius fixed at its calibrated value "
+            f"(radius=...)")
+
+
+def _warn_conditioning(fit: SphereFit, free: bool) -> None:
+    if not free:
+        return
+    rho = fit.centre_radius_correlation
+    if rho > ILL_CONDITIONED_CORRELATION:
+        msg = _ill_conditioned(rho, fit.polar_coverage, "sphere fit")
+        _log.warning("%s", msg)
+        warnings.warn(msg, IllConditionedFit, stacklevel=3)
+
+
+def fit_sphere(points, radius: float | None = None, *, reject: float | None = None, rule: str | None = None,
+               start=None, samples: int = 500, seed: int = 0, max_iterations: int = 100,
                min_coverage: float = 2.0) -> SphereFit:
-    """Orthogonal (geometric) least-squares sphere.
+    """Orthogonal (geometric) least-squares sphere, optionally robust.
 
     Parameters
     ----------
     points : array_like, shape (N, 3)
         Points on the sphere, mm.
     radius : float, optional
-        Fix the radius (mm) and fit only the centre.
+        Fix the radius (mm) and fit only the centre (the calibrated radius:
+        a partial cap determines the centre far better so).
     reject : float, optional
-        Robust fit: set aside points farther than ``reject`` x 1.4826 MAD of the
-        residuals and refit (e.g. 3.5 removes bar and stand points).
+        Multiple k of the rejection rule's sigma (dimensionless). Alone it
+        selects ``rule='mad'`` (e.g. 3.5 removes bar and stand points).
+    rule : {'none', 'mad', 'e3125'}, optional
+        Outlier rule (docs/fitting.md). ``'mad'``: repeatedly set aside
+        |r - median(r)| > k x 1.4826 MAD(r) and refit until the inliers stop
+        changing (k = ``reject``, default 3.5). ``'e3125'``: the ASTM E3125
+        single pass, set aside |r| > k s (s the sample standard deviation of
+        the first fit's residuals, mm; k default 3) and refit once. Default:
+        ``'mad'`` when ``reject`` is given, else ``'none'``.
+    start : {'algebraic', 'lmeds'} or array_like (3,), optional
+        Where the fit starts. ``'algebraic'`` (default): the algebraic sphere
+        of all points. ``'lmeds'``: the high-breakdown least-median-of-squares
+        sphere (random minimal samples, seeded); the least-squares fit then
+        uses its inliers only, and a rule continues from there. Recovers the
+        clean sphere with up to ~40-50 % of the points outliers. A centre
+        (x, y, z) in mm: start from it.
+    samples : int
+        Minimal samples drawn by ``start='lmeds'``.
+    seed : int
+        Seed of those samples (the same seed, the same fit, on every machine).
     max_iterations : int
         Levenberg-Marquardt iteration cap.
     min_coverage : float
@@ -270,18 +382,29 @@ def fit_sphere(points, radius: float | None = None, *, reject: float | None = No
     -------
     SphereFit
 
+    Warns
+    -----
+    IllConditionedFit
+        A free radius with a centre-radius correlation above
+        ``ILL_CONDITIONED_CORRELATION`` (0.99): the centre is ill-determined;
+        fix the radius. Also logged (logger ``cmmpose.fitting``).
+
     Raises
     ------
     InputError
         Fewer than 4 points, NaN or inf (naming the row), bad options.
     GeometryError
-        Coplanar or collinear points, a cap too small to fit, no convergence.
+        Coplanar or collinear points, a cap too small to fit, no convergence,
+        rejection leaving too few points.
     """
-    opts = _check(radius, reject, max_iterations, min_coverage)
-    return SphereFit._from(_core.fit_sphere(as_rows("points", points, 3), *opts))
+    opts = _check(radius, reject, rule, max_iterations, min_coverage, samples, seed)
+    fit = SphereFit._from(_core.fit_sphere(as_rows("points", points, 3), **opts, **_start(start)))
+    _warn_conditioning(fit, radius is None)
+    return fit
 
 
 def fit_spheres(points, labels, radius: float | None = None, *, reject: float | None = None,
+                rule: str | None = None, start: str | None = None, samples: int = 500, seed: int = 0,
                 max_iterations: int = 100, min_coverage: float = 2.0, on_error: str = "raise") -> SphereFits:
     """One sphere per label, fitted in parallel.
 
@@ -291,8 +414,11 @@ def fit_spheres(points, labels, radius: float | None = None, *, reject: float | 
         Points, mm.
     labels : array_like, shape (N,)
         Which sphere each point belongs to (e.g. scan ids), in any order.
-    radius, reject, max_iterations, min_coverage
+    radius, reject, rule, samples, seed, max_iterations, min_coverage
         As in :func:`fit_sphere` (radius in mm, min_coverage in degrees).
+    start : {'algebraic', 'lmeds'}, optional
+        As in :func:`fit_sphere`; a starting centre belongs to one sphere and
+        is refused here.
     on_error : {'raise', 'return'}
         A label whose points cannot be fitted raises its error naming the
         label, or stays in the result with its exception in ``error`` (and
@@ -308,6 +434,12 @@ def fit_spheres(points, labels, radius: float | None = None, *, reject: float | 
         :func:`fit_sphere` on that label's points, residuals in their input
         order).
 
+    Warns
+    -----
+    IllConditionedFit
+        Once, naming the labels, when free-radius fits are ill-conditioned
+        (as in :func:`fit_sphere`).
+
     Raises
     ------
     InputError
@@ -318,7 +450,9 @@ def fit_spheres(points, labels, radius: float | None = None, *, reject: float | 
     """
     if on_error not in ("raise", "return"):
         raise InputError(f"on_error: expected 'raise' or 'return', got {on_error!r}")
-    opts = _check(radius, reject, max_iterations, min_coverage)
+    opts = _check(radius, reject, rule, max_iterations, min_coverage, samples, seed)
+    if start is not None and not isinstance(start, str):
+        raise InputError("start: a starting centre belongs to one sphere; fit_spheres takes 'algebraic' or 'lmeds'")
     pts = as_rows("points", points, 3)
     labels = np.asarray(labels)
     if labels.shape != (len(pts),):
@@ -331,7 +465,7 @@ def fit_spheres(points, labels, radius: float | None = None, *, reject: float | 
         sorted_labels, sorted_pts = labels[order], np.ascontiguousarray(pts[order])
     starts = np.flatnonzero(np.r_[True, sorted_labels[1:] != sorted_labels[:-1]]) if len(labels) else np.array([], int)
     bounds = np.r_[starts, len(labels)].astype(np.int64)
-    d = _core.fit_spheres(sorted_pts, bounds, *opts)
+    d = _core.fit_spheres(sorted_pts, bounds, **opts, **_start(start))
     unique = sorted_labels[starts]
     error = np.empty(len(unique), dtype=object)
     error[:] = d.pop("error")
@@ -345,7 +479,229 @@ def fit_spheres(points, labels, radius: float | None = None, *, reject: float | 
             sorted_values = d[name]
             d[name] = np.empty_like(sorted_values)
             d[name][order] = sorted_values
-    return SphereFits(labels=unique, error=error, _bounds=bounds, _order=order, **d)
+    fits = SphereFits(labels=unique, error=error, _bounds=bounds, _order=order, **d)
+    if radius is None and len(unique):
+        rho = fits.centre_radius_correlation
+        bad = np.flatnonzero(rho > ILL_CONDITIONED_CORRELATION)
+        if len(bad):
+            k = bad[np.argmax(rho[bad])]
+            names = ", ".join(repr(x) for x in unique[bad[:5]].tolist()) + (", ..." if len(bad) > 5 else "")
+            msg = _ill_conditioned(float(rho[k]), float(fits.polar_coverage[k]),
+                                   f"{len(bad)} of {len(unique)} spheres ({names}; worst {unique[k].item()!r})")
+            _log.warning("%s", msg)
+            warnings.warn(msg, IllConditionedFit, stacklevel=2)
+    return fits
+
+
+@dataclass(frozen=True)
+class SphereSegmentation:
+    """A sphere segmented from a raw scan and fitted with its radius fixed
+    (:func:`segment_sphere`).
+
+    Attributes
+    ----------
+    fit : SphereFit
+        The last region fit. ``fit.residuals`` covers every input point (mm);
+        ``fit.inlier`` marks the points used (the same array as ``mask``);
+        ``fit.rejected`` counts the region's points the rule set aside;
+        ``fit.covariance`` gives the centre's uncertainty (mm^2).
+    mask : ndarray (N,) of bool
+        The points kept: in the converged region and passing the rule.
+    region : ndarray (N,) of bool
+        The converged region (cone and cylinder about the line of sight),
+        before the rule.
+    closest : int or None
+        Row of the point nearest the scanner (None with a given start).
+    initial_centre : ndarray (3,)
+        First centre estimate, mm: one radius beyond the closest point along
+        the line of sight, or the given start.
+    first_centre : ndarray (3,)
+        Centre fitted to the first region, mm.
+    iterations : int
+        Region fits made before the region stopped changing.
+    converged : bool
+        False when ``max_rounds`` ran out first.
+    """
+
+    fit: SphereFit
+    mask: np.ndarray
+    region: np.ndarray
+    closest: int | None
+    initial_centre: np.ndarray
+    first_centre: np.ndarray
+    iterations: int
+    converged: bool
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Fitted centre, mm (3,)."""
+        return self.fit.centre
+
+    @property
+    def n_points(self) -> int:
+        """Points used in the final fit."""
+        return self.fit.n_points
+
+
+def segment_sphere(points, radius: float, scanner_origin=(0.0, 0.0, 0.0), *, start=None, half_angle: float = 60.0,
+                   rule: str = "e3125", reject: float | None = None, max_rounds: int = 50, samples: int = 500,
+                   seed: int = 0, max_iterations: int = 100) -> SphereSegmentation:
+    """Segment a sphere from a raw scan in the manner of ASTM E3125 and fit it
+    with the radius fixed (docs/fitting.md, Segmentation).
+
+    Closest-point start, then a cone (apex at the centre estimate, about the
+    line of sight, ``half_angle``) and cylinder (radius ``radius`` x
+    sin(half_angle) about the line of sight) region, fitted with the radius
+    fixed and ``rule`` (one pass at 3 standard deviations), about the new
+    centre again, until the region stops changing. The per-point work runs
+    in Rust, in parallel.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        The raw scan (sphere, stand, background), mm.
+    radius : float
+        Calibrated sphere radius, mm; fixed in every fit.
+    scanner_origin : array_like (3,)
+        The scanner's origin in the points' frame, mm.
+    start : array_like (3,), optional
+        Starting centre, mm, instead of the closest-point start.
+    half_angle : float
+        Half-angle of the cone, degrees in (0, 90] (60: the standard's
+        120 degree cone).
+    rule : {'e3125', 'mad', 'none'}
+        Rejection rule of every region fit (as in :func:`fit_sphere`); the
+        standard's single pass at 3 standard deviations by default.
+    reject : float, optional
+        Its multiple k (dimensionless; default 3 for 'e3125', 3.5 for 'mad').
+    max_rounds : int
+        Region fits allowed before giving up on convergence.
+    samples, seed : int
+        Minimal samples and seed of the least-median start in the first
+        region (as ``start='lmeds'`` in :func:`fit_sphere`).
+    max_iterations : int
+        Levenberg-Marquardt steps allowed per fit.
+
+    Returns
+    -------
+    SphereSegmentation
+
+    Raises
+    ------
+    InputError
+        Bad points (naming the row) or options, a scanner origin on a point.
+    GeometryError
+        A region with fewer than 4 points, a fit that fails.
+    """
+    pts = as_rows("points", points, 3)
+    origin = tuple(vector3("scanner_origin", scanner_origin, unit="mm").tolist())
+    if not (np.isfinite(radius) and radius > 0):
+        raise InputError(f"radius: the calibrated radius must be a positive length in mm, got {radius}")
+    if rule not in RULES:
+        raise InputError(f"rule: expected one of {', '.join(map(repr, RULES))}, got {rule!r}")
+    if reject is not None and not (np.isfinite(reject) and reject > 0):
+        raise InputError(f"reject: must be a positive multiple of the rule's sigma, got {reject}")
+    for name, value in (("max_rounds", max_rounds), ("samples", samples), ("max_iterations", max_iterations)):
+        if int(value) < 1:
+            raise InputError(f"{name}: must be at least 1, got {value}")
+    if int(seed) < 0:
+        raise InputError(f"seed: must be a non-negative integer, got {seed}")
+    start = None if start is None else tuple(vector3("start", start, unit="mm").tolist())
+    d = _core.segment_sphere(pts, float(radius), origin, start=start, half_angle=float(half_angle), rule=rule,
+                             reject=None if reject is None else float(reject), max_rounds=int(max_rounds),
+                             samples=int(samples), seed=int(seed), max_iterations=int(max_iterations))
+    fit = SphereFit._from(d["fit"])
+    if not d["converged"]:
+        _log.warning("segment_sphere: the region still changed after %d fits (max_rounds)", d["rounds"])
+    return SphereSegmentation(fit=fit, mask=fit.inlier, region=d["region"], closest=d["closest"],
+                              initial_centre=np.asarray(d["initial_centre"]),
+                              first_centre=np.asarray(d["first_centre"]), iterations=int(d["rounds"]),
+                              converged=bool(d["converged"]))
+
+
+@dataclass(frozen=True)
+class E3125Result:
+    """The centre of a sphere by the ASTM E3125-style procedure (:func:`e3125`).
+
+    Attributes
+    ----------
+    centre : ndarray (3,)
+        Centre, mm.
+    radius : float
+        The calibrated radius it was fitted with, mm.
+    n_points : int
+        Points used in the final fit.
+    n_region : int
+        Points in the converged cone-and-cylinder region (before the 3 s pass).
+    n_raw : int
+        Points in the raw scan.
+    centre_uncertainty : ndarray (3,)
+        Standard uncertainty of the centre coordinates from the fit, mm
+        (noise only: no scanner or radius error).
+    covariance : ndarray (3, 3)
+        Covariance of the centre, mm^2.
+    rms : float
+        Root mean square of the final fit's residuals, mm.
+    polar_coverage : float
+        Cap half-angle of the points used, degrees.
+    converged : bool
+        The region stopped changing.
+    segmentation : SphereSegmentation
+        Everything else (masks, residuals, starts).
+    """
+
+    centre: np.ndarray
+    radius: float
+    n_points: int
+    n_region: int
+    n_raw: int
+    centre_uncertainty: np.ndarray
+    covariance: np.ndarray
+    rms: float
+    polar_coverage: float
+    converged: bool
+    segmentation: SphereSegmentation = field(repr=False)
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready values (lengths in mm)."""
+        return {"centre_mm": self.centre.tolist(), "radius_mm": self.radius, "n_points": self.n_points,
+                "n_region": self.n_region, "n_raw": self.n_raw,
+                "centre_uncertainty_mm": self.centre_uncertainty.tolist(),
+                "covariance_mm2": self.covariance.tolist(), "rms_mm": self.rms,
+                "polar_coverage_deg": self.polar_coverage, "converged": self.converged}
+
+
+def e3125(points, radius: float, scanner_origin=(0.0, 0.0, 0.0), *, start=None) -> E3125Result:
+    """Sphere centre from a raw scan by the ASTM E3125-style procedure, in one
+    call: :func:`segment_sphere` with the standard's choices (120 degree cone,
+    radius fixed, single pass at 3 standard deviations).
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        The raw scan, mm (convert other units before).
+    radius : float
+        Calibrated sphere radius, mm.
+    scanner_origin : array_like (3,)
+        The scanner's origin in the points' frame, mm.
+    start : array_like (3,), optional
+        Starting centre, mm, instead of the closest-point start.
+
+    Returns
+    -------
+    E3125Result
+        Centre (mm), radius (mm), points used, the centre's uncertainty (mm).
+
+    Raises
+    ------
+    InputError, GeometryError
+        As :func:`segment_sphere`.
+    """
+    s = segment_sphere(points, radius, scanner_origin, start=start)
+    f = s.fit
+    return E3125Result(centre=f.centre, radius=f.radius, n_points=f.n_points, n_region=int(s.region.sum()),
+                       n_raw=len(s.mask), centre_uncertainty=f.centre_uncertainty, covariance=f.covariance[:3, :3].copy(),
+                       rms=f.rms, polar_coverage=f.polar_coverage, converged=s.converged, segmentation=s)
 
 
 def fit_plane(points, *, reject: float | None = None) -> PlaneFit:

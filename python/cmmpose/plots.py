@@ -15,6 +15,7 @@ map deltas in um (written ``µm``), map angles and squareness in arc-seconds.
 - :func:`plot_sphere_residuals`: residual map of one sphere fit over its cap.
 - :func:`plot_error_map`: the 18 carriage components against position (thesis
   Figures 3-7 to 3-18), one map or a set at several temperatures.
+- :func:`plot_fleet_trend`: rms and B89 over a fleet of runs, with temperature.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet
 from .errors import InputError
 from ._validate import finite
 
-__all__ = ["plot_ballbar_lengths", "plot_sphere_residuals", "plot_error_map", "COMPONENTS"]
+__all__ = ["plot_ballbar_lengths", "plot_sphere_residuals", "plot_error_map", "plot_fleet_trend", "COMPONENTS"]
 
 #: Component names accepted by :func:`plot_error_map` (``components``), in table order.
 COMPONENTS = ("dx", "dy", "dz", "ex", "ey", "ez")
@@ -414,4 +415,61 @@ def plot_error_map(error_map, path: str | PathLike | None = None, *, components=
     if not several and maps[0].temperature is not None:
         heading += f" at {maps[0].temperature:g} \u00b0C"
     fig.suptitle(f"{heading}\nsquareness S_xy, S_yz, S_zx (arc-second): {sq}")
+    return _save(fig, path)
+
+
+def plot_fleet_trend(rows, path: str | PathLike | None = None, *, title: str | None = None):
+    """The trend over a fleet of runs: rms accuracy error and B89 value (um)
+    per run, uncompensated and compensated, with the runs' mean machine
+    temperature (C) on the right axis.
+
+    Parameters
+    ----------
+    rows : sequence of objects
+        E.g. :func:`cmmpose.scale.fleet_summary`'s rows, in the order to plot:
+        anything with ``run`` (str), ``temperature`` (C, NaN if unknown) and
+        ``rms_uncompensated``, ``b89_uncompensated``, ``rms_compensated``,
+        ``b89_compensated`` (mm; NaN for none).
+    path : str or path-like, optional
+        Save the figure there (format from the suffix).
+    title : str, optional
+        The figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One axes with a line per figure of merit, a twin axes with the temperature.
+
+    Raises
+    ------
+    InputError
+        No rows, a row missing an attribute, or matplotlib not installed.
+    """
+    rows = list(rows)
+    if not rows:
+        raise InputError("rows: no runs to plot")
+    names = [str(_attr(r, "run", f"rows[{i}]")) for i, r in enumerate(rows)]
+    fig = _figure(figsize=(max(6.0, 0.6 * len(rows) + 3.0), 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    x = np.arange(len(rows))
+    for attr, label, style in (("rms_uncompensated", "rms, uncompensated", "o--"),
+                               ("b89_uncompensated", "B89, uncompensated", "s--"),
+                               ("rms_compensated", "rms, compensated", "o-"),
+                               ("b89_compensated", "B89, compensated", "s-")):
+        y = np.array([float(_attr(r, attr, f"rows[{i}]")) for i, r in enumerate(rows)]) * 1e3
+        if np.any(np.isfinite(y)):
+            ax.plot(x, y, style, label=label)
+    ax.set_ylabel("\u00b5m")
+    ax.set_xticks(x, [n.rstrip("/").split("/")[-1] for n in names], rotation=45 if len(rows) > 6 else 0,
+                  ha="right" if len(rows) > 6 else "center")
+    ax.set_xlabel("run")
+    t = np.array([float(_attr(r, "temperature", f"rows[{i}]")) for i, r in enumerate(rows)])
+    if np.any(np.isfinite(t)):
+        tx = ax.twinx()
+        tx.plot(x, t, "^:", color="0.4", label="temperature")
+        tx.set_ylabel("mean machine temperature (\u00b0C)")
+    handles = [h for a in fig.axes for h in a.get_lines()]
+    fig.legend(handles, [h.get_label() for h in handles], loc="outside lower center", ncol=3,
+               fontsize="small", frameon=False)
+    fig.suptitle(title or f"Ballbar figures over {len(rows)} runs")
     return _save(fig, path)

@@ -21,7 +21,7 @@ import json
 import math
 import zipfile
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from datetime import datetime, timezone
 from functools import cached_property
 from operator import index as _as_index
@@ -665,6 +665,23 @@ class Run:
             (float(p["alpha"][r]), float(p["beta"][r]), float(p["gamma"][r])),
             (float(p["U1"][r]), float(p["V1"][r]), float(p["W1"][r])),
         )
+
+    # -- pickling (sent to a worker process: cmmpose.scale) -------------------------------
+    def __getstate__(self) -> dict:
+        """The checked tables and records, without the cached stacks (``uv``,
+        ``scales``, scan index), which a worker rebuilds when it needs them."""
+        return {f.name: getattr(self, f.name) for f in fields(self)} | {"_point_order": self._point_order}
+
+    def __setstate__(self, state: dict) -> None:
+        """Restore a pickled run as it was checked: every column read-only again
+        (unpickled arrays come back writeable)."""
+        for name, value in state.items():
+            if isinstance(value, dict) and name in _TABLES:
+                for col in value.values():
+                    col.flags.writeable = False
+            elif isinstance(value, np.ndarray):
+                value.flags.writeable = False
+            object.__setattr__(self, name, value)
 
     # -- comparison -------------------------------------------------------------------
     def __eq__(self, other: object) -> bool:

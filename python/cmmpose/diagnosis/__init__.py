@@ -15,6 +15,8 @@ from .identify import Candidate, Problem, fit_model, rank_candidates
 from .inputs import RunInputs
 from .model import Model
 from .observables import ModelFigures, ObservationLayout
+from .spheres import SphereFitDiagnosis, diagnose_sphere_fits
 
 __all__ = ["diagnose", "Diagnosis", "Step", "LIBRARY", "EffectSpec", "UserEffect", "library", "Candidate", "Problem", "fit_model",
-           "rank_candidates", "RunInputs", "Model", "ModelFigures", "ObservationLayout"]
+           "rank_candidates", "RunInputs", "Model", "ModelFigures", "ObservationLayout", "SphereFitDiagnosis",
+           "diagnose_sphere_fits"]

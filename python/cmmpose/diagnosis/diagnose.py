@@ -15,9 +15,11 @@ import numpy as np
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
 from ..run import Run
-from .identify import OBSERVABLE_AT, Candidate, Problem, check_effect_names, fit_model, rank_candidates
+from .identify import (ALPHA, Candidate, Problem, _value_text, check_effect_names, fit_model, model_uncertainties,
+                       rank_candidates)
 from .model import Model
 from .observables import ModelFigures, figures
+from .unexplained import periodic_errors, unexplained_findings
 
 __all__ = ["diagnose", "Diagnosis", "Step"]
 
@@ -68,6 +70,11 @@ class Diagnosis:
         Groups of effects the run cannot tell apart (with what separates them).
     patterns : object or None
         Residual patterns of the final model (``find_patterns``), if computed.
+    unexplained : list of Finding
+        Structure the final model's residuals still hold (periodic errors
+        along an axis, significant patterns), each naming the input it
+        follows, its size and significance (:mod:`cmmpose.diagnosis.unexplained`);
+        empty when there is none (or patterns were not computed).
     base_patterns : object or None
         Residual patterns of the base model.
     elapsed : float
@@ -82,6 +89,51 @@ class Diagnosis:
     elapsed: float = 0.0
     n_points: int = 0
     advice: dict[str, str] = field(default_factory=dict)
+    final_uncertainty: dict = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
+    unexplained: list = field(default_factory=list)
+
+    def decisions(self) -> list[dict]:
+        """The decision on every candidate, with its reason, in one list:
+        'added' (or 'added on request') with the final model's values and
+        their uncertainties; then each remaining candidate's decision against
+        the final model ('significant', 'significant, aliased', 'aliased',
+        'not significant', 'not observable'; see ``Candidate.decision``);
+        then those the run lacks the inputs for ('not observable').
+
+        Returns
+        -------
+        list of dict
+            ``name``, ``decision``, ``reason``, ``values`` and ``uncertainty``
+            (parameter -> value in ``units``), ``units``, ``p_value``.
+        """
+        out = []
+        final = self.steps[-1].model
+        for s in self.steps[1:]:
+            name = s.label[2:]
+            spec = next(sp for sp, _ in final.effects if sp.name == name)
+            vals = final.values(name)
+            unc = np.asarray(self.final_uncertainty.get(name, np.full(spec.size, np.inf)), dtype=float)
+            when = next((c for c in self.steps[self.steps.index(s) - 1].ranking if c.name == name), None)
+            why = ", ".join(_value_text(p, v, u, unit) for p, v, u, unit in zip(spec.params, vals, unc, spec.units))
+            if when is not None and not s.forced:
+                why += f" (final model); p = {when.p_value:.2g} when added, against the threshold {when.threshold:.2g}"
+            elif s.forced:
+                why += " (final model); added on request, whether significant or not"
+            out.append({"name": name, "decision": "added on request" if s.forced else "added", "reason": why,
+                        "values": dict(zip(spec.params, map(float, vals))),
+                        "uncertainty": dict(zip(spec.params, map(float, unc))),
+                        "units": dict(zip(spec.params, spec.units)),
+                        "p_value": None if when is None else float(when.p_value)})
+        for c in self.steps[-1].ranking:
+            out.append({"name": c.name, "decision": c.decision, "reason": c.reason(),
+                        "values": dict(zip(c.spec.params, map(float, c.values))),
+                        "uncertainty": dict(zip(c.spec.params, map(float, c.uncertainty))),
+                        "units": dict(zip(c.spec.params, c.spec.units)), "p_value": float(c.p_value)})
+        for name, why in self.skipped.items():
+            out.append({"name": name, "decision": "not observable", "reason": why, "values": {}, "uncertainty": {},
+                        "units": {}, "p_value": None})
+        return out
 
     @property
     def model(self) -> Model:
@@ -103,7 +155,16 @@ class Diagnosis:
         return [{"label": s.label, **s.figures.to_dict()} for s in self.steps]
 
     def to_dict(self) -> dict:
-        return {"steps": [s.to_dict() for s in self.steps], "unobservable": self.unobservable,
+        def finite(x):
+            return x if x is None or math.isfinite(x) else None
+
+        decisions = [{**d, "uncertainty": {k: finite(v) for k, v in d["uncertainty"].items()}}
+                     for d in self.decisions()]
+        threshold = self.steps[-1].ranking[0].threshold if self.steps[-1].ranking else ALPHA
+        return {"steps": [s.to_dict() for s in self.steps], "decisions": decisions,
+                "significance": {"family_wise_alpha": ALPHA, "per_candidate_threshold": threshold},
+                "unexplained": [f.to_dict() for f in self.unexplained],
+                "unobservable": self.unobservable,
                 "ambiguous": [list(a) for a in self.ambiguous], "advice": self.advice,
                 "elapsed_s": self.elapsed, "n_points": self.n_points,
                 "patterns": None if self.patterns is None else self.patterns.to_dict(),
@@ -143,14 +204,13 @@ class Diagnosis:
         for c in s.ranking:
             vals = ", ".join(_value(p, v, u, unit) for p, v, u, unit in zip(c.spec.params, c.values, c.uncertainty,
                                                                               c.spec.units))
-            if c.significant:
-                decision = "[bold green]proposed[/]" if c is s.ranking[0] else "significant"
-            elif c.observability < OBSERVABLE_AT:
-                decision = "[dim]not observable here[/]"
-            else:
-                decision = "not significant"
-            if c.indistinguishable_from:
-                decision += f" [yellow](same as {', '.join(c.indistinguishable_from)})[/]"
+            decision = c.decision
+            if c.significant and c is s.ranking[0]:
+                decision = "[bold green]proposed[/]" + (", aliased" if c.aliases else "")
+            elif decision == "not observable":
+                decision = "[dim]not observable[/]"
+            if c.aliases:
+                decision += f" [yellow](same as {', '.join(c.aliases)})[/]"
             t.add_row(f"{c.name}\n[dim]{c.spec.physics}[/]", vals, f"{c.explained:.1%}", f"{c.explained_length:.1%}", f"{c.lr:.1f} ({c.dof})",
                       f"{c.p_value:.1e}", f"{c.correlation:.2f}", f"{c.condition:.0f}", decision)
         return t
@@ -179,6 +239,10 @@ class Diagnosis:
         if self.ambiguous:
             for group in self.ambiguous:
                 yield f"[yellow]cannot tell apart:[/] {', '.join(group)}: {self.advice.get(group[0], '')}"
+        if self.unexplained:
+            yield "[bold]Structure the final model does not explain[/] (diagnose --user-effect-skeleton FILE drafts an effect):"
+            for f in self.unexplained:
+                yield f"  {f.input}: {f.description} (p {f.p_value:.1e})"
         if self.unobservable:
             yield "[bold]Not observable in this run[/] (what would reveal each):"
             for name, why in self.unobservable.items():
@@ -194,15 +258,19 @@ class Diagnosis:
         console.print(self)
         return console.export_text()
 
-    def write_report(self, path, run: Run | None = None, *, title: str = "cmmpose diagnosis") -> Path:
-        """A self-contained HTML report (plots embedded) at ``path``."""
+    def write_report(self, path, run: Run | None = None, *, run_dir=None, model_file=None,
+                     title: str = "cmmpose diagnosis") -> Path:
+        """A self-contained HTML report (plots embedded) at ``path``: the
+        verdict, the decision on every candidate, the error falling, the
+        residual patterns and the provenance (``run_dir``, ``model_file``); a
+        simulated run's truth (beside ``run_dir``) against what was found."""
         try:
             import matplotlib  # noqa: F401 - an optional extra
         except ImportError:
             raise ImportError("the HTML report needs matplotlib: pip install 'cmmpose[plot]'") from None
         from .report import write_report
 
-        return write_report(self, path, run=run, title=title)
+        return write_report(self, path, run=run, run_dir=run_dir, model_file=model_file, title=title)
 
 
 def _value(p, v, u, unit) -> str:
@@ -227,6 +295,7 @@ def diagnose(
     auto: bool = True,
     max_effects: int = 4,
     candidates=None,
+    user_effects=(),
     patterns: bool = True,
     out_of_range: str | None = None,
     temperature_tolerance: float | None = None,
@@ -250,6 +319,9 @@ def diagnose(
         Most effects added automatically.
     candidates : sequence of str or EffectSpec, optional
         Restrict (or extend, with user effects) the candidate library.
+    user_effects : sequence of UserEffect
+        Added to the candidates (the library's or ``candidates``): each is
+        added to the model when significant, like a library effect.
     patterns : bool
         Also compute the residual patterns of the base and final models.
     out_of_range : {'raise', 'clamp', 'extrapolate'}, optional
@@ -294,6 +366,12 @@ def diagnose(
     for a in add:
         if not isinstance(a, str):
             extra[a.name] = a
+    from .effects import UserEffect
+
+    for u in user_effects:
+        if not isinstance(u, UserEffect):
+            raise InputError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
+        extra[u.name] = u
     if extra:
         from .effects import library
 
@@ -316,7 +394,8 @@ def diagnose(
         steps.append(_step(f"+ {best.name}", model, problem))
         added += 1
     unobservable, advice, ambiguous = _unobservable(problem, steps)
-    diag = Diagnosis(steps, unobservable, ambiguous, n_points=run.n_points, advice=advice)
+    diag = Diagnosis(steps, unobservable, ambiguous, n_points=run.n_points, advice=advice,
+                     final_uncertainty=model_uncertainties(problem, model), skipped=dict(problem.skipped))
     if patterns:
         try:
             from .patterns import find_patterns
@@ -334,6 +413,8 @@ def diagnose(
                 sub = run if keep.all() else _subset(run, keep)
                 setattr(diag, which, find_patterns(sub, xyz[keep], fits, temperature=problem.inputs.temperature[keep],
                                                    nominal_radius=nominal))
+            diag.unexplained = unexplained_findings(diag.patterns, periodic_errors(sub, xyz[keep], fits),
+                                                    steps[-1].model.names)
     diag.elapsed = time.perf_counter() - t0
     return diag
 
@@ -359,11 +440,10 @@ def _unobservable(problem: Problem, steps: list[Step]):
         advice[c.name] = c.spec.reveal
         if c.name in [s.label[2:] for s in steps[1:]]:
             continue
-        if c.observability < OBSERVABLE_AT:
-            out[c.name] = (f"a typical {c.spec.describe(c.spec.prior)} would stand only "
-                           f"{math.sqrt(max(c.observability, 0.0)):.1f} sigma above the noise here; {c.spec.reveal}")
-        elif np.all(~np.isfinite(c.uncertainty)):
-            out[c.name] = f"its parameters are not determined by this run; {c.spec.reveal}"
+        # "Not observable" only where the design cannot determine the effect;
+        # a determined but weak one is "not significant" (Candidate.reason says how weak).
+        if not c.observable:
+            out[c.name] = c.reason().replace("; needs: ", "; ")
     ambiguous = []
     for s in steps:
         for c in s.ranking[:1]:

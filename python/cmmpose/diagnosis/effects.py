@@ -97,8 +97,9 @@ class EffectSpec:
         return len(self.params)
 
     def describe(self, values) -> str:
-        """'xy=+5.2 arc-second, ...' for parameter ``values``."""
-        return ", ".join(f"{p}={v:+.4g} {u}" for p, v, u in zip(self.params, np.ravel(values), self.units))
+        """'xy=+5.2 arc-second, ...' for parameter ``values`` (dimensionless ones without a unit)."""
+        return ", ".join(f"{p}={v:+.4g}" + ("" if u in ("1", "") else f" {u}")
+                         for p, v, u in zip(self.params, np.ravel(values), self.units))
 
 
 @dataclass(frozen=True)

@@ -32,13 +32,17 @@ from .effects import EffectSpec, library
 from .inputs import RunInputs
 from .observables import CLASSES, ObservationLayout, Observed, observe
 
-__all__ = ["Problem", "Candidate", "rank_candidates", "fit_model", "ALPHA", "OBSERVABLE_AT"]
+__all__ = ["Problem", "Candidate", "rank_candidates", "fit_model", "model_uncertainties", "ALPHA", "OBSERVABLE_AT"]
 
 #: Family-wise false-alarm rate of a proposal.
 ALPHA = 1e-3
 #: Squared signal-to-noise, at the prior magnitude, below which an effect
 #: counts as unobservable in the run (5 sigma).
 OBSERVABLE_AT = 25.0
+#: Squared signal-to-noise at the prior magnitude below which the run cannot
+#: determine an effect at a typical size (2 sigma): "not observable". Between
+#: this and OBSERVABLE_AT an effect is determined, if weakly: "not significant".
+NOT_OBSERVABLE_BELOW = 4.0
 #: Two candidates whose fitted contributions correlate above this cannot be
 #: told apart.
 INDISTINGUISHABLE = 0.95
@@ -171,7 +175,7 @@ class Problem:
                 r = np.linalg.qr(np.column_stack([X[rows], r0[rows]]), mode="r")
                 m = min(len(rows), k)
                 blocks.append((c, r[:m, :k], r[:m, k]))
-        w = np.ones(len(CLASSES))
+        w = np.ones(len(self.n_class))
         beta = np.zeros(k)
         rank = 0
         for _ in range(iterations):
@@ -183,7 +187,7 @@ class Problem:
                     rhs.append(ridge * (np.zeros(len(ridge)) if target is None else target))
                 beta, _, rank, _ = np.linalg.lstsq(np.vstack(A), np.concatenate(rhs), rcond=1e-10)
             res = r0 + X @ beta
-            rss = np.bincount(cls, res ** 2, minlength=len(CLASSES))
+            rss = np.bincount(cls, res ** 2, minlength=len(self.n_class))
             sigma = np.sqrt(np.maximum(rss, _RSS_FLOOR * np.maximum(n_eff, 1)) / np.maximum(n_eff, 1))
             w = 1.0 / sigma
         Rw = np.vstack([w[c] * R for c, R, _ in blocks]) if blocks else np.zeros((0, k))
@@ -261,6 +265,70 @@ class Candidate:
     observability: float
     significant: bool = False
     indistinguishable_from: list = field(default_factory=list)
+    #: Leaders whose fitted contribution this one repeats, though the data
+    #: prefer the leader (it "stands for" the leader's physics).
+    stands_for: list = field(default_factory=list)
+    threshold: float = ALPHA
+    model_effects: tuple = ()
+
+    @property
+    def aliases(self) -> list[str]:
+        """Effects this one cannot be told apart from: those the data cannot
+        separate from the leader (``indistinguishable_from``), the leader whose
+        contribution it repeats less well (``stands_for``), and an effect
+        already in the model whose fitted columns its own repeat (|correlation|
+        above INDISTINGUISHABLE)."""
+        out = list(self.indistinguishable_from) + [n for n in self.stands_for if n not in self.indistinguishable_from]
+        if self.correlation > INDISTINGUISHABLE and self.correlated_with in self.model_effects \
+                and self.correlated_with not in out:
+            out.append(self.correlated_with)
+        return out
+
+    @property
+    def observable(self) -> bool:
+        """Whether the run's design determines the effect: every parameter's
+        uncertainty finite, and a typical magnitude (the prior) at least 2
+        sigma above the noise after what the model explains."""
+        return (self.dof > 0 and bool(np.all(np.isfinite(self.uncertainty)))
+                and self.observability >= NOT_OBSERVABLE_BELOW)
+
+    @property
+    def decision(self) -> str:
+        """One label, one meaning: 'significant', 'significant, aliased'
+        (significant, but the run cannot tell it from ``aliases``), 'aliased'
+        (not significant on its own and repeating an effect already in the
+        model), 'not significant' (determined, but p above the threshold) or
+        'not observable' (the run's design cannot determine it)."""
+        if self.significant:
+            return "significant, aliased" if self.aliases else "significant"
+        if not self.observable:
+            return "not observable"
+        if self.aliases:
+            return "aliased"
+        return "not significant"
+
+    def reason(self) -> str:
+        """Why the decision, in words with the numbers behind it."""
+        vals = ", ".join(_value_text(p, v, u, unit) for p, v, u, unit in
+                         zip(self.spec.params, self.values, self.uncertainty, self.spec.units))
+        test = f"p = {self.p_value:.2g} against the threshold {self.threshold:.2g}"
+        d = self.decision
+        if d == "not observable":
+            if self.dof > 0 and np.all(np.isfinite(self.uncertainty)):
+                return (f"a typical {self.spec.describe(self.spec.prior)} would stand only "
+                        f"{math.sqrt(max(self.observability, 0.0)):.1f} sigma above the noise here; "
+                        f"needs: {self.spec.reveal}")
+            return f"the run does not determine it; needs: {self.spec.reveal}"
+        if d == "aliased":
+            return f"same as {', '.join(self.aliases)} (already in the model); {vals}, {test}"
+        if d.startswith("significant"):
+            same = f"; same as {', '.join(self.aliases)}: {self.spec.reveal}" if self.aliases else ""
+            return f"{vals}, {test}{same}"
+        weak = ""
+        if self.observability < OBSERVABLE_AT:
+            weak = (f"; weakly determined: a typical {self.spec.describe(self.spec.prior)} would stand "
+                    f"{math.sqrt(max(self.observability, 0.0)):.1f} sigma above the noise (needs: {self.spec.reveal})")
+        return f"{vals}, {test}{weak}"
 
     def to_dict(self) -> dict:
         def num(x):
@@ -274,7 +342,17 @@ class Candidate:
                 "explained_length": num(self.explained_length), "correlation": num(self.correlation),
                 "correlated_with": self.correlated_with, "condition": num(self.condition),
                 "observability": num(self.observability), "significant": self.significant,
-                "indistinguishable_from": list(self.indistinguishable_from), "reveal": self.spec.reveal}
+                "indistinguishable_from": list(self.indistinguishable_from), "reveal": self.spec.reveal,
+                "aliases": self.aliases, "decision": self.decision, "reason": self.reason(),
+                "threshold": num(self.threshold)}
+
+
+def _value_text(p, v, u, unit) -> str:
+    """'xy = +8.1 ± 1.7 arc-second' (dimensionless values without a unit)."""
+    unit = "" if unit in ("1", "") else f" {unit}"
+    if not math.isfinite(u):
+        return f"{p} = {v:+.3g}{unit} (undetermined)"
+    return f"{p} = {v:+.3g} ± {u:.2g}{unit}"
 
 
 def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> list[Candidate]:
@@ -307,7 +385,7 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
         wb = 1.0 / base.sigma[problem.classes] ** 2
         before = float(np.sum(base.residual ** 2 * wb))
         after = float(np.sum(fit.residual ** 2 * wb))
-        L = problem.classes == 0
+        L = problem.classes % len(CLASSES) == 0  # lengths (of every run, in a joint problem)
         lb = float(np.sum(base.residual[L] ** 2))
         la = float(np.sum(fit.residual[L] ** 2))
         k = J.shape[1]
@@ -353,6 +431,8 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
     threshold = ALPHA / max(len(todo), 1)
     for c in out:
         c.significant = c.dof > 0 and c.p_value < threshold
+        c.threshold = threshold
+        c.model_effects = tuple(model.names)
     # Significant first; then by p-value, which weighs the likelihood gain
     # against the parameters spent on it.
     out.sort(key=lambda c: (not c.significant, c.p_value, -c.lr))
@@ -381,13 +461,17 @@ def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, b
 
     a = contribution(lead)
     for c in ranked[1:]:
-        if lead.lr - c.lr > INDISTINGUISHABLE_LR:
+        close = lead.lr - c.lr <= INDISTINGUISHABLE_LR
+        if not (close or c.significant):
             continue
         b = contribution(c)
         denom = np.linalg.norm(a) * np.linalg.norm(b)
         if denom > 0 and abs(float(a @ b)) / denom > INDISTINGUISHABLE:
-            lead.indistinguishable_from.append(c.name)
-            c.indistinguishable_from.append(lead.name)
+            if close:  # the data cannot choose between them
+                lead.indistinguishable_from.append(c.name)
+                c.indistinguishable_from.append(lead.name)
+            else:  # the same physics, which the leader explains better
+                c.stands_for.append(lead.name)
 
 
 def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = None):
@@ -459,6 +543,28 @@ def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = No
         if float(np.max(np.abs(beta))) < 1e-3:  # a thousandth of the prior: converged
             break
     return model
+
+
+def model_uncertainties(problem: Problem, model) -> dict[str, np.ndarray]:
+    """Standard uncertainty of every parameter of the effects in ``model``
+    (each effect's units), jointly with the nuisances and each other: the
+    weighted least-squares covariance of the linearised problem at ``model``,
+    without the weak prior (the data's own uncertainty). inf where the run
+    does not determine a parameter."""
+    obs = problem.observe(model)
+    X0, index = problem.model_design(model)
+    k0 = problem.nuisance.shape[1]
+    if not index:
+        return {}
+    fit = problem.wls(obs.residual, X0)
+    var = np.diag(fit.cov)
+    undetermined = fit.rank < X0.shape[1]
+    out, pos = {}, k0
+    for name, k in index:
+        sd = np.sqrt(np.clip(var[pos:pos + k], 0.0, None)) * np.asarray(problem.candidates[name].prior)
+        out[name] = np.where((sd > 0) | ~undetermined, sd, np.inf)
+        pos += k
+    return out
 
 
 def check_effect_names(names, problem: Problem) -> None:

@@ -204,6 +204,12 @@ class Model:
         layout = ObservationLayout.from_run(run, inputs)
         return figures(layout, self.compensate(inputs), self, sid=inputs.scan_id)
 
+    # -- pickling (sent to a worker process: cmmpose.scale) -----------------
+
+    def __getstate__(self) -> dict:
+        """The model without its per-run inputs cache (which holds a run)."""
+        return {**self.__dict__, "_inputs_cache": {}}
+
     # -- files --------------------------------------------------------------
 
     def to_dict(self) -> dict:

@@ -274,8 +274,8 @@ def plot_history(steps, path: str | PathLike | None = None, *, title: str | None
     """The error falling as effects are added to the model.
 
     One line with markers per figure of merit (rms accuracy error, B89 value,
-    form, all in um) against the model steps ('base', '+ squareness', ...),
-    each point labelled with its value.
+    sphere form, all in um) against the model steps ('base', '+ squareness',
+    ...), each point labelled with its value.
 
     Parameters
     ----------
@@ -290,7 +290,9 @@ def plot_history(steps, path: str | PathLike | None = None, *, title: str | None
     Returns
     -------
     matplotlib.figure.Figure
-        One axes with three lines (rms, B89, form), x tick labels the step labels.
+        Two axes sharing x (tick labels the step labels): rms and B89 on the
+        left axis, the sphere form (peak-to-valley, mostly noise) on the right
+        one; the legend below them.
 
     Raises
     ------
@@ -299,24 +301,38 @@ def plot_history(steps, path: str | PathLike | None = None, *, title: str | None
         non-finite value, or matplotlib not installed.
     """
     labels, values = _history(steps)
-    fig = _figure(figsize=(max(6.0, 1.4 * len(labels) + 3.0), 4.6), layout="constrained")
+    fig = _figure(figsize=(max(6.0, 1.4 * len(labels) + 3.0), 5.0), layout="constrained")
     ax = fig.add_subplot()
+    # The sphere form is the peak-to-valley of the fit residuals: mostly the
+    # scanner's noise, tens of um while the rms error falls to a fraction of
+    # one. It gets its own (right) axis, so it neither hides the fall nor
+    # reads as an error of the same kind.
+    ax_form = ax.twinx()
     idx = np.arange(len(labels))
+    handles = []
     # value labels: rms below its marker, the others above, so close values stay readable
-    for (key, name), marker, dy in zip(_HISTORY_KEYS, ("o", "s", "^"), (-11, 4, 4)):
-        line, = ax.plot(idx, values[key], marker=marker, ms=6, lw=1.5, label=name)
+    for (key, name), marker, dy, axis in zip(_HISTORY_KEYS, ("o", "s", "^"), (-11, 4, 4), (ax, ax, ax_form)):
+        style = {"ls": "--", "color": "0.45"} if axis is ax_form else {}
+        line, = axis.plot(idx, values[key], marker=marker, ms=6, lw=1.5, label=name, **style)
+        handles.append(line)
         for i, v in zip(idx, values[key]):
-            ax.annotate(f"{v:.1f}", (i, v), textcoords="offset points", xytext=(6, dy), fontsize=7.5,
-                        color=line.get_color())
+            axis.annotate(f"{v:.1f}", (i, v), textcoords="offset points", xytext=(6, dy), fontsize=7.5,
+                          color=line.get_color())
     ax.set_xticks(idx, labels, rotation=20 if len(labels) > 4 else 0, ha="right" if len(labels) > 4 else "center")
-    top = max(float(max(v.max() for v in values.values())), 1e-9)
-    ax.set_ylim(-0.08 * top, 1.1 * top)  # room for the value labels under the rms markers near 0
+    top = max(float(max(values[k].max() for k in ("rms_accuracy_error_um", "b89_um"))), 1e-9)
+    ax.set_ylim(-0.08 * top, 1.15 * top)  # room for the value labels under the rms markers near 0
+    ax_form.set_ylim(0.0, 1.15 * max(float(values["form_um"].max()), 1e-9))
     ax.axhline(0.0, color="0.5", lw=0.8)
     ax.set_xlim(-0.4, len(labels) - 0.4)
     ax.set_xlabel("model")
-    ax.set_ylabel(f"error ({_UM})")
+    ax.set_ylabel(f"rms accuracy error, B89 value ({_UM})")
+    ax_form.set_ylabel(f"sphere form ({_UM}), peak-to-valley", color="0.35")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right")
+    # Below the axes: a legend inside would cover the last points.
+    fig.legend(handles=handles, labels=["rms accuracy error", "B89 value",
+                                        "sphere form (right axis: peak-to-valley of the fit residuals, "
+                                        "mostly scanner noise)"],
+               loc="outside lower center", ncols=2, fontsize=8, frameon=False)
     first, last = values["rms_accuracy_error_um"][0], values["rms_accuracy_error_um"][-1]
     text = f"Error as effects are added: rms accuracy error {first:.1f} \u2192 {last:.1f} {_UM}"
     fig.suptitle(text if title is None else f"{title}\n{text}")

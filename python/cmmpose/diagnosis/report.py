@@ -17,24 +17,161 @@ def _num(x, digits=3):
     return "undetermined" if not math.isfinite(x) else float(f"{x:.{digits}g}")
 
 
+_PARAM_UNITS = {"1": "", "arc-second": "arcsec"}
+
+
+def _unit(u: str) -> str:
+    return _PARAM_UNITS.get(u, u)
+
+
+def _values_text(params, values, uncertainty, units) -> str:
+    out = []
+    for p, v, u, unit in zip(params, values, uncertainty, units):
+        unit = _unit(unit)
+        if unit == "" and abs(float(v)) < 0.1:  # dimensionless: a ppm reads better than 0.000601
+            v, u, unit = float(v) * 1e6, float(u) * 1e6, "ppm"
+        u_text = "undetermined" if not math.isfinite(float(u)) else f"{_num(u, 2)}"
+        out.append(f"{p} = {_num(v)} ± {u_text} {unit}".rstrip())
+    return ", ".join(out)
+
+
 def _ranking_rows(ranking) -> list[dict]:
     rows = []
     for c in ranking:
         rows.append({
             "effect": c.name,
             "what it is": c.spec.physics,
-            "fitted value": ", ".join(f"{p}={_num(v)} ± {_num(u, 2)} {unit}" for p, v, u, unit in
-                                      zip(c.spec.params, c.values, c.uncertainty, c.spec.units)),
-            "explains (all)": f"{c.explained:.1%}", "explains (lengths)": f"{c.explained_length:.1%}",
-            "LR": round(c.lr, 1), "dof": c.dof, "p": f"{c.p_value:.1e}", "dBIC": round(c.delta_bic, 1),
-            "corr. with model": f"{c.correlation:.2f} {c.correlated_with}", "condition": f"{c.condition:.0f}",
-            "significant": "yes" if c.significant else "no",
-            "same as": ", ".join(c.indistinguishable_from),
+            "fitted value ± u (alone, against this model)": _values_text(c.spec.params, c.values, c.uncertainty,
+                                                                        c.spec.units),
+            "residual explained (%)": round(100 * c.explained, 1),
+            "ballbar-length residual explained (%)": round(100 * c.explained_length, 1),
+            "p": f"{c.p_value:.1e}",
+            "decision": c.decision,
+            "same as": ", ".join(c.aliases) or "-",
         })
     return rows
 
 
-def write_report(diagnosis, path, *, run=None, title: str = "cmmpose diagnosis") -> Path:
+_READING = {
+    "history": "Each point is one model: the base model (the maps), then each effect added. The left axis holds "
+               "the rms accuracy error over the ballbar lengths and the B89 value (range of the length errors); "
+               "the right axis the sphere form, the peak-to-valley of the fit residuals, which stays at several "
+               "times the scanner noise whatever the model.",
+    "candidates": "One row per candidate effect, fitted alone against the model of the heading. 'Residual "
+                  "explained' is the share of the remaining weighted residual the effect takes away (over all "
+                  "observables: lengths, sphere centres, radii, point residuals); 'ballbar-length residual "
+                  "explained' the share of the length residual alone, negative when fitting the effect to all "
+                  "observables makes the lengths worse. p is the likelihood-ratio test against the model; an "
+                  "effect is significant below the threshold stated at the top.",
+    "patterns": "Each panel plots one residual against a quantity that could explain it (direction cosines of "
+                "the bar, scan-plane position u and v, incidence, time, temperature). A significant pattern "
+                "(p below the Bonferroni threshold) is structure the model leaves; 'consistent with' names the "
+                "effects that would make it.",
+    "lengths": "Ballbar length deviation from the mean length per position, against the bar's direction and "
+               "position: a squareness shows as a sign change with the product of two direction cosines, a scale "
+               "as a trend with one of them squared.",
+    "points": "Point fit residuals binned by scan-plane u and v and by incidence angle, with the standard error of "
+              "each bin mean: flat at zero when the scanner model holds.",
+}
+
+
+def _verdict(d, model_file, run_dir) -> str:
+    """The top of the report: what was missing, the final values, how far the error fell, what next."""
+    steps = d.steps
+    first, last = steps[0].figures, steps[-1].figures
+    decisions = d.decisions()
+    added = [x for x in decisions if x["decision"].startswith("added")]
+    lines = []
+    if added:
+        parts = [f"{x['name']} ({_values_text(list(x['values']), list(x['values'].values()), list(x['uncertainty'].values()), list(x['units'].values()))})"
+                 for x in added]
+        lines.append("The model was missing: " + "; ".join(parts) + ".")
+        lines.append(f"With them the rms accuracy error fell from {first.rms_accuracy_error * 1e3:.2f} um to "
+                     f"{last.rms_accuracy_error * 1e3:.2f} um, the B89 value from {first.b89 * 1e3:.2f} um to "
+                     f"{last.b89 * 1e3:.2f} um.")
+    else:
+        lines.append(f"The model was missing nothing the run can show: no candidate effect is significant. The rms "
+                     f"accuracy error is {first.rms_accuracy_error * 1e3:.2f} um, the B89 value "
+                     f"{first.b89 * 1e3:.2f} um.")
+    still = [x for x in decisions if x["decision"].startswith("significant")]
+    if still:
+        lines.append("Still significant against the final model: " + ", ".join(x["name"] for x in still)
+                     + " (more effects than --max-effects, or aliases the run cannot tell apart).")
+    for f in d.unexplained[:3]:
+        lines.append(f"Structure the final model does not explain: {f.description} (p {f.p_value:.1e}); "
+                     "cmmpose diagnose RUN --user-effect-skeleton FILE.py drafts a user effect on it "
+                     "(docs/user-effects.md).")
+    nxt = []
+    if added:
+        target = model_file or "MODEL.json (save it with diagnose --save-model)"
+        nxt.append(f"check the model on a new run: cmmpose diagnose NEW_RUN --model {target} --no-auto; "
+                   f"compensate with it in Python: cmmpose.diagnosis.Model.load('{target}').compensate(...)")
+    needs = [x for x in decisions if x["decision"] == "not observable"]
+    if d.ambiguous:
+        for group in d.ambiguous:
+            nxt.append(f"to tell {', '.join(group)} apart: {d.advice.get(group[0], '')}")
+    if needs:
+        nxt.append("to see what this run cannot: " + "; ".join(f"{x['name']}: {x['reason'].split('needs: ')[-1]}"
+                                                              for x in needs[:3]))
+    if nxt:
+        lines.append("Next: " + "\n".join(nxt))
+    return "\n\n".join(lines)
+
+
+def _provenance_rows(d, run, run_dir, model_file) -> list[dict]:
+    prov = d.provenance()
+    rows = [{"item": "run", "value": str(run_dir) if run_dir else "(in memory)"}]
+    if run is not None:
+        rows.append({"item": "run points / scans", "value": f"{run.n_points} / {len(run.scans['scan_id'])}"})
+        if run.metadata:
+            rows.append({"item": "run metadata", "value": ", ".join(f"{k}: {v}" for k, v in run.metadata.items()
+                                                                    if isinstance(v, (str, int, float)))})
+    maps = prov["maps"]
+    rows.append({"item": "maps", "value": (f"set at {', '.join(f'{t:g}' for t in maps['temperatures_C'])} C"
+                                           if maps["kind"] == "set" else f"one map at {maps['temperature_C']} C")})
+    rows.append({"item": "temperature", "value": prov["temperature"]})
+    pol = prov["policy"]
+    rows.append({"item": "temperature policy", "value": f"out of range: {pol['out_of_range']}, tolerance "
+                                                          f"{pol['temperature_tolerance_K']} K, log hold {pol['log_hold_s']} s"})
+    rows.append({"item": "base model effects", "value": ", ".join(prov["base_effects"]) or "none"})
+    rows.append({"item": "saved model", "value": str(model_file) if model_file else "not saved (--save-model)"})
+    rows.append({"item": "significance", "value": "family-wise 0.001, Bonferroni over the candidates"})
+    rows.append({"item": "cmmpose", "value": f"{prov['cmmpose_version']}, {prov['date_utc']}"})
+    return rows
+
+
+def _truth_rows(d, run_dir) -> list[dict] | None:
+    """Effects the simulator put in the run against what the diagnosis found (None without a truth)."""
+    if run_dir is None:
+        return None
+    from ..errors import Error
+    from ..run import load_truth
+
+    try:
+        _, info = load_truth(run_dir)
+    except Error:
+        return None
+    found = {x["name"]: x for x in d.decisions()}
+    rows = []
+    for e in info.get("effects", []):
+        name = e.get("name")
+        x = found.get(name)
+        if x is None:
+            rows.append({"effect in the truth": name, "true value": "", "found": "not a candidate"})
+            continue
+        true = ", ".join(f"{p} = {_num(e[p])} {_unit(x['units'].get(p, ''))}".rstrip() for p in x["units"] if p in e)
+        got = _values_text(list(x["values"]), list(x["values"].values()), list(x["uncertainty"].values()),
+                           list(x["units"].values()))
+        rows.append({"effect in the truth": name, "true value": true, "decision": x["decision"], "found": got})
+    for x in d.decisions():
+        if x["decision"].startswith("added") and x["name"] not in {e.get("name") for e in info.get("effects", [])}:
+            rows.append({"effect in the truth": f"(none) - {x['name']} was added", "true value": "-",
+                         "decision": x["decision"], "found": ""})
+    return rows
+
+
+def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
+                 title: str = "cmmpose diagnosis") -> Path:
     """Write ``diagnosis`` as one HTML file with its plots.
 
     Parameters
@@ -44,7 +181,12 @@ def write_report(diagnosis, path, *, run=None, title: str = "cmmpose diagnosis")
     path : path-like
         The .html file to write.
     run : Run, optional
-        Named in the heading if it has metadata.
+        The run diagnosed (its size and metadata are stated).
+    run_dir : path-like, optional
+        Where the run was read from: named in the provenance; a simulated run's
+        truth beside it is compared with what was found.
+    model_file : path-like, optional
+        Where the final model was saved (named in the verdict and provenance).
     title : str
         Report title.
     """
@@ -57,47 +199,57 @@ def write_report(diagnosis, path, *, run=None, title: str = "cmmpose diagnosis")
 
     d = diagnosis
     final = d.steps[-1]
-    lines = [f"{d.n_points} points diagnosed in {d.elapsed:.1f} s."]
-    if len(d.steps) > 1:
-        first, last = d.steps[0].figures, final.figures
-        lines.append(f"Adding {', '.join(d.added)} took the rms accuracy error from "
-                     f"{first.rms_accuracy_error * 1e3:.2f} um to {last.rms_accuracy_error * 1e3:.2f} um "
-                     f"(B89 {first.b89 * 1e3:.2f} -> {last.b89 * 1e3:.2f} um).")
-    else:
-        lines.append("No candidate effect is significant: the base model explains the run to its noise.")
-    if d.proposals:
-        lines.append(f"Still significant: {', '.join(c.name for c in d.proposals)}.")
-    for group in d.ambiguous:
-        lines.append(f"The run cannot tell apart {', '.join(group)}. {d.advice.get(group[0], '')}")
-    if d.base_patterns is not None and getattr(d.base_patterns, "strongest", None) is not None:
-        s = d.base_patterns.strongest
-        lines.append(f"Strongest residual pattern of the base model: {getattr(s, 'description', s)}")
     figs = []
-    sections = [{"heading": "Summary", "text": "\n".join(lines)}]
+    sections = [{"heading": "Verdict", "text": _verdict(d, model_file, run_dir)}]
+    sections.append({"heading": "Decision on every candidate effect", "text":
+                     "added: fitted in the final model (values with their standard uncertainties); significant: "
+                     "p below the threshold against the final model; aliased: the run cannot tell it from the "
+                     "effect named; not significant: determined by the run, but p above the threshold; not "
+                     "observable: the run cannot determine it at a typical size (what would is said).",
+                     "table": [{"effect": x["name"], "decision": x["decision"], "why": x["reason"]}
+                               for x in d.decisions()]})
+    if d.unexplained:
+        sections.append({"heading": "Structure the final model does not explain", "text":
+                         "Each row is structure the final model's residuals still hold, with the input it follows: "
+                         "a periodic error along an axis (searched from 2 to 40 mm on each scale reading), or a "
+                         "significant residual pattern with the library effects that could make it and those the "
+                         "model already holds. 'cmmpose diagnose RUN --user-effect-skeleton FILE.py' drafts a user "
+                         "effect on the first; docs/user-effects.md goes through one.",
+                         "table": [{"input": f.input, "what": f.description, "size (um)": round(f.size_um, 3),
+                                    "p": f"{f.p_value:.1e}", "threshold": f"{f.threshold:.1e}"}
+                                   for f in d.unexplained]})
+    truth = _truth_rows(d, run_dir)
+    if truth is not None:
+        sections.append({"heading": "Found against the simulator's truth", "table": truth})
     fig = plot_history(d.history())
     figs.append(fig)
-    sections.append({"heading": "The error falling", "table": [
-        {"model": s["label"], **{k: (None if v is None else round(v, 3)) for k, v in s.items() if k != "label"}}
-        for s in d.history()], "figures": [fig]})
-    sections.append({"heading": f"Candidate effects against the base model", "table": _ranking_rows(d.steps[0].ranking)})
+    history = [{"model": s.label, "rms accuracy error (um)": round(s.figures.rms_accuracy_error * 1e3, 3),
+                "B89 value (um)": round(s.figures.b89 * 1e3, 3),
+                "sphere form, peak-to-valley (um)": round(s.figures.to_dict()["form_um"], 2),
+                "fit rms (um)": round(s.figures.to_dict()["fit_rms_um"], 3)} for s in d.steps]
+    sections.append({"heading": "The error falling", "text": _READING["history"], "table": history,
+                     "figures": [fig]})
+    sections.append({"heading": "Candidate effects against the base model", "text": _READING["candidates"],
+                     "table": _ranking_rows(d.steps[0].ranking)})
     if len(d.steps) > 1:
         sections.append({"heading": f"Candidate effects against the final model ({final.label})",
                          "table": _ranking_rows(final.ranking)})
-    if d.unobservable:
-        sections.append({"heading": "Not observable in this run, and what would reveal it",
-                         "table": [{"effect": k, "why and what to measure": v} for k, v in d.unobservable.items()]})
     for label, pats in (("base model", d.base_patterns), ("final model", d.patterns)):
         if pats is None:
             continue
-        pf = []
-        for make in (plot_patterns, plot_length_deviation, plot_point_residuals):
+        pf, notes = [], []
+        for make, key in ((plot_patterns, "patterns"), (plot_length_deviation, "lengths"),
+                          (plot_point_residuals, "points")):
             try:
                 pf.append(make(pats))
+                notes.append(_READING[key])
             except Exception as e:  # a plot that has no data for this run is left out, said in the text
-                sections.append({"heading": f"({make.__name__} skipped for the {label}: {e})"})
+                notes.append(f"({make.__name__} left out for the {label}: {e})")
         figs.extend(pf)
         summary = pats.summary() if hasattr(pats, "summary") else str(pats)
-        sections.append({"heading": f"Where the {label} fails: residual patterns", "text": summary, "figures": pf})
+        sections.append({"heading": f"Where the {label} fails: residual patterns",
+                         "text": summary + "\n\n" + "\n\n".join(notes), "figures": pf})
+    sections.append({"heading": "Provenance", "table": _provenance_rows(d, run, run_dir, model_file)})
     out = write_html_report(path, title, sections)
     for f in figs:
         plt.close(f)

@@ -158,6 +158,57 @@ impl CarriageTable {
         &self.positions
     }
 
+    /// Change of each component per mm, one per segment (kernel units).
+    pub fn slopes(&self) -> &[Components] {
+        &self.slopes
+    }
+
+    /// 1 / pitch (1/mm) when the grid is uniform.
+    pub fn inv_pitch(&self) -> Option<f64> {
+        self.inv_pitch
+    }
+
+    /// Rebuild a table bit for bit from what [`positions`](Self::positions),
+    /// [`values`](Self::values), [`slopes`](Self::slopes),
+    /// [`inv_pitch`](Self::inv_pitch) and
+    /// [`to_table_units`](Self::to_table_units) return (serialising: a
+    /// blended table's slopes are not recomputed, so results stay equal to
+    /// the last bit). The grid is checked as [`new`](Self::new) checks it.
+    pub fn from_saved(
+        carriage: Carriage,
+        positions: Vec<f64>,
+        values: Vec<Components>,
+        slopes: Vec<Components>,
+        inv_pitch: Option<f64>,
+        table_rows: Vec<[f64; 7]>,
+    ) -> Result<Self> {
+        let mut table = Self::new(carriage, positions, values)?;
+        let n = table.positions.len();
+        if slopes.len() != n - 1 || table_rows.len() != n {
+            return Err(CoreError::invalid_map(
+                format!("{} carriage table", carriage.letter()),
+                format!(
+                    "saved state: {n} positions need {} slopes and {n} table rows, got {} and {}",
+                    n - 1,
+                    slopes.len(),
+                    table_rows.len()
+                ),
+            ));
+        }
+        if slopes.iter().flatten().any(|v| !v.is_finite())
+            || inv_pitch.is_some_and(|p| !(p.is_finite() && p > 0.0))
+        {
+            return Err(CoreError::invalid_map(
+                format!("{} carriage table", carriage.letter()),
+                "saved state: slopes and 1/pitch must be finite",
+            ));
+        }
+        table.slopes = slopes;
+        table.inv_pitch = inv_pitch;
+        table.table_rows = table_rows;
+        Ok(table)
+    }
+
     /// Components in kernel units (mm, rad), one per grid position.
     pub fn values(&self) -> &[Components] {
         &self.values
@@ -363,6 +414,28 @@ impl ErrorMap {
         std::array::from_fn(|a| self.tables[a].range())
     }
 
+    /// Rebuild a map bit for bit from its parts (serialising): tables as
+    /// [`CarriageTable::from_saved`] makes them, squareness in radians and
+    /// as given in arc-seconds, temperature (C) and stacking.
+    pub fn from_saved(
+        tables: [CarriageTable; 3],
+        squareness: [f64; 3],
+        squareness_arcsec: [f64; 3],
+        temperature: Option<f64>,
+        kinematics: Kinematics,
+    ) -> Result<Self> {
+        let mut map = Self::new(tables, squareness_arcsec, temperature)?;
+        if squareness.iter().any(|s| !s.is_finite()) {
+            return Err(CoreError::invalid_map(
+                "squareness",
+                "saved state: radians must be finite",
+            ));
+        }
+        map.squareness = squareness;
+        map.kinematics = kinematics;
+        Ok(map)
+    }
+
     /// Build a map with `squareness` in radians (internal use by blending).
     pub(crate) fn from_parts(
         tables: [CarriageTable; 3],
@@ -405,6 +478,43 @@ mod tests {
             assert!(t.eval(75.001).is_none());
             assert!(t.eval(f64::NAN).is_none());
         }
+    }
+
+    #[test]
+    fn saved_parts_rebuild_the_same_table_and_map() {
+        let t = table(&[0.0, 10.0, 35.0, 75.0]).unwrap();
+        let back = CarriageTable::from_saved(
+            Carriage::Y,
+            t.positions().to_vec(),
+            t.values().to_vec(),
+            t.slopes().to_vec(),
+            t.inv_pitch(),
+            t.to_table_units(),
+        )
+        .unwrap();
+        assert_eq!(back, t);
+        let short = CarriageTable::from_saved(
+            Carriage::Y,
+            t.positions().to_vec(),
+            t.values().to_vec(),
+            t.slopes()[1..].to_vec(),
+            t.inv_pitch(),
+            t.to_table_units(),
+        );
+        assert!(short.unwrap_err().to_string().contains("slopes"));
+        let tables = [0.0, 1.0, 2.0].map(|_| table(&[0.0, 25.0, 50.0]).unwrap());
+        let map = ErrorMap::new(tables.clone(), [1.5, -2.0, 0.25], Some(21.0)).unwrap();
+        let k = Kinematics::named("gantry").unwrap();
+        let map = map.with_kinematics(k);
+        let back = ErrorMap::from_saved(
+            tables,
+            map.squareness(),
+            map.squareness_arcsec(),
+            map.temperature(),
+            k,
+        )
+        .unwrap();
+        assert_eq!(back, map);
     }
 
     #[test]

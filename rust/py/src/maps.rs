@@ -167,6 +167,134 @@ impl PyErrorMap {
     fn __eq__(&self, other: &Self) -> bool {
         self.inner == other.inner
     }
+
+    /// Pickling: the map's exact parts (kernel and table units), rebuilt
+    /// bit for bit by `_error_map_from_state`.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (MapState,))> {
+        let rebuild = py
+            .import("cmmpose._core")?
+            .getattr("_error_map_from_state")?;
+        Ok((rebuild, (map_state(&self.inner),)))
+    }
+}
+
+/// One carriage table's exact parts: positions (mm), components and
+/// slopes (kernel units), 1/pitch, rows in table units.
+type TableState = (
+    Vec<f64>,
+    Vec<[f64; 6]>,
+    Vec<[f64; 6]>,
+    Option<f64>,
+    Vec<[f64; 7]>,
+);
+
+/// A map's exact parts: three tables, squareness (rad, arc-second),
+/// temperature (C), configuration name (None if custom) and stacking
+/// ((carriage index, 'probe' or 'part') from the base up).
+type MapState = (
+    [TableState; 3],
+    [f64; 3],
+    [f64; 3],
+    Option<f64>,
+    Option<String>,
+    Vec<(usize, String)>,
+);
+
+fn map_state(map: &ErrorMap) -> MapState {
+    let tables = std::array::from_fn(|a| {
+        let t = map.table(Carriage::ALL[a]);
+        (
+            t.positions().to_vec(),
+            t.values().to_vec(),
+            t.slopes().to_vec(),
+            t.inv_pitch(),
+            t.to_table_units(),
+        )
+    });
+    let k = map.kinematics();
+    let stack = k
+        .stack()
+        .iter()
+        .map(|&(a, side)| {
+            let side = match side {
+                Side::Probe => "probe",
+                Side::Part => "part",
+            };
+            (a, side.to_string())
+        })
+        .collect();
+    (
+        tables,
+        map.squareness(),
+        map.squareness_arcsec(),
+        map.temperature(),
+        k.name().map(str::to_string),
+        stack,
+    )
+}
+
+fn map_from_state(state: MapState) -> Res<ErrorMap> {
+    let (tables, squareness, squareness_arcsec, temperature, name, stack) = state;
+    let mut built = Vec::with_capacity(3);
+    for (c, (positions, values, slopes, inv_pitch, rows)) in Carriage::ALL.into_iter().zip(tables) {
+        built.push(CarriageTable::from_saved(
+            c, positions, values, slopes, inv_pitch, rows,
+        )?);
+    }
+    let tables: [CarriageTable; 3] = built.try_into().map_err(|_| input("three tables"))?;
+    let kinematics = match name {
+        Some(name) => Kinematics::named(&name)?,
+        None => {
+            let mut s = [(0, Side::Probe); 3];
+            if stack.len() != 3 {
+                return Err(input(format!(
+                    "map state: the stacking needs 3 carriages, got {}",
+                    stack.len()
+                )));
+            }
+            for (slot, (a, side)) in s.iter_mut().zip(stack) {
+                let side = match side.as_str() {
+                    "probe" => Side::Probe,
+                    "part" => Side::Part,
+                    other => {
+                        return Err(input(format!(
+                            "map state: a carriage carries 'probe' or 'part', got {other:?}"
+                        )))
+                    }
+                };
+                *slot = (a, side);
+            }
+            Kinematics::new(s)?
+        }
+    };
+    Ok(ErrorMap::from_saved(
+        tables,
+        squareness,
+        squareness_arcsec,
+        temperature,
+        kinematics,
+    )?)
+}
+
+/// Unpickling an ErrorMap (its `__reduce__`).
+#[pyfunction]
+fn _error_map_from_state(state: MapState) -> Res<PyErrorMap> {
+    Ok(PyErrorMap {
+        inner: map_from_state(state)?,
+    })
+}
+
+/// Unpickling an ErrorMapSet (its `__reduce__`): the set rebuilt from its
+/// maps, as it was built.
+#[pyfunction]
+fn _error_map_set_from_state(states: Vec<MapState>) -> Res<PyErrorMapSet> {
+    let maps = states
+        .into_iter()
+        .map(map_from_state)
+        .collect::<Res<Vec<_>>>()?;
+    Ok(PyErrorMapSet {
+        inner: ErrorMapSet::new(maps)?,
+    })
 }
 
 /// The name of a map's stacking (maps are only stacked by name here).
@@ -262,11 +390,28 @@ impl PyErrorMapSet {
         let (inner, _) = self.inner.at_with(temperature, &opts)?;
         Ok(PyErrorMap { inner })
     }
+
+    fn __eq__(&self, other: &Self) -> bool {
+        self.inner.maps() == other.inner.maps()
+    }
+
+    /// Pickling: the maps' exact parts; the set is rebuilt from them.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (Vec<MapState>,))> {
+        let rebuild = py
+            .import("cmmpose._core")?
+            .getattr("_error_map_set_from_state")?;
+        Ok((
+            rebuild,
+            (self.inner.maps().iter().map(map_state).collect(),),
+        ))
+    }
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyErrorMap>()?;
     m.add_class::<PyErrorMapSet>()?;
     m.add_function(wrap_pyfunction!(kinematics_configurations, m)?)?;
+    m.add_function(wrap_pyfunction!(_error_map_from_state, m)?)?;
+    m.add_function(wrap_pyfunction!(_error_map_set_from_state, m)?)?;
     Ok(())
 }

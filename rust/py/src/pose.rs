@@ -4,6 +4,7 @@
 use cmmpose_core::{Digitizer, Pose};
 use numpy::PyArray2;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 use crate::errors::Res;
 
@@ -45,6 +46,16 @@ impl PyDigitizer {
     #[getter]
     fn offset(&self) -> [f64; 3] {
         self.offset
+    }
+
+    /// Pickling: rebuilt from its angles (degrees) and offset (mm).
+    fn __getnewargs_ex__<'py>(&self, py: Python<'py>) -> PyResult<((), Bound<'py, PyDict>)> {
+        let kwargs = PyDict::new(py);
+        kwargs.set_item("alpha", self.pose.alpha)?;
+        kwargs.set_item("beta", self.pose.beta)?;
+        kwargs.set_item("gamma", self.pose.gamma)?;
+        kwargs.set_item("offset", self.offset)?;
+        Ok(((), kwargs))
     }
 
     fn __repr__(&self) -> String {

@@ -8,25 +8,41 @@
 //!
 //! Points are N x 3 row-major slices in mm, like every array the core takes.
 //! Both fits centre the points on their mean first (conditioning), report
-//! signed residuals in mm in input order, and can reject outliers: with
-//! `reject = Some(k)` every point with |r| > k * 1.4826 * MAD(r) is set aside
-//! and the rest refitted, until the set of inliers stops changing (at most
-//! [`MAX_REJECT_ROUNDS`] refits). MAD is the median absolute deviation of the
-//! inliers' residuals from their median; 1.4826 MAD estimates sigma for
-//! Gaussian noise. Every point is classified again in each round, so a point
-//! rejected against an early, biased fit can come back.
+//! signed residuals in mm in input order, and can reject outliers by a
+//! [`Rejection`] rule (docs/fitting.md):
+//!
+//! - [`Rejection::Mad`] (`k`, repeated): every point with
+//!   |r - median(r)| > k * 1.4826 * MAD(r) is set aside and the rest refitted,
+//!   until the set of inliers stops changing (at most [`MAX_REJECT_ROUNDS`]
+//!   refits). The median and the MAD (median absolute deviation from the
+//!   median) are those of the current inliers' residuals; 1.4826 MAD
+//!   estimates sigma for Gaussian noise. Every point is classified again in
+//!   each round, so a point rejected against an early, biased fit can come
+//!   back. Centring on the median matters: with one-sided contamination the
+//!   residuals of the clean points are not centred on zero.
+//! - [`Rejection::SinglePass`] (`k`, once; ASTM E3125's rule with k = 3): the
+//!   points with |r| > k * s are set aside, s the sample standard deviation
+//!   (n - 1) of the residuals of the first fit, and the rest refitted once.
+//!
+//! Either rule starts from a least-squares fit of all the points (or, for
+//! spheres, of the inliers of a high-breakdown start, [`lmeds`]), so on its own
+//! it cannot undo heavy contamination that has already biased that fit.
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
 use crate::error::{CoreError, Result};
 
+pub mod lmeds;
 pub mod plane;
+pub mod segment;
 pub mod sphere;
 
+pub use lmeds::LeastMedian;
 pub use plane::{fit_plane, PlaneFit, PlaneFitOptions};
+pub use segment::{segment_sphere, Segmentation, SegmentationOptions};
 pub use sphere::{
-    fit_sphere, fit_sphere_groups, fit_spheres, SphereFit, SphereFitOptions, SphereFits,
+    fit_sphere, fit_sphere_groups, fit_spheres, SphereFit, SphereFitOptions, SphereFits, Start,
 };
 
 /// Above this many points a pass over them runs in parallel (rayon
@@ -171,19 +187,66 @@ pub(crate) fn median(v: &mut [f64]) -> f64 {
 }
 
 /// 1.4826 * median |r - median r|: a robust estimate of the residuals' sigma.
+#[cfg(test)]
 pub(crate) fn robust_sigma(residuals: impl Iterator<Item = f64>) -> f64 {
-    let mut r: Vec<f64> = residuals.collect();
-    let m = median(&mut r);
-    r.iter_mut().for_each(|x| *x = (*x - m).abs());
-    MAD_TO_SIGMA * median(&mut r)
+    median_and_sigma(residuals.collect()).1
 }
 
-/// Checks a rejection multiple: a positive finite number.
-pub(crate) fn check_reject(reject: Option<f64>) -> Result<()> {
+/// The median of `r` and 1.4826 * median |r - median r| (non-empty `r`).
+pub(crate) fn median_and_sigma(mut r: Vec<f64>) -> (f64, f64) {
+    let m = median(&mut r);
+    r.iter_mut().for_each(|x| *x = (*x - m).abs());
+    (m, MAD_TO_SIGMA * median(&mut r))
+}
+
+/// An outlier rejection rule (module docs, docs/fitting.md).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Rejection {
+    /// Repeated: set aside |r - median(r)| > k * 1.4826 * MAD(r) and refit
+    /// until the inliers stop changing (3 to 5 is usual).
+    Mad(f64),
+    /// Once: set aside |r| > k * s, s the sample standard deviation of the
+    /// first fit's residuals, and refit (ASTM E3125: k = 3).
+    SinglePass(f64),
+}
+
+impl Rejection {
+    /// The multiple k of the rule's sigma.
+    pub fn k(&self) -> f64 {
+        match *self {
+            Rejection::Mad(k) | Rejection::SinglePass(k) => k,
+        }
+    }
+
+    /// Refits allowed: [`MAX_REJECT_ROUNDS`] for the repeated rule, one for
+    /// the single pass.
+    pub(crate) fn rounds(&self) -> usize {
+        match self {
+            Rejection::Mad(_) => MAX_REJECT_ROUNDS,
+            Rejection::SinglePass(_) => 1,
+        }
+    }
+
+    /// The rule's name in messages.
+    pub(crate) fn describe(&self) -> String {
+        match self {
+            Rejection::Mad(k) => format!("rule 'mad', reject = {k}, robust sigma"),
+            Rejection::SinglePass(k) => {
+                format!("rule 'e3125' (single pass), reject = {k}, standard deviation")
+            }
+        }
+    }
+}
+
+/// Checks a rejection rule: its multiple a positive finite number.
+pub(crate) fn check_rejection(reject: Option<Rejection>) -> Result<()> {
     match reject {
-        Some(k) if !(k.is_finite() && k > 0.0) => Err(CoreError::invalid_argument(
+        Some(r) if !(r.k().is_finite() && r.k() > 0.0) => Err(CoreError::invalid_argument(
             "reject",
-            format!("must be a positive multiple of the robust sigma, got {k}"),
+            format!(
+                "must be a positive multiple of the rule's sigma, got {}",
+                r.k()
+            ),
         )),
         _ => Ok(()),
     }
@@ -206,7 +269,7 @@ pub(crate) struct Robust<M> {
 /// `min` is the fewest inliers the model accepts.
 pub(crate) fn fit_robust<M: Sync>(
     pts: &[Vector3<f64>],
-    reject: Option<f64>,
+    reject: Option<Rejection>,
     min: usize,
     floor: impl Fn(&M) -> f64,
     parallel: bool,
@@ -216,9 +279,9 @@ pub(crate) fn fit_robust<M: Sync>(
     let mut model = fit(pts)?;
     let mut residuals = map_points(pts, parallel, |p| residual(&model, p));
     let mut inlier = vec![true; pts.len()];
-    if let Some(k) = reject {
-        for _ in 0..MAX_REJECT_ROUNDS {
-            let (next, sigma) = reclassify(&residuals, &inlier, k, floor(&model));
+    if let Some(rule) = reject {
+        for _ in 0..rule.rounds() {
+            let (next, sigma) = reclassify(&residuals, &inlier, &rule, floor(&model));
             if next == inlier {
                 break;
             }
@@ -229,7 +292,7 @@ pub(crate) fn fit_robust<M: Sync>(
                 .map(|(p, _)| *p)
                 .collect();
             if kept.len() < min {
-                return Err(too_few_inliers(k, sigma, kept.len(), pts.len(), min));
+                return Err(too_few_inliers(&rule, sigma, kept.len(), pts.len(), min));
             }
             inlier = next;
             model = fit(&kept)?;
@@ -245,33 +308,65 @@ pub(crate) fn fit_robust<M: Sync>(
     })
 }
 
-/// One round of the rejection rule: the points with |r| <= k * sigma, sigma
-/// the robust sigma of the current inliers' residuals (at least `floor`),
-/// and that sigma.
+/// One round of a rejection rule over the current inliers' residuals: the
+/// new inlier flags of every point and the sigma used (at least `floor`).
+/// [`Rejection::Mad`]: |r - median| <= k * 1.4826 MAD; [`Rejection::SinglePass`]:
+/// |r| <= k * s, s the sample standard deviation.
 pub(crate) fn reclassify(
     residuals: &[f64],
     inlier: &[bool],
-    k: f64,
+    rule: &Rejection,
     floor: f64,
 ) -> (Vec<bool>, f64) {
-    let inliers = residuals.iter().zip(inlier).filter(|(_, &i)| i);
-    let sigma = robust_sigma(inliers.map(|(r, _)| *r)).max(floor);
-    let limit = k * sigma;
-    (residuals.iter().map(|r| r.abs() <= limit).collect(), sigma)
+    let inliers = residuals
+        .iter()
+        .zip(inlier)
+        .filter(|(_, &i)| i)
+        .map(|(r, _)| *r);
+    match *rule {
+        Rejection::Mad(k) => {
+            let (m, sigma) = median_and_sigma(inliers.collect());
+            let sigma = sigma.max(floor);
+            let limit = k * sigma;
+            (
+                residuals.iter().map(|r| (r - m).abs() <= limit).collect(),
+                sigma,
+            )
+        }
+        Rejection::SinglePass(k) => {
+            let sigma = sample_std(inliers).max(floor);
+            let limit = k * sigma;
+            (residuals.iter().map(|r| r.abs() <= limit).collect(), sigma)
+        }
+    }
+}
+
+/// Sample standard deviation (n - 1) about the mean; 0 for fewer than two values.
+pub(crate) fn sample_std(values: impl Iterator<Item = f64> + Clone) -> f64 {
+    let (n, sum) = values
+        .clone()
+        .fold((0usize, 0.0), |(n, s), v| (n + 1, s + v));
+    if n < 2 {
+        return 0.0;
+    }
+    let mean = sum / n as f64;
+    let ss: f64 = values.map(|v| (v - mean) * (v - mean)).sum();
+    (ss / (n - 1) as f64).sqrt()
 }
 
 /// The error when rejection leaves `kept` of `total` points, fewer than `min`.
 #[cold]
 pub(crate) fn too_few_inliers(
-    k: f64,
+    rule: &Rejection,
     sigma: f64,
     kept: usize,
     total: usize,
     min: usize,
 ) -> CoreError {
     CoreError::Degenerate(format!(
-        "rejecting outliers (reject = {k}, robust sigma {sigma:.3e} mm) left {kept} of {total} \
-         points, fewer than the {min} the fit needs"
+        "rejecting outliers ({} {sigma:.3e} mm) left {kept} of {total} points, fewer than \
+         the {min} the fit needs",
+        rule.describe()
     ))
 }
 
@@ -396,6 +491,29 @@ mod tests {
         let mut rng = Rng::new(7);
         let s = robust_sigma((0..100_000).map(|_| 2.0 * rng.gauss()));
         assert!((s / 2.0 - 1.0).abs() < 0.02, "{s}");
+    }
+
+    #[test]
+    fn fit_reclassify_centres_on_the_median() {
+        // Residuals 1 mm +- 0.01 mm (a fit pulled off by outliers), and one
+        // point at 3 mm: about zero nothing would be within 3.5 sigma; about
+        // the median all but the far point are.
+        let mut r: Vec<f64> = (0..100).map(|i| 1.0 + 0.0002 * (i as f64 - 50.0)).collect();
+        r.push(3.0);
+        let all = vec![true; r.len()];
+        let (keep, sigma) = reclassify(&r, &all, &Rejection::Mad(3.5), 0.0);
+        assert!(keep[..100].iter().all(|&k| k) && !keep[100]);
+        assert!(sigma > 0.0 && sigma < 0.02, "{sigma}");
+        // The single pass: about zero, s the sample standard deviation.
+        let (keep, s) = reclassify(&r, &all, &Rejection::SinglePass(3.0), 0.0);
+        let want = sample_std(r.iter().copied());
+        assert_eq!(s, want);
+        assert_eq!(
+            keep,
+            r.iter().map(|x| x.abs() <= 3.0 * want).collect::<Vec<_>>()
+        );
+        assert_eq!(sample_std([1.0, 2.0, 3.0].into_iter()), 1.0);
+        assert_eq!(sample_std([5.0].into_iter()), 0.0);
     }
 
     #[test]

@@ -10,7 +10,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::{accumulate, check_reject, fit_robust, mean, read_points, rms_and_form};
+use super::{accumulate, check_rejection, fit_robust, mean, read_points, rms_and_form, Rejection};
 use super::{sorted_eigen, spread_rank};
 use crate::error::{CoreError, Result};
 
@@ -20,8 +20,8 @@ const SIGMA_FLOOR: f64 = 1e-12;
 /// How to fit a plane. `Default`: no outlier rejection.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PlaneFitOptions {
-    /// Reject points with |r| > k * 1.4826 * MAD(r) and refit
-    /// ([`crate::fit`] module docs); `k` must be positive.
+    /// Reject points with |r - median(r)| > k * 1.4826 * MAD(r) and refit
+    /// ([`Rejection::Mad`], [`crate::fit`] module docs); `k` must be positive.
     pub reject: Option<f64>,
 }
 
@@ -69,11 +69,12 @@ pub struct PlaneFit {
 /// non-finite coordinate (naming the first bad row); `Degenerate` for
 /// coincident or collinear points, or outlier rejection leaving too few.
 pub fn fit_plane(points: &[f64], opts: &PlaneFitOptions) -> Result<PlaneFit> {
-    check_reject(opts.reject)?;
+    let rule = opts.reject.map(Rejection::Mad);
+    check_rejection(rule)?;
     let pts = read_points(points, 3, "a plane")?;
     let robust = fit_robust(
         &pts,
-        opts.reject,
+        rule,
         3,
         |m: &Model| SIGMA_FLOOR * m.spread,
         true,

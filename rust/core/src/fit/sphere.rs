@@ -28,6 +28,11 @@
 //!    ([`SphereFit::polar_coverage_deg`]); a cap below `min_coverage_deg` is
 //!    a `Degenerate` error.
 //!
+//! [`Start`] replaces step 2 by a given centre, or by the least-median
+//! sphere of [`super::lmeds`] (the fit then uses its inliers only); a
+//! [`super::Rejection`] rule refits from the previous solution
+//! (docs/fitting.md).
+//!
 //! With a fixed radius only the centre is fitted (3 x 3 normal equations).
 //! Coplanar points are refused with a fixed radius too: the two mirror-image
 //! centres on either side of the plane fit them equally well. (Three points
@@ -48,11 +53,12 @@ use multiversion::{multiversion, target::match_target};
 use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 use rayon::prelude::*;
 
+use super::lmeds::{self, LeastMedian};
 #[cfg(test)]
 use super::mean;
 use super::{
-    check_reject, check_rows, non_finite, reclassify, rms_and_form, sorted_eigen, spread_rank,
-    too_few_inliers, CHUNK, MAX_REJECT_ROUNDS, PARALLEL_MIN_POINTS,
+    check_rejection, check_rows, non_finite, reclassify, rms_and_form, sorted_eigen, spread_rank,
+    too_few_inliers, Rejection, CHUNK, PARALLEL_MIN_POINTS,
 };
 use crate::error::{CoreError, Result};
 
@@ -82,15 +88,31 @@ const BLOCK: usize = 3 * LANES;
 /// Blocks per group in [`moments_rows`] and [`evaluate_rows`].
 const GROUP: usize = 64;
 
-/// How to fit a sphere. `Default` gives a free radius, no rejection, 100
-/// iterations and a 2 degree minimum polar coverage.
+/// Where the geometric fit starts (docs/fitting.md).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Start {
+    /// The algebraic sphere of all the points (module docs, step 2).
+    #[default]
+    Algebraic,
+    /// A given centre (mm); with a free radius the start radius is the mean
+    /// distance of the points from it.
+    Centre([f64; 3]),
+    /// The high-breakdown least-median-of-squares sphere ([`super::lmeds`]):
+    /// the least-squares fit starts from it, on its inliers only.
+    LeastMedian(LeastMedian),
+}
+
+/// How to fit a sphere. `Default` gives a free radius, the algebraic start,
+/// no rejection, 100 iterations and a 2 degree minimum polar coverage.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SphereFitOptions {
     /// Fix the radius (mm) and fit only the centre.
     pub radius: Option<f64>,
-    /// Reject points with |r| > k * 1.4826 * MAD(r) and refit
-    /// ([`crate::fit`] module docs); `k` must be positive (3 to 5 is usual).
-    pub reject: Option<f64>,
+    /// Outlier rejection rule ([`crate::fit`] module docs); its multiple
+    /// must be positive (3 to 5 is usual).
+    pub reject: Option<Rejection>,
+    /// Where the fit starts.
+    pub start: Start,
     /// Levenberg-Marquardt steps allowed per fit (at least 1).
     pub max_iterations: usize,
     /// Smallest polar coverage (degrees, 0..=180) accepted; a smaller cap is
@@ -103,6 +125,7 @@ impl Default for SphereFitOptions {
         SphereFitOptions {
             radius: None,
             reject: None,
+            start: Start::Algebraic,
             max_iterations: 100,
             min_coverage_deg: 2.0,
         }
@@ -169,7 +192,24 @@ pub fn fit_sphere(points: &[f64], opts: &SphereFitOptions) -> Result<SphereFit> 
 /// (bit for bit below [`super::PARALLEL_MIN_POINTS`] points; above it
 /// `fit_sphere` sums in parallel, in another order, so to rounding).
 pub fn fit_spheres(sets: &[&[f64]], opts: &SphereFitOptions) -> Vec<Result<SphereFit>> {
-    sets.par_iter().map(|s| fit(s, opts, false)).collect()
+    sets.par_iter()
+        .map(|s| {
+            check_many(opts)?;
+            fit(s, opts, false)
+        })
+        .collect()
+}
+
+/// A starting centre belongs to one sphere: refused for many.
+fn check_many(opts: &SphereFitOptions) -> Result<()> {
+    if let Start::Centre(_) = opts.start {
+        return Err(CoreError::invalid_argument(
+            "start",
+            "a starting centre belongs to one sphere; fits of many spheres start from the \
+             algebraic or the least-median (high-breakdown) sphere",
+        ));
+    }
+    Ok(())
 }
 
 /// Sphere fits of many groups of points, one entry per group in each field
@@ -224,6 +264,7 @@ pub fn fit_sphere_groups(
     opts: &SphereFitOptions,
 ) -> Result<SphereFits> {
     check_options(opts)?;
+    check_many(opts)?;
     let n = check_rows(points, 0, "a set of spheres")?;
     if bounds.first() != Some(&0)
         || bounds.last() != Some(&n)
@@ -312,7 +353,17 @@ fn check_options(opts: &SphereFitOptions) -> Result<()> {
             ));
         }
     }
-    check_reject(opts.reject)?;
+    check_rejection(opts.reject)?;
+    match opts.start {
+        Start::Centre(c) if !c.iter().all(|x| x.is_finite()) => {
+            return Err(CoreError::invalid_argument(
+                "start",
+                format!("a starting centre must be finite (mm), got {c:?}"),
+            ));
+        }
+        Start::LeastMedian(lm) => lmeds::check(&lm)?,
+        _ => {}
+    }
     if opts.max_iterations == 0 {
         return Err(CoreError::invalid_argument(
             "max_iterations",
@@ -329,7 +380,7 @@ fn check_options(opts: &SphereFitOptions) -> Result<()> {
     Ok(())
 }
 
-fn fit(points: &[f64], opts: &SphereFitOptions, parallel: bool) -> Result<SphereFit> {
+pub(crate) fn fit(points: &[f64], opts: &SphereFitOptions, parallel: bool) -> Result<SphereFit> {
     check_options(opts)?;
     let (min, what) = match opts.radius {
         Some(_) => (3, "a sphere of fixed radius"),
@@ -342,32 +393,71 @@ fn fit(points: &[f64], opts: &SphereFitOptions, parallel: bool) -> Result<Sphere
         })
     })?;
     let mut residuals = vec![0.0; n];
-    let mut s = solve(&cloud, opts, parallel, &mut residuals)?;
+    let mut inlier = vec![true; n];
     // Whether `residuals` came from the pass that gave `s` its sums.
     let mut same_pass = true;
-    let mut inlier = vec![true; n];
-    let mut rejected = 0;
-    if let Some(k) = opts.reject {
-        for _ in 0..MAX_REJECT_ROUNDS {
-            let (next, sigma) = reclassify(&residuals, &inlier, k, SIGMA_FLOOR * s.radius);
+    let mut s = match opts.start {
+        Start::Algebraic => solve(&cloud, opts, None, parallel, &mut residuals)?,
+        Start::Centre(c) => {
+            let c = Vector3::from(c);
+            let r = opts
+                .radius
+                .unwrap_or_else(|| cloud.mean_distance(&c, parallel));
+            solve(
+                &cloud,
+                opts,
+                Some((c - cloud.mean, r)),
+                parallel,
+                &mut residuals,
+            )?
+        }
+        Start::LeastMedian(lm) => {
+            let m = lmeds::median_fit(points, opts.radius, &lm, parallel)?;
+            if m.kept < min {
+                return Err(CoreError::Degenerate(format!(
+                    "high-breakdown start: {} of {n} points within 2.5 robust scales \
+                     ({:.3e} mm) of the least-median sphere, fewer than the {min} the fit needs",
+                    m.kept, m.scale
+                )));
+            }
+            inlier = m.inlier;
+            let sub = cloud.subset(&inlier, parallel);
+            let init = (m.centre - sub.mean, m.radius);
+            let mut scratch = vec![0.0; sub.n];
+            let s = solve(&sub, opts, Some(init), parallel, &mut scratch)?;
+            if sub.n < n {
+                let t = Trial::new(&s.centre, s.radius, &(cloud.mean - s.centre));
+                evaluate(&cloud, &t, parallel, &mut residuals);
+                same_pass = false;
+            } else {
+                residuals = scratch;
+            }
+            s
+        }
+    };
+    if let Some(rule) = opts.reject {
+        for _ in 0..rule.rounds() {
+            let (next, sigma) = reclassify(&residuals, &inlier, &rule, SIGMA_FLOOR * s.radius);
             if next == inlier {
                 break;
             }
             let kept = next.iter().filter(|&&i| i).count();
             if kept < min {
-                return Err(too_few_inliers(k, sigma, kept, n, min));
+                return Err(too_few_inliers(&rule, sigma, kept, n, min));
             }
             inlier = next;
             let sub = cloud.subset(&inlier, parallel);
             let mut scratch = vec![0.0; kept];
-            s = solve(&sub, opts, parallel, &mut scratch)?;
+            // From where the previous fit ended.
+            let init = (s.centre - sub.mean, s.radius);
+            s = solve(&sub, opts, Some(init), parallel, &mut scratch)?;
             // Residuals of every point.
             let t = Trial::new(&s.centre, s.radius, &(cloud.mean - s.centre));
             evaluate(&cloud, &t, parallel, &mut residuals);
             same_pass = false;
         }
-        rejected = inlier.iter().filter(|&&i| !i).count();
     }
+    let rejected = inlier.iter().filter(|&&i| !i).count();
     let coverage = s.coverage;
     if coverage < opts.min_coverage_deg {
         return Err(CoreError::Degenerate(format!(
@@ -542,17 +632,26 @@ fn algebraic(q: &[Vector3<f64>], _parallel: bool) -> Result<(Vector3<f64>, f64)>
 
 /// The geometric fit of one cloud; `res` receives the residuals at the
 /// solution.
+/// The geometric fit of one cloud, from `init` (centre relative to the
+/// cloud's mean, radius; the fixed radius wins) or else the algebraic start;
+/// `res` receives the residuals at the solution.
 fn solve(
     cloud: &Cloud,
     opts: &SphereFitOptions,
+    init: Option<(Vector3<f64>, f64)>,
     parallel: bool,
     res: &mut [f64],
 ) -> Result<Solved> {
     let (fixed, max_iterations) = (opts.radius, opts.max_iterations);
     let n = cloud.n;
-    let (mut c, r0) = algebraic_start(&cloud.moments, n)?;
+    let (mut c, r0) = match init {
+        Some(start) => start,
+        None => algebraic_start(&cloud.moments, n)?,
+    };
     let mut radius = r0;
-    if let Some(rf) = fixed {
+    if let (Some(rf), Some(_)) = (fixed, init) {
+        radius = rf;
+    } else if let Some(rf) = fixed {
         // Keep the apex of the cap where the algebraic sphere puts it: move
         // the centre along the cap axis (centre -> mean) by the radius change.
         let dist = c.norm();
@@ -715,6 +814,23 @@ impl<'a> Cloud<'a> {
             mean,
             moments: moments.total(),
         })
+    }
+
+    /// Mean distance (mm) of the points from `c`: one pass.
+    fn mean_distance(&self, c: &Vector3<f64>, parallel: bool) -> f64 {
+        let dist = |rows: &[f64]| -> f64 {
+            rows.chunks_exact(3)
+                .map(|p| {
+                    ((p[0] - c.x).powi(2) + (p[1] - c.y).powi(2) + (p[2] - c.z).powi(2)).sqrt()
+                })
+                .sum()
+        };
+        fold_rows(
+            &self.rows,
+            parallel && self.n > PARALLEL_MIN_POINTS,
+            dist,
+            |a, b| a + b,
+        ) / self.n as f64
     }
 
     /// The cloud of the points where `keep`.
@@ -1869,7 +1985,7 @@ mod tests {
             "the stand should spoil it"
         );
         let opts = SphereFitOptions {
-            reject: Some(4.0),
+            reject: Some(Rejection::Mad(4.0)),
             ..Default::default()
         };
         let f = fit_sphere(&flat, &opts).unwrap();
@@ -1885,6 +2001,143 @@ mod tests {
         assert!((f.radius - BALL).abs() < 4.0 * f.covariance[3][3].sqrt());
         assert!((f.rms / 0.008 - 1.0).abs() < 0.05);
         assert!((f.polar_coverage_deg - 85.0).abs() < 2.0);
+    }
+
+    /// A 90 degree cap (8 um noise) with the `frac` of its points on one
+    /// side (largest x) pushed `push` mm outward.
+    fn one_sided(frac: f64, push: f64, seed: u64) -> (Vec<f64>, Vector3<f64>) {
+        let c = Vector3::new(5.0, -7.0, 12.0);
+        let mut pts = cap(c.into(), 50.0, [0.0, 0.0, 1.0], 90.0, 3000, 0.008, seed);
+        pts.sort_by(|a, b| b.x.total_cmp(&a.x));
+        let bad = (frac * pts.len() as f64) as usize;
+        for p in pts.iter_mut().take(bad) {
+            *p = c + (*p - c) * ((50.0 + push) / (*p - c).norm());
+        }
+        (flatten(&pts), c)
+    }
+
+    #[test]
+    fn fit_sphere_median_centred_rejection_survives_one_sided_contamination() {
+        // 10 % of the points 5 mm out: the least-squares fit is pulled
+        // outward, so the clean points' residuals sit below zero, close to
+        // their median. The rule centred on the median drops exactly the
+        // pushed points and the refits come back to the clean centre.
+        let (rows, c) = one_sided(0.1, 5.0, 21);
+        let opts = SphereFitOptions {
+            radius: Some(50.0),
+            reject: Some(Rejection::Mad(3.5)),
+            ..Default::default()
+        };
+        let f = fit_sphere(&rows, &opts).unwrap();
+        assert!(f.inlier[..300].iter().all(|&i| !i), "{}", f.rejected);
+        assert!(f.rejected < 310, "{}", f.rejected);
+        assert!((Vector3::from(f.centre) - c).norm() < 1e-3);
+        // At 30 % the biased first fit spreads the clean residuals over
+        // millimetres: the rule alone keeps a fit (centred on zero it kept
+        // no point and failed), the least-median start is what recovers the
+        // centre (next test).
+        let (rows, _) = one_sided(0.3, 5.0, 21);
+        assert!(fit_sphere(&rows, &opts).is_ok());
+    }
+
+    #[test]
+    fn fit_sphere_least_median_start_recovers_the_clean_centre_up_to_40_percent() {
+        for frac in [0.0, 0.1, 0.2, 0.3, 0.4] {
+            let (rows, c) = one_sided(frac, 5.0, 22);
+            for (radius, tol) in [(Some(50.0), 1e-3), (None, 5e-3)] {
+                for reject in [None, Some(Rejection::Mad(3.5))] {
+                    let opts = SphereFitOptions {
+                        radius,
+                        reject,
+                        start: Start::LeastMedian(LeastMedian::default()),
+                        ..Default::default()
+                    };
+                    let f = fit_sphere(&rows, &opts).unwrap();
+                    let e = (Vector3::from(f.centre) - c).norm();
+                    assert!(e < tol, "{frac} {radius:?} {reject:?}: {e}");
+                    let bad = (frac * 3000.0) as usize;
+                    assert!(f.inlier[..bad].iter().all(|&i| !i));
+                    // 2.5 robust scales keep ~98.8 % of the clean points.
+                    assert!(
+                        f.n_points as f64 >= 0.97 * (3000 - bad) as f64,
+                        "{}",
+                        f.n_points
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fit_sphere_single_pass_rule_refits_once() {
+        // Five points 1 mm out among 2000: one pass at 3 s drops them (s is
+        // inflated by them, ~0.05 mm, still far below 1 mm) and refits once.
+        let c = Vector3::new(1.0, 2.0, 3.0);
+        let mut pts = cap(c.into(), 20.0, [0.0, 1.0, 0.0], 70.0, 2000, 0.01, 23);
+        for p in pts.iter_mut().take(5) {
+            *p = c + (*p - c) * (21.0 / (*p - c).norm());
+        }
+        let rows = flatten(&pts);
+        let opts = SphereFitOptions {
+            radius: Some(20.0),
+            reject: Some(Rejection::SinglePass(3.0)),
+            ..Default::default()
+        };
+        let f = fit_sphere(&rows, &opts).unwrap();
+        assert!(f.inlier[..5].iter().all(|&i| !i));
+        // The pass set aside the five and a few 3 s tails at most.
+        assert!(f.rejected >= 5 && f.rejected < 15, "{}", f.rejected);
+        assert_eq!(f.n_points + f.rejected, 2000);
+        assert!((Vector3::from(f.centre) - c).norm() < 2e-3);
+    }
+
+    #[test]
+    fn fit_sphere_from_a_given_centre() {
+        // A 30 degree cap: from a start near the truth the fit lands where the
+        // algebraic start leads it too (one minimum), free or fixed radius.
+        let c = Vector3::new(-3.0, 4.0, 100.0);
+        let rows = flatten(&cap(c.into(), 25.0, [1.0, 1.0, 0.0], 30.0, 1500, 0.002, 24));
+        for radius in [None, Some(25.0)] {
+            let plain = fit_sphere(
+                &rows,
+                &SphereFitOptions {
+                    radius,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            let start = [c.x + 1.0, c.y - 2.0, c.z + 0.5];
+            let f = fit_sphere(
+                &rows,
+                &SphereFitOptions {
+                    radius,
+                    start: Start::Centre(start),
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            let d = (Vector3::from(f.centre) - Vector3::from(plain.centre)).norm();
+            assert!(d < 1e-7, "{radius:?}: {d}");
+        }
+        let e = fit_sphere(
+            &rows,
+            &SphereFitOptions {
+                start: Start::Centre([f64::NAN, 0.0, 0.0]),
+                ..Default::default()
+            },
+        )
+        .unwrap_err();
+        assert!(e.to_string().starts_with("start: "), "{e}");
+        let e = fit_sphere_groups(
+            &rows,
+            &[0, 1500],
+            &SphereFitOptions {
+                start: Start::Centre([0.0; 3]),
+                ..Default::default()
+            },
+        )
+        .unwrap_err();
+        assert!(e.to_string().starts_with("start: "), "{e}");
     }
 
     #[test]
@@ -1912,7 +2165,7 @@ mod tests {
         ));
         let sets: Vec<&[f64]> = vec![&a, &b, &bad, &d];
         let opts = SphereFitOptions {
-            reject: Some(3.0),
+            reject: Some(Rejection::Mad(3.0)),
             ..Default::default()
         };
         let many = fit_spheres(&sets, &opts);
@@ -1949,7 +2202,7 @@ mod tests {
             .collect();
         let bounds = [0, 800, 805, 1105, 1107];
         let opts = SphereFitOptions {
-            reject: Some(3.0),
+            reject: Some(Rejection::Mad(3.0)),
             ..Default::default()
         };
         let fits = fit_sphere_groups(&points, &bounds, &opts).unwrap();
@@ -2147,7 +2400,7 @@ mod tests {
         let e = fit_sphere(
             &noisy,
             &SphereFitOptions {
-                reject: Some(0.01),
+                reject: Some(Rejection::Mad(0.01)),
                 ..o
             },
         )
@@ -2174,7 +2427,7 @@ mod tests {
             ),
             (
                 SphereFitOptions {
-                    reject: Some(0.0),
+                    reject: Some(Rejection::Mad(0.0)),
                     ..o
                 },
                 "reject: ",

@@ -1,0 +1,243 @@
+"""Several runs together: one model, its machine and scanner parameters
+shared by every run, each run with its own noise levels and nuisances.
+
+A metrologist measures at several temperatures and poses and wants one
+model. The joint problem stacks the runs' observables; each candidate
+effect's sensitivity columns are stacked too (the same parameters act on
+every run); each run keeps its own noise level per observable class; the
+nuisances (bar length, ball and reference radii) are shared when the runs
+measured the same artefact (``same_artefact=True``: then lengths taken at
+different temperatures pin the artefact's expansion, which no single run
+can) or kept per run. Selection, decisions and uncertainties are those of
+:func:`cmmpose.diagnose` (forward selection by likelihood ratio, Bonferroni).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errormap import ErrorMap, ErrorMapSet
+from ..errors import InputError
+from ..run import Run
+from .diagnose import Diagnosis, Step
+from .effects import UserEffect
+from .identify import Problem, check_effect_names, fit_model, model_uncertainties, rank_candidates
+from .model import Model
+from .observables import CLASSES, ModelFigures, figures
+
+__all__ = ["JointProblem", "JointDiagnosis", "diagnose_jointly"]
+
+
+@dataclass(frozen=True)
+class JointObserved:
+    """Each run's observables, and their residuals stacked (mm)."""
+
+    parts: tuple
+    residual: np.ndarray
+
+
+class JointProblem(Problem):
+    """The linearised diagnosis problem of several runs at one model (the
+    interface :func:`rank_candidates` and :func:`fit_model` use).
+
+    Parameters
+    ----------
+    model : Model
+        The current model (its maps and effects act on every run).
+    runs : sequence of Run
+        Two or more runs.
+    candidates : dict of str -> EffectSpec, optional
+        Default: the library.
+    same_artefact : bool
+        The runs measured the same artefact: share the bar-length and radius
+        nuisances.
+    """
+
+    def __init__(self, model, runs, candidates=None, *, same_artefact: bool = True):  # noqa: D107 - documented above
+        self.runs = list(runs)
+        self.parts = [Problem(model, r, candidates) for r in self.runs]
+        names: list[str] = []
+        for p in self.parts:
+            names += [n for n in p.candidates if n not in names]
+        self.candidates = {n: next(p.candidates[n] for p in self.parts if n in p.candidates) for n in names}
+        self.skipped = {}
+        for p in self.parts:
+            for n, why in p.skipped.items():
+                if n not in self.candidates:
+                    self.skipped[n] = why
+        k = len(CLASSES)
+        self.classes = np.concatenate([p.classes + i * k for i, p in enumerate(self.parts)])
+        self.n_class = np.concatenate([p.n_class for p in self.parts])
+        self.n_eff = np.concatenate([p.n_eff for p in self.parts])
+        sizes = [len(p.classes) for p in self.parts]
+        offsets = np.r_[0, np.cumsum(sizes)[:-1]]
+        self._class_rows = [rows + off for p, off in zip(self.parts, offsets) for rows in p._class_rows]
+        # Nuisances: block-diagonal per run, the same-named ones merged when shared.
+        n = int(sum(sizes))
+        cols: dict[str, np.ndarray] = {}
+        for i, (p, off) in enumerate(zip(self.parts, offsets)):
+            for j, name in enumerate(p.nuisance_names):
+                key = name if same_artefact else f"{name} (run {i + 1})"
+                col = cols.setdefault(key, np.zeros(n))
+                col[off:off + sizes[i]] += p.nuisance[:, j]
+        self.nuisance_names = list(cols)
+        self.nuisance = np.column_stack(list(cols.values())) if cols else np.zeros((n, 0))
+        self.columns = {name: np.concatenate([p.columns[name] if name in p.columns
+                                              else np.zeros((len(p.classes), spec.size)) for p in self.parts])
+                        for name, spec in self.candidates.items()}
+        self.base = model
+        self.base_obs = self.observe(model)
+        self.layout = self.parts[0].layout  # for figures of the first run; each part keeps its own
+
+    def observe(self, model) -> JointObserved:
+        parts = tuple(p.observe(model) for p in self.parts)
+        return JointObserved(parts, np.concatenate([o.residual for o in parts]))
+
+    def _columns(self, model, spec, current, obs: JointObserved) -> np.ndarray:
+        return np.concatenate([p._columns(model, spec, current, o) for p, o in zip(self.parts, obs.parts)])
+
+    def figures(self, model, obs: JointObserved | None = None) -> list[ModelFigures]:
+        """Each run's ballbar and sphere figures under ``model``."""
+        obs = self.observe(model) if obs is None else obs
+        return [figures(p.layout, None, model, observed=o) for p, o in zip(self.parts, obs.parts)]
+
+
+@dataclass
+class JointDiagnosis(Diagnosis):
+    """:class:`Diagnosis` of several runs together. ``steps[i].figures`` are
+    the first run's; ``run_figures[i]`` holds every run's at step i."""
+
+    run_figures: list = field(default_factory=list)
+    run_names: list = field(default_factory=list)
+
+    def history(self) -> list[dict]:
+        out = []
+        for s, per_run in zip(self.steps, self.run_figures):
+            row = {"label": s.label}
+            for name, f in zip(self.run_names, per_run):
+                row[f"{name}: rms_accuracy_error_um"] = f.rms_accuracy_error * 1e3
+            out.append(row)
+        return out
+
+    def to_dict(self) -> dict:
+        d = super().to_dict()
+        d["runs"] = list(self.run_names)
+        d["run_figures"] = [[f.to_dict() for f in per_run] for per_run in self.run_figures]
+        return d
+
+    def history_table(self):
+        from rich.table import Table
+
+        t = Table(title=f"The error falling as effects are added ({len(self.run_names)} runs, one model)")
+        t.add_column("model")
+        for name in self.run_names:
+            t.add_column(f"{name}: rms (um)", justify="right")
+        for s, per_run in zip(self.steps, self.run_figures):
+            t.add_row(s.label + (" (forced)" if s.forced else ""),
+                      *(f"{f.rms_accuracy_error * 1e3:.2f}" for f in per_run))
+        return t
+
+
+def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, *, add=(), auto: bool = True,
+                     max_effects: int = 4, user_effects=(), same_artefact: bool = True,
+                     run_names=None) -> JointDiagnosis:
+    """One model for several runs: the effects' parameters shared, each run
+    with its own noise levels (and its own nuisances unless ``same_artefact``).
+
+    Parameters
+    ----------
+    runs : sequence of Run
+        Two or more runs (different temperatures, poses, layouts).
+    model : Model, ErrorMap or ErrorMapSet, optional
+        The starting model; default the thesis maps.
+    add : sequence of str
+        Effects to add first, whether significant or not.
+    auto : bool
+        Then keep adding the most significant candidate.
+    max_effects : int
+        Most effects added automatically.
+    user_effects : sequence of UserEffect
+        Extra candidates.
+    same_artefact : bool
+        The runs measured the same artefact: one bar length and one ball
+        radius for all (lengths at different temperatures then pin the
+        artefact's expansion).
+    run_names : sequence of str, optional
+        Names of the runs in tables (default run 1, run 2, ...).
+
+    Returns
+    -------
+    JointDiagnosis
+    """
+    t0 = time.perf_counter()
+    runs = list(runs)
+    if len(runs) < 2:
+        raise InputError(f"runs: a joint diagnosis needs two or more runs, got {len(runs)}")
+    for i, r in enumerate(runs):
+        if not isinstance(r, Run):
+            raise InputError(f"runs[{i}]: expected a cmmpose.Run, got {type(r).__name__}")
+    if model is None:
+        model = Model(ErrorMapSet.thesis())
+    elif isinstance(model, (ErrorMap, ErrorMapSet)):
+        model = Model(model)
+    elif not isinstance(model, Model):
+        raise InputError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
+    cand = None
+    if user_effects:
+        from .effects import library
+
+        cand = dict(library())
+        for u in user_effects:
+            if not isinstance(u, UserEffect):
+                raise InputError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
+            cand[u.name] = u
+    problem = JointProblem(model, runs, cand, same_artefact=same_artefact)
+    check_effect_names(list(add), problem)
+    names = list(run_names) if run_names is not None else [f"run {i + 1}" for i in range(len(runs))]
+
+    def step(label, m, forced=False):
+        obs = problem.observe(m)
+        per_run = problem.figures(m, obs)
+        return Step(label, m, per_run[0], rank_candidates(problem, m, obs), forced), per_run
+
+    steps, per_run = [], []
+    s, f = step("base", model)
+    steps.append(s)
+    per_run.append(f)
+    for name in add:
+        model = fit_model(model.with_values(problem.candidates[name], np.zeros(problem.candidates[name].size)),
+                          None, problem=problem)
+        s, f = step(f"+ {name}", model, forced=True)
+        steps.append(s)
+        per_run.append(f)
+    added = 0
+    while auto and added < max_effects:
+        best = steps[-1].ranking[0] if steps[-1].ranking else None
+        if best is None or not best.significant:
+            break
+        model = fit_model(model.with_values(best.spec, best.values), None, problem=problem)
+        s, f = step(f"+ {best.name}", model)
+        steps.append(s)
+        per_run.append(f)
+        added += 1
+    unobservable = {}
+    for c in steps[-1].ranking:
+        if not c.observable:
+            unobservable[c.name] = c.reason().replace("; needs: ", "; ")
+    unobservable.update(problem.skipped)
+    ambiguous = []
+    for s in steps:
+        for c in s.ranking[:1]:
+            if c.indistinguishable_from:
+                group = tuple([c.name, *c.indistinguishable_from])
+                if group not in ambiguous:
+                    ambiguous.append(group)
+    diag = JointDiagnosis(steps, unobservable, ambiguous, n_points=sum(r.n_points for r in runs),
+                          advice={c.name: c.spec.reveal for c in steps[0].ranking},
+                          final_uncertainty=model_uncertainties(problem, model), skipped=dict(problem.skipped),
+                          run_figures=per_run, run_names=names)
+    diag.elapsed = time.perf_counter() - t0
+    return diag

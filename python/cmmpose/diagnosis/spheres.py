@@ -1,0 +1,268 @@
+"""Diagnosis at the level users of scanning software often keep: the sphere
+fits only (centre, radius, fit rms, points per ball), not the raw points.
+
+From the ballbar lengths (centre to centre) and the radii this tests, with
+the same statistics as the point-level diagnosis (:mod:`.patterns`: F-tests,
+Bonferroni over every pattern tested):
+
+- the length deviations against the bar's direction cosines (scale:
+  squares; squareness: products), its mid-point along each axis;
+- the radius against its calibrated value (a constant offset: coating,
+  scanner scale, incidence error), against the ball, the position, the points
+  per scan (a proxy for the cap covered) and the fit rms.
+
+Thesis Appendix C (20 positions at 20 C, uncompensated and pose compensated)
+is bundled: :func:`appendix_c_sphere_fits`; docs/appendix-c.md writes up
+what its remaining error holds.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+
+import numpy as np
+
+from ..errors import InputError
+from .patterns import Patterns, _categorical, _continuous, _LENGTH_HINTS, _mean_offset, _with_significance
+
+__all__ = ["SphereFitDiagnosis", "diagnose_sphere_fits", "read_sphere_fits", "appendix_c_sphere_fits",
+           "NOMINAL_RADIUS_MM"]
+
+#: The thesis's balls: grade 200 bearings of 76.25 +- 0.025 mm diameter,
+#: painted with an optical coating (thesis line 1828).
+NOMINAL_RADIUS_MM = 38.125
+_UM = 1e3
+
+
+@dataclass(frozen=True)
+class SphereFitDiagnosis:
+    """What sphere fits alone show.
+
+    Attributes
+    ----------
+    lengths : ndarray (P,)
+        Ball-centre distance per position, mm.
+    length_deviation_um : ndarray (P,)
+        From the reference length (or the mean length), um.
+    rms_um : float
+        Rms of ``length_deviation_um`` about the mean deviation (the thesis's
+        rms accuracy error uses the sample standard deviation), um.
+    radius_mean : float
+        Mean fitted radius over every ball, mm.
+    radius_excess_um : float
+        ``radius_mean`` minus the nominal radius, um (nan without one).
+    radius_excess_u_um : float
+        Its standard uncertainty from the radii's scatter (s / sqrt(n)), um.
+    radius_sd_um : float
+        Sample standard deviation of the radii, um.
+    patterns : Patterns
+        Length and radius patterns, ranked, with Bonferroni significance.
+    nominal_radius : float or None
+        mm.
+    """
+
+    lengths: np.ndarray
+    length_deviation_um: np.ndarray
+    rms_um: float
+    radius_mean: float
+    radius_excess_um: float
+    radius_excess_u_um: float
+    radius_sd_um: float
+    patterns: Patterns = field(repr=False)
+    nominal_radius: float | None = None
+
+    @property
+    def significant(self) -> list:
+        """The significant patterns, strongest first."""
+        return [p for p in self.patterns if p.significant]
+
+    def to_dict(self) -> dict:
+        return {"lengths_mm": self.lengths.tolist(), "length_deviation_um": self.length_deviation_um.tolist(),
+                "rms_um": self.rms_um, "radius_mean_mm": self.radius_mean, "radius_excess_um": self.radius_excess_um,
+                "radius_excess_u_um": self.radius_excess_u_um, "radius_sd_um": self.radius_sd_um,
+                "nominal_radius_mm": self.nominal_radius, "patterns": self.patterns.to_dict()}
+
+
+def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
+                         reference_length: float | None = None, points=None, fit_rms=None,
+                         alpha: float = 1e-3) -> SphereFitDiagnosis:
+    """Diagnose a ballbar run from its sphere fits alone.
+
+    Parameters
+    ----------
+    centres : array_like, shape (P, 2, 3)
+        Ball 1 and ball 2 centre per position, mm (any frame that differs from
+        the machine's by a translation).
+    radii : array_like, shape (P, 2)
+        Fitted radii, mm.
+    nominal_radius : float, optional
+        Calibrated radius, mm: tests a constant radius offset.
+    reference_length : float, optional
+        Calibrated bar length, mm; default the mean length (only the
+        differences between positions are then tested).
+    points : array_like, shape (P, 2), optional
+        Points per ball (a proxy for the cap covered).
+    fit_rms : array_like, shape (P, 2), optional
+        Fit rms per ball, mm.
+    alpha : float
+        Family-wise significance level, dimensionless.
+
+    Returns
+    -------
+    SphereFitDiagnosis
+
+    Raises
+    ------
+    InputError
+        Wrong shapes, fewer than 3 positions, NaN or inf, a non-positive radius.
+    """
+    c = np.asarray(centres, dtype=float)
+    r = np.asarray(radii, dtype=float)
+    if c.ndim != 3 or c.shape[1:] != (2, 3):
+        raise InputError(f"centres: expected shape (P, 2, 3) in mm, got {c.shape}")
+    if r.shape != c.shape[:2]:
+        raise InputError(f"radii: expected shape {c.shape[:2]} (one per ball), got {r.shape}")
+    if len(c) < 3:
+        raise InputError(f"centres: at least 3 positions, got {len(c)}")
+    if not (np.isfinite(c).all() and np.isfinite(r).all()) or (r <= 0).any():
+        raise InputError("centres and radii: must be finite, radii > 0 mm")
+    extra = {}
+    for name, a in (("points", points), ("fit_rms", fit_rms)):
+        if a is not None:
+            a = np.asarray(a, dtype=float)
+            if a.shape != r.shape or not np.isfinite(a).all():
+                raise InputError(f"{name}: expected finite values of shape {r.shape}, got {a.shape}")
+            extra[name] = a
+    bar = c[:, 1] - c[:, 0]
+    length = np.linalg.norm(bar, axis=1)
+    ref = float(np.mean(length)) if reference_length is None else float(reference_length)
+    dev = (length - ref) * _UM
+    rms = float(np.std(dev, ddof=1))
+    d = bar / length[:, None]
+    mid = c.mean(axis=1)
+    obs = "ballbar length deviation"
+    dx, dy, dz = d.T
+    found = [_continuous("length", obs, q, "1", x, dev, _LENGTH_HINTS[q], shape=True)
+             for q, x in (("dx", dx), ("dy", dy), ("dz", dz), ("dx^2", dx**2), ("dy^2", dy**2), ("dz^2", dz**2),
+                          ("dx*dy", dx * dy), ("dy*dz", dy * dz), ("dz*dx", dz * dx))]
+    found += [_continuous("length", obs, f"mid {a}", "mm", mid[:, j], dev, _LENGTH_HINTS[f"mid {a}"])
+              for j, a in enumerate("xyz")]
+    rr = r.ravel()
+    calibrated = nominal_radius is not None
+    ref_r = float(nominal_radius) if calibrated else float(rr.mean())
+    rdev = (rr - ref_r) * _UM
+    robs = "sphere radius deviation" + (" from nominal" if calibrated else " from mean")
+    if calibrated:
+        found.append(_mean_offset("sphere", robs, rdev, "a coating, a scanner scale or an incidence error "
+                                  "(a constant radius offset)"))
+    balls = np.tile(np.array(["1", "2"]), len(c))
+    positions = np.repeat(np.arange(1, len(c) + 1), 2).astype(str)
+    found.append(_categorical("sphere", robs, "ball", balls, rdev, "the two balls differ (size, coating)"))
+    found.append(_categorical("sphere", robs, "position", positions, rdev,
+                              "the view or place matters: incidence, scanner scale with the cap, local error"))
+    if "points" in extra:
+        found.append(_continuous("sphere", robs, "points", "", extra["points"].ravel(), rdev,
+                                 "the cap covered: incidence or scanner scale (more points, larger cap)"))
+    if "fit_rms" in extra:
+        found.append(_continuous("sphere", robs, "fit rms", "mm", extra["fit_rms"].ravel(), rdev,
+                                 "noise or form error biasing the fitted radius"))
+    found = [p for p in found if p is not None]
+    threshold = alpha / max(len(found), 1)
+    ranked = sorted((_with_significance(p, threshold) for p in found),
+                    key=lambda p: (not p.significant, p.p_value))
+    excess = float(rr.mean() - nominal_radius) * _UM if calibrated else float("nan")
+    return SphereFitDiagnosis(length, dev, rms, float(rr.mean()), excess,
+                              float(np.std(rr, ddof=1) / math.sqrt(len(rr))) * _UM, float(np.std(rr, ddof=1)) * _UM,
+                              Patterns(tuple(ranked), alpha, threshold), None if not calibrated else float(nominal_radius))
+
+
+def read_sphere_fits(path, state: str | None = None) -> dict[str, np.ndarray]:
+    """Sphere fits from a CSV in the layout of ``data/thesis/appendix_c_ballbar.csv``.
+
+    Columns ``position`` (1..P), ``ball`` (1 or 2), ``x_mm``, ``y_mm``, ``z_mm``,
+    ``radius_mm`` and optionally ``points``, ``fit_mm`` and ``state`` (rows of
+    other states are skipped when ``state`` is given); lines starting with '#'
+    are comments.
+
+    Returns
+    -------
+    dict
+        As :func:`appendix_c_sphere_fits`.
+
+    Raises
+    ------
+    InputError
+        Naming the file and line: a missing column, a non-number, a ball
+        other than 1 or 2, a position without both balls.
+    """
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot be read ({exc})") from None
+    lines = [(k + 1, ln) for k, ln in enumerate(text.splitlines()) if ln.strip() and not ln.startswith("#")]
+    if not lines:
+        raise InputError(f"{path}: no header")
+    reader = csv.DictReader([ln for _, ln in lines])
+    need = {"position", "ball", "x_mm", "y_mm", "z_mm", "radius_mm"}
+    missing = sorted(need - set(reader.fieldnames or ()))
+    if missing:
+        raise InputError(f"{path}:{lines[0][0]}: missing column(s) {', '.join(missing)}")
+    rows = {}
+    for (line, _), row in zip(lines[1:], reader):
+        if state is not None and row.get("state", state) != state:
+            continue
+        try:
+            p, b = int(row["position"]), int(row["ball"])
+            vals = [float(row[k]) for k in ("x_mm", "y_mm", "z_mm", "radius_mm")]
+            extra = [float(row[k]) if row.get(k) not in (None, "") else math.nan for k in ("points", "fit_mm")]
+        except (TypeError, ValueError):
+            raise InputError(f"{path}:{line}: expected numbers in position, ball, x_mm, y_mm, z_mm, radius_mm") from None
+        if b not in (1, 2):
+            raise InputError(f"{path}:{line}: ball must be 1 or 2, got {b}")
+        rows[(p, b)] = vals + extra
+    positions = sorted({p for p, _ in rows})
+    lonely = [p for p in positions if (p, 1) not in rows or (p, 2) not in rows]
+    if lonely:
+        raise InputError(f"{path}: position(s) {lonely} lack ball 1 or ball 2")
+    a = np.array([[rows[(p, b)] for b in (1, 2)] for p in positions])
+    out = {"centres": a[:, :, :3], "radii": a[:, :, 3]}
+    if np.isfinite(a[:, :, 4]).all():
+        out["points"] = a[:, :, 4]
+    if np.isfinite(a[:, :, 5]).all():
+        out["fit_rms"] = a[:, :, 5]
+    return out
+
+
+def appendix_c_sphere_fits(state: str = "compensated") -> dict[str, np.ndarray]:
+    """Thesis Appendix C's sphere fits (20 C), as printed.
+
+    Parameters
+    ----------
+    state : {'compensated', 'uncompensated'}
+
+    Returns
+    -------
+    dict
+        ``centres`` (20, 2, 3) mm in the thesis's measuring frame, ``radii``
+        (20, 2) mm, ``points`` (20, 2), ``fit_rms`` (20, 2) mm.
+    """
+    if state not in ("compensated", "uncompensated"):
+        raise InputError(f"state: expected 'uncompensated' or 'compensated', got {state!r}")
+    path = resources.files("cmmpose").joinpath("data", "thesis", "appendix_c_ballbar.csv")
+    with path.open("r", encoding="utf-8") as fh:
+        rows = [r for r in csv.DictReader(line for line in fh if not line.startswith("#")) if r["state"] == state]
+    out = {"centres": np.zeros((20, 2, 3)), "radii": np.zeros((20, 2)), "points": np.zeros((20, 2)),
+           "fit_rms": np.zeros((20, 2))}
+    for row in rows:
+        p, b = int(row["position"]) - 1, int(row["ball"]) - 1
+        out["centres"][p, b] = [float(row[k]) for k in ("x_mm", "y_mm", "z_mm")]
+        out["radii"][p, b] = float(row["radius_mm"])
+        out["points"][p, b] = float(row["points"])
+        out["fit_rms"][p, b] = float(row["fit_mm"])
+    return out

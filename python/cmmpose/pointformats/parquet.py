@@ -1,0 +1,83 @@
+"""Parquet point files (pyarrow): one column per quantity, integer or real,
+without nulls. Read row group by row group in batches; written one row
+group per chunk with columns ``X, Y, Z`` (float64) and the extra columns in
+their own types."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from ..errors import InputError
+from . import PointFormat, register
+from ._common import ColumnWriter, check_file
+
+
+def chunks(path: Path, chunk: int, need):
+    """Batches of at most ``chunk`` rows; the columns checked first (names,
+    real types), then each batch for nulls (the first null's row named)."""
+    path = check_file(path)
+    size = path.stat().st_size
+    try:
+        f = pq.ParquetFile(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
+    schema = f.schema_arrow
+    missing = [c for c in need.names if c not in schema.names]
+    if missing:
+        raise InputError(f"{path}: columns {missing} missing (have {schema.names})")
+    for c in schema.names:
+        kind = schema.field(c).type
+        if not (pa.types.is_floating(kind) or pa.types.is_integer(kind)):
+            raise InputError(f"{path}: column {c!r} holds {kind} values, expected real numbers")
+    return size, _chunks(f, path, chunk, size, schema)
+
+
+def _chunks(f, path, chunk, size, schema):
+    n, first = max(f.metadata.num_rows, 1), 0
+    try:
+        for batch in f.iter_batches(batch_size=chunk):
+            cols = {}
+            for c in schema.names:
+                column = batch.column(c)
+                if column.null_count:
+                    row = first + int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
+                    raise InputError(f"{path}: column {c!r}, row {row}: empty (null)")
+                cols[c] = column.to_numpy(zero_copy_only=False)
+            first += batch.num_rows
+            yield cols, int(size * first / n)
+        if first == 0:
+            yield {c: np.zeros(0, schema.field(c).type.to_pandas_dtype()) for c in schema.names}, size
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
+
+
+class Writer(ColumnWriter):
+    """Parquet: one row group per chunk written."""
+
+    def _start(self):
+        self.arrow_schema = pa.schema([(c, pa.float64()) for c in "XYZ"]
+                                      + [(n, pa.from_numpy_dtype(dt)) for n, dt in self.schema])
+        self.pq = pq.ParquetWriter(self.f, self.arrow_schema)
+
+    def _write(self, xyz, extras):
+        table = pa.table({"X": xyz[:, 0], "Y": xyz[:, 1], "Z": xyz[:, 2], **extras}, schema=self.arrow_schema)
+        self.pq.write_table(table)
+
+    def _finish(self):
+        self.pq.close()
+
+    def abort(self):
+        if getattr(self, "pq", None) is not None:
+            try:
+                self.pq.close()
+            except (pa.ArrowException, OSError):
+                pass
+        super().abort()
+
+
+register(PointFormat("parquet", (".parquet", ".pq"), chunks, Writer,
+                     description="Apache Parquet columns (pyarrow)"))

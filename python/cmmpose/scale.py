@@ -1,0 +1,761 @@
+"""Scale out with Dask (extra ``dask``: ``pip install 'cmmpose[dask]'``).
+
+The Rust kernel compensates a block of points with the GIL released; this
+module hands blocks to a Dask scheduler so that datasets larger than memory,
+and fleets of runs, are processed on every core of a machine or on a cluster
+(docs/scale-out.md):
+
+- :func:`compensate_dataset`: a folder of Parquet files (``u, v, D, E, F[,
+  T]`` and any other columns) into a folder of Parquet files (``X, Y, Z`` and
+  the other columns), one output per input, named after it, read and written
+  row group by row group: memory is bounded by the batch size, whatever the
+  dataset's size.
+- :func:`compensate_array`, :func:`compensate_dataframe`: a Dask array or
+  dataframe, lazily, partition by partition.
+- :func:`map_runs`, :func:`evaluate_runs`, :func:`diagnose_runs`: per-run
+  work over a fleet of run folders, one task per run; :func:`fleet_summary`
+  tabulates the evaluations.
+
+The maps (or model) travel to each worker once: broadcast with
+``Client.scatter`` for the dataset and the fleets, one graph key that every
+block's task depends on for the lazy collections. A task carries only a file
+name, a run folder or a block of points. Results equal the in-process
+kernel's bit for bit: every block goes through the same kernel call.
+
+The scheduler is named by a spec: ``'threads'`` (default: this process, one
+worker with a thread per core), ``'processes'`` (a local cluster of worker
+processes, one per core), a scheduler address ``'tcp://host:port'`` (a running
+cluster), or a ``distributed.Client`` (used as it is, not closed).
+
+Dask is imported inside the functions that need it, so ``import cmmpose``
+works without the extra; without it these functions raise
+:class:`cmmpose.errors.SchedulerError` saying how to install it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import time
+import uuid
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from .compensation import compensate
+from .errormap import ErrorMap, ErrorMapSet
+from .errors import Error, InputError, SchedulerError, warn_clamped
+from .policy import TEMPERATURE_TOLERANCE, check_policy
+from .pose import pose_tuple
+from ._arrays import as_triple
+from .report import KernelReport
+
+__all__ = ["SCHEDULERS", "scheduler_client", "Compensator", "DatasetResult", "compensate_dataset", "dataset_files",
+           "dataset_temperature_range",
+           "compensate_array", "compensate_dataframe", "map_runs", "evaluate_runs", "diagnose_runs",
+           "FleetRow", "fleet_summary", "INPUT_COLUMNS", "OUTPUT_COLUMNS"]
+
+_log = logging.getLogger("cmmpose.scale")
+
+#: The local scheduler specs; anything else must be an address ``tcp://host:port``.
+SCHEDULERS = ("threads", "processes")
+#: Columns a dataset file must have (T: machine temperature, C, for a map set).
+INPUT_COLUMNS = ("u", "v", "D", "E", "F")
+#: Columns the compensation writes first; the input's other columns follow.
+OUTPUT_COLUMNS = ("X", "Y", "Z")
+#: Rows read, compensated and written at a time by default (about 40 MB in flight per task;
+#: batches that fit in the CPU caches' reach read faster than larger ones).
+BATCH_ROWS = 1 << 18
+
+
+def _distributed():
+    """The ``distributed`` module, or a clear error without the extra."""
+    try:
+        import dask  # noqa: F401
+        import distributed
+    except ImportError as exc:
+        raise SchedulerError(f"scheduling needs the dask extra (missing module {exc.name!r}): "
+                             f"pip install 'cmmpose[dask]'") from None
+    return distributed
+
+
+@contextlib.contextmanager
+def scheduler_client(scheduler="threads", *, n_workers: int | None = None):
+    """A ``distributed.Client`` for a scheduler spec, closed on exit (with its
+    local cluster) unless it was given.
+
+    Parameters
+    ----------
+    scheduler : str or distributed.Client
+        ``'threads'``: a worker in this process with one thread per core (no
+        pickling of data); ``'processes'``: a local cluster of ``n_workers``
+        single-threaded worker processes; ``'tcp://host:port'``: the running
+        scheduler at that address; or a Client, yielded as it is.
+    n_workers : int, optional
+        Worker processes for ``'processes'`` (default: one per core).
+
+    Raises
+    ------
+    SchedulerError
+        Without the dask extra, for an unknown spec, or when the scheduler at
+        the address cannot be reached (the message names it).
+    """
+    distributed = _distributed()
+    if isinstance(scheduler, distributed.Client):
+        yield scheduler
+        return
+    if not isinstance(scheduler, str) or not (scheduler in SCHEDULERS or "://" in scheduler):
+        raise SchedulerError(f"scheduler: expected 'threads', 'processes' or an address tcp://host:port, "
+                             f"got {scheduler!r}")
+    cores = os.cpu_count() or 1
+    with contextlib.ExitStack() as stack:
+        if scheduler == "threads":
+            cluster = stack.enter_context(distributed.LocalCluster(
+                processes=False, n_workers=1, threads_per_worker=cores, dashboard_address=":0"))
+            address = cluster
+        elif scheduler == "processes":
+            # One kernel thread per worker process (Dask's nanny already sets OMP_NUM_THREADS=1,
+            # which sizes Arrow's pool): the workers share the cores instead of oversubscribing them.
+            cluster = stack.enter_context(distributed.LocalCluster(
+                processes=True, n_workers=n_workers or cores, threads_per_worker=1, dashboard_address=":0",
+                env={"RAYON_NUM_THREADS": "1"}))
+            address = cluster
+        else:
+            address = scheduler
+        try:
+            client = stack.enter_context(distributed.Client(address, timeout="10s"))
+        except (OSError, TimeoutError) as exc:
+            raise SchedulerError(f"scheduler {scheduler}: cannot connect ({exc})") from None
+        _log.info("scheduler %s: %d workers", scheduler, len(client.scheduler_info().get("workers", {})))
+        yield client
+
+
+def _ask(client, futures, progress=None):
+    """Results of ``futures`` in order; ``progress(done, total)`` after each.
+    On an error the rest are cancelled and the first error is raised."""
+    distributed = _distributed()
+    index = {f.key: i for i, f in enumerate(futures)}
+    out = [None] * len(futures)
+    try:
+        for done, fut in enumerate(distributed.as_completed(futures), start=1):
+            out[index[fut.key]] = fut.result()
+            if progress is not None:
+                progress(done, len(futures))
+    except BaseException:
+        client.cancel(futures)
+        raise
+    return out
+
+
+# -- the kernel a worker holds ----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Compensator:
+    """What every block needs to be compensated: the maps, the pose and the
+    options. Sent to each worker once; called per block.
+
+    Parameters
+    ----------
+    error_map : ErrorMap or ErrorMapSet
+        The machine's component errors (a set needs a temperature).
+    pose : tuple of 3 float
+        Euler 3-1-3 angles alpha, beta, gamma, degrees.
+    offset : tuple of 3 float
+        Mount offset l1 = (U1, V1, W1), mm.
+    temperature : float, optional
+        Machine temperature for every point, C; with a set and no value, each
+        block's T column.
+    out_of_range, nan_policy, temperature_tolerance
+        As in :func:`cmmpose.compensate`.
+    """
+
+    error_map: ErrorMap | ErrorMapSet
+    pose: tuple[float, float, float]
+    offset: tuple[float, float, float]
+    temperature: float | None = None
+    out_of_range: str = "raise"
+    nan_policy: str = "raise"
+    temperature_tolerance: float = TEMPERATURE_TOLERANCE
+
+    @classmethod
+    def make(cls, error_map, pose, offset, temperature=None, *, out_of_range="raise", nan_policy="raise",
+             temperature_tolerance=TEMPERATURE_TOLERANCE) -> Compensator:
+        """Checked arguments, as :func:`cmmpose.compensate` takes them."""
+        if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
+            raise InputError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
+        check_policy(out_of_range, temperature_tolerance)
+        if nan_policy not in ("raise", "propagate"):
+            raise InputError(f"nan_policy: expected 'raise' or 'propagate', got {nan_policy!r}")
+        if temperature is not None:
+            try:
+                temperature = float(temperature)
+            except (TypeError, ValueError):
+                raise InputError(f"temperature: expected a number (C), got {temperature!r}") from None
+        return cls(error_map, pose_tuple(pose), as_triple("offset", offset), temperature, out_of_range, nan_policy,
+                   float(temperature_tolerance))
+
+    @property
+    def needs_temperature_column(self) -> bool:
+        """Whether each block must bring its own temperatures (a set, no fixed value)."""
+        return isinstance(self.error_map, ErrorMapSet) and self.temperature is None
+
+    def __call__(self, uv: np.ndarray, scales: np.ndarray, temps: np.ndarray | None) -> tuple[np.ndarray, KernelReport]:
+        """Compensated X, Y, Z (N, 3) mm of one block, and the kernel's report
+        (no warnings: the caller sums the reports and warns once)."""
+        if isinstance(self.error_map, ErrorMapSet):
+            t = self.temperature if self.temperature is not None else temps
+            if t is None:
+                raise InputError("temperature: a map set needs a temperature or a T column")
+        else:
+            t = None
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return compensate(uv, scales, self.error_map, self.pose, self.offset, t, out_of_range=self.out_of_range,
+                              nan_policy=self.nan_policy, temperature_tolerance=self.temperature_tolerance,
+                              return_report=True)
+
+
+def _sum_reports(reports) -> KernelReport:
+    reports = list(reports)
+    return KernelReport(
+        points=sum(r.points for r in reports),
+        clamped_position=tuple(sum(r.clamped_position[k] for r in reports) for k in range(3)),
+        clamped_temperature=sum(r.clamped_temperature for r in reports),
+        nan_rows=sum(r.nan_rows for r in reports),
+        clamped_points=sum(r.clamped_points for r in reports),
+        held_temperature=sum(r.held_temperature for r in reports),
+        extrapolated_temperature=sum(r.extrapolated_temperature for r in reports),
+        max_extrapolation=max((r.max_extrapolation for r in reports), default=0.0),
+    )
+
+
+# -- Parquet datasets -------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class DatasetResult:
+    """What :func:`compensate_dataset` did.
+
+    Attributes
+    ----------
+    outputs : list of Path
+        The files written, in the order of the inputs.
+    points : int
+        Points compensated.
+    report : KernelReport
+        The kernel's counts summed over the dataset.
+    kernel_seconds : float
+        Time spent in the kernel, summed over the workers, s.
+    elapsed : float
+        Wall time, s (scheduler start-up included).
+    """
+
+    outputs: list[Path]
+    points: int
+    report: KernelReport
+    kernel_seconds: float
+    elapsed: float
+
+
+def dataset_files(dataset_dir) -> list[Path]:
+    """The Parquet files of a dataset folder (``*.parquet``, sorted by name).
+
+    Raises
+    ------
+    InputError
+        The folder does not exist or holds no Parquet file (naming it).
+    """
+    folder = Path(dataset_dir)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder")
+    files = sorted(p for p in folder.iterdir() if p.suffix == ".parquet" and p.is_file())
+    if not files:
+        raise InputError(f"{folder}: no .parquet files in the folder")
+    return files
+
+
+def dataset_temperature_range(dataset_dir) -> tuple[float, float] | None:
+    """(lowest, highest) T (C) over a dataset, from the files' Parquet
+    statistics alone (no data read); None when a file has no T column or
+    no statistics for it."""
+    lo, hi = math.inf, -math.inf
+    for path in dataset_files(dataset_dir):
+        try:
+            meta = pq.read_metadata(path)
+        except (OSError, pa.ArrowException) as exc:
+            raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
+        names = meta.schema.to_arrow_schema().names
+        if "T" not in names:
+            return None
+        k = names.index("T")
+        for g in range(meta.num_row_groups):
+            stats = meta.row_group(g).column(k).statistics
+            if stats is None or not stats.has_min_max:
+                return None
+            lo, hi = min(lo, float(stats.min)), max(hi, float(stats.max))
+    return (lo, hi) if lo <= hi else None
+
+
+def _plan_file(path: Path, needs_t: bool) -> tuple[int, list[str]]:
+    """Rows and pass-through columns of one dataset file, from its footer
+    only; the file and the column are named when one is missing or not numeric."""
+    try:
+        meta = pq.read_metadata(path)
+        schema = meta.schema.to_arrow_schema()
+    except (OSError, pa.ArrowException) as exc:
+        raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
+    names = schema.names
+    wanted = INPUT_COLUMNS + (("T",) if needs_t else ())
+    for c in wanted:
+        if c not in names:
+            hint = " (a map set needs --temperature or a T column)" if c == "T" else ""
+            raise InputError(f"{path}: missing column {c!r}{hint}")
+        t = schema.field(c).type
+        if not (pa.types.is_floating(t) or pa.types.is_integer(t)):
+            raise InputError(f"{path}: column {c!r} has type {t}, expected numbers")
+    for c in OUTPUT_COLUMNS:
+        if c in names:
+            raise InputError(f"{path}: has a column {c!r}, which the output would write over")
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise InputError(f"{path}: column {dup!r} appears twice")
+    passthrough = [c for c in names if c not in INPUT_COLUMNS + ("T",)]
+    return meta.num_rows, passthrough
+
+
+def _float_column(batch: pa.RecordBatch, name: str) -> np.ndarray:
+    col = batch.column(batch.schema.get_field_index(name))
+    return np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+
+
+def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[str], batch_rows: int,
+                     topic: str | None) -> tuple[int, KernelReport, float]:
+    """One dataset file through the kernel, batch by batch, into ``dst``
+    (written under a temporary name, renamed when whole). Runs on a worker."""
+    worker = None
+    if topic is not None:
+        try:
+            from distributed import get_worker
+
+            worker = get_worker()
+        except (ImportError, ValueError):
+            worker = None
+    src_p, dst_p = Path(src), Path(dst)
+    tmp = dst_p.with_name(f".{dst_p.name}.{uuid.uuid4().hex[:8]}.part")
+    reports, kernel_s, n = [], 0.0, 0
+    writer = None
+    try:
+        pf = pq.ParquetFile(src_p)
+        in_schema = pf.schema_arrow
+        out_schema = pa.schema([pa.field(c, pa.float64()) for c in OUTPUT_COLUMNS]
+                               + [in_schema.field(c) for c in passthrough], metadata=in_schema.metadata)
+        # X, Y, Z never repeat: no dictionary for them (it only costs time)
+        writer = pq.ParquetWriter(tmp, out_schema, use_dictionary=list(passthrough))
+        use_t = kernel.needs_temperature_column
+        for batch in pf.iter_batches(batch_size=batch_rows):
+            m = batch.num_rows
+            uv = np.empty((m, 2))
+            scales = np.empty((m, 3))
+            for k, c in enumerate(("u", "v")):
+                uv[:, k] = _float_column(batch, c)
+            for k, c in enumerate(("D", "E", "F")):
+                scales[:, k] = _float_column(batch, c)
+            temps = _float_column(batch, "T") if use_t else None
+            t0 = time.perf_counter()
+            try:
+                xyz, rep = kernel(uv, scales, temps)
+            except Error as exc:
+                raise type(exc)(f"{src_p}: rows {n}..{n + m - 1} (from 0): {exc}") from None
+            kernel_s += time.perf_counter() - t0
+            cols = [pa.array(xyz[:, k]) for k in range(3)]
+            cols += [batch.column(batch.schema.get_field_index(c)) for c in passthrough]
+            writer.write_table(pa.Table.from_arrays(cols, schema=out_schema))
+            reports.append(rep)
+            n += m
+            if worker is not None:
+                worker.log_event(topic, m)
+        writer.close()
+        writer = None
+        os.replace(tmp, dst_p)
+    except (OSError, pa.ArrowException) as exc:
+        raise InputError(f"{src_p}: cannot be compensated into {dst_p} ({exc})") from None
+    finally:
+        if writer is not None:
+            writer.close()
+        if tmp.exists():
+            tmp.unlink()
+    return n, _sum_reports(reports), kernel_s
+
+
+def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
+                       out_of_range: str = "raise", nan_policy: str = "raise",
+                       temperature_tolerance: float = TEMPERATURE_TOLERANCE, scheduler="threads",
+                       batch_rows: int = BATCH_ROWS, progress=None) -> DatasetResult:
+    """Compensate a folder of Parquet scans into a folder of Parquet files.
+
+    Each input ``NAME.parquet`` (columns ``u, v`` mm, ``D, E, F`` mm, ``T`` C
+    when a map set takes its temperatures from the file, and any others)
+    becomes ``out_dir/NAME.parquet`` with ``X, Y, Z`` (mm, machine frame,
+    float64) followed by the input's other columns (all but ``u, v, D, E, F,
+    T``), unchanged, row for row. One task per file, which streams it in
+    batches of ``batch_rows``: memory stays bounded whatever the dataset's
+    size. The results equal :func:`cmmpose.compensate` on the same points
+    bit for bit.
+
+    Parameters
+    ----------
+    dataset_dir, out_dir : path-like
+        The input folder and the output folder (made if missing; must differ).
+        An output file is written under a temporary name and renamed when
+        whole; an existing one of the same name is replaced.
+    error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance
+        As in :func:`cmmpose.compensate` (``temperature`` a float, C, or None).
+    scheduler : str or distributed.Client
+        Where the work runs (see :func:`scheduler_client`); a cluster's workers
+        must see both folders (a shared file system).
+    batch_rows : int
+        Rows read, compensated and written at a time per task.
+    progress : callable, optional
+        ``progress(points_done, points_total)``, called in this process as
+        batches finish.
+
+    Returns
+    -------
+    DatasetResult
+
+    Raises
+    ------
+    InputError
+        Naming the file (and column) at fault: no Parquet file, a missing or
+        non-numeric column, an unreadable file, a bad row (the file and its
+        row span). Files already written stay; the one in progress does not.
+    SchedulerError
+        Without the dask extra, or a scheduler that cannot be reached.
+    """
+    t_start = time.perf_counter()
+    kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
+                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance)
+    if not isinstance(batch_rows, (int, np.integer)) or batch_rows < 1:
+        raise InputError(f"batch_rows: expected a positive integer, got {batch_rows!r}")
+    files = dataset_files(dataset_dir)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    if out.exists() and out.resolve() == Path(dataset_dir).resolve():
+        raise InputError(f"{out}: the output folder is the input folder; the inputs would be replaced")
+    plans = [_plan_file(f, kernel.needs_temperature_column) for f in files]
+    total = sum(rows for rows, _ in plans)
+    out.mkdir(parents=True, exist_ok=True)
+    outputs = [out / f.name for f in files]
+    topic = f"cmmpose-progress-{uuid.uuid4().hex}"
+    done, finished = 0, False
+
+    def on_event(event):
+        """A worker finished a batch (called on the client's event loop)."""
+        nonlocal done
+        done += int(event[1])
+        if not finished:
+            progress(min(done, total), total)
+
+    with scheduler_client(scheduler) as client:
+        shared = client.scatter(kernel, broadcast=True, hash=False)
+        if progress is not None:
+            client.subscribe_topic(topic, on_event)
+        try:
+            # absolute paths: a cluster's workers do not share this process's working folder
+            futures = [client.submit(_compensate_file, shared, str(f.absolute()), str(o.absolute()), passthrough,
+                                     int(batch_rows), topic,
+                                     key=f"cmmpose-compensate-{f.name}-{topic[-8:]}", pure=False)
+                       for f, o, (_, passthrough) in zip(files, outputs, plans)]
+            results = _ask(client, futures)
+        finally:
+            finished = True
+            if progress is not None:
+                client.unsubscribe_topic(topic)
+    if progress is not None:
+        progress(total, total)
+    report = _sum_reports(r for _, r, _ in results)
+    warn_clamped(report)
+    return DatasetResult(outputs, sum(n for n, _, _ in results), report, sum(s for _, _, s in results),
+                         time.perf_counter() - t_start)
+
+
+# -- lazy collections -------------------------------------------------------------------------
+
+def _block(points: np.ndarray, kernel: Compensator) -> np.ndarray:
+    """One (n, 5 or 6) block of u, v, D, E, F[, T] -> (n, 3) X, Y, Z mm."""
+    uv = np.ascontiguousarray(points[:, 0:2], dtype=np.float64)
+    scales = np.ascontiguousarray(points[:, 2:5], dtype=np.float64)
+    temps = np.ascontiguousarray(points[:, 5], dtype=np.float64) if points.shape[1] == 6 else None
+    return kernel(uv, scales, temps)[0]
+
+
+def compensate_array(points, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
+                     out_of_range: str = "raise", nan_policy: str = "raise",
+                     temperature_tolerance: float = TEMPERATURE_TOLERANCE):
+    """Compensate a Dask array of points, lazily, block by block.
+
+    Parameters
+    ----------
+    points : dask.array.Array, shape (N, 5) or (N, 6)
+        Columns u, v (mm), D, E, F (mm)[, T (C)], chunked along rows (the
+        columns are made one chunk).
+    error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance
+        As in :func:`cmmpose.compensate` (``temperature`` a float, C; with a
+        set and none, column T).
+
+    Returns
+    -------
+    dask.array.Array, shape (N, 3)
+        X, Y, Z in mm, float64, chunked as ``points`` along rows; computing it
+        calls the kernel once per block. The maps are one key of the graph,
+        sent to each worker once. Kernel warnings are not raised per block;
+        ``out_of_range='raise'`` still raises.
+    """
+    _distributed()
+    import dask
+    import dask.array as da
+
+    if not isinstance(points, da.Array) or points.ndim != 2 or points.shape[1] not in (5, 6):
+        raise InputError(f"points: expected a dask array of shape (N, 5) or (N, 6) (u, v, D, E, F[, T]), "
+                         f"got {type(points).__name__} {getattr(points, 'shape', '')}")
+    kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
+                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance)
+    if kernel.needs_temperature_column and points.shape[1] != 6:
+        raise InputError("points: a map set without a temperature needs a sixth column T (C)")
+    points = points.rechunk({1: -1})
+    shared = dask.delayed(kernel, pure=True, traverse=False)
+    return da.map_blocks(_block, points, shared, dtype=np.float64, chunks=(points.chunks[0], (3,)),
+                         meta=np.empty((0, 3), dtype=np.float64))
+
+
+def _partition(frame, kernel: Compensator, passthrough: list[str]):
+    """One pandas partition -> X, Y, Z and the pass-through columns."""
+    import pandas as pd
+
+    uv = np.column_stack([frame[c].to_numpy(dtype=np.float64) for c in ("u", "v")]) if len(frame) else np.empty((0, 2))
+    scales = np.column_stack([frame[c].to_numpy(dtype=np.float64) for c in ("D", "E", "F")]) if len(frame) \
+        else np.empty((0, 3))
+    temps = frame["T"].to_numpy(dtype=np.float64) if kernel.needs_temperature_column else None
+    xyz = kernel(uv, scales, temps)[0] if len(frame) else np.empty((0, 3))
+    out = pd.DataFrame({c: xyz[:, k] for k, c in enumerate(OUTPUT_COLUMNS)}, index=frame.index)
+    for c in passthrough:
+        out[c] = frame[c]
+    return out
+
+
+def compensate_dataframe(frame, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
+                         out_of_range: str = "raise", nan_policy: str = "raise",
+                         temperature_tolerance: float = TEMPERATURE_TOLERANCE):
+    """Compensate a Dask dataframe, lazily, partition by partition.
+
+    Parameters
+    ----------
+    frame : dask.dataframe.DataFrame
+        Columns u, v, D, E, F (mm)[, T (C)] and any others.
+    error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance
+        As in :func:`compensate_array`.
+
+    Returns
+    -------
+    dask.dataframe.DataFrame
+        X, Y, Z (mm, float64) and the other columns of ``frame`` (all but u,
+        v, D, E, F, T), partitioned as ``frame``; e.g. ``.to_parquet(folder)``
+        writes it partition by partition.
+    """
+    _distributed()
+    import dask
+
+    if not hasattr(frame, "map_partitions") or not hasattr(frame, "columns"):
+        raise InputError(f"frame: expected a dask dataframe, got {type(frame).__name__}")
+    kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
+                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance)
+    names = list(frame.columns)
+    for c in INPUT_COLUMNS + (("T",) if kernel.needs_temperature_column else ()):
+        if c not in names:
+            raise InputError(f"frame: missing column {c!r}")
+    for c in OUTPUT_COLUMNS:
+        if c in names:
+            raise InputError(f"frame: has a column {c!r}, which the output would write over")
+    passthrough = [c for c in names if c not in INPUT_COLUMNS + ("T",)]
+    meta = _partition(frame._meta, kernel, passthrough)
+    shared = dask.delayed(kernel, pure=True, traverse=False)
+    return frame.map_partitions(_partition, shared, passthrough, meta=meta)
+
+
+# -- fleets of runs ---------------------------------------------------------------------------
+
+def _on_run(func, run_dir: str, args: tuple, kwargs: dict):
+    """``func(Run.load(run_dir), *args, **kwargs)`` on a worker; an error names the run."""
+    from .run import Run
+
+    try:
+        return func(Run.load(run_dir), *args, **kwargs)
+    except Error as exc:
+        if run_dir in str(exc):
+            raise
+        raise type(exc)(f"{run_dir}: {exc}") from None
+
+
+def map_runs(func, run_dirs, *shared, scheduler="threads", progress=None, **kwargs) -> list:
+    """``func(run, *shared, **kwargs)`` for every run folder, one task per
+    run on the scheduler; the run is loaded on the worker.
+
+    Parameters
+    ----------
+    func : callable
+        Takes a :class:`cmmpose.Run` first; must pickle for worker processes
+        (a module-level function).
+    run_dirs : sequence of path-like
+        Run folders (a cluster's workers must see them).
+    *shared
+        Arguments every call takes (maps, a model): sent to each worker once.
+    scheduler : str or distributed.Client
+        See :func:`scheduler_client`.
+    progress : callable, optional
+        ``progress(runs_done, runs_total)`` in this process.
+    **kwargs
+        Small keyword arguments, sent with each task.
+
+    Returns
+    -------
+    list
+        ``func``'s results, in the order of ``run_dirs``.
+
+    Raises
+    ------
+    RunError, Error
+        The first run's error, its message naming the run folder.
+    """
+    run_dirs = [str(Path(r).absolute()) for r in run_dirs]  # a cluster's workers have another working folder
+    if not run_dirs:
+        raise InputError("run_dirs: no run folders given")
+    with scheduler_client(scheduler) as client:
+        args = tuple(client.scatter(a, broadcast=True, hash=False) for a in shared)
+        token = uuid.uuid4().hex[:8]
+        futures = [client.submit(_on_run, func, r, args, kwargs, key=f"cmmpose-run-{i}-{Path(r).name}-{token}",
+                                 pure=False)
+                   for i, r in enumerate(run_dirs)]
+        return _ask(client, futures, progress)
+
+
+def _maps_named_by(run):
+    """The maps run.json names (the bundled thesis set), or RunError."""
+    from .errors import RunError
+
+    if run.maps.get("kind") == "bundled" and run.maps.get("name") == "thesis":
+        return ErrorMapSet.thesis().with_kinematics(run.maps.get("kinematics", "thesis"))
+    raise RunError("run.json names no bundled maps: give the maps")
+
+
+def _evaluate_run(run, maps, **kwargs):
+    from .evaluation import evaluate
+
+    if isinstance(maps, str) and maps == "run":
+        maps = _maps_named_by(run)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ev = evaluate(run, maps, **kwargs)
+    ev.provenance.setdefault("run", {})["created"] = run.created  # for the fleet's trend
+    return ev
+
+
+def evaluate_runs(run_dirs, maps="run", *, scheduler="threads", progress=None, **kwargs) -> list:
+    """:func:`cmmpose.evaluate` of every run, one task per run.
+
+    Parameters
+    ----------
+    run_dirs : sequence of path-like
+        Run folders.
+    maps : ErrorMap, ErrorMapSet, None or 'run'
+        The compensation maps for every run (sent to each worker once), None
+        for uncompensated only, or ``'run'``: the bundled maps each run.json
+        names.
+    scheduler, progress
+        As in :func:`map_runs`.
+    **kwargs
+        :func:`cmmpose.evaluate`'s options (temperature, reject, expansion,
+        out_of_range, temperature_tolerance, log_hold).
+
+    Returns
+    -------
+    list of Evaluation
+        In the order of ``run_dirs``; warnings are in each one's
+        ``provenance['notes']``.
+    """
+    return map_runs(_evaluate_run, run_dirs, maps, scheduler=scheduler, progress=progress, **kwargs)
+
+
+def _diagnose_run(run, model, **kwargs):
+    from .diagnosis import diagnose
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return diagnose(run, model, **kwargs)
+
+
+def diagnose_runs(run_dirs, model=None, *, scheduler="threads", progress=None, **kwargs) -> list:
+    """:func:`cmmpose.diagnose` of every run, one task per run.
+
+    Parameters
+    ----------
+    run_dirs : sequence of path-like
+        Run folders.
+    model : Model, ErrorMap, ErrorMapSet or None
+        The starting model for every run (sent to each worker once); None:
+        each run's bundled maps.
+    scheduler, progress
+        As in :func:`map_runs`.
+    **kwargs
+        :func:`cmmpose.diagnose`'s options (add, auto, max_effects, ...).
+
+    Returns
+    -------
+    list of Diagnosis
+        In the order of ``run_dirs``.
+    """
+    return map_runs(_diagnose_run, run_dirs, model, scheduler=scheduler, progress=progress, **kwargs)
+
+
+@dataclass(frozen=True)
+class FleetRow:
+    """One run of a fleet summary.
+
+    Attributes
+    ----------
+    run : str
+        The run folder.
+    created : str
+        When the run was made (ISO-8601 UTC, from its provenance), or ''.
+    temperature : float
+        Mean machine temperature over the run, C (NaN if unknown).
+    rms_uncompensated, b89_uncompensated : float
+        rms accuracy error and B89 value of the uncompensated lengths, mm.
+    rms_compensated, b89_compensated : float
+        The same compensated, mm (NaN without maps).
+    """
+
+    run: str
+    created: str
+    temperature: float
+    rms_uncompensated: float
+    b89_uncompensated: float
+    rms_compensated: float
+    b89_compensated: float
+
+
+def fleet_summary(run_dirs, evaluations) -> list[FleetRow]:
+    """One :class:`FleetRow` per run from :func:`evaluate_runs`' results."""
+    rows = []
+    for r, ev in zip(run_dirs, evaluations):
+        t = ev.provenance.get("temperature", {}).get("mean_C", math.nan)
+        c = ev.compensated
+        rows.append(FleetRow(str(r), str(ev.provenance.get("run", {}).get("created", "")), float(t),
+                             ev.uncompensated.rms_accuracy_error, ev.uncompensated.b89,
+                             math.nan if c is None else c.rms_accuracy_error, math.nan if c is None else c.b89))
+    return rows
