@@ -1,7 +1,9 @@
 """ISO 10360-8-style acceptance tests: the MPE text, the decision rule worked
 by hand, and the tests of a simulated run against an independent sphere fit."""
 
+import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +15,9 @@ from cmmpose.cli import main
 from cmmpose.evaluation import _machine_coordinates, machine_temperature
 from cmmpose.sim import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
-from cmmpose.standards.acceptance import MPE, acceptance_test, decide, parse_mpe
+from cmmpose.fitting import e3125
+from cmmpose.pointclouds import read_point_cloud
+from cmmpose.standards.acceptance import MPE, acceptance_test, decide, parse_mpe, probing_test
 from numpy_sphere_fit import fit_sphere_reference
 
 MAPS = cmmpose.ErrorMapSet.thesis()
@@ -142,3 +146,49 @@ def test_cli_acceptance(sim, tmp_path):
     assert (tmp_path / "rep" / "acceptance.png").is_file()
     bad = CliRunner().invoke(main, ["acceptance", str(path), "--mpe-form", "x", "--mpe-size", "1", "--mpe-length", "1"])
     assert bad.exit_code != 0 and "mpe_form" in bad.output
+
+
+NIST = Path(__file__).parents[1].parent / "shared" / "reference" / "nist_dmg"
+
+
+def test_probing_test_by_hand():
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(4000, 3))
+    d[:, 2] = np.abs(d[:, 2])  # a hemisphere
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    pts = np.array([10.0, -5.0, 3.0]) + 12.705 * d  # radius 12.705 mm on a 12.7 mm certificate
+    before = pts.copy()
+    r = probing_test(pts, 12.7, mpe_form=1, mpe_size=12, u_diameter_certificate_um=0.5)
+    np.testing.assert_array_equal(pts, before)
+    form, size = r.checks
+    assert form.test == "probing form, single view" and form.error_um < 1e-6
+    assert size.error_um == pytest.approx(10.0, abs=1e-6)  # 2 x 5 um
+    assert size.U_um == 1.0 and size.decision == "pass"  # 10 + 1 <= 12
+    assert probing_test(pts, 12.7, mpe_form=1, mpe_size=10.5).checks[1].decision == "pass"  # U = 0
+    assert probing_test(pts, 12.7, mpe_form=1, mpe_size=10.5, u_diameter_certificate_um=0.5).decision == "not proven"
+    assert probing_test(pts, 12.7, mpe_form=1, mpe_size=8.9, u_diameter_certificate_um=0.5).decision == "fail"
+    assert r.to_dict()["mpe"]["length"] == "not tested"
+    with pytest.raises(cmmpose.InputError, match="calibrated_radius_mm"):
+        probing_test(pts, -1, mpe_form=1, mpe_size=1)
+
+
+@pytest.mark.parametrize("name", ["SPH101", "SPH102", "SPH105"])
+def test_probing_errors_of_nists_scans(name, tmp_path):
+    """Real TLS scans (shared data): the E3125 segment's size error is NIST's own free-radius refit of the same
+    segment (reference_centres.csv), and the form error the range of an independent fit's residuals."""
+    if not (NIST / "reference_centres.csv").is_file():
+        pytest.fail(f"NIST reference scans missing: expected {NIST} (clone the shared data beside the repository)")
+    with open(NIST / "reference_centres.csv", newline="") as f:
+        row = {r["file"]: r for r in csv.DictReader(f)}[name]
+    out = CliRunner().invoke(main, ["acceptance-sphere", str(NIST / f"{name}.xyz"), "--units", "m", "--radius", "50",
+                                    "--segment", "e3125", "--mpe-form", "3000", "--mpe-size", "1000", "--json"])
+    assert out.exit_code == 0, out.output
+    doc = json.loads(out.stdout)
+    size = doc["tests"]["probing size, single view"]["error_um"]
+    assert size == pytest.approx(2 * (float(row["r_free_m"]) * 1e6 - 50_000), abs=2e-3)  # NIST rounds to 1e-10 m
+    cloud = read_point_cloud(NIST / f"{name}.xyz", units="m").xyz
+    seg = cloud[e3125(cloud, 50.0, (0, 0, 0)).segmentation.mask]
+    assert len(seg) == int(row["n_segmented"])
+    c, rad = fit_sphere_reference(seg)
+    form = np.ptp(np.linalg.norm(seg - c, axis=1) - rad) * 1e3
+    assert doc["tests"]["probing form, single view"]["error_um"] == pytest.approx(form, abs=2e-3)

@@ -14,7 +14,7 @@ from rich.console import Console
 from .errors import Error
 from .policy import cli_wording
 
-__all__ = ["iso230_2_cmd", "acceptance_cmd", "interim_cmd"]
+__all__ = ["iso230_2_cmd", "acceptance_cmd", "acceptance_sphere_cmd", "interim_cmd"]
 
 console = Console(stderr=True)
 
@@ -189,3 +189,44 @@ def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_l
         Console(width=max(Console().width, 100)).print(result)
     for f in files:
         console.print(f"wrote {f}")
+
+
+@click.command("acceptance-sphere")
+@click.argument("scan", type=click.Path(exists=True, dir_okay=False))
+@click.option("--radius", type=float, required=True, help="Certified sphere radius, mm.")
+@click.option("--mpe-form", required=True, help="MPE of the probing form error, um.")
+@click.option("--mpe-size", required=True, help="MPE of the probing size error, um.")
+@click.option("--units", default=None, help="Units of the file's coordinates (as 'cmmpose fit'). Default: the format's.")
+@click.option("--segment", type=click.Choice(["none", "e3125"]), default="none", show_default=True,
+              help="e3125: segment the sphere from a raw scan about the scanner's line of sight first.")
+@click.option("--scanner-origin", default="0,0,0", show_default=True,
+              help="The scanner's origin in the file's frame, x,y,z in --units (for --segment e3125).")
+@click.option("--u-form-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the sphere's form, um.")
+@click.option("--u-diameter-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the certified diameter, um.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scanner_origin, u_form_cert, u_diameter_cert,
+                          as_json) -> None:
+    """Probing form and size errors of one scan of a calibrated sphere (a point cloud: CSV, NPY, Parquet, PLY,
+    XYZ, PTS, E57), each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven."""
+    from .cli import _UNIT_MM, triple
+    from .fitting import e3125
+    from .pointclouds import read_point_cloud
+    from .standards.acceptance import probing_test
+
+    if units is not None and units not in _UNIT_MM:
+        raise click.BadParameter(f"expected one of {', '.join(sorted(_UNIT_MM))}, got {units!r}", param_hint="--units")
+    scale = _UNIT_MM[units] if units else 1.0
+    try:
+        xyz = read_point_cloud(scan, units=units).xyz
+        if segment == "e3125":
+            origin = tuple(v * scale for v in triple(scanner_origin, "--scanner-origin"))
+            xyz = xyz[e3125(xyz, radius, origin).segmentation.mask]
+        result = probing_test(xyz, radius, mpe_form=mpe_form, mpe_size=mpe_size, u_form_certificate_um=u_form_cert,
+                              u_diameter_certificate_um=u_diameter_cert,
+                              item=f"{Path(scan).name}" + (" (E3125 segment)" if segment == "e3125" else ""))
+    except Error as exc:
+        raise _fail(exc) from None
+    if as_json:
+        click.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        Console(width=max(Console().width, 120)).print(result)

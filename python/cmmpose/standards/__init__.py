@@ -7,7 +7,7 @@ acceptance test asks for (docs/standards.md):
 - :mod:`.interim`: squareness and scale from one ballbar run.
 """
 
-from .acceptance import MPE, AcceptanceResult, Check, acceptance_test, decide, parse_mpe
+from .acceptance import MPE, AcceptanceResult, Check, acceptance_test, decide, parse_mpe, probing_test
 from .interim import InterimCheck, InterimValue, interim_check
 from .iso230_2 import (
     PositioningData,
@@ -27,6 +27,7 @@ __all__ = [
     "acceptance_test",
     "decide",
     "parse_mpe",
+    "probing_test",
     "InterimCheck",
     "InterimValue",
     "interim_check",

@@ -57,6 +57,7 @@ __all__ = [
     "Check",
     "AcceptanceResult",
     "acceptance_test",
+    "probing_test",
 ]
 
 _log = logging.getLogger("cmmpose.standards")
@@ -201,8 +202,10 @@ class AcceptanceResult:
         Every tested value.
     label : str
         ``'compensated'`` or ``'uncompensated'``: the points tested.
-    mpe_form, mpe_size, mpe_length : MPE
+    mpe_form, mpe_size : MPE
         The user's MPEs.
+    mpe_length : MPE or None
+        The length MPE (None: no length test asked, :func:`probing_test`).
     uncertainty_notes : tuple of str
         What each test uncertainty is made of, and what it leaves out.
     notes : tuple of str
@@ -213,7 +216,7 @@ class AcceptanceResult:
     label: str
     mpe_form: MPE
     mpe_size: MPE
-    mpe_length: MPE
+    mpe_length: MPE | None
     uncertainty_notes: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
 
@@ -239,7 +242,8 @@ class AcceptanceResult:
     def to_dict(self) -> dict:
         return {
             "decision": self.decision, "decision_rule": DECISION_RULE, "standard": ACCEPTANCE_CLAUSE, "points": self.label,
-            "mpe": {"form": str(self.mpe_form), "size": str(self.mpe_size), "length": str(self.mpe_length)},
+            "mpe": {"form": str(self.mpe_form), "size": str(self.mpe_size),
+                    "length": "not tested" if self.mpe_length is None else str(self.mpe_length)},
             "tests": {t: {"decision": s["decision"], "values": s["n"], **{k: v for k, v in s["largest"].to_dict().items()
                                                                        if k != "test"}}
                       for t, s in self.summary().items()},
@@ -507,3 +511,48 @@ def _reference_checks(run: Run, maps, temperature, out_of_range, ref_ids: np.nda
     out.append(Check("probing size, all points", item, e, mpes["mpe_size"].at(), U_size,
                      decide(e, mpes["mpe_size"].at(), U_size)))
     return out
+
+
+def probing_test(points, calibrated_radius_mm: float, *, mpe_form, mpe_size, u_form_certificate_um: float = 0.0,
+                 u_diameter_certificate_um: float = 0.0, item: str = "sphere scan") -> AcceptanceResult:
+    """Probing form and size errors of one scan of a calibrated sphere (a
+    single view; all points given are used, as the test asks), decided
+    against the MPEs by :data:`DECISION_RULE`.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        The sphere's points, mm (segmented from a raw scan first, e.g. with
+        ``cmmpose.fitting.e3125``; the caller's array is not modified).
+    calibrated_radius_mm : float
+        Certified radius, mm.
+    mpe_form, mpe_size : str, float or MPE
+        MPEs of the probing form and size errors, um.
+    u_form_certificate_um : float
+        Standard uncertainty of the sphere's form, um.
+    u_diameter_certificate_um : float
+        Standard uncertainty of the certified diameter, um.
+    item : str
+        What the points are (a file name), for the result.
+
+    Returns
+    -------
+    AcceptanceResult
+        Two checks: probing form and probing size, single view.
+    """
+    mpes = {n: (v if isinstance(v, MPE) else parse_mpe(v, n)) for n, v in (("mpe_form", mpe_form), ("mpe_size", mpe_size))}
+    r_cal = float(calibrated_radius_mm)
+    if not (math.isfinite(r_cal) and r_cal > 0):
+        raise InputError(f"calibrated_radius_mm: expected a positive radius in mm, got {calibrated_radius_mm!r}")
+    U_form = 2 * _nonneg("u_form_certificate_um", u_form_certificate_um)
+    U_size = 2 * _nonneg("u_diameter_certificate_um", u_diameter_certificate_um)
+    f = fit_sphere(points)
+    form, size = f.form * 1e3, 2 * (f.radius - r_cal) * 1e3
+    checks = (Check("probing form, single view", item, form, mpes["mpe_form"].at(), U_form,
+                    decide(form, mpes["mpe_form"].at(), U_form)),
+              Check("probing size, single view", item, size, mpes["mpe_size"].at(), U_size,
+                    decide(size, mpes["mpe_size"].at(), U_size)))
+    notes = (f"{f.n_points} points, least-squares sphere with a free radius over a {f.polar_coverage:.0f} deg cap",)
+    unotes = (f"probing U: form 2 x {U_form / 2:g} um (sphere form certificate), size 2 x {U_size / 2:g} um "
+              "(diameter certificate); U leaves out the tested instrument's own scatter",)
+    return AcceptanceResult(checks, "given", mpes["mpe_form"], mpes["mpe_size"], None, unotes, notes)
