@@ -5,7 +5,7 @@ Pinned (computed by ``tests/pinned/make_pinned.py``, whose functions this
 module imports; regenerate with ``PYTHONPATH=python python tests/pinned/make_pinned.py``
 only for an intended change of results):
 
-a. the ``cmmpose demo`` run (thesis maps, 22.5 C, seed 0): a subset of the
+a. the ``cmmpose demo`` run (thesis maps, 22.5 C, seed 0, 3 um jitter): a subset of the
    recorded points, per-position lengths uncompensated and compensated, rms;
 b. ``data/examples/sphere_scan.csv`` compensated as the CI's ``cmmpose compensate`` line;
 c. ``diagnosis.Model`` compensation with each library effect (kernel, pose,

@@ -33,6 +33,8 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "Recorder": ("acquire", "Recorder"),
     "calibration": ("calibration", None),
     "uncertainty": ("uncertainty", None),
+    "standards": ("standards", None),
+    "evaluate_iso230_2": ("standards", "evaluate_iso230_2"),
     "Diagnosis": ("diagnosis", "Diagnosis"),
     "Model": ("diagnosis", "Model"),
     "UserEffect": ("diagnosis", "UserEffect"),
@@ -40,7 +42,8 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
 }, globals())
 
 if TYPE_CHECKING:
-    from . import acquire, calibration, uncertainty
+    from . import acquire, calibration, standards, uncertainty
+    from .standards import evaluate_iso230_2
     from .acquire import Recorder
     from .diagnosis import Diagnosis, Model, UserEffect, diagnose
 
@@ -78,6 +81,8 @@ __all__ = [
     "Recorder",
     "layouts",
     "uncertainty",
+    "standards",
+    "evaluate_iso230_2",
     "BallbarPosition",
     "b89_positions",
     "crossed_ballbar_positions",

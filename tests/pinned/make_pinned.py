@@ -10,7 +10,7 @@ Run from the repository root::
 Cases (keys of ``outputs.npz`` are ``<case>__<name>``):
 
 a. ``demo``: the run ``cmmpose demo`` simulates (thesis maps, 22.5 C, seed 0,
-   default B89 layout) and its evaluation at 22.5 C: every 97th point's
+   default B89 layout, per-scan reproducibility ``sim.REALISTIC_JITTER``) and its evaluation at 22.5 C: every 97th point's
    u, v, D, E, F, t; per-position lengths uncompensated and compensated; rms.
 b. ``scan``: ``data/examples/sphere_scan.csv`` compensated as the CI line
    ``cmmpose compensate ... --maps thesis --pose 90,90,0 --offset 1.001,264.505,129.575``
@@ -86,7 +86,7 @@ def _points_subset(run, step, prefix):
 def case_demo() -> dict[str, np.ndarray]:
     """(a) What ``cmmpose demo`` simulates and evaluates."""
     maps = cmmpose.ErrorMapSet.thesis()
-    run, _ = sim.simulate_ballbar_run(maps, DEMO_TEMPERATURE, seed=DEMO_SEED)
+    run, _ = sim.simulate_ballbar_run(maps, DEMO_TEMPERATURE, seed=DEMO_SEED, jitter=sim.REALISTIC_JITTER)
     ev = cmmpose.evaluate(run, maps, DEMO_TEMPERATURE)
     out = _points_subset(run, 97, "demo")
     out["demo__n_points"] = np.array(run.n_points, dtype=float)

@@ -68,6 +68,7 @@ __all__ = [
     "run_columns",
     "ProcessedRun",
     "process_run",
+    "positional_deviations",
     "MapBuild",
     "build_map",
     "map_from_runs",
@@ -936,6 +937,72 @@ _MATERIAL = ("keep", "normalise")
 _LINES = (None, "endpoint", "least_squares")
 
 
+def _linear_errors(run: InterferometerRun, corrected: bool, material: str, alpha: float,
+                   label: str) -> tuple[np.ndarray, float]:
+    """Steps 1 and 2 of :func:`process_run` for linear optics: the positional
+    error of every row, um (laser displacement from home minus the target's
+    distance from home), and the mean air correction applied, ppm."""
+    target, home = run.target_mm, run.home_mm
+    reading = np.asarray(run.reading, dtype=np.float64)
+    if corrected:
+        lo, hi = _HENE_RANGE_NM
+        if not lo <= run.wavelength_vacuum_nm <= hi:
+            raise InputError(
+                f"{label}: wavelength_vacuum_nm = {run.wavelength_vacuum_nm:g} nm: the refractive-index formula "
+                f"of thesis section 3.3 is for the HeNe line ({HENE_VACUUM_WAVELENGTH_NM} nm); pass "
+                f"air_correction=False for readings corrected elsewhere")
+        factor = np.asarray(correction_factor(run.air_temperature_C, run.pressure_mmHg, run.humidity_percent,
+                                              run.reading_basis))
+        reading = reading * factor
+        correction_ppm = float(np.mean(factor - 1.0) * 1e6)
+    else:
+        correction_ppm = 0.0
+    disp = reading - reading[target == home].mean()  # laser displacement from home, mm
+    if material == "normalise":
+        disp = disp / (1.0 + alpha * (run.material_temperature_C - 20.0))
+    return (disp - (target - home)) * 1000.0, correction_ppm  # um
+
+
+def positional_deviations(run: InterferometerRun, *, air_correction: bool = True, material: str = "keep",
+                          expansion_ppm_per_C: float | None = None) -> np.ndarray:
+    """The positional deviation of every row of a linear run, um: the air-
+    corrected laser displacement from home minus the target's distance from
+    home, i.e. actual minus commanded position (steps 1 and 2 of
+    :func:`process_run`, without averaging). ISO 230-2 evaluates these
+    (``cmmpose.standards.iso230_2``).
+
+    Parameters
+    ----------
+    run : InterferometerRun
+        Linear optics.
+    air_correction : bool
+        Correct the readings for the refractive index of air (as :func:`process_run`).
+    material : {'keep', 'normalise'}
+        Keep the machine's temperature or normalise the displacements to 20 C.
+    expansion_ppm_per_C : float, optional
+        Scale expansion coefficient, ppm per C; required with ``material='normalise'``.
+
+    Returns
+    -------
+    ndarray (N,)
+        um, in the run's row order.
+    """
+    if not isinstance(run, InterferometerRun):
+        raise InputError(f"run: expected an InterferometerRun, got {type(run).__name__}")
+    label = run.source or run.name
+    if run.optics != "linear":
+        raise InputError(f"{label}: positional deviations need linear optics; this run is {run.optics} ({run.name})")
+    if material not in _MATERIAL:
+        raise InputError(f"material: expected 'keep' or 'normalise', got {material!r}")
+    alpha = 0.0
+    if material == "normalise":
+        if expansion_ppm_per_C is None:
+            raise InputError("expansion_ppm_per_C: required with material='normalise'")
+        alpha = nonnegative("expansion_ppm_per_C", expansion_ppm_per_C) * 1e-6
+    corrected = air_correction and run.reading_basis != "compensated"
+    return _linear_errors(run, corrected, material, alpha, label)[0]
+
+
 def process_run(
     run: InterferometerRun,
     *,
@@ -1032,27 +1099,10 @@ def process_run(
     tm = run.material_temperature_C
     target = run.target_mm
     home = run.home_mm
-    at_home = target == home
     linear = run.optics == "linear"
     corrected = linear and air_correction and run.reading_basis != "compensated"
     if linear:
-        reading = np.asarray(run.reading, dtype=np.float64)
-        if corrected:
-            lo, hi = _HENE_RANGE_NM
-            if not lo <= run.wavelength_vacuum_nm <= hi:
-                raise InputError(
-                    f"{label}: wavelength_vacuum_nm = {run.wavelength_vacuum_nm:g} nm: the refractive-index formula "
-                    f"of thesis section 3.3 is for the HeNe line ({HENE_VACUUM_WAVELENGTH_NM} nm); pass "
-                    f"air_correction=False for readings corrected elsewhere")
-            factor = np.asarray(correction_factor(t_air, p_air, h_air, run.reading_basis))
-            reading = reading * factor
-            correction_ppm = float(np.mean(factor - 1.0) * 1e6)
-        else:
-            correction_ppm = 0.0
-        disp = reading - reading[at_home].mean()  # laser displacement from home, mm
-        if material == "normalise":
-            disp = disp / (1.0 + alpha * (tm - 20.0))
-        err = (disp - (target - home)) * 1000.0  # um
+        err, correction_ppm = _linear_errors(run, corrected, material, alpha, label)
         unit = "um"
     else:
         err = np.asarray(run.reading, dtype=np.float64)

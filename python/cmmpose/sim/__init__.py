@@ -31,7 +31,7 @@ from .calibration_data import (
     vernier_points,
 )
 from .machine import TruthMachine, temperature_series
-from .runs import simulate_ballbar_run, simulate_reference_scan
+from .runs import REALISTIC_JITTER, simulate_ballbar_run, simulate_reference_scan
 from .scanner import ScanData, Scanner, Sweep, simulate_sweep
 from .thermocouples import CHANNELS, OPEN_CIRCUIT_READING, Fault, thermocouple_log
 
@@ -46,6 +46,7 @@ if TYPE_CHECKING:
     from .interferometer import interferometer_components, simulate_interferometer_run, simulate_interferometer_runs
 
 __all__ = [
+    "REALISTIC_JITTER",
     "TruthMachine",
     "temperature_series",
     "Scanner",

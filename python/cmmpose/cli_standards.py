@@ -1,0 +1,232 @@
+"""The standards' commands of the ``cmmpose`` command line (docs/standards.md):
+``iso230-2`` (positioning of an axis), ``acceptance`` (ISO 10360-8-style
+probing and length tests against MPEs) and ``interim-check`` (squareness and
+scale from one ballbar run). ``cmmpose.cli`` adds them to its group."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+from rich.console import Console
+
+from .errors import Error
+from .policy import cli_wording
+
+__all__ = ["iso230_2_cmd", "acceptance_cmd", "acceptance_sphere_cmd", "interim_cmd"]
+
+console = Console(stderr=True)
+
+
+def _fail(exc: Exception) -> click.ClickException:
+    return click.ClickException(cli_wording(str(exc)))
+
+
+def _write_report(result, directory, stem: str, plot=None) -> list[Path]:
+    """``<stem>.json``, ``<stem>.md`` (a report section) and, given ``plot``
+    (a callable taking the path) and matplotlib, ``<stem>.png`` in ``directory``."""
+    folder = Path(directory)
+    folder.mkdir(parents=True, exist_ok=True)
+    files = [folder / f"{stem}.json", folder / f"{stem}.md"]
+    files[0].write_text(json.dumps(result.to_dict(), indent=2))
+    files[1].write_text(result.to_markdown())
+    if plot is not None:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            console.print("matplotlib is not installed: no plot (pip install 'cmmpose[plot]')")
+            return files
+        plot(folder / f"{stem}.png")
+        files.append(folder / f"{stem}.png")
+    return files
+
+
+@click.command("iso230-2")
+@click.argument("data_file", metavar="FILE", type=click.Path(exists=True, dir_okay=False))
+@click.option("--no-air-correction", is_flag=True,
+              help="Interferometer runs: do not correct linear readings for the refractive index of air.")
+@click.option("--test-uncertainty", type=float, default=None,
+              help="Expanded uncertainty (k = 2) of a measured deviation, um, stated with the results "
+                   "(default for interferometer runs: the air correction's over the travel).")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Plot to write (PNG, PDF, SVG).")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
+              help="Write iso230-2.json, iso230-2.md (a report section) and iso230-2.png here.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON (the axis figures at the top level, um).")
+def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, report_dir, as_json) -> None:
+    """ISO 230-2:2014 positioning accuracy and repeatability of one axis.
+
+    FILE is a CSV with columns target_mm, direction (+1/-1), cycle,
+    deviation_um, or a linear interferometer run (the files 'calibrate map'
+    takes). Prints A, A_up, A_down, B, B_mean, E, E_up, E_down, M, R, R_up,
+    R_down in um, and the figures per target.
+    """
+    from .standards.iso230_2 import evaluate_iso230_2, load_positioning
+
+    try:
+        data, u, note = load_positioning(data_file, air_correction=not no_air_correction)
+        if test_uncertainty is not None:
+            u, note = test_uncertainty, "given (--test-uncertainty)"
+        result = evaluate_iso230_2(data, test_uncertainty_um=u, test_uncertainty_note=note)
+        files = [Path(plot_path)] if plot_path else []
+        if plot_path:
+            result.plot(plot_path, data)
+        if report_dir:
+            files += _write_report(result, report_dir, "iso230-2", lambda p: result.plot(p, data))
+    except Error as exc:
+        raise _fail(exc) from None
+    except OSError as exc:
+        raise click.ClickException(f"{exc.filename or plot_path}: {exc.strerror or exc}") from None
+    if as_json:
+        click.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        Console(width=max(Console().width, 120)).print(result)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
+@click.command("acceptance")
+@click.argument("run_dir", metavar="RUN", type=click.Path(exists=True, file_okay=False))
+@click.option("--mpe-form", required=True, help="MPE of the probing form error, um (e.g. 12).")
+@click.option("--mpe-size", required=True, help="MPE of the probing size error, um (e.g. 10).")
+@click.option("--mpe-length", required=True, help="MPE of the length measurement error, um: A or A+L/K, L in mm (e.g. 8+L/300).")
+@click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
+              help="Machine file (kinematics, maps, artefact expansion); default the thesis machine.")
+@click.option("--maps", "maps", multiple=True,
+              help="Compensation maps ('thesis', files, or 'none' to test the uncompensated points); default: the "
+                   "machine's, or as run.json says.")
+@click.option("--temperature", type=float, default=None, help="Machine and part temperature, C (default: the run's log).")
+@click.option("--calibrated-length", type=float, default=None, help="Certified centre distance at 20 C, mm (default: the run's).")
+@click.option("--calibrated-radius", type=float, default=None, help="Certified ball radius, mm (default: the run's).")
+@click.option("--expansion", type=float, default=None,
+              help="Artefact expansion coefficient for lengths at 20 C, ppm/K (default: the machine's).")
+@click.option("--u-length-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the certified length, um.")
+@click.option("--u-diameter-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of a certified diameter, um.")
+@click.option("--u-form-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the spheres' form, um.")
+@click.option("--u-expansion", type=float, default=1.0, show_default=True, help="Standard uncertainty of the expansion coefficient, ppm/K.")
+@click.option("--u-part-temperature", type=float, default=0.2, show_default=True, help="Standard uncertainty of the part temperature, K.")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Plot to write (PNG, PDF, SVG).")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
+              help="Write acceptance.json, acceptance.md (a report section) and acceptance.png here.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, temperature, calibrated_length,
+                   calibrated_radius, expansion, u_length_cert, u_diameter_cert, u_form_cert, u_expansion, u_part_temperature,
+                   plot_path, report_dir, as_json) -> None:
+    """Probing form and size errors and length measurement errors of RUN (in the manner of ISO 10360-8),
+    each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven."""
+    from .cli import _maps_for_run
+    from .machine import load_machine
+    from .run import Run
+    from .standards.acceptance import acceptance_test
+
+    try:
+        machine = load_machine(machine_file)
+        run = Run.load(run_dir)
+        model = _maps_for_run(run, maps, machine)
+        result = acceptance_test(
+            run, model, temperature, mpe_form=mpe_form, mpe_size=mpe_size, mpe_length=mpe_length,
+            calibrated_length_mm=calibrated_length, calibrated_radius_mm=calibrated_radius,
+            u_length_certificate_um=u_length_cert, u_diameter_certificate_um=u_diameter_cert,
+            u_form_certificate_um=u_form_cert,
+            expansion=machine.artefact_expansion if expansion is None else expansion * 1e-6,
+            u_expansion_ppm_per_K=u_expansion, u_part_temperature_K=u_part_temperature)
+        files = [Path(plot_path)] if plot_path else []
+        if plot_path:
+            result.plot(plot_path)
+        if report_dir:
+            files += _write_report(result, report_dir, "acceptance", result.plot)
+    except Error as exc:
+        raise _fail(exc) from None
+    except OSError as exc:
+        raise click.ClickException(f"{exc.filename or plot_path}: {exc.strerror or exc}") from None
+    if as_json:
+        click.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        Console(width=max(Console().width, 120)).print(result)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
+@click.command("interim-check")
+@click.argument("run_dir", metavar="RUN", type=click.Path(exists=True, file_okay=False))
+@click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
+              help="Machine file (kinematics, maps, artefact expansion); default the thesis machine.")
+@click.option("--maps", "maps", multiple=True,
+              help="Compensation maps: the check is of what they leave ('none': of the raw machine); default: the "
+                   "machine's, or as run.json says.")
+@click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's log).")
+@click.option("--calibrated-length", type=float, default=None,
+              help="Certified bar length at 20 C, mm (default: the run's); without one, scale mismatches.")
+@click.option("--u-length-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the certified length, um.")
+@click.option("--u-temperature", type=float, default=0.2, show_default=True, help="Standard uncertainty of the temperature, K.")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
+              help="Write interim-check.json and interim-check.md (a report section) here.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_length_cert, u_temperature,
+                report_dir, as_json) -> None:
+    """Interim check of RUN, in the manner of the ballbar and gauge products: three scale and three
+    squareness values with their uncertainties (k = 2). Next to it, 'cmmpose diagnose' gives the full diagnosis."""
+    from .cli import _maps_for_run
+    from .machine import load_machine
+    from .run import Run
+    from .standards.interim import interim_check
+
+    try:
+        machine = load_machine(machine_file)
+        run = Run.load(run_dir)
+        model = _maps_for_run(run, maps, machine)
+        result = interim_check(run, model, temperature, calibrated_length_mm=calibrated_length,
+                               u_length_certificate_um=u_length_cert, expansion=machine.artefact_expansion,
+                               u_temperature_K=u_temperature)
+        files = _write_report(result, report_dir, "interim-check") if report_dir else []
+    except Error as exc:
+        raise _fail(exc) from None
+    except OSError as exc:
+        raise click.ClickException(f"{exc.filename}: {exc.strerror or exc}") from None
+    if as_json:
+        click.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        Console(width=max(Console().width, 100)).print(result)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
+@click.command("acceptance-sphere")
+@click.argument("scan", type=click.Path(exists=True, dir_okay=False))
+@click.option("--radius", type=float, required=True, help="Certified sphere radius, mm.")
+@click.option("--mpe-form", required=True, help="MPE of the probing form error, um.")
+@click.option("--mpe-size", required=True, help="MPE of the probing size error, um.")
+@click.option("--units", default=None, help="Units of the file's coordinates (as 'cmmpose fit'). Default: the format's.")
+@click.option("--segment", type=click.Choice(["none", "e3125"]), default="none", show_default=True,
+              help="e3125: segment the sphere from a raw scan about the scanner's line of sight first.")
+@click.option("--scanner-origin", default="0,0,0", show_default=True,
+              help="The scanner's origin in the file's frame, x,y,z in --units (for --segment e3125).")
+@click.option("--u-form-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the sphere's form, um.")
+@click.option("--u-diameter-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the certified diameter, um.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scanner_origin, u_form_cert, u_diameter_cert,
+                          as_json) -> None:
+    """Probing form and size errors of one scan of a calibrated sphere (a point cloud: CSV, NPY, Parquet, PLY,
+    XYZ, PTS, E57), each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven."""
+    from .cli import _UNIT_MM, triple
+    from .fitting import e3125
+    from .pointclouds import read_point_cloud
+    from .standards.acceptance import probing_test
+
+    if units is not None and units not in _UNIT_MM:
+        raise click.BadParameter(f"expected one of {', '.join(sorted(_UNIT_MM))}, got {units!r}", param_hint="--units")
+    scale = _UNIT_MM[units] if units else 1.0
+    try:
+        xyz = read_point_cloud(scan, units=units).xyz
+        if segment == "e3125":
+            origin = tuple(v * scale for v in triple(scanner_origin, "--scanner-origin"))
+            xyz = xyz[e3125(xyz, radius, origin).segmentation.mask]
+        result = probing_test(xyz, radius, mpe_form=mpe_form, mpe_size=mpe_size, u_form_certificate_um=u_form_cert,
+                              u_diameter_certificate_um=u_diameter_cert,
+                              item=f"{Path(scan).name}" + (" (E3125 segment)" if segment == "e3125" else ""))
+    except Error as exc:
+        raise _fail(exc) from None
+    if as_json:
+        click.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        Console(width=max(Console().width, 120)).print(result)
