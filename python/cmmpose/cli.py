@@ -22,7 +22,7 @@ from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
 from .metrics import STEEL_EXPANSION
 from .report import KernelReport
-from .cli_standards import acceptance_cmd, acceptance_sphere_cmd, interim_cmd, iso230_2_cmd
+from .cli_standards import acceptance_cmd, acceptance_sphere_cmd, e3125_distances_cmd, interim_cmd, iso230_2_cmd
 
 console = Console(stderr=True)
 
@@ -1490,6 +1490,7 @@ main.add_command(iso230_2_cmd)
 main.add_command(acceptance_cmd)
 main.add_command(acceptance_sphere_cmd)
 main.add_command(interim_cmd)
+main.add_command(e3125_distances_cmd)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from rich.console import Console
 from .errors import Error
 from .policy import cli_wording
 
-__all__ = ["iso230_2_cmd", "acceptance_cmd", "acceptance_sphere_cmd", "interim_cmd"]
+__all__ = ["iso230_2_cmd", "acceptance_cmd", "acceptance_sphere_cmd", "interim_cmd", "e3125_distances_cmd"]
 
 console = Console(stderr=True)
 
@@ -230,3 +230,63 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
         click.echo(json.dumps(result.to_dict(), indent=2))
     else:
         Console(width=max(Console().width, 120)).print(result)
+
+
+_UNIT_MM = {"mm": 1.0, "m": 1e3, "um": 1e-3, "in": 25.4}
+
+
+@click.command("e3125-distances")
+@click.argument("scans", metavar="NAME=SCAN...", nargs=-1, required=True)
+@click.option("--pairs", "pairs_file", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="CSV of the pairs: a, b, reference_mm[, u_um] (the reference distance and its standard uncertainty).")
+@click.option("--radius", type=float, required=True, help="Calibrated sphere radius, mm (fixed in the fits).")
+@click.option("--units", type=click.Choice(sorted(_UNIT_MM)), default=None,
+              help="Units of the scans' coordinates and of --scanner-origin (default: the format's).")
+@click.option("--scanner-origin", default="0,0,0", show_default=True, help="The scanner's origin, x,y,z in --units.")
+@click.option("--mpe", "mpe_text", default=None, help="MPE of the distance error, um: A or A+L/K, L in mm.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_text, as_json) -> None:
+    """Sphere-centre distance errors in the manner of ASTM E3125: each NAME=SCAN is a raw scan of one
+    sphere target (any point-cloud format), segmented and fitted with the radius fixed; each pair of
+    --pairs is compared with its reference distance (docs/standards.md)."""
+    from rich.table import Table
+
+    from .pointclouds import read_point_cloud
+    from .standards.acceptance import parse_mpe
+    from .standards.e3125_distances import distance_errors, read_pairs, sphere_targets
+
+    if not (radius > 0):
+        raise click.BadParameter(f"expected a positive radius in mm, got {radius}", param_hint="--radius")
+    try:
+        origin = tuple(float(v) for v in scanner_origin.split(","))
+    except ValueError:
+        origin = ()
+    if len(origin) != 3:
+        raise click.BadParameter(f"expected x,y,z, got {scanner_origin!r}", param_hint="--scanner-origin")
+    scale = _UNIT_MM[units] if units else 1.0
+    named = {}
+    for item in scans:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise click.BadParameter(f"expected NAME=SCAN, got {item!r}", param_hint="NAME=SCAN")
+        if name in named:
+            raise click.BadParameter(f"target {name!r} given twice", param_hint="NAME=SCAN")
+        named[name] = path
+    try:
+        mpe = parse_mpe(mpe_text, "--mpe") if mpe_text else None
+        clouds = {n: read_point_cloud(p, units=units).xyz for n, p in named.items()}
+        targets = sphere_targets(clouds, radius, tuple(v * scale for v in origin))
+        result = distance_errors(targets, read_pairs(pairs_file), mpe)
+    except Error as exc:
+        raise _fail(exc) from None
+    if as_json:
+        click.echo(json.dumps(result.to_dict(), indent=2))
+        return
+    table = Table(title=f"ASTM E3125-style distance errors ({len(result.errors)} pairs)")
+    for col in ("pair", "distance (mm)", "reference (mm)", "error (um)", "U, k=2 (um)", "MPE (um)", "decision"):
+        table.add_column(col, justify="left" if col in ("pair", "decision") else "right")
+    for e in result.errors:
+        table.add_row(f"{e.a} - {e.b}", f"{e.distance:.4f}", f"{e.reference:.4f}", f"{e.error_um:+.2f}",
+                      f"{2 * e.u_um:.2f}", "-" if e.mpe_um is None else f"{e.mpe_um:.1f}", e.decision or "-")
+    table.caption = result.rule
+    Console().print(table)

@@ -4,10 +4,12 @@ acceptance test asks for (docs/standards.md):
 - :mod:`.iso230_2`: positioning accuracy and repeatability of an axis (ISO 230-2:2014);
 - :mod:`.acceptance`: optical probing and length tests in the manner of ISO 10360-8,
   decided against MPEs by an ISO 14253-1 style rule;
-- :mod:`.interim`: squareness and scale from one ballbar run.
+- :mod:`.interim`: squareness and scale from one ballbar run;
+- :mod:`.e3125_distances`: sphere-centre distance errors in the manner of ASTM E3125.
 """
 
 from .acceptance import MPE, AcceptanceResult, Check, acceptance_test, decide, parse_mpe, probing_test
+from .e3125_distances import DistanceError, E3125Distances, SphereTarget, distance_errors, read_pairs, sphere_targets
 from .interim import InterimCheck, InterimValue, interim_check
 from .iso230_2 import (
     PositioningData,
@@ -21,6 +23,12 @@ from .iso230_2 import (
 )
 
 __all__ = [
+    "DistanceError",
+    "E3125Distances",
+    "SphereTarget",
+    "distance_errors",
+    "read_pairs",
+    "sphere_targets",
     "MPE",
     "AcceptanceResult",
     "Check",

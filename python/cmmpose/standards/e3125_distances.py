@@ -1,0 +1,219 @@
+"""Sphere-centre distance errors in the manner of ASTM E3125 (point-to-point
+distances of a terrestrial laser scanner's sphere targets).
+
+Each sphere's centre comes from its raw scan by the E3125-style segmentation
+(:func:`cmmpose.e3125`: closest-point start, cone and cylinder about the line
+of sight, radius fixed at its calibrated value). For each pair (a, b) with a
+reference distance L_ref (from a reference instrument, e.g. a laser tracker),
+the distance error is
+
+    E_ab = |c_b - c_a| - L_ref,
+
+and its standard uncertainty combines the two centres' covariances along the
+line between them with the reference's:
+
+    u(E_ab)^2 = n^T (C_a + C_b) n + u(L_ref)^2,    n = (c_b - c_a) / |c_b - c_a|,
+
+treating the two scans' centres as independent (separate scans). Lengths in
+mm. Errors may be judged against an MPE (A or A + L/K) with the same ISO
+14253-1 style rule as :mod:`.acceptance` (the test uncertainty counted against
+the user): pass when |E| + U <= MPE, fail when |E| - U > MPE, else not proven.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..fitting import e3125
+from .acceptance import MPE, decide
+
+__all__ = ["SphereTarget", "DistanceError", "E3125Distances", "sphere_targets", "distance_errors", "read_pairs"]
+
+
+@dataclass(frozen=True)
+class SphereTarget:
+    """One sphere's centre from its raw scan.
+
+    Attributes
+    ----------
+    name : str
+        The target's name.
+    centre : ndarray (3,)
+        mm.
+    covariance : ndarray (3, 3)
+        Of the centre, mm^2.
+    n_points : int
+        Points the segmentation kept.
+    """
+
+    name: str
+    centre: np.ndarray
+    covariance: np.ndarray
+    n_points: int
+
+
+@dataclass(frozen=True)
+class DistanceError:
+    """One pair's distance and its error.
+
+    Attributes
+    ----------
+    a, b : str
+        Target names.
+    distance : float
+        Measured centre distance, mm.
+    reference : float
+        Reference distance, mm.
+    error_um : float
+        distance - reference, um.
+    u_um : float
+        Standard uncertainty of the error, um (k = 1).
+    mpe_um : float or None
+        The MPE at this distance, um.
+    decision : str or None
+        'pass', 'fail' or 'not proven' (with an MPE).
+    """
+
+    a: str
+    b: str
+    distance: float
+    reference: float
+    error_um: float
+    u_um: float
+    mpe_um: float | None = None
+    decision: str | None = None
+
+    def to_dict(self) -> dict:
+        return {"a": self.a, "b": self.b, "distance_mm": self.distance, "reference_mm": self.reference,
+                "error_um": self.error_um, "u_um": self.u_um, "U_um": 2 * self.u_um, "k": 2,
+                "mpe_um": self.mpe_um, "decision": self.decision}
+
+
+@dataclass(frozen=True)
+class E3125Distances:
+    """All pairs' distance errors.
+
+    Attributes
+    ----------
+    targets : dict of str -> SphereTarget
+    errors : list of DistanceError
+    rule : str
+        The decision rule, in words.
+    """
+
+    targets: dict
+    errors: list
+    rule: str
+
+    @property
+    def max_abs_error_um(self) -> float:
+        return float(max(abs(e.error_um) for e in self.errors)) if self.errors else float("nan")
+
+    def to_dict(self) -> dict:
+        return {"targets": {n: {"centre_mm": t.centre.tolist(), "covariance_mm2": t.covariance.tolist(),
+                                "n_points": t.n_points} for n, t in self.targets.items()},
+                "errors": [e.to_dict() for e in self.errors], "max_abs_error_um": self.max_abs_error_um,
+                "decision_rule": self.rule}
+
+
+def sphere_targets(scans: dict, radius: float, scanner_origin=(0.0, 0.0, 0.0)) -> dict[str, SphereTarget]:
+    """Each named raw scan's sphere centre by the E3125-style segmentation.
+
+    Parameters
+    ----------
+    scans : dict of str -> array_like (N, 3)
+        Raw scans, mm, all in the scanner's frame.
+    radius : float
+        Calibrated sphere radius, mm.
+    scanner_origin : array_like (3,)
+        mm.
+    """
+    out = {}
+    for name, points in scans.items():
+        try:
+            r = e3125(points, radius, scanner_origin)
+        except InputError as exc:
+            raise InputError(f"target {name!r}: {exc}") from None
+        out[name] = SphereTarget(name, np.asarray(r.centre, float), np.asarray(r.covariance, float), int(r.n_points))
+    return out
+
+
+def distance_errors(targets: dict[str, SphereTarget], pairs, mpe: MPE | None = None) -> E3125Distances:
+    """Distance errors of ``pairs`` of ``targets``.
+
+    Parameters
+    ----------
+    targets : dict of str -> SphereTarget
+        From :func:`sphere_targets` (or built from centres measured elsewhere).
+    pairs : sequence of (str, str, float, float)
+        (a, b, reference distance mm, its standard uncertainty um).
+    mpe : MPE, optional
+        Maximum permissible error (um, A or A + L/K with L in mm).
+
+    Raises
+    ------
+    InputError
+        A pair naming an unknown target, a target paired with itself, a
+        non-positive or non-finite reference, a negative uncertainty.
+    """
+    errors = []
+    for k, pair in enumerate(pairs):
+        try:
+            a, b, ref, u_ref = pair
+            ref, u_ref = float(ref), float(u_ref)
+        except (TypeError, ValueError):
+            raise InputError(f"pairs[{k}]: expected (a, b, reference mm, u um), got {pair!r}") from None
+        for n in (a, b):
+            if n not in targets:
+                raise InputError(f"pairs[{k}]: no target named {n!r} (have: {', '.join(sorted(targets))})")
+        if a == b:
+            raise InputError(f"pairs[{k}]: {a!r} paired with itself")
+        if not (math.isfinite(ref) and ref > 0) or not (math.isfinite(u_ref) and u_ref >= 0):
+            raise InputError(f"pairs[{k}]: reference {ref!r} mm must be > 0 and its u {u_ref!r} um >= 0")
+        d = targets[b].centre - targets[a].centre
+        dist = float(np.linalg.norm(d))
+        n = d / dist
+        var = float(n @ (targets[a].covariance + targets[b].covariance) @ n) * 1e6 + u_ref**2  # um^2
+        err = (dist - ref) * 1e3
+        u = math.sqrt(var)
+        limit = decision = None
+        if mpe is not None:
+            limit = mpe.at(ref)
+            decision = decide(err, limit, 2 * u)
+        errors.append(DistanceError(a, b, dist, ref, err, u, limit, decision))
+    rule = ("ISO 14253-1 style: pass when |E| + U <= MPE, fail when |E| - U > MPE, otherwise not proven; "
+            "U = 2 u, u from the two centres' covariances along the line and the reference's")
+    return E3125Distances(dict(targets), errors, rule)
+
+
+def read_pairs(path) -> list[tuple[str, str, float, float]]:
+    """Pairs from a CSV with columns ``a, b, reference_mm[, u_um]``.
+
+    Raises
+    ------
+    InputError
+        Naming the file and line: a missing column or a non-number.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot be read ({exc})") from None
+    rows = list(csv.DictReader(text.splitlines()))
+    fields = set(rows[0]) if rows else set()
+    missing = sorted({"a", "b", "reference_mm"} - fields)
+    if missing:
+        raise InputError(f"{path}:1: missing column(s) {', '.join(missing)} (a, b, reference_mm[, u_um])")
+    out = []
+    for line, row in enumerate(rows, start=2):
+        try:
+            out.append((row["a"].strip(), row["b"].strip(), float(row["reference_mm"]), float(row.get("u_um") or 0.0)))
+        except (TypeError, ValueError, AttributeError):
+            raise InputError(f"{path}:{line}: reference_mm and u_um must be numbers, got {row}") from None
+    return out

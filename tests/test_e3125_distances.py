@@ -1,0 +1,70 @@
+"""Sphere-centre distance errors in the manner of ASTM E3125 on the five
+shared NIST raw scans: the distances between the centres cmmpose segments
+from the raw files agree with those between NIST's own E3125 centres to the
+rounding of NIST's published centres (1e-8 m), computed here independently;
+and a simulated pair with a known error is found with an honest uncertainty."""
+
+import csv
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cmmpose.cli import main
+from cmmpose.errors import InputError
+from cmmpose.standards import MPE, SphereTarget, distance_errors
+
+NIST = Path(__file__).parents[1].parent / "shared" / "reference" / "nist_dmg"
+NAMES = [f"SPH10{k}" for k in range(1, 6)]
+
+
+@pytest.fixture(scope="module")
+def nist_centres():
+    if not (NIST / "reference_centres.csv").is_file():
+        pytest.fail(f"NIST reference scans missing: expected {NIST} (clone the shared data beside the repository)")
+    with open(NIST / "reference_centres.csv", newline="") as f:
+        return {r["file"]: np.array([float(r[f"{k}_m"]) for k in "xyz"]) * 1e3 for r in csv.DictReader(f)}
+
+
+def test_nist_distances_from_the_command_line(tmp_path, nist_centres):
+    pairs = list(itertools.combinations(NAMES, 2))
+    with open(tmp_path / "pairs.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["a", "b", "reference_mm", "u_um"])
+        for a, b in pairs:  # NIST's E3125 centres stand in for the reference instrument
+            w.writerow([a, b, repr(float(np.linalg.norm(nist_centres[b] - nist_centres[a]))), 0.0])
+    res = CliRunner().invoke(main, ["e3125-distances", *(f"{n}={NIST / (n + '.xyz')}" for n in NAMES), "--pairs",
+                                    str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m", "--mpe", "1+L/10000",
+                                    "--json"], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert len(out["errors"]) == 10
+    for e in out["errors"]:
+        # NIST rounds its centres to 0.01 um: each distance to 0.02 um
+        assert abs(e["error_um"]) < 0.02, e
+        assert 1 < e["U_um"] < 60 and e["decision"] in ("pass", "not proven")
+    assert out["max_abs_error_um"] < 0.02
+    res = CliRunner().invoke(main, ["e3125-distances", f"SPH101={NIST / 'SPH101.xyz'}", "--pairs",
+                                    str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m"])
+    assert res.exit_code != 0 and "no target named" in res.output and "Traceback" not in res.output
+
+
+def test_a_known_error_and_its_uncertainty():
+    cov = np.diag([4e-6, 1e-6, 1e-6])  # mm^2: 2 um along x, 1 um across
+    t = {"a": SphereTarget("a", np.zeros(3), cov, 100), "b": SphereTarget("b", np.array([1000.0, 0, 0]), cov, 100)}
+    res = distance_errors(t, [("a", "b", 999.980, 3.0)], MPE(5.0, 1000.0))
+    (e,) = res.errors
+    assert e.error_um == pytest.approx(20.0)
+    assert e.u_um == pytest.approx(np.sqrt(4 + 4 + 9))  # both centres along the line, and the reference
+    # the MPE at L = the reference (999.98 mm): 5 + 0.99998 um; |20| - 8.2 > 6: fail
+    assert e.mpe_um == pytest.approx(5.99998) and e.decision == "fail"
+    assert distance_errors(t, [("a", "b", 999.997, 0.0)], MPE(5.0, 1000.0)).errors[0].decision == "not proven"
+    tight = {k: SphereTarget(k, v.centre, v.covariance * 1e-4, 100) for k, v in t.items()}
+    assert distance_errors(tight, [("a", "b", 999.999, 0.0)], MPE(5.0, 1000.0)).errors[0].decision == "pass"
+    for pairs, words in (([("a", "c", 1.0, 0.0)], "no target"), ([("a", "a", 1.0, 0.0)], "itself"),
+                         ([("a", "b", -1.0, 0.0)], "must be > 0"), ([("a", "b")], "expected")):
+        with pytest.raises(InputError, match=words):
+            distance_errors(t, pairs)
