@@ -38,7 +38,7 @@ def test_nist_distances_from_the_command_line(tmp_path, nist_centres):
             w.writerow([a, b, repr(float(np.linalg.norm(nist_centres[b] - nist_centres[a]))), 0.0])
     res = CliRunner().invoke(main, ["e3125-distances", *(f"{n}={NIST / (n + '.xyz')}" for n in NAMES), "--pairs",
                                     str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m", "--mpe", "1+L/10000",
-                                    "--json"], catch_exceptions=False)
+                                    "--report", str(tmp_path / "rep"), "--json"], catch_exceptions=False)
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert len(out["errors"]) == 10
@@ -47,6 +47,9 @@ def test_nist_distances_from_the_command_line(tmp_path, nist_centres):
         assert abs(e["error_um"]) < 0.02, e
         assert 1 < e["U_um"] < 60 and e["decision"] in ("pass", "not proven")
     assert out["max_abs_error_um"] < 0.02
+    assert (tmp_path / "rep" / "e3125-distances.png").stat().st_size > 10_000
+    md = (tmp_path / "rep" / "e3125-distances.md").read_text()
+    assert md.count("| SPH10") == 15 and "Decision rule" in md  # 10 pairs and 5 targets
     res = CliRunner().invoke(main, ["e3125-distances", f"SPH101={NIST / 'SPH101.xyz'}", "--pairs",
                                     str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m"])
     assert res.exit_code != 0 and "no target named" in res.output and "Traceback" not in res.output

@@ -244,8 +244,12 @@ _UNIT_MM = {"mm": 1.0, "m": 1e3, "um": 1e-3, "in": 25.4}
               help="Units of the scans' coordinates and of --scanner-origin (default: the format's).")
 @click.option("--scanner-origin", default="0,0,0", show_default=True, help="The scanner's origin, x,y,z in --units.")
 @click.option("--mpe", "mpe_text", default=None, help="MPE of the distance error, um: A or A+L/K, L in mm.")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Plot to write (PNG, PDF, SVG).")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
+              help="Write e3125-distances.json, .md (a report section) and .png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
-def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_text, as_json) -> None:
+def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_text, plot_path, report_dir,
+                        as_json) -> None:
     """Sphere-centre distance errors in the manner of ASTM E3125: each NAME=SCAN is a raw scan of one
     sphere target (any point-cloud format), segmented and fitted with the radius fixed; each pair of
     --pairs is compared with its reference distance (docs/standards.md)."""
@@ -277,8 +281,14 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
         clouds = {n: read_point_cloud(p, units=units).xyz for n, p in named.items()}
         targets = sphere_targets(clouds, radius, tuple(v * scale for v in origin))
         result = distance_errors(targets, read_pairs(pairs_file), mpe)
+        files = _write_report(result, report_dir, "e3125-distances", result.plot) if report_dir else []
+        if plot_path:
+            result.plot(plot_path)
+            files.append(Path(plot_path))
     except Error as exc:
         raise _fail(exc) from None
+    for f in files:
+        console.print(f"wrote {f}")
     if as_json:
         click.echo(json.dumps(result.to_dict(), indent=2))
         return

@@ -115,6 +115,62 @@ class E3125Distances:
     def max_abs_error_um(self) -> float:
         return float(max(abs(e.error_um) for e in self.errors)) if self.errors else float("nan")
 
+    def to_markdown(self) -> str:
+        """A report section: every pair's error with U (k = 2), the MPE and the decision."""
+        lines = [f"## Sphere-centre distance errors in the manner of ASTM E3125 ({len(self.errors)} pairs)", "",
+                 "| pair | distance (mm) | reference (mm) | error (um) | U, k = 2 (um) | MPE (um) | decision |",
+                 "|" + "---|" * 7]
+        for e in self.errors:
+            lines.append(f"| {e.a} - {e.b} | {e.distance:.4f} | {e.reference:.4f} | {e.error_um:+.2f} | "
+                         f"{2 * e.u_um:.2f} | {'-' if e.mpe_um is None else f'{e.mpe_um:.1f}'} | {e.decision or '-'} |")
+        lines += ["", f"Decision rule: {self.rule}.", "",
+                  "| target | centre x, y, z (mm) | points used |", "|---|---|---|"]
+        lines += [f"| {t.name} | {', '.join(f'{v:.4f}' for v in t.centre)} | {t.n_points} |"
+                  for t in self.targets.values()]
+        return "\n".join(lines) + "\n"
+
+    def plot(self, path=None):
+        """Distance errors against the reference distance, U (k = 2) as error
+        bars, and the MPE if one was given; saved to ``path`` if given.
+
+        Parameters
+        ----------
+        path : str or PathLike, optional
+            Image file to write.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+        """
+        import matplotlib
+
+        if path is not None:
+            matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(7, 4.2), layout="constrained")
+        ref = np.array([e.reference for e in self.errors])
+        ax.errorbar(ref, [e.error_um for e in self.errors], yerr=[2 * e.u_um for e in self.errors], fmt="o", ms=4,
+                    capsize=3, label="E (error bar: U, k = 2)")
+        for e in self.errors:
+            ax.annotate(f"{e.a}-{e.b}", (e.reference, e.error_um), textcoords="offset points", xytext=(4, 4),
+                        fontsize=7)
+        limits = [e.mpe_um for e in self.errors if e.mpe_um is not None]
+        if limits:
+            order = np.argsort(ref)
+            mpe = np.array([self.errors[i].mpe_um for i in order])
+            ax.plot(ref[order], mpe, "r-", label="MPE")
+            ax.plot(ref[order], -mpe, "r-")
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.set_xlabel("reference distance (mm)")
+        ax.set_ylabel("distance error (um)")
+        ax.set_title("Sphere-centre distance errors (ASTM E3125 manner)")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+        if path is not None:
+            fig.savefig(path, dpi=150)
+        return fig
+
     def to_dict(self) -> dict:
         return {"targets": {n: {"centre_mm": t.centre.tolist(), "covariance_mm2": t.covariance.tolist(),
                                 "n_points": t.n_points} for n, t in self.targets.items()},
