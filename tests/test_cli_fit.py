@@ -2,9 +2,7 @@
 (issue 14's "done when": better than 1 um; here within 0.1 um), any point-cloud
 format, and clear errors for what cannot work."""
 
-import csv
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +10,8 @@ from click.testing import CliRunner
 
 import cmmpose
 from cmmpose.cli import main
+from nist import NIST, reference_rows
 
-NIST = Path(__file__).parents[1].parent / "shared" / "reference" / "nist_dmg"
 
 
 def run(*args):
@@ -22,10 +20,7 @@ def run(*args):
 
 @pytest.fixture(scope="module")
 def reference():
-    if not (NIST / "reference_centres.csv").is_file():
-        pytest.fail(f"NIST reference scans missing: expected {NIST} (clone the shared data beside the repository)")
-    with open(NIST / "reference_centres.csv", newline="") as f:
-        return {row["file"]: row for row in csv.DictReader(f)}
+    return reference_rows()
 
 
 @pytest.mark.parametrize("name", [f"SPH10{k}" for k in range(1, 6)])

@@ -3,26 +3,16 @@
 about 35-40 % stand and background): from the raw file, cmmpose.e3125 gives
 NIST's own E3125 centres within 0.1 um and keeps the same number of points."""
 
-import csv
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 import cmmpose
-
-NIST = Path(__file__).parents[1].parent / "shared" / "reference" / "nist_dmg"
-FILES = [f"SPH10{k}" for k in range(1, 6)]
+from nist import FILES, NIST, reference_rows
 
 
 @pytest.fixture(scope="module")
 def reference():
-    # The shared data sit beside the repository (CI clones them there): a
-    # missing directory is a broken checkout, not a reason to skip.
-    if not (NIST / "reference_centres.csv").is_file():
-        pytest.fail(f"NIST reference scans missing: expected {NIST} (clone the shared data beside the repository)")
-    with open(NIST / "reference_centres.csv", newline="") as f:
-        return {row["file"]: row for row in csv.DictReader(f)}
+    return reference_rows()
 
 
 def scan_mm(name: str) -> np.ndarray:

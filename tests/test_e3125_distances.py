@@ -7,26 +7,22 @@ and a simulated pair with a known error is found with an honest uncertainty."""
 import csv
 import itertools
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from cmmpose.cli import main
+from nist import FILES, NIST, reference_rows
 from cmmpose.errors import InputError
 from cmmpose.standards import MPE, SphereTarget, distance_errors
 
-NIST = Path(__file__).parents[1].parent / "shared" / "reference" / "nist_dmg"
-NAMES = [f"SPH10{k}" for k in range(1, 6)]
+NAMES = FILES
 
 
 @pytest.fixture(scope="module")
 def nist_centres():
-    if not (NIST / "reference_centres.csv").is_file():
-        pytest.fail(f"NIST reference scans missing: expected {NIST} (clone the shared data beside the repository)")
-    with open(NIST / "reference_centres.csv", newline="") as f:
-        return {r["file"]: np.array([float(r[f"{k}_m"]) for k in "xyz"]) * 1e3 for r in csv.DictReader(f)}
+    return {name: np.array([float(r[f"{k}_m"]) for k in "xyz"]) * 1e3 for name, r in reference_rows().items()}
 
 
 def test_nist_distances_from_the_command_line(tmp_path, nist_centres):

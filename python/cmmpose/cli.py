@@ -731,7 +731,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
                  scheduler, as_json) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall.
     Several RUN_DIRs are diagnosed one by one on a Dask scheduler, with one table across them."""
-    from .diagnosis import Model, diagnose
+    from .diagnosis import diagnose
     from .machine import load_machine
     from .run import Run
 
@@ -756,14 +756,9 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
         user = [_load_user_effect(f) for f in user_files]
-        if model_file:
-            model = Model.load(model_file, user_effects=user)
-        else:
-            maps_ = _maps_for_run(run, maps, machine)
-            if maps_ is None:
-                raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
-            model = Model(maps_, temperature=temperature, out_of_range=out_of_range,
-                          temperature_tolerance=temperature_tolerance, log_hold=log_hold)
+        model = _starting_model(run, machine, maps, model_file, user, temperature=temperature,
+                                out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+                                log_hold=log_hold)
         with console.status("diagnosing ..."):
             known = set(model.names)
             diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects,
@@ -794,10 +789,22 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
         console.print(f"wrote {f}")
 
 
+def _starting_model(run, machine, maps, model_file, user, **policy):
+    """The model a diagnosis starts from: a saved one (with its user effects),
+    or the maps (--maps, the machine's, or the run's) with the temperature policy."""
+    from .diagnosis import Model
+
+    if model_file:
+        return Model.load(model_file, user_effects=user)
+    maps_ = _maps_for_run(run, maps, machine)
+    if maps_ is None:
+        raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
+    return Model(maps_, **policy)
+
+
 def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, *, temperature,
                     out_of_range, temperature_tolerance, log_hold, **options) -> None:
     """`diagnose RUN... --joint`: one model for several runs (cmmpose.diagnosis.joint)."""
-    from .diagnosis import Model
     from .diagnosis.joint import diagnose_jointly
     from .machine import load_machine
     from .run import Run
@@ -806,14 +813,9 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
         machine = load_machine(machine_file)
         runs = [Run.load(r) for r in run_dirs]
         user = [_load_user_effect(f) for f in user_files]
-        if model_file:
-            model = Model.load(model_file, user_effects=user)
-        else:
-            maps_ = _maps_for_run(runs[0], maps, machine)
-            if maps_ is None:
-                raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
-            model = Model(maps_, temperature=temperature, out_of_range=out_of_range,
-                          temperature_tolerance=temperature_tolerance, log_hold=log_hold)
+        model = _starting_model(runs[0], machine, maps, model_file, user, temperature=temperature,
+                                out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+                                log_hold=log_hold)
         with console.status(f"diagnosing {len(runs)} runs together ..."):
             diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
                                     run_names=[str(r) for r in run_dirs], **options)

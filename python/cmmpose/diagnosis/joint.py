@@ -22,7 +22,7 @@ import numpy as np
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
 from ..run import Run
-from .diagnose import Diagnosis, Step
+from .diagnose import Diagnosis, Step, _unobservable
 from .effects import UserEffect
 from .identify import Problem, check_effect_names, fit_model, model_uncertainties, rank_candidates
 from .model import Model
@@ -223,20 +223,9 @@ def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, 
         steps.append(s)
         per_run.append(f)
         added += 1
-    unobservable = {}
-    for c in steps[-1].ranking:
-        if not c.observable:
-            unobservable[c.name] = c.reason().replace("; needs: ", "; ")
-    unobservable.update(problem.skipped)
-    ambiguous = []
-    for s in steps:
-        for c in s.ranking[:1]:
-            if c.indistinguishable_from:
-                group = tuple([c.name, *c.indistinguishable_from])
-                if group not in ambiguous:
-                    ambiguous.append(group)
+    unobservable, advice, ambiguous = _unobservable(problem, steps)
     diag = JointDiagnosis(steps, unobservable, ambiguous, n_points=sum(r.n_points for r in runs),
-                          advice={c.name: c.spec.reveal for c in steps[0].ranking},
+                          advice=advice,
                           final_uncertainty=model_uncertainties(problem, model), skipped=dict(problem.skipped),
                           run_figures=per_run, run_names=names)
     diag.elapsed = time.perf_counter() - t0
