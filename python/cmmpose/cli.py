@@ -781,6 +781,10 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
         raise fail(exc) from None
+    _print_diagnosis(diag, files, as_json)
+
+
+def _print_diagnosis(diag, files, as_json: bool) -> None:
     if as_json:
         click.echo(diag.to_json(indent=1))
     else:
@@ -822,12 +826,7 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
         files = [diag.model.save(model_out)] if model_out else []
     except Error as exc:
         raise fail(exc) from None
-    if as_json:
-        click.echo(diag.to_json(indent=1))
-    else:
-        Console(width=150).print(diag)
-    for f in files:
-        console.print(f"wrote {f}")
+    _print_diagnosis(diag, files, as_json)
 
 
 def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json, *, temperature, out_of_range,

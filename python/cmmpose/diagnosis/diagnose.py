@@ -290,6 +290,18 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+def as_model(model) -> Model:
+    """The starting model of a diagnosis: a Model as given, maps as the thesis
+    model, None as the thesis maps."""
+    if model is None:
+        return Model(ErrorMapSet.thesis())
+    if isinstance(model, (ErrorMap, ErrorMapSet)):
+        return Model(model)
+    if not isinstance(model, Model):
+        raise InputError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
+    return model
+
+
 def diagnose(
     run: Run,
     model: Model | ErrorMap | ErrorMapSet | None = None,
@@ -353,12 +365,7 @@ def diagnose(
     t0 = time.perf_counter()
     if not isinstance(run, Run):
         raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
-    if model is None:
-        model = Model(ErrorMapSet.thesis())
-    elif isinstance(model, (ErrorMap, ErrorMapSet)):
-        model = Model(model)
-    elif not isinstance(model, Model):
-        raise InputError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
+    model = as_model(model)
     policy = {k: v for k, v in (("out_of_range", out_of_range), ("temperature_tolerance", temperature_tolerance),
                                 ("log_hold", log_hold)) if v is not None}
     if policy:

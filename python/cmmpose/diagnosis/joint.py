@@ -22,7 +22,7 @@ import numpy as np
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
 from ..run import Run
-from .diagnose import Diagnosis, Step, _unobservable
+from .diagnose import Diagnosis, Step, _unobservable, as_model
 from .effects import UserEffect
 from .identify import Problem, check_effect_names, fit_model, model_uncertainties, rank_candidates
 from .model import Model
@@ -179,12 +179,7 @@ def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, 
     for i, r in enumerate(runs):
         if not isinstance(r, Run):
             raise InputError(f"runs[{i}]: expected a cmmpose.Run, got {type(r).__name__}")
-    if model is None:
-        model = Model(ErrorMapSet.thesis())
-    elif isinstance(model, (ErrorMap, ErrorMapSet)):
-        model = Model(model)
-    elif not isinstance(model, Model):
-        raise InputError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
+    model = as_model(model)
     cand = None
     if user_effects:
         from .effects import library
