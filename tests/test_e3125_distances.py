@@ -67,3 +67,39 @@ def test_a_known_error_and_its_uncertainty():
                          ([("a", "b", -1.0, 0.0)], "must be > 0"), ([("a", "b")], "expected")):
         with pytest.raises(InputError, match=words):
             distance_errors(t, pairs)
+
+
+def test_simulated_scans_from_the_command_line(tmp_path):
+    """Three simulated raw scans (the visible cap of a 50 mm sphere seen from the
+    origin, 0.5 mm range noise, a third of the points on a stand behind it)
+    in XYZ files: the errors against the true distances are within U."""
+    import cmmpose
+
+    rng = np.random.default_rng(5)
+    centres = {"A": np.array([3000.0, 500.0, -200.0]), "B": np.array([2500.0, -1500.0, 100.0]),
+               "C": np.array([4200.0, 900.0, 400.0])}
+    files = {}
+    for name, c in centres.items():
+        view = -c / np.linalg.norm(c)  # towards the scanner
+        d = rng.normal(size=(6000, 3))
+        d /= np.linalg.norm(d, axis=1)[:, None]
+        d = d[d @ view > 0.2][:3000]  # the cap the scanner sees
+        ray = c + 50.0 * d
+        ray += rng.normal(scale=0.5, size=(len(ray), 1)) * (ray / np.linalg.norm(ray, axis=1)[:, None])
+        stand = c - 60.0 * view + rng.uniform(-60, 60, size=(1500, 3)) * np.array([1, 1, 3])
+        files[name] = tmp_path / f"{name}.xyz"
+        cmmpose.write_point_cloud(files[name], cmmpose.PointCloud(np.vstack([ray, stand])), units="m")  # written in metres
+    with open(tmp_path / "pairs.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["a", "b", "reference_mm", "u_um"])
+        for a, b in itertools.combinations(centres, 2):
+            w.writerow([a, b, repr(float(np.linalg.norm(centres[b] - centres[a]))), 1.0])
+    res = CliRunner().invoke(main, ["e3125-distances", *(f"{n}={p}" for n, p in files.items()), "--pairs",
+                                    str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m", "--json"],
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert all(1000 < t["n_points"] <= 3000 for t in out["targets"].values())  # cap points (the E3125 cone), no stand
+    for e in out["errors"]:
+        assert abs(e["error_um"]) < e["U_um"], e  # within U (k = 2): the range noise through the fits
+        assert 10 < e["U_um"] < 100
