@@ -23,6 +23,16 @@ def _fail(exc: Exception) -> click.ClickException:
     return click.ClickException(cli_wording(str(exc)))
 
 
+def _show(result, files, as_json: bool) -> None:
+    """The result as JSON or as its rich table, then the files written."""
+    if as_json:
+        click.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        Console(width=max(Console().width, 120)).print(result)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
 def _write_report(result, directory, stem: str, plot=None) -> list[Path]:
     """``<stem>.json``, ``<stem>.md`` (a report section) and, given ``plot``
     (a callable taking the path) and matplotlib, ``<stem>.png`` in ``directory``."""
@@ -77,12 +87,7 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
         raise _fail(exc) from None
     except OSError as exc:
         raise click.ClickException(f"{exc.filename or plot_path}: {exc.strerror or exc}") from None
-    if as_json:
-        click.echo(json.dumps(result.to_dict(), indent=2))
-    else:
-        Console(width=max(Console().width, 120)).print(result)
-    for f in files:
-        console.print(f"wrote {f}")
+    _show(result, files, as_json)
 
 
 @click.command("acceptance")
@@ -139,12 +144,7 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
         raise _fail(exc) from None
     except OSError as exc:
         raise click.ClickException(f"{exc.filename or plot_path}: {exc.strerror or exc}") from None
-    if as_json:
-        click.echo(json.dumps(result.to_dict(), indent=2))
-    else:
-        Console(width=max(Console().width, 120)).print(result)
-    for f in files:
-        console.print(f"wrote {f}")
+    _show(result, files, as_json)
 
 
 @click.command("interim-check")
@@ -253,8 +253,6 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
     """Sphere-centre distance errors in the manner of ASTM E3125: each NAME=SCAN is a raw scan of one
     sphere target (any point-cloud format), segmented and fitted with the radius fixed; each pair of
     --pairs is compared with its reference distance (docs/standards.md)."""
-    from rich.table import Table
-
     from .pointclouds import read_point_cloud
     from .standards.acceptance import parse_mpe
     from .standards.e3125_distances import distance_errors, read_pairs, sphere_targets
@@ -287,16 +285,4 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
             files.append(Path(plot_path))
     except Error as exc:
         raise _fail(exc) from None
-    for f in files:
-        console.print(f"wrote {f}")
-    if as_json:
-        click.echo(json.dumps(result.to_dict(), indent=2))
-        return
-    table = Table(title=f"ASTM E3125-style distance errors ({len(result.errors)} pairs)")
-    for col in ("pair", "distance (mm)", "reference (mm)", "error (um)", "U, k=2 (um)", "MPE (um)", "decision"):
-        table.add_column(col, justify="left" if col in ("pair", "decision") else "right")
-    for e in result.errors:
-        table.add_row(f"{e.a} - {e.b}", f"{e.distance:.4f}", f"{e.reference:.4f}", f"{e.error_um:+.2f}",
-                      f"{2 * e.u_um:.2f}", "-" if e.mpe_um is None else f"{e.mpe_um:.1f}", e.decision or "-")
-    table.caption = result.rule
-    Console().print(table)
+    _show(result, files, as_json)

@@ -115,6 +115,18 @@ class E3125Distances:
     def max_abs_error_um(self) -> float:
         return float(max(abs(e.error_um) for e in self.errors)) if self.errors else float("nan")
 
+    def __rich__(self):
+        from rich.table import Table
+
+        table = Table(title=f"ASTM E3125-style distance errors ({len(self.errors)} pairs)")
+        for col in ("pair", "distance (mm)", "reference (mm)", "error (um)", "U, k=2 (um)", "MPE (um)", "decision"):
+            table.add_column(col, justify="left" if col in ("pair", "decision") else "right")
+        for e in self.errors:
+            table.add_row(f"{e.a} - {e.b}", f"{e.distance:.4f}", f"{e.reference:.4f}", f"{e.error_um:+.2f}",
+                          f"{2 * e.u_um:.2f}", "-" if e.mpe_um is None else f"{e.mpe_um:.1f}", e.decision or "-")
+        table.caption = self.rule
+        return table
+
     def to_markdown(self) -> str:
         """A report section: every pair's error with U (k = 2), the MPE and the decision."""
         lines = [f"## Sphere-centre distance errors in the manner of ASTM E3125 ({len(self.errors)} pairs)", "",
