@@ -3,7 +3,7 @@ thesis's budgets as code, and propagation through compensation and sphere
 fitting, by Monte Carlo (GUM Supplement 1) and by the law of propagation of
 uncertainty (GUM eq. 10 / 13) with sensitivity coefficients from the kernels.
 
-Thesis references are to /work/shared/reference/thesis.txt (section, line).
+Thesis references are to section and line of its plain text (data/SOURCES.md).
 Units: the thesis budgets are in um; the propagation functions work in the
 package's units (mm, degrees, degrees C) and return mm and mm^2.
 See docs/uncertainty.md.

@@ -26,7 +26,7 @@ stored as 0 (line 793); the table is the average of three or five readings
 Units: positions and linear readings mm, straightness readings and map
 deltas um, angles arc-second, temperatures degrees C, pressure mmHg,
 humidity % RH, refractivity N = (n - 1) * 1e6 (ppm). Line numbers are those
-of /work/shared/reference/thesis.txt.
+of the thesis's plain text (data/SOURCES.md).
 """
 
 from __future__ import annotations
