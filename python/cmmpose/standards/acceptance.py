@@ -46,6 +46,7 @@ from ..errors import InputError
 from ..evaluation import _machine_coordinates, evaluate, machine_temperature
 from ..fitting import fit_sphere
 from ..metrics import STEEL_EXPANSION
+from ..plots import _figure, _save
 from ..run import Run
 
 __all__ = [
@@ -294,13 +295,8 @@ class AcceptanceResult:
         -------
         matplotlib.figure.Figure
         """
-        import matplotlib
-
-        if path is not None:
-            matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
+        fig = _figure(figsize=(11, 4.2))
+        a1, a2 = fig.subplots(1, 2)
         lengths = [c for c in self.checks if c.test == "length"]
         if lengths:
             L = np.array([c.length_mm for c in lengths])
@@ -326,10 +322,7 @@ class AcceptanceResult:
         a2.grid(alpha=0.3)
         fig.suptitle(f"Acceptance ({self.label}): {self.decision}")
         fig.tight_layout()
-        if path is not None:
-            fig.savefig(path, dpi=120)
-            plt.close(fig)
-        return fig
+        return _save(fig, path)
 
 
 def _nonneg(name: str, value) -> float:

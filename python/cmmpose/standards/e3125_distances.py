@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..fitting import e3125
+from ..plots import _figure, _save
 from .acceptance import MPE, decide
 
 __all__ = ["SphereTarget", "DistanceError", "E3125Distances", "sphere_targets", "distance_errors", "read_pairs"]
@@ -154,13 +155,8 @@ class E3125Distances:
         -------
         matplotlib.figure.Figure
         """
-        import matplotlib
-
-        if path is not None:
-            matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(7, 4.2), layout="constrained")
+        fig = _figure(figsize=(7, 4.2), layout="constrained")
+        ax = fig.subplots()
         ref = np.array([e.reference for e in self.errors])
         ax.errorbar(ref, [e.error_um for e in self.errors], yerr=[2 * e.u_um for e in self.errors], fmt="o", ms=4,
                     capsize=3, label="E (error bar: U, k = 2)")
@@ -179,9 +175,7 @@ class E3125Distances:
         ax.set_title("Sphere-centre distance errors (ASTM E3125 manner)")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
-        if path is not None:
-            fig.savefig(path, dpi=150)
-        return fig
+        return _save(fig, path)
 
     def to_dict(self) -> dict:
         return {"targets": {n: {"centre_mm": t.centre.tolist(), "covariance_mm2": t.covariance.tolist(),

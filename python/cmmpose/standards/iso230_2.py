@@ -53,6 +53,7 @@ from ..calibration.interferometer import (
     refractivity_uncertainty,
 )
 from ..errors import Error, InputError, MapError, read_lines
+from ..plots import _figure, _save
 
 __all__ = [
     "ISO230_2_CLAUSE",
@@ -277,14 +278,9 @@ class PositioningResult:
         -------
         matplotlib.figure.Figure
         """
-        import matplotlib
-
-        if path is not None:
-            matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
         x = np.array([r.target_mm for r in self.targets])
-        fig, ax = plt.subplots(figsize=(8, 4.5))
+        fig = _figure(figsize=(8, 4.5))
+        ax = fig.subplots()
         for name, mean, s, colour in (("up (+1)", [r.mean_up for r in self.targets], [r.s_up for r in self.targets], "C0"),
                                       ("down (-1)", [r.mean_down for r in self.targets], [r.s_down for r in self.targets], "C3")):
             mean, s = np.asarray(mean), np.asarray(s)
@@ -301,10 +297,7 @@ class PositioningResult:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, ncol=2)
         fig.tight_layout()
-        if path is not None:
-            fig.savefig(path, dpi=120)
-            plt.close(fig)
-        return fig
+        return _save(fig, path)
 
 
 def _array(name: str, values, source: str, dtype=float) -> np.ndarray:
