@@ -33,6 +33,17 @@ def _show(result, files, as_json: bool) -> None:
         console.print(f"wrote {f}")
 
 
+def _outputs(result, stem: str, plot, plot_path, report_dir) -> list[Path]:
+    """The plot at ``plot_path`` and the report in ``report_dir``, as asked; the files written."""
+    files = []
+    if plot_path:
+        plot(plot_path)
+        files.append(Path(plot_path))
+    if report_dir:
+        files += _write_report(result, report_dir, stem, plot)
+    return files
+
+
 def _write_report(result, directory, stem: str, plot=None) -> list[Path]:
     """``<stem>.json``, ``<stem>.md`` (a report section) and, given ``plot``
     (a callable taking the path) and matplotlib, ``<stem>.png`` in ``directory``."""
@@ -78,11 +89,7 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
         if test_uncertainty is not None:
             u, note = test_uncertainty, "given (--test-uncertainty)"
         result = evaluate_iso230_2(data, test_uncertainty_um=u, test_uncertainty_note=note)
-        files = [Path(plot_path)] if plot_path else []
-        if plot_path:
-            result.plot(plot_path, data)
-        if report_dir:
-            files += _write_report(result, report_dir, "iso230-2", lambda p: result.plot(p, data))
+        files = _outputs(result, "iso230-2", lambda p: result.plot(p, data), plot_path, report_dir)
     except Error as exc:
         raise _fail(exc) from None
     except OSError as exc:
@@ -135,11 +142,7 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
             u_form_certificate_um=u_form_cert,
             expansion=machine.artefact_expansion if expansion is None else expansion * 1e-6,
             u_expansion_ppm_per_K=u_expansion, u_part_temperature_K=u_part_temperature)
-        files = [Path(plot_path)] if plot_path else []
-        if plot_path:
-            result.plot(plot_path)
-        if report_dir:
-            files += _write_report(result, report_dir, "acceptance", result.plot)
+        files = _outputs(result, "acceptance", result.plot, plot_path, report_dir)
     except Error as exc:
         raise _fail(exc) from None
     except OSError as exc:
@@ -279,10 +282,7 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
         clouds = {n: read_point_cloud(p, units=units).xyz for n, p in named.items()}
         targets = sphere_targets(clouds, radius, tuple(v * scale for v in origin))
         result = distance_errors(targets, read_pairs(pairs_file), mpe)
-        files = _write_report(result, report_dir, "e3125-distances", result.plot) if report_dir else []
-        if plot_path:
-            result.plot(plot_path)
-            files.append(Path(plot_path))
+        files = _outputs(result, "e3125-distances", result.plot, plot_path, report_dir)
     except Error as exc:
         raise _fail(exc) from None
     _show(result, files, as_json)
