@@ -19,6 +19,7 @@ from .compensation import compensate, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import CalibrationError, Error, InputError, MapTemperatureWarning
 from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
+from .pointclouds import UNITS as POINT_UNITS
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
 from .metrics import STEEL_EXPANSION
 from .report import KernelReport
@@ -416,12 +417,9 @@ def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, 
                   "--library LIBRARY", soft_wrap=True)
 
 
-_UNIT_MM = {"mm": 1.0, "m": 1e3, "um": 1e-3, "in": 25.4}
-
-
 @main.command("fit")
 @click.argument("scan", type=click.Path(exists=True, dir_okay=False))
-@click.option("--units", type=click.Choice(sorted(_UNIT_MM)), default=None,
+@click.option("--units", type=click.Choice(sorted(POINT_UNITS)), default=None,
               help="Units of the file's coordinates (and of --scanner-origin, --start). Default: the format's "
                    "(mm; metres for E57).")
 @click.option("--radius", type=float, default=None,
@@ -442,11 +440,9 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
     """Fit a sphere to the point cloud SCAN (CSV, NPY, Parquet, PLY, XYZ, PTS, E57): centre (mm), radius,
     points used and the centre's standard uncertainty. With --segment e3125 a raw scan is segmented in the
     manner of ASTM E3125 first (closest-point start, cone and cylinder about the line of sight, radius fixed)."""
-    import warnings as _warnings
-
     from .errors import IllConditionedFit
     from .fitting import e3125, fit_sphere
-    from .pointclouds import read_point_cloud
+    from .pointclouds import read_point_cloud, unit_factor
 
     if radius is not None and not (np.isfinite(radius) and radius > 0):
         raise click.BadParameter(f"expected a positive radius in mm, got {radius}", param_hint="--radius")
@@ -454,7 +450,10 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
         raise click.UsageError("--segment e3125 fits with the radius fixed at its calibrated value: give --radius (mm)")
     if segment == "e3125" and (rule or reject is not None):
         raise click.UsageError("--segment e3125 applies the standard's own rule: --rule and --reject do not apply")
-    scale = _UNIT_MM[units] if units else 1.0
+    try:
+        scale = unit_factor(scan, units)  # --start and --scanner-origin are in the file's units
+    except Error as exc:
+        raise fail(exc) from None
     start_value = None
     if start is not None:
         start_value = start if start in ("algebraic", "lmeds") else tuple(v * scale for v in triple(start, "--start"))
@@ -464,8 +463,8 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
     origin = tuple(v * scale for v in triple(scanner_origin, "--scanner-origin"))
     try:
         cloud = read_point_cloud(scan, units=units)
-        with _warnings.catch_warnings(record=True) as caught:
-            _warnings.simplefilter("always", IllConditionedFit)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", IllConditionedFit)
             if segment == "e3125":
                 res = e3125(cloud.xyz, radius, origin, start=start_value)
                 out = {"file": str(scan), "method": "e3125 segmentation, radius fixed", **res.to_dict()}

@@ -12,6 +12,7 @@ import click
 from rich.console import Console
 
 from .errors import Error
+from .pointclouds import UNITS
 from .policy import cli_wording
 
 __all__ = ["iso230_2_cmd", "acceptance_cmd", "acceptance_sphere_cmd", "interim_cmd", "e3125_distances_cmd"]
@@ -199,7 +200,8 @@ def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_l
 @click.option("--radius", type=float, required=True, help="Certified sphere radius, mm.")
 @click.option("--mpe-form", required=True, help="MPE of the probing form error, um.")
 @click.option("--mpe-size", required=True, help="MPE of the probing size error, um.")
-@click.option("--units", default=None, help="Units of the file's coordinates (as 'cmmpose fit'). Default: the format's.")
+@click.option("--units", type=click.Choice(sorted(UNITS)), default=None,
+              help="Units of the file's coordinates (as 'cmmpose fit'). Default: the format's.")
 @click.option("--segment", type=click.Choice(["none", "e3125"]), default="none", show_default=True,
               help="e3125: segment the sphere from a raw scan about the scanner's line of sight first.")
 @click.option("--scanner-origin", default="0,0,0", show_default=True,
@@ -211,15 +213,13 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
                           as_json) -> None:
     """Probing form and size errors of one scan of a calibrated sphere (a point cloud: CSV, NPY, Parquet, PLY,
     XYZ, PTS, E57), each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven."""
-    from .cli import _UNIT_MM, triple
+    from .cli import triple
     from .fitting import e3125
-    from .pointclouds import read_point_cloud
+    from .pointclouds import read_point_cloud, unit_factor
     from .standards.acceptance import probing_test
 
-    if units is not None and units not in _UNIT_MM:
-        raise click.BadParameter(f"expected one of {', '.join(sorted(_UNIT_MM))}, got {units!r}", param_hint="--units")
-    scale = _UNIT_MM[units] if units else 1.0
     try:
+        scale = unit_factor(scan, units)  # --scanner-origin is in the file's units
         xyz = read_point_cloud(scan, units=units).xyz
         if segment == "e3125":
             origin = tuple(v * scale for v in triple(scanner_origin, "--scanner-origin"))
@@ -235,15 +235,12 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
         Console(width=max(Console().width, 120)).print(result)
 
 
-_UNIT_MM = {"mm": 1.0, "m": 1e3, "um": 1e-3, "in": 25.4}
-
-
 @click.command("e3125-distances")
 @click.argument("scans", metavar="NAME=SCAN...", nargs=-1, required=True)
 @click.option("--pairs", "pairs_file", required=True, type=click.Path(exists=True, dir_okay=False),
               help="CSV of the pairs: a, b, reference_mm[, u_um] (the reference distance and its standard uncertainty).")
 @click.option("--radius", type=float, required=True, help="Calibrated sphere radius, mm (fixed in the fits).")
-@click.option("--units", type=click.Choice(sorted(_UNIT_MM)), default=None,
+@click.option("--units", type=click.Choice(sorted(UNITS)), default=None,
               help="Units of the scans' coordinates and of --scanner-origin (default: the format's).")
 @click.option("--scanner-origin", default="0,0,0", show_default=True, help="The scanner's origin, x,y,z in --units.")
 @click.option("--mpe", "mpe_text", default=None, help="MPE of the distance error, um: A or A+L/K, L in mm.")
@@ -256,7 +253,7 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
     """Sphere-centre distance errors in the manner of ASTM E3125: each NAME=SCAN is a raw scan of one
     sphere target (any point-cloud format), segmented and fitted with the radius fixed; each pair of
     --pairs is compared with its reference distance (docs/standards.md)."""
-    from .pointclouds import read_point_cloud
+    from .pointclouds import read_point_cloud, unit_factor
     from .standards.acceptance import parse_mpe
     from .standards.e3125_distances import distance_errors, read_pairs, sphere_targets
 
@@ -268,7 +265,6 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
         origin = ()
     if len(origin) != 3:
         raise click.BadParameter(f"expected x,y,z, got {scanner_origin!r}", param_hint="--scanner-origin")
-    scale = _UNIT_MM[units] if units else 1.0
     named = {}
     for item in scans:
         name, sep, path = item.partition("=")
@@ -280,6 +276,7 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
     try:
         mpe = parse_mpe(mpe_text, "--mpe") if mpe_text else None
         clouds = {n: read_point_cloud(p, units=units).xyz for n, p in named.items()}
+        scale = unit_factor(next(iter(named.values())), units)  # --scanner-origin is in the scans' units
         targets = sphere_targets(clouds, radius, tuple(v * scale for v in origin))
         result = distance_errors(targets, read_pairs(pairs_file), mpe)
         files = _outputs(result, "e3125-distances", result.plot, plot_path, report_dir)

@@ -18,7 +18,7 @@ from . import pointformats
 from .errors import InputError
 from .pointformats._common import numeric_column
 
-__all__ = ["PointCloud", "read_point_cloud", "write_point_cloud", "UNITS"]
+__all__ = ["PointCloud", "read_point_cloud", "write_point_cloud", "unit_factor", "UNITS"]
 
 _log = logging.getLogger("cmmpose")
 
@@ -73,6 +73,13 @@ def _factor(units: str | None, fmt) -> float:
         return UNITS[unit]
     except KeyError:
         raise InputError(f"units={unit!r}: expected one of {', '.join(UNITS)}") from None
+
+
+def unit_factor(path: str | Path, units: str | None = None, format: str | None = None) -> float:
+    """Millimetres per unit of a file's coordinates: ``units``, or its format's
+    own (metres for E57, mm for every other), as :func:`read_point_cloud`
+    converts them. For quantities given in the file's units (a scanner origin)."""
+    return _factor(units, pointformats.for_path(path, format))
 
 
 def _coordinate_names(path, names) -> list[str]:
