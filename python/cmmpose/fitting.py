@@ -595,17 +595,13 @@ def segment_sphere(points, radius: float, scanner_origin=(0.0, 0.0, 0.0), *, sta
     """
     pts = as_rows("points", points, 3)
     origin = tuple(vector3("scanner_origin", scanner_origin, unit="mm").tolist())
-    if not (np.isfinite(radius) and radius > 0):
+    if radius is None or not (np.isfinite(radius) and radius > 0):
         raise InputError(f"radius: the calibrated radius must be a positive length in mm, got {radius}")
-    if rule not in RULES:
-        raise InputError(f"rule: expected one of {', '.join(map(repr, RULES))}, got {rule!r}")
-    if reject is not None and not (np.isfinite(reject) and reject > 0):
-        raise InputError(f"reject: must be a positive multiple of the rule's sigma, got {reject}")
-    for name, value in (("max_rounds", max_rounds), ("samples", samples), ("max_iterations", max_iterations)):
-        if int(value) < 1:
-            raise InputError(f"{name}: must be at least 1, got {value}")
-    if int(seed) < 0:
-        raise InputError(f"seed: must be a non-negative integer, got {seed}")
+    if rule is None:
+        raise InputError(f"rule: expected one of {', '.join(map(repr, RULES))}, got None")
+    _check(radius, reject, rule, max_iterations, 0.0, samples, seed)
+    if int(max_rounds) < 1:
+        raise InputError(f"max_rounds: must be at least 1, got {max_rounds}")
     start = None if start is None else tuple(vector3("start", start, unit="mm").tolist())
     d = _core.segment_sphere(pts, float(radius), origin, start=start, half_angle=float(half_angle), rule=rule,
                              reject=None if reject is None else float(reject), max_rounds=int(max_rounds),

@@ -35,6 +35,25 @@ pub enum Side {
     Part,
 }
 
+impl Side {
+    /// 'probe' or 'part', as machine files and map states name it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Side::Probe => "probe",
+            Side::Part => "part",
+        }
+    }
+
+    /// The side named `name` ('probe' or 'part').
+    pub fn from_name(name: &str) -> Option<Side> {
+        match name {
+            "probe" => Some(Side::Probe),
+            "part" => Some(Side::Part),
+            _ => None,
+        }
+    }
+}
+
 /// The stacking of the three carriages, from the base up.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Kinematics {

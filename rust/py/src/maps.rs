@@ -215,13 +215,7 @@ fn map_state(map: &ErrorMap) -> MapState {
     let stack = k
         .stack()
         .iter()
-        .map(|&(a, side)| {
-            let side = match side {
-                Side::Probe => "probe",
-                Side::Part => "part",
-            };
-            (a, side.to_string())
-        })
+        .map(|&(a, side)| (a, side.name().to_string()))
         .collect();
     (
         tables,
@@ -253,15 +247,11 @@ fn map_from_state(state: MapState) -> Res<ErrorMap> {
                 )));
             }
             for (slot, (a, side)) in s.iter_mut().zip(stack) {
-                let side = match side.as_str() {
-                    "probe" => Side::Probe,
-                    "part" => Side::Part,
-                    other => {
-                        return Err(input(format!(
-                            "map state: a carriage carries 'probe' or 'part', got {other:?}"
-                        )))
-                    }
-                };
+                let side = Side::from_name(&side).ok_or_else(|| {
+                    input(format!(
+                        "map state: a carriage carries 'probe' or 'part', got {side:?}"
+                    ))
+                })?;
                 *slot = (a, side);
             }
             Kinematics::new(s)?
@@ -316,15 +306,7 @@ fn kinematics_configurations<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, Py
                 .expect("a listed name")
                 .stack()
                 .iter()
-                .map(|&(a, side)| {
-                    (
-                        Carriage::ALL[a].letter().to_string(),
-                        match side {
-                            Side::Probe => "probe",
-                            Side::Part => "part",
-                        },
-                    )
-                })
+                .map(|&(a, side)| (Carriage::ALL[a].letter().to_string(), side.name()))
                 .collect();
             d.set_item("stack", stack)?;
             Ok(d)

@@ -186,10 +186,13 @@ pub(crate) fn median(v: &mut [f64]) -> f64 {
     }
 }
 
-/// 1.4826 * median |r - median r|: a robust estimate of the residuals' sigma.
-#[cfg(test)]
-pub(crate) fn robust_sigma(residuals: impl Iterator<Item = f64>) -> f64 {
-    median_and_sigma(residuals.collect()).1
+/// The rows (N x 3, row-major) where `keep`.
+pub(crate) fn select_rows(rows: &[f64], keep: &[bool]) -> Vec<f64> {
+    rows.chunks_exact(3)
+        .zip(keep)
+        .filter(|(_, &k)| k)
+        .flat_map(|(p, _)| [p[0], p[1], p[2]])
+        .collect()
 }
 
 /// The median of `r` and 1.4826 * median |r - median r| (non-empty `r`).
@@ -479,7 +482,7 @@ mod tests {
         assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
         // MAD of 1..=5 about 3 is 1.
         assert_eq!(
-            robust_sigma([1.0, 2.0, 3.0, 4.0, 5.0].into_iter()),
+            median_and_sigma(vec![1.0, 2.0, 3.0, 4.0, 5.0]).1,
             MAD_TO_SIGMA
         );
     }
@@ -489,7 +492,7 @@ mod tests {
         // 100,000 N(0, 2^2) draws: the MAD estimator's relative standard
         // error is about 1.17 / sqrt(2 n) = 0.26 %, so 2 % is a safe bound.
         let mut rng = Rng::new(7);
-        let s = robust_sigma((0..100_000).map(|_| 2.0 * rng.gauss()));
+        let s = median_and_sigma((0..100_000).map(|_| 2.0 * rng.gauss()).collect()).1;
         assert!((s / 2.0 - 1.0).abs() < 0.02, "{s}");
     }
 

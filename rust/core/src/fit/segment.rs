@@ -31,7 +31,7 @@ use rayon::prelude::*;
 
 use super::lmeds::LeastMedian;
 use super::sphere::{fit, SphereFit, SphereFitOptions, Start};
-use super::{check_rejection, check_rows, non_finite, Rejection, CHUNK};
+use super::{check_rejection, check_rows, non_finite, select_rows, Rejection, CHUNK};
 use crate::error::{CoreError, Result};
 
 /// How to segment a sphere from a raw scan. `new` gives the standard's
@@ -166,16 +166,6 @@ fn mask(points: &[f64], keep: impl Fn(Vector3<f64>) -> bool + Sync + Send) -> Ve
         .collect()
 }
 
-/// The rows where `keep`.
-fn gather(points: &[f64], keep: &[bool]) -> Vec<f64> {
-    points
-        .chunks_exact(3)
-        .zip(keep)
-        .filter(|(_, &k)| k)
-        .flat_map(|(p, _)| [p[0], p[1], p[2]])
-        .collect()
-}
-
 /// Unit line of sight from `o` to `c`.
 fn line_of_sight(o: &Vector3<f64>, c: &Vector3<f64>) -> Result<Vector3<f64>> {
     let d = c - o;
@@ -275,7 +265,7 @@ pub fn segment_sphere(points: &[f64], opts: &SegmentationOptions) -> Result<Segm
         )));
     }
     let f = fit(
-        &gather(points, &first),
+        &select_rows(points, &first),
         &fixed(Start::LeastMedian(opts.sampling), None),
         true,
     )?;
@@ -303,7 +293,7 @@ pub fn segment_sphere(points: &[f64], opts: &SegmentationOptions) -> Result<Segm
             )));
         }
         let f = fit(
-            &gather(points, &reg),
+            &select_rows(points, &reg),
             &fixed(Start::Centre([c.x, c.y, c.z]), opts.rule),
             true,
         )?;

@@ -2,8 +2,8 @@
 //! squared residuals r_i = |p_i - c| - R over the centre c and radius R.
 //!
 //! 1. Centre the points on their mean (conditioning): one pass sums the
-//!    points (a NaN or infinity shows in the sums), a second their moments
-//!    about the mean. Refuse coincident, collinear or coplanar points (no
+//!    points (a NaN or infinity shows in the sums), a second (for the
+//!    algebraic start only) their moments about the mean. Refuse coincident, collinear or coplanar points (no
 //!    unique sphere).
 //! 2. Algebraic start: linear least squares of |q|^2 + a.q + d = 0. With
 //!    centred q the normal equations split into S a = -sum q |q|^2 (S the
@@ -57,8 +57,8 @@ use super::lmeds::{self, LeastMedian};
 #[cfg(test)]
 use super::mean;
 use super::{
-    check_rejection, check_rows, non_finite, reclassify, rms_and_form, sorted_eigen, spread_rank,
-    too_few_inliers, Rejection, CHUNK, PARALLEL_MIN_POINTS,
+    check_rejection, check_rows, non_finite, reclassify, rms_and_form, select_rows, sorted_eigen,
+    spread_rank, too_few_inliers, Rejection, CHUNK, PARALLEL_MIN_POINTS,
 };
 use crate::error::{CoreError, Result};
 
@@ -192,12 +192,10 @@ pub fn fit_sphere(points: &[f64], opts: &SphereFitOptions) -> Result<SphereFit> 
 /// (bit for bit below [`super::PARALLEL_MIN_POINTS`] points; above it
 /// `fit_sphere` sums in parallel, in another order, so to rounding).
 pub fn fit_spheres(sets: &[&[f64]], opts: &SphereFitOptions) -> Vec<Result<SphereFit>> {
-    sets.par_iter()
-        .map(|s| {
-            check_many(opts)?;
-            fit(s, opts, false)
-        })
-        .collect()
+    if let Err(e) = check_many(opts) {
+        return sets.iter().map(|_| Err(e.clone())).collect();
+    }
+    sets.par_iter().map(|s| fit(s, opts, false)).collect()
 }
 
 /// A starting centre belongs to one sphere: refused for many.
@@ -630,8 +628,6 @@ fn algebraic(q: &[Vector3<f64>], _parallel: bool) -> Result<(Vector3<f64>, f64)>
     algebraic_start(&Moments { s, b }, q.len())
 }
 
-/// The geometric fit of one cloud; `res` receives the residuals at the
-/// solution.
 /// The geometric fit of one cloud, from `init` (centre relative to the
 /// cloud's mean, radius; the fixed radius wins) or else the algebraic start;
 /// `res` receives the residuals at the solution.
@@ -644,22 +640,26 @@ fn solve(
 ) -> Result<Solved> {
     let (fixed, max_iterations) = (opts.radius, opts.max_iterations);
     let n = cloud.n;
-    let (mut c, r0) = match init {
-        Some(start) => start,
-        None => algebraic_start(&cloud.moments, n)?,
-    };
-    let mut radius = r0;
-    if let (Some(rf), Some(_)) = (fixed, init) {
-        radius = rf;
-    } else if let Some(rf) = fixed {
-        // Keep the apex of the cap where the algebraic sphere puts it: move
-        // the centre along the cap axis (centre -> mean) by the radius change.
-        let dist = c.norm();
-        if dist > 0.1 * r0 {
-            c += c / dist * (rf - r0);
+    let (mut c, mut radius) = match init {
+        // A given start: the fixed radius wins.
+        Some((c, r)) => (c, fixed.unwrap_or(r)),
+        None => {
+            let (mut c, r0) = algebraic_start(&cloud.moments(parallel), n)?;
+            match fixed {
+                Some(rf) => {
+                    // Keep the apex of the cap where the algebraic sphere puts
+                    // it: move the centre along the cap axis (centre -> mean)
+                    // by the radius change.
+                    let dist = c.norm();
+                    if dist > 0.1 * r0 {
+                        c += c / dist * (rf - r0);
+                    }
+                    (c, rf)
+                }
+                None => (c, r0),
+            }
         }
-        radius = rf;
-    }
+    };
     let fixed_r = fixed.is_some();
     // The parameters are relative to the mean; the passes evaluate the
     // sphere about mean + c.
@@ -774,13 +774,11 @@ fn stalled(cloud: &Cloud, t: &Trial, parallel: bool) -> CoreError {
     ))
 }
 
-/// Points (N x 3 row-major, mm) with their mean and their moments about it.
+/// Points (N x 3 row-major, mm) with their mean.
 struct Cloud<'a> {
     rows: Cow<'a, [f64]>,
     n: usize,
     mean: Vector3<f64>,
-    /// Moments about the mean, for the algebraic start.
-    moments: Moments,
 }
 
 /// Scatter matrix S = sum q q^T and b = sum q |q|^2 of centred points q.
@@ -791,9 +789,8 @@ struct Moments {
 }
 
 impl<'a> Cloud<'a> {
-    /// Two passes: the sums of the coordinates, then the moments about the
-    /// mean. `Err` when a sum is not finite: a NaN or infinite coordinate
-    /// (or an overflow).
+    /// One pass: the sums of the coordinates. `Err` when a sum is not
+    /// finite: a NaN or infinite coordinate (or an overflow).
     fn new(rows: Cow<'a, [f64]>, parallel: bool) -> std::result::Result<Cloud<'a>, ()> {
         let n = rows.len() / 3;
         let parallel = parallel && n > PARALLEL_MIN_POINTS;
@@ -806,14 +803,22 @@ impl<'a> Cloud<'a> {
             return Err(());
         }
         let mean = Vector3::from(sum) / n as f64;
-        let m = [mean.x, mean.y, mean.z];
-        let moments = fold_rows(&rows, parallel, |r| moments_chunk(r, &m), MomentSums::merge);
-        Ok(Cloud {
-            rows,
-            n,
-            mean,
-            moments: moments.total(),
-        })
+        Ok(Cloud { rows, n, mean })
+    }
+
+    /// The moments about the mean (a second pass), for the algebraic start
+    /// only: a fit from a given start (refits, the least-median start, a
+    /// starting centre, segmentation rounds) does not need them.
+    fn moments(&self, parallel: bool) -> Moments {
+        let m = [self.mean.x, self.mean.y, self.mean.z];
+        let parallel = parallel && self.n > PARALLEL_MIN_POINTS;
+        fold_rows(
+            &self.rows,
+            parallel,
+            |r| moments_chunk(r, &m),
+            MomentSums::merge,
+        )
+        .total()
     }
 
     /// Mean distance (mm) of the points from `c`: one pass.
@@ -835,14 +840,8 @@ impl<'a> Cloud<'a> {
 
     /// The cloud of the points where `keep`.
     fn subset(&self, keep: &[bool], parallel: bool) -> Cloud<'static> {
-        let rows: Vec<f64> = self
-            .rows
-            .chunks_exact(3)
-            .zip(keep)
-            .filter(|(_, &k)| k)
-            .flat_map(|(p, _)| [p[0], p[1], p[2]])
-            .collect();
-        Cloud::new(Cow::Owned(rows), parallel).expect("finite points have finite sums")
+        Cloud::new(Cow::Owned(select_rows(&self.rows, keep)), parallel)
+            .expect("finite points have finite sums")
     }
 }
 
