@@ -9,6 +9,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 
 from ..errors import InputError
 
@@ -124,3 +125,18 @@ def plain_text_names(path, names) -> None:
         if not n or any(ch in n for ch in ',"\n\r\t ') or n.startswith(("#", "//")):
             raise InputError(f"{path}: column name {n!r} cannot be written in a text header "
                              f"(no blanks, commas, quotes or line breaks)")
+
+
+def arrow_table(columns: dict, schema=None) -> pa.Table:
+    """Named numeric columns as an Arrow table, each built from its buffer
+    (zero-copy for a contiguous column): ``pa.table`` or ``pa.array`` on an
+    ndarray imports pandas to ask whether it was given a pandas object,
+    about 0.15 s on every write command (the same reason as ``run._arrow_column``)."""
+    arrays = []
+    for name, values in columns.items():
+        a = np.ascontiguousarray(values)
+        a = a.astype(a.dtype.newbyteorder("<"), copy=False)
+        arrays.append(pa.Array.from_buffers(pa.from_numpy_dtype(a.dtype), len(a), [None, pa.py_buffer(a)]))
+    if schema is not None:
+        return pa.Table.from_arrays(arrays, schema=schema)
+    return pa.Table.from_arrays(arrays, names=list(columns))

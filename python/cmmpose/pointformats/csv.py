@@ -18,7 +18,7 @@ import pyarrow.csv as pa_csv
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, check_file, plain_text_names
+from ._common import ColumnWriter, arrow_table, check_file, plain_text_names
 
 
 class Reread(Exception):
@@ -195,7 +195,7 @@ class Writer(ColumnWriter):
     def _write(self, xyz, extras):
         if len(xyz):
             r = np.round(xyz, 6) + 0.0
-            table = pa.table({"X": r[:, 0], "Y": r[:, 1], "Z": r[:, 2], **extras})
+            table = arrow_table({"X": r[:, 0], "Y": r[:, 1], "Z": r[:, 2], **extras})
             pa_csv.write_csv(table, self.f, pa_csv.WriteOptions(include_header=False))
 
 

@@ -13,7 +13,7 @@ import pyarrow.parquet as pq
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, check_file
+from ._common import ColumnWriter, arrow_table, check_file
 
 
 def chunks(path: Path, chunk: int, need):
@@ -64,7 +64,7 @@ class Writer(ColumnWriter):
         self.pq = pq.ParquetWriter(self.f, self.arrow_schema)
 
     def _write(self, xyz, extras):
-        table = pa.table({"X": xyz[:, 0], "Y": xyz[:, 1], "Z": xyz[:, 2], **extras}, schema=self.arrow_schema)
+        table = arrow_table({"X": xyz[:, 0], "Y": xyz[:, 1], "Z": xyz[:, 2], **extras}, schema=self.arrow_schema)
         self.pq.write_table(table)
 
     def _finish(self):

@@ -16,12 +16,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 import pyarrow.csv as pa_csv
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, check_file
+from ._common import ColumnWriter, arrow_table, check_file
 
 
 def _plyfile():
@@ -168,7 +167,7 @@ class Writer(ColumnWriter):
         if self.encoding == "ascii":
             if len(xyz):
                 native = {n: v.astype(self.dtype.fields[n][0].newbyteorder("=")) for n, v in extras.items()}
-                table = pa.table({"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], **native})
+                table = arrow_table({"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], **native})
                 pa_csv.write_csv(table, self.f, pa_csv.WriteOptions(include_header=False, delimiter=" ",
                                                                     quoting_style="none"))
             return

@@ -27,12 +27,11 @@ from itertools import islice
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 import pyarrow.csv as pa_csv
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, check_file, plain_text_names
+from ._common import ColumnWriter, arrow_table, check_file, plain_text_names
 
 #: Names of extra columns by how many there are (after x, y, z), for files without a header.
 _BY_COUNT = {0: (), 1: ("intensity",), 3: ("red", "green", "blue"), 4: ("intensity", "red", "green", "blue")}
@@ -207,7 +206,7 @@ class XyzWriter(ColumnWriter):
 
     def _write(self, xyz, extras):
         if len(xyz):
-            table = pa.table({"X": xyz[:, 0], "Y": xyz[:, 1], "Z": xyz[:, 2], **extras})
+            table = arrow_table({"X": xyz[:, 0], "Y": xyz[:, 1], "Z": xyz[:, 2], **extras})
             pa_csv.write_csv(table, self.f, pa_csv.WriteOptions(include_header=False, delimiter=" ",
                                                                 quoting_style="none"))
 
