@@ -253,3 +253,10 @@ def test_cli_diagnose_fleet(client, runs, tmp_path):
     assert res.exit_code == 0 and "diagnosis of 2 runs" in res.output, res.output
     res = runner.invoke(main, ["diagnose", *map(str, runs[:2]), "--report", str(tmp_path / "r.html")])
     assert res.exit_code != 0 and "--report takes one run" in res.output
+
+
+def test_fleet_diagnosis_keeps_the_temperature_and_policy(runs):
+    (d,) = scale.diagnose_runs(runs[:1], auto=False, patterns=False, temperature=22.0, temperature_tolerance=1.5)
+    assert d.steps[0].model.temperature == 22.0 and d.steps[0].model.temperature_tolerance == 1.5
+    res = CliRunner().invoke(main, ["diagnose", *map(str, runs[:2]), "--maps", "none"])
+    assert res.exit_code != 0 and "'none' is not a model" in res.output

@@ -837,17 +837,20 @@ def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json
 
     try:
         machine = load_machine(machine_file)
-        model = None
+        model = "run"  # each run's bundled maps, on its worker
         if model_file:
             model = Model.load(model_file)
+        elif maps == ("none",):
+            raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
         elif maps or machine_file:
-            model = Model(load_maps(maps, machine), temperature=temperature, out_of_range=out_of_range,
-                          temperature_tolerance=temperature_tolerance, log_hold=log_hold)
+            model = Model(load_maps(maps, machine))
         with Progress(TextColumn("diagnosing"), BarColumn(), TextColumn("{task.completed}/{task.total} runs"),
                       console=console) as bar:
             task = bar.add_task("", total=len(run_dirs))
             diags = diagnose_runs(run_dirs, model, scheduler=scheduler,
                                   progress=lambda done, total: bar.update(task, completed=done, total=total),
+                                  temperature=temperature, out_of_range=out_of_range,
+                                  temperature_tolerance=temperature_tolerance, log_hold=log_hold,
                                   **options)
     except Error as exc:
         raise fail(exc) from None

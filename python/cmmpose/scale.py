@@ -691,9 +691,16 @@ def evaluate_runs(run_dirs, maps="run", *, scheduler="threads", progress=None, *
     return map_runs(_evaluate_run, run_dirs, maps, scheduler=scheduler, progress=progress, **kwargs)
 
 
-def _diagnose_run(run, model, **kwargs):
-    from .diagnosis import diagnose
+def _diagnose_run(run, model, temperature=None, **kwargs):
+    import dataclasses
 
+    from .diagnosis import Model, diagnose
+
+    if model is None or (isinstance(model, str) and model == "run"):
+        model = Model(_maps_named_by(run), temperature=temperature)
+    elif temperature is not None:
+        model = dataclasses.replace(Model(model) if not isinstance(model, Model) else model,
+                                    temperature=float(temperature), _inputs_cache={})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return diagnose(run, model, **kwargs)
@@ -706,13 +713,16 @@ def diagnose_runs(run_dirs, model=None, *, scheduler="threads", progress=None, *
     ----------
     run_dirs : sequence of path-like
         Run folders.
-    model : Model, ErrorMap, ErrorMapSet or None
-        The starting model for every run (sent to each worker once); None:
-        each run's bundled maps.
+    model : Model, ErrorMap, ErrorMapSet, None or 'run'
+        The starting model for every run (sent to each worker once); None or
+        ``'run'``: the bundled maps each run.json names (with their
+        configuration).
     scheduler, progress
         As in :func:`map_runs`.
     **kwargs
-        :func:`cmmpose.diagnose`'s options (add, auto, max_effects, ...).
+        :func:`cmmpose.diagnose`'s options (add, auto, max_effects,
+        out_of_range, temperature_tolerance, log_hold, ...), and
+        ``temperature`` (C) for the model instead of the runs' logs.
 
     Returns
     -------
