@@ -20,6 +20,7 @@ from .errormap import ErrorMap, ErrorMapSet
 from .errors import CalibrationError, Error, InputError, MapTemperatureWarning
 from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
 from .pointclouds import UNITS as POINT_UNITS
+from .pointclouds import read_point_cloud, unit_factor
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
 from .metrics import STEEL_EXPANSION
 from .report import KernelReport
@@ -442,7 +443,6 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
     manner of ASTM E3125 first (closest-point start, cone and cylinder about the line of sight, radius fixed)."""
     from .errors import IllConditionedFit
     from .fitting import e3125, fit_sphere
-    from .pointclouds import read_point_cloud, unit_factor
 
     if radius is not None and not (np.isfinite(radius) and radius > 0):
         raise click.BadParameter(f"expected a positive radius in mm, got {radius}", param_hint="--radius")
@@ -1061,28 +1061,10 @@ def calibrate() -> None:
     """Calibration solvers: digitizer alignment, mount offset, error maps."""
 
 
-def _xyz_points(path: str) -> np.ndarray:
-    """CSV with header x,y,z (mm, machine coordinates) or an (N, 3) .npy."""
-    p = Path(path)
-    if p.suffix.lower() == ".npy":
-        a = np.load(p, allow_pickle=False)
-    else:
-        with p.open(encoding="utf-8") as f:
-            header = [h.strip().lower() for h in f.readline().split(",")]
-        if header[:3] != ["x", "y", "z"]:
-            raise InputError(f"{p}:1: header must start with x,y,z (mm), got {header}")
-        try:
-            a = np.loadtxt(p, delimiter=",", skiprows=1, usecols=(0, 1, 2), ndmin=2)
-        except ValueError as exc:
-            raise InputError(f"{p}: {exc}") from None
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise InputError(f"{p}: expected (N, 3) points, got shape {a.shape}")
-    return a
-
-
 @calibrate.command("alignment")
 @click.option("--vernier", "vernier_file", required=True, type=click.Path(exists=True, dir_okay=False),
-              help="Optical-vernier points: CSV x,y,z (mm, machine) or .npy, in order counter-clockwise seen from +w.")
+              help="Optical-vernier points x, y, z (mm, machine; CSV with that header, NPY or any point-cloud format), "
+                   "in order counter-clockwise seen from +w.")
 @click.option("--plane-scan", "plane_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="Scan(s) of a flat plane while moving (CSV u,v,D,E,F), for gamma: one with --plane-normal, or two "
                    "sweeps. Required to store an alignment.")
@@ -1135,7 +1117,7 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
             raise click.UsageError("a map set needs --temperature (the machine's during the alignment, C)")
         em = {"error_map": error_map, "temperature": temperature if error_map is not None else None}
         point_u = None if vernier_uncertainty is None else vernier_uncertainty * 1e-3
-        vern = alpha_beta_from_vernier(_xyz_points(vernier_file), point_uncertainty=point_u, **em)
+        vern = alpha_beta_from_vernier(read_point_cloud(vernier_file).xyz, point_uncertainty=point_u, **em)
         scans = [read_points(f) for f in plane_files]
         gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
                                     vern.alpha, vern.beta, normal=normal, offset=offset_t,
