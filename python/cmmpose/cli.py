@@ -52,12 +52,9 @@ def machine_row(table, machine) -> None:
 
 def travel_notes(machine, built) -> list[str]:
     """Where a map misses the machine's travel (a point there cannot be compensated)."""
-    notes = []
-    for axis, (lo, hi), (mlo, mhi) in zip("XYZ", machine.travel, built.ranges):
-        if lo < mlo - 1e-9 or hi > mhi + 1e-9:
-            notes.append(f"the map covers {axis} {mlo:g}..{mhi:g} mm, less than {machine.name}'s travel "
-                         f"{lo:g}..{hi:g} mm ({machine.source}): points beyond it cannot be compensated")
-    return notes
+    return [f"the map covers {axis} {mlo:g}..{mhi:g} mm, less than {machine.name}'s travel {lo:g}..{hi:g} mm "
+            f"({machine.source}): points beyond it cannot be compensated"
+            for axis, (lo, hi), (mlo, mhi) in machine.uncovered(built.ranges)]
 
 
 def triple(text: str, name: str) -> tuple[float, float, float]:

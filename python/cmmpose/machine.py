@@ -135,16 +135,23 @@ class Machine:
         maps = read_maps(specs or (self.map_files or (self.bundled_maps,)))
         return maps.with_kinematics(self.kinematics)
 
+    def uncovered(self, ranges) -> list[tuple[str, tuple[float, float], tuple[float, float]]]:
+        """The axes whose travel goes beyond a map's ``ranges`` ((lo, hi) of
+        X, Y, Z, mm): (axis letter, travel, map range) each; points there
+        cannot be compensated."""
+        return [(axis, (lo, hi), (mlo, mhi)) for axis, (lo, hi), (mlo, mhi) in zip("XYZ", self.travel, ranges)
+                if lo < mlo - 1e-9 or hi > mhi + 1e-9]
+
     def check(self) -> list[str]:
         """What is worth knowing about the machine beyond its own checks (the
         maps loaded and compared with the travel); raises on an error."""
         notes = []
         maps = self.maps()
         ranges = (maps.maps[0] if isinstance(maps, ErrorMapSet) else maps).ranges
+        for axis, (lo, hi), (mlo, mhi) in self.uncovered(ranges)[:1]:
+            raise InputError(f"{self.source}: travel.{axis.lower()} {lo:g}..{hi:g} mm goes beyond the maps' "
+                             f"{mlo:g}..{mhi:g} mm: points there cannot be compensated")
         for axis, (lo, hi), (mlo, mhi) in zip("XYZ", self.travel, ranges):
-            if lo < mlo - 1e-9 or hi > mhi + 1e-9:
-                raise InputError(f"{self.source}: travel.{axis.lower()} {lo:g}..{hi:g} mm goes beyond the maps' "
-                                 f"{mlo:g}..{mhi:g} mm: points there cannot be compensated")
             if lo > mlo + 1e-9 or hi < mhi - 1e-9:
                 notes.append(f"the maps cover {axis} {mlo:g}..{mhi:g} mm, more than its travel {lo:g}..{hi:g} mm")
         roles = set(self.thermocouples.values())
