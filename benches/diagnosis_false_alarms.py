@@ -22,17 +22,10 @@ from cmmpose.sim.scanner import Scanner
 
 
 def upper_95(k: int, n: int) -> float:
-    """One-sided 95 % Clopper-Pearson upper bound of a rate seen k times in n (by bisection)."""
-    from scipy.stats import binom
+    """One-sided 95 % Clopper-Pearson upper bound of a rate seen k times in n."""
+    from scipy.stats import beta
 
-    lo, hi = k / n, 1.0
-    for _ in range(60):
-        mid = (lo + hi) / 2
-        if binom.cdf(k, n, mid) > 0.05:
-            lo = mid
-        else:
-            hi = mid
-    return hi
+    return 1.0 if k >= n else float(beta.ppf(0.95, k + 1, n - k))
 
 
 def main() -> None:

@@ -45,10 +45,8 @@ def numpy_evaluation(run, maps_np, n_spheres):
     temps = np.clip(machine_temperature(run, run.points["t"]), lo, hi)
     raw = np.empty((run.n_points, 3))
     comp = np.empty((run.n_points, 3))
-    pose_of_scan = dict(zip(run.scans["scan_id"].tolist(), run.scans["pose_id"].tolist()))
-    pose_of_point = np.array([pose_of_scan[s] for s in run.points["scan_id"].tolist()])
-    for pose_id in np.unique(pose_of_point):
-        rows = pose_of_point == pose_id
+    for pose_id in np.unique(run.scans["pose_id"]):
+        rows = np.isin(run.points["scan_id"], run.scans["scan_id"][run.scans["pose_id"] == pose_id])
         pose, offset = run.pose(int(pose_id))
         raw[rows] = nr.uncompensated(run.uv[rows], run.scales[rows], pose, offset)
         comp[rows] = nr.compensate(run.uv[rows], run.scales[rows], maps_np, pose, offset, temps[rows])
