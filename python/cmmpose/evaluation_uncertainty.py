@@ -44,6 +44,7 @@ import numpy as np
 
 from .calibration.interferometer import THESIS_AIR_UNCERTAINTY, refractivity_uncertainty
 from .errormap import ErrorMap, ErrorMapSet
+from ._validate import nonnegative
 from .errors import Error, InputError
 from .evaluation import BallbarResult, Evaluation, _machine_coordinates, machine_temperature
 from .fitting import fit_spheres
@@ -247,16 +248,6 @@ class EvaluationUncertainty:
         return Group(*parts)
 
 
-def _nonneg(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a number, got {value!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise InputError(f"{name}: expected a finite value >= 0, got {value!r}")
-    return v
-
-
 def _model_temperature(run: Run, maps, temperature, log_hold):
     """The temperature the maps are evaluated at (as :func:`cmmpose.evaluate`)."""
     if maps is None or isinstance(maps, ErrorMap):
@@ -334,10 +325,10 @@ def evaluation_uncertainty(
         raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     if not isinstance(evaluation, Evaluation):
         raise InputError(f"evaluation: expected a cmmpose.Evaluation, got {type(evaluation).__name__}")
-    u_t = _nonneg("u_temperature_K", u_temperature_K)
-    u_map = default_map_ppm() if u_map_ppm is None else _nonneg("u_map_ppm", u_map_ppm)
-    u_model = _nonneg("u_model_ppm", u_model_ppm)
-    u_alpha = _nonneg("u_expansion_ppm_per_K", u_expansion_ppm_per_K)
+    u_t = nonnegative("u_temperature_K", u_temperature_K)
+    u_map = default_map_ppm() if u_map_ppm is None else nonnegative("u_map_ppm", u_map_ppm)
+    u_model = nonnegative("u_model_ppm", u_model_ppm)
+    u_alpha = nonnegative("u_expansion_ppm_per_K", u_expansion_ppm_per_K)
     log_hold = LOG_HOLD if log_hold is None else log_hold
     out = []
     no_sensitivity = False

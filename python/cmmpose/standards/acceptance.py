@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errormap import ErrorMap, ErrorMapSet
+from .._validate import nonnegative
 from ..errors import InputError
 from ..evaluation import _machine_coordinates, evaluate, machine_temperature
 from ..fitting import fit_sphere
@@ -325,13 +326,6 @@ class AcceptanceResult:
         return _save(fig, path)
 
 
-def _nonneg(name: str, value) -> float:
-    v = float(value)
-    if not (math.isfinite(v) and v >= 0):
-        raise InputError(f"{name}: expected a finite value >= 0, got {value!r}")
-    return v
-
-
 def acceptance_test(
     run: Run,
     maps: ErrorMap | ErrorMapSet | None = None,
@@ -400,11 +394,11 @@ def acceptance_test(
         raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     mpes = {n: (v if isinstance(v, MPE) else parse_mpe(v, n)) for n, v in
             (("mpe_form", mpe_form), ("mpe_size", mpe_size), ("mpe_length", mpe_length))}
-    u_len = _nonneg("u_length_certificate_um", u_length_certificate_um)
-    u_dia = _nonneg("u_diameter_certificate_um", u_diameter_certificate_um)
-    u_frm = _nonneg("u_form_certificate_um", u_form_certificate_um)
-    u_alpha = _nonneg("u_expansion_ppm_per_K", u_expansion_ppm_per_K)
-    u_t = _nonneg("u_part_temperature_K", u_part_temperature_K)
+    u_len = nonnegative("u_length_certificate_um", u_length_certificate_um)
+    u_dia = nonnegative("u_diameter_certificate_um", u_diameter_certificate_um)
+    u_frm = nonnegative("u_form_certificate_um", u_form_certificate_um)
+    u_alpha = nonnegative("u_expansion_ppm_per_K", u_expansion_ppm_per_K)
+    u_t = nonnegative("u_part_temperature_K", u_part_temperature_K)
     art = run.artefact
     if calibrated_length_mm is None:
         calibrated_length_mm = art.get("calibrated_length_mm")
@@ -537,8 +531,8 @@ def probing_test(points, calibrated_radius_mm: float, *, mpe_form, mpe_size, u_f
     r_cal = float(calibrated_radius_mm)
     if not (math.isfinite(r_cal) and r_cal > 0):
         raise InputError(f"calibrated_radius_mm: expected a positive radius in mm, got {calibrated_radius_mm!r}")
-    U_form = 2 * _nonneg("u_form_certificate_um", u_form_certificate_um)
-    U_size = 2 * _nonneg("u_diameter_certificate_um", u_diameter_certificate_um)
+    U_form = 2 * nonnegative("u_form_certificate_um", u_form_certificate_um)
+    U_size = 2 * nonnegative("u_diameter_certificate_um", u_diameter_certificate_um)
     f = fit_sphere(points)
     form, size = f.form * 1e3, 2 * (f.radius - r_cal) * 1e3
     checks = (Check("probing form, single view", item, form, mpes["mpe_form"].at(), U_form,
