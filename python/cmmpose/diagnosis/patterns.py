@@ -578,6 +578,31 @@ def _scan_rows(run: Run, ids: np.ndarray) -> np.ndarray:
     return np.array([row_of[s] for s in ids.tolist()], dtype=np.int64)
 
 
+def length_shape_patterns(direction, midpoint, dev) -> list:
+    """The length deviations ``dev`` (um, P) against the bar's direction
+    cosines (``direction``, P x 3: scale as squares, squareness as products)
+    and its mid-point along each axis (``midpoint``, P x 3, mm)."""
+    obs = "ballbar length deviation"
+    dx, dy, dz = np.asarray(direction).T
+    shapes = [("dx", dx), ("dy", dy), ("dz", dz), ("dx^2", dx**2), ("dy^2", dy**2), ("dz^2", dz**2),
+              ("dx*dy", dx * dy), ("dy*dz", dy * dz), ("dz*dx", dz * dx)]
+    out = [_continuous("length", obs, q, "1", x, dev, _LENGTH_HINTS[q], shape=True) for q, x in shapes]
+    out += [_continuous("length", obs, f"mid {a}", "mm", midpoint[:, j], dev, _LENGTH_HINTS[f"mid {a}"])
+            for j, a in enumerate("xyz")]
+    return out
+
+
+def ranked_patterns(found, alpha: float) -> tuple[tuple, float]:
+    """The patterns tested (None for one that could not be), each marked
+    significant against alpha over their number (Bonferroni), ranked
+    significant first, then by R^2 x amplitude; and the threshold."""
+    found = [p for p in found if p is not None]
+    threshold = alpha / max(len(found), 1)
+    ranked = sorted((_with_significance(p, threshold) for p in found),
+                    key=lambda p: (not p.significant, -p.score, p.p_value))
+    return tuple(ranked), threshold
+
+
 def _length_level(run, ids, counts, centres, scan_t, scan_temp):
     """Ballbar lengths per position (mean centre of each ball's scans) and their patterns."""
     scans = run.scans
@@ -616,13 +641,8 @@ def _length_level(run, ids, counts, centres, scan_t, scan_temp):
     table = {"position": np.array(positions), "length_mm": length, "deviation_um": dev, "direction": direction,
              "midpoint": midpoint, "time_s": time_s, "temperature_C": temp}
 
+    out = length_shape_patterns(direction, midpoint, dev)
     obs = "ballbar length deviation"
-    dx, dy, dz = direction.T
-    shapes = [("dx", dx), ("dy", dy), ("dz", dz), ("dx^2", dx**2), ("dy^2", dy**2), ("dz^2", dz**2),
-              ("dx*dy", dx * dy), ("dy*dz", dy * dz), ("dz*dx", dz * dx)]
-    out = [_continuous("length", obs, q, "1", x, dev, _LENGTH_HINTS[q], shape=True) for q, x in shapes]
-    out += [_continuous("length", obs, f"mid {a}", "mm", midpoint[:, j], dev, _LENGTH_HINTS[f"mid {a}"])
-            for j, a in enumerate("xyz")]
     out.append(_continuous("length", obs, "time", "s", time_s, dev, _LENGTH_HINTS["time"]))
     if scan_temp is not None:
         out.append(_continuous("length", obs, "temperature", "C", temp, dev, _LENGTH_HINTS["temperature"]))
@@ -778,12 +798,9 @@ def find_patterns(run: Run, xyz, fits, *, temperature=None, nominal_radius: floa
     lengths, found = _length_level(run, ids, counts, centres, scan_t, scan_temp)
     found += _scan_level(run, ids, counts, centres, radii, forms, nominal_radius)
     found += _point_level(run, xyz, ids, counts, centres, residual, inlier, temperature)
-    found = [p for p in found if p is not None]
-    threshold = alpha / max(len(found), 1)
-    ranked = sorted((_with_significance(p, threshold) for p in found),
-                    key=lambda p: (not p.significant, -p.score, p.p_value))
+    ranked, threshold = ranked_patterns(found, alpha)
     rms = float(np.sqrt(np.mean(residual[inlier] ** 2)) * _UM) if inlier.any() else float("nan")
-    return Patterns(tuple(ranked), alpha, threshold, lengths, rms)
+    return Patterns(ranked, alpha, threshold, lengths, rms)
 
 
 def _with_significance(p: Pattern, threshold: float) -> Pattern:

@@ -26,7 +26,7 @@ from importlib import resources
 import numpy as np
 
 from ..errors import InputError
-from .patterns import Patterns, _categorical, _continuous, _LENGTH_HINTS, _mean_offset, _with_significance
+from .patterns import Patterns, _categorical, _continuous, _mean_offset, length_shape_patterns, ranked_patterns
 
 __all__ = ["SphereFitDiagnosis", "diagnose_sphere_fits", "read_sphere_fits", "appendix_c_sphere_fits",
            "NOMINAL_RADIUS_MM"]
@@ -143,13 +143,7 @@ def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
     rms = float(np.std(dev, ddof=1))
     d = bar / length[:, None]
     mid = c.mean(axis=1)
-    obs = "ballbar length deviation"
-    dx, dy, dz = d.T
-    found = [_continuous("length", obs, q, "1", x, dev, _LENGTH_HINTS[q], shape=True)
-             for q, x in (("dx", dx), ("dy", dy), ("dz", dz), ("dx^2", dx**2), ("dy^2", dy**2), ("dz^2", dz**2),
-                          ("dx*dy", dx * dy), ("dy*dz", dy * dz), ("dz*dx", dz * dx))]
-    found += [_continuous("length", obs, f"mid {a}", "mm", mid[:, j], dev, _LENGTH_HINTS[f"mid {a}"])
-              for j, a in enumerate("xyz")]
+    found = length_shape_patterns(d, mid, dev)
     rr = r.ravel()
     calibrated = nominal_radius is not None
     ref_r = float(nominal_radius) if calibrated else float(rr.mean())
@@ -169,14 +163,11 @@ def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
     if "fit_rms" in extra:
         found.append(_continuous("sphere", robs, "fit rms", "mm", extra["fit_rms"].ravel(), rdev,
                                  "noise or form error biasing the fitted radius"))
-    found = [p for p in found if p is not None]
-    threshold = alpha / max(len(found), 1)
-    ranked = sorted((_with_significance(p, threshold) for p in found),
-                    key=lambda p: (not p.significant, p.p_value))
+    ranked, threshold = ranked_patterns(found, alpha)
     excess = float(rr.mean() - nominal_radius) * _UM if calibrated else float("nan")
     return SphereFitDiagnosis(length, dev, rms, float(rr.mean()), excess,
                               float(np.std(rr, ddof=1) / math.sqrt(len(rr))) * _UM, float(np.std(rr, ddof=1)) * _UM,
-                              Patterns(tuple(ranked), alpha, threshold), None if not calibrated else float(nominal_radius))
+                              Patterns(ranked, alpha, threshold), None if not calibrated else float(nominal_radius))
 
 
 def read_sphere_fits(path, state: str | None = None) -> dict[str, np.ndarray]:
@@ -254,15 +245,5 @@ def appendix_c_sphere_fits(state: str = "compensated") -> dict[str, np.ndarray]:
     """
     if state not in ("compensated", "uncompensated"):
         raise InputError(f"state: expected 'uncompensated' or 'compensated', got {state!r}")
-    path = resources.files("cmmpose").joinpath("data", "thesis", "appendix_c_ballbar.csv")
-    with path.open("r", encoding="utf-8") as fh:
-        rows = [r for r in csv.DictReader(line for line in fh if not line.startswith("#")) if r["state"] == state]
-    out = {"centres": np.zeros((20, 2, 3)), "radii": np.zeros((20, 2)), "points": np.zeros((20, 2)),
-           "fit_rms": np.zeros((20, 2))}
-    for row in rows:
-        p, b = int(row["position"]) - 1, int(row["ball"]) - 1
-        out["centres"][p, b] = [float(row[k]) for k in ("x_mm", "y_mm", "z_mm")]
-        out["radii"][p, b] = float(row["radius_mm"])
-        out["points"][p, b] = float(row["points"])
-        out["fit_rms"][p, b] = float(row["fit_mm"])
-    return out
+    with resources.as_file(resources.files("cmmpose").joinpath("data", "thesis", "appendix_c_ballbar.csv")) as p:
+        return read_sphere_fits(p, state)
