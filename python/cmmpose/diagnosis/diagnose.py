@@ -205,7 +205,7 @@ class Diagnosis:
                     "decision"):
             t.add_column(col, justify="left" if col in ("effect", "fitted value ± u", "decision") else "right")
         for c in s.ranking:
-            vals = ", ".join(_value(p, v, u, unit) for p, v, u, unit in zip(c.spec.params, c.values, c.uncertainty,
+            vals = ", ".join(_value_text(p, v, u, unit) for p, v, u, unit in zip(c.spec.params, c.values, c.uncertainty,
                                                                               c.spec.units))
             decision = c.decision
             if c.significant and c is s.ranking[0]:
@@ -274,12 +274,6 @@ class Diagnosis:
         from .report import write_report
 
         return write_report(self, path, run=run, run_dir=run_dir, model_file=model_file, title=title)
-
-
-def _value(p, v, u, unit) -> str:
-    if not math.isfinite(u):
-        return f"{p}={v:+.3g} (undetermined) {unit}"
-    return f"{p}={v:+.3g}±{u:.2g} {unit}"
 
 
 def _json_default(o):

@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 from .html import write_html_report
+from .identify import _value_text
 
 __all__ = ["write_report"]
 
@@ -30,8 +31,7 @@ def _values_text(params, values, uncertainty, units) -> str:
         unit = _unit(unit)
         if unit == "" and abs(float(v)) < 0.1:  # dimensionless: a ppm reads better than 0.000601
             v, u, unit = float(v) * 1e6, float(u) * 1e6, "ppm"
-        u_text = "undetermined" if not math.isfinite(float(u)) else f"{_num(u, 2)}"
-        out.append(f"{p} = {_num(v)} ± {u_text} {unit}".rstrip())
+        out.append(_value_text(p, float(v), float(u), unit))
     return ", ".join(out)
 
 
