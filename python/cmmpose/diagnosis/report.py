@@ -190,16 +190,10 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
     title : str
         Report title.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib import pyplot as plt
-
     from .plots import plot_history, plot_length_deviation, plot_patterns, plot_point_residuals
 
     d = diagnosis
     final = d.steps[-1]
-    figs = []
     sections = [{"heading": "Verdict", "text": _verdict(d, model_file, run_dir)}]
     sections.append({"heading": "Decision on every candidate effect", "text":
                      "added: fitted in the final model (values with their standard uncertainties); significant: "
@@ -222,7 +216,6 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
     if truth is not None:
         sections.append({"heading": "Found against the simulator's truth", "table": truth})
     fig = plot_history(d.history())
-    figs.append(fig)
     history = [{"model": s.label, "rms accuracy error (um)": round(s.figures.rms_accuracy_error * 1e3, 3),
                 "B89 value (um)": round(s.figures.b89 * 1e3, 3),
                 "sphere form, peak-to-valley (um)": round(s.figures.to_dict()["form_um"], 2),
@@ -245,12 +238,9 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
                 notes.append(_READING[key])
             except Exception as e:  # a plot that has no data for this run is left out, said in the text
                 notes.append(f"({make.__name__} left out for the {label}: {e})")
-        figs.extend(pf)
         summary = pats.summary() if hasattr(pats, "summary") else str(pats)
         sections.append({"heading": f"Where the {label} fails: residual patterns",
                          "text": summary + "\n\n" + "\n\n".join(notes), "figures": pf})
     sections.append({"heading": "Provenance", "table": _provenance_rows(d, run, run_dir, model_file)})
     out = write_html_report(path, title, sections)
-    for f in figs:
-        plt.close(f)
     return out
