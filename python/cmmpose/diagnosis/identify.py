@@ -510,7 +510,11 @@ def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = No
             return None, None
         return prob.wls(o.residual, prob.nuisance).neg2loglik, o
 
-    current, obs = cost(model)
+    if model is prob.base:  # the problem observed it already: reuse that, and its sensitivities below
+        obs = prob.base_obs
+        current = prob.wls(obs.residual, prob.nuisance).neg2loglik
+    else:
+        current, obs = cost(model)
     if current is None:
         # The starting values do not even give fittable spheres: start at zero.
         model = model.__class__(model.maps, tuple((s, np.zeros(s.size)) for s, _ in model.effects),
@@ -524,7 +528,8 @@ def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = No
     for _ in range(iterations):
         cols, specs = [], []
         for spec, _v in free:
-            cols.append(prob._columns(model, spec, model.values(spec.name), obs))
+            at_base = model is prob.base and spec.name in prob.columns
+            cols.append(prob.columns[spec.name] if at_base else prob._columns(model, spec, model.values(spec.name), obs))
             specs.append(spec)
         X = np.column_stack([prob.nuisance] + cols)
         # Prior: each parameter within a few typical magnitudes of zero.
