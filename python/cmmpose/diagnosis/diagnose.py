@@ -373,37 +373,13 @@ def diagnose(
         for c in candidates:
             spec = effect_spec(c, known if isinstance(c, str) else None)
             cand[spec.name] = spec
-    extra = {}
-    for a in add:
-        if not isinstance(a, str):
-            extra[a.name] = a
-    from .effects import UserEffect
-
-    for u in user_effects:
-        if not isinstance(u, UserEffect):
-            raise InputError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
-        extra[u.name] = u
-    if extra:
-        from .effects import library
-
-        cand = {**(cand if cand is not None else library(model.inputs(run).pose_ids)), **extra}
+    cand = with_user_effects(cand, [a for a in add if not isinstance(a, str)] + list(user_effects),
+                             model.inputs(run).pose_ids)
     problem = Problem(model, run, cand)
     add_names = [a if isinstance(a, str) else a.name for a in add]
     check_effect_names(add_names, problem)
-    steps = [_step("base", model, problem, obs=problem.base_obs)]
-    for name in add_names:
-        model = fit_model(model.with_values(problem.candidates[name], np.zeros(problem.candidates[name].size)), run,
-                          problem=problem)
-        steps.append(_step(f"+ {name}", model, problem, forced=True))
-    added = 0
-    while auto and added < max_effects:
-        best = steps[-1].ranking[0] if steps[-1].ranking else None
-        if best is None or not best.significant:
-            break
-        start = model.with_values(best.spec, best.values)
-        model = fit_model(start, run, problem=problem)
-        steps.append(_step(f"+ {best.name}", model, problem))
-        added += 1
+    steps, model = select_effects(problem, model, add_names, auto, max_effects,
+                                  lambda label, m, forced: _step(label, m, problem, forced))
     uncertainty_problem = problem
     # Only the effects that shape the points within a scan (on the scanner,
     # or user-defined) gain from more point residuals; the others are fixed
@@ -454,8 +430,44 @@ def _subset(run: Run, keep: np.ndarray) -> Run:
                run.maps, run.metadata, run.created)
 
 
+def with_user_effects(candidates, user_effects, pose_ids=()):
+    """The candidates (the library's when None) with ``user_effects`` added."""
+    from .effects import EffectSpec, library
+
+    if not user_effects:
+        return candidates
+    out = dict(candidates if candidates is not None else library(pose_ids))
+    for u in user_effects:
+        if not isinstance(u, EffectSpec):
+            raise InputError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
+        out[u.name] = u
+    return out
+
+
+def select_effects(problem, model: Model, add_names, auto: bool, max_effects: int, step):
+    """Forward selection: the effects ``add_names`` first (fitted whether
+    significant or not), then the most significant candidate while one is
+    left, refitting after each; ``step(label, model, forced)`` makes each
+    step of the history. Returns the steps and the final model."""
+    steps = [step("base", model, False)]
+    for name in add_names:
+        spec = problem.candidates[name]
+        model = fit_model(model.with_values(spec, np.zeros(spec.size)), None, problem=problem)
+        steps.append(step(f"+ {name}", model, True))
+    added = 0
+    while auto and added < max_effects:
+        best = steps[-1].ranking[0] if steps[-1].ranking else None
+        if best is None or not best.significant:
+            break
+        model = fit_model(model.with_values(best.spec, best.values), None, problem=problem)
+        steps.append(step(f"+ {best.name}", model, False))
+        added += 1
+    return steps, model
+
+
 def _step(label: str, model: Model, problem: Problem, forced: bool = False, obs=None) -> Step:
-    obs = problem.observe(model) if obs is None else obs
+    if obs is None:
+        obs = problem.base_obs if model is problem.base else problem.observe(model)
     figs = figures(problem.layout, None, model, observed=obs)
     return Step(label, model, figs, rank_candidates(problem, model, obs), forced)
 

@@ -22,9 +22,8 @@ import numpy as np
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
 from ..run import Run
-from .diagnose import Diagnosis, Step, _unobservable, as_model
-from .effects import UserEffect
-from .identify import Problem, check_effect_names, fit_model, model_uncertainties, rank_candidates
+from .diagnose import Diagnosis, Step, _unobservable, as_model, select_effects, with_user_effects
+from .identify import Problem, check_effect_names, model_uncertainties, rank_candidates
 from .model import Model
 from .observables import CLASSES, ModelFigures, figures
 
@@ -89,7 +88,8 @@ class JointProblem(Problem):
                                               else np.zeros((len(p.classes), spec.size)) for p in self.parts])
                         for name, spec in self.candidates.items()}
         self.base = model
-        self.base_obs = self.observe(model)
+        parts = tuple(p.base_obs for p in self.parts)  # each part observed the model already
+        self.base_obs = JointObserved(parts, np.concatenate([o.residual for o in parts]))
         self.layout = self.parts[0].layout  # for figures of the first run; each part keeps its own
 
     def observe(self, model) -> JointObserved:
@@ -180,44 +180,17 @@ def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, 
         if not isinstance(r, Run):
             raise InputError(f"runs[{i}]: expected a cmmpose.Run, got {type(r).__name__}")
     model = as_model(model)
-    cand = None
-    if user_effects:
-        from .effects import library
-
-        cand = dict(library())
-        for u in user_effects:
-            if not isinstance(u, UserEffect):
-                raise InputError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
-            cand[u.name] = u
-    problem = JointProblem(model, runs, cand, same_artefact=same_artefact)
+    problem = JointProblem(model, runs, with_user_effects(None, list(user_effects)), same_artefact=same_artefact)
     check_effect_names(list(add), problem)
     names = list(run_names) if run_names is not None else [f"run {i + 1}" for i in range(len(runs))]
+    per_run = []
 
-    def step(label, m, forced=False):
-        obs = problem.observe(m)
-        per_run = problem.figures(m, obs)
-        return Step(label, m, per_run[0], rank_candidates(problem, m, obs), forced), per_run
+    def step(label, m, forced):
+        obs = problem.base_obs if m is problem.base else problem.observe(m)
+        per_run.append(problem.figures(m, obs))
+        return Step(label, m, per_run[-1][0], rank_candidates(problem, m, obs), forced)
 
-    steps, per_run = [], []
-    s, f = step("base", model)
-    steps.append(s)
-    per_run.append(f)
-    for name in add:
-        model = fit_model(model.with_values(problem.candidates[name], np.zeros(problem.candidates[name].size)),
-                          None, problem=problem)
-        s, f = step(f"+ {name}", model, forced=True)
-        steps.append(s)
-        per_run.append(f)
-    added = 0
-    while auto and added < max_effects:
-        best = steps[-1].ranking[0] if steps[-1].ranking else None
-        if best is None or not best.significant:
-            break
-        model = fit_model(model.with_values(best.spec, best.values), None, problem=problem)
-        s, f = step(f"+ {best.name}", model)
-        steps.append(s)
-        per_run.append(f)
-        added += 1
+    steps, model = select_effects(problem, model, list(add), auto, max_effects, step)
     unobservable, advice, ambiguous = _unobservable(problem, steps)
     diag = JointDiagnosis(steps, unobservable, ambiguous, n_points=sum(r.n_points for r in runs),
                           advice=advice,
