@@ -50,6 +50,19 @@ def machine_row(table, machine) -> None:
     table.add_row("machine", f"{machine.name} ({machine.kinematics}; {machine.source})")
 
 
+def kernel_report_rows(table, report, temperature_tolerance) -> None:
+    """What the kernel clamped, held or extrapolated, in a summary table (rows only where it did)."""
+    if report.clamped:
+        x, y, z = report.clamped_position
+        table.add_row("clamped", f"X {x}, Y {y}, Z {z}, temperature {report.clamped_temperature}")
+    if report.held_temperature:
+        table.add_row("held at the maps' edge",
+                      f"{report.held_temperature:,} temperatures within {temperature_tolerance:g} K outside")
+    if report.extrapolated_temperature:
+        table.add_row("extrapolated", f"{report.extrapolated_temperature:,} temperatures, up to "
+                                      f"{report.max_extrapolation:.2f} K beyond the maps")
+
+
 def travel_notes(machine, built) -> list[str]:
     """Where a map misses the machine's travel (a point there cannot be compensated)."""
     return [f"the map covers {axis} {mlo:g}..{mhi:g} mm, less than {machine.name}'s travel {lo:g}..{hi:g} mm "
@@ -151,9 +164,8 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         error_map = load_maps(maps, machine)
         size, chunks = point_chunks(points_in, extras=True)
         state = {"t_all": None, "warned": False}
-        totals = np.zeros(5, dtype=np.int64)
-        held = extrapolated = n = 0
-        max_extrapolation = elapsed = 0.0
+        reports = []
+        elapsed = 0.0
 
         def one(uv, scales, temps):
             """Compensate one chunk; returns its coordinates and kernel report."""
@@ -177,17 +189,13 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                               return_report=True)
 
         def run(source, writer, bar, task):
-            nonlocal n, held, extrapolated, max_extrapolation, elapsed
+            nonlocal elapsed
             for uv, scales, temps, extras, done in source:
                 t0 = time.perf_counter()
                 xyz, rep = one(uv, scales, temps)
                 elapsed += time.perf_counter() - t0
                 writer.write(xyz, extras)  # scan_id, intensity, ... unchanged
-                n += len(uv)
-                totals[:] += [rep.points, *rep.clamped_position, rep.clamped_temperature]
-                held += rep.held_temperature
-                extrapolated += rep.extrapolated_temperature
-                max_extrapolation = max(max_extrapolation, rep.max_extrapolation)
+                reports.append(rep)
                 bar.update(task, completed=done)
 
         # One bar over reading, compensating and writing, by bytes of input;
@@ -202,9 +210,8 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                 except RereadPoints as again:  # the fast reader refused a line the strict one accepts
                     writer.abort()
                     writer = PointWriter(points_out)
-                    totals[:] = 0
-                    held = extrapolated = n = 0
-                    max_extrapolation = elapsed = 0.0
+                    reports.clear()
+                    elapsed = 0.0
                     run(iter([(*again.points, again.extras, size)]), writer, bar, task)
             except BaseException:
                 writer.abort()
@@ -214,6 +221,8 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         t_all = state["t_all"]
     except Error as exc:
         raise fail(exc) from None
+    report = KernelReport.total(reports)
+    n = report.points
     table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
     machine_row(table, machine)
     table.add_row("points", f"{n:,}")
@@ -221,13 +230,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
     table.add_row("temperature", t_all or "-")
     table.add_row("pose (deg)", ", ".join(f"{v:g}" for v in pose_t))
     table.add_row("offset (mm)", ", ".join(f"{v:g}" for v in offset_t))
-    report = KernelReport(int(totals[0]), tuple(int(x) for x in totals[1:4]), int(totals[4]), 0)
-    if report.clamped:
-        table.add_row("clamped", f"X {totals[1]}, Y {totals[2]}, Z {totals[3]}, temperature {totals[4]}")
-    if held:
-        table.add_row("held at the maps' edge", f"{held:,} temperatures within {temperature_tolerance:g} K outside")
-    if extrapolated:
-        table.add_row("extrapolated", f"{extrapolated:,} temperatures, up to {max_extrapolation:.2f} K beyond the maps")
+    kernel_report_rows(table, report, temperature_tolerance)
     table.add_row("kernel time", f"{elapsed * 1e3:.1f} ms ({n / max(elapsed, 1e-9) / 1e6:.1f} M points/s)")
     Console().print(table)
 
@@ -340,15 +343,7 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
     table.add_row("pose (deg)", ", ".join(f"{v:g}" for v in pose_t))
     table.add_row("offset (mm)", ", ".join(f"{v:g}" for v in offset_t))
     table.add_row("scheduler", scheduler)
-    if report.clamped:
-        x, y, z = report.clamped_position
-        table.add_row("clamped", f"X {x}, Y {y}, Z {z}, temperature {report.clamped_temperature}")
-    if report.held_temperature:
-        table.add_row("held at the maps' edge",
-                      f"{report.held_temperature:,} temperatures within {temperature_tolerance:g} K outside")
-    if report.extrapolated_temperature:
-        table.add_row("extrapolated", f"{report.extrapolated_temperature:,} temperatures, up to "
-                                      f"{report.max_extrapolation:.2f} K beyond the maps")
+    kernel_report_rows(table, report, temperature_tolerance)
     table.add_row("wall time", f"{result.elapsed:.1f} s ({result.points / max(result.elapsed, 1e-9) / 1e6:.1f} M points/s)")
     Console().print(table)
 

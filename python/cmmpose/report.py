@@ -1,5 +1,7 @@
 """What a kernel call did besides its output."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 
@@ -44,3 +46,18 @@ class KernelReport:
     def clamped(self) -> int:
         """Clamp events in total (a point clamped on two axes counts twice)."""
         return sum(self.clamped_position) + self.clamped_temperature
+
+    @classmethod
+    def total(cls, reports) -> KernelReport:
+        """The counts of several calls (chunks of a file, files of a dataset) added up."""
+        reports = list(reports)
+        return cls(
+            points=sum(r.points for r in reports),
+            clamped_position=tuple(sum(r.clamped_position[k] for r in reports) for k in range(3)),
+            clamped_temperature=sum(r.clamped_temperature for r in reports),
+            nan_rows=sum(r.nan_rows for r in reports),
+            clamped_points=sum(r.clamped_points for r in reports),
+            held_temperature=sum(r.held_temperature for r in reports),
+            extrapolated_temperature=sum(r.extrapolated_temperature for r in reports),
+            max_extrapolation=max((r.max_extrapolation for r in reports), default=0.0),
+        )

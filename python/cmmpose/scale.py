@@ -221,20 +221,6 @@ class Compensator:
                               return_report=True)
 
 
-def _sum_reports(reports) -> KernelReport:
-    reports = list(reports)
-    return KernelReport(
-        points=sum(r.points for r in reports),
-        clamped_position=tuple(sum(r.clamped_position[k] for r in reports) for k in range(3)),
-        clamped_temperature=sum(r.clamped_temperature for r in reports),
-        nan_rows=sum(r.nan_rows for r in reports),
-        clamped_points=sum(r.clamped_points for r in reports),
-        held_temperature=sum(r.held_temperature for r in reports),
-        extrapolated_temperature=sum(r.extrapolated_temperature for r in reports),
-        max_extrapolation=max((r.max_extrapolation for r in reports), default=0.0),
-    )
-
-
 # -- Parquet datasets -------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -389,7 +375,7 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
             writer.close()
         if tmp.exists():
             tmp.unlink()
-    return n, _sum_reports(reports), kernel_s
+    return n, KernelReport.total(reports), kernel_s
 
 
 def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
@@ -479,7 +465,7 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
                 client.unsubscribe_topic(topic)
     if progress is not None:
         progress(total, total)
-    report = _sum_reports(r for _, r, _ in results)
+    report = KernelReport.total(r for _, r, _ in results)
     warn_clamped(report)
     return DatasetResult(outputs, sum(n for n, _, _ in results), report, sum(s for _, _, s in results),
                          time.perf_counter() - t_start)
