@@ -79,11 +79,9 @@ def write_points(path: str | Path, xyz: np.ndarray, extras: dict[str, np.ndarray
 
 
 def _split(path, cols: dict[str, np.ndarray]):
-    """A chunk's columns as (uv, scales, temps, extras)."""
-    missing = [c for c in REQUIRED if c not in cols]
-    if missing:
-        raise InputError(f"{path}: columns {missing} missing (have {list(cols)})")
-    f = {c: numeric_column(path, c, cols[c]).astype(np.float64, copy=False) for c in REQUIRED if c in cols}
+    """A chunk's columns as (uv, scales, temps, extras); every format's reader
+    has checked that u, v, D, E, F are there."""
+    f = {c: numeric_column(path, c, cols[c]).astype(np.float64, copy=False) for c in REQUIRED}
     uv = np.column_stack([f["u"], f["v"]])
     scales = np.column_stack([f["D"], f["E"], f["F"]])
     temps = np.ascontiguousarray(numeric_column(path, "T", cols["T"]), dtype=np.float64) if "T" in cols else None

@@ -47,11 +47,12 @@ def numeric_column(path, name: str, values, where: str = "column") -> np.ndarray
     return a.astype(a.dtype.newbyteorder("="), copy=False)
 
 
-def require(path, columns: dict, need) -> None:
-    """``InputError`` naming the file when a column ``need`` requires is missing."""
-    missing = [c for c in need.names if c not in columns]
+def require(path, names, need, what: str = "columns") -> None:
+    """``InputError`` naming the file when a column ``need`` requires is not
+    among ``names`` (``what`` says what the format calls them)."""
+    missing = [c for c in need.names if c not in names]
     if missing:
-        raise InputError(f"{path}: columns {missing} missing (have {list(columns)})")
+        raise InputError(f"{path}: {what} {missing} missing (have {list(names)})")
 
 
 class ColumnWriter:

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import NUMERIC_KINDS, ColumnWriter, check_file
+from ._common import NUMERIC_KINDS, ColumnWriter, check_file, require
 
 #: The first bytes of every .npy file.
 MAGIC = b"\x93NUMPY"
@@ -41,9 +41,7 @@ def open_npy(path: Path, need) -> tuple[np.ndarray, list[str] | None]:
         raise InputError(f"{path}: not a readable .npy file ({type(exc).__name__}: {exc})") from None
     if a.dtype.names:
         names = a.dtype.names
-        missing = [c for c in need.names if c not in names]
-        if missing:
-            raise InputError(f"{path}: fields {missing} missing (have {list(names)})")
+        require(path, names, need, "fields")
         if a.ndim != 1:
             raise InputError(f"{path}: expected a 1-D structured array, got shape {a.shape}")
         for name in names:

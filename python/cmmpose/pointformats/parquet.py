@@ -13,7 +13,7 @@ import pyarrow.parquet as pq
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, arrow_table, check_file
+from ._common import ColumnWriter, arrow_table, check_file, require
 
 
 def chunks(path: Path, chunk: int, need):
@@ -26,9 +26,7 @@ def chunks(path: Path, chunk: int, need):
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
     schema = f.schema_arrow
-    missing = [c for c in need.names if c not in schema.names]
-    if missing:
-        raise InputError(f"{path}: columns {missing} missing (have {schema.names})")
+    require(path, schema.names, need)
     for c in schema.names:
         kind = schema.field(c).type
         if not (pa.types.is_floating(kind) or pa.types.is_integer(kind)):

@@ -20,7 +20,7 @@ import pyarrow.csv as pa_csv
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, arrow_table, check_file
+from ._common import ColumnWriter, arrow_table, check_file, require
 
 
 def _plyfile():
@@ -103,9 +103,7 @@ def chunks(path: Path, chunk: int, need):
     if lists:
         raise InputError(f"{path}: vertex properties {lists} are lists; expected one number per property")
     v = vertex.data
-    missing = [c for c in need.names if c not in v.dtype.names]
-    if missing:
-        raise InputError(f"{path}: vertex properties {missing} missing (have {list(v.dtype.names)})")
+    require(path, v.dtype.names, need, "vertex properties")
     return size, _chunks(v, chunk, size)
 
 

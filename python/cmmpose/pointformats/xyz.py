@@ -31,7 +31,7 @@ import pyarrow.csv as pa_csv
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, arrow_table, check_file, plain_text_names
+from ._common import ColumnWriter, arrow_table, check_file, plain_text_names, require
 
 #: Names of extra columns by how many there are (after x, y, z), for files without a header.
 _BY_COUNT = {0: (), 1: ("intensity",), 3: ("red", "green", "blue"), 4: ("intensity", "red", "green", "blue")}
@@ -147,9 +147,7 @@ def _make_chunks(pts: bool):
         path = check_file(path)
         size = path.stat().st_size
         layout = _Layout(path, pts)
-        missing = [c for c in need.names if c not in layout.names]
-        if missing:
-            raise InputError(f"{path}: columns {missing} missing (have {layout.names})")
+        require(path, layout.names, need)
         return size, _chunks(path, layout, chunk, size)
     return chunks
 
