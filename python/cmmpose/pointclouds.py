@@ -123,16 +123,8 @@ def read_point_cloud(path: str | Path, *, units: str | None = None, format: str 
     """
     fmt = pointformats.for_path(path, format)
     factor = _factor(units, fmt)
-    _, chunks = fmt.chunks(Path(path), 1 << 62, _NEED)
-    from .pointformats.csv import Reread
-
-    try:
-        parts = [c for c, _ in chunks]
-    except Reread as again:
-        parts = [again.columns]
-    names = list(parts[0])
-    coords = _coordinate_names(path, names)
-    cols = {n: np.concatenate([p[n] for p in parts]) if len(parts) > 1 else parts[0][n] for n in names}
+    cols = dict(pointformats.read_all(fmt, path, _NEED))
+    coords = _coordinate_names(path, list(cols))
     xyz = np.column_stack([np.asarray(cols.pop(c), dtype=np.float64) for c in coords])
     if factor != 1.0:
         xyz = xyz * factor

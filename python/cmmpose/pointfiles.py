@@ -24,8 +24,7 @@ import numpy as np
 from . import pointformats
 from .errors import InputError
 from .pointclouds import UNITS
-from .pointformats import csv as _csv
-from .pointformats._common import check_writable, numeric_column
+from .pointformats._common import check_file, check_writable, numeric_column
 
 __all__ = ["REQUIRED", "CHUNK_POINTS", "read_points", "write_points", "point_chunks", "PointWriter",
            "RereadPoints", "check_writable"]
@@ -54,15 +53,9 @@ def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | 
         of another width than the header, a field that is not a number, an
         NPY that is not a plain real array of the right shape.
     """
-    _, chunks = point_chunks(path, chunk=2**62)  # one chunk: the whole file
-    try:
-        parts = [c[:3] for c in chunks]
-    except RereadPoints as again:
-        parts = [again.points]
-    if len(parts) == 1:
-        return parts[0]
-    uv, scales, temps = zip(*parts)
-    return (np.concatenate(uv), np.concatenate(scales), None if temps[0] is None else np.concatenate(temps))
+    path = check_file(path)
+    uv, scales, temps, _ = _split(path, pointformats.read_all(pointformats.for_path(path, default="csv"), path, NEED))
+    return uv, scales, temps
 
 
 def write_points(path: str | Path, xyz: np.ndarray, extras: dict[str, np.ndarray] | None = None) -> None:
@@ -127,7 +120,7 @@ def _tuples(path, chunks, with_extras: bool):
         for cols, done in chunks:
             uv, scales, temps, extras = _split(path, cols)
             yield (uv, scales, temps, extras, done) if with_extras else (uv, scales, temps, done)
-    except _csv.Reread as again:
+    except pointformats.Reread as again:
         raise RereadPoints(_split(path, again.columns)) from None
 
 

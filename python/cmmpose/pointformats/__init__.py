@@ -31,9 +31,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from ..errors import InputError
 
-__all__ = ["PointFormat", "Need", "register", "names", "get", "for_path"]
+__all__ = ["PointFormat", "Need", "register", "names", "get", "for_path", "read_all", "Reread"]
 
 
 @dataclass(frozen=True)
@@ -135,3 +137,20 @@ def for_path(path: str | Path, format: str | None = None, default: str | None = 
 
 # Each module registers its format(s) when imported.
 from . import csv, e57, npy, parquet, ply, xyz  # noqa: E402,F401
+
+#: The strict CSV reader's whole file, raised when the fast reader gave up on
+#: a line the strict one accepts (see :mod:`.csv`).
+Reread = csv.Reread
+
+
+def read_all(fmt: PointFormat, path: str | Path, need: Need) -> dict:
+    """Every column of a file, whole: its chunks joined (or the strict CSV
+    reader's columns when the fast one gave up)."""
+    _, chunks = fmt.chunks(Path(path), 1 << 62, need)
+    try:
+        parts = [c for c, _ in chunks]
+    except Reread as again:
+        return again.columns
+    if len(parts) == 1:
+        return parts[0]
+    return {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}
