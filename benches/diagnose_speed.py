@@ -138,7 +138,6 @@ def main() -> None:
     temperature = prob.inputs.temperature
     k = min(args.reference_spheres, n_spheres)
     t_np, xyz_np = best_of(lambda: numpy_evaluation(run, maps_np, temperature, k), 1)
-    t_np_all = t_np  # compensation is whole; scale the fits up below
     t0 = time.perf_counter()
     numpy_evaluation(run, maps_np, temperature, 0)
     t_comp = time.perf_counter() - t0

@@ -22,6 +22,7 @@ from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
 from .pointclouds import UNITS as POINT_UNITS
 from .pointclouds import read_point_cloud, unit_factor
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
+from .machine import example_names
 from .metrics import STEEL_EXPANSION
 from .report import KernelReport
 from .cli_standards import acceptance_cmd, acceptance_sphere_cmd, e3125_distances_cmd, interim_cmd, iso230_2_cmd
@@ -1237,8 +1238,7 @@ def machine_group() -> None:
 
 
 @machine_group.command("example")
-@click.argument("name", type=click.Choice(sorted(["thesis", "moving-bridge", "gantry", "fixed-bridge",
-                                                  "horizontal-arm"])))
+@click.argument("name", type=click.Choice(example_names()))
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Machine file to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing file.")
 def machine_example_cmd(name, out, overwrite) -> None:

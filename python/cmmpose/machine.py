@@ -222,7 +222,7 @@ def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
     if kinematics not in known:
         raise InputError(f"{where}: kinematics = {kinematics!r} is not one of {', '.join(known)}")
     travel_table = doc.get("travel", {})
-    travel = tuple(_pair(travel_table, axis, f"{where}: travel.{axis}", increasing=True) for axis in "xyz")
+    travel = tuple(_pair(travel_table, axis, f"{where}: travel.{axis}") for axis in "xyz")
     maps = doc.get("maps", {"bundled": "thesis"})
     if ("bundled" in maps) == ("files" in maps):
         raise InputError(f"{where}: [maps] needs one of bundled = 'thesis' | 'appendix-b' or files = [...]")
@@ -241,9 +241,9 @@ def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
     sc = doc.get("scanner", {})
     defaults = Scanner()
     scanner = Scanner(
-        u_range=_pair(sc, "field_of_view_mm", f"{where}: scanner.field_of_view_mm", increasing=True,
+        u_range=_pair(sc, "field_of_view_mm", f"{where}: scanner.field_of_view_mm",
                       default=defaults.u_range),
-        v_range=_pair(sc, "depth_of_view_mm", f"{where}: scanner.depth_of_view_mm", increasing=True,
+        v_range=_pair(sc, "depth_of_view_mm", f"{where}: scanner.depth_of_view_mm",
                       default=defaults.v_range),
         points_per_profile=_integer(sc, "points_per_profile", f"{where}: scanner.points_per_profile",
                                     defaults.points_per_profile),
@@ -321,13 +321,13 @@ def _integer(table: dict, key: str, where: str, default: int) -> int:
     return value
 
 
-def _pair(table: dict, key: str, where: str, *, increasing: bool, default=None) -> tuple[float, float]:
+def _pair(table: dict, key: str, where: str, *, default=None) -> tuple[float, float]:
     if key not in table and default is None:
         raise InputError(f"{where}: missing (expected [low, high])")
     value = table.get(key, default)
     if not (isinstance(value, (list, tuple)) and len(value) == 2 and all(map(_real, value))):
         raise InputError(f"{where}: expected [low, high] numbers, got {value!r}")
-    if increasing and not value[0] < value[1]:
+    if not value[0] < value[1]:
         raise InputError(f"{where}: low must be below high, got {list(value)}")
     return float(value[0]), float(value[1])
 

@@ -148,7 +148,6 @@ class PointWriter:
     def __init__(self, path: str | Path, *, format: str | None = None):
         self.path = check_writable(path)
         self.format = pointformats.for_path(self.path, format, default="csv")
-        self.kind = self.format.name
         self._scale = 1.0 / UNITS[self.format.units]  # mm to the format's unit
         self._w = self.format.writer(self.path)
 
@@ -161,10 +160,6 @@ class PointWriter:
     def tmp(self):
         """The temporary file's name."""
         return self._w.tmp
-
-    @property
-    def rows(self) -> int:
-        return self._w.rows
 
     def write(self, xyz: np.ndarray, extras: dict[str, np.ndarray] | None = None) -> None:
         """Append (n, 3) coordinates in mm and, optionally, extra columns of length n."""

@@ -203,7 +203,6 @@ class Writer(ColumnWriter):
                 imf.extensionsAdd(*NAMESPACE)
             extra[name] = field
             fields.append((field, _INT64 if dt.kind in "iu" else np.dtype(np.float64)))
-        self.fields = dict(fields)
         self.columns = extra
         proto = lib.StructureNode(imf)
         for field, dt in fields:

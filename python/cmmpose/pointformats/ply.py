@@ -143,7 +143,7 @@ class Writer(ColumnWriter):
         self.dtype = np.dtype([(n, np.dtype(t).newbyteorder(order if order != "=" else "<")) for n, t in fields])
         element = plyfile.PlyElement.describe(np.empty(0, self.dtype), "vertex")
         text = plyfile.PlyData([element], text=self.encoding == "ascii",
-                               byte_order=order if order != "=" else "=").header
+                               byte_order=order).header
         self.count_line = "element vertex 0"
         if self.count_line not in text:  # pragma: no cover - plyfile's header layout
             raise InputError(f"{self.path}: unexpected PLY header from plyfile")
