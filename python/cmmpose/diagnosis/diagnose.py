@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
+from ..fitting import fit_spheres
 from ..run import Run
 from .identify import (ALPHA, Candidate, Problem, _value_text, check_effect_names, fit_model, model_uncertainties,
                        rank_candidates)
@@ -410,16 +411,15 @@ def diagnose(
             nominal = run.artefact.get("calibrated_radius_mm")
             for which, m in (("base_patterns", steps[0].model), ("patterns", steps[-1].model)):
                 xyz = m.compensate(problem.inputs)
-                from ..fitting import fit_spheres
-
                 sid = problem.inputs.scan_id
                 keep = np.isin(sid, problem.layout.labels)
                 fits = fit_spheres(xyz[keep], sid[keep])
                 sub = run if keep.all() else _subset(run, keep)
                 setattr(diag, which, find_patterns(sub, xyz[keep], fits, temperature=problem.inputs.temperature[keep],
                                                    nominal_radius=nominal))
-            diag.unexplained = unexplained_findings(diag.patterns, periodic_errors(sub, xyz[keep], fits),
-                                                    steps[-1].model.names)
+                if which == "patterns":  # the final model's: what it leaves unexplained
+                    diag.unexplained = unexplained_findings(diag.patterns, periodic_errors(sub, xyz[keep], fits),
+                                                            m.names)
     diag.elapsed = time.perf_counter() - t0
     return diag
 

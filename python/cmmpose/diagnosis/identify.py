@@ -30,7 +30,7 @@ from ..errors import Error, InputError
 from ..run import Run
 from .effects import EffectSpec, library
 from .inputs import RunInputs
-from .observables import CLASSES, ObservationLayout, Observed, observe
+from .observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, observe
 
 __all__ = ["Problem", "Candidate", "rank_candidates", "fit_model", "model_uncertainties", "ALPHA", "OBSERVABLE_AT"]
 
@@ -99,11 +99,10 @@ class Problem:
     """
 
     def __init__(self, model, run: Run, candidates: dict[str, EffectSpec] | None = None, *,
-                 points_per_scan: int | None = None):
+                 points_per_scan: int = POINTS_PER_SCAN):
         self.run = run
         self.inputs: RunInputs = model.inputs(run)
-        self.layout = (ObservationLayout.from_run(run, self.inputs) if points_per_scan is None
-                       else ObservationLayout.from_run(run, self.inputs, points_per_scan))
+        self.layout = ObservationLayout.from_run(run, self.inputs, points_per_scan)
         self.classes = self.layout.classes
         self.n_class = np.bincount(self.classes, minlength=len(CLASSES)).astype(float)
         self._class_rows = [np.flatnonzero(self.classes == c) for c in range(len(CLASSES))]

@@ -32,7 +32,10 @@ import numpy as np
 from ..errors import InputError
 from ..fitting import e3125
 from ..plots import _figure, _save
-from .acceptance import MPE, decide
+from .acceptance import DECISION_RULE, MPE, decide
+
+#: The decision rule, with what the test uncertainty holds here.
+RULE = f"{DECISION_RULE}; U = 2 u, u from the two centres' covariances along the line and the reference's"
 
 __all__ = ["SphereTarget", "DistanceError", "E3125Distances", "sphere_targets", "distance_errors", "read_pairs"]
 
@@ -249,9 +252,7 @@ def distance_errors(targets: dict[str, SphereTarget], pairs, mpe: MPE | None = N
             limit = mpe.at(ref)
             decision = decide(err, limit, 2 * u)
         errors.append(DistanceError(a, b, dist, ref, err, u, limit, decision))
-    rule = ("ISO 14253-1 style: pass when |E| + U <= MPE, fail when |E| - U > MPE, otherwise not proven; "
-            "U = 2 u, u from the two centres' covariances along the line and the reference's")
-    return E3125Distances(dict(targets), errors, rule)
+    return E3125Distances(dict(targets), errors, RULE)
 
 
 def read_pairs(path) -> list[tuple[str, str, float, float]]:
@@ -267,8 +268,9 @@ def read_pairs(path) -> list[tuple[str, str, float, float]]:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot be read ({exc})") from None
-    rows = list(csv.DictReader(text.splitlines()))
-    fields = set(rows[0]) if rows else set()
+    reader = csv.DictReader(text.splitlines())
+    rows = list(reader)
+    fields = set(reader.fieldnames or ())
     missing = sorted({"a", "b", "reference_mm"} - fields)
     if missing:
         raise InputError(f"{path}:1: missing column(s) {', '.join(missing)} (a, b, reference_mm[, u_um])")
