@@ -416,7 +416,7 @@ def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensa
           if compensated else []),
     ]
 
-    def length_budget(name, u_fit_p, L, u_ml, ct, n=1):
+    def length_budget(u_fit_p, L, u_ml, ct, n=1):
         c = 1.0 / math.sqrt(n)
         return [Input("Type A: scan-to-scan reproducibility", 0.0, u_between, "um", c, a_note),
                 Input("scanner noise (u and v) via the sphere fits", 0.0, u_fit_p, "um", c, fit_note),
@@ -434,7 +434,7 @@ def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensa
     lengths_fig, lengths20_fig, per_len_inputs, per_len20_inputs = [], [], [], []
     l20 = res.lengths_at_20c
     for p in range(P):
-        inp = length_budget(f"length {p}", u_fit[p], L_um[p], u_map_len[p], c_t[p])
+        inp = length_budget(u_fit[p], L_um[p], u_map_len[p], c_t[p])
         inp20 = at20(inp, L_um[p], dT[p], c_t20[p])
         b = Budget(f"length {int(res.positions[p])}", tuple(inp), "um")
         b20 = Budget(f"length {int(res.positions[p])} at 20 C", tuple(inp20), "um")
@@ -460,7 +460,7 @@ def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensa
 
     Lm = float(np.mean(L_um))
     u_fit_mean = math.sqrt(float(np.mean(u_fit ** 2)))
-    mean_inp = length_budget("mean", u_fit_mean, Lm, u_map_mean, float(np.mean(c_t)), n=P)
+    mean_inp = length_budget(u_fit_mean, Lm, u_map_mean, float(np.mean(c_t)), n=P)
     b_mean = Budget("mean length", tuple(mean_inp), "um")
     dT_mean = float(np.nanmean(dT)) if np.any(np.isfinite(dT)) else float("nan")
     b_mean20 = Budget("mean length at 20 C", tuple(at20(mean_inp, Lm, dT_mean, float(np.mean(c_t20)))), "um")

@@ -163,16 +163,15 @@ def _chunks(path: Path, layout: _Layout, chunk: int, size: int):
             if not raw:
                 break
             text = _decode(path, b"".join(raw), line_no)
-            lines = text.splitlines()
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", UserWarning)  # a chunk of comments only: no data
                     a = np.loadtxt(io.StringIO(text), dtype=np.float64, comments=("#", "//"),
                                    delimiter=layout.delimiter, ndmin=2)
-            except ValueError:
-                raise InputError(_bad_line(path, lines, line_no, width, layout.delimiter)) from None
+            except ValueError:  # the lines are split only to name the one at fault
+                raise InputError(_bad_line(path, text.splitlines(), line_no, width, layout.delimiter)) from None
             if a.size and a.shape[1] != width:
-                raise InputError(_bad_line(path, lines, line_no, width, layout.delimiter))
+                raise InputError(_bad_line(path, text.splitlines(), line_no, width, layout.delimiter))
             a = a.reshape(-1, width)
             cols = {}
             for j, name in enumerate(names):
@@ -181,7 +180,7 @@ def _chunks(path: Path, layout: _Layout, chunk: int, size: int):
                     whole = np.isfinite(col) & (col == np.round(col))
                     if not whole.all():
                         bad = int(np.flatnonzero(~whole)[0])
-                        raise InputError(f"{path}:{line_no + _line_of_row(lines, bad)}: column {name!r} must hold "
+                        raise InputError(f"{path}:{line_no + _line_of_row(text.splitlines(), bad)}: column {name!r} must hold "
                                          f"whole numbers, got {col[bad]!r}")
                     col = col.astype(np.int64)
                 cols[name] = col

@@ -300,7 +300,7 @@ class PositioningResult:
         return _save(fig, path)
 
 
-def _array(name: str, values, source: str, dtype=float) -> np.ndarray:
+def _array(name: str, values, source: str) -> np.ndarray:
     try:
         a = np.array(values, dtype=float)
     except (TypeError, ValueError) as exc:
