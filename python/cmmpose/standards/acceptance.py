@@ -186,6 +186,12 @@ class Check:
     decision: str
     length_mm: float = float("nan")
 
+    @classmethod
+    def judged(cls, test: str, item: str, error_um: float, mpe_um: float, U_um: float,
+               length_mm: float = float("nan")) -> Check:
+        """The check with its decision by :data:`DECISION_RULE`."""
+        return cls(test, item, error_um, mpe_um, U_um, decide(error_um, mpe_um, U_um), length_mm)
+
     def to_dict(self) -> dict:
         d = {"test": self.test, "item": self.item, "error_um": round(self.error_um, 3), "mpe_um": round(self.mpe_um, 3),
              "U_um": round(self.U_um, 3), "k": 2, "decision": self.decision}
@@ -418,13 +424,12 @@ def acceptance_test(
         r_cal = float(calibrated_radius_mm)
         for s in res.spheres:
             item = f"position {s.position} ball {s.ball} (scan {s.scan_id})"
-            checks.append(Check("probing form, single view", item, s.form * 1e3, mpes["mpe_form"].at(), U_form,
-                                decide(s.form * 1e3, mpes["mpe_form"].at(), U_form)))
+            checks.append(Check.judged("probing form, single view", item, s.form * 1e3, mpes["mpe_form"].at(),
+                                       U_form))
         for s in res.spheres:
             item = f"position {s.position} ball {s.ball} (scan {s.scan_id})"
             e = 2 * (s.radius - r_cal) * 1e3
-            checks.append(Check("probing size, single view", item, e, mpes["mpe_size"].at(), U_size,
-                                decide(e, mpes["mpe_size"].at(), U_size)))
+            checks.append(Check.judged("probing size, single view", item, e, mpes["mpe_size"].at(), U_size))
     else:
         notes.append("no calibrated ball radius (artefact calibrated_radius_mm): no probing tests on the ballbar's balls")
 
@@ -449,7 +454,7 @@ def acceptance_test(
             u = math.sqrt(u_len ** 2 + (length * u_alpha * (t - 20.0) * 1e-3) ** 2
                           + (length * expansion * 1e6 * u_t * 1e-3) ** 2)
             mpe = mpes["mpe_length"].at(length)
-            checks.append(Check("length", f"position {p}", e, mpe, 2 * u, decide(e, mpe, 2 * u), float(length)))
+            checks.append(Check.judged("length", f"position {p}", e, mpe, 2 * u, float(length)))
         unotes.append(f"length U = 2 sqrt(u_cert^2 + (L u_alpha |T - 20|)^2 + (L alpha u_T)^2): u_cert {u_len:g} um, "
                       f"u_alpha {u_alpha:g} ppm/K, alpha {expansion * 1e6:g} ppm/K, u_T {u_t:g} K")
     else:
@@ -485,18 +490,16 @@ def _reference_checks(run: Run, maps, temperature, out_of_range, ref_ids: np.nda
         pts = xyz[sid == i]
         f = fit_sphere(pts)
         views.append(f)
-        out.append(Check("probing form, single view", f"reference scan {i}", f.form * 1e3, mpes["mpe_form"].at(),
-                         U_form, decide(f.form * 1e3, mpes["mpe_form"].at(), U_form)))
+        out.append(Check.judged("probing form, single view", f"reference scan {i}", f.form * 1e3,
+                                mpes["mpe_form"].at(), U_form))
         e = 2 * (f.radius - radius) * 1e3
-        out.append(Check("probing size, single view", f"reference scan {i}", e, mpes["mpe_size"].at(), U_size,
-                         decide(e, mpes["mpe_size"].at(), U_size)))
+        out.append(Check.judged("probing size, single view", f"reference scan {i}", e, mpes["mpe_size"].at(),
+                                U_size))
     f = fit_sphere(xyz[np.isin(sid, ref_ids)])
     item = f"reference sphere, {len(ref_ids)} views together"
-    out.append(Check("probing form, all points", item, f.form * 1e3, mpes["mpe_form"].at(), U_form,
-                     decide(f.form * 1e3, mpes["mpe_form"].at(), U_form)))
+    out.append(Check.judged("probing form, all points", item, f.form * 1e3, mpes["mpe_form"].at(), U_form))
     e = 2 * (f.radius - radius) * 1e3
-    out.append(Check("probing size, all points", item, e, mpes["mpe_size"].at(), U_size,
-                     decide(e, mpes["mpe_size"].at(), U_size)))
+    out.append(Check.judged("probing size, all points", item, e, mpes["mpe_size"].at(), U_size))
     return out
 
 
@@ -535,10 +538,8 @@ def probing_test(points, calibrated_radius_mm: float, *, mpe_form, mpe_size, u_f
     U_size = 2 * nonnegative("u_diameter_certificate_um", u_diameter_certificate_um)
     f = fit_sphere(points)
     form, size = f.form * 1e3, 2 * (f.radius - r_cal) * 1e3
-    checks = (Check("probing form, single view", item, form, mpes["mpe_form"].at(), U_form,
-                    decide(form, mpes["mpe_form"].at(), U_form)),
-              Check("probing size, single view", item, size, mpes["mpe_size"].at(), U_size,
-                    decide(size, mpes["mpe_size"].at(), U_size)))
+    checks = (Check.judged("probing form, single view", item, form, mpes["mpe_form"].at(), U_form),
+              Check.judged("probing size, single view", item, size, mpes["mpe_size"].at(), U_size))
     notes = (f"{f.n_points} points, least-squares sphere with a free radius over a {f.polar_coverage:.0f} deg cap",)
     unotes = (f"probing U: form 2 x {U_form / 2:g} um (sphere form certificate), size 2 x {U_size / 2:g} um "
               "(diameter certificate); U leaves out the tested instrument's own scatter",)
