@@ -103,3 +103,12 @@ def test_simulated_scans_from_the_command_line(tmp_path):
     for e in out["errors"]:
         assert abs(e["error_um"]) < e["U_um"], e  # within U (k = 2): the range noise through the fits
         assert 10 < e["U_um"] < 100
+
+
+def test_an_unwritable_plot_is_named(tmp_path):
+    with open(tmp_path / "pairs.csv", "w") as f:
+        f.write("a,b,reference_mm\nSPH101,SPH102,10479.32\n")
+    res = CliRunner().invoke(main, ["e3125-distances", f"SPH101={NIST / 'SPH101.xyz'}", f"SPH102={NIST / 'SPH102.xyz'}",
+                                    "--pairs", str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m", "--plot",
+                                    str(tmp_path / "no-such-folder" / "p.png")])
+    assert res.exit_code != 0 and "no-such-folder" in res.output and "Traceback" not in res.output, res.output

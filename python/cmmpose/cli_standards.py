@@ -37,11 +37,14 @@ def _show(result, files, as_json: bool) -> None:
 def _outputs(result, stem: str, plot, plot_path, report_dir) -> list[Path]:
     """The plot at ``plot_path`` and the report in ``report_dir``, as asked; the files written."""
     files = []
-    if plot_path:
-        plot(plot_path)
-        files.append(Path(plot_path))
-    if report_dir:
-        files += _write_report(result, report_dir, stem, plot)
+    try:
+        if plot_path:
+            plot(plot_path)
+            files.append(Path(plot_path))
+        if report_dir:
+            files += _write_report(result, report_dir, stem, plot)
+    except OSError as exc:  # an unwritable path: named, no traceback
+        raise click.ClickException(f"{exc.filename or plot_path or report_dir}: {exc.strerror or exc}") from None
     return files
 
 
@@ -93,8 +96,6 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
         files = _outputs(result, "iso230-2", lambda p: result.plot(p, data), plot_path, report_dir)
     except Error as exc:
         raise _fail(exc) from None
-    except OSError as exc:
-        raise click.ClickException(f"{exc.filename or plot_path}: {exc.strerror or exc}") from None
     _show(result, files, as_json)
 
 
@@ -146,8 +147,6 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
         files = _outputs(result, "acceptance", result.plot, plot_path, report_dir)
     except Error as exc:
         raise _fail(exc) from None
-    except OSError as exc:
-        raise click.ClickException(f"{exc.filename or plot_path}: {exc.strerror or exc}") from None
     _show(result, files, as_json)
 
 
