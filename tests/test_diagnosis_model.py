@@ -178,8 +178,13 @@ def test_bad_input_is_named():
 
 
 def test_library_lists_per_pose_alignment_only_with_several_poses():
-    assert set(library([0])) == set(LIBRARY)
+    # An effect that follows a sensor is a candidate per thermocouple role only.
+    followers = {n for n, s in LIBRARY.items() if s.sensor_input}
+    assert followers == {"squareness-temperature"}
+    assert set(library([0])) == set(LIBRARY) - followers
     assert {"alignment@0", "alignment@3"} <= set(library([0, 3]))
+    assert set(library([0], ["x_scale", "mount"])) == set(LIBRARY) - followers | {
+        "squareness-temperature@x_scale", "squareness-temperature@mount"}
     for spec in LIBRARY.values():
         assert spec.physics and spec.reveal and len(spec.params) == len(spec.units) == len(spec.prior)
 

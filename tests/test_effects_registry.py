@@ -25,8 +25,10 @@ def test_every_kernel_effect_is_a_rust_term_with_the_same_parameters():
     assert set(kernel) == set(terms), set(kernel) ^ set(terms)
     for name, cls in kernel.items():
         assert list(cls.params) == terms[name]["params"], name
-        # What the term reads is what the effect says the run must hold.
-        assert {n for n, _ in terms[name]["inputs"]} == set(cls.needs) - {"poses>1"}, name
+        # What the term reads is what the effect says the run must hold, or
+        # the temperature of the sensor group the data chose for it.
+        assert {n for n, _ in terms[name]["inputs"]} == set(cls.needs) - {"poses>1"} | (
+            {cls.sensor_input} if cls.sensor_input else set()), name
 
 
 def test_each_effect_declares_itself_once():

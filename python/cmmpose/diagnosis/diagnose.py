@@ -18,6 +18,7 @@ from ..fitting import fit_spheres
 from ..run import Run
 from .identify import (ALPHA, Candidate, Problem, _value_text, check_effect_names, fit_model, model_uncertainties,
                        rank_candidates)
+from .effects import EffectSpec, effect_spec, run_library
 from .model import Model
 from .observables import ModelFigures, figures
 from .unexplained import periodic_errors, unexplained_findings
@@ -44,6 +45,9 @@ class Step:
         The candidates evaluated against it, best first.
     forced : bool
         The effect was added on request, not because it was significant.
+    replaces : str
+        The effect this step's took the place of ('' when none): the same
+        physics following another sensor, which the data prefer.
     """
 
     label: str
@@ -51,9 +55,16 @@ class Step:
     figures: ModelFigures
     ranking: list[Candidate]
     forced: bool = False
+    replaces: str = ""
+
+    @property
+    def effect(self) -> str:
+        """The effect this step added ('' for the base)."""
+        return "" if self.label == "base" else self.label[2:].split(" (instead of ")[0]
 
     def to_dict(self) -> dict:
-        return {"label": self.label, "forced": self.forced, **self.figures.to_dict(),
+        return {"label": self.label, "forced": self.forced, "replaces": self.replaces or None,
+                **self.figures.to_dict(),
                 "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
                              "units": dict(zip(s.params, s.units))} for s, v in self.model.effects],
                 "ranking": [c.to_dict() for c in self.ranking]}
@@ -114,21 +125,36 @@ class Diagnosis:
         out = []
         final = self.steps[-1].model
         for s in self.steps[1:]:
-            name = s.label[2:]
+            name = s.effect
+            if name not in final.names:
+                by = next(t for t in self.steps if t.replaces == name)
+                alt = next((c for c in self.steps[self.steps.index(by) - 1].ranking if c.name == by.effect), None)
+                why = f"replaced by {by.effect}" + (f": {alt.reason()}" if alt is not None else "")
+                spec = next(c.spec for c in self.steps[0].ranking if c.name == name) \
+                    if any(c.name == name for c in self.steps[0].ranking) else None
+                out.append({"name": name, "decision": "replaced", "reason": why, "values": {}, "uncertainty": {},
+                            "units": {} if spec is None else dict(zip(spec.params, spec.units)), "p_value": None})
+                continue
             spec = next(sp for sp, _ in final.effects if sp.name == name)
             vals = final.values(name)
             unc = np.asarray(self.final_uncertainty.get(name, np.full(spec.size, np.inf)), dtype=float)
             when = next((c for c in self.steps[self.steps.index(s) - 1].ranking if c.name == name), None)
             why = ", ".join(_value_text(p, v, u, unit) for p, v, u, unit in zip(spec.params, vals, unc, spec.units))
-            if when is not None and not s.forced:
+            if s.replaces and when is not None:
+                why += f" (final model); in place of {s.replaces}: {when.reason().split('; ')[0]}"
+            elif when is not None and not s.forced:
                 why += f" (final model); p = {when.p_value:.2g} when added, against the threshold {when.threshold:.2g}"
             elif s.forced:
                 why += " (final model); added on request, whether significant or not"
+            if when is not None and when.indistinguishable_from:
+                # One of a group the run cannot tell apart stands for the group.
+                why += (f"; the run cannot tell it from {', '.join(when.indistinguishable_from)} "
+                        f"(needs: {when.spec.reveal})")
             out.append({"name": name, "decision": "added on request" if s.forced else "added", "reason": why,
                         "values": dict(zip(spec.params, map(float, vals))),
                         "uncertainty": dict(zip(spec.params, map(float, unc))),
                         "units": dict(zip(spec.params, spec.units)),
-                        "p_value": None if when is None else float(when.p_value)})
+                        "p_value": None if when is None or s.replaces else float(when.p_value)})
         for c in self.steps[-1].ranking:
             out.append({"name": c.name, "decision": c.decision, "reason": c.reason(),
                         "values": dict(zip(c.spec.params, map(float, c.values))),
@@ -146,7 +172,7 @@ class Diagnosis:
 
     @property
     def added(self) -> list[str]:
-        return [s.label[2:] for s in self.steps[1:]]
+        return [s.effect for s in self.steps[1:] if s.effect in self.model.names]
 
     @property
     def proposals(self) -> list[Candidate]:
@@ -367,16 +393,15 @@ def diagnose(
         model = replace(model, **policy, _inputs_cache={})
     cand = None
     if candidates is not None:
-        from .effects import effect_spec, library
-
-        known = library(model.inputs(run).pose_ids)
         cand = {}
+        known = run_library(model.inputs(run))
         for c in candidates:
-            spec = effect_spec(c, known if isinstance(c, str) else None)
-            cand[spec.name] = spec
-    cand = with_user_effects(cand, [a for a in add if not isinstance(a, str)] + list(user_effects),
-                             model.inputs(run).pose_ids)
-    problem = Problem(model, run, cand)
+            # A name of an effect that follows a sensor stands for all its variants.
+            variants = [k for k in known if isinstance(c, str) and k.startswith(f"{c}@") and known[k].sensor]
+            for spec in [known[k] for k in variants] or [effect_spec(c, known if isinstance(c, str) else None)]:
+                cand[spec.name] = spec
+    problem = Problem(model, run, cand,
+                      extra=user_specs([a for a in add if not isinstance(a, str)] + list(user_effects)))
     add_names = [a if isinstance(a, str) else a.name for a in add]
     check_effect_names(add_names, problem)
     steps, model = select_effects(problem, model, add_names, auto, max_effects,
@@ -430,18 +455,12 @@ def _subset(run: Run, keep: np.ndarray) -> Run:
                run.maps, run.metadata, run.created)
 
 
-def with_user_effects(candidates, user_effects, pose_ids=()):
-    """The candidates (the library's when None) with ``user_effects`` added."""
-    from .effects import EffectSpec, library
-
-    if not user_effects:
-        return candidates
-    out = dict(candidates if candidates is not None else library(pose_ids))
+def user_specs(user_effects) -> tuple[EffectSpec, ...]:
+    """``user_effects`` checked: extra candidates for a :class:`Problem`."""
     for u in user_effects:
         if not isinstance(u, EffectSpec):
             raise InputError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
-        out[u.name] = u
-    return out
+    return tuple(user_effects)
 
 
 def select_effects(problem, model: Model, add_names, auto: bool, max_effects: int, step):
@@ -455,9 +474,23 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
         model = fit_model(model.with_values(spec, np.zeros(spec.size)), None, problem=problem)
         steps.append(step(f"+ {name}", model, True))
     added = 0
-    while auto and added < max_effects:
+    swapped: set[str] = set()
+    while auto:
+        # An alternative the data now prefer (the same physics following
+        # another sensor) takes its sibling's place, once per effect; one
+        # added on request stays (its alternative is labelled 'preferred').
+        forced = {s.effect for s in steps if s.forced}
+        better = [c for c in steps[-1].ranking if c.decision == "preferred" and c.name not in swapped
+                  and c.alternative_to not in forced]
+        if better:
+            c = max(better, key=lambda c: c.lr)
+            swapped.add(c.alternative_to)
+            model = fit_model(model.without(c.alternative_to).with_values(c.spec, c.values), None, problem=problem)
+            steps.append(step(f"+ {c.name} (instead of {c.alternative_to})", model, False))
+            steps[-1].replaces = c.alternative_to
+            continue
         best = steps[-1].ranking[0] if steps[-1].ranking else None
-        if best is None or not best.significant:
+        if added >= max_effects or best is None or not best.significant:
             break
         model = fit_model(model.with_values(best.spec, best.values), None, problem=problem)
         steps.append(step(f"+ {best.name}", model, False))
@@ -479,7 +512,7 @@ def _unobservable(problem: Problem, steps: list[Step]):
     advice = {}
     for c in steps[0].ranking:
         advice[c.name] = c.spec.reveal
-        if c.name in [s.label[2:] for s in steps[1:]]:
+        if c.name in [s.effect for s in steps[1:]]:
             continue
         # "Not observable" only where the design cannot determine the effect;
         # a determined but weak one is "not significant" (Candidate.reason says how weak).

@@ -26,7 +26,7 @@ from .. import effects as effects_registry
 from ..effects import Effect
 from ..errors import InputError
 
-__all__ = ["EffectSpec", "UserEffect", "LIBRARY", "library", "effect_spec", "USER_INPUTS"]
+__all__ = ["EffectSpec", "UserEffect", "LIBRARY", "library", "run_library", "effect_spec", "resolve", "USER_INPUTS"]
 
 
 @dataclass(frozen=True)
@@ -62,6 +62,9 @@ class EffectSpec:
         step of one typical magnitude would leave the maps' range).
     effect : type or None
         The effect class of :mod:`cmmpose.effects` it comes from.
+    sensor : str or None
+        For an effect that follows a thermocouple group the data choose
+        (``effect.sensor_input``): the role it follows in this candidate.
     """
 
     name: str
@@ -76,6 +79,7 @@ class EffectSpec:
     pose_id: int | None = None
     step: tuple[float, ...] | None = None
     effect: type | None = field(default=None, compare=False, repr=False)
+    sensor: str | None = None
 
     @classmethod
     def from_effect(cls, effect: type[Effect], **changes) -> EffectSpec:
@@ -87,6 +91,11 @@ class EffectSpec:
                    physics=effect.summary, reveal=effect.reveal, needs=effect.needs,
                    step=None if steps == tuple(p.prior for p in ps.values()) else steps, effect=effect)
         return replace(spec, **changes) if changes else spec
+
+    @property
+    def sensor_input(self) -> str | None:
+        """The kernel input carrying the followed sensor's temperature, if any."""
+        return getattr(self.effect, "sensor_input", None)
 
     @property
     def steps(self) -> tuple[float, ...]:
@@ -171,10 +180,20 @@ USER_INPUTS = ("u", "v", "D", "E", "F", "t", "temperature", "x", "y", "z", "scan
 LIBRARY: dict[str, EffectSpec] = {name: EffectSpec.from_effect(e) for name, e in effects_registry.available().items()}
 
 
-def library(pose_ids=()) -> dict[str, EffectSpec]:
+def library(pose_ids=(), sensors=()) -> dict[str, EffectSpec]:
     """The candidate library for a run: ``LIBRARY`` plus, when the run has
-    more than one pose, an alignment error per pose ('alignment@<pose_id>')."""
-    out = dict(LIBRARY)
+    more than one pose, an alignment error per pose ('alignment@<pose_id>'),
+    and, for each effect that follows a thermocouple group the data choose,
+    one candidate per role in ``sensors`` ('squareness-temperature@z_scale')
+    in place of the effect itself."""
+    out = {}
+    for name, spec in LIBRARY.items():
+        if spec.sensor_input is None:
+            out[name] = spec
+            continue
+        for role in sensors:
+            out[f"{name}@{role}"] = replace(spec, name=f"{name}@{role}", sensor=str(role),
+                                            physics=f"{spec.physics}; here the '{role}' thermocouples")
     pose_ids = [int(p) for p in pose_ids]
     if len(pose_ids) > 1:
         base = LIBRARY["alignment"]
@@ -182,6 +201,28 @@ def library(pose_ids=()) -> dict[str, EffectSpec]:
             out[f"alignment@{p}"] = replace(base, name=f"alignment@{p}", pose_id=p,
                                             physics=f"the Euler angles of pose {p} differ from its calibrated ones")
     return out
+
+
+def run_library(inputs) -> dict[str, EffectSpec]:
+    """The candidate library for a run's inputs (:class:`RunInputs`): its
+    poses and thermocouple roles."""
+    return library(inputs.pose_ids, inputs.sensor_roles)
+
+
+def resolve(name: str) -> EffectSpec:
+    """The spec of a library name, variants included: 'alignment@3' (pose 3)
+    or 'squareness-temperature@z_scale' (following the z-scale thermocouples)."""
+    base, at, suffix = name.partition("@")
+    if at and base in LIBRARY:
+        try:
+            pose = int(suffix)
+        except ValueError:
+            return effect_spec(name, library(sensors=[suffix]) if LIBRARY[base].sensor_input else LIBRARY)
+        return effect_spec(name, library([pose, pose + 1 if pose >= 0 else pose - 1]))
+    if base in LIBRARY and LIBRARY[base].sensor_input:
+        raise InputError(f"effect {name!r} follows a thermocouple group: name it, e.g. '{name}@z_scale' "
+                         f"(one of the run's thermocouple roles)")
+    return effect_spec(name)
 
 
 def effect_spec(name, candidates: dict[str, EffectSpec] | None = None) -> EffectSpec:

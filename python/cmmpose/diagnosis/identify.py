@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import Error, InputError
 from ..run import Run
-from .effects import EffectSpec, library
+from .effects import EffectSpec, run_library
 from .inputs import RunInputs
 from .observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, observe
 
@@ -95,11 +95,14 @@ class Problem:
     run : Run
         The run.
     candidates : dict of str -> EffectSpec, optional
-        Default: the whole library for the run (plus per-pose alignments).
+        Default: the whole library for the run (plus per-pose alignments and
+        one candidate per thermocouple role for effects that follow a sensor).
+    extra : sequence of EffectSpec
+        Added to the candidates (user-defined effects).
     """
 
     def __init__(self, model, run: Run, candidates: dict[str, EffectSpec] | None = None, *,
-                 points_per_scan: int = POINTS_PER_SCAN):
+                 points_per_scan: int = POINTS_PER_SCAN, extra=()):
         self.run = run
         self.inputs: RunInputs = model.inputs(run)
         self.layout = ObservationLayout.from_run(run, self.inputs, points_per_scan)
@@ -111,12 +114,15 @@ class Problem:
         self.n_eff = self.n_class.copy()
         self.n_eff[1] = 3 * (len(self.layout.repeated) - n_groups)
         self.nuisance, self.nuisance_names = self.layout.nuisance()
-        self.candidates = dict(library(self.inputs.pose_ids) if candidates is None else candidates)
+        self.candidates = dict(run_library(self.inputs) if candidates is None else candidates)
+        self.candidates |= {spec.name: spec for spec in extra}
         for spec, _ in model.effects:
             self.candidates.setdefault(spec.name, spec)
         self.skipped: dict[str, str] = {}
         for name, spec in list(self.candidates.items()):
             missing = [n for n in spec.needs if not self.inputs.available(n)]
+            if spec.sensor and spec.sensor not in self.inputs.sensors:
+                missing.append(f"thermocouples of role {spec.sensor!r}")
             if missing:
                 self.skipped[name] = f"the run lacks {', '.join(missing)}: {spec.reveal}"
                 del self.candidates[name]
@@ -129,24 +135,44 @@ class Problem:
                        self.inputs.scan_id)
 
     def _sensitivities(self, model, obs: Observed) -> dict[str, np.ndarray]:
-        """Residual change per prior magnitude of each parameter (mm)."""
-        return {name: self._columns(model, spec, model.values(name) if name in model.names else np.zeros(spec.size),
-                                    obs)
-                for name, spec in self.candidates.items()}
+        """Residual change per prior magnitude of each parameter (mm). A
+        candidate whose change cannot be evaluated on this run either way
+        (a step that takes a temperature outside the maps, say) is moved to
+        ``skipped`` with the reason; one already in the model raises."""
+        out = {}
+        for name, spec in list(self.candidates.items()):
+            current = model.values(name) if name in model.names else np.zeros(spec.size)
+            try:
+                out[name] = self._columns(model, spec, current, obs)
+            except Error as e:
+                if name in model.names:
+                    raise
+                self.skipped[name] = f"its effect on this run cannot be evaluated ({e}): {spec.reveal}"
+                del self.candidates[name]
+        return out
 
     def _columns(self, model, spec: EffectSpec, current: np.ndarray, obs: Observed) -> np.ndarray:
         """Residual change per prior magnitude of each parameter of ``spec``:
         analytic for the artefact expansion (it acts on the predicted length
-        only), else forward differences of size ``spec.steps`` through the
-        kernel and the sphere fits."""
+        only), else finite differences of size ``spec.steps`` through the
+        kernel and the sphere fits: forward, or backward where the forward
+        step cannot be evaluated (it leaves the maps' range)."""
         if spec.kind == "length":
             ref = self.layout.calibrated_length or (float(np.mean(obs.lengths)) if len(obs.lengths) else 0.0)
             return self.layout.expansion_column(ref)[:, None] * np.asarray(spec.prior)
         cols = []
         for j in range(spec.size):
-            v = np.array(current, dtype=float)
-            v[j] += spec.steps[j]
-            cols.append((self.observe(model.with_values(spec, v)).residual - obs.residual) * spec.prior[j] / spec.steps[j])
+            for sign in (1.0, -1.0):
+                v = np.array(current, dtype=float)
+                v[j] += sign * spec.steps[j]
+                try:
+                    moved = self.observe(model.with_values(spec, v)).residual
+                except Error:
+                    if sign < 0:
+                        raise
+                    continue
+                cols.append((moved - obs.residual) * sign * spec.prior[j] / spec.steps[j])
+                break
         return np.column_stack(cols)
 
     # -- fitting ------------------------------------------------------------
@@ -271,6 +297,10 @@ class Candidate:
     stands_for: list = field(default_factory=list)
     threshold: float = ALPHA
     model_effects: tuple = ()
+    #: The effect in the model of which this one is an alternative (the same
+    #: physics following another sensor): then ``lr`` is the likelihood
+    #: ratio of the model holding this one instead (negative: worse).
+    alternative_to: str = ""
 
     @property
     def aliases(self) -> list[str]:
@@ -280,6 +310,8 @@ class Candidate:
         already in the model whose fitted columns its own repeat (|correlation|
         above INDISTINGUISHABLE)."""
         out = list(self.indistinguishable_from) + [n for n in self.stands_for if n not in self.indistinguishable_from]
+        if self.alternative_to and abs(self.lr) < INDISTINGUISHABLE_LR and self.alternative_to not in out:
+            out.append(self.alternative_to)
         if self.correlation > INDISTINGUISHABLE and self.correlated_with in self.model_effects \
                 and self.correlated_with not in out:
             out.append(self.correlated_with)
@@ -298,8 +330,14 @@ class Candidate:
         """One label, one meaning: 'significant', 'significant, aliased'
         (significant, but the run cannot tell it from ``aliases``), 'aliased'
         (not significant on its own and repeating an effect already in the
-        model), 'not significant' (determined, but p above the threshold) or
-        'not observable' (the run's design cannot determine it)."""
+        model), 'not significant' (determined, but p above the threshold),
+        'not observable' (the run's design cannot determine it), or, for an
+        alternative of an effect in the model, 'not chosen' (the data prefer
+        the model's) or 'preferred' (the data prefer this one)."""
+        if self.alternative_to:
+            if self.aliases:
+                return "aliased"
+            return "preferred" if self.lr > 0 else "not chosen"
         if self.significant:
             return "significant, aliased" if self.aliases else "significant"
         if not self.observable:
@@ -314,6 +352,14 @@ class Candidate:
                          zip(self.spec.params, self.values, self.uncertainty, self.spec.units))
         test = f"p = {self.p_value:.2g} against the threshold {self.threshold:.2g}"
         d = self.decision
+        if self.alternative_to:
+            odds = f"-2 log L {abs(self.lr):.1f} {'lower' if self.lr > 0 else 'higher'} than with {self.alternative_to}"
+            if d == "aliased":
+                return (f"the run cannot choose between it and {self.alternative_to} ({odds}); {vals}; needs: "
+                        f"{self.spec.reveal}")
+            if d == "preferred":
+                return f"the data prefer it to {self.alternative_to}: {odds}; {vals}"
+            return f"the data prefer {self.alternative_to}: {odds}; {vals}"
         if d == "not observable":
             if self.dof > 0 and np.all(np.isfinite(self.uncertainty)):
                 return (f"a typical {self.spec.describe(self.spec.prior)} would stand only "
@@ -345,7 +391,7 @@ class Candidate:
                 "observability": num(self.observability), "significant": self.significant,
                 "indistinguishable_from": list(self.indistinguishable_from), "reveal": self.spec.reveal,
                 "aliases": self.aliases, "decision": self.decision, "reason": self.reason(),
-                "threshold": num(self.threshold)}
+                "threshold": num(self.threshold), "alternative_to": self.alternative_to or None}
 
 
 def _value_text(p, v, u, unit) -> str:
@@ -374,8 +420,14 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
     W0 = problem.whitened(X0, base.sigma)
     q0 = np.linalg.qr(W0)[0] if X0.shape[1] else np.zeros((len(r0), 0))
     labels = [n for n in problem.nuisance_names] + [name for name, k in index for _ in range(k)]
+    held = {s.key: s.name for s, _ in model.effects if s.kind == "kernel"}
+    alternatives = []
     for name in todo:
         spec = problem.candidates[name]
+        if spec.kind == "kernel" and spec.key in held:
+            alternatives.append(_alternative(problem, model, spec, held[spec.key], r0, X0, index, ridge0, target0,
+                                             base, labels))
+            continue
         J = problem.columns[name]
         fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
                           target=np.r_[target0, np.zeros(J.shape[1])])
@@ -429,7 +481,7 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
         out.append(Candidate(name, spec, values, unc, lr, dof, p, dbic,
                              1 - after / before if before > 0 else 0.0,
                              1 - la / lb if lb > 0 else 0.0, corr, with_, cond, float(np.max(s2)) if k else 0.0))
-    threshold = ALPHA / max(len(todo), 1)
+    threshold = ALPHA / max(len(todo) - len(alternatives), 1)
     for c in out:
         c.significant = c.dof > 0 and c.p_value < threshold
         c.threshold = threshold
@@ -438,7 +490,49 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
     # against the parameters spent on it.
     out.sort(key=lambda c: (not c.significant, c.p_value, -c.lr))
     _flag_indistinguishable(problem, out, r0, X0, base, ridge0, target0)
-    return out
+    for c in alternatives:
+        c.threshold = threshold
+        c.model_effects = tuple(model.names)
+    # Alternatives after the candidates, the data's favourite first.
+    return out + sorted(alternatives, key=lambda c: -c.lr)
+
+
+def _alternative(problem: Problem, model, spec: EffectSpec, held: str, r0, X0, index, ridge0, target0, base: Fit,
+                 labels) -> Candidate:
+    """``spec`` evaluated in place of ``held``, the model's effect of the
+    same term (the same physics following another sensor): the likelihood
+    ratio of the model holding ``spec`` instead, and its values there."""
+    k0 = problem.nuisance.shape[1]
+    at = k0
+    for name, k in index:
+        if name == held:
+            break
+        at += k
+    k_held = problem.columns[held].shape[1]
+    keep = np.r_[np.arange(at), np.arange(at + k_held, X0.shape[1])]
+    # The residual holds the held effect at its values: take it out (to
+    # first order, through its own columns) before fitting the other.
+    r_without = r0 - problem.columns[held] @ (model.values(held) / np.asarray(problem.candidates[held].prior))
+    J = problem.columns[spec.name]
+    k = J.shape[1]
+    X = np.column_stack([X0[:, keep], J])
+    fit = problem.wls(r_without, X, ridge=np.r_[ridge0[keep], np.full(k, PRIOR_WEIGHT)],
+                      target=np.r_[target0[keep], np.zeros(k)])
+    lr = base.neg2loglik - fit.neg2loglik
+    values = fit.beta[-k:] * np.asarray(spec.prior)
+    unc = np.sqrt(np.clip(np.diag(fit.cov)[-k:], 0, None)) * np.asarray(spec.prior)
+    Wk = problem.whitened(J, fit.sigma)
+    Wh = problem.whitened(problem.columns[held], fit.sigma)
+    a = Wk / np.maximum(np.linalg.norm(Wk, axis=0), 1e-300)
+    b = Wh / np.maximum(np.linalg.norm(Wh, axis=0), 1e-300)
+    corr = float(np.max(np.abs(a.T @ b))) if k and k_held else 0.0
+    full = problem.whitened(X, fit.sigma)
+    full = full / np.maximum(np.linalg.norm(full, axis=0), 1e-300)
+    sv = np.linalg.svd(full, compute_uv=False)
+    cond = float(sv[0] / sv[-1]) if len(sv) and sv[-1] > 0 else float("inf")
+    s2 = np.sum(problem.whitened(J, base.sigma) ** 2, axis=0)
+    return Candidate(spec.name, spec, values, unc, float(lr), max(fit.rank - base.rank + k_held, 0), 1.0, float("nan"),
+                     0.0, 0.0, corr, held, cond, float(np.max(s2)) if k else 0.0, alternative_to=held)
 
 
 def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, base: Fit, ridge0, target0) -> None:

@@ -66,6 +66,12 @@ class RunInputs:
     role_temperatures : dict of str -> ndarray (N,)
         ``<role>_temperature``, C: the mean of the channels of each
         thermocouple role that an effect brings (e.g. 'mount'), per point.
+    sensors : dict of str -> ndarray (N,)
+        Every thermocouple role of the run's log (x_scale, ..., granite_top,
+        ...) -> the machine mean plus the role's departure from it (the mean
+        of its channels minus the machine mean, averaged over
+        ``GRADIENT_WINDOW``) at each point, C: what an effect that follows a
+        sensor group the data choose reads.
     """
 
     uv: np.ndarray
@@ -81,6 +87,7 @@ class RunInputs:
     velocity: np.ndarray
     incidence: np.ndarray | None = None
     role_temperatures: dict = field(default_factory=dict)
+    sensors: dict = field(default_factory=dict)
 
     @classmethod
     def from_run(cls, run: Run, temperature: float | None = None, *, log_hold: float = LOG_HOLD) -> RunInputs:
@@ -118,6 +125,7 @@ class RunInputs:
         velocity = np.ascontiguousarray(v_scan[scan_row])
         axis_t = gradient = None
         role_t: dict[str, np.ndarray] = {}
+        sensors: dict[str, np.ndarray] = {}
         if temperature is not None:
             temps = np.full(n, float(temperature))
         elif run.temperatures is None:
@@ -147,17 +155,26 @@ class RunInputs:
                                                     out_of_range="hold")[0] for c in names], axis=0)
                 g = _running_mean(tlog, mean_of(tops) - mean_of(bottoms), GRADIENT_WINDOW)
                 gradient = np.interp(t, tlog, g)
-            for role in channel_roles():
-                names = [c["name"] for c in run.temperature_channels if c.get("role") == role]
-                if names:
-                    role_t[f"{role}_temperature"] = np.ascontiguousarray(np.mean(
-                        [temperatures_at(ut, run, policy=f"channel:{c}", on_gap="interpolate", out_of_range="hold")[0]
-                         for c in names], axis=0)[inv], dtype=float)
+            by_role: dict[str, list[str]] = {}
+            for c in run.temperature_channels:
+                if c.get("role"):
+                    by_role.setdefault(c["role"], []).append(c["name"])
+            tlog = np.asarray(run.temperatures["t"], dtype=float)
+            mean_log = temperatures_at(tlog, run, policy="machine_mean", on_gap="interpolate", out_of_range="hold")[0]
+            for role, names in by_role.items():
+                role_log = np.mean([temperatures_at(tlog, run, policy=f"channel:{c}", on_gap="interpolate",
+                                                    out_of_range="hold")[0] for c in names], axis=0)
+                # A sensor's departure from the mean changes over minutes; its
+                # per-sample noise (0.02 K) would otherwise move each profile
+                # on its own and masquerade as sphere-form structure.
+                departure = _running_mean(tlog, role_log - mean_log, GRADIENT_WINDOW)
+                sensors[role] = np.ascontiguousarray(temps + np.interp(t, tlog, departure), dtype=float)
+            role_t = {f"{role}_temperature": sensors[role] for role in channel_roles() if role in sensors}
         return cls(uv=run.uv, scales=run.scales, t=run.points["t"], scan_id=run.points["scan_id"], pose_ids=pose_ids, pose_index=np.ascontiguousarray(pose_index),
                    poses=poses, temperature=np.ascontiguousarray(temps, dtype=float),
                    axis_temperature=None if axis_t is None else np.ascontiguousarray(axis_t, dtype=float),
                    gradient=None if gradient is None else np.ascontiguousarray(gradient, dtype=float),
-                   velocity=velocity, role_temperatures=role_t)
+                   velocity=velocity, role_temperatures=role_t, sensors=sensors)
 
     def with_incidence(self, incidence: np.ndarray) -> RunInputs:
         """A copy holding incidence angles (degrees, (N,))."""
@@ -165,6 +182,18 @@ class RunInputs:
         if incidence.shape != (len(self.uv),):
             raise InputError(f"incidence: expected shape ({len(self.uv)},), got {incidence.shape}")
         return RunInputs(**{**self.__dict__, "incidence": incidence})
+
+    @property
+    def sensor_roles(self) -> tuple[str, ...]:
+        """The thermocouple roles of the run's log."""
+        return tuple(self.sensors)
+
+    def sensor(self, role: str) -> np.ndarray:
+        """Mean of the channels of thermocouple role ``role`` at each point, C."""
+        if role not in self.sensors:
+            have = ", ".join(self.sensors) or "none (no thermocouple log, or a temperature was given)"
+            raise InputError(f"the run has no thermocouples of role {role!r} (roles: {have})")
+        return self.sensors[role]
 
     def available(self, need: str) -> bool:
         """Whether the input an effect ``needs`` is there ('poses>1' too)."""

@@ -22,7 +22,7 @@ import numpy as np
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
 from ..run import Run
-from .diagnose import Diagnosis, Step, _unobservable, as_model, select_effects, with_user_effects
+from .diagnose import Diagnosis, Step, _unobservable, as_model, select_effects, user_specs
 from .identify import Problem, check_effect_names, model_uncertainties, rank_candidates
 from .model import Model
 from .observables import CLASSES, ModelFigures, figures
@@ -49,15 +49,18 @@ class JointProblem(Problem):
     runs : sequence of Run
         Two or more runs.
     candidates : dict of str -> EffectSpec, optional
-        Default: the library.
+        Default: each run's library (its poses and thermocouple roles).
     same_artefact : bool
         The runs measured the same artefact: share the bar-length and radius
         nuisances.
+    extra : sequence of EffectSpec
+        Added to every run's candidates (user-defined effects).
     """
 
-    def __init__(self, model, runs, candidates=None, *, same_artefact: bool = True):  # noqa: D107 - documented above
+    def __init__(self, model, runs, candidates=None, *, same_artefact: bool = True,
+                 extra=()):  # noqa: D107 - documented above
         self.runs = list(runs)
-        self.parts = [Problem(model, r, candidates) for r in self.runs]
+        self.parts = [Problem(model, r, candidates, extra=extra) for r in self.runs]
         names: list[str] = []
         for p in self.parts:
             names += [n for n in p.candidates if n not in names]
@@ -180,7 +183,7 @@ def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, 
         if not isinstance(r, Run):
             raise InputError(f"runs[{i}]: expected a cmmpose.Run, got {type(r).__name__}")
     model = as_model(model)
-    problem = JointProblem(model, runs, with_user_effects(None, list(user_effects)), same_artefact=same_artefact)
+    problem = JointProblem(model, runs, same_artefact=same_artefact, extra=user_specs(list(user_effects)))
     check_effect_names(list(add), problem)
     names = list(run_names) if run_names is not None else [f"run {i + 1}" for i in range(len(runs))]
     per_run = []

@@ -17,7 +17,7 @@ from ..errors import InputError, MapError
 from ..policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy
 from ..pose import digitizer
 from ..run import Run
-from .effects import LIBRARY, EffectSpec, UserEffect, effect_spec, library
+from .effects import LIBRARY, EffectSpec, UserEffect, effect_spec, resolve
 from .inputs import RunInputs
 
 __all__ = ["Model", "MODEL_SCHEMA"]
@@ -65,6 +65,15 @@ class Model:
         names = [s.name for s, _ in self.effects]
         if len(set(names)) != len(names):
             raise InputError(f"effects: each effect once, got {names}")
+        keys = [s.key for s, _ in self.effects if s.kind == "kernel"]
+        for k in set(keys):
+            if keys.count(k) > 1:
+                alts = [s.name for s, _ in self.effects if s.key == k]
+                raise InputError(f"effects {', '.join(alts)} are alternatives of one effect: a model holds one")
+        for spec, _ in self.effects:
+            if spec.sensor_input and spec.sensor is None:
+                raise InputError(f"effect {spec.name}: name the thermocouple role it follows, e.g. "
+                                 f"'{spec.name}@z_scale'")
         for spec, values in self.effects:
             v = np.asarray(values, dtype=float)
             if v.shape != (spec.size,) or not np.all(np.isfinite(v)):
@@ -184,9 +193,12 @@ class Model:
         if needs_incidence and inputs.incidence is None:
             inputs = _with_incidence(self, inputs)
         digitizers = [digitizer(p[:3], p[3:]) for p in self.poses(inputs)]
+        named = inputs.named()
+        # An effect following a chosen thermocouple group reads that group's temperature.
+        named |= {s.sensor_input: inputs.sensor(s.sensor) for s, _ in self.effects if s.sensor_input}
         xyz, report = _core.compensate_model(
             inputs.uv, inputs.scales, self.maps._core, digitizers, pose_index=inputs.pose_index,
-            inputs=inputs.named(), effects=self.kernel_terms(), out_of_range=self.out_of_range,
+            inputs=named, effects=self.kernel_terms(), out_of_range=self.out_of_range,
             temperature_tolerance=float(self.temperature_tolerance))
         clamped = report["clamped_points"]
         users = [(s, v) for s, v in self.effects if s.kind == "python"]
@@ -289,7 +301,7 @@ class Model:
                         raise InputError(f"{path}: effect {name!r} is user-defined; pass it in user_effects")
                     spec = users[name]
                 else:
-                    spec = effect_spec(name, library(_pose_ids_in(name)))
+                    spec = resolve(name)
                 if set(e["params"]) != set(spec.params):
                     raise InputError(f"{path}: effect {name!r} has parameters {sorted(e['params'])}, "
                                      f"expected {list(spec.params)}")
@@ -309,19 +321,12 @@ class Model:
         return f"Model({eff})"
 
 
-def _pose_ids_in(name: str) -> list[int]:
-    if "@" in name:
-        p = int(name.split("@", 1)[1])
-        return [p, p + 1 if p >= 0 else p - 1]  # any two ids make library() add the per-pose specs
-    return []
-
-
 def _known(model: Model, effect) -> dict[str, EffectSpec]:
     if isinstance(effect, EffectSpec):
         return {effect.name: effect}
     known = dict(LIBRARY)
-    if isinstance(effect, str) and "@" in effect:
-        known |= library(_pose_ids_in(effect))
+    if isinstance(effect, str) and effect not in (s.name for s, _ in model.effects):
+        known[effect] = resolve(effect)
     known |= {s.name: s for s, _ in model.effects}
     return known
 

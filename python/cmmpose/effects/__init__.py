@@ -50,6 +50,9 @@ def parse(text: str) -> Effect:
         key, eq, value = item.partition("=")
         if not eq or key.strip() not in units:
             raise InputError(f"effect {cls.name}: parameter {item!r} is not one of {sorted(units)} (write key=value)")
+        if key.strip() in cls.text_fields():
+            kwargs[key.strip()] = value.strip()
+            continue
         try:
             kwargs[key.strip()] = float(value)
         except ValueError:
@@ -68,8 +71,8 @@ def channel_roles() -> tuple[str, ...]:
 
 
 #: Listing order: machine, thermal, scanner, pose, artefact; new effects last.
-ORDER = ("squareness", "scale", "roll", "axis-temperature", "granite-gradient", "latency", "scanner-scale",
-         "incidence", "alignment", "mount-offset", "artefact-expansion")
+ORDER = ("squareness", "scale", "roll", "axis-temperature", "squareness-temperature", "granite-gradient", "latency",
+         "scanner-scale", "incidence", "alignment", "mount-offset", "artefact-expansion")
 
 
 def _order(name: str):

@@ -69,6 +69,11 @@ class Effect:
     on_scanner : bool
         Whether its term acts on what the scanner reports (u, v): the
         simulator applies it to each profile rather than in the machine.
+    sensor_input : str or None
+        For an effect that follows one group of thermocouples the data
+        choose (a field ``sensor`` names its role): the kernel input that
+        carries that group's temperature. The diagnosis tries one candidate
+        per role of the run, named '<name>@<role>'.
     """
 
     name: ClassVar[str] = ""
@@ -79,12 +84,26 @@ class Effect:
     needs: ClassVar[tuple[str, ...]] = ()
     channels: ClassVar[tuple[tuple[str, str], ...]] = ()
     on_scanner: ClassVar[bool] = False
+    sensor_input: ClassVar[str | None] = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if not np.all(np.isfinite(np.asarray(value, dtype=float))):
+            if isinstance(f.default, str):  # a choice by name (a thermocouple role)
+                if not (isinstance(value, str) and value.strip()):
+                    raise InputError(f"effect {self.name}: {f.name} must be a name, got {value!r}")
+                continue
+            try:
+                finite = np.all(np.isfinite(np.asarray(value, dtype=float)))
+            except (TypeError, ValueError):
+                finite = False
+            if not finite:
                 raise InputError(f"effect {self.name}: {f.name} must be finite, got {value!r}")
+
+    @classmethod
+    def text_fields(cls) -> tuple[str, ...]:
+        """Fields that hold a name rather than a number (e.g. ``sensor``)."""
+        return tuple(f.name for f in fields(cls) if isinstance(f.default, str))
 
     @classmethod
     def units(cls) -> dict[str, str]:
@@ -104,6 +123,11 @@ class Effect:
     def role_offsets(self, times: np.ndarray) -> dict[str, np.ndarray | float]:
         """How far each thermocouple role reads above the machine mean at
         ``times`` (s), K; the truth machine's temperatures follow."""
+        return {}
+
+    def truth_inputs(self, role_temperature) -> dict[str, np.ndarray]:
+        """Extra named inputs of the truth machine's term, from
+        ``role_temperature(role) -> ndarray`` (C at the states' times)."""
         return {}
 
     def pose(self, pose: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -11,7 +11,10 @@ from .. import _core
 from .._arrays import as_rows
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
-from ..effects import Effect
+from ..effects import Effect, channel_roles
+
+#: Thermocouple roles of the standard channels (cmmpose.sim.thermocouples.CHANNELS).
+STANDARD_ROLES = ("x_scale", "y_scale", "z_scale", "granite_top", "granite_bottom")
 
 #: Machine temperature: one value (C), or a function of time (s) -> C.
 Temperature = float | Callable[[np.ndarray], np.ndarray]
@@ -63,6 +66,11 @@ class TruthMachine:
             raise InputError(f"maps: expected ErrorMap or ErrorMapSet, got {type(maps).__name__}")
         self.maps = maps
         self.effects = tuple(effects)
+        roles = set(STANDARD_ROLES) | set(channel_roles())
+        for e in self.effects:
+            if e.sensor_input and e.sensor not in roles:
+                raise InputError(f"effect {e.name}: sensor {e.sensor!r} is not a thermocouple role "
+                                 f"({', '.join(sorted(roles))})")
         terms: dict[str, np.ndarray] = {}
         for e in self.effects:
             if e.on_scanner:
@@ -100,8 +108,12 @@ class TruthMachine:
             "gradient": np.ascontiguousarray(off.get("granite_top", zero) - off.get("granite_bottom", zero)),
         }
         for role, k in off.items():
-            if role not in ("x_scale", "y_scale", "z_scale", "granite_top", "granite_bottom"):
+            if role not in STANDARD_ROLES:
                 states[f"{role}_temperature"] = np.ascontiguousarray(mean + k)
+        for e in self.effects:
+            # A thermocouple role's channels read the room mean plus the role's offset.
+            states |= {k: np.ascontiguousarray(v, dtype=float) for k, v in
+                       e.truth_inputs(lambda role: mean + off.get(role, zero)).items()}
         return states
 
     def frames(self, scales, states) -> dict[str, np.ndarray]:

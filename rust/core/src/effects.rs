@@ -135,8 +135,12 @@ impl Row<'_> {
 pub struct Temperatures {
     /// The temperature at which each carriage's map is taken.
     pub map: [f64; 3],
-    /// The temperature at which squareness is taken (the machine mean).
+    /// The temperature at which squareness is taken (the machine mean
+    /// unless a term says otherwise).
     pub squareness: f64,
+    /// The machine mean: what terms read as "the mean", whatever the
+    /// terms before them set the other two to.
+    pub mean: f64,
 }
 
 impl Temperatures {
@@ -146,6 +150,7 @@ impl Temperatures {
         Temperatures {
             map: [t; 3],
             squareness: t,
+            mean: t,
         }
     }
 }
@@ -275,10 +280,29 @@ impl Term for AxisTemperature {
     }
     fn temperatures(&self, p: &[f64], row: Row, t: &mut Temperatures) {
         let axis = row.triple(0);
-        let mean = t.squareness;
+        let mean = t.mean;
         for k in 0..3 {
             t.map[k] = mean + p[0] * (axis[k] - mean);
         }
+    }
+}
+
+/// Squareness taken at T + gain (T_s - T), T_s the thermocouples the data
+/// chose (the bindings' `squareness_sensor` column: the mean of one role's
+/// channels) instead of the machine mean T (gain 1: fully at the sensor).
+struct SquarenessTemperature;
+impl Term for SquarenessTemperature {
+    fn name(&self) -> &'static str {
+        "squareness-temperature"
+    }
+    fn params(&self) -> &'static [&'static str] {
+        &["gain"]
+    }
+    fn inputs(&self) -> &'static [(&'static str, usize)] {
+        &[("squareness_sensor", 1)]
+    }
+    fn temperatures(&self, p: &[f64], row: Row, t: &mut Temperatures) {
+        t.squareness = t.mean + p[0] * (row.scalar(0) - t.mean);
     }
 }
 
@@ -399,6 +423,7 @@ pub static TERMS: &[&dyn Term] = &[
     &Scale,
     &Roll,
     &AxisTemperature,
+    &SquarenessTemperature,
     &GraniteGradient,
     &Latency,
     &ScannerScale,

@@ -581,6 +581,70 @@ fn axis_temperature_gain_one_with_equal_axes_is_the_uniform_model() {
 }
 
 #[test]
+fn squareness_temperature_takes_the_maps_squareness_at_the_sensor() {
+    // Two maps 20 and 30 C: squareness is linear in temperature between
+    // them, so squareness read at the sensor (gain 1) equals the mean's
+    // squareness plus the map's change over (sensor - mean), which the
+    // `squareness` term adds as a constant when the mean is constant.
+    let mut c = case(64);
+    c.t = vec![23.0; 64];
+    let sensor = vec![25.5; 64];
+    let cols = || {
+        Columns::new()
+            .with("temperature", 1, &c.t)
+            .with("squareness_sensor", 1, &sensor)
+    };
+    let fx = Effects::new([("squareness-temperature", vec![1.0])]).unwrap();
+    let (got, _) = model_run(&c, cols(), &fx, Options::default()).unwrap();
+    // Slopes per K of the two maps' squareness (a-s): (-178 + 173)/10 etc.
+    let per_k = [-0.5, 1.5, 2.1];
+    let shift: Vec<f64> = per_k.iter().map(|k| k * 2.5).collect();
+    let sq = Effects::new([("squareness", shift)]).unwrap();
+    let (want, _) = model_run(
+        &c,
+        Columns::new().with("temperature", 1, &c.t),
+        &sq,
+        Options::default(),
+    )
+    .unwrap();
+    assert!(got.iter().zip(&want).all(|(a, b)| (a - b).abs() < 1e-9));
+    // Gain 1/2 goes half way; a sensor at the mean changes nothing.
+    let half = Effects::new([("squareness-temperature", vec![0.5])]).unwrap();
+    let (h, _) = model_run(&c, cols(), &half, Options::default()).unwrap();
+    let (none, _) = model_run(
+        &c,
+        Columns::new().with("temperature", 1, &c.t),
+        &Effects::none(),
+        Options::default(),
+    )
+    .unwrap();
+    for k in 0..got.len() {
+        assert!((h[k] - 0.5 * (got[k] + none[k])).abs() < 1e-9);
+    }
+    let at_mean = Columns::new()
+        .with("temperature", 1, &c.t)
+        .with("squareness_sensor", 1, &c.t);
+    let (m, _) = model_run(&c, at_mean, &fx, Options::default()).unwrap();
+    assert!(m.iter().zip(&none).all(|(a, b)| a.to_bits() == b.to_bits()));
+    // The carriages stay at the mean: axis-temperature reads the mean, not
+    // the squareness temperature the term before it set.
+    let axis: Vec<f64> = c.t.iter().flat_map(|&t| [t, t, t]).collect();
+    let both = Effects::new([
+        ("axis-temperature", vec![1.0]),
+        ("squareness-temperature", vec![1.0]),
+    ])
+    .unwrap();
+    let (b, _) = model_run(
+        &c,
+        cols().with("axis_temperature", 3, &axis),
+        &both,
+        Options::default(),
+    )
+    .unwrap();
+    assert!(b.iter().zip(&got).all(|(x, y)| (x - y).abs() < 1e-12));
+}
+
+#[test]
 fn latency_moves_the_reading_along_the_velocity() {
     let c = case(20);
     let vel: Vec<f64> = (0..20).flat_map(|_| [35.0, 0.0, 0.0]).collect();
@@ -621,13 +685,16 @@ fn model_inverts_the_truth_machine_with_machine_effects_on() {
         ("roll", vec![10.0, -7.0, 4.0]),
         ("granite-gradient", vec![2.0, 10.0, -6.0]),
         ("axis-temperature", vec![1.0]),
+        ("squareness-temperature", vec![1.0]),
     ])
     .unwrap();
+    let sensor: Vec<f64> = c.t.iter().map(|&t| t - 0.8).collect();
     let cols = || {
         Columns::new()
             .with("temperature", 1, &c.t)
             .with("gradient", 1, &grad)
             .with("axis_temperature", 3, &axis)
+            .with("squareness_sensor", 1, &sensor)
     };
     let tf = true_frames(&c.s, &cols(), &set, &fx).unwrap();
     let (got, _) = model_run(&c, cols(), &fx, Options::default()).unwrap();
