@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+import json
 
 import numpy as np
 import pytest
@@ -215,3 +216,32 @@ def test_a_step_beyond_the_maps_is_taken_backwards_and_an_unevaluable_candidate_
     # apart at the steps, against the 1 K each step moves: 5 %).
     bottom = p.columns["squareness-temperature@granite_bottom"]
     np.testing.assert_allclose(p.columns[top], -bottom, atol=0.05 * np.abs(bottom).max())
+
+
+@pytest.mark.slow
+def test_from_the_command_line_with_the_truth_in_the_report(tmp_path):
+    from click.testing import CliRunner
+
+    from cmmpose.cli import main
+
+    dirs = []
+    for (temperature, axis, seed) in PLAN:
+        d = tmp_path / f"run{seed}"
+        res = CliRunner().invoke(main, ["simulate", "-o", str(d), "--temperature", str(temperature), "--jitter", "0.0015",
+                                        "--seed", str(seed), "--effect", f"axis-temperature:{'xyz'[axis]}=3",
+                                        "--effect", "squareness-temperature:sensor=y_scale"])
+        assert res.exit_code == 0, res.output
+        dirs.append(str(d))
+    res = CliRunner().invoke(main, ["diagnose", *dirs, "--joint", "--json", "--max-effects", "3"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    found = {x["name"]: x["decision"] for x in doc["decisions"]}
+    assert found["squareness-temperature@y_scale"] == "added" and found["axis-temperature"] == "added"
+    assert found["squareness-temperature@z_scale"] == "not chosen"
+    # One run alone: the truth's sensor is named in the report's truth table.
+    res = CliRunner().invoke(main, ["diagnose", dirs[0], "--report", str(tmp_path / "r.html"), "--json"])
+    assert res.exit_code == 0, res.output
+    page = (tmp_path / "r.html").read_text()
+    row = page[page.index("the simulator&#x27;s truth") if "the simulator&#x27;s truth" in page
+                else page.index("the simulator's truth"):]
+    assert "squareness-temperature@y_scale" in row and "not a candidate" not in row

@@ -308,10 +308,12 @@ class Candidate:
         separate from the leader (``indistinguishable_from``), the leader whose
         contribution it repeats less well (``stands_for``), and an effect
         already in the model whose fitted columns its own repeat (|correlation|
-        above INDISTINGUISHABLE)."""
+        above INDISTINGUISHABLE). An alternative of an effect in the model is
+        aliased with it when the swap changes -2 log L by less than
+        INDISTINGUISHABLE_LR."""
+        if self.alternative_to:  # judged by the likelihood of the swap alone
+            return [self.alternative_to] if abs(self.lr) < INDISTINGUISHABLE_LR else []
         out = list(self.indistinguishable_from) + [n for n in self.stands_for if n not in self.indistinguishable_from]
-        if self.alternative_to and abs(self.lr) < INDISTINGUISHABLE_LR and self.alternative_to not in out:
-            out.append(self.alternative_to)
         if self.correlation > INDISTINGUISHABLE and self.correlated_with in self.model_effects \
                 and self.correlated_with not in out:
             out.append(self.correlated_with)

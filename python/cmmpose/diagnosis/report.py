@@ -93,6 +93,9 @@ def _verdict(d, model_file, run_dir) -> str:
         lines.append(f"The model was missing nothing the run can show: no candidate effect is significant. The rms "
                      f"accuracy error is {first.rms_accuracy_error * 1e3:.2f} um, the B89 value "
                      f"{first.b89 * 1e3:.2f} um.")
+    for x in decisions:
+        if x["decision"] == "preferred":
+            lines.append(f"The data prefer {x['name']}: {x['reason']} (diagnose --add {x['name']} instead).")
     still = [x for x in decisions if x["decision"].startswith("significant")]
     if still:
         lines.append("Still significant against the final model: " + ", ".join(x["name"] for x in still)
@@ -152,9 +155,11 @@ def _truth_rows(d, run_dir) -> list[dict] | None:
     except Error:
         return None
     found = {x["name"]: x for x in d.decisions()}
+    # An effect that follows a thermocouple group is a candidate per group.
+    truth = {f"{e.get('name')}@{e['sensor']}" if isinstance(e.get("sensor"), str) else e.get("name"): e
+             for e in info.get("effects", [])}
     rows = []
-    for e in info.get("effects", []):
-        name = e.get("name")
+    for name, e in truth.items():
         x = found.get(name)
         if x is None:
             rows.append({"effect in the truth": name, "true value": "", "found": "not a candidate"})
@@ -164,7 +169,7 @@ def _truth_rows(d, run_dir) -> list[dict] | None:
                            list(x["units"].values()))
         rows.append({"effect in the truth": name, "true value": true, "decision": x["decision"], "found": got})
     for x in d.decisions():
-        if x["decision"].startswith("added") and x["name"] not in {e.get("name") for e in info.get("effects", [])}:
+        if x["decision"].startswith("added") and x["name"] not in truth:
             rows.append({"effect in the truth": f"(none) - {x['name']} was added", "true value": "-",
                          "decision": x["decision"], "found": ""})
     return rows
@@ -199,7 +204,10 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
                      "added: fitted in the final model (values with their standard uncertainties); significant: "
                      "p below the threshold against the final model; aliased: the run cannot tell it from the "
                      "effect named; not significant: determined by the run, but p above the threshold; not "
-                     "observable: the run cannot determine it at a typical size (what would is said).",
+                     "observable: the run cannot determine it at a typical size (what would is said). An effect that "
+                     "follows a thermocouple group is a candidate per group (name@role); beside the one added, the "
+                     "others are not chosen (the data reject them), aliased (the run cannot choose), preferred (the "
+                     "data favour it over one added on request) or replaced (added, then given up for a better one).",
                      "table": [{"effect": x["name"], "decision": x["decision"], "why": x["reason"]}
                                for x in d.decisions()]})
     if d.unexplained:
