@@ -232,9 +232,12 @@ def test_from_the_command_line_with_the_truth_in_the_report(tmp_path):
                                         "--effect", "squareness-temperature:sensor=y_scale"])
         assert res.exit_code == 0, res.output
         dirs.append(str(d))
-    res = CliRunner().invoke(main, ["diagnose", *dirs, "--joint", "--json", "--max-effects", "3"])
+    res = CliRunner().invoke(main, ["diagnose", *dirs, "--joint", "--json", "--max-effects", "3", "--report",
+                                    str(tmp_path / "joint.html")])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
+    joint = (tmp_path / "joint.html").read_text()
+    assert "Every run under the one model" in joint and all(d in joint for d in dirs)
     found = {x["name"]: x["decision"] for x in doc["decisions"]}
     assert found["squareness-temperature@y_scale"] == "added" and found["axis-temperature"] == "added"
     assert found["squareness-temperature@z_scale"] == "not chosen"

@@ -730,7 +730,9 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
     if joint:
         if len(run_dirs) < 2 or scheduler:
             raise click.UsageError("--joint takes two or more runs and runs in this process (no --scheduler)")
-        return _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json,
+        if skeleton_out:
+            raise click.UsageError("--user-effect-skeleton takes one run: diagnose the run of interest on its own")
+        return _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file,
                                temperature=temperature, out_of_range=out_of_range,
                                temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
                                auto=not no_auto, max_effects=max_effects, same_artefact=not separate_artefacts)
@@ -798,9 +800,10 @@ def _starting_model(run, machine, maps, model_file, user, **policy):
     return Model(maps_, **policy)
 
 
-def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, *, temperature,
-                    out_of_range, temperature_tolerance, log_hold, **options) -> None:
-    """`diagnose RUN... --joint`: one model for several runs (cmmpose.diagnosis.joint)."""
+def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file, *,
+                    temperature, out_of_range, temperature_tolerance, log_hold, **options) -> None:
+    """`diagnose RUN... --joint`: one model for several runs (cmmpose.diagnosis.joint); the
+    report shows the first run's plots and every run's error at each step."""
     from .diagnosis.joint import diagnose_jointly
     from .machine import load_machine
     from .run import Run
@@ -816,6 +819,11 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
             diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
                                     run_names=[str(r) for r in run_dirs], **options)
         files = [diag.model.save(model_out)] if model_out else []
+        if report_file:
+            try:
+                files.append(diag.write_report(report_file, runs[0], run_dir=run_dirs[0], model_file=model_out))
+            except ImportError as exc:  # the diagnosis is still printed and the model saved
+                console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
         raise fail(exc) from None
     _print_diagnosis(diag, files, as_json)

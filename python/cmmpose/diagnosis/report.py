@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from .diagnose import Diagnosis
 from .html import write_html_report
 from .identify import _value_text
 
@@ -223,13 +224,21 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
     truth = _truth_rows(d, run_dir)
     if truth is not None:
         sections.append({"heading": "Found against the simulator's truth", "table": truth})
-    fig = plot_history(d.history())
+    fig = plot_history(Diagnosis.history(d))  # a joint diagnosis: its first run's figures
     history = [{"model": s.label, "rms accuracy error (um)": round(s.figures.rms_accuracy_error * 1e3, 3),
                 "B89 value (um)": round(s.figures.b89 * 1e3, 3),
                 "sphere form, peak-to-valley (um)": round(s.figures.to_dict()["form_um"], 2),
                 "fit rms (um)": round(s.figures.to_dict()["fit_rms_um"], 3)} for s in d.steps]
     sections.append({"heading": "The error falling", "text": _READING["history"], "table": history,
                      "figures": [fig]})
+    run_names = getattr(d, "run_names", None)
+    if run_names:  # a joint diagnosis: one model, every run's error at each step
+        sections.append({"heading": "Every run under the one model", "text":
+                         f"{len(run_names)} runs diagnosed together; the plots and figures above are the first "
+                         f"run's ({run_names[0]}). The rms accuracy error of each run at each step (um):",
+                         "table": [{"model": s.label, **{name: round(f.rms_accuracy_error * 1e3, 3)
+                                                         for name, f in zip(run_names, per_run)}}
+                                   for s, per_run in zip(d.steps, d.run_figures)]})
     sections.append({"heading": "Candidate effects against the base model", "text": _READING["candidates"],
                      "table": _ranking_rows(d.steps[0].ranking)})
     if len(d.steps) > 1:
