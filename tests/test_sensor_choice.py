@@ -248,3 +248,22 @@ def test_from_the_command_line_with_the_truth_in_the_report(tmp_path):
     row = page[page.index("the simulator&#x27;s truth") if "the simulator&#x27;s truth" in page
                 else page.index("the simulator's truth"):]
     assert "squareness-temperature@y_scale" in row and "not a candidate" not in row
+
+
+def test_an_axis_can_warm_during_the_run():
+    # The simulator's scenario for sensors that move differently within one
+    # run: the z scale warms at 6 K/h from the mean, x sits 2 K above it.
+    e = E.AxisTemperature(x=2.0, z_per_hour=6.0)
+    off = e.role_offsets(np.array([0.0, 1800.0]))
+    np.testing.assert_allclose(off["z_scale"], [0.0, 3.0])
+    np.testing.assert_allclose(off["x_scale"], [2.0, 2.0])
+    run = simulate_ballbar_run(MAPS, 24.0, [e], seed=6, scanner=Scanner(points_per_profile=64))[0]
+    inputs = Model(MAPS).inputs(run)
+    z = inputs.sensor("z_scale") - inputs.temperature
+    t = inputs.t
+    # The run lasts 800 s: z rises 1.33 K against the scales' mean, which
+    # itself rises a third of that. The departure is averaged over 300 s,
+    # which flattens it within half a window of the log's ends: judge inside.
+    inside = (t > t.min() + 150.0) & (t < t.max() - 150.0)
+    rise = np.polyfit(t[inside], z[inside], 1)[0] * 3600.0
+    assert abs(rise - 6.0 * 2 / 3) < 0.2

@@ -5,13 +5,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
+
 from ._base import Effect, Param
 
 
 @dataclass(frozen=True)
 class AxisTemperature(Effect):
-    """Each carriage is at the machine mean plus (x, y, z) kelvin: its map
-    should be taken at its own scale thermocouples, not at the mean.
+    """Each carriage is at the machine mean plus (x, y, z) kelvin at t = 0,
+    changing by (x_per_hour, y_per_hour, z_per_hour) K/h (a ram warming by
+    its motor): its map should be taken at its own scale thermocouples, not
+    at the mean.
 
     Model: carriage k's map at T + gain (T_k - T) (gain 1: fully per axis).
     Physics: vertical and horizontal gradients in a room; the ram is warmer
@@ -24,15 +28,21 @@ class AxisTemperature(Effect):
     reveal: ClassVar[str] = "axis-scale thermocouples that differ between axes (a run with a vertical gradient)"
     params: ClassVar[dict[str, Param]] = {"gain": Param("1", 1.0, step=0.25)}
     needs: ClassVar[tuple[str, ...]] = ("axis_temperature",)
-    scenario_units: ClassVar[dict[str, str]] = {"x": "K", "y": "K", "z": "K"}
+    scenario_units: ClassVar[dict[str, str]] = {"x": "K", "y": "K", "z": "K", "x_per_hour": "K/h",
+                                                 "y_per_hour": "K/h", "z_per_hour": "K/h"}
 
     x: float = 0.0
     y: float = 0.0
     z: float = 0.0
+    x_per_hour: float = 0.0
+    y_per_hour: float = 0.0
+    z_per_hour: float = 0.0
 
     def truth_terms(self):
         # The real carriages are at their own temperatures.
         return {self.name: [1.0]}
 
     def role_offsets(self, times):
-        return {"x_scale": self.x, "y_scale": self.y, "z_scale": self.z}
+        hours = np.asarray(times, dtype=float) / 3600.0
+        return {"x_scale": self.x + self.x_per_hour * hours, "y_scale": self.y + self.y_per_hour * hours,
+                "z_scale": self.z + self.z_per_hour * hours}
