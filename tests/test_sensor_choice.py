@@ -267,3 +267,18 @@ def test_an_axis_can_warm_during_the_run():
     inside = (t > t.min() + 150.0) & (t < t.max() - 150.0)
     rise = np.polyfit(t[inside], z[inside], 1)[0] * 3600.0
     assert abs(rise - 6.0 * 2 / 3) < 0.2
+
+
+def test_a_joint_candidate_must_act_on_every_run():
+    # A mount thermocouple in one run only: the mount's candidates cannot be
+    # shared, and the reason names the run that lacks it.
+    plain = runs("z_scale")[0]
+    mounted = simulate_ballbar_run(MAPS, 26.0, [E.AxisTemperature(z=3.0), parse("mount-expansion:kelvin=2")],
+                                   jitter=0.0015, seed=7, scanner=Scanner(points_per_profile=256))[0]
+    from cmmpose.diagnosis.joint import JointProblem
+
+    p = JointProblem(Model(MAPS), [plain, mounted])
+    assert "mount-expansion" not in p.candidates and p.skipped["mount-expansion"].startswith("run 1: the run lacks")
+    assert "squareness-temperature@mount" not in p.candidates
+    assert p.skipped["squareness-temperature@mount"] == "not every run can show it: run 1 lacks its inputs"
+    assert "squareness-temperature@z_scale" in p.candidates

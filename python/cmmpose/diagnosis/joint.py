@@ -61,15 +61,19 @@ class JointProblem(Problem):
                  extra=()):  # noqa: D107 - documented above
         self.runs = list(runs)
         self.parts = [Problem(model, r, candidates, extra=extra) for r in self.runs]
-        names: list[str] = []
-        for p in self.parts:
-            names += [n for n in p.candidates if n not in names]
-        self.candidates = {n: next(p.candidates[n] for p in self.parts if n in p.candidates) for n in names}
+        # A shared effect must act on every run: a candidate that one run
+        # cannot evaluate (it lacks the inputs, or the step fails) is skipped.
+        self.candidates = {n: spec for n, spec in self.parts[0].candidates.items()
+                           if all(n in p.candidates for p in self.parts)}
         self.skipped = {}
-        for p in self.parts:
+        for i, p in enumerate(self.parts):
             for n, why in p.skipped.items():
-                if n not in self.candidates:
-                    self.skipped[n] = why
+                self.skipped.setdefault(n, f"run {i + 1}: {why}")
+        for p in self.parts:
+            for n in p.candidates:
+                if n not in self.candidates and n not in self.skipped:
+                    lacking = [str(i + 1) for i, q in enumerate(self.parts) if n not in q.candidates]
+                    self.skipped[n] = f"not every run can show it: run {', '.join(lacking)} lacks its inputs"
         k = len(CLASSES)
         self.classes = np.concatenate([p.classes + i * k for i, p in enumerate(self.parts)])
         self.n_class = np.concatenate([p.n_class for p in self.parts])
@@ -87,9 +91,7 @@ class JointProblem(Problem):
                 col[off:off + sizes[i]] += p.nuisance[:, j]
         self.nuisance_names = list(cols)
         self.nuisance = np.column_stack(list(cols.values())) if cols else np.zeros((n, 0))
-        self.columns = {name: np.concatenate([p.columns[name] if name in p.columns
-                                              else np.zeros((len(p.classes), spec.size)) for p in self.parts])
-                        for name, spec in self.candidates.items()}
+        self.columns = {name: np.concatenate([p.columns[name] for p in self.parts]) for name in self.candidates}
         self.base = model
         parts = tuple(p.base_obs for p in self.parts)  # each part observed the model already
         self.base_obs = JointObserved(parts, np.concatenate([o.residual for o in parts]))
