@@ -208,3 +208,17 @@ def test_cli_diagnose_writes_tables_report_json_and_a_reusable_model(tmp_path):
     assert r.exit_code != 0 and "warp" in r.output
     # The truth folder was never read: the diagnosis works without it.
     assert load_truth(tmp_path / "run")[1]["effects"][0]["name"] == "squareness"
+
+
+def test_models_and_map_sets_compare_by_value():
+    # Equal when the maps, temperature policy, effects and values are; an
+    # effect's values are arrays, so equality must not ask an array for truth.
+    a = Model(cmmpose.ErrorMapSet.thesis()).with_values("squareness", [1.0, 2.0, 3.0])
+    b = Model(cmmpose.ErrorMapSet.thesis()).with_values("squareness", [1.0, 2.0, 3.0])
+    assert a == b and a.maps == b.maps
+    assert a != b.with_values("squareness", [1.0, 2.0, 3.5])
+    assert a != Model(cmmpose.ErrorMapSet.thesis())
+    assert a != Model(a.maps.at(22.0)).with_values("squareness", [1.0, 2.0, 3.0])
+    assert cmmpose.ErrorMapSet.thesis() != cmmpose.ErrorMapSet(cmmpose.ErrorMapSet.thesis().maps[:2])
+    assert cmmpose.ErrorMapSet.thesis() != cmmpose.ErrorMapSet.thesis().with_kinematics("moving-bridge")
+    assert a != "a model"

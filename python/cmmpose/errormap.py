@@ -258,6 +258,14 @@ class ErrorMapSet:
     def __len__(self) -> int:
         return len(self.temperatures)
 
+    def __eq__(self, other: object) -> bool:
+        # Equal maps at equal temperatures, the same machine configuration.
+        return (isinstance(other, ErrorMapSet) and self.kinematics == other.kinematics
+                and self.temperatures == other.temperatures
+                and all(a._core == b._core for a, b in zip(self.maps, other.maps)))
+
+    __hash__ = None  # type: ignore[assignment]
+
     def __repr__(self) -> str:
         kin = "" if self.kinematics == "thesis" else f", kinematics={self.kinematics!r}"
         return f"ErrorMapSet(temperatures={[float(t) for t in self.temperatures]}{kin})"

@@ -80,6 +80,16 @@ class Model:
                 raise InputError(f"effect {spec.name}: expected {spec.size} finite values "
                                  f"({', '.join(spec.params)}), got {values!r}")
 
+    def __eq__(self, other: object) -> bool:
+        # Effects compare by spec and values (arrays), not by array identity.
+        if not isinstance(other, Model):
+            return NotImplemented
+        return (self.maps == other.maps and self.temperature == other.temperature
+                and (self.out_of_range, self.temperature_tolerance, self.log_hold)
+                == (other.out_of_range, other.temperature_tolerance, other.log_hold)
+                and len(self.effects) == len(other.effects)
+                and all(s == t and np.array_equal(v, w) for (s, v), (t, w) in zip(self.effects, other.effects)))
+
     # -- parameters ---------------------------------------------------------
 
     @property
