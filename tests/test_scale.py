@@ -237,6 +237,9 @@ def test_cli_evaluate_fleet(client, runs, tmp_path):
     assert res.exit_code == 0, res.output
     rows = json.loads(res.output[res.output.index("["):])
     assert [r["run"] for r in rows] == [str(r) for r in runs[:2]]
+    # The table across runs has no uncertainties: their options are refused, not ignored.
+    res = runner.invoke(main, ["evaluate", *map(str, runs[:2]), "--u-temperature", "0.3"])
+    assert res.exit_code == 2 and "--u-temperature takes one run" in res.output
 
 
 def test_cli_diagnose_fleet(client, runs, tmp_path):

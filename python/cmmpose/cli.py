@@ -591,6 +591,12 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         if expansion is None:
             expansion = machine.artefact_expansion * 1e6
         if len(run_dir) > 1 or scheduler is not None:
+            # The table across runs carries no uncertainties: their options would do nothing.
+            for flag, given in (("--u-temperature", u_temperature is not None), ("--u-map", u_map is not None),
+                                ("--u-model", u_model != 0.0)):
+                if given:
+                    raise click.UsageError(f"{flag} takes one run: the table across runs has no uncertainties "
+                                           "(evaluate each run on its own for them)")
             return _evaluate_fleet(run_dir, machine, maps, scheduler or "threads", report_dir, as_json,
                                    temperature=temperature, reject=reject, out_of_range=out_of_range,
                                    temperature_tolerance=temperature_tolerance, log_hold=log_hold,
