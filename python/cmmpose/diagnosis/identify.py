@@ -428,7 +428,7 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
         spec = problem.candidates[name]
         if spec.kind == "kernel" and spec.key in held:
             alternatives.append(_alternative(problem, model, spec, held[spec.key], r0, X0, index, ridge0, target0,
-                                             base, labels))
+                                             base))
             continue
         J = problem.columns[name]
         fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
@@ -499,8 +499,8 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
     return out + sorted(alternatives, key=lambda c: -c.lr)
 
 
-def _alternative(problem: Problem, model, spec: EffectSpec, held: str, r0, X0, index, ridge0, target0, base: Fit,
-                 labels) -> Candidate:
+def _alternative(problem: Problem, model, spec: EffectSpec, held: str, r0, X0, index, ridge0, target0,
+                 base: Fit) -> Candidate:
     """``spec`` evaluated in place of ``held``, the model's effect of the
     same term (the same physics following another sensor): the likelihood
     ratio of the model holding ``spec`` instead, and its values there."""
