@@ -23,9 +23,9 @@ from cmmpose.sim.scanner import Scanner
 
 def upper_95(k: int, n: int) -> float:
     """One-sided 95 % Clopper-Pearson upper bound of a rate seen k times in n."""
-    from scipy.stats import beta
+    from scipy.stats import binomtest
 
-    return 1.0 if k >= n else float(beta.ppf(0.95, k + 1, n - k))
+    return float(binomtest(k, n, alternative="less").proportion_ci(0.95, method="exact").high)
 
 
 def main() -> None:
