@@ -127,7 +127,7 @@ def read_point_cloud(path: str | Path, *, units: str | None = None, format: str 
     coords = _coordinate_names(path, list(cols))
     xyz = np.column_stack([np.asarray(cols.pop(c), dtype=np.float64) for c in coords])
     if factor != 1.0:
-        xyz = xyz * factor
+        xyz *= factor  # column_stack made it: scale in place rather than copy it again
     _log.debug("read %d points and columns %s from %s (%s)", len(xyz), list(cols), path, fmt.name)
     return PointCloud(xyz, cols)
 
