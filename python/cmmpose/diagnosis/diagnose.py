@@ -230,7 +230,10 @@ class Diagnosis:
         t = Table(title=f"Candidate effects against the model '{s.label}'")
         for col in ("effect", "fitted value ± u", "explains", "of lengths", "LR (dof)", "p", "corr", "cond",
                     "decision"):
-            t.add_column(col, justify="left" if col in ("effect", "fitted value ± u", "decision") else "right")
+            # Whole names: 'squareness-temperature@granite_top' and '@granite_bottom' differ only at their ends.
+            width = max((len(c.name) for c in s.ranking), default=0) if col == "effect" else None
+            t.add_column(col, justify="left" if col in ("effect", "fitted value ± u", "decision") else "right",
+                         min_width=width, max_width=26 if col == "fitted value ± u" else None)
         for c in s.ranking:
             vals = ", ".join(_value_text(p, v, u, unit) for p, v, u, unit in zip(c.spec.params, c.values, c.uncertainty,
                                                                               c.spec.units))
