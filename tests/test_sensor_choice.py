@@ -150,6 +150,15 @@ def test_selection_replaces_a_sibling_the_data_come_to_prefer(monkeypatch):
     steps, model = select_effects(Problem(), Model(MAPS), [], True, 3, step)
     assert [s.label for s in steps] == ["base", f"+ {x}", f"+ {z} (instead of {x})"]
     assert steps[-1].replaces == x and steps[-1].effect == z and model.names == (z,)
+    # The decisions say what happened to each.
+    from cmmpose.diagnosis.diagnose import Diagnosis
+
+    decisions = Diagnosis(steps, {}, []).decisions()
+    assert len({d["name"] for d in decisions}) == len(decisions)  # one decision per candidate
+    found = {d["name"]: d for d in decisions}
+    assert found[x]["decision"] == "replaced" and found[x]["reason"].startswith(f"replaced by {z}: the data prefer it")
+    assert found[z]["decision"] == "added" and f"in place of {x}" in found[z]["reason"]
+    assert f"against the final model: the data prefer {z}" in found[x]["reason"]
 
 
 def test_model_files_keep_the_sensor_and_apply_it(tmp_path):

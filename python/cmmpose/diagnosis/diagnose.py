@@ -155,7 +155,13 @@ class Diagnosis:
                         "uncertainty": dict(zip(spec.params, map(float, unc))),
                         "units": dict(zip(spec.params, spec.units)),
                         "p_value": None if when is None or s.replaces else float(when.p_value)})
+        replaced = {x["name"]: x for x in out if x["decision"] == "replaced"}
         for c in self.steps[-1].ranking:
+            if c.name in replaced:  # one entry per candidate: the history, then how it stands now
+                replaced[c.name]["reason"] += f"; against the final model: {c.reason()}"
+                replaced[c.name].update(values=dict(zip(c.spec.params, map(float, c.values))),
+                                        uncertainty=dict(zip(c.spec.params, map(float, c.uncertainty))))
+                continue
             out.append({"name": c.name, "decision": c.decision, "reason": c.reason(),
                         "values": dict(zip(c.spec.params, map(float, c.values))),
                         "uncertainty": dict(zip(c.spec.params, map(float, c.uncertainty))),
