@@ -84,6 +84,27 @@ def test_the_data_choose_the_sensor_squareness_follows(sensor):
     assert not d.ambiguous or all(chosen not in g for g in d.ambiguous)
 
 
+@pytest.mark.parametrize("sensor", ("granite_top", "granite_bottom"))
+def test_the_granite_can_be_the_sensor_too(sensor):
+    # The granite's top and bottom depart from the mean differently in each
+    # run (a gradient of +4, -3 and +1 K that bends nothing by itself), and
+    # an axis 2 K warm in each: the data pick the granite role.
+    runs = []
+    for (temperature, axis, seed), kelvin in zip(PLAN, (4.0, -3.0, 1.0)):
+        offsets = [0.0, 0.0, 0.0]
+        offsets[axis] = 2.0
+        truth = [E.AxisTemperature(*offsets), E.GraniteGradient(kelvin=kelvin, xy=0.0, yz=0.0, zx=0.0),
+                 SquarenessTemperature(sensor=sensor)]
+        runs.append(simulate_ballbar_run(MAPS, temperature, truth, jitter=0.0015, seed=seed,
+                                         scanner=Scanner(points_per_profile=256))[0])
+    d = diagnose_jointly(runs, max_effects=4)
+    chosen = f"squareness-temperature@{sensor}"
+    assert sorted(d.added) == ["axis-temperature", chosen]
+    x = decisions(d)
+    assert abs(x[chosen]["values"]["gain"] - 1.0) < 4 * x[chosen]["uncertainty"]["gain"]
+    assert all(x[n]["decision"] == "not chosen" for n in x if n.startswith("squareness-temperature@") and n != chosen)
+
+
 @pytest.mark.parametrize("seed", (3, 4))
 def test_one_warm_axis_cannot_choose_and_says_what_would(seed):
     # One axis warm: every role departs from the mean in proportion (z by
