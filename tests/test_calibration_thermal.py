@@ -175,6 +175,21 @@ def test_per_axis_returns_each_axis_offset():
     assert info.policy == "per_axis" and len(info.channels) == 9
 
 
+def test_role_policy_is_one_axis_of_per_axis_and_drops_a_broken_channel():
+    offsets = (0.3, -0.2, 0.5)
+    log = sim.thermocouple_log(1200, 21.0, axis_offsets=offsets, faults=(sim.Fault("Y2", "open", at=0.0),), rng=2)
+    t = points(hi=1200.0)
+    per_axis, _ = temperatures_at(t, log, CH, policy="per_axis")
+    for k, role in enumerate(("x_scale", "y_scale", "z_scale")):
+        one, info = temperatures_at(t, log, CH, policy=f"role:{role}")
+        assert one.shape == (len(t),) and np.array_equal(one, per_axis[:, k])
+    assert info.policy == "role:z_scale"
+    y, info = temperatures_at(t, log, CH, policy="role:y_scale")
+    assert "Y2" in info.channels_excluded and np.max(np.abs(y - 20.8)) < 5 * NOISE
+    with pytest.raises(cmmpose.InputError, match="no channel with role 'mount'"):
+        temperatures_at(t, log, CH, policy="role:mount")
+
+
 def test_one_channel_policy():
     log = sim.thermocouple_log(600, 21.0, granite_gradient=0.4, rng=3)
     t = np.array([10.0, 20.5, 599.0])
@@ -270,7 +285,7 @@ def test_all_channels_broken():
 def test_unknown_policy_and_channel():
     log = sim.thermocouple_log(60, 21.0, rng=6)
     with pytest.raises(cmmpose.InputError, match=r"unknown policy 'mean'; expected one of 'machine_mean', 'per_axis', "
-                                                 r"'channel:NAME'"):
+                                                 r"'role:ROLE', 'channel:NAME'"):
         temperatures_at([1.0], log, CH, policy="mean")
     with pytest.raises(cmmpose.InputError, match=r"policy 'channel:X9': no channel 'X9' in the log \(channels: X1, "):
         temperatures_at([1.0], log, CH, policy="channel:X9")

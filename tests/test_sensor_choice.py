@@ -312,3 +312,40 @@ def test_a_joint_candidate_must_act_on_every_run():
     assert "squareness-temperature@mount" not in p.candidates
     assert p.skipped["squareness-temperature@mount"] == "not every run can show it: run 1 lacks its inputs"
     assert "squareness-temperature@z_scale" in p.candidates
+
+
+def test_broken_thermocouples_leave_their_role_out_not_the_run():
+    # X2 open-circuit from the start, the only granite-top channel too, and
+    # (in the second log) Z1 stuck half way: x_scale and z_scale come from
+    # their clean channels, granite_top is not offered, the diagnosis runs.
+    from cmmpose.run import Run
+
+    run = runs("z_scale")[0]
+
+    def with_log(change):
+        log = {k: np.array(v, dtype=float) for k, v in run.temperatures.items()}
+        change(log)
+        return Run(dict(run.points), dict(run.scans), dict(run.poses), log, run.temperature_channels, run.artefact,
+                   run.maps, run.metadata, run.created)
+
+    def open_circuits(log):
+        log["X2"][:] = 999.9
+        log["GT"][:] = 999.9
+
+    def and_stuck(log):
+        open_circuits(log)
+        half = len(log["t"]) // 2
+        log["Z1"][half:] = log["Z1"][half]
+
+    clean = Model(MAPS).inputs(run)
+    inputs = Model(MAPS).inputs(with_log(open_circuits))
+    assert set(inputs.sensors) == {"x_scale", "y_scale", "z_scale", "granite_bottom"}
+    # The roles' temperatures agree with the clean log's to the channels'
+    # noise (0.02 K each) though the machine mean moved (X2 is out of it).
+    for role in ("x_scale", "z_scale"):
+        np.testing.assert_allclose(inputs.sensor(role), clean.sensor(role), atol=0.03)
+    broken = with_log(and_stuck)
+    assert set(Model(MAPS).inputs(broken).sensors) == {"x_scale", "y_scale", "z_scale", "granite_bottom"}
+    d = cmmpose.diagnose(broken, max_effects=2, patterns=False)
+    x = decisions(d)
+    assert "squareness-temperature@granite_top" not in x and "granite-gradient" in d.skipped

@@ -12,7 +12,8 @@ error maps. This module does that join robustly:
 - :func:`temperatures_at` interpolates the clean samples in time at the
   points' time stamps and applies a policy: ``'machine_mean'`` (the thesis:
   mean of the axis-scale channels), ``'per_axis'`` (one temperature per axis,
-  for per-carriage maps) or ``'channel:NAME'``.
+  for per-carriage maps), ``'role:ROLE'`` (the clean channels of one
+  thermocouple role) or ``'channel:NAME'``.
 - :func:`per_scan_temperature` gives one temperature per scan (the time
   average over the scan's duration).
 - :func:`select_map_temperature` checks temperatures against the range of an
@@ -63,8 +64,8 @@ GAP_FACTOR = 5.0
 #: open circuit (a data logger's burn-out value such as 999.9 C) rather than
 #: merely implausible.
 OPEN_CIRCUIT_ABOVE = 500.0
-#: Policies of :func:`temperatures_at` (plus ``'channel:NAME'``).
-POLICIES = ("machine_mean", "per_axis", "channel:NAME")
+#: Policies of :func:`temperatures_at` (plus ``'role:ROLE'`` and ``'channel:NAME'``).
+POLICIES = ("machine_mean", "per_axis", "role:ROLE", "channel:NAME")
 #: Roles of the axis-scale channels, in X, Y, Z order.
 AXIS_ROLES = ("x_scale", "y_scale", "z_scale")
 #: More runs than this of one kind on one channel are reported as one problem.
@@ -621,6 +622,12 @@ def _groups(policy, log: _Log) -> tuple[str, list[tuple[str, list[int]]]]:
                                  f"channels: {_describe_channels(log)}")
             out.append((role, idx))
         return policy, out
+    if policy.startswith("role:"):
+        role = policy[len("role:"):]
+        idx = [k for k, r in enumerate(log.roles) if r == role]
+        if not idx:
+            raise InputError(f"policy {policy!r}: no channel with role {role!r}; channels: {_describe_channels(log)}")
+        return policy, [(role, idx)]
     if policy.startswith("channel:"):
         name = policy[len("channel:"):]
         if name not in log.names:
@@ -840,7 +847,9 @@ def temperatures_at(
         ``'machine_mean'``: mean of the axis-scale channels (roles x_scale,
         y_scale, z_scale), the thesis's machine temperature (section 6.4).
         ``'per_axis'``: mean of each axis's scale channels, X, Y, Z columns
-        (for per-carriage maps). ``'channel:NAME'``: one channel.
+        (for per-carriage maps). ``'role:ROLE'``: mean of the channels of one
+        thermocouple role (a broken channel dropped as for the others).
+        ``'channel:NAME'``: one channel.
     report : LogReport, optional
         A :func:`check_log` report of this log (to choose its options such as
         ``max_gap``, ``plausible``, ``stuck_after``); default ``check_log``

@@ -5,6 +5,7 @@ the incidence angle. Built once per run, vectorised, read-only."""
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -14,6 +15,8 @@ from ..effects import channel_roles
 from ..errors import InputError
 from ..policy import LOG_HOLD, check_log_coverage
 from ..run import Run
+
+_log = logging.getLogger(__name__)
 
 __all__ = ["RunInputs", "incidence_angles", "GRADIENT_WINDOW"]
 
@@ -126,6 +129,7 @@ class RunInputs:
         axis_t = gradient = None
         role_t: dict[str, np.ndarray] = {}
         sensors: dict[str, np.ndarray] = {}
+        logs: dict[str, np.ndarray] = {}
         if temperature is not None:
             temps = np.full(n, float(temperature))
         elif run.temperatures is None:
@@ -142,33 +146,27 @@ class RunInputs:
             if all(r in roles for r in ("x_scale", "y_scale", "z_scale")):
                 axis_t, _ = temperatures_at(ut, run, policy="per_axis", on_gap="interpolate", out_of_range="hold")
                 axis_t = axis_t[inv]
-            tops = [c["name"] for c in run.temperature_channels if c.get("role") == "granite_top"]
-            bottoms = [c["name"] for c in run.temperature_channels if c.get("role") == "granite_bottom"]
-            if tops and bottoms:
-                # The granite's gradient changes over hours, so the noise of
-                # the two channels is averaged out over GRADIENT_WINDOW first
-                # (0.02 K of noise times 15 arc-second/K is 1 um at 0.7 m).
-                tlog = np.asarray(run.temperatures["t"], dtype=float)
-
-                def mean_of(names):
-                    return np.mean([temperatures_at(tlog, run, policy=f"channel:{c}", on_gap="interpolate",
-                                                    out_of_range="hold")[0] for c in names], axis=0)
-                g = _running_mean(tlog, mean_of(tops) - mean_of(bottoms), GRADIENT_WINDOW)
-                gradient = np.interp(t, tlog, g)
-            by_role: dict[str, list[str]] = {}
-            for c in run.temperature_channels:
-                if c.get("role"):
-                    by_role.setdefault(c["role"], []).append(c["name"])
             tlog = np.asarray(run.temperatures["t"], dtype=float)
             mean_log = temperatures_at(tlog, run, policy="machine_mean", on_gap="interpolate", out_of_range="hold")[0]
-            for role, names in by_role.items():
-                role_log = np.mean([temperatures_at(tlog, run, policy=f"channel:{c}", on_gap="interpolate",
-                                                    out_of_range="hold")[0] for c in names], axis=0)
+            for role in dict.fromkeys(c.get("role") for c in run.temperature_channels if c.get("role")):
+                try:
+                    role_log = temperatures_at(tlog, run, policy=f"role:{role}", on_gap="interpolate",
+                                               out_of_range="hold")[0]
+                except InputError as e:  # every channel of the role broken: the role is not offered
+                    _log.info("thermocouple role %r left out of the run's sensors: %s", role, e)
+                    continue
+                logs[role] = role_log
                 # A sensor's departure from the mean changes over minutes; its
                 # per-sample noise (0.02 K) would otherwise move each profile
                 # on its own and masquerade as sphere-form structure.
                 departure = _running_mean(tlog, role_log - mean_log, GRADIENT_WINDOW)
                 sensors[role] = np.ascontiguousarray(temps + np.interp(t, tlog, departure), dtype=float)
+            if "granite_top" in logs and "granite_bottom" in logs:
+                # The granite's gradient changes over hours, so the noise of
+                # the two groups is averaged out over GRADIENT_WINDOW first
+                # (0.02 K of noise times 15 arc-second/K is 1 um at 0.7 m).
+                g = _running_mean(tlog, logs["granite_top"] - logs["granite_bottom"], GRADIENT_WINDOW)
+                gradient = np.interp(t, tlog, g)
             role_t = {f"{role}_temperature": sensors[role] for role in channel_roles() if role in sensors}
         return cls(uv=run.uv, scales=run.scales, t=run.points["t"], scan_id=run.points["scan_id"], pose_ids=pose_ids, pose_index=np.ascontiguousarray(pose_index),
                    poses=poses, temperature=np.ascontiguousarray(temps, dtype=float),
