@@ -25,6 +25,9 @@ from .unexplained import periodic_errors, unexplained_findings
 
 __all__ = ["diagnose", "Diagnosis", "Step", "POLISH_POINTS_PER_SCAN"]
 
+#: What a step's label says between the effect it added and the one it replaced.
+_INSTEAD = " (instead of "
+
 #: Point residuals per scan the final model's effects are refitted on.
 POLISH_POINTS_PER_SCAN = 3000
 
@@ -45,9 +48,6 @@ class Step:
         The candidates evaluated against it, best first.
     forced : bool
         The effect was added on request, not because it was significant.
-    replaces : str
-        The effect this step's took the place of ('' when none): the same
-        physics following another sensor, which the data prefer.
     """
 
     label: str
@@ -55,12 +55,18 @@ class Step:
     figures: ModelFigures
     ranking: list[Candidate]
     forced: bool = False
-    replaces: str = ""
 
     @property
     def effect(self) -> str:
-        """The effect this step added ('' for the base)."""
-        return "" if self.label == "base" else self.label[2:].split(" (instead of ")[0]
+        """The effect this step added ('' for the base): the label reads
+        '+ <effect>' or '+ <effect> (instead of <replaced>)'."""
+        return "" if self.label == "base" else self.label[2:].split(_INSTEAD)[0]
+
+    @property
+    def replaces(self) -> str:
+        """The effect this step's took the place of ('' when none): the same
+        physics following another sensor, which the data prefer."""
+        return self.label.partition(_INSTEAD)[2].rstrip(")")
 
     def to_dict(self) -> dict:
         return {"label": self.label, "forced": self.forced, "replaces": self.replaces or None,
@@ -130,10 +136,9 @@ class Diagnosis:
                 by = next(t for t in self.steps if t.replaces == name)
                 alt = next((c for c in self.steps[self.steps.index(by) - 1].ranking if c.name == by.effect), None)
                 why = f"replaced by {by.effect}" + (f": {alt.reason()}" if alt is not None else "")
-                spec = next(c.spec for c in self.steps[0].ranking if c.name == name) \
-                    if any(c.name == name for c in self.steps[0].ranking) else None
+                # Its values and units are those of the final ranking, where it is an alternative (below).
                 out.append({"name": name, "decision": "replaced", "reason": why, "values": {}, "uncertainty": {},
-                            "units": {} if spec is None else dict(zip(spec.params, spec.units)), "p_value": None})
+                            "units": {}, "p_value": None})
                 continue
             spec = next(sp for sp, _ in final.effects if sp.name == name)
             vals = final.values(name)
@@ -160,7 +165,8 @@ class Diagnosis:
             if c.name in replaced:  # one entry per candidate: the history, then how it stands now
                 replaced[c.name]["reason"] += f"; against the final model: {c.reason()}"
                 replaced[c.name].update(values=dict(zip(c.spec.params, map(float, c.values))),
-                                        uncertainty=dict(zip(c.spec.params, map(float, c.uncertainty))))
+                                        uncertainty=dict(zip(c.spec.params, map(float, c.uncertainty))),
+                                        units=dict(zip(c.spec.params, c.spec.units)))
                 continue
             out.append({"name": c.name, "decision": c.decision, "reason": c.reason(),
                         "values": dict(zip(c.spec.params, map(float, c.values))),
@@ -495,8 +501,7 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
             c = max(better, key=lambda c: c.lr)
             swapped.add(c.alternative_to)
             model = fit_model(model.without(c.alternative_to).with_values(c.spec, c.values), None, problem=problem)
-            steps.append(step(f"+ {c.name} (instead of {c.alternative_to})", model, False))
-            steps[-1].replaces = c.alternative_to
+            steps.append(step(f"+ {c.name}{_INSTEAD}{c.alternative_to})", model, False))
             continue
         best = steps[-1].ranking[0] if steps[-1].ranking else None
         if added >= max_effects or best is None or not best.significant:

@@ -218,7 +218,7 @@ def resolve(name: str) -> EffectSpec:
             pose = int(suffix)
         except ValueError:
             return effect_spec(name, library(sensors=[suffix]) if LIBRARY[base].sensor_input else LIBRARY)
-        return effect_spec(name, library([pose, pose + 1 if pose >= 0 else pose - 1]))
+        return effect_spec(name, library([pose, pose + 1]))  # two poses: library() adds the per-pose specs
     if base in LIBRARY and LIBRARY[base].sensor_input:
         raise InputError(f"effect {name!r} follows a thermocouple group: name it, e.g. '{name}@z_scale' "
                          f"(one of the run's thermocouple roles)")

@@ -160,13 +160,13 @@ class RunInputs:
                 # per-sample noise (0.02 K) would otherwise move each profile
                 # on its own and masquerade as sphere-form structure.
                 departure = _running_mean(tlog, role_log - mean_log, GRADIENT_WINDOW)
-                sensors[role] = np.ascontiguousarray(temps + np.interp(t, tlog, departure), dtype=float)
+                sensors[role] = np.ascontiguousarray(temps + np.interp(ut, tlog, departure)[inv], dtype=float)
             if "granite_top" in logs and "granite_bottom" in logs:
                 # The granite's gradient changes over hours, so the noise of
                 # the two groups is averaged out over GRADIENT_WINDOW first
                 # (0.02 K of noise times 15 arc-second/K is 1 um at 0.7 m).
                 g = _running_mean(tlog, logs["granite_top"] - logs["granite_bottom"], GRADIENT_WINDOW)
-                gradient = np.interp(t, tlog, g)
+                gradient = np.interp(ut, tlog, g)[inv]
             role_t = {f"{role}_temperature": sensors[role] for role in channel_roles() if role in sensors}
         return cls(uv=run.uv, scales=run.scales, t=run.points["t"], scan_id=run.points["scan_id"], pose_ids=pose_ids, pose_index=np.ascontiguousarray(pose_index),
                    poses=poses, temperature=np.ascontiguousarray(temps, dtype=float),
