@@ -1,7 +1,7 @@
-"""The shared NIST DMG scans (../shared/reference/nist_dmg) for the tests: the
-folder, and NIST's own E3125 results per file. The data sit beside the
-repository (CI clones them there): a missing folder is a broken checkout,
-not a reason to skip."""
+"""NIST's DMG sphere scans (data/nist_dmg, shipped in the repository and the
+wheel; source and citation in data/SOURCES.md) for the tests: the folder, and
+NIST's own E3125 results per file. A missing folder is a broken checkout, not
+a reason to skip."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ from pathlib import Path
 
 import pytest
 
-NIST = Path(__file__).parents[1].parent / "shared" / "reference" / "nist_dmg"
+NIST = Path(__file__).parents[1] / "data" / "nist_dmg"
 FILES = [f"SPH10{k}" for k in range(1, 6)]
 
 
 def reference_rows() -> dict[str, dict[str, str]]:
     """NIST's reference_centres.csv, one row per file (metres, counts)."""
     if not (NIST / "reference_centres.csv").is_file():
-        pytest.fail(f"NIST reference scans missing: expected {NIST} (clone the shared data beside the repository)")
+        pytest.fail(f"NIST reference scans missing: expected {NIST} (a broken checkout)")
     with open(NIST / "reference_centres.csv", newline="") as f:
         return {row["file"]: row for row in csv.DictReader(f)}

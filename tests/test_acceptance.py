@@ -18,6 +18,7 @@ from cmmpose.sim.scanner import Scanner
 from cmmpose.fitting import e3125
 from cmmpose.pointclouds import read_point_cloud
 from cmmpose.standards.acceptance import MPE, acceptance_test, decide, parse_mpe, probing_test
+from nist import NIST
 from numpy_sphere_fit import fit_sphere_reference
 
 MAPS = cmmpose.ErrorMapSet.thesis()
@@ -148,7 +149,6 @@ def test_cli_acceptance(sim, tmp_path):
     assert bad.exit_code != 0 and "mpe_form" in bad.output
 
 
-NIST = Path(__file__).parents[1].parent / "shared" / "reference" / "nist_dmg"
 
 
 def test_probing_test_by_hand():
@@ -174,10 +174,10 @@ def test_probing_test_by_hand():
 
 @pytest.mark.parametrize("name", ["SPH101", "SPH102", "SPH105"])
 def test_probing_errors_of_nists_scans(name, tmp_path):
-    """Real TLS scans (shared data): the E3125 segment's size error is NIST's own free-radius refit of the same
+    """Real TLS scans (data/nist_dmg): the E3125 segment's size error is NIST's own free-radius refit of the same
     segment (reference_centres.csv), and the form error the range of an independent fit's residuals."""
     if not (NIST / "reference_centres.csv").is_file():
-        pytest.fail(f"NIST reference scans missing: expected {NIST} (clone the shared data beside the repository)")
+        pytest.fail(f"NIST reference scans missing: expected {NIST} (a broken checkout)")
     with open(NIST / "reference_centres.csv", newline="") as f:
         row = {r["file"]: r for r in csv.DictReader(f)}[name]
     out = CliRunner().invoke(main, ["acceptance-sphere", str(NIST / f"{name}.xyz"), "--units", "m", "--radius", "50",

@@ -3,7 +3,7 @@ and simulated runs (cmmpose.sim.interferometer): the refractive index of air of
 thesis section 3.3 and its GUM uncertainty, the run file, processing of a run,
 assembly of a map, comparison of maps.
 
-Thesis line numbers refer to /work/shared/reference/thesis.txt."""
+Thesis line numbers refer to the plain-text thesis of data/SOURCES.md."""
 
 import math
 import warnings

@@ -1,5 +1,5 @@
 """ASTM E3125-style segmentation on NIST's raw scans of 50 mm-radius spheres
-(../shared/reference/nist_dmg: SPH101-SPH105, metres, scanner at the origin,
+(data/nist_dmg: SPH101-SPH105, metres, scanner at the origin,
 about 35-40 % stand and background): from the raw file, cmmpose.e3125 gives
 NIST's own E3125 centres within 0.1 um and keeps the same number of points."""
 

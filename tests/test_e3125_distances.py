@@ -1,5 +1,5 @@
 """Sphere-centre distance errors in the manner of ASTM E3125 on the five
-shared NIST raw scans: the distances between the centres cmmpose segments
+NIST raw scans (data/nist_dmg): the distances between the centres cmmpose segments
 from the raw files agree with those between NIST's own E3125 centres to the
 rounding of NIST's published centres (1e-8 m), computed here independently;
 and a simulated pair with a known error is found with an honest uncertainty."""

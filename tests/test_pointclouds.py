@@ -18,8 +18,8 @@ from click.testing import CliRunner
 import cmmpose
 from cmmpose import PointCloud, pointfiles, pointformats, read_point_cloud, write_point_cloud
 from cmmpose.cli import main
+from nist import NIST
 
-NIST = Path(__file__).parents[1].parent / "shared" / "reference" / "nist_dmg"
 MAPS = cmmpose.ErrorMapSet.thesis()
 POSE, OFFSET = (90.0, 90.0, 0.0), (1.001, 264.505, 129.575)
 
@@ -162,7 +162,7 @@ def test_an_unknown_unit_is_refused(tmp_path):
 # -- the NIST scans -----------------------------------------------------------------------------
 
 def test_nist_scans_are_read_in_metres():
-    assert NIST.is_dir(), f"{NIST} is missing: the shared reference data must sit beside the clone"
+    assert NIST.is_dir(), f"{NIST} is missing: the NIST scans ship in data/nist_dmg"
     files = sorted(NIST.glob("SPH10*.xyz"))
     assert len(files) == 5, files
     for f in files:
