@@ -1,0 +1,745 @@
+"""Attack the command line as a careless user, a full disk and a hostile
+network would, and count what goes wrong in four classes:
+
+- **data loss**: an input changed, a special file replaced by a regular one,
+  an earlier output damaged, a temporary file left behind;
+- **hang**: a command still running after ``--timeout`` seconds;
+- **traceback**: a Python traceback, or an exit status other than 0 (done),
+  1 (failed, or a failed conformance decision) and 2 (usage);
+- **silent**: exit 0 with a wrong or incomplete answer, non-standard JSON,
+  or a message that misleads (names the wrong cause or a Python argument
+  the command line lacks).
+
+    python scripts/hostile_inputs.py [--timeout 120] [--only NAME] [--list]
+
+Every attack states what a correct tool does; the table printed at the end
+counts, per class, the attacks tried and the ones that failed. Exit status 1
+if any attack failed. Attacks that need root (device nodes, a full or
+read-only file system on a tmpfs) are counted as skipped without it.
+``fuzz_inputs.py`` is the random counterpart for the file readers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import hashlib
+import json
+import os
+import shutil
+import signal
+import socket
+import stat
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "data"
+SCAN = DATA / "examples" / "sphere_scan.csv"
+COMPENSATE = ["--maps", "thesis", "--pose", "90,90,0", "--offset", "1.001,264.505,129.575"]
+CLASSES = ("data loss", "hang", "traceback", "silent")
+
+
+class Skip(Exception):
+    """The attack cannot be staged here (no root, no tmpfs)."""
+
+
+class Failed(Exception):
+    """The attack found a defect; ``kind`` is one of CLASSES."""
+
+    def __init__(self, kind: str, detail: str):
+        super().__init__(detail)
+        self.kind = kind
+
+
+@dataclass
+class Result:
+    code: int | None
+    out: str
+    err: str
+    seconds: float
+
+    @property
+    def text(self) -> str:
+        return self.out + self.err
+
+
+TIMEOUT = 120.0
+
+
+def cmmpose_exe() -> list[str]:
+    exe = shutil.which("cmmpose")
+    return [exe] if exe else [sys.executable, "-c", "from cmmpose.cli import main; main()"]
+
+
+def cli(*args, cwd: Path, timeout: float | None = None, env: dict | None = None) -> Result:
+    """Run one command; a timeout is a hang, a traceback or an odd exit status a crash."""
+    t0 = time.monotonic()
+    try:
+        p = subprocess.run([*cmmpose_exe(), *map(str, args)], cwd=cwd, capture_output=True, text=True,
+                           timeout=timeout or TIMEOUT, env={**os.environ, **(env or {})}, stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired:
+        raise Failed("hang", f"cmmpose {' '.join(map(str, args))}: still running after {timeout or TIMEOUT:.0f} s")
+    r = Result(p.returncode, p.stdout, p.stderr, time.monotonic() - t0)
+    if "Traceback (most recent call last)" in r.text or r.code not in (0, 1, 2):
+        raise Failed("traceback", f"cmmpose {' '.join(map(str, args))[:120]}: exit {r.code}: {r.text.strip()[-300:]}")
+    return r
+
+
+def refused(r: Result, *, what: str, mentions: tuple[str, ...] = (), never: tuple[str, ...] = ()) -> None:
+    """The command must refuse (exit 1 or 2) with a one-line message naming ``mentions``."""
+    if r.code == 0:
+        raise Failed("silent", f"{what}: accepted (exit 0)")
+    low = r.text.lower()
+    for m in mentions:
+        if m.lower() not in low:
+            raise Failed("silent", f"{what}: the message does not name {m!r}: {r.text.strip()[-300:]}")
+    for m in never:
+        if m.lower() in low:
+            raise Failed("silent", f"{what}: the message misleads ({m!r}): {r.text.strip()[-300:]}")
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def leftovers(folder: Path, keep: set[str]) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name not in keep)
+
+
+def need_root() -> None:
+    if os.geteuid() != 0:
+        raise Skip("needs root")
+
+
+@contextlib.contextmanager
+def tmpfs(work: Path, size: str = "256k"):
+    """A small tmpfs at ``work/fs`` (a full or read-only disk to write to)."""
+    need_root()
+    mnt = work / "fs"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)],
+                      capture_output=True).returncode:
+        raise Skip("cannot mount a tmpfs")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def fill(folder: Path) -> None:
+    """Fill the file system of ``folder`` to the last byte."""
+    fd = os.open(folder / "filler", os.O_WRONLY | os.O_CREAT)
+    try:
+        for block in (1 << 20, 4096, 1):
+            with contextlib.suppress(OSError):
+                while os.write(fd, b"\0" * block):
+                    pass
+    finally:
+        os.close(fd)
+
+
+def scan_copy(work: Path, name: str = "a.csv") -> Path:
+    p = work / name
+    shutil.copyfile(SCAN, p)
+    return p
+
+
+def small_run(work: Path, name: str = "run", *extra) -> Path:
+    cli("simulate", "--seed", 1, *extra, "-o", work / name, cwd=work)
+    return work / name
+
+
+# ---------------------------------------------------------------------------------------------- data loss
+def same_file(work: Path, spelling: str) -> None:
+    a = scan_copy(work)
+    before = digest(a)
+    if spelling == "symlink":
+        (work / "link.csv").symlink_to(a)
+        out = "link.csv"
+    elif spelling == "hardlink":
+        os.link(a, work / "hard.csv")
+        out = "hard.csv"
+    elif spelling == "dotted":
+        (work / "sub").mkdir()
+        out = "sub/../a.csv"
+    else:
+        out = "a.csv"
+    r = cli("compensate", "a.csv", out, *COMPENSATE, cwd=work)
+    if digest(a) != before:
+        raise Failed("data loss", f"compensate a.csv {out}: the input was overwritten (exit {r.code})")
+    refused(r, what=f"compensate a.csv {out}", mentions=("a.csv",))
+
+
+def device_output(work: Path) -> None:
+    need_root()
+    scan_copy(work)
+    node = work / "null.csv"
+    os.mknod(node, 0o666 | stat.S_IFCHR, os.makedev(1, 3))  # a private /dev/null
+    cli("compensate", "a.csv", "null.csv", *COMPENSATE, cwd=work)
+    if not stat.S_ISCHR(node.lstat().st_mode):
+        raise Failed("data loss", "compensate to a character device replaced it by a regular file")
+    if leftovers(work, {"a.csv", "null.csv"}):
+        raise Failed("data loss", f"temporary files left: {leftovers(work, {'a.csv', 'null.csv'})}")
+
+
+def fifo_output(work: Path) -> None:
+    scan_copy(work)
+    fifo = work / "out.csv"
+    os.mkfifo(fifo)
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(open(fifo, "rb").read()), daemon=True)
+    reader.start()
+    r = cli("compensate", "a.csv", "out.csv", *COMPENSATE, cwd=work)
+    reader.join(timeout=30)
+    if not stat.S_ISFIFO(fifo.lstat().st_mode):
+        raise Failed("data loss", "compensate to a FIFO replaced it by a regular file")
+    if reader.is_alive():
+        with contextlib.suppress(OSError):  # unblock the reader
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        raise Failed("silent", f"compensate to a FIFO: nothing was written to it (exit {r.code})")
+    lines = got[0].decode().splitlines() if got else []
+    if r.code != 0 or len(lines) != 3905:
+        raise Failed("silent", f"compensate to a FIFO: exit {r.code}, {len(lines)} lines read (want 3905)")
+
+
+def directory_output(work: Path) -> None:
+    scan_copy(work)
+    (work / "out.csv").mkdir()
+    (work / "out.csv" / "keep.txt").write_text("mine")
+    r = cli("compensate", "a.csv", "out.csv", *COMPENSATE, cwd=work)
+    if (work / "out.csv" / "keep.txt").read_text() != "mine":
+        raise Failed("data loss", "compensate into a folder named like a file damaged it")
+    refused(r, what="compensate to a folder", mentions=("out.csv",))
+
+
+def full_disk(work: Path, writer: str) -> None:
+    """Each writer, on a disk with no space left, fails with a clear message and
+    leaves the earlier file (or run) whole and no temporary file behind."""
+    scan_copy(work)
+    if writer == "simulate":
+        small_run(work, "old")
+    with tmpfs(work, size="64m") as fs:
+        earlier = fs / {"compensate": "prev.csv", "machine": "prev.toml", "model": "prev.json",
+                        "simulate": "run", "map": "prev_map.csv", "report": "rep"}[writer]
+        if writer == "simulate":
+            shutil.copytree(work / "old", earlier)
+            before = {p.name: digest(p) for p in earlier.iterdir() if p.is_file()}
+        elif writer == "report":
+            earlier.mkdir()
+            (earlier / "evaluation.json").write_text('{"earlier": true}')
+            before = {"evaluation.json": digest(earlier / "evaluation.json")}
+        else:
+            earlier.write_text("earlier content\n")
+            before = {earlier.name: digest(earlier)}
+        keep = {earlier.name, "filler"}
+        if writer == "model":
+            small_run(work, "r")
+        if writer == "report":
+            small_run(work, "r")
+        fill(fs)
+        args = {
+            "compensate": ("compensate", "a.csv", earlier, *COMPENSATE),
+            "machine": ("machine", "example", "moving-bridge", "-o", earlier),
+            "model": ("diagnose", "r", "--save-model", earlier),
+            "simulate": ("simulate", "--seed", 2, "--overwrite", "-o", earlier),
+            "map": ("map", "export", "thesis", "--format", "iso230-2", "-o", earlier),
+            "report": ("evaluate", "r", "--report", earlier),
+        }[writer]
+        r = cli(*args, cwd=work)
+        now = {p.name: digest(p) for p in (earlier.iterdir() if earlier.is_dir() else [earlier]) if p.is_file()} \
+            if earlier.exists() else {}
+        if any(now.get(k) != v for k, v in before.items()):
+            raise Failed("data loss", f"{writer} on a full disk damaged the earlier {earlier.name} (exit {r.code})")
+        extra = leftovers(fs, keep)
+        if extra:
+            raise Failed("data loss", f"{writer} on a full disk left {extra}")
+        refused(r, what=f"{writer} on a full disk", never=("no such file",))
+
+
+def read_only_output(work: Path) -> None:
+    scan_copy(work)
+    with tmpfs(work) as fs:
+        if subprocess.run(["mount", "-o", "remount,ro", str(fs)], capture_output=True).returncode:
+            raise Skip("cannot remount read-only")
+        r = cli("compensate", "a.csv", fs / "out.csv", *COMPENSATE, cwd=work)
+        refused(r, what="compensate to a read-only disk", mentions=("out.csv",))
+
+
+def killed_mid_write(work: Path, sig: int) -> None:
+    """SIGTERM or SIGHUP during a large write leaves the earlier output whole and no temporary file."""
+    rows = np.loadtxt(SCAN, delimiter=",", skiprows=1)
+    big = np.tile(rows, (300, 1))  # 1.2 million points: about a second of work
+    np.save(work / "big.npy", big[:, :5])
+    (work / "out.csv").write_text("earlier\n")
+    proc = subprocess.Popen([*cmmpose_exe(), "compensate", "big.npy", "out.csv", *COMPENSATE], cwd=work,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not leftovers(work, {"big.npy", "out.csv"}) and proc.poll() is None:
+        time.sleep(0.02)
+    proc.send_signal(sig)
+    try:
+        out, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise Failed("hang", f"compensate ignored signal {sig} for 30 s")
+    if "Traceback" in out + err:
+        raise Failed("traceback", f"signal {sig}: {err.strip()[-300:]}")
+    if (work / "out.csv").read_text() != "earlier\n":
+        raise Failed("data loss", f"signal {sig} mid-write: the earlier output changed")
+    if leftovers(work, {"big.npy", "out.csv"}):
+        raise Failed("data loss", f"signal {sig} mid-write left {leftovers(work, {'big.npy', 'out.csv'})}")
+
+
+def umask_respected(work: Path) -> None:
+    scan_copy(work)
+    old = os.umask(0o022)
+    try:
+        cli("compensate", "a.csv", "out.csv", *COMPENSATE, cwd=work)
+    finally:
+        os.umask(old)
+    mode = stat.S_IMODE((work / "out.csv").stat().st_mode)
+    if mode != 0o644:
+        raise Failed("silent", f"output mode {mode:o} under umask 022 (want 644)")
+
+
+# ---------------------------------------------------------------------------------------------- hangs
+@contextlib.contextmanager
+def server(answer: bytes | None):
+    """A local TCP server that accepts and never answers (``answer`` None) or
+    answers every connection with ``answer``."""
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    s.listen(16)
+    s.settimeout(0.2)
+    stop = threading.Event()
+    held = []
+
+    def loop():
+        while not stop.is_set():
+            try:
+                c, _ = s.accept()
+            except OSError:
+                continue
+            held.append(c)
+            if answer is not None:
+                with contextlib.suppress(OSError):
+                    c.recv(4096)
+                    c.sendall(answer)
+
+    t = threading.Thread(target=loop, daemon=True)
+    t.start()
+    try:
+        yield s.getsockname()[1]
+    finally:
+        stop.set()
+        t.join(timeout=2)
+        for c in held:
+            c.close()
+        s.close()
+
+
+def parquet_folder(work: Path) -> Path:
+    rows = np.loadtxt(SCAN, delimiter=",", skiprows=1)
+    folder = work / "pq"
+    folder.mkdir()
+    pq.write_table(pa.table({n: rows[:, k] for k, n in enumerate("u v D E F".split())}), folder / "part0.parquet")
+    return folder
+
+
+def scheduler(work: Path, kind: str) -> None:
+    parquet_folder(work)
+    if kind == "url":
+        r = cli("compensate", "pq", "outpq", *COMPENSATE, "--temperature", 22, "--scheduler", "http://127.0.0.1:8787",
+                cwd=work)
+        refused(r, what="--scheduler http://...", mentions=("tcp://",))
+        return
+    answer = None if kind == "silent" else b"HTTP/1.1 200 OK\r\nContent-Length: 2\r\n\r\nok"
+    with server(answer) as port:
+        r = cli("compensate", "pq", "outpq", *COMPENSATE, "--temperature", 22, "--scheduler",
+                f"tcp://127.0.0.1:{port}", cwd=work)
+    refused(r, what=f"--scheduler at a {kind} server", mentions=(f"127.0.0.1:{port}",))
+
+
+# ---------------------------------------------------------------------------------------------- tracebacks and misleading messages
+def parquet_repeated_column(work: Path) -> None:
+    rows = np.loadtxt(SCAN, delimiter=",", skiprows=1)[:10]
+    cols = [pa.array(rows[:, k]) for k in range(5)] + [pa.array(rows[:, 0])]
+    pq.write_table(pa.Table.from_arrays(cols, names=["u", "v", "D", "E", "F", "u"]), work / "dup.parquet")
+    refused(cli("compensate", "dup.parquet", "out.csv", *COMPENSATE, cwd=work), what="Parquet repeated column",
+            mentions=("dup.parquet",))
+
+
+def ply_huge_count(work: Path) -> None:
+    (work / "huge.ply").write_text("ply\nformat ascii 1.0\nelement vertex 1000000000000\nproperty double x\n"
+                                   "property double y\nproperty double z\nend_header\n1 2 3\n")
+    refused(cli("fit", "huge.ply", cwd=work), what="PLY declaring 1e12 vertices", mentions=("huge.ply",))
+
+
+def toml_attack(work: Path, kind: str) -> None:
+    text = (DATA / "machines" / "moving-bridge.toml").read_text()
+    if kind == "deep":
+        text += "\nx = " + "[" * 10000 + "]" * 10000 + "\n"
+    else:
+        text += "\nbig = " + "9" * 5001 + "\n"
+    (work / "m.toml").write_text(text)
+    refused(cli("machine", "check", "m.toml", cwd=work), what=f"TOML {kind}", mentions=("m.toml",))
+
+
+def fits_header_only(work: Path) -> None:
+    (work / "fits.csv").write_text("position,ball,x_mm,y_mm,z_mm,radius_mm\n")
+    refused(cli("diagnose-fits", "fits.csv", cwd=work), what="diagnose-fits without rows", mentions=("fits.csv",))
+
+
+def full_device_output(work: Path) -> None:
+    need_root()
+    scan_copy(work)
+    node = work / "full.csv"
+    os.mknod(node, 0o666 | stat.S_IFCHR, os.makedev(1, 7))  # a private /dev/full
+    r = cli("compensate", "a.csv", "full.csv", *COMPENSATE, cwd=work)
+    if not stat.S_ISCHR(node.lstat().st_mode):
+        raise Failed("data loss", "compensate to /dev/full replaced the device")
+    refused(r, what="compensate to /dev/full", mentions=("full.csv",))
+
+
+def special_input(work: Path, kind: str) -> None:
+    if kind == "fifo":
+        os.mkfifo(work / "in.csv")
+        name = "in.csv"
+    else:
+        name = "/dev/zero"
+    r = cli("compensate", name, "out.csv", *COMPENSATE, cwd=work, timeout=60)
+    refused(r, what=f"compensate from a {kind}", never=("no such file",))
+
+
+def outlier_fit(work: Path) -> None:
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(500, 3))
+    pts = 20.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    pts[17] = [1e12, 0, 0]
+    np.savetxt(work / "ball.csv", pts, delimiter=",", header="x,y,z", comments="")
+    r = cli("fit", "ball.csv", cwd=work)
+    if r.code != 0:
+        refused(r, what="a 1e12 mm outlier", never=("collinear",))
+
+
+def empty_maps(work: Path) -> None:
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "out.csv", "--maps", "", "--pose", "90,90,0", "--offset", "1.001,264.505,129.575",
+            cwd=work)
+    refused(r, what='--maps ""', never=("directory", "folder "))
+    if r.code != 2:
+        raise Failed("silent", f'--maps "": exit {r.code}, a usage error is 2')
+
+
+def long_number_echo(work: Path) -> None:
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "out.csv", *COMPENSATE, "--temperature", "9" * 300, cwd=work)
+    refused(r, what="a 300-digit temperature")
+    if "9" * 40 in r.text:
+        raise Failed("silent", "a 300-digit temperature printed back in full")
+
+
+def python_hint(work: Path) -> None:
+    rows = SCAN.read_text().splitlines()
+    rows[5] = "nan,0,450,275,-250,22"
+    (work / "nan.csv").write_text("\n".join(rows) + "\n")
+    r = cli("compensate", "nan.csv", "out.csv", *COMPENSATE, cwd=work)
+    refused(r, what="a NaN row", never=("nan_policy=", "on_gap=", "out_of_range="))
+
+
+# ---------------------------------------------------------------------------------------------- silent wrong answers
+def relabelled_scan(work: Path, how: str) -> None:
+    run = small_run(work)
+    t = pq.read_table(run / "scans.parquet").to_pydict()
+    if how == "ball=3":
+        t["ball"][5] = 3
+    elif how == "position=-1":
+        t["position"][5] = -1
+    else:  # a duplicate: scan 5 claims scan 4's position and ball
+        t["position"][5], t["ball"][5] = t["position"][4], t["ball"][4]
+    schema = pq.read_schema(run / "scans.parquet")
+    pq.write_table(pa.table(t, schema=schema.remove_metadata()), run / "scans.parquet")
+    for command in (("evaluate", "run"), ("acceptance", "run", "--mpe-form", 60, "--mpe-size", 10,
+                                          "--mpe-length", "8+L/300")):
+        r = cli(*command, cwd=work)
+        if r.code == 0 and "skip" not in r.text.lower():
+            raise Failed("silent", f"{command[0]} with a scan labelled {how}: exit 0 and no word of it")
+        if r.code != 0:
+            refused(r, what=f"{command[0]} with a scan labelled {how}")
+
+
+def failed_acceptance_exit(work: Path) -> None:
+    small_run(work, "run", "--jitter", 3, "--calibrated")
+    r = cli("acceptance", "run", "--mpe-form", 0.01, "--mpe-size", 0.01, "--mpe-length", "0.01", cwd=work)
+    if "FAIL" not in r.text:
+        raise Failed("silent", "acceptance against a 0.01 um MPE did not fail")
+    if r.code != 1:
+        raise Failed("silent", f"acceptance FAIL exited {r.code} (want 1)")
+
+
+def map_attack(work: Path, kind: str) -> None:
+    src = (DATA / "maps" / "thesis_20C.csv").read_text().splitlines(keepends=True)
+    if kind == "repeated key":
+        i = next(k for k, line in enumerate(src) if "squareness_xy" in line)
+        src.insert(i + 1, src[i].replace("-173", "-1000") if "-173" in src[i] else src[i])
+    else:  # cut at a row boundary: the X table's last 4 rows (x > 800 mm, beyond the scan) gone
+        last_x = max(k for k, line in enumerate(src) if line.startswith("X,"))
+        del src[last_x - 3:last_x + 1]
+    (work / "m.csv").write_text("".join(src))
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "out.csv", "--maps", "m.csv", "--temperature", 20, "--pose", "90,90,0",
+            "--offset", "1.001,264.505,129.575", cwd=work)
+    refused(r, what=f"map CSV {kind}", mentions=("m.csv",))
+
+
+def fits_attack(work: Path, kind: str) -> None:
+    lines = [line for line in (DATA / "thesis" / "appendix_c_ballbar.csv").read_text().splitlines()
+             if not line.startswith("#")]
+    rows = list(csv.reader(lines))
+    header, body = rows[0], rows[1:]
+    if kind == "repeated row":
+        body.append(list(body[3]))
+        body[-1][header.index("x_mm")] = str(float(body[-1][header.index("x_mm")]) + 1.0)
+    else:
+        header = header + [header[2]]
+        body = [b + [b[2]] for b in body]
+    with open(work / "fits.csv", "w", newline="") as f:
+        csv.writer(f).writerows([header, *body])
+    refused(cli("diagnose-fits", "fits.csv", "--nominal-radius", 38.125, "--state", "compensated", cwd=work),
+            what=f"diagnose-fits {kind}", mentions=("fits.csv",))
+
+
+def positioning(work: Path, kind: str) -> None:
+    rows = [("target_mm", "direction", "cycle", "deviation_um")]
+    for t in range(0, 500, 50):
+        for d in (1, -1):
+            for c in range(1, 6):
+                rows.append((t, d, c, 1.0 + 0.01 * t + 0.3 * c))
+    if kind == "1e300":
+        rows[7] = (*rows[7][:3], 1e300)
+        rows[8] = (*rows[8][:3], -1e300)
+    elif kind == "repeated row":
+        rows.append(rows[4][:3] + (99.0,))
+    else:
+        rows = [r + (r[3],) for r in rows]
+    with open(work / "pos.csv", "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    r = cli("iso230-2", "pos.csv", "--json", cwd=work)
+    if kind == "1e300" and r.code == 0:
+        def bad(x):
+            raise ValueError(x)
+        try:
+            json.loads(r.out, parse_constant=bad)
+        except ValueError as e:
+            raise Failed("silent", f"iso230-2 --json printed non-standard JSON ({e})")
+        return
+    refused(r, what=f"iso230-2 {kind}", mentions=("pos.csv",))
+
+
+def csv_writer_huge(work: Path) -> None:
+    import cmmpose
+    xyz = np.array([[1e305, -3e303, 1.7976931348623157e308], [1.0, 2.0, 3.0]])
+    try:
+        cmmpose.write_point_cloud(work / "big.csv", cmmpose.PointCloud(xyz))
+    except cmmpose.Error:
+        return
+    back = cmmpose.read_point_cloud(work / "big.csv").xyz
+    if not np.array_equal(back, xyz):
+        raise Failed("silent", f"the CSV writer wrote {back[0].tolist()} for {xyz[0].tolist()}")
+
+
+def ply_body_mismatch(work: Path) -> None:
+    pts = np.loadtxt(SCAN, delimiter=",", skiprows=1)[:, :3]
+    body = "\n".join(" ".join(f"{v:.4f}" for v in p) for p in pts)
+    (work / "s.ply").write_text("ply\nformat ascii 1.0\nelement vertex 100\nproperty double x\nproperty double y\n"
+                                f"property double z\nend_header\n{body}\n")
+    refused(cli("fit", "s.ply", cwd=work), what="PLY body longer than its header", mentions=("s.ply",))
+
+
+def run_table_cut(work: Path) -> None:
+    run = small_run(work)
+    t = pq.read_table(run / "points.parquet")
+    pq.write_table(t.slice(0, t.num_rows - 100), run / "points.parquet")
+    refused(cli("evaluate", "run", cwd=work), what="a points table cut short", mentions=("points",))
+
+
+def machine_attack(work: Path, kind: str) -> None:
+    text = (DATA / "machines" / "moving-bridge.toml").read_text()
+    if kind == "no [mount]":
+        out, skip = [], False
+        for line in text.splitlines():
+            if line.strip().startswith("["):
+                skip = line.strip().startswith("[mount")
+            if not skip:
+                out.append(line)
+        text = "\n".join(out) + "\n"
+    elif kind == "negative expansion":
+        lines = text.splitlines()
+        k = next(i for i, line in enumerate(lines) if line.startswith("artefact ="))
+        lines[k] = lines[k].split("=")[0] + "= -1e9"
+        text = "\n".join(lines) + "\n"
+    else:  # a number as a string
+        lines = text.splitlines()
+        k = next(i for i, line in enumerate(lines) if "=" in line and any(c.isdigit() for c in line.split("=")[1])
+                 and not line.lstrip().startswith("#") and '"' not in line)
+        key, value = lines[k].split("=", 1)
+        lines[k] = f'{key}= "{value.split("#")[0].strip()}"'
+        text = "\n".join(lines) + "\n"
+    (work / "m.toml").write_text(text)
+    r = cli("machine", "check", "m.toml", cwd=work)
+    if r.code == 0 and not (kind == "no [mount]" and "default" in r.text.lower()):
+        raise Failed("silent", f"machine check with {kind}: ok")
+
+
+def alignment_units(work: Path) -> None:
+    lib = work / "align.json"
+    for name, pose, normal in (("A", "90,90,0", "0,0,1"), ("B", "90,90,90", "0,-1,0"), ("C", "180,90,0", "0,0,1")):
+        cli("simulate-alignment", "--pose", pose, "--name", name, "-o", "al", cwd=work)
+        cli("calibrate", "alignment", "--vernier", f"al/{name}-vernier.csv", "--plane-scan", f"al/{name}-plane.csv",
+            "--plane-normal", normal, "--vernier-uncertainty", 9, "--reference-scan", f"al/{name}-sphere.csv", "--name", name, "--library", lib,
+            "--maps", "thesis", "--temperature", 20, cwd=work)
+    doc = json.loads(lib.read_text())
+    text = json.dumps(doc)
+    if '"degree' not in text and '"deg' not in text:
+        raise Skip("the library names no angle unit")
+    lib.write_text(text.replace('"degree"', '"radian"').replace('"deg"', '"rad"'))
+    r = cli("calibrate", "offset", "A", "B", "C", "--library", lib, "--json", cwd=work)
+    refused(r, what="an alignment library in radians", mentions=("align.json",))
+
+
+def empty_option(work: Path, option: str, value: str) -> None:
+    scan_copy(work)
+    args = {"--maps": "thesis", "--pose": "90,90,0", "--offset": "1.001,264.505,129.575", option: value}
+    r = cli("compensate", "a.csv", "out.csv", *[x for kv in args.items() for x in kv], cwd=work)
+    refused(r, what=f"{option} {value!r}", mentions=(option,))
+    if r.code != 2:
+        raise Failed("silent", f"{option} {value!r}: exit {r.code}, a usage error is 2")
+
+
+ATTACKS = {
+    "data loss": {
+        "compensate a.csv a.csv": lambda w: same_file(w, "plain"),
+        "output via a symlink to the input": lambda w: same_file(w, "symlink"),
+        "output via a hard link to the input": lambda w: same_file(w, "hardlink"),
+        "output spelled sub/../a.csv": lambda w: same_file(w, "dotted"),
+        "output a character device": device_output,
+        "output a FIFO": fifo_output,
+        "output a folder": directory_output,
+        "full disk: compensate": lambda w: full_disk(w, "compensate"),
+        "full disk: machine example": lambda w: full_disk(w, "machine"),
+        "full disk: diagnose --save-model": lambda w: full_disk(w, "model"),
+        "full disk: simulate --overwrite": lambda w: full_disk(w, "simulate"),
+        "full disk: map export": lambda w: full_disk(w, "map"),
+        "full disk: evaluate --report": lambda w: full_disk(w, "report"),
+        "SIGTERM mid-write": lambda w: killed_mid_write(w, signal.SIGTERM),
+        "SIGHUP mid-write": lambda w: killed_mid_write(w, signal.SIGHUP),
+        "SIGINT mid-write": lambda w: killed_mid_write(w, signal.SIGINT),
+        "umask 022 gives 0644": umask_respected,
+    },
+    "hang": {
+        "scheduler that never answers": lambda w: scheduler(w, "silent"),
+        "scheduler that is an HTTP server": lambda w: scheduler(w, "http"),
+        "scheduler given as http://": lambda w: scheduler(w, "url"),
+        "input a FIFO with no writer": lambda w: special_input(w, "fifo"),
+    },
+    "traceback": {
+        "Parquet with a repeated column": parquet_repeated_column,
+        "ASCII PLY declaring 1e12 vertices": ply_huge_count,
+        "TOML nested 10,000 deep": lambda w: toml_attack(w, "deep"),
+        "TOML with a 5,001-digit integer": lambda w: toml_attack(w, "big"),
+        "diagnose-fits: header, no rows": fits_header_only,
+        "output /dev/full": full_device_output,
+        "read-only output": read_only_output,
+        "input /dev/zero": lambda w: special_input(w, "zero"),
+        "one 1e12 mm outlier in a fit": outlier_fit,
+        '--maps ""': empty_maps,
+        "a 300-digit temperature": long_number_echo,
+        "CLI hint names a Python argument": python_hint,
+    },
+    "silent": {
+        "evaluate/acceptance: a scan labelled ball=3": lambda w: relabelled_scan(w, "ball=3"),
+        "evaluate/acceptance: a scan labelled position=-1": lambda w: relabelled_scan(w, "position=-1"),
+        "evaluate/acceptance: a duplicated scan": lambda w: relabelled_scan(w, "duplicate"),
+        "acceptance FAIL exits 1": failed_acceptance_exit,
+        "map CSV: a repeated key": lambda w: map_attack(w, "repeated key"),
+        "map CSV: cut at a row boundary": lambda w: map_attack(w, "cut"),
+        "diagnose-fits: a repeated (position, ball)": lambda w: fits_attack(w, "repeated row"),
+        "diagnose-fits: a repeated column": lambda w: fits_attack(w, "repeated column"),
+        "iso230-2: 1e300 in --json": lambda w: positioning(w, "1e300"),
+        "iso230-2: a repeated row": lambda w: positioning(w, "repeated row"),
+        "iso230-2: a repeated column": lambda w: positioning(w, "repeated column"),
+        "CSV writer: values near the float limit": csv_writer_huge,
+        "PLY: body longer than the header says": ply_body_mismatch,
+        "run: points table cut short": run_table_cut,
+        "machine TOML: no [mount]": lambda w: machine_attack(w, "no [mount]"),
+        "machine TOML: expansion -1e9": lambda w: machine_attack(w, "negative expansion"),
+        "machine TOML: a number as a string": lambda w: machine_attack(w, "string number"),
+        "alignment library in radians": alignment_units,
+        '--pose ""': lambda w: empty_option(w, "--pose", ""),
+        '--offset ""': lambda w: empty_option(w, "--offset", ""),
+        "--pose 1e9,90,0": lambda w: empty_option(w, "--pose", "1e9,90,0"),
+    },
+}
+
+
+def main(argv=None) -> int:
+    global TIMEOUT
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--timeout", type=float, default=TIMEOUT, help="seconds before a command counts as hung")
+    ap.add_argument("--only", action="append", default=[], help="run the attacks whose name contains this")
+    ap.add_argument("--list", action="store_true", help="list the attacks and exit")
+    args = ap.parse_args(argv)
+    TIMEOUT = args.timeout
+    if args.list:
+        for cls, attacks in ATTACKS.items():
+            for name in attacks:
+                print(f"{cls:10s}  {name}")
+        return 0
+    table = {cls: {"tried": 0, "failed": 0, "skipped": 0} for cls in CLASSES}
+    failures = []
+    for cls, attacks in ATTACKS.items():
+        for name, attack in attacks.items():
+            if args.only and not any(o in name for o in args.only):
+                continue
+            work = Path(tempfile.mkdtemp(prefix="cmmpose-hostile-"))
+            t0 = time.monotonic()
+            try:
+                attack(work)
+                verdict = "ok"
+            except Skip as e:
+                verdict = f"skipped ({e})"
+                table[cls]["skipped"] += 1
+            except Failed as e:
+                verdict = f"FAILED [{e.kind}] {e}"
+                table[cls]["failed"] += 1
+                failures.append((cls, name, e.kind))
+            except Exception as e:  # the script's own staging went wrong: count it, show it
+                verdict = f"FAILED [staging] {type(e).__name__}: {e}"
+                table[cls]["failed"] += 1
+                failures.append((cls, name, "staging"))
+            finally:
+                subprocess.run(["umount", "-l", str(work / "fs")], capture_output=True) if (work / "fs").is_dir() \
+                    else None
+                shutil.rmtree(work, ignore_errors=True)
+            table[cls]["tried"] += 1
+            print(f"{cls:10s}  {name:48s}  {time.monotonic() - t0:6.1f} s  {verdict}", flush=True)
+    print("\n| class | attacks | failed | skipped |\n|---|---|---|---|")
+    for cls in CLASSES:
+        t = table[cls]
+        print(f"| {cls} | {t['tried']} | {t['failed']} | {t['skipped']} |")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
