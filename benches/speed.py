@@ -7,12 +7,15 @@ measured in the same run:
   (``_core.streaming_reference``: the same reads and writes with one add
   per value);
 - the fixed cost of one call (1 point, and 1,000 points), against NumPy's;
+- a fresh output array per call against ``out=`` (profile data, with a
+  temperature per point): the cost of the new array's page faults;
 - the diagnosis's model kernel (effects switched on) against plain
   compensation of the same run.
 
     python benches/speed.py [--points 4000000] [--repeats 7]
 
-Inputs are larger than the 32 MB L3 cache by default, so the figures are
+The first line names the CPU and the load average: compare ratios
+between machines, not absolute figures. Inputs are larger than the 32 MB L3 cache by default, so the figures are
 memory figures. Outputs are preallocated (``out=``) for the kernel and the
 streaming reference alike, so neither pays for page faults. Each figure is
 the best of ``--repeats`` calls; run the script 5 times for a min-max.
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import platform
 import sys
 import time
 import timeit
@@ -48,6 +52,17 @@ OFFSET = (1.001, 264.505, 129.575)
 PROFILE = 1000
 #: Points the NumPy reference is timed on (its rate does not depend on N).
 NUMPY_POINTS = 200_000
+
+
+def cpu_model() -> str:
+    """The CPU's model name (Linux /proc/cpuinfo; else what ``platform`` says)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown CPU"
 
 
 def best(fn, repeats: int) -> float:
@@ -112,6 +127,18 @@ def call_overhead(repeats: int) -> None:
         print(f"{f'{n} point' + ('s' if n > 1 else ''):44} {t_c:7.1f}us {t_o:7.1f}us {t_n:7.0f}us")
 
 
+def fresh_output(n: int, repeats: int) -> None:
+    """A fresh output array per call (its pages faulted in by the kernel's
+    writes) against ``out=`` (one buffer reused), on profile data."""
+    maps = cmmpose.ErrorMapSet.thesis()
+    uv, scales, temps = inputs(n, True)
+    out = np.empty((n, 3))
+    fresh = best(lambda: cmmpose.compensate(uv, scales, maps, POSE, OFFSET, temps), repeats)
+    reused = best(lambda: cmmpose.compensate(uv, scales, maps, POSE, OFFSET, temps, out=out), repeats)
+    print(f"\n{f'fresh output vs out= ({n:,} points, profiles, T)':44} {fresh * 1e3:7.1f}ms {reused * 1e3:7.1f}ms "
+          f"{fresh / reused:7.2f}x")
+
+
 def model_kernel(repeats: int) -> None:
     run, _ = simulate_ballbar_run(temperature=22.5, effects=[E.SquarenessOffset(yz=20.0)], jitter=0.0015, seed=1)
     model = Model(cmmpose.ErrorMapSet.thesis())
@@ -143,11 +170,13 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=4_000_000)
     ap.add_argument("--repeats", type=int, default=7)
     args = ap.parse_args()
+    print(f"{cpu_model()}; load average {os.getloadavg()[0]:.1f}")
     print(f"cmmpose {cmmpose.__version__}, {cmmpose.thread_count()} threads, {args.points:,} points "
           f"(NumPy on {NUMPY_POINTS:,}), best of {args.repeats}")
     t0 = time.perf_counter()
     kernel_rows(args.points, args.repeats)
     call_overhead(args.repeats)
+    fresh_output(args.points, args.repeats)
     model_kernel(args.repeats)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
 

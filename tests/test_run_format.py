@@ -279,7 +279,9 @@ def test_save_creates_parents_and_empty_directory_is_fine(small, tmp_path):
 def test_run_json_layout(small, tmp_path):
     small.save(tmp_path / "r")
     doc = json.loads((tmp_path / "r" / "run.json").read_text())
-    assert list(doc) == ["schema", "schema_version", "created", "artefact", "maps", "temperature_channels", "metadata"]
+    assert list(doc) == ["schema", "schema_version", "created", "artefact", "maps", "temperature_channels", "metadata",
+                         "rows"]
+    assert doc["rows"] == {"points": 40, "scans": 3, "poses": 2, "temperatures": 61}  # checked on load
     assert doc["schema"] == "cmmpose-run" and doc["schema_version"] == 1
     schema = pq.read_schema(tmp_path / "r" / "scans.parquet")
     assert [str(schema.field(c).type) for c in SCANS_COLUMNS] == ["int32", "int32", "string", "int32", "int32", "string", "int8", "double"]

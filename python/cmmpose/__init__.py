@@ -13,22 +13,31 @@ from . import layouts
 from ._core import __version__, thread_count
 from ._lazy import lazy_attributes
 from .compensation import compensate, uncompensated
-from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
+from .filecompensation import FileCompensation, compensate_file
 from .metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
 from .fitting import E3125Result, PlaneFit, SphereFit, SphereFits, SphereSegmentation, e3125, fit_plane, fit_sphere, fit_spheres, segment_sphere
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
-from .errors import AcquisitionError, CalibrationError, ClampWarning, Error, GeometryError, IllConditionedFit, InputError, MapError, OutOfRangeError, RunError
+from .errors import AcquisitionError, CalibrationError, ClampWarning, Error, GeometryError, IllConditionedFit, InputError, MapError, OutOfRangeError, OutputError, RunError
 from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
 from .pointclouds import PointCloud, read_point_cloud, write_point_cloud
 from .pose import MountOffset, Pose
 from .report import KernelReport
-from .run import Run, load_truth
 
 # The acquisition, calibration, uncertainty and diagnosis modules load on
 # first use: together about 70 ms of imports that `cmmpose simulate`,
 # `compensate` or `evaluate` never need (the command line imports this
-# package first).
+# package first). So do the run format and the evaluation (with pyarrow,
+# which the run format reads through): `cmmpose fit` or `compensate` never
+# needs them (tests/test_speed_footprint.py checks what `import cmmpose` loads).
 __getattr__, __dir__ = lazy_attributes(__name__, {
+    "evaluation": ("evaluation", None),
+    "evaluate": ("evaluation", "evaluate"),
+    "Evaluation": ("evaluation", "Evaluation"),
+    "BallbarResult": ("evaluation", "BallbarResult"),
+    "SphereResult": ("evaluation", "SphereResult"),
+    "run": ("run", None),
+    "Run": ("run", "Run"),
+    "load_truth": ("run", "load_truth"),
     "acquire": ("acquire", None),
     "Recorder": ("acquire", "Recorder"),
     "calibration": ("calibration", None),
@@ -42,7 +51,9 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
 }, globals())
 
 if TYPE_CHECKING:
-    from . import acquire, calibration, standards, uncertainty
+    from . import acquire, calibration, evaluation, run, standards, uncertainty
+    from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
+    from .run import Run, load_truth
     from .standards import evaluate_iso230_2
     from .acquire import Recorder
     from .diagnosis import Diagnosis, Model, UserEffect, diagnose
@@ -54,6 +65,8 @@ __all__ = [
     "write_point_cloud",
     "compensate",
     "uncompensated",
+    "compensate_file",
+    "FileCompensation",
     "evaluate",
     "diagnose",
     "Diagnosis",
@@ -104,6 +117,7 @@ __all__ = [
     "InputError",
     "GeometryError",
     "RunError",
+    "OutputError",
     "CalibrationError",
     "AcquisitionError",
     "ClampWarning",

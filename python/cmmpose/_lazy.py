@@ -47,3 +47,41 @@ def lazy_attributes(package: str, table: dict[str, tuple[str, str | None]],
         return sorted(set(namespace) | set(table))
 
     return __getattr__, __dir__
+
+
+class LazyModule:
+    """A module imported on first attribute access, for a heavy dependency
+    that a module's import must not pay for (pyarrow: about 0.1 s, loaded by
+    ``import cmmpose`` otherwise, though only the commands that read or
+    write Arrow, Parquet or fast CSV use it).
+
+    Written at the top of a module in place of its import, so that the
+    dependency is still declared there: ``pa = LazyModule("pyarrow")``. The
+    name must not be used at module level (a type annotation is fine under
+    ``from __future__ import annotations``).
+    """
+
+    __slots__ = ("_name", "_module")
+
+    def __init__(self, name: str):
+        object.__setattr__(self, "_name", name)
+        object.__setattr__(self, "_module", None)
+
+    def _load(self):
+        module = object.__getattribute__(self, "_module")
+        if module is None:
+            module = importlib.import_module(object.__getattribute__(self, "_name"))
+            object.__setattr__(self, "_module", module)
+        return module
+
+    def __getattr__(self, attribute: str) -> object:
+        return getattr(object.__getattribute__(self, "_load")(), attribute)
+
+    def __setattr__(self, attribute: str, value) -> None:  # e.g. a test's monkeypatch: set on the module
+        setattr(object.__getattribute__(self, "_load")(), attribute, value)
+
+    def __delattr__(self, attribute: str) -> None:
+        delattr(object.__getattribute__(self, "_load")(), attribute)
+
+    def __repr__(self) -> str:
+        return f"<lazily imported module {object.__getattribute__(self, '_name')!r}>"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import re
+import tomllib
 
 import numpy as np
 
@@ -22,7 +23,7 @@ _NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?
 #: Spelled-out non-finite values: numbers, but refused as not finite.
 _NON_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE)
 
-__all__ = ["finite", "nonnegative", "positive", "triple", "vector3", "parse_number"]
+__all__ = ["finite", "nonnegative", "positive", "triple", "vector3", "parse_number", "parse_toml"]
 
 
 def finite(name: str, value, *, error: type[Exception] = InputError) -> float:
@@ -242,3 +243,29 @@ def parse_number(text: str, where: str, what: str, *, error: type[Exception] = M
     if not math.isfinite(value):
         raise error(f"{where}: {what} is not finite ({text.strip()})")
     return value
+
+
+def parse_toml(text: str, where: str, *, error: type[Exception] = InputError) -> dict:
+    """The document of a TOML file's ``text``, or ``error`` naming ``where``
+    (the file) when it is not TOML, is nested deeper than Python's parser
+    recurses (an array in an array 10,000 deep), or holds an integer longer
+    than Python converts (more than 4,300 digits).
+
+    Parameters
+    ----------
+    text : str
+        The file's text.
+    where : str
+        The file, first in any message.
+    error : type of Exception, optional
+        Raised on a bad file (default ``InputError``).
+    """
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{where}: not a TOML file ({exc})") from None
+    except RecursionError:
+        raise error(f"{where}: not a usable TOML file (arrays or tables nested too deeply to read)") from None
+    except ValueError as exc:  # an integer of more digits than int() converts
+        why = "an integer of more than 4,300 digits" if "digits" in str(exc) else str(exc)
+        raise error(f"{where}: not a usable TOML file ({why})") from None

@@ -15,17 +15,25 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from . import effects as effects_registry
-from .compensation import compensate, warn_single_map
+from ._arrays import as_triple
+from ._json import dumps as strict_json
+from .atomicfile import atomic_write, check_not_input, ensure_folder, raise_on_termination, write_text
+from .compensation import warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import CalibrationError, Error, InputError, MapTemperatureWarning
-from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording
+from .policy import LOG_HOLD, OUT_OF_RANGE, TEMPERATURE_TOLERANCE, cli_wording, shorten_numbers
+from .pose import check_pose_angles
 from .pointclouds import UNITS as POINT_UNITS
 from .pointclouds import read_point_cloud, unit_factor
-from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks, read_points
+from .pointfiles import check_writable, read_points
+from .filecompensation import compensate_file
+from .pointformats._common import check_file
 from .machine import example_names
 from .metrics import STEEL_EXPANSION
-from .report import KernelReport
-from .cli_standards import acceptance_cmd, acceptance_sphere_cmd, e3125_distances_cmd, interim_cmd, iso230_2_cmd
+from .scale import SCHEDULER_TIMEOUT, check_scheduler
+from .cli_standards import (acceptance_cmd, acceptance_sphere_cmd, e3125_distances_cmd, interim_cmd, iso230_2_cmd,
+                            map_specs)
+from .cli_artefact import artefact_group, diagnose_plate_fits_cli, evaluate_artefact_run, simulate_artefact
 
 console = Console(stderr=True)
 
@@ -72,6 +80,10 @@ def travel_notes(machine, built) -> list[str]:
 
 
 def triple(text: str, name: str) -> tuple[float, float, float]:
+    if not text.strip():
+        # An empty value would otherwise fall back to a default in silence.
+        raise click.BadParameter("an empty value: give three comma-separated numbers, or leave the option out",
+                                 param_hint=name)
     try:
         vals = tuple(float(x) for x in text.split(","))
     except ValueError:
@@ -81,10 +93,39 @@ def triple(text: str, name: str) -> tuple[float, float, float]:
     return vals  # type: ignore[return-value]
 
 
+def pose_angles(text: str, name: str) -> tuple[float, float, float]:
+    """Three pose angles alpha,beta,gamma in degrees from an option's ``text``:
+    a usage error when empty, not three finite numbers or beyond +-360 deg."""
+    try:
+        return check_pose_angles(name, triple(text, name))
+    except Error as exc:
+        raise click.BadParameter(str(exc).removeprefix(f"{name}: "), param_hint=name) from None
+
+
+def offset_mm(text: str, name: str) -> tuple[float, float, float]:
+    """A mount offset U1,V1,W1 in mm from an option's ``text``: a usage error
+    when empty or not three finite numbers."""
+    try:
+        return as_triple(name, triple(text, name))
+    except Error as exc:
+        raise click.BadParameter(str(exc).removeprefix(f"{name}: "), param_hint=name) from None
+
+
+def check_outputs(outputs: dict, run_dirs=(), files=()) -> None:
+    """``InputError`` if an output (flag -> path, None for not given) is one of the
+    files the command reads: the runs' files (``cmmpose.run.RUN_FILES``) and ``files``
+    (cmmpose.atomicfile.check_not_input: any spelling or link)."""
+    from .run import RUN_FILES
+
+    inputs = [Path(r) / n for r in run_dirs for n in RUN_FILES] + [f for f in files if f]
+    for flag, path in outputs.items():
+        check_not_input(path, inputs, flag)
+
+
 def fail(exc: Exception) -> click.ClickException:
     """A library error as the CLI reports it: the Python argument names in
-    the message replaced by this interface's flags."""
-    return click.ClickException(cli_wording(str(exc)))
+    the message replaced by this command's flags (or a note that it has none)."""
+    return click.ClickException(cli_wording(str(exc), click.get_current_context(silent=True)))
 
 
 def policy_options(log_hold: bool = True):
@@ -106,17 +147,51 @@ def policy_options(log_hold: bool = True):
     return wrap
 
 
-@click.group()
+class _Commands(click.Group):
+    """The command group: click's own messages (a bad option value echoed
+    back) with numbers of more than 20 digits shortened (cmmpose.policy)."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except click.ClickException as exc:
+            exc.message = shorten_numbers(exc.message)
+            raise
+
+
+def _scheduler_spec(ctx, param, value):
+    """--scheduler: a usage error unless threads, processes or tcp://host:port."""
+    try:
+        return None if value is None else check_scheduler(value)
+    except Error as exc:
+        raise click.BadParameter(str(exc), param_hint="--scheduler") from None
+
+
+def scheduler_options(help_text: str):
+    """--scheduler and --scheduler-timeout, the same on every command that scales out (cmmpose.scale)."""
+
+    def wrap(f):
+        f = click.option("--scheduler-timeout", type=click.FloatRange(min=0, min_open=True, max=1e6),
+                         default=SCHEDULER_TIMEOUT, show_default=True,
+                         help="s: the longest wait for a scheduler at an address to accept the connection "
+                              "and answer (a port that never answers is an error after it).")(f)
+        return click.option("--scheduler", default=None, callback=_scheduler_spec, help=help_text)(f)
+
+    return wrap
+
+
+@click.group(cls=_Commands)
 @click.version_option(package_name="cmmpose")
 def main() -> None:
     """Error compensation of a laser line scanner on a CMM."""
+    raise_on_termination()  # SIGTERM, SIGHUP: clean up temporary files as on Ctrl-C
 
 
 @main.command("compensate")
 @click.argument("points_in", metavar="IN", type=click.Path())
 @click.argument("points_out", metavar="OUT", type=click.Path(writable=True))
 @machine_option
-@click.option("--maps", "maps", multiple=True,
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="'thesis', 'appendix-b', or map files (.csv canonical, .txt controller); repeat for a set. "
                    "Default: the machine's maps.")
 @click.option("--temperature", type=float, default=None,
@@ -129,11 +204,10 @@ def main() -> None:
               help="Alignment library (JSON) for --alignment. Default: the machine file's mount.alignments.")
 @policy_options(log_hold=False)
 @click.option("--nan-policy", type=click.Choice(["raise", "propagate"]), default="raise", show_default=True)
-@click.option("--scheduler", default=None,
-              help="For a folder IN: 'threads' (default), 'processes', or a Dask scheduler address tcp://host:port "
+@scheduler_options("For a folder IN: 'threads' (default), 'processes', or a Dask scheduler address tcp://host:port "
                    "(needs the dask extra).")
 def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
-                   out_of_range, temperature_tolerance, nan_policy, scheduler) -> None:
+                   out_of_range, temperature_tolerance, nan_policy, scheduler, scheduler_timeout) -> None:
     """Compensate scanner points IN (CSV, NPY, Parquet, PLY or XYZ: u, v, D, E, F[, T])
     into machine coordinates OUT (by suffix: CSV, NPY, Parquet, PLY, XYZ, PTS or E57;
     X, Y, Z in mm, E57 in metres). Any other column of IN (scan_id, intensity, ...)
@@ -147,82 +221,44 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
     try:
         machine = load_machine(machine_file)
         if alignment is not None:
-            if pose or offset:
+            if pose is not None or offset is not None:
                 raise click.UsageError("give --alignment or --pose/--offset, not both")
             pose, offset = _aligned(alignment, library_file or machine.alignments)
     except Error as exc:
         raise fail(exc) from None
-    pose_t = triple(pose, "--pose") if pose else machine.pose.as_tuple()
-    offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
+    pose_t = pose_angles(pose, "--pose") if pose is not None else machine.pose.as_tuple()
+    offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
     if Path(points_in).is_dir():
         return _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
-                                   temperature_tolerance, nan_policy, scheduler or "threads")
+                                   temperature_tolerance, nan_policy, scheduler or "threads", scheduler_timeout)
     if scheduler is not None:
         raise click.BadParameter(f"{points_in} is a file; --scheduler is for a folder of Parquet files",
                                  param_hint="--scheduler")
     try:
         check_writable(points_out)  # before any work: a missing folder is found now, not after
+        check_not_input(points_out, [points_in], "OUT")
         error_map = load_maps(maps, machine)
-        size, chunks = point_chunks(points_in, extras=True)
-        state = {"t_all": None, "warned": False}
-        reports = []
-        elapsed = 0.0
-
-        def one(uv, scales, temps):
-            """Compensate one chunk; returns its coordinates and kernel report."""
-            if isinstance(error_map, ErrorMapSet):
-                if temperature is None and temps is None:
-                    raise click.UsageError("a map set needs --temperature or a T column in the input")
-                t = temperature if temperature is not None else temps
-                state["t_all"] = "per point (T column)" if temperature is None else f"{temperature:g} C"
-            else:
-                t = None
-                given = temperature if temperature is not None else temps
-                if given is not None and not state["warned"]:
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore", MapTemperatureWarning)
-                        note = warn_single_map(error_map, given, temperature_tolerance)
-                    if note:
-                        console.print(f"[yellow]warning:[/] {escape(note)}")
-                    state["warned"] = True
-            return compensate(uv, scales, error_map, pose_t, offset_t, t, out_of_range=out_of_range,
-                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
-                              return_report=True)
-
-        def run(source, writer, bar, task):
-            nonlocal elapsed
-            for uv, scales, temps, extras, done in source:
-                t0 = time.perf_counter()
-                xyz, rep = one(uv, scales, temps)
-                elapsed += time.perf_counter() - t0
-                writer.write(xyz, extras)  # scan_id, intensity, ... unchanged
-                reports.append(rep)
-                bar.update(task, completed=done)
-
+        size = check_file(points_in).stat().st_size
         # One bar over reading, compensating and writing, by bytes of input;
-        # memory stays bounded by the chunk size whatever the file's size.
+        # memory stays bounded by a few chunks whatever the file's size.
         with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                      TimeRemainingColumn(), console=console, disable=size < (32 << 20)) as bar:
+                      TimeRemainingColumn(), console=console, disable=size < (32 << 20)) as bar, \
+                warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MapTemperatureWarning)
             task = bar.add_task("", total=size)
-            writer = PointWriter(points_out)
-            try:
-                try:
-                    run(chunks, writer, bar, task)
-                except RereadPoints as again:  # the fast reader refused a line the strict one accepts
-                    writer.abort()
-                    writer = PointWriter(points_out)
-                    reports.clear()
-                    elapsed = 0.0
-                    run(iter([(*again.points, again.extras, size)]), writer, bar, task)
-            except BaseException:
-                writer.abort()
-                raise
-            writer.close()
+            done = compensate_file(points_in, points_out, error_map, pose_t, offset_t, temperature,
+                                   out_of_range=out_of_range, nan_policy=nan_policy,
+                                   temperature_tolerance=temperature_tolerance,
+                                   progress=lambda at, _: bar.update(task, completed=at))
             bar.update(task, completed=size)
-        t_all = state["t_all"]
+        for w in caught:
+            if issubclass(w.category, MapTemperatureWarning):
+                console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     except Error as exc:
         raise fail(exc) from None
-    report = KernelReport.total(reports)
+    report, elapsed, t_all = done.report, done.kernel_seconds, done.temperature
     n = report.points
     table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
     machine_row(table, machine)
@@ -254,7 +290,7 @@ def effects_cmd() -> None:
               help="20 ASME B89.4.1 positions (thesis Appendix C geometry) or the 8 crossed-ballbar positions.")
 @click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
 @machine_option
-@click.option("--maps", "maps", multiple=True,
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="The machine's real maps: 'thesis', 'appendix-b' or map files. Default: the machine's.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
               help="Extra physics, repeatable, e.g. latency:seconds=0.005 (`cmmpose effects` lists them). One of: "
@@ -267,20 +303,36 @@ def effects_cmd() -> None:
 @click.option("--calibrated", is_flag=True, help="Record the bar length at 20 C and the ball radius as calibrated values.")
 @click.option("--reference-pose", "reference_poses", multiple=True, metavar="A,B,G",
               help="After the ballbar, scan the reference sphere at this pose (degrees; repeatable).")
+@click.option("--artefact", "artefact", default=None, metavar="FILE|NAME",
+              help="Simulate this artefact file or bundled example (docs/artefacts.md) instead of the --layout.")
+@click.option("--placement", "placements", multiple=True, metavar="PLACEMENT",
+              help="With --artefact: where it sits, e.g. 'xy@z=-525,rot=45', 'planes', 'iso10360-2' (repeatable; "
+                   "default the kind's layout).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing run in RUN_DIR.")
 def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidirectional, jitter, calibrated,
-                 reference_poses, seed, run_dir, overwrite) -> None:
-    """Simulate a ballbar run on a virtual machine (default: the thesis's Iota 1102 + Hyscan 45C) and write it
-    as a run directory."""
+                 reference_poses, artefact, placements, seed, run_dir, overwrite) -> None:
+    """Simulate a ballbar run (or, with --artefact, an artefact at its placements) on a virtual machine (default:
+    the thesis's Iota 1102 + Hyscan 45C) and write it as a run directory."""
     from .machine import load_machine
     from .sim import parse_effect, simulate_ballbar_run
 
+    if placements and artefact is None:
+        raise click.UsageError("--placement needs --artefact")
     try:
         machine = load_machine(machine_file)
         parsed = [parse_effect(e) for e in effects]
         machine_maps = load_maps(maps, machine)
+        if artefact is not None:
+            for flag, given in (("--calibrated", calibrated), ("--reference-pose", reference_poses)):
+                if given:
+                    raise click.UsageError(f"{flag} is for ballbar runs, not with --artefact")
+            return simulate_artefact(artefact, placements, machine, machine_maps, temperature, parsed, speed,
+                                     bidirectional, jitter, seed, run_dir, overwrite,
+                                     (TextColumn("simulating"), BarColumn(),
+                                      TextColumn("{task.completed}/{task.total} sweeps")),
+                                     lambda r: _with_machine(r, machine, maps))
         start = time.perf_counter()
         with Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.completed}/{task.total} sweeps"),
                       console=console) as bar:
@@ -289,7 +341,7 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
                 machine_maps, temperature, parsed, layout=layout, speed=speed, bidirectional=bidirectional, seed=seed,
                 scanner=machine.scanner, offset=tuple(machine.offset), jitter=jitter * 1e-3,
                 calibrated=("length", "radius") if calibrated else (),
-                reference_poses=[triple(p, "--reference-pose") for p in reference_poses],
+                reference_poses=[pose_angles(p, "--reference-pose") for p in reference_poses],
                 progress=lambda done, total: bar.update(task, completed=done, total=total))
         run = _with_machine(run, machine, maps)
         elapsed = time.perf_counter() - start
@@ -307,7 +359,7 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
 
 
 def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
-                        temperature_tolerance, nan_policy, scheduler) -> None:
+                        temperature_tolerance, nan_policy, scheduler, scheduler_timeout) -> None:
     """`compensate DATASET_DIR OUT_DIR`: a folder of Parquet files on a Dask scheduler (cmmpose.scale)."""
     import logging
 
@@ -330,7 +382,7 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
             result = compensate_dataset(points_in, points_out, error_map, pose_t, offset_t, temperature,
                                         out_of_range=out_of_range, nan_policy=nan_policy,
                                         temperature_tolerance=temperature_tolerance, scheduler=scheduler,
-                                        progress=lambda done, total: bar.update(task, completed=done, total=total))
+                                        scheduler_timeout=scheduler_timeout, progress=lambda done, total: bar.update(task, completed=done, total=total))
     except Error as exc:
         raise fail(exc) from None
     report = result.report
@@ -373,7 +425,7 @@ def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, 
     from .sim import parse_effect
     from .sim.calibration_data import VERNIER_NOISE, plane_scan, reference_sphere_scans, vernier_points as vernier
 
-    nominal = triple(pose_text, "--pose")
+    nominal = pose_angles(pose_text, "--pose")
     try:
         machine = load_machine(machine_file)
         parsed = [parse_effect(e) for e in effects]
@@ -385,20 +437,21 @@ def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, 
         plane = plane_scan(nominal, offset, scanner=machine.scanner, seed=rng, **common)
         sphere = reference_sphere_scans([nominal], offset, scanner=machine.scanner,
                                         seed=int(rng.integers(1 << 30)), **common)[0]
-        folder = Path(out_dir)
-        folder.mkdir(parents=True, exist_ok=True)
+        folder = ensure_folder(out_dir)
         files = {k: folder / f"{name}-{k}.csv" for k in ("vernier", "plane", "sphere")}
-        np.savetxt(files["vernier"], v.points, delimiter=",", header="x,y,z", comments="", fmt="%.9f")
+        with atomic_write(files["vernier"]) as f:
+            np.savetxt(f, v.points, delimiter=",", header="x,y,z", comments="", fmt="%.9f")
         for k, d in (("plane", plane), ("sphere", sphere.data)):
-            np.savetxt(files[k], np.column_stack([d.uv, d.scales]), delimiter=",", header="u,v,D,E,F",
-                       comments="", fmt="%.9f")
+            with atomic_write(files[k]) as f:
+                np.savetxt(f, np.column_stack([d.uv, d.scales]), delimiter=",", header="u,v,D,E,F",
+                           comments="", fmt="%.9f")
         normal = [float(c) for c in plane.plane.normal]
         truth = {"units": {"pose": "degree", "reading": "mm", "offset": "mm", "vernier_uncertainty": "um"},
                  "nominal_pose": list(nominal), "plane_normal": normal,
                  "true_pose": [float(c) for c in sphere.true_pose], "true_reading": [float(c) for c in sphere.true_reading],
                  "true_offset": [float(c) for c in sphere.true_offset], "vernier_uncertainty": VERNIER_NOISE * 1e3,
                  "temperature": temperature, "effects": list(effects), "seed": seed}
-        (folder / f"{name}-truth.json").write_text(json.dumps(truth, indent=2), encoding="utf-8")
+        write_text(folder / f"{name}-truth.json", strict_json(truth, indent=2))
     except Error as exc:
         raise fail(exc) from None
     for f in files.values():
@@ -476,7 +529,7 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
     notes = [str(w.message) for w in caught if issubclass(w.category, IllConditionedFit)]
     out["warnings"] = notes
     if as_json:
-        click.echo(json.dumps(out, indent=2))
+        click.echo(strict_json(out, indent=2))
     else:
         table = Table(title=f"sphere fit of {scan}", show_header=False)
         table.add_row("method", out["method"])
@@ -531,12 +584,13 @@ def _maps_for_run(run, specs: tuple[str, ...], machine=None):
 
 def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
     """evaluation.json, lengths.csv and, with matplotlib, plots; returns the files."""
-    directory.mkdir(parents=True, exist_ok=True)
+    ensure_folder(directory)
     files = [directory / "evaluation.json", directory / "lengths.csv"]
-    files[0].write_text(evaluation.to_json(indent=2))
+    write_text(files[0], evaluation.to_json(indent=2))
     rows = [{"result": r.label, **row} for r in evaluation.results for row in r.rows()]
     header = list(rows[0])
-    files[1].write_text("\n".join([",".join(header)] + [",".join(str(row[k]) for k in header) for row in rows]) + "\n")
+    write_text(files[1], "\n".join([",".join(header)] + [",".join(str(row[k]) for k in header) for row in rows])
+               + "\n")
     try:
         import matplotlib  # noqa: F401
     except ImportError:
@@ -555,7 +609,7 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @main.command("evaluate")
 @click.argument("run_dir", metavar="RUN_DIR...", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
 @machine_option
-@click.option("--maps", "maps", multiple=True,
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="Compensation maps ('thesis', files, or 'none'); default: the machine's, or as run.json says.")
 @click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
 @policy_options()
@@ -571,11 +625,14 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @click.option("--u-model", type=float, default=0.0, show_default=True,
               help="Standard uncertainty of the residual model error, ppm of the length (0: left out of the budget).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
-@click.option("--scheduler", default=None,
-              help="Evaluate the runs on Dask: 'threads', 'processes' or a scheduler address tcp://host:port "
+@click.option("--skip-incomplete", is_flag=True,
+              help="Leave out positions whose ball scans are missing, duplicated or mislabelled (listed in the "
+                   "output, its JSON and the report); without it such a position is an error.")
+@scheduler_options("Evaluate the runs on Dask: 'threads', 'processes' or a scheduler address tcp://host:port "
                    "(default with several runs: threads; needs the dask extra).")
 def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
-                 reject, u_temperature, u_map, u_model, report_dir, as_json, scheduler) -> None:
+                 reject, u_temperature, u_map, u_model, report_dir, as_json, skip_incomplete, scheduler,
+                 scheduler_timeout) -> None:
     """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated.
 
     With several runs (a fleet, or a day's runs), each is evaluated on the
@@ -598,16 +655,22 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
                     raise click.UsageError(f"{flag} takes one run: the table across runs has no uncertainties "
                                            "(evaluate each run on its own for them)")
             return _evaluate_fleet(run_dir, machine, maps, scheduler or "threads", report_dir, as_json,
+                                   scheduler_timeout=scheduler_timeout,
                                    temperature=temperature, reject=reject, out_of_range=out_of_range,
                                    temperature_tolerance=temperature_tolerance, log_hold=log_hold,
-                                   expansion=expansion * 1e-6)
+                                   expansion=expansion * 1e-6, skip_incomplete=skip_incomplete)
         run_dir = run_dir[0]
         run = Run.load(run_dir)
         model = _maps_for_run(run, maps, machine)
+        if "definition" in run.artefact:  # an artefact run (cmmpose simulate --artefact): cli_artefact
+            return evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json,
+                                         {"out_of_range": out_of_range, "temperature_tolerance": temperature_tolerance,
+                                          "log_hold": log_hold})
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", MapTemperatureWarning)
             ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
-                          temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion=expansion * 1e-6)
+                          temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion=expansion * 1e-6,
+                          skip_incomplete=skip_incomplete)
         for w in caught:
             console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
         unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
@@ -615,12 +678,12 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         files = write_report(ev, Path(report_dir), model) if report_dir else []
         if report_dir:
             files += [Path(report_dir) / "uncertainty.json", Path(report_dir) / "uncertainty.md"]
-            files[-2].write_text(unc.to_json(indent=2))
-            files[-1].write_text(unc.to_markdown())
+            write_text(files[-2], unc.to_json(indent=2))
+            write_text(files[-1], unc.to_markdown())
     except Error as exc:
         raise fail(exc) from None
     if as_json:
-        click.echo(json.dumps({**ev.to_dict(), "uncertainty": unc.to_dict()}, indent=2))
+        click.echo(strict_json({**ev.to_dict(), "uncertainty": unc.to_dict()}, indent=2))
     else:
         Console().print(ev)
         Console(width=max(Console().width, 130)).print(unc)
@@ -639,10 +702,12 @@ def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, t
         u_map_ppm=u_map, u_model_ppm=u_model)
 
 
-def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **options) -> None:
+def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, scheduler_timeout,
+                    **options) -> None:
     """`evaluate RUN...`: every run on a Dask scheduler (cmmpose.scale), then one table across them."""
     import logging
 
+    from .evaluation import skipped_note
     from .scale import evaluate_runs, fleet_summary
 
     logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
@@ -655,21 +720,20 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
     with Progress(TextColumn("evaluating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} runs"),
                   console=console) as bar:
         task = bar.add_task("", total=len(run_dirs))
-        evaluations = evaluate_runs(run_dirs, model, scheduler=scheduler,
+        evaluations = evaluate_runs(run_dirs, model, scheduler=scheduler, scheduler_timeout=scheduler_timeout,
                                     progress=lambda done, total: bar.update(task, completed=done), **options)
     rows = fleet_summary(run_dirs, evaluations)
     files = []
     if report_dir:
         from .plots import plot_fleet_trend
 
-        directory = Path(report_dir)
-        directory.mkdir(parents=True, exist_ok=True)
+        directory = ensure_folder(report_dir)
         for r, ev in zip(run_dirs, evaluations):
             files += write_report(ev, directory / Path(r).name, model if not isinstance(model, str) else None)
         summary = directory / "summary.csv"
         fields = list(rows[0].__dataclass_fields__)
-        summary.write_text("\n".join([",".join(fields)] + [",".join(str(getattr(row, f)) for f in fields)
-                                                            for row in rows]) + "\n")
+        write_text(summary, "\n".join([",".join(fields)] + [",".join(str(getattr(row, f)) for f in fields)
+                                                             for row in rows]) + "\n")
         files.append(summary)
         try:
             plot_fleet_trend(rows, directory / "trend.png")
@@ -677,8 +741,9 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
         except (ImportError, InputError) as exc:  # the table is still printed
             console.print(f"[yellow]no trend plot:[/] {escape(str(exc))}")
     if as_json:
-        click.echo(json.dumps([{k: (None if isinstance(v, float) and v != v else v) for k, v in row.__dict__.items()}
-                               for row in rows], indent=2))  # NaN (no value) as null: strict JSON
+        click.echo(strict_json([{**{k: (None if isinstance(v, float) and v != v else v) for k, v in row.__dict__.items()},
+                                "skipped": ev.skipped} for row, ev in zip(rows, evaluations)],
+                               indent=2))  # NaN (no value) as null: strict JSON
     else:
         table = Table(title=f"cmmpose evaluate: {len(rows)} runs on {scheduler}")
         table.add_column("run")
@@ -693,6 +758,9 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
                           um(row.rms_uncompensated), um(row.b89_uncompensated), um(row.rms_compensated),
                           um(row.b89_compensated))
         Console(width=max(120, Console().width)).print(table)
+        for row, ev in zip(rows, evaluations):
+            if ev.skipped:
+                console.print(f"[yellow]{escape(row.run)}:[/] {escape(skipped_note(ev.skipped))}")
     for f in files:
         console.print(f"wrote {f}")
 
@@ -700,7 +768,7 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
 @main.command("diagnose")
 @click.argument("run_dirs", metavar="RUN_DIR...", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
 @machine_option
-@click.option("--maps", "maps", multiple=True,
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="Model maps ('thesis' or files); default: the machine's, or as run.json says.")
 @click.option("--model", "model_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Start from a model saved by an earlier diagnosis (its maps and effects).")
@@ -720,13 +788,12 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, **o
               help="With several runs: one model for all (shared effect parameters, per-run noise levels; the same "
                    "artefact: one bar length), instead of one diagnosis per run.")
 @click.option("--separate-artefacts", is_flag=True, help="With --joint: each run measured its own artefact.")
-@click.option("--scheduler", default=None,
-              help="With several runs: where each run's diagnosis runs (threads, processes or tcp://host:port; "
+@scheduler_options("With several runs: where each run's diagnosis runs (threads, processes or tcp://host:port; "
                    "the [dask] extra; docs/scale-out.md).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
 def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
                  add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, joint, separate_artefacts,
-                 scheduler, as_json) -> None:
+                 scheduler, scheduler_timeout, as_json) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall.
     Several RUN_DIRs are diagnosed one by one on a Dask scheduler, with one table across them."""
     from .diagnosis import diagnose
@@ -748,11 +815,14 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
             if given:
                 raise click.UsageError(f"{flag} takes one run: diagnose the run of interest on its own")
         return _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler or "threads", as_json,
+                               scheduler_timeout=scheduler_timeout,
                                temperature=temperature, out_of_range=out_of_range,
                                temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
                                auto=not no_auto, max_effects=max_effects)
     run_dir = run_dirs[0]
     try:
+        check_outputs({"--save-model": model_out, "--report": report_file, "--user-effect-skeleton": skeleton_out},
+                      run_dirs, [model_file, machine_file, *user_files])
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
         user = [_load_user_effect(f) for f in user_files]
@@ -768,7 +838,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
             from .diagnosis.unexplained import user_effect_skeleton
 
             if diag.unexplained:
-                Path(skeleton_out).write_text(user_effect_skeleton(diag.unexplained[0]), encoding="utf-8")
+                write_text(skeleton_out, user_effect_skeleton(diag.unexplained[0]))
                 files.append(skeleton_out)
             else:
                 console.print("no unexplained structure: no user-effect draft written")
@@ -815,6 +885,8 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
     from .run import Run
 
     try:
+        check_outputs({"--save-model": model_out, "--report": report_file}, run_dirs,
+                      [model_file, machine_file, *user_files])
         machine = load_machine(machine_file)
         runs = [Run.load(r) for r in run_dirs]
         user = [_load_user_effect(f) for f in user_files]
@@ -835,8 +907,8 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
     _print_diagnosis(diag, files, as_json)
 
 
-def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json, *, temperature, out_of_range,
-                    temperature_tolerance, log_hold, **options) -> None:
+def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json, *, scheduler_timeout, temperature,
+                    out_of_range, temperature_tolerance, log_hold, **options) -> None:
     """`diagnose RUN...`: each run's diagnosis on a Dask scheduler (cmmpose.scale), one table across them."""
     from .diagnosis import Model
     from .machine import load_machine
@@ -854,7 +926,7 @@ def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json
         with Progress(TextColumn("diagnosing"), BarColumn(), TextColumn("{task.completed}/{task.total} runs"),
                       console=console) as bar:
             task = bar.add_task("", total=len(run_dirs))
-            diags = diagnose_runs(run_dirs, model, scheduler=scheduler,
+            diags = diagnose_runs(run_dirs, model, scheduler=scheduler, scheduler_timeout=scheduler_timeout,
                                   progress=lambda done, total: bar.update(task, completed=done, total=total),
                                   temperature=temperature, out_of_range=out_of_range,
                                   temperature_tolerance=temperature_tolerance, log_hold=log_hold,
@@ -862,7 +934,7 @@ def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json
     except Error as exc:
         raise fail(exc) from None
     if as_json:
-        click.echo(json.dumps({str(r): json.loads(d.to_json()) for r, d in zip(run_dirs, diags)}, indent=1))
+        click.echo(strict_json({str(r): json.loads(d.to_json()) for r, d in zip(run_dirs, diags)}, indent=1))
         return
     table = Table(title=f"diagnosis of {len(run_dirs)} runs ({scheduler})")
     for col in ("run", "added (final values ± u)", "rms before (um)", "rms after (um)", "unexplained"):
@@ -881,10 +953,20 @@ def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json
 @click.option("--state", default=None, help="Rows of this state only (a 'state' column, e.g. compensated).")
 @click.option("--nominal-radius", type=float, default=None, help="Calibrated ball radius, mm.")
 @click.option("--reference-length", type=float, default=None, help="Calibrated bar length, mm (default: the mean).")
+@click.option("--artefact", "artefact_spec", default=None, metavar="FILE|NAME",
+              help="FITS holds measured centres of this artefact (ball plate, step gauge): columns placement, ball, "
+                   "x_mm, y_mm, z_mm, radius_mm (docs/artefacts.md).")
+@click.option("--temperature", type=float, default=None,
+              help="With --artefact: the artefact's temperature while measured, C (default 20).")
 @click.option("--json", "as_json", is_flag=True)
-def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, as_json) -> None:
+def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, artefact_spec, temperature,
+                      as_json) -> None:
     """Diagnose a ballbar run from its sphere fits alone (centres, radii, points, fit rms per ball): FITS is a
-    CSV (docs/appendix-c.md) or 'appendix-c' (thesis Appendix C, 20 C, nominal radius 38.125 mm)."""
+    CSV (docs/appendix-c.md) or 'appendix-c' (thesis Appendix C, 20 C, nominal radius 38.125 mm). With
+    --artefact, FITS holds the measured ball centres of a ball plate or step gauge at its placements."""
+    if artefact_spec is not None or temperature is not None:
+        return diagnose_plate_fits_cli(fits_file, artefact_spec, state, temperature, nominal_radius,
+                                       reference_length, as_json)
     from .diagnosis.spheres import NOMINAL_RADIUS_MM, appendix_c_sphere_fits, diagnose_sphere_fits, read_sphere_fits
 
     try:
@@ -901,7 +983,7 @@ def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, as_jso
     except Error as exc:
         raise fail(exc) from None
     if as_json:
-        click.echo(json.dumps(d.to_dict(), indent=1))
+        click.echo(strict_json(d.to_dict(), indent=1))
         return
     table = Table(title=f"sphere fits of {fits_file}" + (f" ({state})" if state else ""), show_header=False)
     table.add_row("positions", str(len(d.lengths)))
@@ -1016,8 +1098,8 @@ def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, machine_
             if not (scanner or thermo):
                 raise click.UsageError("give --scanner, --thermo or both")
             machine = load_machine(machine_file)
-            pose_t = triple(pose, "--pose") if pose else machine.pose.as_tuple()
-            offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
+            pose_t = pose_angles(pose, "--pose") if pose is not None else machine.pose.as_tuple()
+            offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
             run = record_live(run_dir, scanner, thermo, duration=duration, console=console, show=not no_display,
                               plan=_plan_for(plan, machine, machine_file), pose=pose_t, offset=offset_t, tc_type=tc_type,
                               thermo_interval=thermo_interval, flush_interval=flush_interval,
@@ -1057,6 +1139,7 @@ def plot_map_cmd(maps, out, machine_file) -> None:
     try:
         if not maps and machine_file is None:
             raise click.UsageError("give MAPS or --machine")
+        check_not_input(out, [*maps, machine_file], "--output")
         plot_error_map(load_maps(tuple(maps), load_machine(machine_file) if machine_file else None), out)
     except Error as exc:
         raise fail(exc) from None
@@ -1085,7 +1168,7 @@ def calibrate() -> None:
 @click.option("--temperature", type=float, default=None,
               help="Machine temperature during the alignment, C (needed with a map set).")
 @machine_option
-@click.option("--maps", "maps", multiple=True,
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="Error maps the readings are compensated with ('thesis' or files); default: the machine's "
                    "when --machine is given, else none (then the squareness shear biases alpha: a warning says so).")
 @click.option("--vernier-uncertainty", type=float, default=None,
@@ -1115,7 +1198,8 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
             if machine_file is None or machine.alignments is None:
                 raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
             library_file = machine.alignments
-        offset_t = triple(offset, "--offset") if offset else tuple(machine.offset)
+        check_not_input(library_file, [vernier_file, *plane_files, ref_file, machine_file, *maps], "--library")
+        offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
         error_map = load_maps(maps, machine) if (maps or machine_file) else None
         if error_map is None:
             console.print("[yellow]warning:[/] no error map: the readings are taken as positions, and the "
@@ -1140,7 +1224,7 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
     except Error as exc:
         raise fail(exc) from None
     if as_json:
-        click.echo(json.dumps({"name": name, "library": str(library_file), **record.to_dict()}, indent=2))
+        click.echo(strict_json({"name": name, "library": str(library_file), **record.to_dict()}, indent=2))
         return
     table = Table(title=f"alignment {name!r} -> {library_file}", show_header=False)
     table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in record.pose))
@@ -1182,7 +1266,7 @@ def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) 
     except Error as exc:
         raise fail(exc) from None
     if as_json:
-        click.echo(json.dumps({
+        click.echo(strict_json({
             "poses": list(names), "units": {"offset": "mm", "centre": "mm", "residuals": "mm"},
             "offset": [float(v) for v in fit.offset], "covariance": np.asarray(fit.covariance).tolist(),
             "uncertainty": [float(v) for v in fit.uncertainty], "centre": [float(v) for v in fit.centre],
@@ -1222,6 +1306,8 @@ def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out
 
     sq = triple(squareness, "--squareness")
     try:
+        for given, flag in ((out, "--output"), (plot_path, "--plot")):
+            check_not_input(given, [*run_files, machine_file, compare_to], flag)
         runs = [read_run(f) for f in run_files]
         built = build_map(runs, sq, temperature, air_correction=not no_air_correction)
         notes = list(built.notes) + (travel_notes(load_machine(machine_file), built.map) if machine_file else [])
@@ -1263,8 +1349,7 @@ def machine_example_cmd(name, out, overwrite) -> None:
     if path.exists() and not overwrite:
         raise click.ClickException(f"{path}: exists (give --overwrite to replace it)")
     try:
-        check_writable(path)
-        path.write_text(example_text(name), encoding="utf-8")
+        write_text(path, example_text(name))  # atomic: a full disk leaves the earlier file whole
     except Error as exc:
         raise fail(exc) from None
     console.print(f"wrote {path}: the {name} example (cmmpose machine show {path})")
@@ -1398,6 +1483,8 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
     from .machine import load_machine
 
     try:
+        read = files if fmt == "iso230-2" else [f.partition("=")[2] for f in files]
+        check_not_input(out, [*read, base, machine_file], "--output")
         base_map = None if base is None else _map_spec(base, "--base")
         with _ConsoleLog():
             if fmt == "iso230-2":
@@ -1461,13 +1548,16 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temp
                 if temperature is None:
                     raise click.UsageError("the machine's maps are a set: give --temperature (C)")
                 source = source.at(temperature)
+        inputs = [map_spec, machine_file]
         if fmt == "linuxcnc":
-            folder = Path(out)
-            folder.mkdir(parents=True, exist_ok=True)
+            folder = ensure_folder(out)
             files = {a: folder / f"{a.lower()}.comp" for a in ("X", "Y", "Z")}
+            for f in files.values():
+                check_not_input(f, inputs, "--output")
             write_comp_files(source, files, comp_file_type=int(comp_file_type), units=units)
             written = ", ".join(str(p) for p in files.values())
         else:
+            check_not_input(out, inputs, "--output")
             source.write(out, format=fmt)
             written = out
     except Error as exc:
@@ -1482,6 +1572,7 @@ main.add_command(acceptance_cmd)
 main.add_command(acceptance_sphere_cmd)
 main.add_command(interim_cmd)
 main.add_command(e3125_distances_cmd)
+main.add_command(artefact_group)
 
 
 if __name__ == "__main__":

@@ -5,13 +5,15 @@ scale from one ballbar run). ``cmmpose.cli`` adds them to its group."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
 from rich.console import Console
 
+from ._json import dumps as strict_json
+from .atomicfile import check_not_input, ensure_folder, write_text
 from .errors import Error
+from .machine import check_map_specs
 from .pointclouds import UNITS
 from .policy import cli_wording
 
@@ -21,21 +23,36 @@ console = Console(stderr=True)
 
 
 def _fail(exc: Exception) -> click.ClickException:
-    return click.ClickException(cli_wording(str(exc)))
+    return click.ClickException(cli_wording(str(exc), click.get_current_context(silent=True)))
+
+
+def map_specs(ctx, param, value):
+    """The ``--maps`` callback of every command (here, as cmmpose.cli imports
+    this module): an empty value (``--maps ""``) is a usage error, not the
+    current folder."""
+    try:
+        return check_map_specs(value)
+    except Error as exc:
+        raise click.BadParameter(str(exc).removeprefix("maps: "), param_hint="--maps") from None
 
 
 def _show(result, files, as_json: bool) -> None:
     """The result as JSON or as its rich table, then the files written."""
     if as_json:
-        click.echo(json.dumps(result.to_dict(), indent=2))
+        click.echo(strict_json(result.to_dict(), indent=2))
     else:
         Console(width=max(Console().width, 120)).print(result)
     for f in files:
         console.print(f"wrote {f}")
 
 
-def _outputs(result, stem: str, plot, plot_path, report_dir) -> list[Path]:
-    """The plot at ``plot_path`` and the report in ``report_dir``, as asked; the files written."""
+def _outputs(result, stem: str, plot, plot_path, report_dir, inputs=()) -> list[Path]:
+    """The plot at ``plot_path`` and the report in ``report_dir``, as asked; the files written.
+    ``InputError`` first if one of them is one of the ``inputs`` (any spelling or link)."""
+    check_not_input(plot_path, inputs, "--plot")
+    if report_dir:
+        for suffix in (".json", ".md", ".png"):
+            check_not_input(Path(report_dir) / f"{stem}{suffix}", inputs, "--report")
     files = []
     try:
         if plot_path:
@@ -48,14 +65,25 @@ def _outputs(result, stem: str, plot, plot_path, report_dir) -> list[Path]:
     return files
 
 
+#: Exit status of a conformance decision (``acceptance``, ``acceptance-sphere``): only a proven pass is 0.
+DECISION_EXIT = {"pass": 0, "not proven": 1, "fail": 1}
+
+
+def _exit_with_decision(result) -> None:
+    """Exit 0 on a pass, 1 on a fail or a conformance not proven (stated on stderr), so a script can gate on it."""
+    code = DECISION_EXIT[result.decision]
+    if code:
+        console.print(f"decision: {result.decision} (exit status {code})")
+        raise click.exceptions.Exit(code)
+
+
 def _write_report(result, directory, stem: str, plot=None) -> list[Path]:
     """``<stem>.json``, ``<stem>.md`` (a report section) and, given ``plot``
     (a callable taking the path) and matplotlib, ``<stem>.png`` in ``directory``."""
-    folder = Path(directory)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = ensure_folder(directory)
     files = [folder / f"{stem}.json", folder / f"{stem}.md"]
-    files[0].write_text(json.dumps(result.to_dict(), indent=2))
-    files[1].write_text(result.to_markdown())
+    write_text(files[0], strict_json(result.to_dict(), indent=2))
+    write_text(files[1], result.to_markdown())
     if plot is not None:
         try:
             import matplotlib  # noqa: F401
@@ -93,7 +121,7 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
         if test_uncertainty is not None:
             u, note = test_uncertainty, "given (--test-uncertainty)"
         result = evaluate_iso230_2(data, test_uncertainty_um=u, test_uncertainty_note=note)
-        files = _outputs(result, "iso230-2", lambda p: result.plot(p, data), plot_path, report_dir)
+        files = _outputs(result, "iso230-2", lambda p: result.plot(p, data), plot_path, report_dir, [data_file])
     except Error as exc:
         raise _fail(exc) from None
     _show(result, files, as_json)
@@ -106,7 +134,7 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
 @click.option("--mpe-length", required=True, help="MPE of the length measurement error, um: A or A+L/K, L in mm (e.g. 8+L/300).")
 @click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
               help="Machine file (kinematics, maps, artefact expansion); default the thesis machine.")
-@click.option("--maps", "maps", multiple=True,
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="Compensation maps ('thesis', files, or 'none' to test the uncompensated points); default: the "
                    "machine's, or as run.json says.")
 @click.option("--temperature", type=float, default=None, help="Machine and part temperature, C (default: the run's log).")
@@ -123,11 +151,18 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write acceptance.json, acceptance.md (a report section) and acceptance.png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+@click.option("--skip-incomplete", is_flag=True,
+              help="Leave out positions whose ball scans are missing, duplicated or mislabelled (listed in the "
+                   "output, its JSON and the report); without it such a position is an error.")
 def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, temperature, calibrated_length,
                    calibrated_radius, expansion, u_length_cert, u_diameter_cert, u_form_cert, u_expansion, u_part_temperature,
-                   plot_path, report_dir, as_json) -> None:
+                   plot_path, report_dir, as_json, skip_incomplete) -> None:
     """Probing form and size errors and length measurement errors of RUN (in the manner of ISO 10360-8),
-    each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven."""
+    each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven.
+
+    Exit status: 0 when the decision is pass; 1 when it is fail or not
+    proven (conformance not shown), or on an error; 2 on a usage error.
+    """
     from .cli import _maps_for_run
     from .machine import load_machine
     from .run import Run
@@ -143,18 +178,20 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
             u_length_certificate_um=u_length_cert, u_diameter_certificate_um=u_diameter_cert,
             u_form_certificate_um=u_form_cert,
             expansion=machine.artefact_expansion if expansion is None else expansion * 1e-6,
-            u_expansion_ppm_per_K=u_expansion, u_part_temperature_K=u_part_temperature)
+            u_expansion_ppm_per_K=u_expansion, u_part_temperature_K=u_part_temperature,
+            skip_incomplete=skip_incomplete)
         files = _outputs(result, "acceptance", result.plot, plot_path, report_dir)
     except Error as exc:
         raise _fail(exc) from None
     _show(result, files, as_json)
+    _exit_with_decision(result)
 
 
 @click.command("interim-check")
 @click.argument("run_dir", metavar="RUN", type=click.Path(exists=True, file_okay=False))
 @click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
               help="Machine file (kinematics, maps, artefact expansion); default the thesis machine.")
-@click.option("--maps", "maps", multiple=True,
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="Compensation maps: the check is of what they leave ('none': of the raw machine); default: the "
                    "machine's, or as run.json says.")
 @click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's log).")
@@ -165,8 +202,11 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write interim-check.json and interim-check.md (a report section) here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+@click.option("--skip-incomplete", is_flag=True,
+              help="Leave out positions whose ball scans are missing, duplicated or mislabelled (listed in the "
+                   "output, its JSON and the report); without it such a position is an error.")
 def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_length_cert, u_temperature,
-                report_dir, as_json) -> None:
+                report_dir, as_json, skip_incomplete) -> None:
     """Interim check of RUN, in the manner of the ballbar and gauge products: three scale and three
     squareness values with their uncertainties (k = 2). Next to it, 'cmmpose diagnose' gives the full diagnosis."""
     from .cli import _maps_for_run
@@ -180,14 +220,14 @@ def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_l
         model = _maps_for_run(run, maps, machine)
         result = interim_check(run, model, temperature, calibrated_length_mm=calibrated_length,
                                u_length_certificate_um=u_length_cert, expansion=machine.artefact_expansion,
-                               u_temperature_K=u_temperature)
+                               u_temperature_K=u_temperature, skip_incomplete=skip_incomplete)
         files = _write_report(result, report_dir, "interim-check") if report_dir else []
     except Error as exc:
         raise _fail(exc) from None
     except OSError as exc:
         raise click.ClickException(f"{exc.filename}: {exc.strerror or exc}") from None
     if as_json:
-        click.echo(json.dumps(result.to_dict(), indent=2))
+        click.echo(strict_json(result.to_dict(), indent=2))
     else:
         Console(width=max(Console().width, 100)).print(result)
     for f in files:
@@ -211,7 +251,11 @@ def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_l
 def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scanner_origin, u_form_cert, u_diameter_cert,
                           as_json) -> None:
     """Probing form and size errors of one scan of a calibrated sphere (a point cloud: CSV, NPY, Parquet, PLY,
-    XYZ, PTS, E57), each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven."""
+    XYZ, PTS, E57), each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven.
+
+    Exit status: 0 when the decision is pass; 1 when it is fail or not
+    proven (conformance not shown), or on an error; 2 on a usage error.
+    """
     from .cli import triple
     from .fitting import e3125
     from .pointclouds import read_point_cloud, unit_factor
@@ -229,9 +273,10 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
     except Error as exc:
         raise _fail(exc) from None
     if as_json:
-        click.echo(json.dumps(result.to_dict(), indent=2))
+        click.echo(strict_json(result.to_dict(), indent=2))
     else:
         Console(width=max(Console().width, 120)).print(result)
+    _exit_with_decision(result)
 
 
 @click.command("e3125-distances")
@@ -278,7 +323,8 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
         scale = unit_factor(next(iter(named.values())), units)  # --scanner-origin is in the scans' units
         targets = sphere_targets(clouds, radius, tuple(v * scale for v in origin))
         result = distance_errors(targets, read_pairs(pairs_file), mpe)
-        files = _outputs(result, "e3125-distances", result.plot, plot_path, report_dir)
+        files = _outputs(result, "e3125-distances", result.plot, plot_path, report_dir,
+                         [*named.values(), pairs_file])
     except Error as exc:
         raise _fail(exc) from None
     _show(result, files, as_json)

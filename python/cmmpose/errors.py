@@ -11,6 +11,9 @@ them; every message names the file, line, row or argument at fault.
 - ``AcquisitionError``: serial acquisition: a port, journal or run directory at fault.
 - ``SchedulerError``: scaling out (cmmpose.scale): the dask extra missing, a bad
   scheduler spec, a scheduler that cannot be reached.
+- ``OutputError``: an output that cannot be written (a full disk, a read-only
+  file system, no permission); the earlier file is left whole
+  (cmmpose.atomicfile).
 """
 
 import logging
@@ -18,7 +21,7 @@ import warnings
 
 from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "SchedulerError", "ClampWarning", "ExtrapolationWarning", "IllConditionedFit", "MapTemperatureWarning", "warn_clamped", "read_lines"]
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "SchedulerError", "OutputError", "ClampWarning", "ExtrapolationWarning", "IllConditionedFit", "MapTemperatureWarning", "warn_clamped", "read_lines"]
 
 _log = logging.getLogger("cmmpose")
 
@@ -102,3 +105,10 @@ class SchedulerError(Error):
     (``pip install 'cmmpose[dask]'``), the scheduler spec is not one of
     'threads', 'processes' or an address, or the scheduler at the address
     cannot be reached. The message names the spec or the address."""
+
+
+class OutputError(Error):
+    """An output cannot be written: no space left, a read-only file system,
+    no permission, a FIFO nobody reads. The message names the file and the
+    reason; the earlier file at that name is unchanged and no temporary file
+    is left (:mod:`cmmpose.atomicfile`)."""

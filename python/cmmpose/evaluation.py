@@ -4,20 +4,24 @@ uncompensated and compensated."""
 
 from __future__ import annotations
 
-import json
+import logging
 import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
 import numpy as np
 
+from ._json import dumps as strict_json
 from .compensation import compensate, uncompensated, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import InputError, MapTemperatureWarning
+from .errors import InputError, MapTemperatureWarning, RunError
 from .fitting import fit_spheres
 from .metrics import STEEL_EXPANSION, b89_value, improvement, length_at_20c, rms_accuracy_error
-from .policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_log_coverage, check_policy
+from .policy import LOG_HOLD, SKIP_INCOMPLETE_HINT, TEMPERATURE_TOLERANCE, check_log_coverage, check_policy
 from .run import Run
+
+_log = logging.getLogger("cmmpose.evaluation")
+
 
 @dataclass(frozen=True)
 class SphereResult:
@@ -126,6 +130,11 @@ class Evaluation:
         return tuple(r for r in (self.uncompensated, self.compensated) if r is not None)
 
     @property
+    def skipped(self) -> list[dict]:
+        """Positions and scans left out as incomplete or ambiguous (``evaluate(..., skip_incomplete=True)``)."""
+        return list(self.provenance.get("skipped", []))
+
+    @property
     def improvement_rms(self) -> float | None:
         """1 - compensated / uncompensated rms accuracy error."""
         c = self.compensated
@@ -148,7 +157,7 @@ class Evaluation:
         }
 
     def to_json(self, **kw) -> str:
-        return json.dumps(self.to_dict(), **kw)
+        return strict_json(self.to_dict(), **kw)
 
     def to_pandas(self):
         """One row per (result, position); pandas is needed only here."""
@@ -204,16 +213,94 @@ def machine_temperature(run: Run, t, log_hold: float = LOG_HOLD) -> np.ndarray:
     open-circuit and implausible channels are left out
     (``cmmpose.calibration.temperatures_at``). Points up to ``log_hold`` s
     outside the log take its nearest reading (cmmpose.policy)."""
+    return machine_temperature_and_log(run, t, log_hold)[0]
+
+
+def machine_temperature_and_log(run: Run, t, log_hold: float = LOG_HOLD) -> tuple[np.ndarray, dict]:
+    """:func:`machine_temperature` and what was done to the log to get it,
+    for the provenance (:func:`log_provenance`).
+
+    Returns
+    -------
+    temperatures : ndarray
+        Degrees C, the shape of ``t``.
+    log : dict
+        ``channels_used``; ``channels_dropped``: each policy channel with
+        unclean samples (``channel``, ``samples_dropped`` of ``samples``,
+        ``problems``, ``action``: left out entirely or where unclean);
+        ``held``: the points outside the log (``points``, ``before_log_s``,
+        ``after_log_s``: how far the farthest lies before its first or after
+        its last sample, ``action``), or None.
+    """
     from .calibration.thermal import temperatures_at
 
     if run.temperatures is None:
         raise InputError("run has no temperature log: pass temperature= explicitly")
     check_log_coverage(run, t, log_hold)
     # Points of a profile share a time stamp: interpolate the log once per time.
-    ut, inv = np.unique(np.asarray(t, dtype=float), return_inverse=True)
-    temps, _ = temperatures_at(ut, run.temperatures, run.temperature_channels, policy="machine_mean",
-                               out_of_range="hold")
-    return temps[inv].reshape(np.shape(t))
+    t = np.asarray(t, dtype=float)
+    ut, inv = np.unique(t, return_inverse=True)
+    temps, summary = temperatures_at(ut, run.temperatures, run.temperature_channels, policy="machine_mean",
+                                     out_of_range="hold")
+    return temps[inv].reshape(np.shape(t)), log_provenance(summary, t, np.asarray(run.temperatures["t"], float))
+
+
+def log_provenance(summary, t, log_t) -> dict:
+    """The provenance of temperatures taken from a thermocouple log: which
+    channels were used, which dropped (and why, and how much), and which
+    points were outside the log and held at its end readings (and how far).
+
+    Parameters
+    ----------
+    summary : cmmpose.calibration.ThermalSummary
+        From ``temperatures_at``.
+    t : ndarray
+        The points' time stamps, s.
+    log_t : ndarray
+        The log's sample times, s.
+
+    Returns
+    -------
+    dict
+        As :func:`machine_temperature_and_log` describes; JSON-ready.
+    """
+    report = summary.report
+    dropped = []
+    for channel in summary.channels:
+        n = int(summary.dropped_by_channel.get(channel, 0))
+        if not n and channel not in summary.channels_excluded:
+            continue
+        entirely = channel in summary.channels_excluded
+        dropped.append({
+            "channel": channel, "samples_dropped": n, "samples": int(report.samples),
+            "problems": [str(p) for p in report.problems_of(channel)],
+            "action": ("left out of the machine temperature entirely" if entirely else
+                       f"left out where unclean ({n} of {report.samples} samples); the other channels averaged there"),
+        })
+    held = None
+    t = np.asarray(t, dtype=float).ravel()
+    if len(t) and len(log_t):
+        before, after = t < log_t.min(), t > log_t.max()
+        if before.any() or after.any():
+            held = {"points": int(before.sum() + after.sum()),
+                    "before_log_s": round(float(log_t.min() - t.min()), 3) if before.any() else 0.0,
+                    "after_log_s": round(float(t.max() - log_t.max()), 3) if after.any() else 0.0,
+                    "action": "held at the log's first or last reading"}
+    return {"channels_used": list(summary.channels_used), "channels_dropped": dropped, "held": held}
+
+
+def log_notes(log: dict) -> list[str]:
+    """One line per dropped channel and for held points, for an evaluation's notes."""
+    notes = [f"thermocouple {d['channel']}: {d['action']} ({'; '.join(d['problems']) or 'unclean samples'})"
+             for d in log.get("channels_dropped", [])]
+    held = log.get("held")
+    if held:
+        span = " and ".join(f"{held[k]:g} s {side}" for k, side in (("before_log_s", "before its first sample"),
+                                                                    ("after_log_s", "after its last sample"))
+                            if held[k])
+        notes.append(f"the temperature log does not cover {held['points']} points (up to {span}): "
+                     "they took its nearest reading (held)")
+    return notes
 
 
 def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise",
@@ -240,25 +327,114 @@ def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise
     return out
 
 
-def _ballbar(run: Run, xyz: np.ndarray, label: str, temps: np.ndarray, nominal_radius, reject, expansion) -> BallbarResult:
-    fits = fit_spheres(xyz, run.points["scan_id"], reject=reject)
+def ballbar_scans(run: Run, skip_incomplete: bool = False) -> tuple[dict[int, dict[int, int]], list[dict]]:
+    """The scans of each complete ballbar position of ``run``, and what was skipped.
+
+    A scan with ``position`` -1 and ``ball`` -1 is not a ballbar scan (a
+    reference sphere, an unknown feature) and is left out silently. Every
+    other scan must be ball 1 or 2 of a position >= 0, with points, and each
+    position needs exactly one scan of each ball. A position with a ball
+    missing, duplicated or mislabelled (``ball`` 3, or its scan moved to
+    ``position`` -1), or a scan without points, is incomplete or ambiguous.
+
+    Parameters
+    ----------
+    run : Run
+        The run.
+    skip_incomplete : bool
+        False (default): an incomplete or ambiguous position raises
+        ``RunError`` naming the position, ball and scan. True: it is
+        skipped and listed.
+
+    Returns
+    -------
+    positions : dict
+        ``{position: {1: scan_id, 2: scan_id}}`` of the complete positions.
+    skipped : list of dict
+        One per skipped position or stray scan: ``position`` (None for a
+        scan that names none), ``scan_ids`` and ``reason``.
+
+    Raises
+    ------
+    RunError
+        Without ``skip_incomplete``: every incomplete or ambiguous position
+        (up to 10 listed) and how to skip them.
+    """
     scans = run.scans
-    by_pos: dict[int, dict[int, SphereResult]] = {}
-    point_t = {}
-    sid = run.points["scan_id"]
+    with_points = set(np.unique(run.points["scan_id"]).tolist())
+    by_pos: dict[int, dict[int, list[int]]] = {}
+    problems: dict = {}  # position (or ('scan', id)) -> reasons
     for scan_id, pos, ball in zip(scans["scan_id"].tolist(), scans["position"].tolist(), scans["ball"].tolist()):
-        if pos < 0 or ball not in (1, 2):
+        if pos == -1 and ball == -1:
             continue
-        if scan_id not in fits:
-            raise InputError(f"scan {scan_id} (position {pos}, ball {ball}) has no points")
-        f = fits[scan_id]
-        ps = f.radius - nominal_radius if nominal_radius is not None else float("nan")
-        by_pos.setdefault(pos, {})[ball] = SphereResult(pos, ball, scan_id, f.centre, f.radius, f.rms, f.form,
-                                                        f.n_points, f.rejected, f.form, ps)
-        point_t.setdefault(pos, []).append(scan_id)
-    complete = sorted(p for p, balls in by_pos.items() if set(balls) == {1, 2})
+        if pos < 0:
+            problems.setdefault(("scan", scan_id), []).append(
+                f"scan {scan_id} (position {pos}, ball {ball}) names no position (expected a position >= 0 with "
+                f"ball 1 or 2, or position -1 and ball -1 for a scan that is no ballbar ball)")
+            continue
+        if ball not in (1, 2):
+            problems.setdefault(pos, []).append(f"position {pos}: scan {scan_id} has ball {ball} (expected 1 or 2)")
+            continue
+        if scan_id not in with_points:
+            problems.setdefault(pos, []).append(f"position {pos} ball {ball}: scan {scan_id} has no points")
+            continue
+        by_pos.setdefault(pos, {}).setdefault(ball, []).append(scan_id)
+    for pos in sorted(set(by_pos) | {p for p in problems if not isinstance(p, tuple)}):
+        balls = by_pos.get(pos, {})
+        for b in (1, 2):
+            ids = balls.get(b, [])
+            if len(ids) > 1:
+                problems.setdefault(pos, []).append(f"position {pos} ball {b}: scans {', '.join(map(str, ids))} "
+                                                    f"(duplicated: which one is the ball is ambiguous)")
+            elif not ids:
+                other = balls.get(3 - b, [])
+                has = f" (ball {3 - b} is scan {', '.join(map(str, other))})" if other else ""
+                problems.setdefault(pos, []).append(f"position {pos} ball {b}: no scan{has}")
+    complete = {p: {b: ids[0] for b, ids in balls.items()} for p, balls in by_pos.items() if p not in problems}
+    skipped = []
+    for key, reasons in sorted(problems.items(), key=lambda kv: (isinstance(kv[0], tuple), str(kv[0]))):
+        if isinstance(key, tuple):
+            skipped.append({"position": None, "scan_ids": [key[1]], "reason": "; ".join(reasons)})
+        else:
+            ids = sorted({int(s) for s in scans["scan_id"][scans["position"] == key].tolist()})
+            skipped.append({"position": int(key), "scan_ids": ids, "reason": "; ".join(reasons)})
+    if skipped and not skip_incomplete:
+        lines = [s["reason"] for s in skipped]
+        more = f"; and {len(lines) - 10} more" if len(lines) > 10 else ""
+        raise RunError(f"run: {len(lines)} incomplete or ambiguous ballbar position(s) or scan(s): "
+                       + "; ".join(lines[:10]) + more
+                       + f" (fix the scans' position and ball labels, or {SKIP_INCOMPLETE_HINT})")
+    for s in skipped:
+        _log.info("skipped %s: %s", "scan" if s["position"] is None else f"position {s['position']}", s["reason"])
+    return dict(sorted(complete.items())), skipped
+
+
+def skipped_note(skipped: list[dict]) -> str | None:
+    """One line naming the skipped positions and scans (None when nothing was skipped)."""
+    if not skipped:
+        return None
+    return "skipped (incomplete or ambiguous): " + "; ".join(s["reason"] for s in skipped)
+
+
+def _ballbar(run: Run, xyz: np.ndarray, label: str, temps: np.ndarray, nominal_radius, reject, expansion,
+             positions: dict[int, dict[int, int]]) -> BallbarResult:
+    """The lengths of the complete ``positions`` (:func:`ballbar_scans`) from the points ``xyz`` (mm)."""
+    complete = sorted(positions)
     if len(complete) < 2:
         raise InputError(f"run: needs at least 2 positions with both balls scanned, found {len(complete)}")
+    sid = run.points["scan_id"]
+    keep = np.isin(sid, [s for p in complete for s in positions[p].values()])
+    fits = fit_spheres(xyz[keep], sid[keep], reject=reject)  # only the positions' balls
+    by_pos: dict[int, dict[int, SphereResult]] = {}
+    point_t: dict[int, list[int]] = {}
+    for pos in complete:
+        for ball in (1, 2):
+            scan_id = positions[pos][ball]
+            f = fits[scan_id]
+            ps = f.radius - nominal_radius if nominal_radius is not None else float("nan")
+            by_pos.setdefault(pos, {})[ball] = SphereResult(pos, ball, scan_id, f.centre, f.radius, f.rms, f.form,
+                                                            f.n_points, f.rejected, f.form, ps)
+            point_t.setdefault(pos, []).append(scan_id)
     lengths = np.array([np.linalg.norm(by_pos[p][2].centre - by_pos[p][1].centre) for p in complete])
     pos_temps = np.array([float(np.mean(temps[np.isin(sid, point_t[p])])) if temps is not None else np.nan for p in complete])
     spheres = tuple(by_pos[p][b] for p in complete for b in (1, 2))
@@ -276,6 +452,7 @@ def evaluate(
     out_of_range: str = "raise",
     temperature_tolerance: float = TEMPERATURE_TOLERANCE,
     log_hold: float = LOG_HOLD,
+    skip_incomplete: bool = False,
 ) -> Evaluation:
     """Ballbar evaluation of ``run``: uncompensated, and compensated with ``maps``.
 
@@ -306,25 +483,48 @@ def evaluate(
     log_hold : float
         s: points this far outside the thermocouple log (a recovered run)
         take its nearest reading; farther raise.
+    skip_incomplete : bool
+        A position with a ball scan missing, duplicated or mislabelled
+        (:func:`ballbar_scans`) raises ``RunError`` naming it; True skips
+        such positions instead and lists them in ``provenance['skipped']``
+        and its notes.
 
     Returns
     -------
     Evaluation
+
+    Raises
+    ------
+    RunError
+        An incomplete or ambiguous position, without ``skip_incomplete``.
     """
     if not isinstance(run, Run):
         raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+    if run.artefact.get("kind", "ballbar") != "ballbar":  # its balls are not bars' ends (docs/artefacts.md)
+        raise InputError(f"run: measured a {run.artefact.get('kind')!r}, not a ballbar: evaluate it with "
+                         f"cmmpose.artefact_evaluation.evaluate_artefact (cmmpose evaluate does)")
     check_policy(out_of_range, temperature_tolerance, log_hold)
     if not (isinstance(expansion, (int, float)) and np.isfinite(expansion)):
         raise InputError(f"expansion: expected a finite coefficient in 1/K, got {expansion!r}")
     if nominal_radius is None:
         nominal_radius = run.artefact.get("ball_radius_mm")
-    temps = None
+    temps, log = None, None
     if temperature is not None:
         temps = np.full(run.n_points, float(temperature))
     elif run.temperatures is not None:
-        temps = machine_temperature(run, run.points["t"], log_hold)
+        temps, log = machine_temperature_and_log(run, run.points["t"], log_hold)
+    if not isinstance(skip_incomplete, bool):
+        raise InputError(f"skip_incomplete: expected True or False, got {skip_incomplete!r}")
+    positions, skipped = ballbar_scans(run, skip_incomplete)
     prov = _provenance(run, maps, temperature, temps, expansion, out_of_range, temperature_tolerance, log_hold)
-    raw = _ballbar(run, _machine_coordinates(run, None, None), "uncompensated", temps, nominal_radius, reject, expansion)
+    if log is not None:
+        prov["temperature"]["log"] = log
+        prov["notes"].extend(log_notes(log))
+    prov["skipped"] = skipped
+    if skipped:
+        prov["notes"].append(skipped_note(skipped))
+    raw = _ballbar(run, _machine_coordinates(run, None, None), "uncompensated", temps, nominal_radius, reject, expansion,
+                   positions)
     if maps is None:
         return Evaluation(raw, provenance=prov)
     if temps is None and isinstance(maps, ErrorMapSet):
@@ -342,7 +542,7 @@ def evaluate(
         model_t = temperature if temperature is not None else temps
     reports: list = []
     xyz = _machine_coordinates(run, maps, model_t, out_of_range, temperature_tolerance, reports)
-    comp = _ballbar(run, xyz, "compensated", temps, nominal_radius, reject, expansion)
+    comp = _ballbar(run, xyz, "compensated", temps, nominal_radius, reject, expansion, positions)
     held = sum(r.held_temperature for r in reports)
     clamped = sum(r.clamped_points for r in reports)
     extrapolated = sum(r.extrapolated_temperature for r in reports)

@@ -35,7 +35,6 @@ bootstrap (normal lengths of sd s, fixed seed) for the largest |L - mean|.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from dataclasses import dataclass, field
@@ -43,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .calibration.interferometer import THESIS_AIR_UNCERTAINTY, refractivity_uncertainty
+from ._json import dumps as strict_json
 from .errormap import ErrorMap, ErrorMapSet
 from ._validate import nonnegative
 from .errors import Error, InputError
@@ -200,7 +200,7 @@ class EvaluationUncertainty:
                 "results": [r.to_dict() for r in self.results]}
 
     def to_json(self, **kw) -> str:
-        return json.dumps(self.to_dict(), **kw)
+        return strict_json(self.to_dict(), **kw)
 
     def to_markdown(self) -> str:
         """A report section: the figures with u and U (k = 2), the budgets of a length and of the mean, and
@@ -261,7 +261,9 @@ def _model_temperature(run: Run, maps, temperature, log_hold):
 
 def _lengths_from(xyz: np.ndarray, run: Run, result: BallbarResult, reject) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lengths (mm), bar vectors (P, 3) mm and the fits' variance along the bar (mm^2)."""
-    fits = fit_spheres(xyz, run.points["scan_id"], reject=reject)
+    sid = run.points["scan_id"]
+    keep = np.isin(sid, [s.scan_id for s in result.spheres])  # the evaluated balls only (skipped scans may not fit)
+    fits = fit_spheres(xyz[keep], sid[keep], reject=reject)
     index = {int(s): k for k, s in enumerate(fits.labels.tolist())}
     scan = {(s.position, s.ball): index[int(s.scan_id)] for s in result.spheres}
     k1 = np.array([scan[(int(p), 1)] for p in result.positions])

@@ -17,7 +17,7 @@ import numpy as np
 from . import _core
 from ._arrays import as_rows
 from ._validate import vector3
-from .errors import IllConditionedFit, InputError
+from .errors import GeometryError, IllConditionedFit, InputError
 
 _log = logging.getLogger(__name__)
 
@@ -27,6 +27,11 @@ _log = logging.getLogger(__name__)
 #: uncertainty by 7x). A uniform cap reaches it at a 53 degree half-angle;
 #: docs/fitting.md.
 ILL_CONDITIONED_CORRELATION = 0.99
+
+#: A point this many times farther from the points' median than the typical
+#: point makes the rest look collinear or coplanar to the fit's moments: the
+#: degenerate-geometry error then names it instead (:func:`_far_point`).
+FAR_POINT_RATIO = 1e4
 
 RULES = ("none", "mad", "e3125")
 STARTS = ("algebraic", "lmeds")
@@ -340,6 +345,29 @@ def _warn_conditioning(fit: SphereFit, free: bool) -> None:
         warnings.warn(msg, IllConditionedFit, stacklevel=3)
 
 
+def _far_point(rows: np.ndarray, message: str, row_of=lambda k: k) -> str:
+    """``message`` (a degenerate-geometry error) or, when one point lies
+    :data:`FAR_POINT_RATIO` times farther from the points' median than the
+    typical point does, a message naming its row (``row_of(index)``): a
+    single 1e12 mm outlier makes the moments of the rest look collinear, and
+    "collinear" would send the user looking for the wrong fault."""
+    if len(rows) < 5 or not any(w in message for w in ("collinear", "coplanar", "coincide")):
+        return message
+    d = np.linalg.norm(rows - np.median(rows, axis=0), axis=1)
+    typical = max(float(np.median(d)), 1e-300)
+    k = int(np.argmax(d))
+    if not d[k] > FAR_POINT_RATIO * typical:
+        return message
+    span = float(np.max(rows.max(axis=0) - rows.min(axis=0)))
+    far = int(np.sum(d > FAR_POINT_RATIO * typical))
+    x, y, z = rows[k]
+    more = f" ({far} points are that far)" if far > 1 else ""
+    return (f"row {row_of(k)}: ({x:.6g}, {y:.6g}, {z:.6g}) mm lies {d[k]:.3g} mm from the points' median, "
+            f"{d[k] / typical:.3g} times the typical point's {typical:.3g} mm{more}: the coordinates span an "
+            f"absurd range ({span:.3g} mm) and the fit cannot see the shape of the rest; remove the row or check "
+            f"its units")
+
+
 def fit_sphere(points, radius: float | None = None, *, reject: float | None = None, rule: str | None = None,
                start=None, samples: int = 500, seed: int = 0, max_iterations: int = 100,
                min_coverage: float = 2.0) -> SphereFit:
@@ -398,7 +426,12 @@ def fit_sphere(points, radius: float | None = None, *, reject: float | None = No
         rejection leaving too few points.
     """
     opts = _check(radius, reject, rule, max_iterations, min_coverage, samples, seed)
-    fit = SphereFit._from(_core.fit_sphere(as_rows("points", points, 3), **opts, **_start(start)))
+    rows = as_rows("points", points, 3)
+    try:
+        raw = _core.fit_sphere(rows, **opts, **_start(start))
+    except GeometryError as exc:
+        raise GeometryError(_far_point(rows, str(exc))) from None
+    fit = SphereFit._from(raw)
     _warn_conditioning(fit, radius is None)
     return fit
 
@@ -469,6 +502,12 @@ def fit_spheres(points, labels, radius: float | None = None, *, reject: float | 
     unique = sorted_labels[starts]
     error = np.empty(len(unique), dtype=object)
     error[:] = d.pop("error")
+    for k, e in enumerate(error):  # a degenerate sphere that is one far point: name its row (of the input)
+        if isinstance(e, GeometryError):
+            lo = int(bounds[k])
+            text = _far_point(sorted_pts[lo:bounds[k + 1]], str(e),
+                              lambda j: lo + j if order is None else int(order[lo + j]))
+            error[k] = e if text == str(e) else GeometryError(text)
     if on_error == "raise":
         for k, e in enumerate(error):
             if e is not None:

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from . import mapformats
+from .atomicfile import write_text
 from ._validate import parse_number
 from .errormap import CARRIAGES, ErrorMap
 from .errors import InputError, MapError, read_lines
@@ -205,7 +206,7 @@ def write_iso230(error_map: ErrorMap, path: str | PathLike, *, decimals: int = D
         for p, d in zip(pos, dev):
             text = _deviation(d, decimals)
             lines.append(f"{axis},{_position(p)},{text},{text}")
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def is_iso230_file(path: str | PathLike) -> bool:

@@ -32,6 +32,7 @@ from typing import Mapping
 import numpy as np
 
 from ._validate import parse_number
+from .atomicfile import write_text
 from .errormap import CARRIAGES, ErrorMap
 from .errors import InputError, MapError, read_lines
 from .linearaxis import REVERSAL_LIMIT_UM, AxisResult, build_map, linear_components
@@ -237,7 +238,7 @@ def write_comp_files(error_map: ErrorMap, files: Mapping[str, str | PathLike], *
         deviation = dev_um * 1e-3 / scale
         second = nominal + deviation if comp_file_type == 0 else -deviation
         lines = [" ".join(_fixed(v, decimals) for v in (n, s, s)) for n, s in zip(nominal, second)]
-        Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+        write_text(path, "\n".join(lines) + "\n")
 
 
 def _fixed(v: float, decimals: int) -> str:

@@ -21,15 +21,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import _core
-from ._validate import finite, nonnegative, positive, triple
+from ._arrays import as_triple
+from ._validate import finite, nonnegative, parse_toml, positive
 from .effects import channel_roles
 from .errormap import ErrorMap, ErrorMapSet, data_path
 from .errors import InputError
-from .pose import MountOffset, Pose
+from .pose import MountOffset, Pose, check_pose_angles
 from .sim.scanner import Scanner
 from .sim.thermocouples import CHANNELS
 
-__all__ = ["Machine", "configurations", "example_names", "example_text", "load_machine", "read_maps"]
+__all__ = ["Machine", "configurations", "example_names", "example_text", "load_machine", "read_maps",
+           "check_map_specs"]
 
 _log = logging.getLogger(__name__)
 
@@ -45,6 +47,23 @@ _KEYS = {
     "mount": {"offset_mm", "pose_deg", "alignments"},
     "expansion": {"artefact"},
 }
+
+#: Tables a machine file must have: without them a machine would silently be
+#: the thesis's (its chain, maps, mount and thermocouples).
+_REQUIRED_TABLES = {
+    "travel": "x, y, z = [low, high] in mm",
+    "maps": "bundled = 'thesis' | 'appendix-b' or files = [...]",
+    "mount": "offset_mm = [U1, V1, W1] and pose_deg = [alpha, beta, gamma]",
+    "thermocouples": "channel = 'role' for each thermocouple",
+}
+
+#: Physical ranges of a machine file's numbers, in the file's units; a value
+#: outside is a typo or a unit error and is refused, naming the key.
+TRAVEL_LIMIT_MM = 100_000.0  # |scale reading|; the largest CMMs travel some 30 m
+OFFSET_LIMIT_MM = 10_000.0  # |U1|, |V1|, |W1|
+#: Expansion coefficient of an artefact, ppm/K: from carbon fibre and glass
+#: ceramics (slightly negative to zero) to the light metals (~25) and beyond.
+EXPANSION_RANGE_PPM = (-1.0, 100.0)
 
 
 def configurations() -> list[dict]:
@@ -97,6 +116,11 @@ class Machine:
         Expansion coefficient of the artefact, 1/K.
     source : str
         Where the machine came from (a file, or the default).
+    defaults : tuple of str
+        The defaults taken for keys the file leaves out (``name``, the
+        ``[scanner]`` keys, ``expansion.artefact``), one ``"key = value"``
+        each; ``machine show`` and ``machine check`` state them. The
+        configuration, travel, maps, mount and thermocouples have none.
     """
 
     # No defaults here: a machine is built from a file (the thesis's is a
@@ -113,6 +137,8 @@ class Machine:
     thermocouples: dict
     artefact_expansion: float
     source: str
+    #: The defaults taken for keys the file does not give, one "key = value" each.
+    defaults: tuple[str, ...] = ()
 
     @classmethod
     def thesis(cls) -> Machine:
@@ -154,6 +180,7 @@ class Machine:
         for axis, (lo, hi), (mlo, mhi) in zip("XYZ", self.travel, ranges):
             if lo > mlo + 1e-9 or hi < mhi - 1e-9:
                 notes.append(f"the maps cover {axis} {mlo:g}..{mhi:g} mm, more than its travel {lo:g}..{hi:g} mm")
+        notes += [f"{self.source}: {d} (the default; the file does not give it)" for d in self.defaults]
         roles = set(self.thermocouples.values())
         for role in ("x_scale", "y_scale", "z_scale"):
             if role not in roles:
@@ -178,6 +205,7 @@ class Machine:
             ("alignments", str(self.alignments) if self.alignments else "-"),
             ("thermocouples", ", ".join(f"{c}={r}" for c, r in self.thermocouples.items())),
             ("artefact expansion", f"{self.artefact_expansion * 1e6:g} ppm/K"),
+            ("defaults taken", "; ".join(self.defaults) if self.defaults else "none: the file gives every key"),
         ]
 
 
@@ -200,10 +228,7 @@ def load_machine(path: str | Path | None) -> Machine:
         raise InputError(f"{path}: no such machine file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot be read as UTF-8 text ({exc})") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not a TOML file ({exc})") from None
+    doc = parse_toml(text, str(path))  # not TOML, nested 10,000 deep or a 5,001-digit integer: InputError
     return _parse(doc, str(path), path.parent)
 
 
@@ -216,14 +241,24 @@ def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
         if unknown:
             prefix = f"{table}." if table else ""
             raise InputError(f"{where}: unknown key {prefix}{unknown[0]} (known: {', '.join(sorted(allowed))})")
+    missing = [t for t in _REQUIRED_TABLES if t not in doc]
+    if missing:
+        raise InputError(f"{where}: [{missing[0]}] is missing ({_REQUIRED_TABLES[missing[0]]}); "
+                         "a machine file states it (cmmpose machine example)")
+    defaults: list[str] = []
+    if "name" not in doc:
+        defaults.append('name = "unnamed machine"')
     name = _text(doc, "name", where, default="unnamed machine")
-    kinematics = _text(doc, "kinematics", where, default="thesis")
     known = [c["name"] for c in configurations()]
+    if "kinematics" not in doc:
+        raise InputError(f"{where}: kinematics is missing (one of {', '.join(known)}); "
+                         "without it the machine's chain is unknown")
+    kinematics = _text(doc, "kinematics", where, default="")
     if kinematics not in known:
         raise InputError(f"{where}: kinematics = {kinematics!r} is not one of {', '.join(known)}")
-    travel_table = doc.get("travel", {})
-    travel = tuple(_pair(travel_table, axis, f"{where}: travel.{axis}") for axis in "xyz")
-    maps = doc.get("maps", {"bundled": "thesis"})
+    travel_table = doc["travel"]
+    travel = tuple(_pair(travel_table, axis, f"{where}: travel.{axis}", limit=TRAVEL_LIMIT_MM) for axis in "xyz")
+    maps = doc["maps"]
     if ("bundled" in maps) == ("files" in maps):
         raise InputError(f"{where}: [maps] needs one of bundled = 'thesis' | 'appendix-b' or files = [...]")
     bundled, files = None, ()
@@ -239,40 +274,75 @@ def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
         if missing:
             raise InputError(f"{where}: maps.files: no such file {missing[0]}")
     sc = doc.get("scanner", {})
-    defaults = Scanner()
+    scanner_defaults = Scanner()
+    for key, value in (("field_of_view_mm", list(scanner_defaults.u_range)),
+                       ("depth_of_view_mm", list(scanner_defaults.v_range)),
+                       ("points_per_profile", scanner_defaults.points_per_profile),
+                       ("profile_rate_hz", scanner_defaults.profile_rate),
+                       ("noise_um", scanner_defaults.noise * 1e3)):
+        if key not in sc:
+            defaults.append(f"scanner.{key} = {value!r}")
     scanner = Scanner(
         u_range=_pair(sc, "field_of_view_mm", f"{where}: scanner.field_of_view_mm",
-                      default=defaults.u_range),
+                      default=scanner_defaults.u_range),
         v_range=_pair(sc, "depth_of_view_mm", f"{where}: scanner.depth_of_view_mm",
-                      default=defaults.v_range),
+                      default=scanner_defaults.v_range),
         points_per_profile=_integer(sc, "points_per_profile", f"{where}: scanner.points_per_profile",
-                                    defaults.points_per_profile),
-        profile_rate=_setting(sc, "profile_rate_hz", f"{where}: scanner.profile_rate_hz", defaults.profile_rate,
-                              positive),
-        noise=_setting(sc, "noise_um", f"{where}: scanner.noise_um", defaults.noise * 1e3, nonnegative) * 1e-3,
+                                    scanner_defaults.points_per_profile),
+        profile_rate=_setting(sc, "profile_rate_hz", f"{where}: scanner.profile_rate_hz",
+                              scanner_defaults.profile_rate, positive),
+        noise=_setting(sc, "noise_um", f"{where}: scanner.noise_um", scanner_defaults.noise * 1e3,
+                       nonnegative) * 1e-3,
     )
-    mount = doc.get("mount", {})
-    offset = MountOffset(*_triple(mount, "offset_mm", f"{where}: mount.offset_mm", tuple(MountOffset.thesis())))
-    pose = Pose(*_triple(mount, "pose_deg", f"{where}: mount.pose_deg", (90.0, 90.0, 0.0)))
+    mount = doc["mount"]
+    for key in ("offset_mm", "pose_deg"):
+        if key not in mount:
+            raise InputError(f"{where}: mount.{key} is missing ({_REQUIRED_TABLES['mount']})")
+    offset_where = f"{where}: mount.offset_mm"
+    offset = MountOffset(*as_triple(offset_where, mount["offset_mm"]))
+    if max(map(abs, offset)) > OFFSET_LIMIT_MM:
+        raise InputError(f"{offset_where}: {list(offset)} mm is beyond +-{OFFSET_LIMIT_MM:g} mm")
+    pose = Pose(*check_pose_angles(f"{where}: mount.pose_deg", mount["pose_deg"]))
     alignments = None
     if "alignments" in mount:
-        if not isinstance(mount["alignments"], str):
+        if not isinstance(mount["alignments"], str) or not mount["alignments"]:
             raise InputError(f"{where}: mount.alignments must be a file name")
         alignments = (folder or Path(".")) / mount["alignments"]
-    tc = doc.get("thermocouples", dict(CHANNELS))
+    tc = doc["thermocouples"]
     if not isinstance(tc, dict) or not tc:
         raise InputError(f"{where}: [thermocouples] must name at least one channel = role")
     roles = {r for _, r in CHANNELS} | set(channel_roles())
     for channel, role in tc.items():
-        if role not in roles:
+        if not isinstance(role, str) or role not in roles:
             raise InputError(f"{where}: thermocouples.{channel} = {role!r} is not a known role "
                              f"({', '.join(sorted(roles))})")
-    expansion = _setting(doc.get("expansion", {}), "artefact", f"{where}: expansion.artefact", 12.0) * 1e-6
+    exp_table = doc.get("expansion", {})
+    if "artefact" not in exp_table:
+        defaults.append("expansion.artefact = 12.0 ppm/K (steel)")
+    expansion_ppm = _setting(exp_table, "artefact", f"{where}: expansion.artefact", 12.0)
+    lo, hi = EXPANSION_RANGE_PPM
+    if not lo <= expansion_ppm <= hi:
+        raise InputError(f"{where}: expansion.artefact = {expansion_ppm:g} ppm/K is outside {lo:g}..{hi:g} ppm/K "
+                         "(a coefficient of expansion in ppm/K, e.g. 11.5 for steel)")
     machine = Machine(name=name, kinematics=kinematics, travel=travel, map_files=files, bundled_maps=bundled,
                       scanner=scanner, offset=offset, pose=pose, alignments=alignments, thermocouples=dict(tc),
-                      artefact_expansion=expansion, source=where)
+                      artefact_expansion=expansion_ppm * 1e-6, source=where, defaults=tuple(defaults))
+    for d in defaults:
+        _log.info("machine %s: %s (the default; the file does not give it)", where, d)
     _log.info("machine %s: %s, %s", where, name, kinematics)
     return machine
+
+
+def check_map_specs(specs) -> tuple[str, ...]:
+    """``specs`` (map names and files) as text, or ``InputError`` for an
+    empty or blank one (``--maps ""``), which would otherwise name the
+    current folder."""
+    specs = tuple(str(s) for s in specs)
+    for k, spec in enumerate(specs):
+        if not spec.strip():
+            which = f" (number {k + 1} of {len(specs)})" if len(specs) > 1 else ""
+            raise InputError(f"maps: an empty name{which}; give 'thesis', 'appendix-b' or a map file")
+    return specs
 
 
 def read_maps(specs) -> ErrorMap | ErrorMapSet:
@@ -280,7 +350,7 @@ def read_maps(specs) -> ErrorMap | ErrorMapSet:
     set, alone), ``'appendix-b'`` (the 22 C controller map), controller
     files (``.txt``) and canonical maps (any other suffix); several make a
     set."""
-    specs = [str(s) for s in specs]
+    specs = list(check_map_specs(specs))
     if not specs:
         raise InputError("maps: none given")
     if "thesis" in specs:
@@ -310,8 +380,12 @@ def _real(value) -> bool:
 
 
 def _setting(table: dict, key: str, where: str, default: float, check=finite) -> float:
-    """``table[key]`` (or ``default``) through one of the package's checks."""
-    return check(where, table.get(key, default))
+    """``table[key]`` (or ``default``), a TOML number (text is refused, not
+    read as one), through one of the package's checks."""
+    value = table.get(key, default)
+    if not _real(value):
+        raise InputError(f"{where}: expected a finite number, got {value!r}")
+    return check(where, value)
 
 
 def _integer(table: dict, key: str, where: str, default: int) -> int:
@@ -321,7 +395,7 @@ def _integer(table: dict, key: str, where: str, default: int) -> int:
     return value
 
 
-def _pair(table: dict, key: str, where: str, *, default=None) -> tuple[float, float]:
+def _pair(table: dict, key: str, where: str, *, default=None, limit: float = math.inf) -> tuple[float, float]:
     if key not in table and default is None:
         raise InputError(f"{where}: missing (expected [low, high])")
     value = table.get(key, default)
@@ -329,8 +403,6 @@ def _pair(table: dict, key: str, where: str, *, default=None) -> tuple[float, fl
         raise InputError(f"{where}: expected [low, high] numbers, got {value!r}")
     if not value[0] < value[1]:
         raise InputError(f"{where}: low must be below high, got {list(value)}")
+    if max(abs(value[0]), abs(value[1])) > limit:
+        raise InputError(f"{where}: {list(value)} mm is beyond +-{limit:g} mm")
     return float(value[0]), float(value[1])
-
-
-def _triple(table: dict, key: str, where: str, default) -> tuple[float, float, float]:
-    return triple(where, table.get(key, default))

@@ -5,12 +5,15 @@ and squareness in a commented header and units in the column names
 
 from __future__ import annotations
 
+import hashlib
+import logging
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
 from . import mapformats
+from .atomicfile import write_text
 from ._validate import parse_number
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from .errors import MapError, read_lines
@@ -19,6 +22,56 @@ MAGIC = "cmmpose-error-map"
 VERSION = "1"
 HEADER = ("carriage",) + TABLE_COLUMNS
 SQUARENESS_KEYS = ("squareness_xy_arcsec", "squareness_yz_arcsec", "squareness_zx_arcsec")
+# Header keys the reader uses; each may be given once (a repeated one would silently win).
+KEYS = ("temperature_C", *SQUARENESS_KEYS, "source", "rows", "sha256")
+
+logger = logging.getLogger(__name__)
+
+
+def body_sha256(lines) -> str:
+    """SHA-256 (lower-case hex) of a map's body: the column-header row and the
+    data rows, each stripped of surrounding white space and ended by one
+    ``\\n``, in file order (blank and ``#`` lines excluded; docs/formats.md)."""
+    digest = hashlib.sha256()
+    for line in lines:
+        digest.update(line.strip().encode("utf-8") + b"\n")
+    return digest.hexdigest()
+
+
+def _rows_text(counts: dict[str, int]) -> str:
+    return " ".join(f"{c}={counts[c]}" for c in CARRIAGES)
+
+
+def _check_body(path: Path, meta: dict[str, tuple[str, int]], counts: dict[str, int], body: list[str]) -> None:
+    """Verify the declared ``rows`` and ``sha256`` header lines against the body read."""
+    missing = [k for k in ("rows", "sha256") if k not in meta]
+    if missing:
+        logger.info("%s: no %s line; a cut or edited table cannot be detected in this file "
+                    "(maps written by cmmpose carry them; docs/formats.md)",
+                    path, " or ".join(f"'# {k}:'" for k in missing))
+    if "rows" in meta:
+        text, lineno = meta["rows"]
+        declared: dict[str, int] = {}
+        for item in text.split():
+            c, sep, n = item.partition("=")
+            c = c.strip().upper()
+            if not sep or c not in CARRIAGES or c in declared or not n.strip().isdigit():
+                raise MapError(f"{path}:{lineno}: rows: expected 'X=<count> Y=<count> Z=<count>', got {text!r}")
+            declared[c] = int(n)
+        if set(declared) != set(CARRIAGES):
+            raise MapError(f"{path}:{lineno}: rows: expected 'X=<count> Y=<count> Z=<count>', got {text!r}")
+        if declared != counts:
+            wrong = ", ".join(f"{c} has {counts[c]} (declared {declared[c]})" for c in CARRIAGES
+                              if counts[c] != declared[c])
+            raise MapError(f"{path}:{lineno}: the table disagrees with '# rows: {_rows_text(declared)}': {wrong}; "
+                           "the file was cut or rows were added or removed")
+    if "sha256" in meta:
+        text, lineno = meta["sha256"]
+        found = body_sha256(body)
+        if text.lower() != found:
+            raise MapError(f"{path}:{lineno}: the table does not match its '# sha256:' line (declared {text}, "
+                           f"the rows give {found}): the file was cut or changed after it was written; "
+                           "if you edited it on purpose, delete the '# sha256:' and '# rows:' lines")
 
 
 def read_map(path: str | PathLike) -> ErrorMap:
@@ -42,6 +95,7 @@ def read_map(path: str | PathLike) -> ErrorMap:
     lines = read_lines(path)
     meta: dict[str, tuple[str, int]] = {}
     rows: dict[str, list[list[float]]] = {c: [] for c in CARRIAGES}
+    body: list[str] = []  # the column-header row and the data rows, for the sha256 check
     header_seen = False
     if not lines or lines[0].strip() != f"# {MAGIC}: {VERSION}":
         raise MapError(f"{path}:1: not a cmmpose error map (first line must be '# {MAGIC}: {VERSION}')")
@@ -54,9 +108,14 @@ def read_map(path: str | PathLike) -> ErrorMap:
             if header_seen:
                 continue  # comments after the header row are allowed and ignored
             key, sep, value = line[1:].partition(":")
+            key = key.strip()
+            if sep and key in meta and key in KEYS:
+                raise MapError(f"{where}: header key {key!r} is repeated (first on line {meta[key][1]}); "
+                               "give each key once")
             if sep:
-                meta[key.strip()] = (value.strip(), lineno)
+                meta[key] = (value.strip(), lineno)
             continue
+        body.append(line)
         fields = [f.strip() for f in line.split(",")]
         if not header_seen:
             if tuple(fields) != HEADER:
@@ -84,6 +143,7 @@ def read_map(path: str | PathLike) -> ErrorMap:
             raise MapError(f"{path}: no rows for the {c} carriage")
         if len(rows[c]) < 2:
             raise MapError(f"{path}: the {c} carriage has {len(rows[c])} row; at least 2 are needed to interpolate")
+    _check_body(path, meta, {c: len(rows[c]) for c in CARRIAGES}, body)
     squareness = []
     for key in SQUARENESS_KEYS:
         if key not in meta:
@@ -112,12 +172,15 @@ def write_map(error_map: ErrorMap, path: str | PathLike) -> None:
         *(f"# {k}: {_fmt(v)}" for k, v in zip(SQUARENESS_KEYS, error_map.squareness)),
     ]
     if error_map.source:
-        lines.append(f"# source: {error_map.source}")
-    lines.append(",".join(HEADER))
+        source = str(error_map.source).replace("\r", " ").replace("\n", " ")  # one header line
+        lines.append(f"# source: {source}")
+    body = [",".join(HEADER)]
     for c in CARRIAGES:
         for row in error_map.table(c):
-            lines.append(",".join([c, *(_fmt(v) for v in row)]))
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+            body.append(",".join([c, *(_fmt(v) for v in row)]))
+    lines.append(f"# rows: {_rows_text({c: len(error_map.table(c)) for c in CARRIAGES})}")
+    lines.append(f"# sha256: {body_sha256(body)}")
+    write_text(path, "\n".join(lines + body) + "\n")
 
 
 def is_canonical_map(path: str | PathLike) -> bool:

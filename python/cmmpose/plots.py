@@ -16,6 +16,8 @@ map deltas in um (written ``µm``), map angles and squareness in arc-seconds.
 - :func:`plot_error_map`: the 18 carriage components against position (thesis
   Figures 3-7 to 3-18), one map or a set at several temperatures.
 - :func:`plot_fleet_trend`: rms and B89 over a fleet of runs, with temperature.
+- :func:`plot_artefact_deviations`: deviation arrows over an artefact, per placement.
+- :func:`plot_length_errors`: ball-pair length errors against length.
 """
 
 from __future__ import annotations
@@ -24,11 +26,13 @@ from os import PathLike
 
 import numpy as np
 
+from .atomicfile import save_figure
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet
 from .errors import InputError
 from ._validate import finite
 
-__all__ = ["plot_ballbar_lengths", "plot_sphere_residuals", "plot_error_map", "plot_fleet_trend", "COMPONENTS"]
+__all__ = ["plot_ballbar_lengths", "plot_sphere_residuals", "plot_error_map", "plot_fleet_trend",
+           "plot_artefact_deviations", "plot_length_errors", "COMPONENTS"]
 
 #: Component names accepted by :func:`plot_error_map` (``components``), in table order.
 COMPONENTS = ("dx", "dy", "dz", "ex", "ey", "ez")
@@ -54,7 +58,7 @@ def _save(fig, path):
     if path is not None:
         if not isinstance(path, (str, PathLike)):
             raise InputError(f"path: expected a file path or None, got {type(path).__name__}")
-        fig.savefig(path, dpi=_DPI)
+        save_figure(fig, path, dpi=_DPI)  # atomic; a special file as a stream
     return fig
 
 
@@ -472,4 +476,89 @@ def plot_fleet_trend(rows, path: str | PathLike | None = None, *, title: str | N
     fig.legend(handles, [h.get_label() for h in handles], loc="outside lower center", ncol=3,
                fontsize="small", frameon=False)
     fig.suptitle(title or f"Ballbar figures over {len(rows)} runs")
+    return _save(fig, path)
+
+
+# -- artefacts (cmmpose.artefact_evaluation) ------------------------------------------
+def plot_artefact_deviations(artefact, result, path: str | PathLike | None = None, *, title: str | None = None):
+    """Deviation arrows over the artefact, one panel per placement.
+
+    Each ball is drawn at its calibrated place in the artefact's own frame
+    (x, y, mm); its arrow is the deviation's component in that plane, scaled
+    so the largest spans about a third of the pitch (the scale arrow is
+    drawn, in um); the colour of the dot is the component along the
+    artefact's z (um).
+
+    Parameters
+    ----------
+    artefact : cmmpose.artefacts.Artefact
+    result : cmmpose.artefact_evaluation.ArtefactResult
+    path : path-like, optional
+        Where to save the figure.
+    """
+    placements = result.placements
+    if not placements:
+        raise InputError("result: no placements to plot")
+    n = len(placements)
+    fig = _figure(figsize=(4.6 * n, 4.6), layout="constrained")
+    xy = artefact.centres[:, :2]
+    extent = np.ptp(xy, axis=0)
+    gaps = np.linalg.norm(xy[:, None] - xy[None], axis=2)
+    pitch = float(np.min(gaps[gaps > 0])) if artefact.n_balls > 1 else 1.0
+    local = [[p.rotation.T @ b.deviation * 1e3 for b in p.balls] for p in placements]
+    biggest = max(float(np.max(np.linalg.norm(np.array(d)[:, :2], axis=1))) for d in local) or 1.0
+    scale_um = float(10 ** np.floor(np.log10(biggest)))
+    scale_um *= 5 if biggest / scale_um >= 5 else (2 if biggest / scale_um >= 2 else 1)
+    k = 0.35 * pitch / biggest  # mm of drawing per um
+    zs = np.concatenate([np.array(d)[:, 2] for d in local])
+    zlim = float(np.max(np.abs(zs))) or 1.0
+    for i, (p, dev) in enumerate(zip(placements, local)):
+        ax = fig.add_subplot(1, n, i + 1)
+        dev = np.array(dev)
+        at = np.array([artefact.centres[artefact.index(b.ball)][:2] for b in p.balls])
+        dots = ax.scatter(at[:, 0], at[:, 1], c=dev[:, 2], cmap="coolwarm", vmin=-zlim, vmax=zlim, s=40, zorder=3,
+                          edgecolors="0.3")
+        ax.quiver(at[:, 0], at[:, 1], dev[:, 0] * k, dev[:, 1] * k, angles="xy", scale_units="xy", scale=1.0,
+                  width=0.006, zorder=4)
+        for (x, y), b in zip(at, p.balls):
+            ax.annotate(str(b.ball), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=6, color="0.4")
+        x0 = float(xy[:, 0].min())
+        y0 = float(xy[:, 1].min()) - 0.12 * max(extent[0], extent[1], pitch)
+        ax.quiver([x0], [y0], [scale_um * k], [0.0], angles="xy", scale_units="xy", scale=1.0, width=0.006, color="C3")
+        ax.annotate(f"{scale_um:g} {_UM}", (x0 + scale_um * k, y0), textcoords="offset points", xytext=(4, -3),
+                    fontsize=8, color="C3")
+        ax.set_aspect("equal")
+        ax.margins(0.15)
+        ax.set_xlabel("artefact x (mm)")
+        ax.set_ylabel("artefact y (mm)")
+        ax.set_title(f"{p.position}: {p.label}\nrms {p.rms * 1e3:.2f} {_UM}, largest {p.largest.magnitude * 1e3:.2f} "
+                     f"{_UM}", fontsize=9)
+    fig.colorbar(dots, ax=fig.axes, label=f"deviation along artefact z ({_UM})", shrink=0.8)
+    fig.suptitle(title or f"{artefact.name}: deviations, {result.label}")
+    return _save(fig, path)
+
+
+def plot_length_errors(results, path: str | PathLike | None = None, *, title: str | None = None):
+    """Every ball-pair length error against its length, per placement, with
+    error bars of 2 u (um against mm); one panel per result."""
+    results = [r for r in results if r is not None]
+    if not results:
+        raise InputError("results: nothing to plot")
+    fig = _figure(figsize=(6.4 * len(results), 4.4), layout="constrained")
+    for i, r in enumerate(results):
+        ax = fig.add_subplot(1, len(results), i + 1)
+        for j, p in enumerate(r.placements):
+            if not p.lengths:
+                continue
+            L = np.array([e.length for e in p.lengths])
+            E = np.array([e.error for e in p.lengths]) * 1e3
+            U = np.array([2 * e.u for e in p.lengths]) * 1e3
+            ax.errorbar(L, E, yerr=U, fmt="o", ms=3, elinewidth=0.6, alpha=0.7, color=f"C{j % 10}",
+                        label=f"{p.position}: {p.label}")
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.set_xlabel("calibrated length at 20 \u00b0C (mm)")
+        ax.set_ylabel(f"length error E ({_UM})")
+        ax.set_title(r.label)
+        ax.legend(fontsize="x-small")
+    fig.suptitle(title or "Ball-pair length errors (error bars 2u)")
     return _save(fig, path)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import pointformats
-from .errors import InputError
+from .atomicfile import check_not_input
 from .pointclouds import UNITS
 from .pointformats._common import check_file, check_writable, numeric_column
 
@@ -106,10 +106,8 @@ def point_chunks(path: str | Path, chunk: int | None = None, *, extras: bool = F
         read whole by the strict one, which raises naming the line at fault;
         if it accepts the file, :class:`RereadPoints` carries the whole file.
     """
-    path = Path(path)
+    path = check_file(path)  # missing, a folder or a special file (a FIFO, /dev/zero) said as such
     chunk = CHUNK_POINTS if chunk is None else int(chunk)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
     fmt = pointformats.for_path(path, default="csv")
     size, chunks = fmt.chunks(path, chunk, NEED)
     return size, _tuples(path, chunks, extras)
@@ -143,10 +141,14 @@ class PointWriter:
     or a structured array X, Y, Z and the extras when there are extras),
     Parquet (columns X, Y, Z float64 and the extras), PLY, XYZ, PTS or E57
     (written in metres). Memory stays bounded by one chunk in every format.
-    The first chunk written fixes the extra columns' names and types."""
+    The first chunk written fixes the extra columns' names and types. A
+    ``path`` that is one of ``inputs`` (any spelling or link) is refused with
+    ``InputError``; a special file (``/dev/null``, a FIFO) is written as a
+    stream (:mod:`cmmpose.atomicfile`)."""
 
-    def __init__(self, path: str | Path, *, format: str | None = None):
+    def __init__(self, path: str | Path, *, format: str | None = None, inputs=()):
         self.path = check_writable(path)
+        check_not_input(self.path, inputs)
         self.format = pointformats.for_path(self.path, format, default="csv")
         self._scale = 1.0 / UNITS[self.format.units]  # mm to the format's unit
         self._w = self.format.writer(self.path)

@@ -19,12 +19,14 @@ The same names are the Python arguments (``out_of_range``,
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
 from .errors import InputError
 
-__all__ = ["TEMPERATURE_TOLERANCE", "LOG_HOLD", "OUT_OF_RANGE", "check_policy", "check_log_coverage", "cli_wording"]
+__all__ = ["TEMPERATURE_TOLERANCE", "LOG_HOLD", "OUT_OF_RANGE", "check_policy", "check_log_coverage", "cli_wording",
+           "shorten_numbers", "SCHEDULER_TIMEOUT_HINT"]
 
 #: K: the thermocouples' uncertainty (thesis 6.4: 0.5 K class), within which
 #: a temperature outside the maps is held at the edge.
@@ -45,6 +47,8 @@ _PYTHON_POSITION = " (choices: out_of_range='clamp' holds it at the table's end)
 _CLI_POSITION = " (choices: --out-of-range clamp holds it at the table's end)"
 _PYTHON_LOG = "pass log_hold= (s) to hold the nearest reading that far"
 _CLI_LOG = "use --log-hold S to hold the nearest reading that far"
+SKIP_INCOMPLETE_HINT = "pass skip_incomplete=True to evaluate the complete positions only and list the others"
+_CLI_SKIP = "use --skip-incomplete to evaluate the complete positions only and list the others"
 
 
 def check_policy(out_of_range: str, temperature_tolerance: float, log_hold: float | None = None) -> None:
@@ -85,7 +89,74 @@ def check_log_coverage(run, t, log_hold: float) -> None:
                          f"({_PYTHON_LOG}, or give the temperature)")
 
 
-def cli_wording(message: str) -> str:
-    """An error message with the Python argument names replaced by the CLI's flags."""
-    return (message.replace(_PYTHON_TEMPERATURE, _CLI_TEMPERATURE).replace(_PYTHON_POSITION, _CLI_POSITION)
-            .replace(_PYTHON_LOG, _CLI_LOG))
+#: The hint cmmpose.scale gives when a scheduler does not answer in time.
+SCHEDULER_TIMEOUT_HINT = "scheduler_timeout= sets the limit"
+
+# Hints naming a Python argument: (the hint, the CLI flag that does the same, the CLI's words, what a command
+# without that flag says instead, or a function of the command's flags giving it). Literal strings, or compiled
+# patterns whose groups the replacements use.
+_HINTS = (
+    (_PYTHON_TEMPERATURE, "--out-of-range", _CLI_TEMPERATURE,
+     " (this command has no option to clamp or extrapolate the maps)"),
+    (_PYTHON_POSITION, "--out-of-range", _CLI_POSITION, " (this command has no option to clamp it)"),
+    (_PYTHON_LOG, "--log-hold", _CLI_LOG, "this command has no option to hold the log's readings"),
+    (SKIP_INCOMPLETE_HINT, "--skip-incomplete", _CLI_SKIP, "complete or relabel the positions"),
+    ("pass nan_policy='propagate' to get NaN rows instead", "--nan-policy",
+     "use --nan-policy propagate to get NaN rows instead", "this command has no option to let NaN rows through"),
+    (re.compile(r"pass on_gap='interpolate' to interpolate across (it|the bad stretch)"), None, "",
+     lambda flags: r"the command line has no option to interpolate across \1"
+     + (" (give the machine temperature with --temperature instead)" if "--temperature" in flags else "")),
+    ("pass out_of_range='clamp' to clamp instead", "--out-of-range", "use --out-of-range clamp to clamp instead",
+     "this command has no option to clamp it"),
+    ("pass out_of_range='hold' to use the log's end values", None, "",
+     "the command line has no option to hold the log's end values this far"),
+    ("pass temperature= (C)", "--temperature", "give --temperature (C)", "record a temperature log with the run"),
+    ("pass temperature= explicitly", "--temperature", "give --temperature (C)",
+     "record a temperature log with the run"),
+    ("pass overwrite=True / --overwrite to replace it", "--overwrite", "use --overwrite to replace it",
+     "choose another folder"),
+    ("pass overwrite=True to replace", "--overwrite", "use --overwrite to replace", "remove it first to replace"),
+    (SCHEDULER_TIMEOUT_HINT, "--scheduler-timeout", "--scheduler-timeout SECONDS sets the limit",
+     "no option of this command sets the limit"),
+)
+# A number of more digits than a float holds (echoed back from a hostile input): printed as a float.
+_LONG_NUMBER = re.compile(r"(?<![\w.])[-+]?\d{21,}(?:\.\d*)?(?![\w.])")
+# Any other run of that many digits (inside a quoted value): its first 20, then '...'.
+_LONG_DIGITS = re.compile(r"\d{21,}")
+
+
+def shorten_numbers(message: str) -> str:
+    """``message`` with numbers of more than 20 digits shortened: a number
+    alone as a float (``1e+300``), digits inside other text to their first 20
+    and ``'...'`` with the count (a 300-digit input is not printed back)."""
+    message = _LONG_NUMBER.sub(lambda m: f"{float(m[0]):.6g}", message)
+    return _LONG_DIGITS.sub(lambda m: f"{m[0][:20]}...({len(m[0])} digits)", message)
+
+
+def cli_wording(message: str, context=None) -> str:
+    """An error message as the command line says it: the hints that name a
+    Python argument name the command's flag instead, or say the command has
+    none, and numbers of more than 20 digits are shortened
+    (:func:`shorten_numbers`).
+
+    Parameters
+    ----------
+    message : str
+        The library's message.
+    context : click.Context, optional
+        The command running (``click.get_current_context(silent=True)``): a
+        hint whose flag this command lacks says so. None: every flag counts
+        as present.
+    """
+    flags = None
+    if context is not None and getattr(context, "command", None) is not None:
+        flags = {o for p in context.command.params for o in getattr(p, "opts", ())}
+    for hint, flag, cli, missing in _HINTS:
+        has = flag is not None and (flags is None or flag in flags)
+        if callable(missing):
+            missing = missing(flags if flags is not None else {"--temperature"})
+        if isinstance(hint, str):
+            message = message.replace(hint, cli if has else missing)
+        else:
+            message = hint.sub(cli if has else missing, message)
+    return shorten_numbers(message)

@@ -10,6 +10,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_triple
+from .errors import InputError
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,39 @@ class MountOffset(NamedTuple):
     def thesis(cls) -> MountOffset:
         """The Hyscan 45C of the thesis (section 5.3): 1.001, 264.505, 129.575 mm."""
         return cls(1.001, 264.505, 129.575)
+
+
+#: The largest magnitude of a pose angle a user may give, degrees: an Euler
+#: angle beyond a full turn is a typo or a unit error (radians read as
+#: degrees give small numbers, but 1e9 is no orientation).
+ANGLE_LIMIT_DEG = 360.0
+
+
+def check_pose_angles(name: str, angles) -> tuple[float, float, float]:
+    """Three finite angles (degrees) within +-``ANGLE_LIMIT_DEG``.
+
+    Parameters
+    ----------
+    name : str
+        What gave them (an option or a file's key), first in any message.
+    angles : sequence of 3 float
+        alpha, beta, gamma, degrees.
+
+    Returns
+    -------
+    tuple of 3 float
+
+    Raises
+    ------
+    InputError
+        ``"<name>: pose angle <value> deg is beyond +-360 deg"``.
+    """
+    vals = as_triple(name, angles)
+    for label, v in zip(("alpha", "beta", "gamma"), vals):
+        if abs(v) > ANGLE_LIMIT_DEG:
+            raise InputError(f"{name}: pose angle {label} = {v:g} deg is beyond +-{ANGLE_LIMIT_DEG:g} deg "
+                             "(angles are in degrees)")
+    return vals
 
 
 def pose_tuple(pose) -> tuple[float, float, float]:

@@ -18,6 +18,7 @@ line of the file.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import zipfile
 from collections.abc import Mapping
@@ -28,13 +29,20 @@ from operator import index as _as_index
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.compute as pc
-import pyarrow.csv as pa_csv
-import pyarrow.parquet as pq
 
+from ._lazy import LazyModule
+from .atomicfile import staged_folder
 from .effects import channel_roles as effect_channel_roles
 from .errors import RunError
+from .pointformats._common import parquet_options
+
+# Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
+pa = LazyModule("pyarrow")
+pc = LazyModule("pyarrow.compute")
+pa_csv = LazyModule("pyarrow.csv")
+pq = LazyModule("pyarrow.parquet")
+
+_log = logging.getLogger("cmmpose.run")
 
 __all__ = [
     "Run",
@@ -47,6 +55,7 @@ __all__ = [
     "POINTS_COLUMNS",
     "SCANS_COLUMNS",
     "POSES_COLUMNS",
+    "RUN_FILES",
 ]
 
 
@@ -98,9 +107,13 @@ POSES_COLUMNS = {
 }
 _TABLES = ("points", "scans", "poses", "temperatures")
 _FIXED = {"points": POINTS_COLUMNS, "scans": SCANS_COLUMNS, "poses": POSES_COLUMNS}
-_ARROW = {"int32": pa.int32(), "int8": pa.int8(), "float64": pa.float64(), "str": pa.string()}
-_JSON_KEYS = ("schema", "schema_version", "created", "artefact", "maps", "temperature_channels", "metadata")
+#: Arrow type (a ``pyarrow`` factory's name) of each column type.
+_ARROW = {"int32": "int32", "int8": "int8", "float64": "float64", "str": "string"}
+_JSON_KEYS = ("schema", "schema_version", "created", "artefact", "maps", "temperature_channels", "metadata", "rows")
 _TRUTH_DIR, _TRUTH_ARRAYS, _TRUTH_INFO = "truth", "truth.npz", "truth.json"
+#: The files a run directory consists of (relative to it); nothing else in it is the run's.
+RUN_FILES = ("run.json", *(f"{t}{s}" for t in _TABLES for s in (".parquet", ".csv")),
+             f"{_TRUTH_DIR}/{_TRUTH_ARRAYS}", f"{_TRUTH_DIR}/{_TRUTH_INFO}")
 _FLOAT_RE = r"^\s*[+-]?(nan|inf|infinity|(\d+\.?\d*|\.\d+)(e[+-]?\d+)?)\s*$"
 _INT_RE = r"^\s*[+-]?\d+\s*$"
 
@@ -508,6 +521,7 @@ class Run:
             where[name] = _Where(str(path), csv=path.suffix == ".csv")
             spec = _FIXED.get(name) or {"t": "float64", **{ch["name"]: "float64" for ch in doc["temperature_channels"]}}
             tables[name] = _read_table(path, spec, where[name])
+        _check_row_counts(run_dir / "run.json", doc.get("rows"), tables, where)
         run = cls.__new__(cls)
         for name in _TABLES:
             object.__setattr__(run, name, tables[name])
@@ -532,15 +546,22 @@ class Run:
             Write into a non-empty directory, replacing the run files there
             (run.json, the tables as .parquet or .csv, truth/); other files are
             left alone. Without it a non-empty directory raises ``RunError``.
+
+        The new run is written into a temporary folder beside ``run_dir`` and
+        swapped in only when complete (:func:`cmmpose.atomicfile.staged_folder`):
+        a failure (a full disk, Ctrl-C, SIGTERM) leaves the old run whole.
         """
-        run_dir = Path(run_dir)
+        final = run_dir = Path(run_dir)
         arrays, info = _check_truth(truth) if truth is not None else (None, None)
         if run_dir.exists() and not run_dir.is_dir():
             raise RunError(f"{run_dir}: exists and is not a directory")
-        if run_dir.is_dir() and any(run_dir.iterdir()):
-            if not overwrite:
-                raise RunError(f"{run_dir}: directory is not empty (pass overwrite=True to replace the run in it)")
-            _remove_run_files(run_dir)
+        if run_dir.is_dir() and any(run_dir.iterdir()) and not overwrite:
+            raise RunError(f"{run_dir}: directory is not empty (pass overwrite=True to replace the run in it)")
+        with staged_folder(final, RUN_FILES, error=RunError) as run_dir:
+            self._write_files(run_dir, final, arrays, info)
+
+    def _write_files(self, run_dir: Path, final: Path, arrays, info) -> None:
+        """Write the run's files into the empty folder ``run_dir`` (messages name ``final``)."""
         try:
             run_dir.mkdir(parents=True, exist_ok=True)
             doc = {
@@ -551,6 +572,9 @@ class Run:
                 "maps": self.maps,
                 "temperature_channels": self.temperature_channels,
                 "metadata": self.metadata,
+                # Each table's row count, checked on load: a table cut short (or grown) is an error.
+                "rows": {name: len(next(iter(getattr(self, name).values())))
+                         for name in _TABLES if getattr(self, name) is not None},
             }
             (run_dir / "run.json").write_text(json.dumps(doc, indent=2, allow_nan=False, ensure_ascii=False) + "\n", encoding="utf-8")
             for name in _TABLES:
@@ -561,7 +585,8 @@ class Run:
                 table = pa.Table.from_arrays([_arrow_column(cols[c], dt) for c, dt in spec.items()], names=list(spec))
                 # Page checksums (CRC32), verified on load: a flipped bit
                 # names the damaged file instead of loading changed values.
-                pq.write_table(table, run_dir / f"{name}.parquet", write_page_checksum=True)
+                pq.write_table(table, run_dir / f"{name}.parquet", write_page_checksum=True,
+                               **parquet_options(table.schema))
             if arrays is not None:
                 tdir = run_dir / _TRUTH_DIR
                 tdir.mkdir(exist_ok=True)
@@ -571,7 +596,7 @@ class Run:
                             np.lib.format.write_array(fh, a, allow_pickle=False)
                 (tdir / _TRUTH_INFO).write_text(json.dumps(info, indent=2, allow_nan=False, ensure_ascii=False) + "\n", encoding="utf-8")
         except OSError as exc:
-            raise RunError(f"{run_dir}: cannot write ({exc.strerror or exc})") from None
+            raise RunError(f"{final}: cannot write ({exc.strerror or exc})") from None
 
     # -- convenience ------------------------------------------------------------------
     @property
@@ -777,6 +802,38 @@ def _read_run_json(path: Path) -> dict:
     return doc
 
 
+def _check_row_counts(path: Path, rows, tables: dict, where: dict) -> None:
+    """Each table's rows against run.json's ``rows`` (written by :meth:`Run.save`):
+    a table cut short or grown raises ``RunError`` naming it, the rows expected
+    and found. A run.json without ``rows`` (an older cmmpose) is not checked,
+    with a logged note."""
+    if rows is None:
+        _log.info("%s: no row counts ('rows', written since cmmpose checks them): the tables are not checked for "
+                  "truncation", path)
+        return
+    if not isinstance(rows, dict) or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
+                                             for v in rows.values()):
+        raise RunError(f"{path}: 'rows' must be an object of table name -> row count (a whole number >= 0)")
+    unknown = [k for k in rows if k not in _TABLES]
+    if unknown:
+        raise RunError(f"{path}: 'rows' names an unknown table {unknown[0]!r} (tables: {', '.join(_TABLES)})")
+    for name in _TABLES:
+        cols = tables.get(name)
+        if cols is None:
+            if name in rows:
+                raise RunError(f"{path}: 'rows' says {name} has {rows[name]} rows, but the run has no {name} table")
+            continue
+        found = next((len(v) for v in cols.values() if v is not None), None)
+        if found is None:
+            continue  # no known column: the table's own check names what is missing
+        if name not in rows:
+            raise RunError(f"{where[name].label}: run.json's 'rows' gives no row count for this table ({found} rows): "
+                           "was it added after the run was saved?")
+        if found != rows[name]:
+            what = "cut short" if found < rows[name] else "longer than saved"
+            raise RunError(f"{where[name].label}: {found} rows, run.json says {rows[name]}: the table is {what}")
+
+
 def _table_path(run_dir: Path, name: str, required: bool) -> Path | None:
     for suffix in (".parquet", ".csv"):
         p = run_dir / f"{name}{suffix}"
@@ -806,7 +863,7 @@ def _arrow_column(values: np.ndarray, dtype: str) -> pa.Array:
     Returns
     -------
     pyarrow.Array
-        Without nulls, of type ``_ARROW[dtype]``.
+        Without nulls, of the Arrow type ``_ARROW[dtype]`` names.
     """
     if dtype == "str":
         data = [s.encode("utf-8") for s in values.tolist()]
@@ -817,7 +874,7 @@ def _arrow_column(values: np.ndarray, dtype: str) -> pa.Array:
         offsets[1:] = ends
         return pa.Array.from_buffers(pa.string(), len(data), [None, pa.py_buffer(offsets), pa.py_buffer(b"".join(data))])
     a = np.ascontiguousarray(values, dtype=np.dtype(dtype).newbyteorder("<"))
-    return pa.Array.from_buffers(_ARROW[dtype], len(a), [None, pa.py_buffer(a)])
+    return pa.Array.from_buffers(getattr(pa, _ARROW[dtype])(), len(a), [None, pa.py_buffer(a)])
 
 
 def _read_table(path: Path, spec: dict[str, str], where: _Where) -> dict[str, np.ndarray]:
@@ -909,17 +966,3 @@ def load_truth(run_dir) -> tuple[dict[str, np.ndarray], dict]:
     if not isinstance(info, dict):
         raise RunError(f"{ipath}: expected a JSON object, got {type(info).__name__}")
     return arrays, info
-
-
-def _remove_run_files(run_dir: Path) -> None:
-    """Remove the files a run consists of (never anything else)."""
-    for name in ("run.json", *(f"{t}{s}" for t in _TABLES for s in (".parquet", ".csv"))):
-        p = run_dir / name
-        if p.is_file():
-            p.unlink()
-    tdir = run_dir / _TRUTH_DIR
-    for name in (_TRUTH_ARRAYS, _TRUTH_INFO):
-        if (tdir / name).is_file():
-            (tdir / name).unlink()
-    if tdir.is_dir() and not any(tdir.iterdir()):
-        tdir.rmdir()

@@ -38,6 +38,8 @@ import contextlib
 import logging
 import math
 import os
+import socket
+import struct
 import time
 import uuid
 import warnings
@@ -45,18 +47,23 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from .compensation import compensate
+from .atomicfile import AtomicFile, ensure_folder
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import Error, InputError, SchedulerError, warn_clamped
-from .policy import TEMPERATURE_TOLERANCE, check_policy
+from .policy import SCHEDULER_TIMEOUT_HINT, TEMPERATURE_TOLERANCE, check_policy
 from .pose import pose_tuple
 from ._arrays import as_triple
 from .report import KernelReport
+from .pointformats._common import parquet_options
+from ._lazy import LazyModule
 
-__all__ = ["SCHEDULERS", "scheduler_client", "Compensator", "DatasetResult", "compensate_dataset", "dataset_files",
+# Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
+pa = LazyModule("pyarrow")
+pq = LazyModule("pyarrow.parquet")
+
+__all__ = ["SCHEDULERS", "SCHEDULER_TIMEOUT", "check_scheduler", "scheduler_client", "Compensator", "DatasetResult", "compensate_dataset", "dataset_files",
            "dataset_temperature_range",
            "compensate_array", "compensate_dataframe", "map_runs", "evaluate_runs", "diagnose_runs",
            "FleetRow", "fleet_summary", "INPUT_COLUMNS", "OUTPUT_COLUMNS"]
@@ -65,6 +72,16 @@ _log = logging.getLogger("cmmpose.scale")
 
 #: The local scheduler specs; anything else must be an address ``tcp://host:port``.
 SCHEDULERS = ("threads", "processes")
+#: s: how long a scheduler at an address may take to accept the connection and
+#: greet (``scheduler_timeout=``, ``--scheduler-timeout``; docs/scale-out.md).
+SCHEDULER_TIMEOUT = 10.0
+#: Address schemes a spec may have: ``tcp`` (probed, then connected) and
+#: ``tls`` (Dask's TLS settings from its configuration).
+_SCHEMES = ("tcp", "tls")
+#: bytes: a Dask handshake's frames are a few hundred; a length beyond this is no Dask scheduler.
+_MAX_GREETING = 1 << 20
+#: Characters of a bad value echoed back in a message.
+_ECHO = 40
 #: Columns a dataset file must have (T: machine temperature, C, for a map set).
 INPUT_COLUMNS = ("u", "v", "D", "E", "F")
 #: Columns the compensation writes first; the input's other columns follow.
@@ -85,8 +102,100 @@ def _distributed():
     return distributed
 
 
+def check_scheduler(scheduler):
+    """The scheduler spec if it is well formed, else ``SchedulerError`` saying
+    what it must be (no connection is made).
+
+    Parameters
+    ----------
+    scheduler : str or distributed.Client
+        ``'threads'``, ``'processes'``, an address ``tcp://host:port`` (or
+        ``tls://host:port``), or a Client.
+
+    Returns
+    -------
+    str or distributed.Client
+        ``scheduler``, unchanged.
+    """
+    if not isinstance(scheduler, str):
+        if isinstance(scheduler, _distributed().Client):
+            return scheduler
+        raise SchedulerError(f"scheduler: expected 'threads', 'processes' or an address tcp://host:port, "
+                             f"got {_echo(repr(scheduler))}")
+    if scheduler in SCHEDULERS:
+        return scheduler
+    must = "'threads', 'processes' or an address tcp://host:port (a Dask scheduler's, usually port 8786)"
+    if "://" not in scheduler:
+        raise SchedulerError(f"scheduler: expected {must}, got {_echo(repr(scheduler))}")
+    scheme, _, rest = scheduler.partition("://")
+    if scheme.lower() not in _SCHEMES:
+        web = " (an http:// address is a web page, such as the dashboard, not the scheduler)" \
+            if scheme.lower() in ("http", "https") else ""
+        raise SchedulerError(f"scheduler {_echo(scheduler)}: the address must be tcp://host:port{web}; "
+                             f"the spec is {must}")
+    host, _, port = rest.rstrip("/").rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise SchedulerError(f"scheduler {_echo(scheduler)}: expected {scheme}://host:port with a port 1..65535 "
+                             f"(a Dask scheduler's, usually 8786)")
+    return scheduler
+
+
+def _echo(text: str) -> str:
+    """``text``, cut to its first characters when long (a bad value echoed back)."""
+    return text if len(text) <= _ECHO else text[:_ECHO] + "..."
+
+
+def _probe_scheduler(address: str, timeout: float) -> None:
+    """Connect to ``address`` (``tcp://host:port``) and wait for a Dask
+    scheduler's greeting: a scheduler sends its handshake first, a few
+    hundred bytes after an 8-byte length. ``SchedulerError`` naming the
+    address and what did not answer if nothing accepts the connection, the
+    peer says nothing within ``timeout`` s, or what it says is not Dask's."""
+    scheme, _, rest = address.partition("://")
+    host, _, port = rest.rstrip("/").rpartition(":")
+    host = host.strip("[]")  # an IPv6 literal
+    limit = f"{timeout:g} s ({SCHEDULER_TIMEOUT_HINT})"
+    deadline = time.monotonic() + timeout
+    try:
+        sock = socket.create_connection((host, int(port)), timeout=timeout)
+    except TimeoutError:
+        raise SchedulerError(f"scheduler {address}: nothing accepted the connection within {limit}") from None
+    except OSError as exc:
+        raise SchedulerError(f"scheduler {address}: cannot connect ({exc.strerror or exc})") from None
+    if scheme.lower() != "tcp":
+        sock.close()  # a TLS server waits for the client's hello: Dask's own connect timeout bounds the rest
+        return
+    head = b""
+    with sock:
+        while len(head) < 8:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            sock.settimeout(left)
+            try:
+                chunk = sock.recv(8 - len(head))
+            except TimeoutError:
+                break
+            except OSError as exc:
+                raise SchedulerError(f"scheduler {address}: the connection failed before the Dask scheduler "
+                                     f"greeted ({exc.strerror or exc})") from None
+            if not chunk:
+                raise SchedulerError(f"scheduler {address}: accepted the connection, then closed it without the "
+                                     f"Dask handshake: is a Dask scheduler listening there?") from None
+            head += chunk
+    if len(head) < 8:
+        raise SchedulerError(f"scheduler {address}: accepted the connection but sent no Dask handshake within "
+                             f"{limit}: is a Dask scheduler listening there (its port, usually 8786)?")
+    if min(struct.unpack("<Q", head)[0], struct.unpack(">Q", head)[0]) > _MAX_GREETING:
+        said = head.split(b"\r")[0].decode("ascii", "replace")
+        raise SchedulerError(f"scheduler {address}: answered, but not as a Dask scheduler (it began {said!r}; "
+                             f"an HTTP server such as the dashboard?): the address must be the Dask scheduler's "
+                             f"tcp://host:port (usually port 8786), or give 'threads' or 'processes'")
+
+
 @contextlib.contextmanager
-def scheduler_client(scheduler="threads", *, n_workers: int | None = None):
+def scheduler_client(scheduler="threads", *, n_workers: int | None = None,
+                     timeout: float = SCHEDULER_TIMEOUT):
     """A ``distributed.Client`` for a scheduler spec, closed on exit (with its
     local cluster) unless it was given.
 
@@ -99,20 +208,27 @@ def scheduler_client(scheduler="threads", *, n_workers: int | None = None):
         scheduler at that address; or a Client, yielded as it is.
     n_workers : int, optional
         Worker processes for ``'processes'`` (default: one per core).
+    timeout : float
+        s: at an address, the longest wait for the scheduler to accept the
+        connection and for its greeting (the Dask handshake), and Dask's
+        connect timeout (``distributed.comm.timeouts.connect``); default
+        :data:`SCHEDULER_TIMEOUT`.
 
     Raises
     ------
     SchedulerError
-        Without the dask extra, for an unknown spec, or when the scheduler at
-        the address cannot be reached (the message names it).
+        Without the dask extra, for a malformed spec (an ``http://`` address,
+        a missing port), or when the scheduler at the address cannot be
+        reached or does not answer within ``timeout`` (the message names the
+        address and what did not answer).
     """
+    if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout < math.inf:
+        raise SchedulerError(f"scheduler_timeout: expected a positive number of seconds, got {_echo(repr(timeout))}")
     distributed = _distributed()
     if isinstance(scheduler, distributed.Client):
         yield scheduler
         return
-    if not isinstance(scheduler, str) or not (scheduler in SCHEDULERS or "://" in scheduler):
-        raise SchedulerError(f"scheduler: expected 'threads', 'processes' or an address tcp://host:port, "
-                             f"got {scheduler!r}")
+    check_scheduler(scheduler)
     cores = os.cpu_count() or 1
     with contextlib.ExitStack() as stack:
         if scheduler == "threads":
@@ -127,11 +243,18 @@ def scheduler_client(scheduler="threads", *, n_workers: int | None = None):
                 env={"RAYON_NUM_THREADS": "1"}))
             address = cluster
         else:
+            # Dask bounds the TCP connect but not the wait for the scheduler's greeting (a port that accepts
+            # and never answers hangs it; an HTTP server's answer is read as a 3 EiB message): probe first.
+            _probe_scheduler(scheduler, float(timeout))
             address = scheduler
+        import dask
+
         try:
-            client = stack.enter_context(distributed.Client(address, timeout="10s"))
-        except (OSError, TimeoutError) as exc:
-            raise SchedulerError(f"scheduler {scheduler}: cannot connect ({exc})") from None
+            with dask.config.set({"distributed.comm.timeouts.connect": f"{float(timeout)}s"}):
+                client = stack.enter_context(distributed.Client(address, timeout=f"{float(timeout)}s"))
+        except (OSError, TimeoutError, ValueError, MemoryError) as exc:
+            raise SchedulerError(f"scheduler {scheduler}: cannot connect within {float(timeout):g} s "
+                                 f"({type(exc).__name__}: {exc})") from None
         _log.info("scheduler %s: %d workers", scheduler, len(client.scheduler_info().get("workers", {})))
         yield client
 
@@ -296,6 +419,9 @@ def _plan_file(path: Path, needs_t: bool) -> tuple[int, list[str]]:
     except (OSError, pa.ArrowException) as exc:
         raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
     names = schema.names
+    if len(set(names)) != len(names):  # before any lookup by name
+        dup = next(n for n in names if names.count(n) > 1)
+        raise InputError(f"{path}: column {dup!r} appears twice")
     wanted = INPUT_COLUMNS + (("T",) if needs_t else ())
     for c in wanted:
         if c not in names:
@@ -307,9 +433,6 @@ def _plan_file(path: Path, needs_t: bool) -> tuple[int, list[str]]:
     for c in OUTPUT_COLUMNS:
         if c in names:
             raise InputError(f"{path}: has a column {c!r}, which the output would write over")
-    if len(set(names)) != len(names):
-        dup = next(n for n in names if names.count(n) > 1)
-        raise InputError(f"{path}: column {dup!r} appears twice")
     passthrough = [c for c in names if c not in INPUT_COLUMNS + ("T",)]
     return meta.num_rows, passthrough
 
@@ -332,16 +455,16 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
         except (ImportError, ValueError):
             worker = None
     src_p, dst_p = Path(src), Path(dst)
-    tmp = dst_p.with_name(f".{dst_p.name}.{uuid.uuid4().hex[:8]}.part")
     reports, kernel_s, n = [], 0.0, 0
-    writer = None
+    writer = out = None
     try:
+        out = AtomicFile(dst_p, "wb", inputs=[src_p])  # cmmpose.atomicfile: renamed into place when whole
         pf = pq.ParquetFile(src_p)
         in_schema = pf.schema_arrow
         out_schema = pa.schema([pa.field(c, pa.float64()) for c in OUTPUT_COLUMNS]
                                + [in_schema.field(c) for c in passthrough], metadata=in_schema.metadata)
-        # X, Y, Z never repeat: no dictionary for them (it only costs time)
-        writer = pq.ParquetWriter(tmp, out_schema, use_dictionary=list(passthrough))
+        # X, Y, Z never repeat: no dictionary for them (it only costs time); parquet_options
+        writer = pq.ParquetWriter(out.f, out_schema, **parquet_options(out_schema))
         use_t = kernel.needs_temperature_column
         for batch in pf.iter_batches(batch_size=batch_rows):
             m = batch.num_rows
@@ -367,21 +490,23 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
                 worker.log_event(topic, m)
         writer.close()
         writer = None
-        os.replace(tmp, dst_p)
+        out.commit()
     except (OSError, pa.ArrowException) as exc:
         raise InputError(f"{src_p}: cannot be compensated into {dst_p} ({exc})") from None
     finally:
         if writer is not None:
-            writer.close()
-        if tmp.exists():
-            tmp.unlink()
+            with contextlib.suppress(OSError, pa.ArrowException):
+                writer.close()
+        if out is not None:
+            out.abort()  # nothing once committed
     return n, KernelReport.total(reports), kernel_s
 
 
 def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
                        out_of_range: str = "raise", nan_policy: str = "raise",
                        temperature_tolerance: float = TEMPERATURE_TOLERANCE, scheduler="threads",
-                       batch_rows: int = BATCH_ROWS, progress=None) -> DatasetResult:
+                       batch_rows: int = BATCH_ROWS, progress=None,
+                       scheduler_timeout: float = SCHEDULER_TIMEOUT) -> DatasetResult:
     """Compensate a folder of Parquet scans into a folder of Parquet files.
 
     Each input ``NAME.parquet`` (columns ``u, v`` mm, ``D, E, F`` mm, ``T`` C
@@ -409,6 +534,9 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
     progress : callable, optional
         ``progress(points_done, points_total)``, called in this process as
         batches finish.
+    scheduler_timeout : float
+        s: the longest wait for a scheduler at an address to connect and
+        greet (:func:`scheduler_client`'s ``timeout``).
 
     Returns
     -------
@@ -421,7 +549,8 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         non-numeric column, an unreadable file, a bad row (the file and its
         row span). Files already written stay; the one in progress does not.
     SchedulerError
-        Without the dask extra, or a scheduler that cannot be reached.
+        Without the dask extra, a malformed spec, or a scheduler that cannot
+        be reached or does not answer within ``scheduler_timeout``.
     """
     t_start = time.perf_counter()
     kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
@@ -436,7 +565,7 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         raise InputError(f"{out}: the output folder is the input folder; the inputs would be replaced")
     plans = [_plan_file(f, kernel.needs_temperature_column) for f in files]
     total = sum(rows for rows, _ in plans)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_folder(out)
     outputs = [out / f.name for f in files]
     topic = f"cmmpose-progress-{uuid.uuid4().hex}"
     done, finished = 0, False
@@ -448,7 +577,7 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         if not finished:
             progress(min(done, total), total)
 
-    with scheduler_client(scheduler) as client:
+    with scheduler_client(scheduler, timeout=scheduler_timeout) as client:
         shared = client.scatter(kernel, broadcast=True, hash=False)
         if progress is not None:
             client.subscribe_topic(topic, on_event)
@@ -588,7 +717,8 @@ def _on_run(func, run_dir: str, args: tuple, kwargs: dict):
         raise type(exc)(f"{run_dir}: {exc}") from None
 
 
-def map_runs(func, run_dirs, *shared, scheduler="threads", progress=None, **kwargs) -> list:
+def map_runs(func, run_dirs, *shared, scheduler="threads", progress=None, scheduler_timeout: float = SCHEDULER_TIMEOUT,
+             **kwargs) -> list:
     """``func(run, *shared, **kwargs)`` for every run folder, one task per
     run on the scheduler; the run is loaded on the worker.
 
@@ -605,6 +735,8 @@ def map_runs(func, run_dirs, *shared, scheduler="threads", progress=None, **kwar
         See :func:`scheduler_client`.
     progress : callable, optional
         ``progress(runs_done, runs_total)`` in this process.
+    scheduler_timeout : float
+        s: see :func:`scheduler_client`'s ``timeout``.
     **kwargs
         Small keyword arguments, sent with each task.
 
@@ -621,7 +753,7 @@ def map_runs(func, run_dirs, *shared, scheduler="threads", progress=None, **kwar
     run_dirs = [str(Path(r).absolute()) for r in run_dirs]  # a cluster's workers have another working folder
     if not run_dirs:
         raise InputError("run_dirs: no run folders given")
-    with scheduler_client(scheduler) as client:
+    with scheduler_client(scheduler, timeout=scheduler_timeout) as client:
         args = tuple(client.scatter(a, broadcast=True, hash=False) for a in shared)
         token = uuid.uuid4().hex[:8]
         futures = [client.submit(_on_run, func, r, args, kwargs, key=f"cmmpose-run-{i}-{Path(r).name}-{token}",
@@ -651,7 +783,8 @@ def _evaluate_run(run, maps, **kwargs):
     return ev
 
 
-def evaluate_runs(run_dirs, maps="run", *, scheduler="threads", progress=None, **kwargs) -> list:
+def evaluate_runs(run_dirs, maps="run", *, scheduler="threads", progress=None,
+                  scheduler_timeout: float = SCHEDULER_TIMEOUT, **kwargs) -> list:
     """:func:`cmmpose.evaluate` of every run, one task per run.
 
     Parameters
@@ -662,7 +795,7 @@ def evaluate_runs(run_dirs, maps="run", *, scheduler="threads", progress=None, *
         The compensation maps for every run (sent to each worker once), None
         for uncompensated only, or ``'run'``: the bundled maps each run.json
         names.
-    scheduler, progress
+    scheduler, progress, scheduler_timeout
         As in :func:`map_runs`.
     **kwargs
         :func:`cmmpose.evaluate`'s options (temperature, reject, expansion,
@@ -674,7 +807,8 @@ def evaluate_runs(run_dirs, maps="run", *, scheduler="threads", progress=None, *
         In the order of ``run_dirs``; warnings are in each one's
         ``provenance['notes']``.
     """
-    return map_runs(_evaluate_run, run_dirs, maps, scheduler=scheduler, progress=progress, **kwargs)
+    return map_runs(_evaluate_run, run_dirs, maps, scheduler=scheduler, progress=progress,
+                    scheduler_timeout=scheduler_timeout, **kwargs)
 
 
 def _diagnose_run(run, model, temperature=None, **kwargs):
@@ -692,7 +826,8 @@ def _diagnose_run(run, model, temperature=None, **kwargs):
         return diagnose(run, model, **kwargs)
 
 
-def diagnose_runs(run_dirs, model=None, *, scheduler="threads", progress=None, **kwargs) -> list:
+def diagnose_runs(run_dirs, model=None, *, scheduler="threads", progress=None,
+                  scheduler_timeout: float = SCHEDULER_TIMEOUT, **kwargs) -> list:
     """:func:`cmmpose.diagnose` of every run, one task per run.
 
     Parameters
@@ -703,7 +838,7 @@ def diagnose_runs(run_dirs, model=None, *, scheduler="threads", progress=None, *
         The starting model for every run (sent to each worker once); None or
         ``'run'``: the bundled maps each run.json names (with their
         configuration).
-    scheduler, progress
+    scheduler, progress, scheduler_timeout
         As in :func:`map_runs`.
     **kwargs
         :func:`cmmpose.diagnose`'s options (add, auto, max_effects,
@@ -715,7 +850,8 @@ def diagnose_runs(run_dirs, model=None, *, scheduler="threads", progress=None, *
     list of Diagnosis
         In the order of ``run_dirs``.
     """
-    return map_runs(_diagnose_run, run_dirs, model, scheduler=scheduler, progress=progress, **kwargs)
+    return map_runs(_diagnose_run, run_dirs, model, scheduler=scheduler, progress=progress,
+                    scheduler_timeout=scheduler_timeout, **kwargs)
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..atomicfile import write_text
 from ..errors import AcquisitionError
 from ..run import CHANNEL_ROLES, POSES_COLUMNS, SCANS_COLUMNS, Run
 
@@ -126,9 +127,9 @@ class Plan:
             raise AcquisitionError(f"{path}: {exc}") from None
 
     def write(self, path) -> None:
-        """Write as JSON."""
+        """Write as JSON (atomically, :mod:`cmmpose.atomicfile`)."""
         doc = {k: getattr(self, k) for k in _KEYS}
-        Path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
     def to_dict(self) -> dict:
         """JSON-ready dict."""

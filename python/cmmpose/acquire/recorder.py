@@ -204,7 +204,7 @@ class Recorder:
                     n = self._journal.write_block(items)
                     lines = [json.loads(it[13:].decode("utf-8")) for it in items if it[0] == EVENT]
                     if lines:
-                        self._log.write("".join(json.dumps(ev, separators=(", ", ": ")) + "\n" for ev in lines))
+                        self._log.write("".join(json.dumps(ev, separators=(", ", ": "), allow_nan=False) + "\n" for ev in lines))
                         self._log.flush()
                     with self.stats.lock:
                         self.stats.blocks = self._journal.blocks

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomicfile import save_figure, write_text
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from ..errors import InputError, MapError, read_lines
 from .._validate import finite, nonnegative, positive, triple
@@ -812,7 +813,7 @@ def write_run(run: InterferometerRun, path: str | PathLike) -> None:
         lines.append(",".join(
             (f"{int(a[i]):+d}" if name == "direction" else str(int(a[i])) if name == "repeat" else _fmt(a[i]))
             for name, a in cols.items()))
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(path, "\n".join(lines) + "\n")
 
 
 # ---------------------------------------------------------------------------
@@ -1465,5 +1466,5 @@ def plot_map_difference(a: ErrorMap, b: ErrorMap, path: str | PathLike | None = 
     if path is not None:
         if not isinstance(path, (str, PathLike)):
             raise InputError(f"path: expected a file path or None, got {type(path).__name__}")
-        fig.savefig(path, dpi=150)
+        save_figure(fig, path, dpi=150)
     return fig

@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
+from ..atomicfile import ensure_folder, write_text
 from ..errors import InputError
 from ..pose import MountOffset, Pose, pose_tuple
 from ..errors import CalibrationError
@@ -59,9 +58,42 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
+#: The top-level keys of a library file.
+_DOC_KEYS = ("format", "version", "units", "poses")
+
+
+def _unit(text) -> str:
+    """The unit of a ``units`` entry: its first word (``'degree (alpha, ...)'`` -> ``'degree'``)."""
+    return text.split()[0] if isinstance(text, str) and text.split() else repr(text)
+
+
+def _check_units(path, units) -> None:
+    """The file's ``units`` block names the units this module writes (``UNITS``),
+    or is absent: values in radians or metres would otherwise be read as
+    degrees or mm in silence. An unknown entry is refused (a typo)."""
+    if units is None:
+        return
+    if not isinstance(units, dict):
+        raise CalibrationError(f"{path}: \"units\" must be an object of field -> unit, got {units!r}")
+    for key, text in units.items():
+        if key not in UNITS:
+            raise CalibrationError(f"{path}: units: unknown field {key!r} (known: {', '.join(UNITS)})")
+        if _unit(text) != _unit(UNITS[key]):
+            raise CalibrationError(f"{path}: units.{key} is {text!r}; an alignment library holds {key} in "
+                                   f"{_unit(UNITS[key])} only ({UNITS[key]}): convert the values and the unit")
+
+
+def _no_text(where: str, name: str, value) -> None:
+    """Refuse text where numbers belong (``"90"`` would otherwise read as 90)."""
+    if isinstance(value, (str, bytes)) or any(isinstance(x, (str, bytes)) for x in np.ravel(
+            np.asarray(value, dtype=object))):
+        raise CalibrationError(f"{where}: {name} must be numbers, not text, got {value!r}")
+
+
 def _triple(where: str, name: str, value, *, optional: bool = False, nonnegative: bool = False):
     if value is None and optional:
         return None
+    _no_text(where, name, value)
     return triple(f"{where}: {name}", value, nonnegative=nonnegative, error=CalibrationError)
 
 
@@ -70,6 +102,7 @@ def _matrix(where: str, name: str, value, *, covariance: bool = False):
     must be symmetric positive semi-definite."""
     if value is None:
         return None
+    _no_text(where, name, value)
     try:
         m = np.array(value, dtype=float)
     except (TypeError, ValueError):
@@ -366,6 +399,11 @@ class AlignmentLibrary:
         if doc.get("version") != LIBRARY_VERSION:
             raise CalibrationError(f"{self.path}: alignment library version {doc.get('version')!r} is not supported "
                                    f"(this cmmpose reads version {LIBRARY_VERSION})")
+        unknown = sorted(set(doc) - set(_DOC_KEYS))
+        if unknown:
+            raise CalibrationError(f"{self.path}: unknown key(s) {', '.join(map(repr, unknown))} "
+                                   f"(known: {', '.join(_DOC_KEYS)})")
+        _check_units(self.path, doc.get("units"))
         poses = doc.get("poses")
         if not isinstance(poses, dict):
             raise CalibrationError(f"{self.path}: \"poses\" must be an object of pose name -> record")
@@ -374,17 +412,8 @@ class AlignmentLibrary:
     def _write(self, poses: dict) -> None:
         doc = {"format": LIBRARY_FORMAT, "version": LIBRARY_VERSION, "units": UNITS,
                "poses": {k: poses[k] for k in sorted(poses)}}
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=self.path.name + ".", suffix=".tmp", dir=self.path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                json.dump(doc, f, indent=2)
-                f.write("\n")
-            os.replace(tmp, self.path)  # atomic: a crash never leaves half a library
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        ensure_folder(self.path.parent)
+        write_text(self.path, json.dumps(doc, indent=2, allow_nan=False) + "\n")  # atomic: a crash never leaves half a library
 
     # -- API ---------------------------------------------------------------------
     def names(self) -> list[str]:

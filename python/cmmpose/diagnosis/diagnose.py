@@ -5,13 +5,13 @@ measurement would."""
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
 from ..fitting import fit_spheres
@@ -232,7 +232,7 @@ class Diagnosis:
                 "base_effects": list(m.names)}
 
     def to_json(self, **kw) -> str:
-        return json.dumps(self.to_dict(), default=_json_default, **kw)
+        return strict_json(self.to_dict(), default=_json_default, **kw)
 
     def table(self, step: int = 0):
         """A rich table of the candidates ranked at ``step``."""
@@ -240,7 +240,8 @@ class Diagnosis:
 
         s = self.steps[step]
         t = Table(title=f"Candidate effects against the model '{s.label}'")
-        for col in ("effect", "fitted value ± u", "explains", "of lengths", "LR (dof)", "p", "corr", "cond",
+        of = "of lengths" if s.figures.deviation_rms is None else "of deviations"  # an artefact run's balls
+        for col in ("effect", "fitted value ± u", "explains", of, "LR (dof)", "p", "corr", "cond",
                     "decision"):
             # Whole names: 'squareness-temperature@granite_top' and '@granite_bottom' differ only at their ends.
             width = max((len(c.name) for c in s.ranking), default=0) if col == "effect" else None
@@ -264,16 +265,19 @@ class Diagnosis:
         from rich.table import Table
 
         t = Table(title="The error falling as effects are added")
-        for col in ("model", "rms accuracy error (um)", "B89 (um)", "sphere form (um)", "fit rms (um)",
-                    "centre spread (um)", "effect values"):
+        # An artefact run (ball plate, step gauge) has ball deviations where a ballbar run has lengths.
+        plate = self.steps[0].figures.deviation_rms is not None
+        first = (("rms deviation (um)", "rms_deviation_um"), ("largest deviation (um)", "largest_deviation_um")) \
+            if plate else (("rms accuracy error (um)", "rms_accuracy_error_um"), ("B89 (um)", "b89_um"))
+        for col in ("model", first[0][0], first[1][0], "sphere form (um)", "fit rms (um)", "centre spread (um)",
+                    "effect values"):
             t.add_column(col, justify="left" if col in ("model", "effect values") else "right")
         for s in self.steps:
             f = s.figures.to_dict()
             eff = "; ".join(f"{sp.name}: {sp.describe(v)}" for sp, v in s.model.effects[-1:]) if s.model.effects \
                 and s.label != "base" else ""
-            t.add_row(s.label + (" (forced)" if s.forced else ""), f"{f['rms_accuracy_error_um']:.2f}",
-                      f"{f['b89_um']:.2f}", f"{f['form_um']:.1f}", f"{f['fit_rms_um']:.2f}",
-                      "-" if f["centre_spread_um"] is None else f"{f['centre_spread_um']:.2f}", eff)
+            t.add_row(s.label + (" (forced)" if s.forced else ""), *(_um_text(f[k]) for _, k in first),
+                      f"{f['form_um']:.1f}", f"{f['fit_rms_um']:.2f}", _um_text(f["centre_spread_um"]), eff)
         return t
 
     def __rich_console__(self, console, options):
@@ -316,6 +320,11 @@ class Diagnosis:
         from .report import write_report
 
         return write_report(self, path, run=run, run_dir=run_dir, model_file=model_file, title=title)
+
+
+def _um_text(x) -> str:
+    """A figure in um for a table, '-' when there is none."""
+    return "-" if x is None else f"{x:.2f}"
 
 
 def _json_default(o):

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomicfile import ensure_folder, write_text
 from ..errors import InputError
 
 __all__ = ["write_html_report", "render_html_report", "figure_png"]
@@ -224,9 +225,6 @@ def write_html_report(path: str | PathLike, title: str, sections) -> Path:
         raise InputError(f"path: expected a file path, got {type(path).__name__}")
     doc = render_html_report(title, sections)
     out = Path(path)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(doc, encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"path: cannot write {out} ({exc.strerror or exc})") from None
+    ensure_folder(out.parent if str(out.parent) else ".")
+    write_text(out, doc)  # atomic; OutputError naming the file on a full disk
     return out

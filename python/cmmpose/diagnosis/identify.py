@@ -113,6 +113,8 @@ class Problem:
         n_groups = len(np.unique(self.layout.sphere_of_scan[self.layout.repeated]))
         self.n_eff = self.n_class.copy()
         self.n_eff[1] = 3 * (len(self.layout.repeated) - n_groups)
+        if self.layout.artefact is not None:  # each placement's rigid fit takes its degrees of freedom
+            self.n_eff[0] = max(self.n_class[0] - self.layout.artefact.fitted_dof, 0)
         self.nuisance, self.nuisance_names = self.layout.nuisance()
         self.candidates = dict(run_library(self.inputs) if candidates is None else candidates)
         self.candidates |= {spec.name: spec for spec in extra}
@@ -153,11 +155,11 @@ class Problem:
 
     def _columns(self, model, spec: EffectSpec, current: np.ndarray, obs: Observed) -> np.ndarray:
         """Residual change per prior magnitude of each parameter of ``spec``:
-        analytic for the artefact expansion (it acts on the predicted length
-        only), else finite differences of size ``spec.steps`` through the
+        analytic for the artefact expansion of a ballbar run (it acts on the
+        predicted length only), else finite differences of size ``spec.steps`` through the
         kernel and the sphere fits: forward, or backward where the forward
         step cannot be evaluated (it leaves the maps' range)."""
-        if spec.kind == "length":
+        if spec.kind == "length" and self.layout.artefact is None:
             ref = self.layout.calibrated_length or (float(np.mean(obs.lengths)) if len(obs.lengths) else 0.0)
             return self.layout.expansion_column(ref)[:, None] * np.asarray(spec.prior)
         cols = []

@@ -123,7 +123,8 @@ class JointDiagnosis(Diagnosis):
         for s, per_run in zip(self.steps, self.run_figures):
             row = {"label": s.label}
             for name, f in zip(self.run_names, per_run):
-                row[f"{name}: rms_accuracy_error_um"] = f.rms_accuracy_error * 1e3
+                what, value = f.headline  # an artefact run's rms deviation, a ballbar run's rms accuracy error
+                row[f"{name}: {what.replace(' ', '_')}_um"] = value * 1e3
             out.append(row)
         return out
 
@@ -138,11 +139,11 @@ class JointDiagnosis(Diagnosis):
 
         t = Table(title=f"The error falling as effects are added ({len(self.run_names)} runs, one model)")
         t.add_column("model")
-        for name in self.run_names:
-            t.add_column(f"{name}: rms (um)", justify="right")
+        for name, f in zip(self.run_names, self.run_figures[0] if self.run_figures else []):
+            t.add_column(f"{name}: {f.headline[0]} (um)", justify="right")
         for s, per_run in zip(self.steps, self.run_figures):
             t.add_row(s.label + (" (forced)" if s.forced else ""),
-                      *(f"{f.rms_accuracy_error * 1e3:.2f}" for f in per_run))
+                      *(f"{f.headline[1] * 1e3:.2f}" for f in per_run))
         return t
 
 

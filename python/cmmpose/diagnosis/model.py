@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
+from ..atomicfile import write_text
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError, MapError
 from ..policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy
@@ -256,9 +257,15 @@ class Model:
         }
 
     def save(self, path) -> Path:
-        """Write the model (maps included) as JSON to ``path``."""
+        """Write the model (maps included) as JSON to ``path``, atomically
+        (:mod:`cmmpose.atomicfile`: ``OutputError`` on a full disk, the earlier
+        file left whole)."""
         path = Path(path)
-        path.write_text(json.dumps(self.to_dict(), indent=1))
+        try:
+            text = json.dumps(self.to_dict(), indent=1, allow_nan=False)  # standard JSON only
+        except ValueError:
+            raise InputError(f"{path}: the model holds a value that is not finite (NaN or inf): not written") from None
+        write_text(path, text)
         return path
 
     @classmethod

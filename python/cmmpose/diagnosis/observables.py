@@ -28,6 +28,8 @@ from ..errors import InputError
 from ..fitting import fit_spheres
 from ..metrics import b89_value, rms_accuracy_error
 from ..run import Run
+from ..artefact_evaluation import is_artefact_run
+from .artefact import ArtefactLayout, artefact_deviations
 from .inputs import RunInputs
 
 __all__ = ["ObservationLayout", "Observed", "observe", "figures", "ModelFigures", "CLASSES"]
@@ -64,6 +66,12 @@ class ObservationLayout:
         Index into ``labels`` of each sampled point's scan.
     calibrated_length, calibrated_radius : float or None
         Calibrated bar length at 20 C and ball radius, mm.
+    artefact : ArtefactLayout or None
+        For an artefact run (ball plate, step gauge; ``run.artefact``
+        embeds its definition): which spheres are which balls of which
+        placement. Then the first block holds each ball's deviation after its
+        placement's best-fit rigid transform (3 per ball) instead of ballbar
+        lengths (:mod:`cmmpose.diagnosis.artefact`).
     """
 
     labels: np.ndarray
@@ -77,6 +85,7 @@ class ObservationLayout:
     sample_scan: np.ndarray
     calibrated_length: float | None
     calibrated_radius: float | None
+    artefact: ArtefactLayout | None = None
 
     @classmethod
     def from_run(cls, run: Run, inputs: RunInputs, points_per_scan: int = POINTS_PER_SCAN) -> ObservationLayout:
@@ -108,7 +117,8 @@ class ObservationLayout:
         counts = np.bincount(sphere_of_scan, minlength=len(uniq))
         repeated = np.flatnonzero(counts[sphere_of_scan] > 1)
         positions, ends = [], []
-        for p in sorted({k[1] for k in uniq if k[0] == "ball" and k[1] >= 0}):
+        artefact_run = is_artefact_run(run)
+        for p in [] if artefact_run else sorted({k[1] for k in uniq if k[0] == "ball" and k[1] >= 0}):
             if ("ball", p, 1) in uniq and ("ball", p, 2) in uniq:
                 positions.append(p)
                 ends.append((uniq.index(("ball", p, 1)), uniq.index(("ball", p, 2))))
@@ -130,13 +140,20 @@ class ObservationLayout:
             sample.append(rows[pick])
             sample_scan.append(np.full(k, i))
         art = run.artefact
+        plate = None
+        if artefact_run:
+            def sphere_temperature(idx):
+                return inputs.temperature[np.isin(sid, labels[np.isin(sphere_of_scan, idx)])].mean()
+
+            plate = ArtefactLayout.from_run(run, uniq, sphere_temperature)
         return cls(labels, sphere_of_scan, kinds, np.array(positions, int), np.array(ends, int).reshape(-1, 2),
                    temp, repeated, np.concatenate(sample), np.concatenate(sample_scan),
-                   art.get("calibrated_length_mm"), art.get("calibrated_radius_mm"))
+                   art.get("calibrated_length_mm"), art.get("calibrated_radius_mm"), plate)
 
     @property
     def sizes(self) -> dict[str, int]:
-        return {"length": len(self.positions), "centre": 3 * len(self.repeated), "radius": len(self.labels),
+        first = len(self.positions) if self.artefact is None else self.artefact.size
+        return {"length": first, "centre": 3 * len(self.repeated), "radius": len(self.labels),
                 "point": len(self.sample)}
 
     @property
@@ -190,6 +207,11 @@ class Observed:
         Fitted radius, residual rms and form of each scan, mm.
     lengths : ndarray (P,)
         Ballbar lengths, mm.
+    fits : SphereFits
+        The sphere fits.
+    deviations : ndarray (n, 3) or None
+        Of an artefact run: each ball's deviation per placement after the
+        placement's best-fit rigid transform, mm (placements in order).
     """
 
     values: np.ndarray
@@ -200,6 +222,7 @@ class Observed:
     form: np.ndarray
     lengths: np.ndarray
     fits: dict
+    deviations: np.ndarray | None = None
 
 
 def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin: float = 0.0,
@@ -228,25 +251,30 @@ def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin
     np.add.at(mean_c, layout.sphere_of_scan, centres)
     mean_c /= np.maximum(counts, 1)[:, None]
     lengths = np.linalg.norm(mean_c[layout.ends[:, 1]] - mean_c[layout.ends[:, 0]], axis=1)
+    deviations = None
+    if layout.artefact is not None:  # ball deviations after each placement's rigid fit, in place of lengths
+        deviations = artefact_deviations(layout.artefact, mean_c, expansion_ppm_per_kelvin)
     dev = (centres - mean_c[layout.sphere_of_scan])[layout.repeated].reshape(-1)
     # Residuals of the sampled points from their scan's sphere.
     p = xyz[layout.sample]
     c = centres[layout.sample_scan]
     point = np.linalg.norm(p - c, axis=1) - radii[layout.sample_scan]
-    values = np.concatenate([lengths, dev, radii, point])
+    first = lengths if deviations is None else deviations.reshape(-1)
+    values = np.concatenate([first, dev, radii, point])
     residual = values.copy()
-    P = len(lengths)
-    if layout.calibrated_length is not None:
+    P = len(first)
+    # An artefact's deviations are predicted zero: its calibrated centres and expansion are in them.
+    if deviations is None and layout.calibrated_length is not None:
         residual[:P] -= layout.calibrated_length * (1 + expansion_ppm_per_kelvin * 1e-6 *
                                                     (layout.position_temperature - 20.0))
-    else:
+    elif deviations is None:
         # The bar length is a nuisance; the expansion still shapes lengths
         # taken at different temperatures.
         residual[:P] -= np.mean(lengths) * expansion_ppm_per_kelvin * 1e-6 * (layout.position_temperature - 20.0)
     if layout.calibrated_radius is not None:
         balls = layout.sphere_kind[layout.sphere_of_scan] == "ball"
         residual[P + len(dev):P + len(dev) + len(radii)][balls] -= layout.calibrated_radius
-    return Observed(values, residual, centres, radii, rms, form, lengths, fits)
+    return Observed(values, residual, centres, radii, rms, form, lengths, fits, deviations)
 
 
 @dataclass(frozen=True)
@@ -271,6 +299,10 @@ class ModelFigures:
         Mean residual rms of the sphere fits, mm.
     centre_spread : float or None
         RMS disagreement of repeated scans of one sphere, mm.
+    deviation_rms, deviation_largest : float or None
+        Of an artefact run (no ballbar lengths: ``rms_accuracy_error`` and
+        ``b89`` NaN): rms and largest magnitude of the balls' deviations
+        after each placement's best-fit rigid transform, mm.
     """
 
     lengths: np.ndarray
@@ -281,17 +313,31 @@ class ModelFigures:
     form: float
     fit_rms: float
     centre_spread: float | None
+    deviation_rms: float | None = None
+    deviation_largest: float | None = None
+
+    @property
+    def headline(self) -> tuple[str, float]:
+        """The run's main figure: ('rms accuracy error', mm) of a ballbar run,
+        ('rms deviation', mm) of an artefact run."""
+        if self.deviation_rms is not None:
+            return "rms deviation", self.deviation_rms
+        return "rms accuracy error", self.rms_accuracy_error
 
     def to_dict(self) -> dict:
-        um = 1e3
-        return {"rms_accuracy_error_um": self.rms_accuracy_error * um, "b89_um": self.b89 * um,
-                "length_error_um": None if self.length_error is None else self.length_error * um,
-                "form_um": self.form * um, "fit_rms_um": self.fit_rms * um,
-                "centre_spread_um": None if self.centre_spread is None else self.centre_spread * um}
+        def um(x):  # NaN (no ballbar lengths) is null: JSON has no NaN
+            return None if x is None or not np.isfinite(x) else x * 1e3
+
+        out = {"rms_accuracy_error_um": um(self.rms_accuracy_error), "b89_um": um(self.b89),
+               "length_error_um": um(self.length_error), "form_um": um(self.form), "fit_rms_um": um(self.fit_rms),
+               "centre_spread_um": um(self.centre_spread)}
+        if self.deviation_rms is not None:
+            out |= {"rms_deviation_um": um(self.deviation_rms), "largest_deviation_um": um(self.deviation_largest)}
+        return out
 
 
 def figures(layout: ObservationLayout, xyz: np.ndarray, model, sid=None, observed: Observed | None = None) -> ModelFigures:
-    """Ballbar figures of compensated points ``xyz`` under ``model``."""
+    """Ballbar (or artefact) figures of compensated points ``xyz`` under ``model``."""
     if observed is None:
         if sid is None:
             raise InputError("figures: give sid (scan id per point) or observed")
@@ -301,12 +347,17 @@ def figures(layout: ObservationLayout, xyz: np.ndarray, model, sid=None, observe
     n_rep = len(layout.repeated)
     spread = None
     if n_rep:
-        dev = observed.residual[len(l20):len(l20) + 3 * n_rep]
+        first = layout.sizes["length"]
+        dev = observed.residual[first:first + 3 * n_rep]
         spread = float(np.sqrt(np.mean(dev ** 2) * 3))
     if len(l20) >= 2:
         rms, b89 = rms_accuracy_error(l20), b89_value(l20)
     else:
         rms = b89 = float("nan")
     err = None if layout.calibrated_length is None or not len(l20) else float(np.mean(l20) - layout.calibrated_length)
+    d_rms = d_max = None
+    if observed.deviations is not None:
+        size = np.linalg.norm(observed.deviations, axis=1)
+        d_rms, d_max = float(np.sqrt(np.mean(size ** 2))), float(size.max())
     return ModelFigures(observed.lengths, l20, rms, b89, err, float(np.mean(observed.form)),
-                        float(np.mean(observed.rms)), spread)
+                        float(np.mean(observed.rms)), spread, d_rms, d_max)

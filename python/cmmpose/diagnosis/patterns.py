@@ -604,7 +604,10 @@ def ranked_patterns(found, alpha: float) -> tuple[tuple, float]:
 
 
 def _length_level(run, ids, counts, centres, scan_t, scan_temp):
-    """Ballbar lengths per position (mean centre of each ball's scans) and their patterns."""
+    """Ballbar lengths per position (mean centre of each ball's scans) and their patterns
+    (none for an artefact run: its balls are not bar ends)."""
+    if isinstance(run.artefact.get("definition"), dict):
+        return None, []
     scans = run.scans
     at = _scan_rows(run, ids)
     pos, ball = scans["position"][at], scans["ball"][at]

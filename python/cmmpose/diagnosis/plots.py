@@ -247,6 +247,14 @@ def plot_point_residuals(patterns, path: str | PathLike | None = None, *, quanti
 
 
 _HISTORY_KEYS = (("rms_accuracy_error_um", "rms accuracy error"), ("b89_um", "B89 value"), ("form_um", "form"))
+#: Of an artefact run (ball plate, step gauge): deviations in place of lengths.
+_ARTEFACT_HISTORY_KEYS = (("rms_deviation_um", "rms deviation"), ("largest_deviation_um", "largest deviation"),
+                          ("form_um", "form"))
+
+
+def _history_keys(steps) -> tuple:
+    first = steps[0] if isinstance(steps, Sequence) and steps and isinstance(steps[0], Mapping) else {}
+    return _ARTEFACT_HISTORY_KEYS if first.get("rms_deviation_um") is not None else _HISTORY_KEYS
 
 
 def _history(steps) -> tuple[list[str], dict[str, np.ndarray]]:
@@ -254,14 +262,15 @@ def _history(steps) -> tuple[list[str], dict[str, np.ndarray]]:
         raise InputError(f"steps: expected a list of dicts, got {type(steps).__name__}")
     if not steps:
         raise InputError("steps: expected at least one step (the base model)")
-    labels, values = [], {k: [] for k, _ in _HISTORY_KEYS}
+    keys = _history_keys(steps)
+    labels, values = [], {k: [] for k, _ in keys}
     for i, s in enumerate(steps):
         if not isinstance(s, Mapping):
             raise InputError(f"steps[{i}]: expected a dict, got {type(s).__name__}")
         if not isinstance(s.get("label"), str):
             raise InputError(f"steps[{i}]: 'label' must be a string, got {s.get('label')!r}")
         labels.append(s["label"])
-        for k, _ in _HISTORY_KEYS:
+        for k, _ in keys:
             v = s.get(k)
             if isinstance(v, bool) or not isinstance(v, (Real, np.floating, np.integer)) or not math.isfinite(float(v)) \
                     or float(v) < 0:
@@ -301,6 +310,8 @@ def plot_history(steps, path: str | PathLike | None = None, *, title: str | None
         non-finite value, or matplotlib not installed.
     """
     labels, values = _history(steps)
+    keys = _history_keys(steps)
+    (main_key, main_name), (second_key, second_name) = keys[0], keys[1]
     fig = _figure(figsize=(max(6.0, 1.4 * len(labels) + 3.0), 5.0), layout="constrained")
     ax = fig.add_subplot()
     # The sphere form is the peak-to-valley of the fit residuals: mostly the
@@ -311,7 +322,7 @@ def plot_history(steps, path: str | PathLike | None = None, *, title: str | None
     idx = np.arange(len(labels))
     handles = []
     # value labels: rms below its marker, the others above, so close values stay readable
-    for (key, name), marker, dy, axis in zip(_HISTORY_KEYS, ("o", "s", "^"), (-11, 4, 4), (ax, ax, ax_form)):
+    for (key, name), marker, dy, axis in zip(keys, ("o", "s", "^"), (-11, 4, 4), (ax, ax, ax_form)):
         style = {"ls": "--", "color": "0.45"} if axis is ax_form else {}
         line, = axis.plot(idx, values[key], marker=marker, ms=6, lw=1.5, label=name, **style)
         handles.append(line)
@@ -319,21 +330,21 @@ def plot_history(steps, path: str | PathLike | None = None, *, title: str | None
             axis.annotate(f"{v:.1f}", (i, v), textcoords="offset points", xytext=(6, dy), fontsize=7.5,
                           color=line.get_color())
     ax.set_xticks(idx, labels, rotation=20 if len(labels) > 4 else 0, ha="right" if len(labels) > 4 else "center")
-    top = max(float(max(values[k].max() for k in ("rms_accuracy_error_um", "b89_um"))), 1e-9)
+    top = max(float(max(values[k].max() for k in (main_key, second_key))), 1e-9)
     ax.set_ylim(-0.08 * top, 1.15 * top)  # room for the value labels under the rms markers near 0
     ax_form.set_ylim(0.0, 1.15 * max(float(values["form_um"].max()), 1e-9))
     ax.axhline(0.0, color="0.5", lw=0.8)
     ax.set_xlim(-0.4, len(labels) - 0.4)
     ax.set_xlabel("model")
-    ax.set_ylabel(f"rms accuracy error, B89 value ({_UM})")
+    ax.set_ylabel(f"{main_name}, {second_name} ({_UM})")
     ax_form.set_ylabel(f"sphere form ({_UM}), peak-to-valley", color="0.35")
     ax.grid(True, alpha=0.3)
     # Below the axes: a legend inside would cover the last points.
-    fig.legend(handles=handles, labels=["rms accuracy error", "B89 value",
+    fig.legend(handles=handles, labels=[main_name, second_name,
                                         "sphere form (right axis: peak-to-valley of the fit residuals, "
                                         "mostly scanner noise)"],
                loc="outside lower center", ncols=2, fontsize=8, frameon=False)
-    first, last = values["rms_accuracy_error_um"][0], values["rms_accuracy_error_um"][-1]
-    text = f"Error as effects are added: rms accuracy error {first:.1f} \u2192 {last:.1f} {_UM}"
+    first, last = values[main_key][0], values[main_key][-1]
+    text = f"Error as effects are added: {main_name} {first:.1f} \u2192 {last:.1f} {_UM}"
     fig.suptitle(text if title is None else f"{title}\n{text}")
     return _save(fig, path)

@@ -87,9 +87,18 @@ def _verdict(d, model_file, run_dir) -> str:
         parts = [f"{x['name']} ({_values_text(list(x['values']), list(x['values'].values()), list(x['uncertainty'].values()), list(x['units'].values()))})"
                  for x in added]
         lines.append("The model was missing: " + "; ".join(parts) + ".")
-        lines.append(f"With them the rms accuracy error fell from {first.rms_accuracy_error * 1e3:.2f} um to "
-                     f"{last.rms_accuracy_error * 1e3:.2f} um, the B89 value from {first.b89 * 1e3:.2f} um to "
-                     f"{last.b89 * 1e3:.2f} um.")
+        if first.deviation_rms is not None:  # an artefact run: ball deviations, no ballbar lengths
+            lines.append(f"With them the rms deviation fell from {first.deviation_rms * 1e3:.2f} um to "
+                         f"{last.deviation_rms * 1e3:.2f} um, the largest from {first.deviation_largest * 1e3:.2f} um "
+                         f"to {last.deviation_largest * 1e3:.2f} um.")
+        else:
+            lines.append(f"With them the rms accuracy error fell from {first.rms_accuracy_error * 1e3:.2f} um to "
+                         f"{last.rms_accuracy_error * 1e3:.2f} um, the B89 value from {first.b89 * 1e3:.2f} um to "
+                         f"{last.b89 * 1e3:.2f} um.")
+    elif first.deviation_rms is not None:
+        lines.append(f"The model was missing nothing the run can show: no candidate effect is significant. The rms "
+                     f"deviation is {first.deviation_rms * 1e3:.2f} um, the largest "
+                     f"{first.deviation_largest * 1e3:.2f} um.")
     else:
         lines.append(f"The model was missing nothing the run can show: no candidate effect is significant. The rms "
                      f"accuracy error is {first.rms_accuracy_error * 1e3:.2f} um, the B89 value "
@@ -120,6 +129,15 @@ def _verdict(d, model_file, run_dir) -> str:
     if nxt:
         lines.append("Next: " + "\n".join(nxt))
     return "\n\n".join(lines)
+
+
+def _headline_columns(f) -> dict:
+    """A step's main figures for the history table: an artefact run's rms and largest deviation, a
+    ballbar run's rms accuracy error and B89 value (um)."""
+    if f.deviation_rms is not None:
+        return {"rms deviation (um)": round(f.deviation_rms * 1e3, 3),
+                "largest deviation (um)": round(f.deviation_largest * 1e3, 3)}
+    return {"rms accuracy error (um)": round(f.rms_accuracy_error * 1e3, 3), "B89 value (um)": round(f.b89 * 1e3, 3)}
 
 
 def _provenance_rows(d, run, run_dir, model_file) -> list[dict]:
@@ -225,8 +243,7 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
     if truth is not None:
         sections.append({"heading": "Found against the simulator's truth", "table": truth})
     fig = plot_history(Diagnosis.history(d))  # a joint diagnosis: its first run's figures
-    history = [{"model": s.label, "rms accuracy error (um)": round(s.figures.rms_accuracy_error * 1e3, 3),
-                "B89 value (um)": round(s.figures.b89 * 1e3, 3),
+    history = [{"model": s.label, **_headline_columns(s.figures),
                 "sphere form, peak-to-valley (um)": round(s.figures.to_dict()["form_um"], 2),
                 "fit rms (um)": round(s.figures.to_dict()["fit_rms_um"], 3)} for s in d.steps]
     sections.append({"heading": "The error falling", "text": _READING["history"], "table": history,
@@ -235,8 +252,9 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
     if run_names:  # a joint diagnosis: one model, every run's error at each step
         sections.append({"heading": "Every run under the one model", "text":
                          f"{len(run_names)} runs diagnosed together; the plots and figures above are the first "
-                         f"run's ({run_names[0]}). The rms accuracy error of each run at each step (um):",
-                         "table": [{"model": s.label, **{name: round(f.rms_accuracy_error * 1e3, 3)
+                         f"run's ({run_names[0]}). The rms accuracy error of each run at each step (um; of an "
+                         f"artefact run its rms deviation):",
+                         "table": [{"model": s.label, **{name: round(f.headline[1] * 1e3, 3)
                                                          for name, f in zip(run_names, per_run)}}
                                    for s, per_run in zip(d.steps, d.run_figures)]})
     sections.append({"heading": "Candidate effects against the base model", "text": _READING["candidates"],

@@ -18,13 +18,13 @@ what its remaining error holds.
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass, field
 from importlib import resources
 
 import numpy as np
 
+from .._csvtable import read_csv_table
 from ..errors import InputError
 from .patterns import Patterns, _categorical, _continuous, _mean_offset, length_shape_patterns, ranked_patterns
 
@@ -186,26 +186,25 @@ def read_sphere_fits(path, state: str | None = None) -> dict[str, np.ndarray]:
     Raises
     ------
     InputError
-        Naming the file and line: a missing column, a non-number, a ball
-        other than 1 or 2, a position without both balls.
+        Naming the file and line: a missing or repeated column, a
+        non-number, a ball other than 1 or 2, a (position, ball) given twice
+        (naming both lines), a position without both balls, no rows at all.
     """
-    from pathlib import Path
-
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot be read ({exc})") from None
-    lines = [(k + 1, ln) for k, ln in enumerate(text.splitlines()) if ln.strip() and not ln.startswith("#")]
-    if not lines:
-        raise InputError(f"{path}: no header")
-    reader = csv.DictReader([ln for _, ln in lines])
-    need = {"position", "ball", "x_mm", "y_mm", "z_mm", "radius_mm"}
-    missing = sorted(need - set(reader.fieldnames or ()))
-    if missing:
-        raise InputError(f"{path}:{lines[0][0]}: missing column(s) {', '.join(missing)}")
+    header, table = read_csv_table(path, ("position", "ball", "x_mm", "y_mm", "z_mm", "radius_mm"))
     rows = {}
-    for (line, _), row in zip(lines[1:], reader):
+    line_of = {}
+    seen = {}  # (state, position, ball) of every row, selected or not: a repeated row makes the file ambiguous
+    for line, row in table:
+        try:
+            key = (row.get("state"), int(row["position"]), int(row["ball"]))
+        except (TypeError, ValueError):
+            key = None  # a selected row's bad number is named below
+        if key is not None and key in seen:
+            raise InputError(f"{path}:{line}: position {key[1]} ball {key[2]}"
+                             + (f" (state {key[0]!r})" if key[0] is not None else "")
+                             + f" is given twice (lines {seen[key]} and {line})")
+        if key is not None:
+            seen[key] = line
         if state is not None and row.get("state", state) != state:
             continue
         try:
@@ -216,7 +215,18 @@ def read_sphere_fits(path, state: str | None = None) -> dict[str, np.ndarray]:
             raise InputError(f"{path}:{line}: expected numbers in position, ball, x_mm, y_mm, z_mm, radius_mm") from None
         if b not in (1, 2):
             raise InputError(f"{path}:{line}: ball must be 1 or 2, got {b}")
+        if (p, b) in rows:
+            first_line, first_state = line_of[(p, b)]
+            hint = (f" in states {first_state!r} and {row.get('state')!r}: choose the rows of one state"
+                    if state is None and first_state != row.get("state") else "")
+            raise InputError(f"{path}:{line}: position {p} ball {b} is given twice (lines {first_line} and "
+                             f"{line}{hint})")
         rows[(p, b)] = vals + extra
+        line_of[(p, b)] = (line, row.get("state"))
+    if not rows:
+        chosen = f" of state {state!r}" if state is not None and table else ""
+        raise InputError(f"{path}: no sphere fits{chosen} (a header and no rows); expected a row per position "
+                         f"and ball")
     positions = sorted({p for p, _ in rows})
     lonely = [p for p in positions if (p, 1) not in rows or (p, 2) not in rows]
     if lonely:

@@ -5,27 +5,13 @@ report all read it; a new module in this package is a new effect
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
-
+from .._registry import discover
 from ..errors import InputError
 from ._base import Effect, Param
 
 __all__ = ["Effect", "Param", "available", "get", "parse", "channel_roles", "channels"]
 
-_REGISTRY: dict[str, type[Effect]] = {}
-
-
-def _discover() -> None:
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        module = importlib.import_module(f"{__name__}.{info.name}")
-        for obj in vars(module).values():
-            if isinstance(obj, type) and issubclass(obj, Effect) and obj is not Effect and obj.name:
-                if obj.name in _REGISTRY and _REGISTRY[obj.name] is not obj:
-                    raise RuntimeError(f"effect name {obj.name!r} is used twice")
-                _REGISTRY[obj.name] = obj
+_REGISTRY: dict[str, type[Effect]] = discover(__name__, __path__, Effect, "name", "effect name")
 
 
 def available() -> dict[str, type[Effect]]:
@@ -79,4 +65,3 @@ def _order(name: str):
     return (ORDER.index(name), "") if name in ORDER else (len(ORDER), name)
 
 
-_discover()

@@ -5,7 +5,8 @@ float64, every other column as pyarrow infers it: int64 for whole numbers,
 else float64). A file the fast reader refuses is read whole by a strict
 reader that names the line and column at fault; if the strict reader accepts
 it after all, :class:`Reread` carries its columns. Written with a header row
-``X,Y,Z[,extra...]``: coordinates rounded to 1 nm (6 decimals, mm), extra
+``X,Y,Z[,extra...]``: coordinates rounded to 1 nm (6 decimals, mm; values
+beyond 1e15 mm, whole numbers of nm already, as they are: never inf), extra
 columns as they are (shortest form that reads back the same value)."""
 
 from __future__ import annotations
@@ -13,12 +14,36 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.csv as pa_csv
 
 from ..errors import InputError
 from . import PointFormat, register
 from ._common import ColumnWriter, arrow_table, check_file, plain_text_names
+from .._lazy import LazyModule
+
+# Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
+pa = LazyModule("pyarrow")
+pa_csv = LazyModule("pyarrow.csv")
+
+
+#: Bytes the fast reader parses at a time. pyarrow reads up to 32 blocks ahead
+#: of the caller: blocks of 64 MiB held 1.4 GB of a 1.1 GB file at its first
+#: batch, blocks of 1 MiB hold 0.17 GB whatever the file's size, and parse it
+#: no slower (benches/compensate_memory.py).
+BLOCK_BYTES = 1 << 20
+
+#: Beyond this magnitude (mm) a float64 is already a whole number of nm
+#: (2**53 nm is 9.0e9 mm): rounding would change nothing, and x * 1e6 would
+#: overflow to inf above about 1.8e302.
+_ROUNDABLE_MM = 1e15
+
+
+def round_nm(xyz: np.ndarray) -> np.ndarray:
+    """Coordinates (mm) rounded to 1 nm (6 decimals) with -0.0 written as 0;
+    values too large to have a fraction of a nm, and non-finite ones, are
+    kept exactly (written in the shortest form that reads back the same)."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    small = np.abs(xyz) < _ROUNDABLE_MM
+    return np.where(small, np.round(np.where(small, xyz, 0.0), 6), xyz) + 0.0
 
 
 class Reread(Exception):
@@ -145,6 +170,13 @@ def _batch_columns(batch, header: list[str]) -> dict[str, np.ndarray]:
     return out
 
 
+def _joined(parts: list[dict]) -> dict[str, np.ndarray]:
+    """Batches' columns as one chunk (one batch's as they are)."""
+    if len(parts) == 1:
+        return parts[0]
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
 def chunks(path: Path, chunk: int, need):
     """The columns of a CSV file in chunks of at most ``chunk`` rows (see the
     module's description); :class:`Reread` when the fast reader gave up
@@ -164,18 +196,28 @@ def _chunks(path: Path, chunk: int, need, size: int):
         src = pa.OSFile(str(path))  # its position tells how far the reader got (progress)
         reader = pa_csv.open_csv(
             src,
-            read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1, block_size=64 << 20),
+            read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1, block_size=BLOCK_BYTES),
             convert_options=pa_csv.ConvertOptions(
                 column_types=dict.fromkeys(typed, pa.float64()), null_values=[],
                 strings_can_be_null=False, quoted_strings_can_be_null=False),
         )
         empty = True
+        parts, rows = [], 0  # small batches gathered into chunks of `chunk` rows
         for batch in reader:
             empty = False
             cols = _batch_columns(batch, header)
             done = min(src.tell(), size)
-            for lo in range(0, batch.num_rows, chunk):
-                yield {k: v[lo:lo + chunk] for k, v in cols.items()}, done
+            lo = 0
+            while lo < batch.num_rows:
+                take = min(chunk - rows, batch.num_rows - lo)
+                parts.append({k: v[lo:lo + take] for k, v in cols.items()})
+                rows += take
+                lo += take
+                if rows == chunk:
+                    yield _joined(parts), done
+                    parts, rows = [], 0
+        if parts:
+            yield _joined(parts), size
         if empty:  # a header and no rows
             yield {c: np.zeros(0) for c in header}, size
     except (pa.ArrowException, OSError):
@@ -187,6 +229,8 @@ def _chunks(path: Path, chunk: int, need, size: int):
 class Writer(ColumnWriter):
     """CSV: header ``X,Y,Z[,extra...]``, coordinates rounded to 1 nm."""
 
+    SEEKS = False  # written front to back: a FIFO gets it as it is made
+
     def _start(self):
         names = [n for n, _ in self.schema]
         plain_text_names(self.path, names)
@@ -194,7 +238,7 @@ class Writer(ColumnWriter):
 
     def _write(self, xyz, extras):
         if len(xyz):
-            r = np.round(xyz, 6) + 0.0
+            r = round_nm(xyz)
             table = arrow_table({"X": r[:, 0], "Y": r[:, 1], "Z": r[:, 2], **extras})
             pa_csv.write_csv(table, self.f, pa_csv.WriteOptions(include_header=False))
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import NUMERIC_KINDS, ColumnWriter, check_file, require
+from ._common import NUMERIC_KINDS, ColumnWriter, check_file, require, release_pages
 
 #: The first bytes of every .npy file.
 MAGIC = b"\x93NUMPY"
@@ -77,6 +77,7 @@ def _chunks(a, plain, chunk, size):
         else:
             b = np.array(block, dtype=np.float64)
             cols = {c: np.ascontiguousarray(b[:, k]) for k, c in enumerate(plain)}
+        release_pages(block)  # copied out: its pages of the file leave resident memory
         yield cols, int(size * hi / max(n, 1))
 
 

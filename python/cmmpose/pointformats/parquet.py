@@ -1,19 +1,29 @@
 """Parquet point files (pyarrow): one column per quantity, integer or real,
 without nulls. Read row group by row group in batches; written one row
 group per chunk with columns ``X, Y, Z`` (float64) and the extra columns in
-their own types."""
+their own types, each column encoded for what it holds (``_common.parquet_options``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, arrow_table, check_file, require
+from ._common import ColumnWriter, arrow_table, check_file, parquet_options, require
+from .._lazy import LazyModule
+
+# Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
+pa = LazyModule("pyarrow")
+pq = LazyModule("pyarrow.parquet")
+
+
+#: Bytes read at a time from a column chunk. Without a buffer pyarrow reads
+#: whole column chunks and the reading process grew with the file (0.44 GB
+#: at 5e6 rows, 0.63 GB at 2e7); with one it stays at about 0.33 GB, no slower
+#: (benches/compensate_memory.py).
+READ_BUFFER_BYTES = 1 << 20
 
 
 def chunks(path: Path, chunk: int, need):
@@ -22,10 +32,14 @@ def chunks(path: Path, chunk: int, need):
     path = check_file(path)
     size = path.stat().st_size
     try:
-        f = pq.ParquetFile(path)
+        f = pq.ParquetFile(path, buffer_size=READ_BUFFER_BYTES, pre_buffer=False)
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{path}: not a readable Parquet file ({exc})") from None
     schema = f.schema_arrow
+    repeated = [c for c in schema.names if schema.names.count(c) > 1]
+    if repeated:  # which of them would be the data?
+        raise InputError(f"{path}: column {repeated[0]!r} appears {schema.names.count(repeated[0])} times; "
+                         f"each column must have its own name")
     require(path, schema.names, need)
     for c in schema.names:
         kind = schema.field(c).type
@@ -59,7 +73,7 @@ class Writer(ColumnWriter):
     def _start(self):
         self.arrow_schema = pa.schema([(c, pa.float64()) for c in "XYZ"]
                                       + [(n, pa.from_numpy_dtype(dt)) for n, dt in self.schema])
-        self.pq = pq.ParquetWriter(self.f, self.arrow_schema)
+        self.pq = pq.ParquetWriter(self.f, self.arrow_schema, **parquet_options(self.arrow_schema))
 
     def _write(self, xyz, extras):
         table = arrow_table({"X": xyz[:, 0], "Y": xyz[:, 1], "Z": xyz[:, 2], **extras}, schema=self.arrow_schema)

@@ -16,11 +16,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pyarrow.csv as pa_csv
 
 from ..errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, arrow_table, check_file, require
+from ._common import ColumnWriter, arrow_table, check_file, require, release_pages
+from .._lazy import LazyModule
+
+# Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
+pa_csv = LazyModule("pyarrow.csv")
 
 
 def _plyfile():
@@ -43,13 +46,66 @@ def _header_lines(path: Path) -> int:
     return 0
 
 
+#: bytes: a body this much (beyond twice its size) shorter than its header declares is refused before reading.
+_SHORT_BODY = 1 << 20
+#: Bytes of each PLY scalar type (binary); list properties need at least their count's.
+_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
+              "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _check_counts(path: Path) -> None:
+    """``InputError`` when the header declares more rows than the file's size
+    can hold (at least two bytes per ASCII value, the type's size per binary
+    one): checked before anything is allocated for them (a header declaring
+    1e12 vertices is an error, not a 22 TiB allocation; a body short by
+    less than a factor 2 and 1 MiB is plyfile's "early end-of-file", naming
+    the row). A header this
+    cannot parse is left to plyfile, which names the line."""
+    fmt, need, body = None, [], 0
+    with path.open("rb") as f:
+        for _ in range(10_000):
+            line = f.readline()
+            if not line:
+                return
+            words = line.decode("ascii", "replace").split()
+            if words[:1] == ["format"] and len(words) > 1:
+                fmt = words[1]
+            elif words[:1] == ["element"] and len(words) == 3 and words[2].isdigit():
+                need.append([words[1], int(words[2]), 0])
+            elif words[:1] == ["property"] and need and len(words) >= 3:
+                kind = words[2] if words[1] == "list" and len(words) >= 5 else words[1]
+                if kind not in _PLY_SIZES:
+                    return
+                need[-1][2] += 2 if fmt == "ascii" else _PLY_SIZES[kind]
+            elif line.strip() == b"end_header":
+                body = path.stat().st_size - f.tell()
+                break
+        else:
+            return
+    total = 0
+    for name, count, row in need:
+        total += count * max(row, 1)
+        # a modestly short body is left to plyfile, which names the row where it ends
+        if total > 2 * body + _SHORT_BODY:
+            raise InputError(f"{path}: the PLY header declares {count:,} {name!r} rows, which need at least "
+                             f"{count * max(row, 1):,} bytes; the file holds {body:,} bytes after its header "
+                             f"(the count is wrong or the file is cut)")
+
+
 def read_ply(path: Path):
     """The ``PlyData`` of ``path`` (binary data memory-mapped), or
     ``InputError`` naming the file, the header line or the element row at
     fault."""
     plyfile = _plyfile()
+    _check_counts(path)
+    text = _format_line(path) == "ascii"
     try:
-        return plyfile.PlyData.read(str(path), mmap=True)
+        # Opened here (text mode for ASCII, as plyfile would) so that where the
+        # declared elements end can be compared with where the file ends.
+        with path.open("r", encoding="ascii") if text else path.open("rb") as f:
+            data = plyfile.PlyData.read(f, mmap=True)
+            _check_no_more_rows(path, f, data, text)
+        return data
     except plyfile.PlyHeaderParseError as exc:
         raise InputError(f"{path}:{exc.line}: malformed PLY header: {exc.message}") from None
     except plyfile.PlyElementParseError as exc:
@@ -59,9 +115,44 @@ def read_ply(path: Path):
         ply_format = _format_line(path)
         if ply_format == "ascii" and exc.row is not None:
             where += f" (line {_header_lines(path) + _rows_before(path, exc.element) + exc.row + 1})"
-        raise InputError(f"{path}: PLY {where}: {exc.message}") from None
+        message = exc.message
+        if message == "early end-of-file" and exc.element is not None and exc.row is not None:
+            message += (f": the header declares {exc.element.count} {exc.element.name!r} rows, the file holds "
+                        f"{exc.row}; the file is cut or its header is wrong")
+        raise InputError(f"{path}: PLY {where}: {message}") from None
     except (ValueError, OSError, UnicodeDecodeError, IndexError, KeyError) as exc:
         raise InputError(f"{path}: not a readable PLY file ({type(exc).__name__}: {exc})") from None
+
+
+def _check_no_more_rows(path: Path, f, data, text: bool) -> None:
+    """``InputError`` when the file ``f`` (just read by plyfile, positioned
+    after the declared elements) holds more data than its header declares:
+    plyfile reads the declared count and ignores the rest, which would
+    silently drop points (fewer rows than declared is plyfile's own
+    "early end-of-file")."""
+    declared = ", ".join(f"{e.count} {e.name!r}" for e in data.elements) or "no elements"
+    if text:
+        lineno = _header_lines(path) + sum(e.count for e in data.elements)
+        first, extra = 0, 0
+        for line in f:
+            lineno += 1
+            if line.strip():
+                extra += 1
+                first = first or lineno
+        if extra:
+            raise InputError(f"{path}:{first}: PLY body has {extra} rows beyond the header's count "
+                             f"(it declares {declared} rows); the header disagrees with the body")
+        return
+    end = f.tell()
+    size = f.seek(0, 2)
+    if size > end:
+        last = data.elements[-1] if data.elements else None
+        rows = ""
+        fixed = last is not None and not any(isinstance(q, _plyfile().PlyListProperty) for q in last.properties)
+        if fixed and (size - end) % last.data.dtype.itemsize == 0:
+            rows = f", {(size - end) // last.data.dtype.itemsize} more {last.name!r} rows"
+        raise InputError(f"{path}: PLY body has {size - end} bytes beyond the header's count{rows} "
+                         f"(it declares {declared} rows); the header disagrees with the body")
 
 
 def _format_line(path: Path) -> str | None:
@@ -113,6 +204,7 @@ def _chunks(v, chunk, size):
         hi = min(lo + chunk, n)
         block = v[lo:hi]
         cols = {c: np.array(block[c], dtype=v.dtype.fields[c][0].newbyteorder("=")) for c in v.dtype.names}
+        release_pages(block)  # copied out: its pages of the file leave resident memory
         yield cols, int(size * hi / max(n, 1))
 
 

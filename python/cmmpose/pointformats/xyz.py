@@ -27,11 +27,14 @@ from itertools import islice
 from pathlib import Path
 
 import numpy as np
-import pyarrow.csv as pa_csv
 
 from ..errors import InputError
 from . import PointFormat, register
 from ._common import ColumnWriter, arrow_table, check_file, plain_text_names, require
+from .._lazy import LazyModule
+
+# Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
+pa_csv = LazyModule("pyarrow.csv")
 
 #: Names of extra columns by how many there are (after x, y, z), for files without a header.
 _BY_COUNT = {0: (), 1: ("intensity",), 3: ("red", "green", "blue"), 4: ("intensity", "red", "green", "blue")}
@@ -196,6 +199,8 @@ def _chunks(path: Path, layout: _Layout, chunk: int, size: int):
 class XyzWriter(ColumnWriter):
     """XYZ: a ``//X Y Z ...`` header line, then blank-separated numbers."""
 
+    SEEKS = False  # written front to back: a FIFO gets it as it is made
+
     def _start(self):
         names = [n for n, _ in self.schema]
         plain_text_names(self.path, names)
@@ -213,6 +218,8 @@ _PTS_COUNT_WIDTH = 20
 
 class PtsWriter(XyzWriter):
     """PTS: the count (filled in at the end), then ``x y z [intensity] [r g b]``."""
+
+    SEEKS = True  # the count is filled in at the end
 
     def _start(self):
         names = tuple(n for n, _ in self.schema)

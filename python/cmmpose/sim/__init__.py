@@ -22,27 +22,27 @@ from .effects import (
     available_effects,
     parse_effect,
 )
-from .calibration_data import (
-    VERNIER_NOISE,
-    plane_scan,
-    reference_sphere_scans,
-    true_alignment_reading,
-    true_pose_and_offset,
-    vernier_points,
-)
 from .machine import TruthMachine, temperature_series
-from .runs import REALISTIC_JITTER, simulate_ballbar_run, simulate_reference_scan
 from .scanner import ScanData, Scanner, Sweep, simulate_sweep
 from .thermocouples import CHANNELS, OPEN_CIRCUIT_READING, Fault, thermocouple_log
 
 # The interferometer simulator loads on first use: it imports the calibration
-# solvers (about 30 ms), which a simulated ballbar run never needs.
+# solvers (about 30 ms), which a simulated ballbar run never needs. So do the
+# run simulator and the calibration data (with the run format, about 20 ms),
+# which the command line's machine file (the Scanner) does not need.
 __getattr__, __dir__ = lazy_attributes(__name__, {
-    name: ("interferometer", name)
-    for name in ("interferometer_components", "simulate_interferometer_run", "simulate_interferometer_runs")
+    **{name: ("interferometer", name)
+       for name in ("interferometer_components", "simulate_interferometer_run", "simulate_interferometer_runs")},
+    **{name: ("runs", name) for name in ("REALISTIC_JITTER", "simulate_ballbar_run", "simulate_reference_scan")},
+    **{name: ("calibration_data", name) for name in ("VERNIER_NOISE", "plane_scan", "reference_sphere_scans",
+                                                     "true_alignment_reading", "true_pose_and_offset",
+                                                     "vernier_points")},
 }, globals())
 
 if TYPE_CHECKING:
+    from .calibration_data import (VERNIER_NOISE, plane_scan, reference_sphere_scans, true_alignment_reading,
+                                   true_pose_and_offset, vernier_points)
+    from .runs import REALISTIC_JITTER, simulate_ballbar_run, simulate_reference_scan
     from .interferometer import interferometer_components, simulate_interferometer_run, simulate_interferometer_runs
 
 __all__ = [

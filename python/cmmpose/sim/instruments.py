@@ -34,6 +34,7 @@ import numpy as np
 
 from ..acquire.plan import plan_from_run
 from ..acquire.protocol import encode_profile
+from ..atomicfile import replace_link
 from ..run import Run
 
 __all__ = [
@@ -138,11 +139,7 @@ class PtyDevice:
         os.set_blocking(m, False)
         self.master = m
         if self.link is not None:
-            tmp = self.link.with_name(self.link.name + ".new")
-            if tmp.is_symlink():
-                tmp.unlink()
-            os.symlink(self.slave_name, tmp)
-            os.replace(tmp, self.link)
+            replace_link(self.link, self.slave_name)
 
     def drain(self, timeout: float = 2.0) -> None:
         """Wait until the reader has taken every byte already written (a UART

@@ -50,6 +50,88 @@ def _pose(position, w_axis: str, layout: str) -> tuple[float, float, float]:
     return (alpha, beta, 0.0)
 
 
+
+class SweepRecorder:
+    """The per-ball scan machinery of every simulated run: one sweep of the
+    scan plane through one ball, along the axis nearest to the scan's
+    travel, recorded into the points, scans and poses tables.
+
+    Parameters
+    ----------
+    machine : TruthMachine
+    offset : MountOffset
+        Calibrated mount offset, mm.
+    scanner : Scanner
+    temperature : float or callable
+        Machine mean temperature, C, or a function of time (s).
+    speed : float
+        Default sweep speed, mm/s.
+    scan_interval : float
+        Seconds between the starts of two sweeps.
+    placements : ndarray (S, 3)
+        Per-scan displacement of where the ball really sits, mm (jitter).
+    rng : Generator
+        Scanner noise.
+    progress : callable or None
+        ``progress(done, total)`` after each sweep.
+    total : int
+        Sweeps planned (for ``progress``).
+    """
+
+    def __init__(self, machine, offset, scanner, temperature, speed, scan_interval, placements, rng, progress, total):
+        self.machine, self.offset, self.scanner, self.temperature = machine, offset, scanner, temperature
+        self.speed, self.scan_interval, self.placements, self.rng = speed, scan_interval, placements, rng
+        self.progress, self.total = progress, total
+        self.cols = {k: [] for k in ("scan_id", "t", "u", "v", "D", "E", "F")}
+        self.scans = {k: [] for k in ("scan_id", "pose_id", "feature", "position", "ball", "sweep_axis",
+                                      "sweep_direction", "sweep_speed")}
+        self.poses: dict[tuple, int] = {}
+        self.true_xyz: list[np.ndarray] = []
+
+    def sweep_over(self, scan_id, pose, centre, radius, direction, feature, position, ball, speed=None):
+        """Sweep the sphere nominally at ``centre`` (really at ``centre`` plus
+        this scan's placement) along the axis nearest to the scan's travel,
+        at ``speed`` mm/s (default the recorder's)."""
+        speed = self.speed if speed is None else speed
+        pose_id = self.poses.setdefault(pose, len(self.poses))
+        ends = layouts.sweep_readings(centre, pose, self.offset, radius=radius)
+        a = int(np.argmax(np.abs(ends[1] - ends[0])))
+        lo, hi = sorted((ends[0][a], ends[1][a]))
+        start = ends[0].copy()
+        start[a] = lo - SWEEP_MARGIN if direction == 1 else hi + SWEEP_MARGIN
+        sweep = Sweep(start=tuple(start), axis="XYZ"[a], length=hi - lo + 2 * SWEEP_MARGIN, speed=speed,
+                      direction=direction)
+        placed = np.asarray(centre, float) + self.placements[scan_id]
+        d = simulate_sweep(self.machine, Sphere(tuple(placed), radius), pose, self.offset, sweep, self.temperature,
+                           scanner=self.scanner, t0=scan_id * self.scan_interval, rng=self.rng)
+        n = len(d.t)
+        cols = self.cols
+        cols["scan_id"].append(np.full(n, scan_id, np.int32))
+        cols["t"].append(d.t)
+        cols["u"].append(d.uv[:, 0])
+        cols["v"].append(d.uv[:, 1])
+        for j, c in enumerate("DEF"):
+            cols[c].append(d.scales[:, j])
+        self.true_xyz.append(d.true_xyz)
+        for key, value in (("scan_id", scan_id), ("pose_id", pose_id), ("feature", feature), ("position", position),
+                           ("ball", ball), ("sweep_axis", "XYZ"[a]), ("sweep_direction", direction),
+                           ("sweep_speed", speed)):
+            self.scans[key].append(value)
+        if self.progress:
+            self.progress(scan_id + 1, self.total)
+
+    def tables(self) -> tuple[dict, dict, dict, np.ndarray]:
+        """The points, scans and poses tables, and every point's true position (N, 3) mm."""
+        points = {k: np.concatenate(v) for k, v in self.cols.items()}
+        pose_items = sorted(self.poses.items(), key=lambda kv: kv[1])
+        pose_table = {
+            "pose_id": np.array([i for _, i in pose_items], np.int32),
+            **{name: np.array([p[j] for p, _ in pose_items]) for j, name in enumerate(("alpha", "beta", "gamma"))},
+            **{name: np.full(len(pose_items), self.offset[j]) for j, name in enumerate(("U1", "V1", "W1"))},
+        }
+        return points, {k: np.array(v) for k, v in self.scans.items()}, pose_table, np.concatenate(self.true_xyz)
+
+
 def simulate_ballbar_run(
     maps: ErrorMap | ErrorMapSet | None = None,
     temperature: Temperature = 20.0,
@@ -142,39 +224,8 @@ def simulate_ballbar_run(
 
     def artefact_scale(t):
         return float(np.prod([e.artefact_scale(mean_temperature(t)) for e in effects]))
-    cols = {k: [] for k in ("scan_id", "t", "u", "v", "D", "E", "F")}
-    scans = {k: [] for k in ("scan_id", "pose_id", "feature", "position", "ball", "sweep_axis", "sweep_direction", "sweep_speed")}
-    poses: dict[tuple, int] = {}
-    true_xyz = []
-
-    def sweep_over(scan_id, pose, centre, radius, direction, feature, position, ball):
-        """Sweep the sphere nominally at ``centre`` (really at ``centre`` plus
-        this scan's placement) along the axis nearest to the scan's travel."""
-        pose_id = poses.setdefault(pose, len(poses))
-        ends = layouts.sweep_readings(centre, pose, offset, radius=radius)
-        a = int(np.argmax(np.abs(ends[1] - ends[0])))
-        lo, hi = sorted((ends[0][a], ends[1][a]))
-        start = ends[0].copy()
-        start[a] = lo - SWEEP_MARGIN if direction == 1 else hi + SWEEP_MARGIN
-        sweep = Sweep(start=tuple(start), axis="XYZ"[a], length=hi - lo + 2 * SWEEP_MARGIN, speed=speed,
-                      direction=direction)
-        placed = np.asarray(centre, float) + placements[scan_id]
-        d = simulate_sweep(machine, Sphere(tuple(placed), radius), pose, offset, sweep, temperature,
-                           scanner=scanner, t0=scan_id * scan_interval, rng=rng)
-        n = len(d.t)
-        cols["scan_id"].append(np.full(n, scan_id, np.int32))
-        cols["t"].append(d.t)
-        cols["u"].append(d.uv[:, 0])
-        cols["v"].append(d.uv[:, 1])
-        for j, c in enumerate("DEF"):
-            cols[c].append(d.scales[:, j])
-        true_xyz.append(d.true_xyz)
-        for key, value in (("scan_id", scan_id), ("pose_id", pose_id), ("feature", feature), ("position", position),
-                           ("ball", ball), ("sweep_axis", "XYZ"[a]), ("sweep_direction", direction),
-                           ("sweep_speed", speed)):
-            scans[key].append(value)
-        if progress:
-            progress(scan_id + 1, total)
+    rec = SweepRecorder(machine, offset, scanner, temperature, speed, scan_interval, placements, rng, progress, total)
+    sweep_over = rec.sweep_over
 
     for k, (position, w_axis) in enumerate(plan):
         pose = _pose(position, w_axis, layout)
@@ -187,13 +238,7 @@ def simulate_ballbar_run(
     ref = reference_sphere()
     for j, rpose in enumerate(reference_poses):
         sweep_over(2 * len(plan) + j, rpose, ref.centre, ref.radius, 1, "reference", -1, -1)
-    points = {k: np.concatenate(v) for k, v in cols.items()}
-    pose_items = sorted(poses.items(), key=lambda kv: kv[1])
-    pose_table = {
-        "pose_id": np.array([i for _, i in pose_items], np.int32),
-        **{name: np.array([p[j] for p, _ in pose_items]) for j, name in enumerate(("alpha", "beta", "gamma"))},
-        **{name: np.full(len(pose_items), offset[j]) for j, name in enumerate(("U1", "V1", "W1"))},
-    }
+    points, scans, pose_table, true_xyz = rec.tables()
     duration = total * scan_interval
     # Each effect says how far each thermocouple role reads above the mean;
     # channels of roles the effects bring are logged when an effect warms them.
@@ -209,7 +254,7 @@ def simulate_ballbar_run(
         artefact["reference_sphere"] = {"radius_mm": ref.radius}
     run = Run(
         points=points,
-        scans={k: np.array(v) for k, v in scans.items()},
+        scans=scans,
         poses=pose_table,
         temperatures=log,
         temperature_channels=[{"name": c, "role": r} for c, r in (*CHANNELS, *extra)],
@@ -219,7 +264,7 @@ def simulate_ballbar_run(
                   "temperature_C": temperature if not callable(temperature) else "time series"},
     )
     truth = (
-        {"true_xyz": np.concatenate(true_xyz), "ball_centres": np.array([[p.ball1, p.ball2] for p, _ in plan]),
+        {"true_xyz": true_xyz, "ball_centres": np.array([[p.ball1, p.ball2] for p, _ in plan]),
          "true_lengths": lengths},
         {"effects": [{"name": e.name, **asdict(e)} for e in effects], "layout": layout},
     )

@@ -33,7 +33,6 @@ temperature), not the tested machine's own scatter, which the error shows.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import re
@@ -41,10 +40,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
 from .._validate import nonnegative
 from ..errors import InputError
-from ..evaluation import _machine_coordinates, evaluate, machine_temperature
+from ..evaluation import _machine_coordinates, evaluate, machine_temperature, skipped_note
 from ..fitting import fit_sphere
 from ..metrics import STEEL_EXPANSION
 from ..plots import _figure, _save
@@ -217,7 +217,11 @@ class AcceptanceResult:
     uncertainty_notes : tuple of str
         What each test uncertainty is made of, and what it leaves out.
     notes : tuple of str
-        Tests that could not be made (no reference scans, no calibrated length...).
+        Tests that could not be made (no reference scans, no calibrated length...),
+        and the positions skipped.
+    skipped : tuple of dict
+        Ballbar positions and scans left out as incomplete or ambiguous
+        (``skip_incomplete=True``; :func:`cmmpose.evaluation.ballbar_scans`).
     """
 
     checks: tuple[Check, ...]
@@ -227,6 +231,7 @@ class AcceptanceResult:
     mpe_length: MPE | None
     uncertainty_notes: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
+    skipped: tuple[dict, ...] = field(default=())
 
     def tests(self) -> list[str]:
         """The tests made, in order."""
@@ -257,10 +262,11 @@ class AcceptanceResult:
                       for t, s in self.summary().items()},
             "checks": [c.to_dict() for c in self.checks],
             "uncertainty_notes": list(self.uncertainty_notes), "notes": list(self.notes),
+            "skipped": list(self.skipped),
         }
 
     def to_json(self, **kw) -> str:
-        return json.dumps(self.to_dict(), **kw)
+        return strict_json(self.to_dict(), **kw)
 
     def to_markdown(self) -> str:
         """A report section: one row per test (its largest error), the decision rule, U's makeup, notes."""
@@ -350,6 +356,7 @@ def acceptance_test(
     u_expansion_ppm_per_K: float = 1.0,
     u_part_temperature_K: float = 0.2,
     out_of_range: str = "raise",
+    skip_incomplete: bool = False,
 ) -> AcceptanceResult:
     """Probing form and size errors and length measurement errors of a run,
     each decided against its MPE (module docstring; docs/standards.md).
@@ -391,6 +398,11 @@ def acceptance_test(
         Standard uncertainty of the artefact's temperature, K.
     out_of_range : {'raise', 'clamp', 'extrapolate'}
         As :func:`cmmpose.evaluate`.
+    skip_incomplete : bool
+        As :func:`cmmpose.evaluate`: False (default) raises ``RunError`` on a
+        position with a ball scan missing, duplicated or mislabelled; True
+        leaves such positions out of every test and lists them in ``skipped``
+        and the notes.
 
     Returns
     -------
@@ -413,10 +425,10 @@ def acceptance_test(
     if reference_radius_mm is None and isinstance(art.get("reference_sphere"), dict):
         reference_radius_mm = art["reference_sphere"].get("radius_mm")
 
-    ev = evaluate(run, maps, temperature, expansion=expansion, out_of_range=out_of_range)
+    ev = evaluate(run, maps, temperature, expansion=expansion, out_of_range=out_of_range, skip_incomplete=skip_incomplete)
     res = ev.compensated if ev.compensated is not None else ev.uncompensated
     checks: list[Check] = []
-    notes: list[str] = []
+    notes: list[str] = [n for n in (skipped_note(ev.skipped),) if n]
     unotes: list[str] = []
     U_form = 2 * u_frm
     U_size = 2 * u_dia
@@ -467,7 +479,7 @@ def acceptance_test(
         raise InputError("run: nothing to test: give a calibrated length and/or calibrated radii")
     _log.info("acceptance: %d values tested", len(checks))
     return AcceptanceResult(tuple(checks), res.label, mpes["mpe_form"], mpes["mpe_size"], mpes["mpe_length"],
-                            tuple(unotes), tuple(notes))
+                            tuple(unotes), tuple(notes), tuple(ev.skipped))
 
 
 def _reference_checks(run: Run, maps, temperature, out_of_range, ref_ids: np.ndarray, radius: float, mpes,

@@ -22,13 +22,12 @@ the user): pass when |E| + U <= MPE, fail when |E| - U > MPE, else not proven.
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from .._csvtable import read_csv_table
 from ..errors import InputError
 from ..fitting import e3125
 from ..plots import _figure, _save
@@ -263,21 +262,11 @@ def read_pairs(path) -> list[tuple[str, str, float, float]]:
     InputError
         Naming the file and line: a missing column or a non-number.
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot be read ({exc})") from None
-    reader = csv.DictReader(text.splitlines())
-    rows = list(reader)
-    fields = set(reader.fieldnames or ())
-    missing = sorted({"a", "b", "reference_mm"} - fields)
-    if missing:
-        raise InputError(f"{path}:1: missing column(s) {', '.join(missing)} (a, b, reference_mm[, u_um])")
+    _, rows = read_csv_table(path, ("a", "b", "reference_mm"))
     out = []
-    for line, row in enumerate(rows, start=2):
+    for line, row in rows:
         try:
-            out.append((row["a"].strip(), row["b"].strip(), float(row["reference_mm"]), float(row.get("u_um") or 0.0)))
-        except (TypeError, ValueError, AttributeError):
+            out.append((row["a"], row["b"], float(row["reference_mm"]), float(row.get("u_um") or 0.0)))
+        except ValueError:
             raise InputError(f"{path}:{line}: reference_mm and u_um must be numbers, got {row}") from None
     return out

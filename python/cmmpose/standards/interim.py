@@ -26,15 +26,15 @@ and the temperature reading's alpha u_T), which move the three scales together.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
-from ..evaluation import evaluate
+from ..evaluation import evaluate, skipped_note
 from ..metrics import STEEL_EXPANSION
 from ..run import Run
 
@@ -105,6 +105,10 @@ class InterimCheck:
     positions : int
         Lengths used.
     notes : tuple of str
+        How the values were made, and the positions skipped.
+    skipped : tuple of dict
+        Ballbar positions and scans left out as incomplete or ambiguous
+        (``skip_incomplete=True``; :func:`cmmpose.evaluation.ballbar_scans`).
     """
 
     values: tuple[InterimValue, ...]
@@ -113,6 +117,7 @@ class InterimCheck:
     residual_um: float
     positions: int
     notes: tuple[str, ...] = ()
+    skipped: tuple[dict, ...] = ()
 
     def __getitem__(self, name: str) -> InterimValue:
         for v in self.values:
@@ -123,10 +128,10 @@ class InterimCheck:
     def to_dict(self) -> dict:
         return {"label": self.label, "absolute_scale": self.absolute_scale, "positions": self.positions,
                 "residual_um": round(self.residual_um, 3), "values": [v.to_dict() for v in self.values],
-                "notes": list(self.notes)}
+                "notes": list(self.notes), "skipped": list(self.skipped)}
 
     def to_json(self, **kw) -> str:
-        return json.dumps(self.to_dict(), **kw)
+        return strict_json(self.to_dict(), **kw)
 
     def to_markdown(self) -> str:
         """A report section: the six values with u and U (k = 2), and the notes."""
@@ -161,6 +166,7 @@ def interim_check(
     u_expansion_ppm_per_K: float = 1.0,
     u_temperature_K: float = 0.2,
     out_of_range: str = "raise",
+    skip_incomplete: bool = False,
 ) -> InterimCheck:
     """Three squareness and three scale values from one ballbar run (module docstring).
 
@@ -187,6 +193,10 @@ def interim_check(
         Standard uncertainty of the temperature reading, K.
     out_of_range : {'raise', 'clamp', 'extrapolate'}
         As :func:`cmmpose.evaluate`.
+    skip_incomplete : bool
+        As :func:`cmmpose.evaluate`: False (default) raises ``RunError`` on a
+        position with a ball scan missing, duplicated or mislabelled; True
+        leaves such positions out and lists them in ``skipped`` and the notes.
 
     Returns
     -------
@@ -205,7 +215,7 @@ def interim_check(
             raise InputError(f"{name}: expected a finite value >= 0, got {v!r}")
     if calibrated_length_mm is None:
         calibrated_length_mm = run.artefact.get("calibrated_length_mm")
-    ev = evaluate(run, maps, temperature, expansion=expansion, out_of_range=out_of_range)
+    ev = evaluate(run, maps, temperature, expansion=expansion, out_of_range=out_of_range, skip_incomplete=skip_incomplete)
     res = ev.compensated if ev.compensated is not None else ev.uncompensated
     balls = {(s.position, s.ball): s.centre for s in res.spheres}
     bar = np.array([balls[(int(p), 2)] - balls[(int(p), 1)] for p in res.positions])
@@ -216,7 +226,7 @@ def interim_check(
     a = np.column_stack([-n[:, 0] ** 2, -n[:, 1] ** 2, -n[:, 2] ** 2, ARCSEC_PPM * n[:, 0] * n[:, 1],
                          ARCSEC_PPM * n[:, 1] * n[:, 2], ARCSEC_PPM * n[:, 2] * n[:, 0]])
     absolute = calibrated_length_mm is not None
-    notes = []
+    notes = [n for n in (skipped_note(ev.skipped),) if n]
     if absolute:
         ref = float(calibrated_length_mm)
         y = (l20 - ref) / ref * 1e6  # ppm
@@ -265,7 +275,7 @@ def interim_check(
                  "run's reproducibility and every other error; u is Type A from them" +
                  (" plus the reference's common scale terms" if absolute else ""))
     residual_um = float(np.sqrt(np.mean(resid ** 2))) * ref * 1e-3
-    return InterimCheck(values, res.label, absolute, residual_um, len(y), tuple(notes))
+    return InterimCheck(values, res.label, absolute, residual_um, len(y), tuple(notes), tuple(ev.skipped))
 
 
 def _undetermined(a: np.ndarray) -> list[str]:

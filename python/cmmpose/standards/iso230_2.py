@@ -36,7 +36,6 @@ runs that ``cmmpose calibrate map`` takes (linear optics;
 from __future__ import annotations
 
 import csv
-import json
 import logging
 from dataclasses import dataclass, field, replace
 from os import PathLike
@@ -52,6 +51,7 @@ from ..calibration.interferometer import (
     read_run,
     refractivity_uncertainty,
 )
+from .._json import dumps as strict_json
 from ..errors import Error, InputError, MapError, read_lines
 from ..plots import _figure, _save
 
@@ -226,7 +226,7 @@ class PositioningResult:
                 "targets": [t.to_dict() for t in self.targets], "notes": list(self.notes)}
 
     def to_json(self, **kw) -> str:
-        return json.dumps(self.to_dict(), **kw)
+        return strict_json(self.to_dict(), **kw)
 
     def to_markdown(self) -> str:
         """A report section: the axis figures, the per-target table, the clause and the notes."""
@@ -386,9 +386,12 @@ def evaluate_iso230_2(data: PositioningData, *, test_uncertainty_um: float | Non
     order = np.lexsort((d.cycle, g))
     dup = np.flatnonzero((np.diff(g[order]) == 0) & (np.diff(d.cycle[order]) == 0))
     if len(dup):
-        i = int(order[dup[0] + 1])
+        i, first = int(order[dup[0] + 1]), int(order[dup[0]])
+        what = "line" if d.rows is not None else "row"
         raise PositioningError(f"{_where(d, i)}: target {d.target_mm[i]:g} mm, direction {d.direction[i]:+d}, "
-                               f"cycle {d.cycle[i]} is given twice")
+                               f"cycle {d.cycle[i]} is given twice ({what}s "
+                               f"{int(d.rows[first]) if d.rows is not None else first} and "
+                               f"{int(d.rows[i]) if d.rows is not None else i})")
     count = np.bincount(g, minlength=2 * m).reshape(m, 2)
     for k in range(m):  # per target: a handful
         for j, name in ((0, "+1 (up)"), (1, "-1 (down)")):
@@ -467,6 +470,11 @@ def read_positioning_csv(path: str | PathLike) -> PositioningData:
         raise PositioningError(f"{path}: empty: expected a header line with columns {', '.join(COLUMNS)}")
     header_line, header = numbered[0]
     names = [c.strip() for c in next(csv.reader([header]))]
+    repeated = sorted({c for c in names if names.count(c) > 1})
+    if repeated:
+        raise PositioningError(f"{path}:{header_line}: column(s) {', '.join(repeated)} repeated (columns "
+                               + "; ".join(f"{c} at {', '.join(str(j + 1) for j, n in enumerate(names) if n == c)}"
+                                           for c in repeated) + "): which one holds the values is ambiguous")
     missing = [c for c in COLUMNS if c not in names]
     if missing:
         raise PositioningError(f"{path}:{header_line}: missing column(s) {', '.join(missing)} "

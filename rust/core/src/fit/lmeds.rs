@@ -13,7 +13,12 @@
 //!    (|p - c| - R)^2 over at most [`SCORE_POINTS`] points (every k-th point
 //!    when there are more), candidates in parallel; the lowest median wins
 //!    (the earliest sample on a tie, so the result does not depend on the
-//!    scheduling).
+//!    scheduling). A candidate is first screened against the lowest median
+//!    found so far, m: its median exceeds m exactly when fewer than half of
+//!    its squared residuals are <= m, which a count settles (stopping as soon
+//!    as enough exceed m) without the median's selection. Only candidates
+//!    that may beat m are ranked, so the winner is the one full ranking would
+//!    give, whatever the order the threads meet the candidates in.
 //! 3. Robust scale of the winner over all points,
 //!    s0 = 1.4826 (1 + 5 / (N - p)) sqrt(median r^2) (Rousseeuw and Leroy
 //!    1987, p the sample size), and its inliers |r| <= 2.5 s0.
@@ -23,6 +28,8 @@
 //! contamination of any kind. With w the clean fraction, a sample is clean
 //! with probability w^p: 500 samples all miss with probability
 //! (1 - 0.5^4)^500 ~ 1e-14 for a free radius at 50 %.
+
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -175,14 +182,46 @@ pub(crate) fn spheres_through_three(
     [Some(m + off), Some(m - off)]
 }
 
-/// Median of (|p - c| - R)^2 over the scored rows.
-fn score(rows: &[f64], stride: usize, c: &Vector3<f64>, r: f64, buf: &mut Vec<f64>) -> f64 {
-    buf.clear();
-    buf.extend(rows.chunks_exact(3).step_by(stride).map(|p| {
+/// Median of (|p - c| - R)^2 over the scored rows, or `None` when it is
+/// certainly above `best` (fewer than half of them are <= `best`: then
+/// both middle order statistics exceed it).
+fn score(
+    rows: &[f64],
+    stride: usize,
+    c: &Vector3<f64>,
+    r: f64,
+    best: f64,
+    buf: &mut Vec<f64>,
+) -> Option<f64> {
+    let squared = |p: &[f64]| {
         let d = ((p[0] - c.x).powi(2) + (p[1] - c.y).powi(2) + (p[2] - c.z).powi(2)).sqrt() - r;
         d * d
-    }));
-    median(buf)
+    };
+    let scored = rows.len() / 3 / stride + usize::from((rows.len() / 3) % stride != 0);
+    // At most this many may exceed `best` for the median to stay <= best.
+    let allowed_above = scored - scored.div_ceil(2);
+    if best.is_finite() {
+        // (|p - c| - R)^2 <= best  <=>  |p - c|^2 in [lo, hi]: no square root
+        // per point. The band is widened by a relative 1e-12 so rounding can
+        // only keep a candidate, never drop one the median would rank.
+        let (w, widen) = (best.sqrt(), 1e-12);
+        let lo = ((r - w).max(0.0)).powi(2) * (1.0 - widen);
+        let hi = (r + w).powi(2) * (1.0 + widen);
+        let mut above = 0usize;
+        for p in rows.chunks_exact(3).step_by(stride) {
+            let d2 = (p[0] - c.x).powi(2) + (p[1] - c.y).powi(2) + (p[2] - c.z).powi(2);
+            // NaN counts as above: it can never make a median that wins.
+            if !(lo <= d2 && d2 <= hi) {
+                above += 1;
+                if above > allowed_above {
+                    return None;
+                }
+            }
+        }
+    }
+    buf.clear();
+    buf.extend(rows.chunks_exact(3).step_by(stride).map(squared));
+    Some(median(buf))
 }
 
 /// LMedS sphere of the rows (N x 3 row-major, mm, finite), fixed radius or
@@ -207,6 +246,9 @@ pub(crate) fn median_fit(
     }
     let stride = n.div_ceil(SCORE_POINTS);
     let samples = draw(n, size, opts.samples, opts.seed);
+    // The lowest median ranked so far, shared by the threads (the bits of a
+    // non-negative f64 order as the numbers do).
+    let lowest = AtomicU64::new(f64::INFINITY.to_bits());
     // (median, sample index, candidate) of a sample's best candidate.
     let best_of = |(k, s): (usize, &[usize; 4]), buf: &mut Vec<f64>| {
         let cands: [Option<(Vector3<f64>, f64)>; 2] = match fixed {
@@ -227,8 +269,21 @@ pub(crate) fn median_fit(
         cands
             .into_iter()
             .flatten()
-            .map(|(c, r)| (score(rows, stride, &c, r, buf), k, c, r))
-            .filter(|t| t.0.is_finite())
+            .filter_map(|(c, r)| {
+                let m = score(
+                    rows,
+                    stride,
+                    &c,
+                    r,
+                    f64::from_bits(lowest.load(Ordering::Relaxed)),
+                    buf,
+                )?;
+                if !m.is_finite() {
+                    return None;
+                }
+                lowest.fetch_min(m.to_bits(), Ordering::Relaxed);
+                Some((m, k, c, r))
+            })
             .min_by(|a, b| a.0.total_cmp(&b.0))
     };
     let better = |a: (f64, usize, Vector3<f64>, f64), b: (f64, usize, Vector3<f64>, f64)| {

@@ -1,0 +1,245 @@
+"""The artefact commands of the ``cmmpose`` command line (docs/artefacts.md):
+``artefact example|show|check``, and what ``simulate --artefact`` and
+``evaluate`` do with an artefact run. ``cmmpose.cli`` adds the group and
+calls :func:`simulate_artefact` and :func:`evaluate_artefact_run`."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+import numpy as np
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from . import artefacts
+from .atomicfile import ensure_folder, write_text
+from .errors import Error, InputError
+from .policy import cli_wording
+
+__all__ = ["artefact_group", "simulate_artefact", "evaluate_artefact_run", "diagnose_plate_fits_cli"]
+
+console = Console(stderr=True)
+
+
+def _fail(exc: Exception) -> click.ClickException:
+    return click.ClickException(cli_wording(str(exc), click.get_current_context(silent=True)))
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write ``text`` at ``path`` (its folder made if missing), atomically (:mod:`cmmpose.atomicfile`)."""
+    ensure_folder(path.parent if str(path.parent) else ".")
+    write_text(path, text)
+
+
+@click.group("artefact")
+def artefact_group() -> None:
+    """Artefact files: calibrated ball plates, step gauges, ballbars and spheres (docs/artefacts.md)."""
+
+
+@artefact_group.command("example")
+@click.argument("name", metavar="KIND|NAME")
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Artefact file to write.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing file.")
+def artefact_example_cmd(name, out, overwrite) -> None:
+    """Write a bundled example artefact file to edit: a KIND (ball-plate, step-gauge, ballbar, sphere) or a NAME
+    (koba-0620, koba-0420, koba-0320, apmp-plate, step-gauge-31x20, thesis-ballbar, reference-sphere)."""
+    known = [*artefacts.available(), *artefacts.example_names()]
+    if name not in known:
+        raise click.BadParameter(f"{name!r} is not one of {', '.join(known)}", param_hint="KIND|NAME")
+    path = Path(out)
+    if path.exists() and not overwrite:
+        raise click.ClickException(f"{path}: exists (give --overwrite to replace it)")
+    if path.is_dir():
+        raise click.ClickException(f"{path}: is a directory")
+    try:
+        _write_text(path, artefacts.example_text(name))
+    except OSError as exc:
+        raise click.ClickException(f"{path}: cannot be written ({exc.strerror or exc})") from None
+    console.print(f"wrote {escape(str(path))}: the {name} example (cmmpose artefact show {escape(str(path))})")
+
+
+def _show(path, check: bool) -> None:
+    try:
+        a = artefacts.load_artefact(path)
+    except Error as exc:
+        raise _fail(exc) from None
+    kind = artefacts.get(a.kind)
+    table = Table(title=f"cmmpose artefact: {escape(a.source)}", show_header=False)
+    lo, hi = a.centres.min(axis=0), a.centres.max(axis=0)
+    for key, value in (
+        ("kind", f"{a.kind}: {kind.summary}"),
+        ("name", a.name),
+        ("certificate", a.certificate),
+        ("balls", f"{a.n_balls} (ids {artefacts._base._ranges(a.ids)})"),
+        ("extent (mm)", ", ".join(f"{ax} {l:.3f}..{h:.3f}" for ax, l, h in zip("xyz", lo, hi))),
+        ("radius (mm)", f"nominal {a.nominal_radius:g}, calibrated {a.calibrated_radius:g} (u {a.u_radius * 1e3:g} um)"),
+        ("u of centres (um)", f"{a.u_centres.min() * 1e3:g}..{a.u_centres.max() * 1e3:g}"),
+        ("expansion", f"{a.expansion * 1e6:g} ppm/K"),
+        ("reference temperature", f"{a.reference_temperature:g} C"),
+        ("placements", f"e.g. --placement {kind.layout}"),
+    ):
+        table.add_row(key, escape(value))
+    Console().print(table)
+    if check:
+        console.print("ok: every key known, every ball with its uncertainties, the geometry fits the kind")
+
+
+@artefact_group.command("show")
+@click.argument("path", metavar="FILE|NAME")
+def artefact_show_cmd(path) -> None:
+    """Print what an artefact file (or a bundled example) says."""
+    _show(path, check=False)
+
+
+@artefact_group.command("check")
+@click.argument("path", metavar="FILE|NAME")
+def artefact_check_cmd(path) -> None:
+    """Check an artefact file: keys, numbers, repeated balls, uncertainties, geometry."""
+    _show(path, check=True)
+
+
+def simulate_artefact(artefact_spec, placements, machine, maps, temperature, effects, speed, bidirectional,
+                      jitter_um, seed, run_dir, overwrite, progress_columns, record_maps) -> None:
+    """``cmmpose simulate --artefact A --placement P ...``: simulate, save, print a summary;
+    ``record_maps(run)`` gives the run with its record of the maps (as a ballbar run's)."""
+    from rich.progress import Progress
+
+    from .sim.artefact_runs import simulate_artefact_run
+
+    try:
+        artefact = artefacts.load_artefact(artefact_spec)
+        start = time.perf_counter()
+        with Progress(*progress_columns, console=console) as bar:
+            task = bar.add_task("", total=None)
+            run, truth = simulate_artefact_run(
+                artefact, list(placements) or [artefacts.get(artefact.kind).layout], maps, temperature, effects,
+                machine=machine, speed=speed, bidirectional=bidirectional, jitter=jitter_um * 1e-3, seed=seed,
+                progress=lambda done, total: bar.update(task, completed=done, total=total))
+        run = record_maps(run)
+        elapsed = time.perf_counter() - start
+        run.save(run_dir, truth=truth, overwrite=overwrite)
+    except Error as exc:
+        raise _fail(exc) from None
+    table = Table(title=f"cmmpose simulate -> {escape(str(run_dir))}", show_header=False)
+    table.add_row("machine", escape(f"{machine.name} ({machine.kinematics}; {machine.source})"))
+    table.add_row("artefact", escape(f"{artefact.name} ({artefact.kind}, {artefact.n_balls} balls)"))
+    for k, p in enumerate(run.artefact["placements"], start=1):
+        table.add_row(f"placement {k}", escape(f"{p['label']}: centroid at "
+                                               + ", ".join(f"{x:.1f}" for x in p["centre_mm"]) + " mm"))
+    n = len(run.scans["scan_id"])
+    table.add_row("points", f"{run.n_points:,} ({run.n_points / n:,.0f} per ball, {n} sweeps)")
+    table.add_row("temperature", f"{temperature:g} C")
+    table.add_row("effects", escape(", ".join(e.name for e in effects)) or "none")
+    table.add_row("time", f"{elapsed:.2f} s")
+    Console().print(table)
+
+
+def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json, policy) -> None:
+    """``cmmpose evaluate RUN`` on an artefact run: the table or JSON, and the report."""
+    from .artefact_evaluation import evaluate_artefact
+    from .evaluation_uncertainty import DEFAULT_U_TEMPERATURE_K
+
+    try:
+        ev = evaluate_artefact(run, model, temperature, reject=reject,
+                               u_temperature=DEFAULT_U_TEMPERATURE_K if u_temperature is None else u_temperature,
+                               **policy)
+        poses = dict(zip(run.scans["scan_id"].tolist(), run.scans["pose_id"].tolist()))
+        files = write_artefact_report(ev, Path(report_dir), poses) if report_dir else []
+    except Error as exc:
+        raise _fail(exc) from None
+    if as_json:
+        click.echo(ev.to_json(indent=2))
+    else:
+        Console(width=max(Console().width, 140)).print(ev)
+    for f in files:
+        console.print(f"wrote {escape(str(f))}")
+
+
+def diagnose_plate_fits_cli(fits_file, artefact_spec, state, temperature, nominal_radius, reference_length,
+                            as_json) -> None:
+    """``cmmpose diagnose-fits FITS --artefact A``: the linear errors and radius patterns of an
+    artefact's measured centres (:mod:`cmmpose.diagnosis.plate_fits`)."""
+    import json
+
+    from .diagnosis.plate_fits import LINEAR_ERRORS, diagnose_plate_fits, read_plate_fits
+
+    if artefact_spec is None:
+        raise click.UsageError("--temperature takes --artefact (a ballbar's fits are at 20 C)")
+    for flag, given in (("--nominal-radius", nominal_radius), ("--reference-length", reference_length)):
+        if given is not None:
+            raise click.UsageError(f"{flag} is a ballbar's: with --artefact the artefact file gives the radius "
+                                   f"and the calibrated centres")
+    if not Path(fits_file).is_file():
+        raise click.BadParameter(f"{fits_file}: no such file", param_hint="FITS")
+    try:
+        artefact = artefacts.load_artefact(artefact_spec)
+        table = read_plate_fits(fits_file, state)
+        d = diagnose_plate_fits(artefact, table, temperature=20.0 if temperature is None else temperature)
+    except Error as exc:
+        raise _fail(exc) from None
+    if as_json:
+        click.echo(json.dumps(d.to_dict(), indent=1, allow_nan=False))
+        return
+    table_out = Table(title=f"measured centres of {escape(artefact.name)}: {escape(str(fits_file))}")
+    for col in ("linear error", "value ± u (k = 1)"):
+        table_out.add_column(col)
+    for (name, unit), v, u in zip(LINEAR_ERRORS, d.values, d.uncertainties):
+        table_out.add_row(name, f"{v:+.2f} ± {u:.2f} {unit}" if np.isfinite(u) else
+                          "undetermined (no placement shows it)")
+    table_out.caption = (f"{sum(len(b) for b in d.balls)} balls at {len(d.placements)} placement(s): rms deviation "
+                         f"{d.rms_um:.2f} um, {d.residual_rms_um:.2f} um without the linear errors; mean radius "
+                         f"{d.radius_mean:.4f} mm (calibrated {d.nominal_radius:g})")
+    Console(width=max(Console().width, 110)).print(table_out)
+    Console(width=150).print(d.patterns)
+
+
+def write_artefact_report(ev, directory: Path, poses: dict | None = None) -> list[Path]:
+    """evaluation.json, deviations.csv, lengths.csv, centres.csv and, with matplotlib, the plots; the files
+    written."""
+    if directory.exists() and not directory.is_dir():
+        raise InputError(f"--report {directory}: exists and is not a directory")
+    files = [directory / "evaluation.json", directory / "deviations.csv", directory / "lengths.csv",
+             directory / "centres.csv"]
+    _write_text(files[0], ev.to_json(indent=2) + "\n")
+    # The measured centres at 20 C as `cmmpose diagnose-fits centres.csv --artefact A --state S` reads them.
+    # ``poses`` (scan id -> pose id) adds which pose scanned each ball ('+'-joined when several did).
+    centres = ["state,placement,ball,x_mm,y_mm,z_mm,radius_mm" + (",pose" if poses else "")]
+    for r in ev.results:
+        for p in r.placements:
+            for b in p.balls:
+                pose = "+".join(str(x) for x in sorted({poses[s] for s in b.scans})) if poses else ""
+                centres.append(f"{r.label},{p.position},{b.ball},{b.measured[0]:.6f},{b.measured[1]:.6f},"
+                               f"{b.measured[2]:.6f},{ev.artefact.calibrated_radius + b.radius_error:.6f}"
+                               + (f",{pose}" if poses else ""))
+    _write_text(files[3], "\n".join(centres) + "\n")
+    rows = ["result,position,ball,deviation_x_um,deviation_y_um,deviation_z_um,u_x_um,u_y_um,u_z_um,deviation_um"]
+    lines = ["result,position,ball_a,ball_b,length_mm,error_um,u_um"]
+    for r in ev.results:
+        for p in r.placements:
+            for b in p.balls:
+                d, u = b.deviation * 1e3, b.u * 1e3
+                rows.append(f"{r.label},{p.position},{b.ball},{d[0]:.4f},{d[1]:.4f},{d[2]:.4f},"
+                            f"{u[0]:.4f},{u[1]:.4f},{u[2]:.4f},{b.magnitude * 1e3:.4f}")
+            for e in p.lengths:
+                lines.append(f"{r.label},{p.position},{e.ball_a},{e.ball_b},{e.length:.5f},{e.error * 1e3:.4f},"
+                             f"{e.u * 1e3:.4f}")
+    _write_text(files[1], "\n".join(rows) + "\n")
+    _write_text(files[2], "\n".join(lines) + "\n")
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        console.print("matplotlib is not installed: no plots (pip install 'cmmpose[plot]')")
+        return files
+    from .plots import plot_artefact_deviations, plot_length_errors
+
+    for r in ev.results:
+        path = directory / f"deviations_{r.label}.png"
+        plot_artefact_deviations(ev.artefact, r, path)
+        files.append(path)
+    path = directory / "length_errors.png"
+    plot_length_errors(ev.results, path)
+    files.append(path)
+    return files

@@ -1,0 +1,278 @@
+"""Compensating a point file into another in bounded memory
+(``cmmpose compensate IN OUT``; :func:`compensate_file`).
+
+Reading, compensating and writing run at once in a pipeline: a reader
+thread parses chunks of :data:`~cmmpose.pointfiles.CHUNK_POINTS` rows into
+a queue of at most :data:`QUEUE_CHUNKS` chunks, the calling thread runs the
+kernel on them (the Rust kernel releases the GIL) into a second queue of the
+same bound, and a writer thread writes them. A reader that runs ahead of a
+slow writer waits for it, so memory stays flat in the file's size (about
+:data:`QUEUE_CHUNKS` * 2 + 3 chunks in flight; benches/compensate_memory.py
+measures it), and reading overlaps writing.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from .compensation import compensate, warn_single_map
+from .errormap import ErrorMap, ErrorMapSet
+from .errors import InputError
+from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks
+from .atomicfile import check_not_input
+from .policy import TEMPERATURE_TOLERANCE
+from .report import KernelReport
+
+__all__ = ["compensate_file", "FileCompensation", "QUEUE_CHUNKS"]
+
+_log = logging.getLogger("cmmpose.filecompensation")
+
+#: Chunks each queue of the pipeline holds at most (reader -> kernel, kernel -> writer).
+QUEUE_CHUNKS = 1
+#: s: how often a thread waiting on a queue looks whether the other side failed or stopped.
+_POLL = 0.2
+#: s: how long, after a failure or Ctrl-C, the reader and writer threads are waited for.
+_JOIN_TIMEOUT = 30.0
+_END = object()
+_STOPPED = object()
+
+
+@dataclass(frozen=True)
+class FileCompensation:
+    """What :func:`compensate_file` did.
+
+    Attributes
+    ----------
+    points_in, points_out : Path
+        The files read and written.
+    points : int
+        Points compensated.
+    report : KernelReport
+        The kernel's counts over the whole file (clamped, held, extrapolated).
+    kernel_seconds : float
+        s: time spent in the kernel (reading and writing overlap it).
+    temperature : str or None
+        How the temperature was given: ``"per point (T column)"``, ``"21.5 C"``,
+        or None (a single map without one).
+    """
+
+    points_in: Path
+    points_out: Path
+    points: int
+    report: KernelReport
+    kernel_seconds: float
+    temperature: str | None
+
+
+class _Failed:
+    """An exception raised in a pipeline thread, carried to the calling thread."""
+
+    def __init__(self, exc: BaseException):
+        self.exc = exc
+
+
+def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
+                    out_of_range: str = "raise", nan_policy: str = "raise",
+                    temperature_tolerance: float = TEMPERATURE_TOLERANCE, progress=None,
+                    chunk: int | None = None) -> FileCompensation:
+    """Compensate the scanner points of a file into machine coordinates in
+    another, in bounded memory, reading, compensating and writing at once.
+
+    Parameters
+    ----------
+    points_in : path-like
+        A point file with columns u, v, D, E, F (mm) and optionally T
+        (degrees C), in any registered format (:mod:`cmmpose.pointfiles`).
+        Its other columns (scan_id, intensity, ...) are written to
+        ``points_out`` unchanged.
+    points_out : path-like
+        The output, in the format of its suffix (CSV for an unknown one):
+        X, Y, Z in mm (E57 in metres). Written through a temporary file
+        renamed into place when whole; never one of the inputs.
+    error_map : ErrorMap or ErrorMapSet
+        The machine's component errors; a set needs ``temperature`` or a T column.
+    pose, offset
+        Euler 3-1-3 angles in degrees and the mount offset in mm (as
+        :func:`cmmpose.compensate` takes them).
+    temperature : float, optional
+        degrees C for every point; default the T column when there is one.
+        A single map held at another temperature gives a ``MapTemperatureWarning``.
+    out_of_range, nan_policy, temperature_tolerance
+        As :func:`cmmpose.compensate` takes them (K for the tolerance).
+    progress : callable, optional
+        ``progress(bytes_done, size)``: how far into the input (bytes) the
+        written points reach, called in the calling thread.
+    chunk : int, optional
+        Rows per chunk (default :data:`cmmpose.pointfiles.CHUNK_POINTS`).
+
+    Returns
+    -------
+    FileCompensation
+
+    Raises
+    ------
+    InputError
+        A bad input (the file, row and column named), an output that is an
+        input, a map set without a temperature.
+    OutputError
+        The output cannot be written (a full disk): nothing is left behind.
+    """
+    points_in, points_out = Path(points_in), Path(points_out)
+    check_writable(points_out)  # before any work: a missing folder is found now, not after
+    check_not_input(points_out, [points_in], "OUT")
+    size, chunks = point_chunks(points_in, chunk, extras=True)
+    state = {"temperature": None, "warned": False, "kernel": 0.0}
+
+    def kernel(uv, scales, temps):
+        """One chunk through the kernel: its coordinates and report."""
+        if isinstance(error_map, ErrorMapSet):
+            if temperature is None and temps is None:
+                raise InputError(f"{points_in}: a map set needs a temperature (--temperature, temperature=) "
+                                 f"or a T column in the input")
+            t = temperature if temperature is not None else temps
+            state["temperature"] = "per point (T column)" if temperature is None else f"{temperature:g} C"
+        else:
+            t = None
+            given = temperature if temperature is not None else temps
+            if given is not None and not state["warned"]:
+                warn_single_map(error_map, given, temperature_tolerance)
+                state["warned"] = True
+        t0 = time.perf_counter()
+        out = compensate(uv, scales, error_map, pose, offset, t, out_of_range=out_of_range, nan_policy=nan_policy,
+                         temperature_tolerance=temperature_tolerance, return_report=True)
+        state["kernel"] += time.perf_counter() - t0
+        return out
+
+    reports: list[KernelReport] = []
+    writer = PointWriter(points_out, inputs=[points_in])
+    try:
+        try:
+            _pipeline(chunks, kernel, writer, reports, size, progress)
+        except RereadPoints as again:  # the fast reader refused a line the strict one accepts: the whole file
+            writer.abort()
+            writer = PointWriter(points_out, inputs=[points_in])
+            reports.clear()
+            state["kernel"] = 0.0
+            _pipeline(iter([(*again.points, again.extras, size)]), kernel, writer, reports, size, progress)
+    except BaseException:
+        writer.abort()
+        raise
+    writer.close()
+    report = KernelReport.total(reports)
+    _log.info("compensated %d points of %s into %s", report.points, points_in, points_out)
+    return FileCompensation(points_in, points_out, report.points, report, state["kernel"], state["temperature"])
+
+
+def _pipeline(chunks, kernel, writer: PointWriter, reports: list, size: int, progress) -> None:
+    """Read ``chunks`` in a thread, compensate here, write in a thread; the
+    first exception of any of them is raised here, after the threads stop."""
+    stop = threading.Event()
+    read_q: queue.Queue = queue.Queue(QUEUE_CHUNKS)
+    write_q: queue.Queue = queue.Queue(QUEUE_CHUNKS)
+    written = queue.SimpleQueue()  # bytes_done of each chunk written, or a failure
+
+    def put(q, item) -> bool:
+        """Put ``item`` on ``q``, waiting while it is full; False once stopped."""
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=_POLL)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def read() -> None:
+        try:
+            for item in chunks:
+                if not put(read_q, item):
+                    return
+            put(read_q, _END)
+        except BaseException as exc:  # carried to the calling thread
+            put(read_q, _Failed(exc))
+
+    def write() -> None:
+        while not stop.is_set():
+            try:
+                item = write_q.get(timeout=_POLL)
+            except queue.Empty:
+                continue
+            if item is _END:
+                written.put(_END)
+                return
+            xyz, extras, done = item
+            try:
+                writer.write(xyz, extras)  # scan_id, intensity, ... unchanged
+            except BaseException as exc:
+                stop.set()
+                written.put(_Failed(exc))
+                return
+            written.put(done)
+
+    def get(q, thread):
+        """The next item of ``q``; a failure if its producer died without one."""
+        while True:
+            try:
+                return q.get(timeout=_POLL)
+            except queue.Empty:
+                if not thread.is_alive():
+                    try:
+                        return q.get_nowait()
+                    except queue.Empty:
+                        if stop.is_set():  # the writer failed and stopped the reader
+                            return _STOPPED
+                        return _Failed(RuntimeError(f"the {thread.name} thread ended without a result"))
+
+    def report_progress(block: bool) -> BaseException | None:
+        """Pass on what the writer finished; its failure, if any."""
+        while True:
+            try:
+                done = written.get(timeout=_POLL) if block else written.get_nowait()
+            except queue.Empty:
+                if block and writer_thread.is_alive():
+                    continue
+                return None
+            if isinstance(done, _Failed):
+                return done.exc
+            if done is _END:
+                return None
+            if progress is not None:
+                progress(done, size)
+
+    reader_thread = threading.Thread(target=read, name="cmmpose point reader", daemon=True)
+    writer_thread = threading.Thread(target=write, name="cmmpose point writer", daemon=True)
+    reader_thread.start()
+    writer_thread.start()
+    try:
+        while True:
+            item = get(read_q, reader_thread)
+            if isinstance(item, _Failed):
+                raise item.exc
+            if item is _END:
+                break
+            if item is _STOPPED:
+                raise report_progress(block=True) or RuntimeError("the point writer stopped without a result")
+            uv, scales, temps, extras, done = item
+            xyz, rep = kernel(uv, scales, temps)
+            reports.append(rep)
+            del uv, scales, temps, item
+            if not put(write_q, (xyz, extras, done)):
+                break
+            del xyz, extras
+            failure = report_progress(block=False)
+            if failure is not None:
+                raise failure
+        put(write_q, _END)  # False when the writer stopped on a failure, reported next
+        failure = report_progress(block=True)
+        if failure is not None:
+            raise failure
+    finally:
+        stop.set()  # after a failure or Ctrl-C: the threads leave their queues
+        reader_thread.join(_JOIN_TIMEOUT)
+        writer_thread.join(_JOIN_TIMEOUT)
+        if writer_thread.is_alive():
+            _log.warning("the point writer did not stop within %g s", _JOIN_TIMEOUT)

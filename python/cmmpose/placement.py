@@ -1,0 +1,255 @@
+"""Where an artefact sits in the machine (docs/artefacts.md, "Placements").
+
+A placement turns the artefact's own frame into the machine frame H:
+``x_H = R (x_artefact - centroid) + centre``, with ``R`` a rotation and
+``centre`` where the centroid of the artefact's balls goes (mm). Placements
+are written as readable shorthands or named layouts::
+
+    placement := LAYOUT | PLANE [ "@" SETTING { "," SETTING } ]
+    PLANE     := "xy" | "xz" | "yz"     the artefact's x and y axes along these machine axes;
+                                         its +z (the side its balls face) along xy: +Z, xz: -Y, yz: +X
+    SETTING   := ("x" | "y" | "z") "=" MM      where the balls' centroid goes, mm (each axis not
+                                                 given: where the ram at mid-travel sees it)
+               | "rot" "=" DEGREES              turned about the plane's normal, from its first
+                                                 axis towards its second
+    LAYOUT    := "planes"        the three placements xy, xz, yz (ball plates)
+               | "iso10360-2"    the seven positions of ISO 10360-2 for bars and step gauges
+
+e.g. ``xy@z=-525,rot=45``: in the XY plane with its centroid at Z = -525 mm,
+turned 45 degrees. :func:`plan` then chooses, for every ball, a pose of the
+pose library that views the balls' side and keeps the ram's sweep inside the
+machine's travel, or names the ball and the axis that leave it.
+
+Units: mm, degrees.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _core
+from .errors import InputError
+from .layouts import W_AXIS_ANGLES, sweep_readings
+
+__all__ = ["Placement", "BallScan", "parse", "plan", "LAYOUTS", "PLANES", "SWEEP_MARGIN", "pose_library"]
+
+#: Travel beyond the ball on each side of a sweep, mm (as ``cmmpose.sim.runs``).
+SWEEP_MARGIN = 5.0
+#: The artefact's x and y axes in the machine frame, by plane.
+PLANES = {"xy": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+          "xz": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+          "yz": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))}
+#: Named layouts and what they are.
+LAYOUTS = {"planes": "a ball plate in the XY, XZ and YZ planes (three placements)",
+           "iso10360-2": "the seven positions of ISO 10360-2: the four space diagonals of the travel, then "
+                         "parallel to X, Y and Z, all through its middle"}
+#: Smallest cosine between the scanner's view (v, part -> sensor) and the
+#: side the balls face for a pose to be used (60 degrees).
+MIN_VIEW_COSINE = 0.5
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+
+
+@dataclass(frozen=True)
+class Placement:
+    """One placement: ``x_H = rotation @ (x_artefact - centroid) + centre``.
+
+    Attributes
+    ----------
+    label : str
+        The shorthand it came from (or the layout and position).
+    rotation : ndarray (3, 3)
+        Artefact frame -> machine frame.
+    centre : ndarray (3,)
+        Where the centroid of the balls goes, mm; NaN for an axis left to
+        :func:`plan` (where the ram at mid-travel sees it).
+    """
+
+    label: str
+    rotation: np.ndarray
+    centre: np.ndarray
+
+    def to_dict(self) -> dict:
+        return {"label": self.label, "rotation": [[float(round(x, 15)) for x in r] for r in self.rotation],
+                "centre_mm": [float(x) for x in self.centre]}
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> Placement:
+        return cls(str(doc["label"]), np.array(doc["rotation"], float), np.array(doc["centre_mm"], float))
+
+
+@dataclass(frozen=True)
+class BallScan:
+    """One ball to scan: placement number (1-based), ball id, its centre in
+    the machine frame at the certificate's temperature (mm) and the pose
+    (alpha, beta, gamma, degrees) chosen to scan it."""
+
+    position: int
+    ball: int
+    centre: np.ndarray
+    pose: tuple[float, float, float]
+
+
+def _rot_z(degrees: float) -> np.ndarray:
+    a = math.radians(degrees)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _frame(x_axis, y_axis) -> np.ndarray:
+    x, y = np.asarray(x_axis, float), np.asarray(y_axis, float)
+    return np.column_stack([x, y, np.cross(x, y)])
+
+
+def parse(text: str, travel=None) -> list[Placement]:
+    """The placements a shorthand or layout name says (see the module's grammar).
+
+    Parameters
+    ----------
+    text : str
+        e.g. ``'xy@z=-525,rot=45'``, ``'planes'``, ``'iso10360-2'``.
+    travel : sequence of 3 (lo, hi), optional
+        The machine's travel, mm: the ISO 10360-2 diagonals follow its box
+        (default a cube).
+
+    Raises
+    ------
+    InputError
+        Naming the placement and the part at fault.
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise InputError(f"placement {text!r}: empty; write e.g. 'xy@z=-525,rot=45' or one of {', '.join(LAYOUTS)}")
+    text = text.strip()
+    if text == "planes":
+        return [Placement(f"planes/{p}", _frame(*PLANES[p]), np.full(3, np.nan)) for p in ("xy", "xz", "yz")]
+    if text == "iso10360-2":
+        return _iso10360_2(travel)
+    plane, at, rest = text.partition("@")
+    plane = plane.strip().lower()
+    if plane not in PLANES:
+        raise InputError(f"placement {text!r}: {plane!r} is not a plane (xy, xz, yz) nor a layout "
+                         f"({', '.join(LAYOUTS)})")
+    if at and not rest.strip():
+        raise InputError(f"placement {text!r}: nothing after '@' (write e.g. {plane}@z=-525,rot=45)")
+    centre = np.full(3, np.nan)
+    rot = 0.0
+    seen = set()
+    for item in (p.strip() for p in rest.split(",")) if at else ():
+        key, eq, value = item.partition("=")
+        key = key.strip().lower()
+        if not eq or key not in ("x", "y", "z", "rot"):
+            raise InputError(f"placement {text!r}: {item!r} is not x=MM, y=MM, z=MM or rot=DEGREES")
+        if key in seen:
+            raise InputError(f"placement {text!r}: {key} is given twice")
+        seen.add(key)
+        if not _NUMBER.match(value.strip()) or not math.isfinite(float(value)) or abs(float(value)) > 1e6:
+            raise InputError(f"placement {text!r}: {key}={value.strip()!r} is not a number of "
+                             f"{'degrees' if key == 'rot' else 'mm'}")
+        if key == "rot":
+            rot = float(value)
+        else:
+            centre["xyz".index(key)] = float(value)
+    return [Placement(text, _frame(*PLANES[plane]) @ _rot_z(rot), centre)]
+
+
+def _iso10360_2(travel) -> list[Placement]:
+    span = np.ones(3) if travel is None else np.array([hi - lo for lo, hi in travel], float)
+    directions = [("diagonal +X+Y+Z", (1, 1, 1)), ("diagonal -X+Y+Z", (-1, 1, 1)), ("diagonal +X-Y+Z", (1, -1, 1)),
+                  ("diagonal -X-Y+Z", (-1, -1, 1)), ("along X", (1, 0, 0)), ("along Y", (0, 1, 0)),
+                  ("along Z", (0, 0, 1))]
+    out = []
+    for k, (name, sign) in enumerate(directions, start=1):
+        d = np.array(sign, float) * span
+        d /= np.linalg.norm(d)
+        up = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.99 else np.array([0.0, -1.0, 0.0])
+        z = up - (up @ d) * d
+        z /= np.linalg.norm(z)
+        out.append(Placement(f"iso10360-2/{k} ({name})", np.column_stack([d, np.cross(z, d), z]), np.full(3, np.nan)))
+    return out
+
+
+def pose_library(machine_pose) -> list[tuple[float, float, float]]:
+    """The poses a scan may use: the machine's own, then the trunnion's
+    indexed poses (W along +-X, +-Y; gamma in 15-degree steps from -90 to 90)."""
+    poses = [tuple(float(x) for x in machine_pose)]
+    for alpha, beta in W_AXIS_ANGLES.values():
+        for gamma in range(-90, 91, 15):
+            p = (float(alpha), float(beta), float(gamma))
+            if p not in poses:
+                poses.append(p)
+    return poses
+
+
+def _sweep_box(centre, pose, offset, radius) -> np.ndarray:
+    """(3, 2) lowest and highest scale reading of the sweep through a ball, mm."""
+    ends = sweep_readings(centre, pose, offset, radius=radius)
+    a = int(np.argmax(np.abs(ends[1] - ends[0])))
+    box = np.column_stack([ends.min(axis=0), ends.max(axis=0)])
+    box[a] += (-SWEEP_MARGIN, SWEEP_MARGIN)
+    return box
+
+
+def _outside(box, travel) -> list[tuple[int, float, float]]:
+    return [(k, box[k, 0], box[k, 1]) for k, (lo, hi) in enumerate(travel)
+            if box[k, 0] < lo - 1e-9 or box[k, 1] > hi + 1e-9]
+
+
+def plan(placements, artefact, machine) -> tuple[list[Placement], list[BallScan]]:
+    """Resolve the placements on ``machine`` and choose a pose per ball.
+
+    Parameters
+    ----------
+    placements : sequence of Placement
+    artefact : cmmpose.artefacts.Artefact
+    machine : cmmpose.machine.Machine
+        Its travel, mount offset and pose.
+
+    Returns
+    -------
+    placements : list of Placement
+        With every centre axis filled in.
+    scans : list of BallScan
+        Every ball of every placement, in order.
+
+    Raises
+    ------
+    InputError
+        A ball whose sweep leaves the travel with every pose of the pose
+        library that views the balls' side, naming the placement, the ball
+        and the axis.
+    """
+    travel = np.array(machine.travel, float)
+    mid = travel.mean(axis=1)
+    offset = tuple(machine.offset)
+    library = pose_library(machine.pose.as_tuple())
+    r = artefact.nominal_radius
+    resolved, scans = [], []
+    for k, pl in enumerate(placements, start=1):
+        normal = pl.rotation[:, 2]
+        views = [(float(_core.euler313(*p)[:, 1] @ normal), i, p) for i, p in enumerate(library)]
+        candidates = [p for score, _, p in sorted(views, key=lambda s: (-round(s[0], 9), s[1]))
+                      if score >= MIN_VIEW_COSINE]
+        if not candidates:
+            raise InputError(f"placement {k} ({pl.label}): no pose of the pose library views the balls' side")
+        seen_at_origin = _sweep_box(np.zeros(3), candidates[0], offset, r).mean(axis=1)
+        centre = np.where(np.isnan(pl.centre), mid - seen_at_origin, pl.centre)
+        pl = Placement(pl.label, pl.rotation, centre)
+        resolved.append(pl)
+        for bid, c in zip(artefact.ids, artefact.centres):
+            x = pl.rotation @ (c - artefact.centroid) + centre
+            for pose in candidates:
+                if not _outside(_sweep_box(x, pose, offset, r), travel):
+                    break
+            else:
+                axis, lo, hi = _outside(_sweep_box(x, candidates[0], offset, r), travel)[0]
+                tlo, thi = travel[axis]
+                raise InputError(
+                    f"placement {k} ({pl.label}): ball {bid} at X {x[0]:.1f}, Y {x[1]:.1f}, Z {x[2]:.1f} mm is out "
+                    f"of reach: its sweep needs {'XYZ'[axis]} {lo:.1f}..{hi:.1f} mm with pose "
+                    f"{','.join(f'{a:g}' for a in candidates[0])}, beyond the {'XYZ'[axis]} travel {tlo:g}..{thi:g} "
+                    f"mm of {machine.name}, and no other pose of the pose library keeps it in travel")
+            scans.append(BallScan(k, int(bid), x, pose))
+    return resolved, scans
