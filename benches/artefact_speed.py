@@ -9,8 +9,11 @@ first use is not counted); the simulation is not timed.
 
 Prints min-max over --repeats calls of ``cmmpose.artefact_evaluation.evaluate_artefact``
 (uncompensated and compensated with the thesis maps) and of ``cmmpose.diagnose``
-(the whole effect library, residual patterns included), and the peak
-resident memory of the process.
+(the whole effect library, residual patterns included; then also without the
+map-correction candidates, ``map_corrections=False``), and the peak resident
+memory of the process. The machine may be shared: each repeat times one
+evaluation and one diagnosis back to back, and the ratio diagnosis /
+evaluation (min-max) is what load does not change much.
 """
 
 from __future__ import annotations
@@ -24,21 +27,10 @@ from cmmpose import artefacts
 from cmmpose.artefact_evaluation import evaluate_artefact
 from cmmpose.diagnosis import diagnose
 from cmmpose.errormap import ErrorMapSet
-from cmmpose.sim import ScaleError, SquarenessOffset
+from cmmpose.sim import Scale, Squareness
 from cmmpose.sim.artefact_runs import simulate_artefact_run
 
 PLACEMENTS = ["planes", "xy@rot=90"]
-
-
-def spread(f, repeats):
-    """(min, max) wall time in s of ``repeats`` calls of f, after one warm-up call, and its last result."""
-    out = f()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = f()
-        times.append(time.perf_counter() - t)
-    return (min(times), max(times)), out
 
 
 def cpu_name() -> str:
@@ -57,19 +49,36 @@ def main(argv=None) -> int:
     ap.add_argument("--speed", type=float, default=3.5, help="Sweep speed, mm/s (3.5: about 1e6 points).")
     args = ap.parse_args(argv)
     plate = artefacts.load_artefact("koba-0420")
-    run, _ = simulate_artefact_run(plate, PLACEMENTS, None, 20.0, [SquarenessOffset(6.0, -4.0, 3.0),
-                                                                     ScaleError(8.0, -6.0, 5.0)],
+    run, _ = simulate_artefact_run(plate, PLACEMENTS, None, 20.0, [Squareness(6.0, -4.0, 3.0),
+                                                                     Scale(8.0, -6.0, 5.0)],
                                    speed=args.speed, seed=1)
     maps = ErrorMapSet.thesis()
     n_balls = len(run.scans["scan_id"])
     print(f"KOBA 0420 at {len(run.artefact['placements'])} placements: {n_balls} balls, {run.n_points:,} points; "
           f"CPU: {cpu_name()}")
-    (lo, hi), ev = spread(lambda: evaluate_artefact(run, maps), args.repeats)
-    print(f"evaluate (uncompensated + compensated): {lo:.2f}-{hi:.2f} s over {args.repeats} runs "
+    ev = evaluate_artefact(run, maps)  # warm-up calls: what loads on first use is not counted
+    d = diagnose(run, maps)
+    diagnose(run, maps, map_corrections=False)
+    times = {"evaluate": [], "diagnose": [], "diagnose, no map corrections": []}
+    for _ in range(args.repeats):
+        for what, call in (("evaluate", lambda: evaluate_artefact(run, maps)), ("diagnose", lambda: diagnose(run, maps)),
+                           ("diagnose, no map corrections", lambda: diagnose(run, maps, map_corrections=False))):
+            t = time.perf_counter()
+            out = call()
+            times[what].append(time.perf_counter() - t)
+            if what == "evaluate":
+                ev = out
+            elif what == "diagnose":
+                d = out
+    ev_t = times["evaluate"]
+    print(f"evaluate (uncompensated + compensated): {min(ev_t):.2f}-{max(ev_t):.2f} s over {args.repeats} runs "
           f"(rms deviation compensated {ev.compensated.rms * 1e3:.2f} um)")
-    (lo, hi), d = spread(lambda: diagnose(run, maps), args.repeats)
-    print(f"diagnose (effect library, patterns): {lo:.2f}-{hi:.2f} s over {args.repeats} runs "
-          f"(added: {', '.join(d.added) or 'nothing'})")
+    for what in ("diagnose", "diagnose, no map corrections"):
+        t = times[what]
+        ratio = [a / b for a, b in zip(t, ev_t)]
+        print(f"{what} (effect library, patterns): {min(t):.2f}-{max(t):.2f} s over {args.repeats} runs, "
+              f"{min(ratio):.1f}-{max(ratio):.1f} x the evaluation timed beside it"
+              + (f" (added: {', '.join(d.added) or 'nothing'})" if what == "diagnose" else ""))
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"peak resident memory: {peak:.0f} MB")
     return 0

@@ -57,7 +57,7 @@ def spread_of(f, repeats):
 
 
 def simulated_run():
-    return simulate_ballbar_run(temperature=22.5, effects=[E.SquarenessOffset(yz=20.0)], jitter=0.0015, seed=1)[0]
+    return simulate_ballbar_run(temperature=22.5, effects=[E.Squareness(yz=20.0)], jitter=0.0015, seed=1)[0]
 
 
 def cold_diagnosis(runs):

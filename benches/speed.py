@@ -140,7 +140,7 @@ def fresh_output(n: int, repeats: int) -> None:
 
 
 def model_kernel(repeats: int) -> None:
-    run, _ = simulate_ballbar_run(temperature=22.5, effects=[E.SquarenessOffset(yz=20.0)], jitter=0.0015, seed=1)
+    run, _ = simulate_ballbar_run(temperature=22.5, effects=[E.Squareness(yz=20.0)], jitter=0.0015, seed=1)
     model = Model(cmmpose.ErrorMapSet.thesis())
     inputs_ = model.inputs(run)
     named = inputs_.named()

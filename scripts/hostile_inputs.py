@@ -574,6 +574,53 @@ def run_table_cut(work: Path) -> None:
     refused(cli("evaluate", "run", cwd=work), what="a points table cut short", mentions=("points",))
 
 
+def thermocouple_attack(work: Path, kind: str, command: str) -> None:
+    """A dropped thermocouple (one channel a constant 1e6 C, an open circuit) or
+    a log that ends before the last points and is held: ``command`` must say
+    which channel it dropped and why, or how many points it held and for how
+    long, in its printed output and in its JSON (the temperature provenance)."""
+    import dataclasses
+
+    from cmmpose.run import Run
+
+    saved = Run.load(small_run(work, "clean", *(("--calibrated",) if command == "acceptance" else ())))
+    log = {k: np.array(v, dtype=float, copy=True) for k, v in saved.temperatures.items()}
+    channel = saved.temperature_channels[0]["name"]
+    if kind == "dropped":
+        log[channel][:] = 1e6
+    else:  # the logger stopped 5 s before the last point
+        keep = log["t"] <= float(np.max(saved.points["t"])) - 5.0
+        log = {k: v[keep] for k, v in log.items()}
+    dataclasses.replace(saved, temperatures=log).save(work / "run")  # run.json counts the rows anew
+    args = {"evaluate": ("evaluate", "run"), "diagnose": ("diagnose", "run", "--max-effects", 1),
+            "acceptance": ("standards", "acceptance", "run", "--mpe-form", 60, "--mpe-size", 10, "--mpe-length",
+                           "8+L/300")}[command]
+    what = f"{command} with {'thermocouple ' + channel + ' at a constant 1e6 C' if kind == 'dropped' else 'a log held past its end'}"
+    printed = cli(*args, cwd=work)
+    if printed.code not in (0, 1):
+        refused(printed, what=what)
+        return
+    text = " ".join(printed.text.split())
+    said = (f"thermocouple {channel}" in text and "1e+06" in text) if kind == "dropped" else "does not cover" in text
+    if not said:
+        raise Failed("silent", f"{what}: exit {printed.code} and the printed output does not say so")
+    r = cli(*args, "--json", cwd=work)
+    try:
+        doc = json.loads(r.out)
+    except ValueError:
+        raise Failed("silent", f"{what}: --json printed no JSON (exit {r.code})")
+    log = {"evaluate": lambda d: d["provenance"]["temperature"].get("log"),
+           "diagnose": lambda d: d["provenance"].get("temperature_log"),
+           "acceptance": lambda d: d.get("temperature_log")}[command](doc) or {}
+    if kind == "dropped":
+        ok = any(d.get("channel") == channel and d.get("why") for d in log.get("channels_dropped", []))
+    else:
+        held = log.get("held") or {}
+        ok = held.get("points", 0) > 0 and held.get("after_log_s", 0) > 0
+    if not ok:
+        raise Failed("silent", f"{what}: the JSON's temperature provenance does not say so: {json.dumps(log)[:200]}")
+
+
 def machine_attack(work: Path, kind: str) -> None:
     text = (DATA / "machines" / "moving-bridge.toml").read_text()
     if kind == "no [mount]":
@@ -689,6 +736,12 @@ ATTACKS = {
         '--pose ""': lambda w: empty_option(w, "--pose", ""),
         '--offset ""': lambda w: empty_option(w, "--offset", ""),
         "--pose 1e9,90,0": lambda w: empty_option(w, "--pose", "1e9,90,0"),
+        "evaluate: a thermocouple at a constant 1e6 C": lambda w: thermocouple_attack(w, "dropped", "evaluate"),
+        "evaluate: a log that ends early and is held": lambda w: thermocouple_attack(w, "held", "evaluate"),
+        "diagnose: a thermocouple at a constant 1e6 C": lambda w: thermocouple_attack(w, "dropped", "diagnose"),
+        "diagnose: a log that ends early and is held": lambda w: thermocouple_attack(w, "held", "diagnose"),
+        "acceptance: a thermocouple at a constant 1e6 C": lambda w: thermocouple_attack(w, "dropped", "acceptance"),
+        "acceptance: a log that ends early and is held": lambda w: thermocouple_attack(w, "held", "acceptance"),
     },
 }
 

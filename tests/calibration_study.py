@@ -27,8 +27,8 @@ from cmmpose.sim.calibration_data import VERNIER_NOISE, plane_scan, reference_sp
 
 MACHINE = "moving-bridge"
 TEMPERATURE = 21.0  # C, between the 20 and 25 C maps
-POSE_ERROR = sim.AlignmentError(0.03, -0.02, 0.04)  # deg: what the alignment must find
-OFFSET_ERROR = sim.MountOffsetError(0.03, -0.02, 0.04)  # mm
+POSE_ERROR = sim.Alignment(0.03, -0.02, 0.04)  # deg: what the alignment must find
+OFFSET_ERROR = sim.MountOffset(0.03, -0.02, 0.04)  # mm
 VERNIER_POINTS = 3  # the thesis's procedure
 PLANE_SCANNER = sim.Scanner(points_per_profile=64)  # fewer points: a quick trial
 SPHERE_SCANNER = sim.Scanner(points_per_profile=256)

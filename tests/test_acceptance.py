@@ -12,7 +12,7 @@ from click.testing import CliRunner
 import cmmpose
 from cmmpose.calibration import STANDARD_POSES
 from cmmpose.cli import main
-from cmmpose.evaluation import _machine_coordinates, machine_temperature
+from cmmpose.evaluation import machine_coordinates, machine_temperature
 from cmmpose.sim import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
 from cmmpose.fitting import e3125
@@ -59,7 +59,7 @@ def test_acceptance_of_a_simulated_run(sim):
     r = acceptance_test(run, MAPS, mpe_form=200, mpe_size=10, mpe_length="8+L/300", u_length_certificate_um=1.0,
                         u_diameter_certificate_um=0.5, u_form_certificate_um=0.25)
     temps = machine_temperature(run, run.points["t"])
-    xyz = _machine_coordinates(run, MAPS, temps)
+    xyz = machine_coordinates(run, MAPS, temps)
     sid = run.points["scan_id"]
     scans = run.scans
     by = {c.item: c for c in r.checks if c.test == "probing form, single view"}

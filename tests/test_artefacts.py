@@ -157,8 +157,32 @@ def test_a_placement_out_of_travel_names_the_ball_and_axis():
     _, scans = placement.plan(placement.parse("xy@x=800,z=-525"), a, Machine.thesis())
     assert (90.0, 90.0, 0.0) in {s.pose for s in scans} and (-90.0, 90.0, 0.0) in {s.pose for s in scans}
     # the KOBA 0620 does not fit the 500 mm Z travel standing up
-    with pytest.raises(InputError, match=r"ball \d+ .* Z travel -500\.\.0 mm"):
+    with pytest.raises(InputError, match=r"ball \d+ .* Z travel -500\.\.0 mm.*span 532 mm of Z .* more than the "
+                                         r"500 mm travel: it cannot stand so"):
         placement.plan(placement.parse("xz"), artefacts.load_artefact("koba-0620"), Machine.thesis())
+
+
+def test_the_planes_layout_refuses_a_plate_too_big_naming_the_planes_that_fit():
+    with pytest.raises(InputError, match=r"layout 'planes': KOBA 0620 .* cannot stand in the XZ plane .* it fits in "
+                                         r"XY: .* --placement xy --placement xy@rot=90 .*ball \d+"):
+        placement.plan(placement.parse("planes"), artefacts.load_artefact("koba-0620"), Machine.thesis())
+    resolved, scans = placement.plan(placement.parse("planes"), artefacts.load_artefact("koba-0420"), Machine.thesis())
+    assert [p.label for p in resolved] == ["planes/xy", "planes/xz", "planes/yz"] and len(scans) == 75
+
+
+@pytest.mark.parametrize("name, fits", [("koba-0620", "xy"), ("koba-0420", "xy xz yz"), ("koba-0320", "xy xz yz"),
+                                        ("apmp-plate", "xy xz yz"), ("step-gauge-31x20", "xy xz")])
+def test_which_placements_fit_as_the_docs_say(name, fits):
+    """docs/artefacts.md, 'Which placements fit' (the thesis machine's 900 x 550 x 500 mm travel)."""
+    a, m = artefacts.load_artefact(name), Machine.thesis()
+    got = []
+    for plane in placement.PLANES:
+        try:
+            placement.plan(placement.parse(plane), a, m)
+            got.append(plane)
+        except InputError as exc:
+            assert "cannot stand so on this machine" in str(exc)  # too big, not merely badly centred
+    assert " ".join(got) == fits
 
 
 def test_rigid_fit_recovers_a_transform():
@@ -325,3 +349,26 @@ def test_cli_simulate_bad_input(tmp_path, args, code, message):
     assert res.exit_code == code, res.output
     assert message in res.output and "Traceback" not in res.output
     assert not (tmp_path / "run").exists()
+
+
+def test_fleet_table_gives_an_artefact_run_its_own_figures(plate_run):
+    """`cmmpose evaluate A B ...` across runs: a plate run shows its rms
+    deviation and largest |E|, not the NaN of ballbar lengths it lacks."""
+    import math
+
+    from cmmpose import scale
+    from cmmpose.errormap import ErrorMapSet
+
+    run, _ = plate_run
+    maps = ErrorMapSet.thesis()
+    ev = scale._evaluate_run(run, maps, temperature=20.0, expansion=11.5e-6, skip_incomplete=False)
+    direct = evaluate_artefact(run, maps, 20.0)
+    bar, _ = simulate_ballbar_run(maps, 20.0, layout="crossed", scanner=Scanner(points_per_profile=64), seed=1)
+    rows = scale.fleet_summary(["plate", "bar"], [ev, scale._evaluate_run(bar, maps)])
+    plate, ballbar = rows
+    assert plate.kind == "ball-plate" and ballbar.kind == "ballbar"
+    assert plate.rms_uncompensated == direct.uncompensated.rms and plate.rms_compensated == direct.compensated.rms
+    assert plate.b89_compensated == abs(direct.compensated.largest_length_error.error)
+    assert all(math.isfinite(getattr(r, f)) for r in rows for f in ("rms_uncompensated", "b89_uncompensated",
+                                                                       "rms_compensated", "b89_compensated"))
+    assert ev.skipped == []

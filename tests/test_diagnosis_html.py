@@ -16,9 +16,9 @@ import cmmpose  # noqa: E402
 from cmmpose.diagnosis.html import render_html_report, write_html_report  # noqa: E402
 from cmmpose.diagnosis.patterns import find_patterns  # noqa: E402
 from cmmpose.diagnosis.plots import plot_history, plot_length_deviation, plot_patterns, plot_point_residuals  # noqa: E402
-from cmmpose.evaluation import _machine_coordinates  # noqa: E402
+from cmmpose.evaluation import machine_coordinates  # noqa: E402
 from cmmpose.fitting import fit_spheres  # noqa: E402
-from cmmpose.sim.effects import ScannerScale, SquarenessOffset  # noqa: E402
+from cmmpose.sim.effects import ScannerScale, Squareness  # noqa: E402
 from cmmpose.sim.runs import simulate_ballbar_run  # noqa: E402
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -32,8 +32,8 @@ STEPS = [
 @functools.lru_cache(maxsize=None)
 def _patterns():
     maps = cmmpose.ErrorMapSet.thesis()
-    run, _ = simulate_ballbar_run(maps, 22.5, [SquarenessOffset(xy=15.0), ScannerScale(depth=1e-3)], seed=4)
-    xyz = _machine_coordinates(run, maps, 22.5)
+    run, _ = simulate_ballbar_run(maps, 22.5, [Squareness(xy=15.0), ScannerScale(depth=1e-3)], seed=4)
+    xyz = machine_coordinates(run, maps, 22.5)
     return find_patterns(run, xyz, fit_spheres(xyz, run.points["scan_id"]), nominal_radius=run.artefact["ball_radius_mm"])
 
 

@@ -18,7 +18,7 @@ from cmmpose.calibration import STANDARD_POSES
 from cmmpose.cli import main
 from cmmpose.diagnosis import LIBRARY, Model, UserEffect
 from cmmpose.diagnosis.effects import library
-from cmmpose.evaluation import _machine_coordinates, machine_temperature
+from cmmpose.evaluation import machine_coordinates, machine_temperature
 from cmmpose.run import load_truth
 from cmmpose.sim import effects as E
 from cmmpose.sim.runs import simulate_ballbar_run
@@ -35,7 +35,7 @@ def run_with(effects=(), **kw):
 
 def test_no_effects_is_the_thesis_compensation():
     run, _ = run_with(seed=1)
-    want = _machine_coordinates(run, MAPS, machine_temperature(run, run.points["t"]))
+    want = machine_coordinates(run, MAPS, machine_temperature(run, run.points["t"]))
     got = Model(MAPS).compensate(run)
     assert np.abs(got - want).max() < 1e-9
 
@@ -56,7 +56,7 @@ def test_machine_terms_equal_maps_edited_by_hand():
             t[:, 4 + k] += roll[k] * t[:, 0] / 1000.0  # arc-second
             tables.append(t)
         edited.append(cmmpose.ErrorMap(*tables, tuple(np.add(m.squareness, sq)), m.temperature))
-    want = _machine_coordinates(run, cmmpose.ErrorMapSet(edited), machine_temperature(run, run.points["t"]))
+    want = machine_coordinates(run, cmmpose.ErrorMapSet(edited), machine_temperature(run, run.points["t"]))
     model = Model(MAPS).with_values("scale", ppm).with_values("roll", roll).with_values("squareness", sq)
     assert np.abs(model.compensate(run) - want).max() < 1e-9
 

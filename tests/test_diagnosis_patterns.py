@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 import cmmpose
 from cmmpose.diagnosis.patterns import Patterns, f_test_p_value, find_patterns
-from cmmpose.evaluation import _machine_coordinates, machine_temperature
+from cmmpose.evaluation import machine_coordinates, machine_temperature
 from cmmpose.fitting import fit_spheres
 from cmmpose.sim.effects import IncidenceError, ScaleError, ScannerLatency, ScannerScale, SquarenessOffset
 from cmmpose.sim.runs import simulate_ballbar_run
@@ -29,7 +29,7 @@ def _measured(effects: tuple = (), seed: int = 1, bidirectional: bool = False):
     know none of ``effects``) at the logged machine temperature, and fitted."""
     run, truth = simulate_ballbar_run(MAPS, 22.5, list(effects), seed=seed, bidirectional=bidirectional)
     temp = machine_temperature(run, run.points["t"])
-    xyz = _machine_coordinates(run, MAPS, temp)
+    xyz = machine_coordinates(run, MAPS, temp)
     fits = fit_spheres(xyz, run.points["scan_id"])
     return run, truth, xyz, fits, temp
 
@@ -174,13 +174,13 @@ def test_a_noise_only_run_has_no_significant_pattern(seed):
 
 def test_f_test_p_values_are_uniform_under_the_null():
     # seeded check of the whole pattern fit: random y against fixed x, 20 observations
-    from cmmpose.diagnosis.patterns import _continuous
+    from cmmpose.diagnosis.patterns import continuous_pattern
 
     rng = np.random.default_rng(7)
     x = np.linspace(-1.0, 1.0, 20)
-    p_lin = np.array([_continuous("length", "y", "x", "1", x, rng.normal(size=20), "", shape=True).p_value
+    p_lin = np.array([continuous_pattern("length", "y", "x", "1", x, rng.normal(size=20), "", shape=True).p_value
                       for _ in range(1500)])
-    p_quad = np.array([_continuous("length", "y", "x", "mm", x, rng.normal(size=20), "").p_value for _ in range(1500)])
+    p_quad = np.array([continuous_pattern("length", "y", "x", "mm", x, rng.normal(size=20), "").p_value for _ in range(1500)])
     for p in (p_lin, p_quad):
         assert np.mean(p < 0.05) == pytest.approx(0.05, abs=0.017)
         assert np.mean(p < 0.5) == pytest.approx(0.5, abs=0.05)
@@ -197,13 +197,13 @@ def test_f_test_p_value_matches_scipy(f, df1, df2):
 @settings(max_examples=40, deadline=None)
 @given(scale=st.floats(1e-3, 1e3), offset=st.floats(-1e3, 1e3), seed=st.integers(0, 2**31))
 def test_strength_does_not_depend_on_units_or_offsets(scale, offset, seed):
-    from cmmpose.diagnosis.patterns import _continuous
+    from cmmpose.diagnosis.patterns import continuous_pattern
 
     rng = np.random.default_rng(seed)
     x = rng.uniform(-1, 1, 30)
     y = 3 * x**2 + rng.normal(size=30)
-    a = _continuous("length", "y", "x", "mm", x, y, "")
-    b = _continuous("length", "y", "x", "mm", x * scale + offset, y * scale + offset, "")
+    a = continuous_pattern("length", "y", "x", "mm", x, y, "")
+    b = continuous_pattern("length", "y", "x", "mm", x * scale + offset, y * scale + offset, "")
     assert b.r2 == pytest.approx(a.r2, rel=1e-6, abs=1e-9)
     assert b.amplitude_um == pytest.approx(a.amplitude_um * scale, rel=1e-6)
 

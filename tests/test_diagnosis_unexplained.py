@@ -82,7 +82,7 @@ def test_patterns_become_findings_that_say_what_the_model_holds():
 
 
 def test_drafts_are_valid_user_effects(tmp_path):
-    from cmmpose.cli import _load_user_effect
+    from cmmpose.diagnosis.effects import load_user_effect as _load_user_effect
 
     periodic = Finding("periodic", "E", "a ripple", 1.0, 1e-9, 1e-6, period_mm=7.5, phase=(1.0, 0.0), axis="y")
     pattern = Finding("pattern", "incidence", "point fit residual vs incidence", 0.5, 1e-9, 1e-6)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import os
 import shutil
 import socket
@@ -225,7 +226,7 @@ def test_hints_name_the_command_lines_flags_or_say_there_is_none(tmp_path, monke
     assert r.exit_code == 1
     msg = one_line_error(r)
     assert "row 4" in msg and "use --nan-policy propagate" in msg and "nan_policy=" not in msg
-    # a thermocouple log with a gap: evaluate has no option to interpolate across it
+    # a thermocouple log with a gap: evaluate names its option to interpolate across it (the temperature policy)
     from cmmpose.sim.runs import simulate_ballbar_run
     from cmmpose.sim.scanner import Scanner
 
@@ -237,7 +238,10 @@ def test_hints_name_the_command_lines_flags_or_say_there_is_none(tmp_path, monke
     assert r.exit_code == 1
     msg = one_line_error(r)
     assert "gap of the temperature log" in msg and "on_gap" not in msg
-    assert "the command line has no option to interpolate across it" in msg and "--temperature" in msg
+    assert "use --on-gap interpolate to interpolate across it" in msg
+    r = cli("evaluate", tmp_path / "gap", "--on-gap", "interpolate", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["provenance"]["temperature"]["log"]["points_across_gaps"] > 0
 
 
 def test_the_library_keeps_its_python_hints():

@@ -201,7 +201,7 @@ def test_every_machine_dependent_command_takes_the_machine_file(tmp_path):
     """--machine on the commands beyond simulate/evaluate/compensate: each uses
     what the file says (maps, travel, thermocouples, alignment library)."""
     from cmmpose.acquire.plan import Plan
-    from cmmpose.cli import _plan_for
+    from cmmpose.cli.acquire import _plan_for
 
     path = tmp_path / "m.toml"
     text = example_text("gantry").replace('# alignments = "alignments.json"', 'alignments = "align.json"')

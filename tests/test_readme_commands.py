@@ -45,4 +45,4 @@ def test_readme_commands_run_as_written(tmp_path):
     assert len((tmp_path / "compensated.csv").read_text().splitlines()) == 3905
     assert {p.name for p in (tmp_path / "comp").iterdir()} >= {"x.comp", "y.comp", "z.comp"}
     assert (tmp_path / "imported.csv").is_file() and (tmp_path / "model3.json").is_file()
-    assert (tmp_path / "report3.html").stat().st_size > 10_000
+    assert (tmp_path / "report3" / "diagnose.html").stat().st_size > 10_000

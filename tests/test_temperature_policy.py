@@ -7,7 +7,9 @@ reading; a single map used at other temperatures says so."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import pickle
 import warnings
 
 import numpy as np
@@ -21,6 +23,7 @@ from cmmpose.errors import MapTemperatureWarning
 from cmmpose.run import Run
 from cmmpose.sim.runs import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
+from cmmpose.temperature import DEFAULT_POLICY, TemperaturePolicy, as_policy
 
 MAPS = cmmpose.ErrorMapSet.thesis()
 COARSE = Scanner(points_per_profile=128)
@@ -170,3 +173,139 @@ def test_policy_arguments_are_checked():
             cmmpose.evaluate(run, MAPS, **kw)
         with pytest.raises(cmmpose.InputError, match=next(iter(kw))):
             Model(MAPS, **kw)
+
+
+# -- one policy object: cmmpose.temperature.TemperaturePolicy ---------------------------------------
+CLAMP = {"out_of_range": "clamp", "temperature_tolerance": 0.0}
+
+
+def test_the_policy_is_frozen_hashable_picklable_and_checked():
+    p = TemperaturePolicy(out_of_range="clamp", on_gap="interpolate", max_gap=30,
+                          sensors={"x_scale": ["X2", "X3"], "mount": "T9"})
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        p.out_of_range = "raise"
+    assert p.sensors == (("mount", ("T9",)), ("x_scale", ("X2", "X3")))  # one spelling, sorted
+    assert p == TemperaturePolicy(out_of_range="clamp", on_gap="interpolate", max_gap=30.0,
+                                  sensors=["x_scale=X2,X3", "mount=T9"])
+    assert hash(p) == hash(pickle.loads(pickle.dumps(p))) and pickle.loads(pickle.dumps(p)) == p
+    assert {p: 1}[dataclasses.replace(p)] == 1
+    assert TemperaturePolicy.from_dict(json.loads(json.dumps(p.to_dict()))) == p
+    assert TemperaturePolicy() == DEFAULT_POLICY and as_policy(None) is DEFAULT_POLICY
+    assert as_policy(p, log_hold=5.0) == dataclasses.replace(p, log_hold=5.0)  # a keyword given wins
+    for kw, name in (({"on_gap": "skip"}, "on_gap"), ({"broken_channels": "keep"}, "broken_channels"),
+                     ({"max_gap": 0}, "max_gap"), ({"sensors": {"nowhere": "X1"}}, "sensors"),
+                     ({"sensors": {"x_scale": "X1", "y_scale": "X1"}}, "sensors"), ({"log_hold": -1}, "log_hold")):
+        with pytest.raises(cmmpose.InputError, match=name):
+            TemperaturePolicy(**kw)
+
+
+def test_every_function_has_the_same_default_policy():
+    import inspect
+
+    from cmmpose.diagnosis.inputs import RunInputs
+    from cmmpose.filecompensation import compensate_file
+    from cmmpose.scale import Compensator, compensate_array, compensate_dataframe, compensate_dataset
+    from cmmpose.standards.acceptance import acceptance_test
+    from cmmpose.standards.interim import interim_check
+
+    for f in (cmmpose.compensate, cmmpose.evaluate, cmmpose.diagnose, acceptance_test, interim_check,
+              compensate_file, compensate_array, compensate_dataframe, compensate_dataset, Compensator.make,
+              RunInputs.from_run, cmmpose.evaluation.machine_temperature):
+        assert inspect.signature(f).parameters["temperature_policy"].default is None, f.__qualname__
+    # None is TemperaturePolicy() everywhere; a new diagnosis model holds it too (diagnose once defaulted
+    # out_of_range=None, 'the model's', while evaluate defaulted 'raise')
+    assert Model(MAPS).policy == TemperaturePolicy()
+
+
+def test_every_function_gives_the_old_keyword_paths_results():
+    from cmmpose.diagnosis.inputs import RunInputs
+    from cmmpose.standards.acceptance import acceptance_test
+    from cmmpose.standards.interim import interim_check
+
+    run, _ = simulate_ballbar_run(MAPS, 20.0, layout="b89", scanner=Scanner(points_per_profile=64), seed=4,
+                                  calibrated=("length", "radius"))
+    pol = TemperaturePolicy(**CLAMP, log_hold=60.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        old = cmmpose.evaluate(run, MAPS, **CLAMP, log_hold=60.0)
+        new = cmmpose.evaluate(run, MAPS, temperature_policy=pol)
+        assert old.provenance["points_clamped"] > 0
+        assert np.array_equal(old.compensated.lengths, new.compensated.lengths)
+        assert old.provenance["policy"] == new.provenance["policy"]
+        rows = run.points["scan_id"] == run.points["scan_id"][0]
+        pose, offset = run.pose(int(run.poses["pose_id"][0]))
+        t = cmmpose.evaluation.machine_temperature(run, run.points["t"][rows])
+        assert np.array_equal(
+            cmmpose.compensate(run.uv[rows], run.scales[rows], MAPS, pose, offset, t, **CLAMP),
+            cmmpose.compensate(run.uv[rows], run.scales[rows], MAPS, pose, offset, t, temperature_policy=pol))
+        kw = {"mpe_form": 200, "mpe_size": 100, "mpe_length": "80+L/300"}
+        a = acceptance_test(run, MAPS, out_of_range="clamp", **kw)
+        b = acceptance_test(run, MAPS, temperature_policy=TemperaturePolicy(out_of_range="clamp"), **kw)
+        assert [c.error_um for c in a.checks] == [c.error_um for c in b.checks]
+        a = interim_check(run, MAPS, out_of_range="clamp")
+        b = interim_check(run, MAPS, temperature_policy=TemperaturePolicy(out_of_range="clamp"))
+        assert a.to_dict()["values"] == b.to_dict()["values"]
+        d_old = cmmpose.diagnose(run, MAPS, auto=False, patterns=False, polish=False, **CLAMP)
+        d_new = cmmpose.diagnose(run, MAPS, auto=False, patterns=False, polish=False, temperature_policy=pol.replace(
+            log_hold=120.0))
+        assert d_old.steps[0].figures.rms_accuracy_error == d_new.steps[0].figures.rms_accuracy_error
+    i_old = RunInputs.from_run(run, log_hold=60.0)
+    i_new = RunInputs.from_run(run, temperature_policy=TemperaturePolicy(log_hold=60.0))
+    assert np.array_equal(i_old.temperature, i_new.temperature) and np.array_equal(i_old.gradient, i_new.gradient)
+
+
+def test_the_scale_out_paths_take_the_policy():
+    da = pytest.importorskip("dask.array")
+    from cmmpose.scale import Compensator, compensate_array
+
+    assert Compensator.make(MAPS, (90, 90, 0), (1, 2, 3), temperature_policy=TemperaturePolicy(**CLAMP)) == \
+        Compensator.make(MAPS, (90, 90, 0), (1, 2, 3), **CLAMP)
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-10, 10, (500, 2)), rng.uniform(100, 400, (500, 3)), np.full(500, 31.0)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = compensate_array(da.from_array(pts, chunks=(100, 6)), MAPS, (90, 90, 0), (1, 2, 3), **CLAMP).compute()
+        b = compensate_array(da.from_array(pts, chunks=(100, 6)), MAPS, (90, 90, 0), (1, 2, 3),
+                             temperature_policy=TemperaturePolicy(**CLAMP)).compute()
+    assert np.array_equal(a, b)
+
+
+def _command(path: str):
+    import click
+
+    cmd = main
+    for name in path.split():
+        cmd = cmd.commands[name]
+    assert isinstance(cmd, click.Command)
+    return cmd
+
+
+@pytest.mark.parametrize("path,log", [("evaluate", True), ("diagnose", True), ("standards acceptance", True),
+                                      ("standards interim-check", True), ("compensate", False)])
+def test_every_command_offers_the_policys_flags_with_its_defaults_and_help(path, log):
+    params = {p.name: p for p in _command(path).params}
+    for f in dataclasses.fields(TemperaturePolicy):
+        if not log and not f.metadata.get("map_side"):
+            assert f.name not in params  # a command given temperatures has no log to read
+            continue
+        p = params[f.name]
+        assert p.opts == [f.metadata["flag"]] and p.help == f.metadata["help"]
+        assert p.default == f.default and p.multiple == bool(f.metadata.get("multiple"))
+        if "choices" in f.metadata:
+            assert tuple(p.type.choices) == f.metadata["choices"]
+
+
+def test_the_cli_builds_the_policy_from_its_flags(tmp_path):
+    run = simulate(22.5)
+    run.save(tmp_path / "r")
+    r = cli("evaluate", tmp_path / "r", "--json", "--on-gap", "interpolate", "--max-gap", 30,
+            "--sensor", "x_scale=X2,X3", "--log-hold", 60)
+    assert r.exit_code == 0, r.output
+    log = json.loads(r.output)["provenance"]["temperature"]["log"]
+    assert log["policy"] == {"log_hold_s": 60.0, "on_gap": "interpolate", "max_gap_s": 30.0,
+                             "broken_channels": "drop", "sensors": {"x_scale": ["X2", "X3"]}}
+    assert log["sensors"]["x_scale"]["read"] == ["X2", "X3"] and "X1" in log["moved"]
+    r = cli("evaluate", tmp_path / "r", "--sensor", "x_scale=NOPE")
+    assert r.exit_code == 1 and "NOPE" in r.output
+    r = cli("evaluate", tmp_path / "r", "--sensor", "nowhere=X1")
+    assert r.exit_code == 2 and "--sensor" in r.output

@@ -17,7 +17,9 @@ from .filecompensation import FileCompensation, compensate_file
 from .metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
 from .fitting import E3125Result, PlaneFit, SphereFit, SphereFits, SphereSegmentation, e3125, fit_plane, fit_sphere, fit_spheres, segment_sphere
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
-from .errors import AcquisitionError, CalibrationError, ClampWarning, Error, GeometryError, IllConditionedFit, InputError, MapError, OutOfRangeError, OutputError, RunError
+from .errors import (AcquisitionError, CalibrationError, ClampWarning, Error, ExtrapolationWarning, GeometryError,
+                     IllConditionedFit, InputError, InputTypeError, MapError, MapTemperatureWarning, OutOfRangeError,
+                     OutputError, RunError, SchedulerError)
 from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
 from .pointclouds import PointCloud, read_point_cloud, write_point_cloud
 from .pose import MountOffset, Pose
@@ -48,6 +50,7 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "Model": ("diagnosis", "Model"),
     "UserEffect": ("diagnosis", "UserEffect"),
     "diagnose": ("diagnosis", "diagnose"),
+    "TemperaturePolicy": ("temperature", "TemperaturePolicy"),
 }, globals())
 
 if TYPE_CHECKING:
@@ -57,6 +60,9 @@ if TYPE_CHECKING:
     from .standards import evaluate_iso230_2
     from .acquire import Recorder
     from .diagnosis import Diagnosis, Model, UserEffect, diagnose
+    from .temperature import TemperaturePolicy
+
+del TYPE_CHECKING, lazy_attributes  # not part of the package's face (dir(cmmpose))
 
 __all__ = [
     "__version__",
@@ -69,6 +75,7 @@ __all__ = [
     "FileCompensation",
     "evaluate",
     "diagnose",
+    "TemperaturePolicy",
     "Diagnosis",
     "Model",
     "UserEffect",
@@ -115,11 +122,15 @@ __all__ = [
     "MapError",
     "OutOfRangeError",
     "InputError",
+    "InputTypeError",
     "GeometryError",
     "RunError",
     "OutputError",
     "CalibrationError",
     "AcquisitionError",
+    "SchedulerError",
     "ClampWarning",
+    "ExtrapolationWarning",
+    "MapTemperatureWarning",
     "IllConditionedFit",
 ]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
+from types import ModuleType
 
 
 def lazy_attributes(package: str, table: dict[str, tuple[str, str | None]],
@@ -44,7 +45,12 @@ def lazy_attributes(package: str, table: dict[str, tuple[str, str | None]],
         return value
 
     def __dir__() -> list[str]:
-        return sorted(set(namespace) | set(table))
+        # The package's public face: its __all__ (else every public name), its
+        # public submodules and the lazy names; no private module or helper.
+        listed = namespace.get("__all__")
+        names = set(listed) if listed is not None else {n for n in namespace if not n.startswith("_")}
+        names |= {n for n, v in namespace.items() if isinstance(v, ModuleType) and not n.startswith("_")}
+        return sorted(names | set(table))
 
     return __getattr__, __dir__
 

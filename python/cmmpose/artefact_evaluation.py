@@ -32,11 +32,12 @@ import numpy as np
 from ._json import dumps as strict_json
 from . import artefacts
 from .errormap import ErrorMapSet
-from .errors import InputError
-from .evaluation import _machine_coordinates, _provenance, _rounded, log_notes, machine_temperature_and_log
+from .errors import InputError, InputTypeError
+from .compensation import is_model
+from .evaluation import machine_coordinates, evaluation_provenance, rounded_dict, log_notes, machine_temperature_and_log
+from .temperature import TemperaturePolicy, as_policy
 from .evaluation_uncertainty import DEFAULT_U_TEMPERATURE_K
 from .fitting import fit_spheres
-from .policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy
 from .run import Run
 
 __all__ = ["BallDeviation", "LengthError", "PlacementResult", "ArtefactResult", "ArtefactEvaluation",
@@ -157,7 +158,7 @@ class ArtefactResult:
         out["largest_length_error_um"] = None if worst is None else worst.error * 1e3
         for p in self.placements:
             big, e = p.largest, p.largest_length_error
-            out["placements"].append(_rounded({
+            out["placements"].append(rounded_dict({
                 "position": p.position, "label": p.label, "temperature_C": p.temperature,
                 "rms_deviation_um": p.rms * 1e3, "largest_deviation_um": big.magnitude * 1e3,
                 "largest_deviation_ball": big.ball,
@@ -165,16 +166,16 @@ class ArtefactResult:
                 "missing_balls": list(p.missing),
                 "rotation": [[round(float(x), 12) for x in r] for r in p.rotation],
                 "translation_mm": [round(float(x), 5) for x in p.translation],
-                "balls": [_rounded({"ball": b.ball, "scans": list(b.scans),
+                "balls": [rounded_dict({"ball": b.ball, "scans": list(b.scans),
                                     **{f"measured_{a}_mm": float(b.measured[k]) for k, a in enumerate("xyz")},
                                     **{f"deviation_{a}_um": float(b.deviation[k] * 1e3) for k, a in enumerate("xyz")},
                                     **{f"u_{a}_um": float(b.u[k] * 1e3) for k, a in enumerate("xyz")},
                                     "deviation_um": b.magnitude * 1e3, "size_error_um": b.radius_error * 1e3,
                                     "form_um": b.form * 1e3}) for b in p.balls],
-                "lengths": [_rounded({"ball_a": e.ball_a, "ball_b": e.ball_b, "length_mm": e.length,
+                "lengths": [rounded_dict({"ball_a": e.ball_a, "ball_b": e.ball_b, "length_mm": e.length,
                                       "error_um": e.error * 1e3, "u_um": e.u * 1e3}) for e in p.lengths],
             }))
-        return _rounded(out)
+        return rounded_dict(out)
 
 
 @dataclass(frozen=True)
@@ -189,6 +190,13 @@ class ArtefactEvaluation:
     @property
     def results(self) -> tuple[ArtefactResult, ...]:
         return tuple(r for r in (self.uncompensated, self.compensated) if r is not None)
+
+    @property
+    def skipped(self) -> list[dict]:
+        """Ballbar positions skipped (as :attr:`cmmpose.Evaluation.skipped`):
+        none; balls not measured are in each placement's ``missing`` and
+        the provenance's notes."""
+        return []
 
     def to_dict(self) -> dict:
         a = self.artefact
@@ -252,7 +260,7 @@ def rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.nd
     return r, ct - r @ cs
 
 
-def _rigid_projection(points: np.ndarray) -> np.ndarray:
+def rigid_projection(points: np.ndarray) -> np.ndarray:
     """(3n, 3n) projection that removes what a small rigid motion of
     ``points`` (n, 3) explains: residual = P @ displacement (linearised fit)."""
     n = len(points)
@@ -264,7 +272,7 @@ def _rigid_projection(points: np.ndarray) -> np.ndarray:
     return np.eye(3 * n) - a @ np.linalg.pinv(a)
 
 
-def _ball_scans(run: Run, artefact: artefacts.Artefact, n_placements: int | None) -> dict[int, dict[int, list[int]]]:
+def ball_scans(run: Run, artefact: artefacts.Artefact, n_placements: int | None) -> dict[int, dict[int, list[int]]]:
     """placement -> ball id -> scan ids, checked against the artefact."""
     scans = run.scans
     out: dict[int, dict[int, list[int]]] = {}
@@ -301,14 +309,36 @@ def _check_labels(groups, fits, radius: float) -> None:
                                      f"um apart): one of them is mislabelled")
 
 
-def _evaluate_state(label, run, xyz, groups, artefact, temps, labels, reject, u_temperature) -> ArtefactResult:
+def _model_moves(run, model, model_t, groups, reject, out_of_range, temperature_tolerance, base_xyz) -> list[dict]:
+    """Per parameter of a diagnosis model that states its standard uncertainty u: each scan's fitted centre
+    move for a change of u (mm), by a difference of one step of the effect through the kernel and the fits."""
+    sid = run.points["scan_id"]
+    keep = np.isin(sid, [s for balls in groups.values() for scans in balls.values() for s in scans])
+    base = fit_spheres(base_xyz[keep], sid[keep], reject=reject)
+    out = []
+    for spec, values in model.effects:
+        u = np.ravel(model.uncertainty.get(spec.name, np.full(spec.size, np.nan)))
+        for j in range(spec.size):
+            if not (np.isfinite(u[j]) and u[j] > 0):
+                continue
+            v = np.array(values, dtype=float)
+            v[j] += spec.steps[j]
+            xyz = machine_coordinates(run, model.with_values(spec, v), model_t, out_of_range, temperature_tolerance)
+            moved = fit_spheres(xyz[keep], sid[keep], reject=reject)
+            d = (moved.centre - base.centre) * (u[j] / spec.steps[j])
+            out.append({int(k): d[i] for i, k in enumerate(base.labels.tolist())})
+    return out
+
+
+def _evaluate_state(label, run, xyz, groups, artefact, temps, labels, reject, u_temperature,
+                    model_moves=()) -> ArtefactResult:
     sid = run.points["scan_id"]
     wanted = [s for balls in groups.values() for scans in balls.values() for s in scans]
     keep = np.isin(sid, wanted)
     fits = fit_spheres(xyz[keep], sid[keep], reject=reject)
     row = {int(s): k for k, s in enumerate(fits.labels)}
     _check_labels(groups, fits, artefact.nominal_radius)
-    alpha, t_ref = artefact.expansion, artefact.reference_temperature
+    alpha = artefact.expansion
     cal20_all = artefact.centres_at_20c()
     placements = []
     for pos in sorted(groups):
@@ -338,9 +368,13 @@ def _evaluate_state(label, run, xyz, groups, artefact, temps, labels, reject, u_
         big = np.zeros((3 * n, 3 * n))
         for i, c in enumerate(cov):
             big[3 * i:3 * i + 3, 3 * i:3 * i + 3] = c
-        proj = _rigid_projection(placed)
+        proj = rigid_projection(placed)
         thermal = ((placed - placed.mean(axis=0)) * alpha * u_temperature).ravel()
         cov_dev = proj @ big @ proj.T + np.outer(proj @ thermal, proj @ thermal)
+        # A diagnosis model's parameters: common to every ball (its u moves them all at once).
+        moves = [np.array([np.mean([mv[s] for s in scans], axis=0) for scans in scans_of]) for mv in model_moves]
+        for d in moves:
+            cov_dev += np.outer(proj @ d.ravel(), proj @ d.ravel())
         u_dev = np.sqrt(np.clip(np.diag(cov_dev), 0.0, None)).reshape(n, 3)
         radius_err = [float(np.mean([fits.radius[row[s]] for s in scans])) - artefact.calibrated_radius
                       for scans in scans_of]
@@ -354,6 +388,7 @@ def _evaluate_state(label, run, xyz, groups, artefact, temps, labels, reject, u_
                 length = float(np.linalg.norm(c20[j] - c20[i]))
                 direction = d_meas / np.linalg.norm(d_meas)
                 u2 = direction @ (cov[i] + cov[j]) @ direction + (alpha * length * u_temperature) ** 2
+                u2 += sum(float(direction @ (d[j] - d[i])) ** 2 for d in moves)
                 lengths.append(LengthError(ids[i], ids[j], length, float(np.linalg.norm(d_meas)) - length,
                                            float(np.sqrt(u2))))
         missing = tuple(int(b) for b in artefact.ids if int(b) not in balls)
@@ -369,9 +404,10 @@ def evaluate_artefact(
     *,
     reject: float | None = None,
     u_temperature: float = DEFAULT_U_TEMPERATURE_K,
-    out_of_range: str = "raise",
-    temperature_tolerance: float = TEMPERATURE_TOLERANCE,
-    log_hold: float = LOG_HOLD,
+    out_of_range: str | None = None,
+    temperature_tolerance: float | None = None,
+    log_hold: float | None = None,
+    temperature_policy: TemperaturePolicy | None = None,
 ) -> ArtefactEvaluation:
     """Evaluate an artefact run: deviations and length errors per placement.
 
@@ -379,8 +415,9 @@ def evaluate_artefact(
     ----------
     run : Run
         A run that embeds its artefact (``run.artefact['definition']``).
-    maps : ErrorMap or ErrorMapSet, optional
-        The compensation model's maps; None: uncompensated only.
+    maps : ErrorMap, ErrorMapSet or Model, optional
+        The compensation model's maps; None: uncompensated only; or a model a
+        diagnosis found (its maps and effects; ``cmmpose.evaluate`` says how).
     temperature : float, optional
         Machine (and part) temperature, C, for all points; default the
         machine mean of the run's thermocouple log at each point's time.
@@ -389,7 +426,10 @@ def evaluate_artefact(
     u_temperature : float
         Standard uncertainty of the part temperature, K.
     out_of_range, temperature_tolerance, log_hold
-        The temperature policy (cmmpose.policy).
+        Override the temperature policy's fields.
+    temperature_policy : TemperaturePolicy, optional
+        How the log becomes temperatures (cmmpose.temperature); default
+        ``TemperaturePolicy()``.
 
     Returns
     -------
@@ -403,25 +443,27 @@ def evaluate_artefact(
         no temperature.
     """
     if not isinstance(run, Run):
-        raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     if not is_artefact_run(run):
         raise InputError("run: records no artefact definition (a ballbar run: use cmmpose.evaluate)")
-    check_policy(out_of_range, temperature_tolerance, log_hold)
+    policy = as_policy(temperature_policy, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+                       log_hold=log_hold)
+    out_of_range, temperature_tolerance, log_hold = policy.out_of_range, policy.temperature_tolerance, policy.log_hold
     if not (isinstance(u_temperature, (int, float)) and np.isfinite(u_temperature) and u_temperature >= 0):
         raise InputError(f"u_temperature: expected a standard uncertainty >= 0 K, got {u_temperature!r}")
     artefact = artefacts.from_dict(run.artefact["definition"], "run.json: artefact.definition")
     recorded = run.artefact.get("placements")
     labels = {k: str(p.get("label", f"position {k}")) for k, p in enumerate(recorded or [], start=1)
               if isinstance(p, dict)}
-    groups = _ball_scans(run, artefact, len(recorded) if isinstance(recorded, list) else None)
+    groups = ball_scans(run, artefact, len(recorded) if isinstance(recorded, list) else None)
     log = None
     if temperature is not None:
         temps = np.full(run.n_points, float(temperature))
     elif run.temperatures is not None:
-        temps, log = machine_temperature_and_log(run, run.points["t"], log_hold)
+        temps, log = machine_temperature_and_log(run, run.points["t"], temperature_policy=policy)
     else:
         raise InputError("temperature: the run has no thermocouple log; give the machine temperature (C)")
-    prov = _provenance(run, maps, temperature, temps, artefact.expansion, out_of_range, temperature_tolerance, log_hold)
+    prov = evaluation_provenance(run, maps, temperature, temps, artefact.expansion, out_of_range, temperature_tolerance, log_hold)
     if log is not None:
         prov["temperature"]["log"] = log
         prov["notes"].extend(log_notes(log))
@@ -433,16 +475,25 @@ def evaluate_artefact(
     skipped = int(np.sum(run.scans["feature"] != "ball"))
     if skipped:
         prov["notes"].append(f"{skipped} scans of other features (not 'ball') are not part of the evaluation")
-    raw = _evaluate_state("uncompensated", run, _machine_coordinates(run, None, None), groups, artefact, temps,
+    raw = _evaluate_state("uncompensated", run, machine_coordinates(run, None, None), groups, artefact, temps,
                           labels, reject, u_temperature)
     if maps is None:
         return ArtefactEvaluation(artefact, raw, provenance=prov)
     model_t = temperature if temperature is not None else temps
-    if not isinstance(maps, ErrorMapSet):
+    if is_model(maps):  # a diagnosis model reads the run's log itself, with the caller's policy
+        from .diagnosis.apply import policy_model
+
+        maps, model_t = policy_model(maps, log_hold=log_hold), temperature
+    elif not isinstance(maps, ErrorMapSet):
         model_t = None
     reports: list = []
-    xyz = _machine_coordinates(run, maps, model_t, out_of_range, temperature_tolerance, reports)
-    comp = _evaluate_state("compensated", run, xyz, groups, artefact, temps, labels, reject, u_temperature)
+    xyz = machine_coordinates(run, maps, model_t, out_of_range, temperature_tolerance, reports)
+    moves = _model_moves(run, maps, model_t, groups, reject, out_of_range, temperature_tolerance, xyz) \
+        if is_model(maps) else []
+    if moves:
+        prov["notes"].append(f"the u of the compensated deviations and lengths include the model's {len(moves)} "
+                             f"parameter uncertainties (taken as independent: the model file keeps no correlations)")
+    comp = _evaluate_state("compensated", run, xyz, groups, artefact, temps, labels, reject, u_temperature, moves)
     prov["points_clamped"] = int(sum(r.clamped_points for r in reports))
     prov["points_held_at_maps_edge"] = int(sum(r.held_temperature for r in reports))
     return ArtefactEvaluation(artefact, raw, comp, provenance=prov)

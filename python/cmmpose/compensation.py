@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import warnings
 
 import numpy as np
@@ -9,10 +10,11 @@ import numpy as np
 from . import _core
 from ._arrays import as_rows, as_triple, as_vector
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import InputError, MapTemperatureWarning, warn_clamped
+from .errors import InputError, InputTypeError, MapTemperatureWarning, warn_clamped
 from .policy import TEMPERATURE_TOLERANCE, check_policy
 from .pose import digitizer
 from .report import KernelReport
+from .temperature import TemperaturePolicy, as_policy
 
 
 def compensate(
@@ -23,11 +25,13 @@ def compensate(
     offset,
     temperature=None,
     *,
-    out_of_range: str = "raise",
+    out_of_range: str | None = None,
     nan_policy: str = "raise",
-    temperature_tolerance: float = TEMPERATURE_TOLERANCE,
+    temperature_tolerance: float | None = None,
     return_report: bool = False,
     out: np.ndarray | None = None,
+    columns: dict | None = None,
+    temperature_policy: TemperaturePolicy | None = None,
 ):
     """Compensated machine coordinates of scanner points.
 
@@ -39,8 +43,12 @@ def compensate(
         Scan-plane coordinates u, v in mm (laser frame; w = 0).
     scales : array_like, shape (N, 3)
         Scale readings D, E, F in mm at which each point was taken.
-    error_map : ErrorMap or ErrorMapSet
-        The machine's component errors; a set needs ``temperature``.
+    error_map : ErrorMap, ErrorMapSet or Model
+        The machine's component errors; a set needs ``temperature``. Or a
+        model a diagnosis found (``cmmpose.Model.load('m.json')``): its maps
+        and effects, with the inputs its effects read from ``columns``
+        (``cmmpose.diagnosis.apply``; one missing is an ``InputError``
+        naming it); ``out=`` and ``nan_policy='propagate'`` are not taken then.
     pose : Pose or sequence of 3 float
         Euler 3-1-3 angles alpha, beta, gamma in degrees.
     offset : MountOffset or sequence of 3 float
@@ -49,8 +57,8 @@ def compensate(
         Machine temperature in degrees C, one for all points or one per point;
         only with an ErrorMapSet. The set is blended once per temperature
         interval, never per point.
-    out_of_range : {'raise', 'clamp', 'extrapolate'}
-        A scale reading outside a table or a temperature farther than
+    out_of_range : {'raise', 'clamp', 'extrapolate'}, optional
+        Default the policy's ('raise'). A scale reading outside a table or a temperature farther than
         ``temperature_tolerance`` outside the set raises ``OutOfRangeError``
         naming the first such row; or is clamped to the end value with a
         ``ClampWarning`` giving the counts; or (temperatures) the maps are
@@ -59,9 +67,10 @@ def compensate(
     nan_policy : {'raise', 'propagate'}
         NaN or inf in a row raises ``InputError`` naming the first such row, or
         gives a NaN output row.
-    temperature_tolerance : float
+    temperature_tolerance : float, optional
         K: temperatures this close outside the set's range are held at the
-        edge and counted in the report (thermocouple noise at 20 C).
+        edge and counted in the report (thermocouple noise at 20 C); default
+        the policy's (0.5 K).
     return_report : bool
         Also return a ``KernelReport`` with the clamp and NaN counts.
     out : ndarray, shape (N, 3), optional
@@ -73,6 +82,13 @@ def compensate(
         pages are faulted in as the kernel writes them; ``python
         benches/speed.py``, "fresh output vs out=", min-max of 5 runs on an
         Intel Xeon, 2 threads). After an error its contents are unspecified.
+    columns : dict of str -> ndarray (N,), optional
+        With a model: the points' other columns its effects read (``t`` s,
+        ``scan_id``, ``T_<role>`` C, ``incidence`` degrees, ``pose_id``).
+    temperature_policy : TemperaturePolicy, optional
+        The temperature policy (cmmpose.temperature); its map side
+        (``out_of_range``, ``temperature_tolerance``) applies here, the two
+        keywords above override it. Default ``TemperaturePolicy()``.
 
     Returns
     -------
@@ -85,10 +101,15 @@ def compensate(
     Inputs are never modified. float64 C-contiguous inputs are read without a
     copy; others are converted once.
     """
+    policy = as_policy(temperature_policy, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
+    out_of_range, temperature_tolerance = policy.out_of_range, policy.temperature_tolerance
     uv = as_rows("uv", uv, 2)
     scales = as_rows("scales", scales, 3)
+    if is_model(error_map):
+        return _compensate_model(uv, scales, error_map, pose, offset, temperature, out_of_range, nan_policy,
+                                 temperature_tolerance, return_report, out, columns)
     if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
-        raise InputError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
+        raise InputTypeError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
     if temperature is not None and np.ndim(temperature) > 0:
         temperature = as_vector("temperature", temperature, scales.shape[0])
     elif temperature is not None:
@@ -109,6 +130,34 @@ def compensate(
         out,
     )
     return _finish(xyz, report, return_report)
+
+
+def is_model(obj) -> bool:
+    """Whether ``obj`` is a diagnosis model (``cmmpose.Model``), without importing the diagnosis."""
+    mod = sys.modules.get("cmmpose.diagnosis.model")
+    return mod is not None and isinstance(obj, mod.Model)
+
+
+def _compensate_model(uv, scales, model, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance,
+                      return_report, out, columns):
+    """:func:`compensate` with a diagnosis model (its maps and effects)."""
+    from .diagnosis.apply import point_inputs, policy_model
+    from .pose import MountOffset, Pose
+
+    if out is not None or nan_policy != "raise":
+        raise InputError("compensate with a model: out= and nan_policy='propagate' are for maps only")
+    pose_t = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
+    offset_t = tuple(offset) if isinstance(offset, MountOffset) else as_triple("offset", offset)
+    check_policy(out_of_range, temperature_tolerance)
+    if temperature is not None and np.ndim(temperature) > 0:
+        temps, temperature = as_vector("temperature", temperature, scales.shape[0]), None
+    else:
+        temps = None
+        temperature = None if temperature is None else float(temperature)
+    model = policy_model(model, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
+    inputs = point_inputs(model, uv, scales, pose_t, offset_t, temperature, temps, dict(columns or {}), "points")
+    xyz, raw = model.compensate(inputs, return_report=True)
+    return _finish(xyz, raw, return_report)
 
 
 def _finish(xyz: np.ndarray, raw: dict, return_report: bool):

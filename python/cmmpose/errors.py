@@ -1,12 +1,13 @@
-"""The exception hierarchy. Defined in the Rust extension so the core can raise
-them; every message names the file, line, row or argument at fault.
+"""The exception hierarchy: every message names the file, line, row or
+argument at fault, and every error carries the same facts as fields.
 
 - ``Error``: base of everything cmmpose raises on bad input.
 - ``MapError``: a malformed error map or map file.
 - ``OutOfRangeError``: a scale reading or temperature the maps do not cover.
-- ``InputError``: wrong shape, dtype, length, NaN, or a bad option value.
+- ``InputError``: wrong shape, dtype, length, NaN, or a bad option value;
+  ``InputTypeError`` when the value is of the wrong type.
 - ``GeometryError``: degenerate geometry (zero normal, coplanar points, ...).
-- ``RunError``: a malformed measurement run directory (Python-side only).
+- ``RunError``: a malformed measurement run directory.
 - ``CalibrationError``: data that cannot give a trustworthy calibration.
 - ``AcquisitionError``: serial acquisition: a port, journal or run directory at fault.
 - ``SchedulerError``: scaling out (cmmpose.scale): the dask extra missing, a bad
@@ -14,25 +15,171 @@ them; every message names the file, line, row or argument at fault.
 - ``OutputError``: an output that cannot be written (a full disk, a read-only
   file system, no permission); the earlier file is left whole
   (cmmpose.atomicfile).
+
+The errors about bad input (map, range, input, geometry, run, calibration)
+are also ``ValueError`` s, ``InputTypeError`` a ``TypeError``, as the
+ecosystem expects. The classes live here (the Rust core raises them through
+the bindings, rust/py/src/errors.rs), so they pickle and keep their class and
+fields across processes (a Dask worker's error is caught on the client by
+``except cmmpose.Error``).
+
+Fields (each None when it does not apply): ``what`` (the quantity or
+argument), ``value``, ``allowed`` ((lo, hi)), ``unit``, ``file``, ``row``,
+``column``, ``option`` (the Python argument at fault), ``cli_option`` (the
+command-line flag at fault) and ``remedy`` (a key of :data:`REMEDIES`: what
+the user can change). ``str(error)`` is the message as the Python API says
+it; :meth:`Error.render` says it for the command line, from the same fields.
 """
+
+from __future__ import annotations
 
 import logging
 import warnings
+from dataclasses import dataclass
 
-from ._core import Error, GeometryError, InputError, MapError, OutOfRangeError
-
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "GeometryError", "RunError", "CalibrationError", "AcquisitionError", "SchedulerError", "OutputError", "ClampWarning", "ExtrapolationWarning", "IllConditionedFit", "MapTemperatureWarning", "warn_clamped", "read_lines"]
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "InputTypeError", "GeometryError", "RunError",
+           "CalibrationError", "AcquisitionError", "SchedulerError", "OutputError", "ClampWarning",
+           "ExtrapolationWarning", "IllConditionedFit", "MapTemperatureWarning", "Remedy", "REMEDIES", "warn_clamped",
+           "read_lines"]
 
 _log = logging.getLogger("cmmpose")
 
 
-class RunError(Error):
+@dataclass(frozen=True)
+class Remedy:
+    """What a user can change about an error, in each interface's words.
+
+    Attributes
+    ----------
+    python : str
+        Appended to the message in the Python API (names the argument).
+    cli : str
+        Appended on the command line when the command has ``flag``.
+    flag : str or None
+        The command-line flag that does it (None: no command has one).
+    missing : str
+        Appended on the command line when the command lacks ``flag``.
+    """
+
+    python: str
+    cli: str
+    flag: str | None
+    missing: str
+
+
+#: The remedies an error may name (its ``remedy`` field), one home for their wording.
+REMEDIES = {
+    "temperature_out_of_range": Remedy(
+        " (choices: out_of_range='clamp' holds it at the edge, 'extrapolate' extends the maps linearly, or a wider "
+        "temperature_tolerance in K)",
+        " (choices: --out-of-range clamp holds it at the edge, --out-of-range extrapolate extends the maps "
+        "linearly, or a wider --temperature-tolerance K)",
+        "--out-of-range", " (this command has no option to clamp or extrapolate the maps)"),
+    "position_out_of_range": Remedy(
+        " (choices: out_of_range='clamp' holds it at the table's end)",
+        " (choices: --out-of-range clamp holds it at the table's end)",
+        "--out-of-range", " (this command has no option to clamp it)"),
+    "run_maps": Remedy(
+        ": pass maps (names or files), a machine from a file, or maps=('none',) for uncompensated only",
+        ": give --maps or --machine (or --maps none)", "--maps", ": give the maps"),
+    "nan_policy": Remedy(
+        " (pass nan_policy='propagate' to get NaN rows instead)",
+        " (use --nan-policy propagate to get NaN rows instead)",
+        "--nan-policy", " (this command has no option to let NaN rows through)"),
+}
+
+_FIELDS = ("what", "value", "allowed", "unit", "file", "row", "column", "option", "cli_option", "remedy")
+
+
+def _restore(cls, message, fields):
+    """Unpickle an :class:`Error` (its class, message and fields)."""
+    exc = cls.__new__(cls)
+    Error.__init__(exc, message, **fields)
+    return exc
+
+
+class Error(Exception):
+    """Base class of every cmmpose error.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong, naming the file, row or argument at fault; without the
+        remedy (added from ``remedy`` in each interface's words).
+    what, value, allowed, unit, file, row, column, option, cli_option, remedy
+        The fields (see :mod:`cmmpose.errors`); keyword only.
+    """
+
+    def __init__(self, message: str = "", *, what=None, value=None, allowed=None, unit=None, file=None, row=None,
+                 column=None, option=None, cli_option=None, remedy=None):
+        if remedy is not None and remedy not in REMEDIES:
+            raise KeyError(f"remedy: expected one of {', '.join(REMEDIES)}, got {remedy!r}")
+        super().__init__(message)
+        self.message = str(message)
+        self.what, self.value, self.allowed, self.unit = what, value, allowed, unit
+        self.file, self.row, self.column = file, row, column
+        self.option, self.cli_option, self.remedy = option, cli_option, remedy
+
+    @property
+    def fields(self) -> dict:
+        """The fields as a dict (None where they do not apply)."""
+        return {k: getattr(self, k) for k in _FIELDS}
+
+    def render(self, interface: str = "python", flags=None) -> str:
+        """The message as ``interface`` ('python' or 'cli') says it.
+
+        Parameters
+        ----------
+        interface : {'python', 'cli'}
+        flags : set of str, optional
+            With 'cli': the flags of the command running; a remedy whose flag
+            it lacks says the command has none. None: every flag counts.
+        """
+        if interface not in ("python", "cli"):
+            raise KeyError(f"interface: expected 'python' or 'cli', got {interface!r}")
+        remedy = REMEDIES.get(self.remedy)
+        if remedy is None:
+            return self.message
+        if interface == "python":
+            return self.message + remedy.python
+        has = remedy.flag is not None and (flags is None or remedy.flag in flags)
+        return self.message + (remedy.cli if has else remedy.missing)
+
+    def __str__(self) -> str:
+        return self.render("python")
+
+    def __reduce__(self):
+        return _restore, (type(self), self.message, self.fields), self.__dict__
+
+
+class MapError(Error, ValueError):
+    """A malformed error map or map file (names the file, carriage and row)."""
+
+
+class OutOfRangeError(Error, ValueError):
+    """A scale reading or temperature outside what the maps cover (``value``,
+    ``allowed`` and ``unit`` say by how much)."""
+
+
+class InputError(Error, ValueError):
+    """An input array or argument with the wrong shape, length or value."""
+
+
+class InputTypeError(InputError, TypeError):
+    """An input of the wrong type (a string where a number belongs, ...)."""
+
+
+class GeometryError(Error, ValueError):
+    """Degenerate geometry (zero normal, coplanar points, ...)."""
+
+
+class RunError(Error, ValueError):
     """A malformed measurement run: a missing or unreadable file, a missing or
     badly typed column, a bad value, or tables that do not fit together. The
     message names the file (or table), the column and the first bad row."""
 
 
-class CalibrationError(Error):
+class CalibrationError(Error, ValueError):
     """A calibration that cannot give a trustworthy result: data that do not
     determine the quantity (no motion, a single sweep over a plane of unknown
     orientation), alignments that disagree beyond the tolerance, a pose that

@@ -12,13 +12,15 @@ from datetime import datetime, timezone
 import numpy as np
 
 from ._json import dumps as strict_json
-from .compensation import compensate, uncompensated, warn_single_map
+from .compensation import compensate, is_model, uncompensated, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import InputError, MapTemperatureWarning, RunError
+from .errors import InputError, InputTypeError, MapTemperatureWarning, RunError
 from .fitting import fit_spheres
 from .metrics import STEEL_EXPANSION, b89_value, improvement, length_at_20c, rms_accuracy_error
-from .policy import LOG_HOLD, SKIP_INCOMPLETE_HINT, TEMPERATURE_TOLERANCE, check_log_coverage, check_policy
+from .policy import SKIP_INCOMPLETE_HINT
 from .run import Run
+from .temperature import (LOG_HOLD, TEMPERATURE_TOLERANCE, TemperaturePolicy, as_policy, log_notes,  # noqa: F401
+                          log_provenance, run_temperatures)
 
 _log = logging.getLogger("cmmpose.evaluation")
 
@@ -150,7 +152,7 @@ class Evaluation:
         centres to 0.01 um, deviations and figures to 0.001 um, temperatures
         to 0.001 C, ratios to 1e-4; plus the provenance."""
         return {
-            "results": [_rounded({**r.summary(), "rows": r.rows()}) for r in self.results],
+            "results": [rounded_dict({**r.summary(), "rows": r.rows()}) for r in self.results],
             "improvement_rms": _round(self.improvement_rms, 4),
             "improvement_b89": _round(self.improvement_b89, 4),
             "provenance": self.provenance,
@@ -207,106 +209,32 @@ class Evaluation:
         return console.export_text()
 
 
-def machine_temperature(run: Run, t, log_hold: float = LOG_HOLD) -> np.ndarray:
+def machine_temperature(run: Run, t, log_hold: float | None = None, *,
+                        temperature_policy: TemperaturePolicy | None = None) -> np.ndarray:
     """Machine mean temperature (C) at times ``t`` (s): the mean of the clean
     axis-scale thermocouples (thesis section 6.4), interpolated in time; stuck,
     open-circuit and implausible channels are left out
-    (``cmmpose.calibration.temperatures_at``). Points up to ``log_hold`` s
-    outside the log take its nearest reading (cmmpose.policy)."""
-    return machine_temperature_and_log(run, t, log_hold)[0]
+    (:func:`cmmpose.temperature.run_temperatures`). Points up to ``log_hold``
+    s (default the policy's, 120 s) outside the log take its nearest reading."""
+    return run_temperatures(run, t, temperature_policy, log_hold=log_hold)[0]
 
 
-def machine_temperature_and_log(run: Run, t, log_hold: float = LOG_HOLD) -> tuple[np.ndarray, dict]:
+def machine_temperature_and_log(run: Run, t, log_hold: float | None = None, *,
+                                temperature_policy: TemperaturePolicy | None = None) -> tuple[np.ndarray, dict]:
     """:func:`machine_temperature` and what was done to the log to get it,
-    for the provenance (:func:`log_provenance`).
-
-    Returns
-    -------
-    temperatures : ndarray
-        Degrees C, the shape of ``t``.
-    log : dict
-        ``channels_used``; ``channels_dropped``: each policy channel with
-        unclean samples (``channel``, ``samples_dropped`` of ``samples``,
-        ``problems``, ``action``: left out entirely or where unclean);
-        ``held``: the points outside the log (``points``, ``before_log_s``,
-        ``after_log_s``: how far the farthest lies before its first or after
-        its last sample, ``action``), or None.
-    """
-    from .calibration.thermal import temperatures_at
-
-    if run.temperatures is None:
-        raise InputError("run has no temperature log: pass temperature= explicitly")
-    check_log_coverage(run, t, log_hold)
-    # Points of a profile share a time stamp: interpolate the log once per time.
-    t = np.asarray(t, dtype=float)
-    ut, inv = np.unique(t, return_inverse=True)
-    temps, summary = temperatures_at(ut, run.temperatures, run.temperature_channels, policy="machine_mean",
-                                     out_of_range="hold")
-    return temps[inv].reshape(np.shape(t)), log_provenance(summary, t, np.asarray(run.temperatures["t"], float))
+    for the provenance (:func:`cmmpose.temperature.log_provenance`): channels
+    used, each channel dropped (role, why, samples, action), the points held
+    past the log's ends (how many, how many seconds), the channels each
+    axis role read, and the log side of the policy."""
+    return run_temperatures(run, t, temperature_policy, log_hold=log_hold)
 
 
-def log_provenance(summary, t, log_t) -> dict:
-    """The provenance of temperatures taken from a thermocouple log: which
-    channels were used, which dropped (and why, and how much), and which
-    points were outside the log and held at its end readings (and how far).
-
-    Parameters
-    ----------
-    summary : cmmpose.calibration.ThermalSummary
-        From ``temperatures_at``.
-    t : ndarray
-        The points' time stamps, s.
-    log_t : ndarray
-        The log's sample times, s.
-
-    Returns
-    -------
-    dict
-        As :func:`machine_temperature_and_log` describes; JSON-ready.
-    """
-    report = summary.report
-    dropped = []
-    for channel in summary.channels:
-        n = int(summary.dropped_by_channel.get(channel, 0))
-        if not n and channel not in summary.channels_excluded:
-            continue
-        entirely = channel in summary.channels_excluded
-        dropped.append({
-            "channel": channel, "samples_dropped": n, "samples": int(report.samples),
-            "problems": [str(p) for p in report.problems_of(channel)],
-            "action": ("left out of the machine temperature entirely" if entirely else
-                       f"left out where unclean ({n} of {report.samples} samples); the other channels averaged there"),
-        })
-    held = None
-    t = np.asarray(t, dtype=float).ravel()
-    if len(t) and len(log_t):
-        before, after = t < log_t.min(), t > log_t.max()
-        if before.any() or after.any():
-            held = {"points": int(before.sum() + after.sum()),
-                    "before_log_s": round(float(log_t.min() - t.min()), 3) if before.any() else 0.0,
-                    "after_log_s": round(float(t.max() - log_t.max()), 3) if after.any() else 0.0,
-                    "action": "held at the log's first or last reading"}
-    return {"channels_used": list(summary.channels_used), "channels_dropped": dropped, "held": held}
-
-
-def log_notes(log: dict) -> list[str]:
-    """One line per dropped channel and for held points, for an evaluation's notes."""
-    notes = [f"thermocouple {d['channel']}: {d['action']} ({'; '.join(d['problems']) or 'unclean samples'})"
-             for d in log.get("channels_dropped", [])]
-    held = log.get("held")
-    if held:
-        span = " and ".join(f"{held[k]:g} s {side}" for k, side in (("before_log_s", "before its first sample"),
-                                                                    ("after_log_s", "after its last sample"))
-                            if held[k])
-        notes.append(f"the temperature log does not cover {held['points']} points (up to {span}): "
-                     "they took its nearest reading (held)")
-    return notes
-
-
-def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise",
+def machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise",
                          temperature_tolerance: float = TEMPERATURE_TOLERANCE, reports: list | None = None) -> np.ndarray:
-    """All points in machine coordinates, compensated with ``maps`` or not
-    (None); the kernel reports are appended to ``reports``."""
+    """All points in machine coordinates, compensated with ``maps`` (or a
+    diagnosis model) or not (None); the kernel reports are appended to ``reports``."""
+    if is_model(maps):
+        return _model_coordinates(run, maps, temperature, out_of_range, temperature_tolerance, reports)
     ids = run.scans["scan_id"]
     order = np.argsort(ids)
     sid = run.points["scan_id"]
@@ -325,6 +253,29 @@ def _machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise
             if reports is not None:
                 reports.append(rep)
     return out
+
+
+def _model_coordinates(run: Run, model, temperature, out_of_range, temperature_tolerance, reports) -> np.ndarray:
+    """All points compensated by a diagnosis model: its maps and effects, the
+    inputs its effects read from the run (a lacking one is an InputError
+    naming it); ``temperature`` (C, one or per point) in place of the log's."""
+    from dataclasses import replace
+
+    from .diagnosis.apply import check_run, policy_model
+
+    model = policy_model(model, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+                         temperature=float(temperature) if temperature is not None and np.ndim(temperature) == 0
+                         else None)
+    inputs = model.inputs(run)
+    check_run(model, inputs)
+    if temperature is not None and np.ndim(temperature) > 0:
+        inputs = replace(inputs, temperature=np.ascontiguousarray(temperature, dtype=float))
+    xyz, raw = model.compensate(inputs, return_report=True)
+    if reports is not None:
+        from .report import KernelReport
+
+        reports.append(KernelReport(**raw))
+    return xyz
 
 
 def ballbar_scans(run: Run, skip_incomplete: bool = False) -> tuple[dict[int, dict[int, int]], list[dict]]:
@@ -449,10 +400,11 @@ def evaluate(
     nominal_radius: float | None = None,
     reject: float | None = None,
     expansion: float = STEEL_EXPANSION,
-    out_of_range: str = "raise",
-    temperature_tolerance: float = TEMPERATURE_TOLERANCE,
-    log_hold: float = LOG_HOLD,
+    out_of_range: str | None = None,
+    temperature_tolerance: float | None = None,
+    log_hold: float | None = None,
     skip_incomplete: bool = False,
+    temperature_policy: TemperaturePolicy | None = None,
 ) -> Evaluation:
     """Ballbar evaluation of ``run``: uncompensated, and compensated with ``maps``.
 
@@ -460,8 +412,11 @@ def evaluate(
     ----------
     run : Run
         A ballbar run: scans with ``position`` and ``ball`` (1, 2).
-    maps : ErrorMap or ErrorMapSet, optional
-        The compensation model's maps. None: uncompensated only.
+    maps : ErrorMap, ErrorMapSet or Model, optional
+        The compensation model's maps. None: uncompensated only. Or a model
+        a diagnosis found (``cmmpose.Model.load('m.json')``): its maps and
+        effects, each reading its inputs from the run (thermocouple roles,
+        time stamps; one the run lacks is an ``InputError`` naming it).
     temperature : float, optional
         Machine temperature, C, for all points. Default: the machine mean from
         the run's thermocouple log at each point's time stamp (thesis policy).
@@ -473,21 +428,27 @@ def evaluate(
     expansion : float
         Part expansion coefficient for lengths at 20 C, 1/K (steel 12e-6);
         printed with the results and kept in the provenance.
-    out_of_range : {'raise', 'clamp', 'extrapolate'}
+    out_of_range : {'raise', 'clamp', 'extrapolate'}, optional
         Temperatures farther than ``temperature_tolerance`` outside the maps
         (and readings outside them) raise, are clamped with a warning, or
-        (temperatures) are extrapolated linearly (cmmpose.policy).
-    temperature_tolerance : float
+        (temperatures) are extrapolated linearly; overrides the policy's.
+    temperature_tolerance : float, optional
         K: temperatures this close outside the maps are held at the edge
-        (a log at 19.99 C against maps from 20 C) and counted.
-    log_hold : float
+        (a log at 19.99 C against maps from 20 C) and counted; overrides
+        the policy's.
+    log_hold : float, optional
         s: points this far outside the thermocouple log (a recovered run)
-        take its nearest reading; farther raise.
+        take its nearest reading; farther raise; overrides the policy's.
     skip_incomplete : bool
         A position with a ball scan missing, duplicated or mislabelled
         (:func:`ballbar_scans`) raises ``RunError`` naming it; True skips
         such positions instead and lists them in ``provenance['skipped']``
         and its notes.
+    temperature_policy : TemperaturePolicy, optional
+        How the log becomes temperatures and what happens at the edges
+        (cmmpose.temperature); default ``TemperaturePolicy()``. Channels
+        dropped, points held and the channels each role read go into
+        ``provenance['temperature']['log']`` and the notes.
 
     Returns
     -------
@@ -499,37 +460,49 @@ def evaluate(
         An incomplete or ambiguous position, without ``skip_incomplete``.
     """
     if not isinstance(run, Run):
-        raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     if run.artefact.get("kind", "ballbar") != "ballbar":  # its balls are not bars' ends (docs/artefacts.md)
         raise InputError(f"run: measured a {run.artefact.get('kind')!r}, not a ballbar: evaluate it with "
                          f"cmmpose.artefact_evaluation.evaluate_artefact (cmmpose evaluate does)")
-    check_policy(out_of_range, temperature_tolerance, log_hold)
+    policy = as_policy(temperature_policy, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+                       log_hold=log_hold)
+    out_of_range, temperature_tolerance, log_hold = policy.out_of_range, policy.temperature_tolerance, policy.log_hold
     if not (isinstance(expansion, (int, float)) and np.isfinite(expansion)):
         raise InputError(f"expansion: expected a finite coefficient in 1/K, got {expansion!r}")
     if nominal_radius is None:
         nominal_radius = run.artefact.get("ball_radius_mm")
+    if is_model(maps):  # its own log policy gives way to the caller's
+        from .diagnosis.apply import policy_model
+
+        maps = policy_model(maps, log_hold=log_hold)
     temps, log = None, None
     if temperature is not None:
         temps = np.full(run.n_points, float(temperature))
     elif run.temperatures is not None:
-        temps, log = machine_temperature_and_log(run, run.points["t"], log_hold)
+        temps, log = run_temperatures(run, run.points["t"], policy)
     if not isinstance(skip_incomplete, bool):
         raise InputError(f"skip_incomplete: expected True or False, got {skip_incomplete!r}")
     positions, skipped = ballbar_scans(run, skip_incomplete)
-    prov = _provenance(run, maps, temperature, temps, expansion, out_of_range, temperature_tolerance, log_hold)
+    prov = evaluation_provenance(run, maps, temperature, temps, expansion, out_of_range, temperature_tolerance, log_hold)
     if log is not None:
         prov["temperature"]["log"] = log
         prov["notes"].extend(log_notes(log))
     prov["skipped"] = skipped
+    if is_model(maps) and maps.expansion_ppm_per_kelvin:
+        prov["notes"].append(f"the model's artefact-expansion ({maps.expansion_ppm_per_kelvin:+.3g} ppm/K) describes "
+                             f"the artefact it was found on: the lengths at 20 C use the expansion given here")
     if skipped:
         prov["notes"].append(skipped_note(skipped))
-    raw = _ballbar(run, _machine_coordinates(run, None, None), "uncompensated", temps, nominal_radius, reject, expansion,
+    raw = _ballbar(run, machine_coordinates(run, None, None), "uncompensated", temps, nominal_radius, reject, expansion,
                    positions)
     if maps is None:
         return Evaluation(raw, provenance=prov)
-    if temps is None and isinstance(maps, ErrorMapSet):
+    model_maps = maps.maps if is_model(maps) else maps
+    if temps is None and isinstance(model_maps, ErrorMapSet):
         raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
-    if isinstance(maps, ErrorMap):
+    if is_model(maps):
+        model_t = temperature
+    elif isinstance(maps, ErrorMap):
         model_t = None
         if temps is not None:
             with warnings.catch_warnings():
@@ -541,7 +514,7 @@ def evaluate(
     else:
         model_t = temperature if temperature is not None else temps
     reports: list = []
-    xyz = _machine_coordinates(run, maps, model_t, out_of_range, temperature_tolerance, reports)
+    xyz = machine_coordinates(run, maps, model_t, out_of_range, temperature_tolerance, reports)
     comp = _ballbar(run, xyz, "compensated", temps, nominal_radius, reject, expansion, positions)
     held = sum(r.held_temperature for r in reports)
     clamped = sum(r.clamped_points for r in reports)
@@ -562,11 +535,16 @@ def evaluate(
     return Evaluation(raw, comp, provenance=prov)
 
 
-def _provenance(run: Run, maps, temperature, temps, expansion, out_of_range, tolerance, log_hold) -> dict:
+def evaluation_provenance(run: Run, maps, temperature, temps, expansion, out_of_range, tolerance, log_hold) -> dict:
     """What produced an evaluation, for its JSON."""
     from . import __version__
 
-    if maps is None:
+    if is_model(maps):
+        inner = maps.maps
+        m = {"kind": "model", "maps": "set" if isinstance(inner, ErrorMapSet) else "map",
+             "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
+                          "units": dict(zip(s.params, s.units))} for s, v in maps.effects]}
+    elif maps is None:
         m = {"kind": "none"}
     elif isinstance(maps, ErrorMapSet):
         m = {"kind": "set", "temperatures_C": [float(x) for x in maps.temperatures]}
@@ -613,11 +591,11 @@ def _round(x, digits: int):
 _DIGITS = (("_um", 3), ("_mm", 5), ("_C", 3))
 
 
-def _rounded(d: dict) -> dict:
+def rounded_dict(d: dict) -> dict:
     out = {}
     for k, v in d.items():
         if isinstance(v, list):
-            out[k] = [_rounded(x) if isinstance(x, dict) else x for x in v]
+            out[k] = [rounded_dict(x) if isinstance(x, dict) else x for x in v]
         elif isinstance(v, float):
             digits = next((n for suffix, n in _DIGITS if k.endswith(suffix)), 6)
             out[k] = _round(v, digits)

@@ -26,6 +26,12 @@ The terms (GUM eq. 10, uncorrelated inputs; um):
   difference through the maps); for the lengths at 20 C the same reading is
   the part temperature, so its sensitivity there is c_T - L alpha.
 - Expansion coefficient: ``u_expansion_ppm_per_K`` times L |T - 20| (lengths at 20 C).
+- A diagnosis model's parameters (``maps`` a ``cmmpose.Model`` that holds
+  their uncertainties, as ``cmmpose diagnose --save-model`` writes them): one
+  row per parameter, its standard uncertainty times the figure's sensitivity
+  to it (a difference of one step of the effect through the kernel and the
+  sphere fits); common to all lengths, so not divided by sqrt(P) in the mean;
+  taken as independent (the model file keeps no correlations).
 
 The rms accuracy error and the B89 value describe the spread of the lengths;
 their uncertainty is the Type A uncertainty of that statistic from P lengths:
@@ -45,8 +51,9 @@ from .calibration.interferometer import THESIS_AIR_UNCERTAINTY, refractivity_unc
 from ._json import dumps as strict_json
 from .errormap import ErrorMap, ErrorMapSet
 from ._validate import nonnegative
-from .errors import Error, InputError
-from .evaluation import BallbarResult, Evaluation, _machine_coordinates, machine_temperature
+from .errors import Error, InputError, InputTypeError
+from .compensation import is_model
+from .evaluation import BallbarResult, Evaluation, machine_coordinates, machine_temperature
 from .fitting import fit_spheres
 from .policy import LOG_HOLD, TEMPERATURE_TOLERANCE
 from .run import Run
@@ -248,15 +255,19 @@ class EvaluationUncertainty:
         return Group(*parts)
 
 
-def _model_temperature(run: Run, maps, temperature, log_hold):
+def _model_temperature(run: Run, maps, temperature, log_hold, temperature_policy=None):
     """The temperature the maps are evaluated at (as :func:`cmmpose.evaluate`)."""
+    if is_model(maps):  # the model's own reading of the log (its inputs), or the one given
+        if isinstance(maps.maps, ErrorMap):
+            return None
+        return float(temperature) if temperature is not None else maps.inputs(run).temperature
     if maps is None or isinstance(maps, ErrorMap):
         return None
     if temperature is not None:
         return float(temperature)
     if run.temperatures is None:
         raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
-    return machine_temperature(run, run.points["t"], log_hold)
+    return machine_temperature(run, run.points["t"], log_hold, temperature_policy=temperature_policy)
 
 
 def _lengths_from(xyz: np.ndarray, run: Run, result: BallbarResult, reject) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -290,6 +301,7 @@ def evaluation_uncertainty(
     out_of_range: str = "raise",
     temperature_tolerance: float = TEMPERATURE_TOLERANCE,
     log_hold: float | None = None,
+    temperature_policy=None,
 ) -> EvaluationUncertainty:
     """Uncertainties (k = 2) and budgets of every figure of ``evaluation``
     (module docstring; docs/uncertainty.md).
@@ -300,8 +312,10 @@ def evaluation_uncertainty(
         The run evaluated.
     evaluation : Evaluation
         ``cmmpose.evaluate(run, maps, temperature, ...)``.
-    maps : ErrorMap or ErrorMapSet, optional
-        The maps the evaluation used (None: uncompensated only).
+    maps : ErrorMap, ErrorMapSet or Model, optional
+        The maps (or diagnosis model) the evaluation used (None:
+        uncompensated only). A model's parameter uncertainties enter the
+        compensated figures' budgets (module docstring).
     temperature : float, optional
         The machine temperature the evaluation was given, C (None: the run's log).
     u_temperature_K : float
@@ -316,17 +330,18 @@ def evaluation_uncertainty(
         Standard uncertainty of the artefact's expansion coefficient, ppm/K.
     reject : float, optional
         As given to ``evaluate`` (robust fits).
-    out_of_range, temperature_tolerance, log_hold
-        As given to ``evaluate``.
+    out_of_range, temperature_tolerance, log_hold, temperature_policy
+        As given to ``evaluate`` (the policy: how the log becomes temperatures,
+        cmmpose.temperature).
 
     Returns
     -------
     EvaluationUncertainty
     """
     if not isinstance(run, Run):
-        raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     if not isinstance(evaluation, Evaluation):
-        raise InputError(f"evaluation: expected a cmmpose.Evaluation, got {type(evaluation).__name__}")
+        raise InputTypeError(f"evaluation: expected a cmmpose.Evaluation, got {type(evaluation).__name__}")
     u_t = nonnegative("u_temperature_K", u_temperature_K)
     u_map = default_map_ppm() if u_map_ppm is None else nonnegative("u_map_ppm", u_map_ppm)
     u_model = nonnegative("u_model_ppm", u_model_ppm)
@@ -337,8 +352,8 @@ def evaluation_uncertainty(
     for res in evaluation.results:
         compensated = res.label == "compensated"
         model = maps if compensated else None
-        model_t = _model_temperature(run, model, temperature, log_hold) if compensated else None
-        xyz = _machine_coordinates(run, model, model_t, out_of_range, temperature_tolerance)
+        model_t = _model_temperature(run, model, temperature, log_hold, temperature_policy) if compensated else None
+        xyz = machine_coordinates(run, model, model_t, out_of_range, temperature_tolerance)
         lengths, bar, var_fit = _lengths_from(xyz, run, res, reject)
         if not np.allclose(lengths, res.lengths, rtol=0, atol=1e-9):
             raise InputError("evaluation: its lengths are not those of run with these maps and temperature; pass the "
@@ -349,7 +364,10 @@ def evaluation_uncertainty(
             if c_t is None:
                 c_t = np.zeros(len(lengths))
                 no_sensitivity = True
-        out.append(_result_uncertainty(res, lengths, bar, var_fit, c_t, compensated, u_t, u_map, u_model, u_alpha))
+        terms = _model_terms(run, maps, model_t, res, reject, out_of_range, temperature_tolerance, lengths) \
+            if compensated and is_model(maps) else ()
+        out.append(_result_uncertainty(res, lengths, bar, var_fit, c_t, compensated, u_t, u_map, u_model, u_alpha,
+                                       terms))
     left_out = [
         "the artefact's certificate (these figures are measured lengths, not errors against a calibrated length; "
         "cmmpose acceptance counts it)",
@@ -360,8 +378,15 @@ def evaluation_uncertainty(
     ]
     if u_model == 0:
         left_out.append("the residual model error (no u_model_ppm given)")
-    if isinstance(maps, ErrorMap):
+    if isinstance(maps.maps if is_model(maps) else maps, ErrorMap):
         left_out.append("a single map's temperature mismatch (no temperature sensitivity without a map set)")
+    if is_model(maps):
+        known = [f"{s.name}.{p}" for s, _ in maps.effects for p, u in
+                 zip(s.params, np.ravel(maps.uncertainty.get(s.name, np.full(s.size, np.nan)))) if not np.isfinite(u)]
+        if known:
+            left_out.append("the uncertainty of the model's parameters " + ", ".join(known)
+                            + " (the model file gives none, or the diagnosis did not determine them)")
+        left_out.append("correlations between the model's parameters (the model file keeps none: taken as independent)")
     if no_sensitivity:
         left_out.append("the temperature reading through the maps: neither +-0.5 K about the machine temperature is "
                         "inside them")
@@ -380,7 +405,7 @@ def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, leng
     got = {}
     for step in (_STEP_K, -_STEP_K):
         try:
-            xyz = _machine_coordinates(run, maps, np.asarray(model_t) + step, policy, 0.0)
+            xyz = machine_coordinates(run, maps, np.asarray(model_t) + step, policy, 0.0)
         except Error:
             continue
         got[step] = _lengths_from(xyz, run, res, reject)[0]
@@ -392,8 +417,32 @@ def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, leng
     return None
 
 
+def _model_terms(run, model, model_t, res, reject, out_of_range, temperature_tolerance, lengths) -> list[tuple]:
+    """One term per parameter of the model whose standard uncertainty it holds:
+    (label, unit, u, dL/dp per length um/unit, d rms/dp um/unit, d B89/dp um/unit),
+    by a forward difference of the effect's step through the kernel and the fits."""
+    from .metrics import b89_value, rms_accuracy_error
+
+    out = []
+    for spec, values in model.effects:
+        u = np.ravel(model.uncertainty.get(spec.name, np.full(spec.size, np.nan)))
+        for j, param in enumerate(spec.params):
+            if not (np.isfinite(u[j]) and u[j] > 0):
+                continue
+            v = np.array(values, dtype=float)
+            step = float(spec.steps[j])
+            v[j] += step
+            xyz = machine_coordinates(run, model.with_values(spec, v), model_t, out_of_range, temperature_tolerance)
+            moved = _lengths_from(xyz, run, res, reject)[0]
+            c_len = (moved - lengths) / step * 1e3
+            c_rms = (rms_accuracy_error(moved) - rms_accuracy_error(lengths)) / step * 1e3
+            c_b89 = (b89_value(moved) - b89_value(lengths)) / step * 1e3
+            out.append((f"model {spec.name}: {param}", spec.units[j], float(u[j]), c_len, c_rms, c_b89))
+    return out
+
+
 def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensated, u_t, u_map, u_model,
-                        u_alpha) -> ResultUncertainty:
+                        u_alpha, model_terms=()) -> ResultUncertainty:
     P = len(lengths)
     L_um = lengths * 1e3
     s = float(np.std(lengths, ddof=1)) * 1e3
@@ -418,11 +467,15 @@ def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensa
           if compensated else []),
     ]
 
-    def length_budget(u_fit_p, L, u_ml, ct, n=1):
+    model_note = "the diagnosis's standard uncertainty, through one step of the effect (kernel and fits)"
+
+    def length_budget(u_fit_p, L, u_ml, ct, n=1, p=None):
         c = 1.0 / math.sqrt(n)
         return [Input("Type A: scan-to-scan reproducibility", 0.0, u_between, "um", c, a_note),
                 Input("scanner noise (u and v) via the sphere fits", 0.0, u_fit_p, "um", c, fit_note),
-                *sys_inputs(L, u_ml, ct)]
+                *sys_inputs(L, u_ml, ct),
+                *[Input(name, 0.0, u, unit, float(c_len[p] if p is not None else np.mean(c_len)), model_note)
+                  for name, unit, u, c_len, _, _ in model_terms]]
 
     def at20(inputs, L, dt, ct20):
         # Replace the temperature row: for the 20 C figure the reading is also the part's.
@@ -436,7 +489,7 @@ def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensa
     lengths_fig, lengths20_fig, per_len_inputs, per_len20_inputs = [], [], [], []
     l20 = res.lengths_at_20c
     for p in range(P):
-        inp = length_budget(u_fit[p], L_um[p], u_map_len[p], c_t[p])
+        inp = length_budget(u_fit[p], L_um[p], u_map_len[p], c_t[p], p=p)
         inp20 = at20(inp, L_um[p], dT[p], c_t20[p])
         b = Budget(f"length {int(res.positions[p])}", tuple(inp), "um")
         b20 = Budget(f"length {int(res.positions[p])} at 20 C", tuple(inp20), "um")
@@ -468,12 +521,16 @@ def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensa
     b_mean20 = Budget("mean length at 20 C", tuple(at20(mean_inp, Lm, dT_mean, float(np.mean(c_t20)))), "um")
     u_rms = s / math.sqrt(2 * (P - 1))
     b_rms = Budget("rms accuracy error", (Input("Type A: sample standard deviation of P lengths", 0.0, u_rms, "um", 1.0,
-                                                f"s / sqrt(2 (P - 1)), P = {P}"),), "um")
+                                                f"s / sqrt(2 (P - 1)), P = {P}"),
+                                          *[Input(name, 0.0, u, unit, c_rms, model_note)
+                                            for name, unit, u, _, c_rms, _ in model_terms]), "um")
     draws = np.random.default_rng(_B89_SEED).normal(0.0, s, (_B89_DRAWS, P))
     b89_draws = np.max(np.abs(draws - draws.mean(axis=1, keepdims=True)), axis=1)
     u_b89 = float(np.std(b89_draws, ddof=1))
     b_b89 = Budget("B89", (Input("Type A: largest |L - mean| of P lengths", 0.0, u_b89, "um", 1.0,
-                                 f"parametric bootstrap, {_B89_DRAWS} draws of {P} normal lengths of sd s_L"),), "um")
+                                 f"parametric bootstrap, {_B89_DRAWS} draws of {P} normal lengths of sd s_L"),
+                           *[Input(name, 0.0, u, unit, c_b89, model_note)
+                             for name, unit, u, _, _, c_b89 in model_terms]), "um")
     budgets = {"length": typical("length (typical)", per_len_inputs),
                "length at 20 C": typical("length at 20 C (typical)", per_len20_inputs),
                "mean length": b_mean, "mean length at 20 C": b_mean20, "rms accuracy error": b_rms, "B89": b_b89}
@@ -482,6 +539,8 @@ def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensa
         mean=Figure("mean length", res.mean_length, "mm", b_mean.combined_standard_uncertainty, budget=b_mean),
         mean_20c=Figure("mean length at 20 C", res.mean_length_at_20c, "mm", b_mean20.combined_standard_uncertainty,
                         budget=b_mean20),
-        rms_accuracy_error=Figure("rms accuracy error", res.rms_accuracy_error * 1e3, "um", u_rms, budget=b_rms),
-        b89=Figure("B89", res.b89 * 1e3, "um", u_b89, budget=b_b89),
+        rms_accuracy_error=Figure("rms accuracy error", res.rms_accuracy_error * 1e3, "um",
+                                  b_rms.combined_standard_uncertainty if model_terms else u_rms, budget=b_rms),
+        b89=Figure("B89", res.b89 * 1e3, "um", b_b89.combined_standard_uncertainty if model_terms else u_b89,
+                   budget=b_b89),
         budgets=budgets, s_lengths_um=s, temperature_sensitivity_um_per_K=float(np.mean(c_t)))

@@ -20,13 +20,13 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .compensation import compensate, warn_single_map
+from .compensation import compensate, is_model, warn_single_map
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import InputError
 from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks
 from .atomicfile import check_not_input
-from .policy import TEMPERATURE_TOLERANCE
 from .report import KernelReport
+from .temperature import TemperaturePolicy, as_policy
 
 __all__ = ["compensate_file", "FileCompensation", "QUEUE_CHUNKS"]
 
@@ -77,9 +77,9 @@ class _Failed:
 
 
 def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
-                    out_of_range: str = "raise", nan_policy: str = "raise",
-                    temperature_tolerance: float = TEMPERATURE_TOLERANCE, progress=None,
-                    chunk: int | None = None) -> FileCompensation:
+                    out_of_range: str | None = None, nan_policy: str = "raise",
+                    temperature_tolerance: float | None = None, progress=None,
+                    chunk: int | None = None, temperature_policy: TemperaturePolicy | None = None) -> FileCompensation:
     """Compensate the scanner points of a file into machine coordinates in
     another, in bounded memory, reading, compensating and writing at once.
 
@@ -94,16 +94,21 @@ def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, po
         The output, in the format of its suffix (CSV for an unknown one):
         X, Y, Z in mm (E57 in metres). Written through a temporary file
         renamed into place when whole; never one of the inputs.
-    error_map : ErrorMap or ErrorMapSet
+    error_map : ErrorMap, ErrorMapSet or Model
         The machine's component errors; a set needs ``temperature`` or a T column.
+        Or a model a diagnosis found (``cmmpose.Model.load``): its effects
+        read their inputs from the file's columns (``cmmpose.diagnosis.apply``;
+        a missing one is an ``InputError`` naming the effect and the column);
+        a model with latency is compensated sweep by sweep (``scan_id``).
     pose, offset
         Euler 3-1-3 angles in degrees and the mount offset in mm (as
         :func:`cmmpose.compensate` takes them).
     temperature : float, optional
         degrees C for every point; default the T column when there is one.
         A single map held at another temperature gives a ``MapTemperatureWarning``.
-    out_of_range, nan_policy, temperature_tolerance
-        As :func:`cmmpose.compensate` takes them (K for the tolerance).
+    out_of_range, nan_policy, temperature_tolerance, temperature_policy
+        As :func:`cmmpose.compensate` takes them (K for the tolerance; the
+        keywords override the policy's map side, cmmpose.temperature).
     progress : callable, optional
         ``progress(bytes_done, size)``: how far into the input (bytes) the
         written points reach, called in the calling thread.
@@ -122,14 +127,35 @@ def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, po
     OutputError
         The output cannot be written (a full disk): nothing is left behind.
     """
+    policy = as_policy(temperature_policy, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
+    out_of_range, temperature_tolerance = policy.out_of_range, policy.temperature_tolerance
     points_in, points_out = Path(points_in), Path(points_out)
     check_writable(points_out)  # before any work: a missing folder is found now, not after
     check_not_input(points_out, [points_in], "OUT")
     size, chunks = point_chunks(points_in, chunk, extras=True)
     state = {"temperature": None, "warned": False, "kernel": 0.0}
+    model = error_map if is_model(error_map) else None
+    if model is not None:
+        from .diagnosis.apply import needs_scans, whole_scans
 
-    def kernel(uv, scales, temps):
+        if nan_policy != "raise":
+            raise InputError("compensate with a model: nan_policy='propagate' is for maps only")
+        if needs_scans(model):
+            chunks = whole_scans(chunks)
+
+    def kernel(uv, scales, temps, extras=None):
         """One chunk through the kernel: its coordinates and report."""
+        if model is not None:
+            from .diagnosis.apply import point_inputs, policy_model
+
+            m = policy_model(model, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
+            inputs = point_inputs(m, uv, scales, pose, offset, temperature, temps, extras, points_in)
+            state["temperature"] = (f"{temperature:g} C" if temperature is not None else
+                                    "per point (T column)" if temps is not None else None)
+            t0 = time.perf_counter()
+            xyz, raw = m.compensate(inputs, return_report=True)
+            state["kernel"] += time.perf_counter() - t0
+            return xyz, KernelReport(**raw)
         if isinstance(error_map, ErrorMapSet):
             if temperature is None and temps is None:
                 raise InputError(f"{points_in}: a map set needs a temperature (--temperature, temperature=) "
@@ -257,7 +283,7 @@ def _pipeline(chunks, kernel, writer: PointWriter, reports: list, size: int, pro
             if item is _STOPPED:
                 raise report_progress(block=True) or RuntimeError("the point writer stopped without a result")
             uv, scales, temps, extras, done = item
-            xyz, rep = kernel(uv, scales, temps)
+            xyz, rep = kernel(uv, scales, temps, extras)
             reports.append(rep)
             del uv, scales, temps, item
             if not put(write_q, (xyz, extras, done)):

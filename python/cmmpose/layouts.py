@@ -26,7 +26,7 @@ from importlib import resources
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, InputTypeError
 from ._validate import vector3
 
 __all__ = [
@@ -447,7 +447,7 @@ def digitizer_pose_for(
     if rule not in ("view_across_bar", "scan_across_bar"):
         raise InputError(f"rule: expected 'view_across_bar' or 'scan_across_bar', got {rule!r}")
     if not isinstance(position, BallbarPosition):
-        raise InputError(f"position: expected a BallbarPosition, got {type(position).__name__}")
+        raise InputTypeError(f"position: expected a BallbarPosition, got {type(position).__name__}")
     alpha, beta = W_AXIS_ANGLES[w_axis]
     m0 = _e313(alpha, beta, 0.0)
     u0, v0, w = m0[:, 0], m0[:, 1], m0[:, 2]

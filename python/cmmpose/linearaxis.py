@@ -25,7 +25,7 @@ from typing import Mapping
 import numpy as np
 
 from .errormap import CARRIAGES, ErrorMap
-from .errors import InputError, MapError
+from .errors import InputError, InputTypeError, MapError
 
 __all__ = ["AxisResult", "build_map", "linear_components", "REVERSAL_LIMIT_UM", "POSITION_TOLERANCE_MM"]
 
@@ -138,7 +138,7 @@ def build_map(results: Mapping[str, AxisResult], *, source: str, base: ErrorMap 
     if unknown:
         raise InputError(f"results: carriage(s) {', '.join(map(repr, unknown))} are not 'X', 'Y' or 'Z'")
     if base is not None and not isinstance(base, ErrorMap):
-        raise InputError(f"base: expected an ErrorMap, got {type(base).__name__}")
+        raise InputTypeError(f"base: expected an ErrorMap, got {type(base).__name__}")
     summaries = [_report_reversal(results[a], reversal_limit_um) for a in CARRIAGES if a in results]
     missing = [a for a in CARRIAGES if a not in results]
     tables = []
@@ -208,7 +208,7 @@ def linear_components(error_map: ErrorMap) -> dict[str, tuple[np.ndarray, np.nda
         Per carriage, its grid positions (mm) and linear deviation (um).
     """
     if not isinstance(error_map, ErrorMap):
-        raise InputError(f"error_map: expected an ErrorMap, got {type(error_map).__name__}")
+        raise InputTypeError(f"error_map: expected an ErrorMap, got {type(error_map).__name__}")
     out = {}
     for k, axis in enumerate(CARRIAGES):
         table = error_map.table(axis)

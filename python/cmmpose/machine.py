@@ -27,8 +27,15 @@ from .effects import channel_roles
 from .errormap import ErrorMap, ErrorMapSet, data_path
 from .errors import InputError
 from .pose import MountOffset, Pose, check_pose_angles
-from .sim.scanner import Scanner
-from .sim.thermocouples import CHANNELS
+from .scanner import Scanner
+
+#: The thesis machine's thermocouple channels (name, role), in log order.
+CHANNELS = (
+    ("X1", "x_scale"), ("X2", "x_scale"), ("X3", "x_scale"),
+    ("Y1", "y_scale"), ("Y2", "y_scale"), ("Y3", "y_scale"),
+    ("Z1", "z_scale"), ("Z2", "z_scale"), ("Z3", "z_scale"),
+    ("GT", "granite_top"), ("GB", "granite_bottom"),
+)  # fmt: skip
 
 __all__ = ["Machine", "configurations", "example_names", "example_text", "load_machine", "read_maps",
            "check_map_specs"]
@@ -160,6 +167,39 @@ class Machine:
         :func:`read_maps` takes them), stacked as its configuration says."""
         maps = read_maps(specs or (self.map_files or (self.bundled_maps,)))
         return maps.with_kinematics(self.kinematics)
+
+    def maps_for_run(self, run, specs=()) -> ErrorMap | ErrorMapSet | None:
+        """The maps ``run`` is compensated with: ``specs`` as given (stacked
+        as this machine is), None for ``('none',)`` (uncompensated only), this
+        machine's maps when it came from a file, else the bundled maps
+        ``run.json`` names (on the run's configuration).
+
+        Raises
+        ------
+        InputError
+            The default machine, no ``specs`` and a run that names no bundled
+            maps (``remedy='run_maps'``).
+        """
+        if tuple(specs) == ("none",):
+            return None
+        if specs or not self.is_default:
+            return self.maps(specs)
+        if run.maps.get("kind") == "bundled" and run.maps.get("name") == "thesis":
+            return ErrorMapSet.thesis().with_kinematics(run.maps.get("kinematics", "thesis"))
+        raise InputError("the run does not name bundled maps", what="maps", option="maps", cli_option="--maps",
+                         remedy="run_maps")
+
+    def maps_record(self, specs=()) -> dict:
+        """What a simulated run's ``run.json`` records of the maps it was made
+        with: the bundled thesis set (with this machine's configuration when
+        not the thesis's), so that evaluating it finds them; ``{}`` for maps
+        named by ``specs`` or files (then the maps are given again)."""
+        if specs or self.bundled_maps != "thesis":
+            return {}
+        record = {"kind": "bundled", "name": "thesis"}
+        if self.kinematics != "thesis":
+            record["kinematics"] = self.kinematics
+        return record
 
     def uncovered(self, ranges) -> list[tuple[str, tuple[float, float], tuple[float, float]]]:
         """The axes whose travel goes beyond a map's ``ranges`` ((lo, hi) of

@@ -35,10 +35,26 @@ from . import _core
 from .errors import InputError
 from .layouts import W_AXIS_ANGLES, sweep_readings
 
-__all__ = ["Placement", "BallScan", "parse", "plan", "LAYOUTS", "PLANES", "SWEEP_MARGIN", "pose_library"]
+__all__ = [
+    "LAYOUTS",
+    "PLANES",
+    "PROFILES_PER_BALL",
+    "SWEEP_MARGIN",
+    "BallScan",
+    "Placement",
+    "Sweep",
+    "ball_speed",
+    "parse",
+    "plan",
+    "pose_library",
+    "run_record",
+    "sweep_of",
+]
 
 #: Travel beyond the ball on each side of a sweep, mm (as ``cmmpose.sim.runs``).
 SWEEP_MARGIN = 5.0
+#: Fewest scanner profiles across a ball: a smaller ball is swept more slowly.
+PROFILES_PER_BALL = 12
 #: The artefact's x and y axes in the machine frame, by plane.
 PLANES = {"xy": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
           "xz": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
@@ -183,6 +199,45 @@ def pose_library(machine_pose) -> list[tuple[float, float, float]]:
     return poses
 
 
+@dataclass(frozen=True)
+class Sweep:
+    """The ram's sweep through one ball: along ``axis`` ('X', 'Y' or 'Z')
+    from the scale readings ``start`` (D, E, F, mm) for ``length`` mm in
+    ``direction`` (+1 or -1), with the scan plane a ball radius and
+    SWEEP_MARGIN beyond the ball at each end (as ``cmmpose.sim.runs`` sweeps)."""
+
+    axis: str
+    start: tuple[float, float, float]
+    length: float
+    direction: int
+
+
+def sweep_of(centre, pose, offset, radius: float, direction: int = 1) -> Sweep:
+    """The sweep that scans the ball at ``centre`` (mm, frame H) with ``pose``
+    (degrees) and mount ``offset`` (U1, V1, W1, mm): along the machine axis
+    nearest to the scan plane's travel."""
+    ends = sweep_readings(centre, pose, offset, radius=radius)
+    a = int(np.argmax(np.abs(ends[1] - ends[0])))
+    lo, hi = sorted((ends[0][a], ends[1][a]))
+    start = ends[0].copy()
+    start[a] = lo - SWEEP_MARGIN if direction == 1 else hi + SWEEP_MARGIN
+    return Sweep("XYZ"[a], tuple(float(x) for x in start), float(hi - lo + 2 * SWEEP_MARGIN), int(direction))
+
+
+def ball_speed(speed: float, radius: float, profile_rate: float) -> float:
+    """Sweep speed for a ball of ``radius`` mm: ``speed`` mm/s, or slower so
+    that PROFILES_PER_BALL profiles (``profile_rate`` per s) cross it."""
+    return min(float(speed), 2 * radius * profile_rate / PROFILES_PER_BALL)
+
+
+def run_record(artefact, placements) -> dict:
+    """What a run records of its artefact (run.json's ``artefact``): kind,
+    name, radii, the embedded definition and the resolved placements."""
+    return {"kind": artefact.kind, "name": artefact.name, "ball_radius_mm": artefact.nominal_radius,
+            "calibrated_radius_mm": artefact.calibrated_radius, "source": artefact.source,
+            "definition": artefact.to_dict(), "placements": [p.to_dict() for p in placements]}
+
+
 def _sweep_box(centre, pose, offset, radius) -> np.ndarray:
     """(3, 2) lowest and highest scale reading of the sweep through a ball, mm."""
     ends = sweep_readings(centre, pose, offset, radius=radius)
@@ -195,6 +250,55 @@ def _sweep_box(centre, pose, offset, radius) -> np.ndarray:
 def _outside(box, travel) -> list[tuple[int, float, float]]:
     return [(k, box[k, 0], box[k, 1]) for k, (lo, hi) in enumerate(travel)
             if box[k, 0] < lo - 1e-9 or box[k, 1] > hi + 1e-9]
+
+
+def _fits(plane, artefact, machine, travel, offset, library) -> bool:
+    """Whether ``artefact`` in ``plane`` (centred where the ram sees it) is in reach."""
+    try:
+        _plan_one(0, Placement(plane, _frame(*PLANES[plane]), np.full(3, np.nan)), artefact, machine, travel, offset,
+                  library)
+    except InputError:
+        return False
+    return True
+
+
+def _plan_one(k, pl, artefact, machine, travel, offset, library) -> tuple[Placement, list[BallScan]]:
+    """One placement resolved and a pose per ball (see :func:`plan`)."""
+    mid = travel.mean(axis=1)
+    r = artefact.nominal_radius
+    normal = pl.rotation[:, 2]
+    views = [(float(_core.euler313(*p)[:, 1] @ normal), i, p) for i, p in enumerate(library)]
+    candidates = [p for score, _, p in sorted(views, key=lambda s: (-round(s[0], 9), s[1])) if score >= MIN_VIEW_COSINE]
+    if not candidates:
+        raise InputError(f"placement {k} ({pl.label}): no pose of the pose library views the balls' side")
+    seen_at_origin = _sweep_box(np.zeros(3), candidates[0], offset, r).mean(axis=1)
+    centre = np.where(np.isnan(pl.centre), mid - seen_at_origin, pl.centre)
+    pl = Placement(pl.label, pl.rotation, centre)
+    placed = (artefact.centres - artefact.centroid) @ pl.rotation.T + centre
+    scans = []
+    for bid, x in zip(artefact.ids, placed):
+        for pose in candidates:
+            if not _outside(_sweep_box(x, pose, offset, r), travel):
+                break
+        else:
+            axis, lo, hi = _outside(_sweep_box(x, candidates[0], offset, r), travel)[0]
+            tlo, thi = travel[axis]
+            name = "XYZ"[axis]
+            need = f"{lo:.1f}..{hi:.1f}" if hi - lo > 0.05 else f"{lo:.1f}"
+            # The whole artefact's span on that axis with the best-aligned pose: more than the travel
+            # means no centre on this machine holds it in this orientation.
+            boxes = np.array([_sweep_box(y, candidates[0], offset, r)[axis] for y in placed])
+            span = float(boxes[:, 1].max() - boxes[:, 0].min())
+            whole = (f"; its balls' sweeps span {span:.0f} mm of {name} with that pose, more than the {thi - tlo:g} mm "
+                     f"travel: it cannot stand so on this machine (docs/artefacts.md, 'Which placements fit')"
+                     if span > thi - tlo + 1e-9 else "")
+            raise InputError(
+                f"placement {k} ({pl.label}): ball {bid} at X {x[0]:.1f}, Y {x[1]:.1f}, Z {x[2]:.1f} mm is out "
+                f"of reach: its sweep needs {name} {need} mm with pose "
+                f"{','.join(f'{a:g}' for a in candidates[0])}, beyond the {name} travel {tlo:g}..{thi:g} "
+                f"mm of {machine.name}, and no other pose of the pose library keeps it in travel{whole}")
+        scans.append(BallScan(k, int(bid), x, pose))
+    return pl, scans
 
 
 def plan(placements, artefact, machine) -> tuple[list[Placement], list[BallScan]]:
@@ -219,37 +323,28 @@ def plan(placements, artefact, machine) -> tuple[list[Placement], list[BallScan]
     InputError
         A ball whose sweep leaves the travel with every pose of the pose
         library that views the balls' side, naming the placement, the ball
-        and the axis.
+        and the axis (and saying so when the artefact spans more of that
+        axis than its travel); a plane of the layout ``planes`` the
+        artefact cannot stand in, naming the planes it fits in.
     """
     travel = np.array(machine.travel, float)
-    mid = travel.mean(axis=1)
     offset = tuple(machine.offset)
     library = pose_library(machine.pose.as_tuple())
-    r = artefact.nominal_radius
     resolved, scans = [], []
     for k, pl in enumerate(placements, start=1):
-        normal = pl.rotation[:, 2]
-        views = [(float(_core.euler313(*p)[:, 1] @ normal), i, p) for i, p in enumerate(library)]
-        candidates = [p for score, _, p in sorted(views, key=lambda s: (-round(s[0], 9), s[1]))
-                      if score >= MIN_VIEW_COSINE]
-        if not candidates:
-            raise InputError(f"placement {k} ({pl.label}): no pose of the pose library views the balls' side")
-        seen_at_origin = _sweep_box(np.zeros(3), candidates[0], offset, r).mean(axis=1)
-        centre = np.where(np.isnan(pl.centre), mid - seen_at_origin, pl.centre)
-        pl = Placement(pl.label, pl.rotation, centre)
+        try:
+            pl, mine = _plan_one(k, pl, artefact, machine, travel, offset, library)
+        except InputError as exc:
+            layout, _, plane = pl.label.partition("/")
+            if layout != "planes":
+                raise
+            fit = [q for q in PLANES if q == plane or _fits(q, artefact, machine, travel, offset, library)]
+            fit = [q for q in fit if q != plane]
+            advice = (f"it fits in {' and '.join(q.upper() for q in fit)}: give placements that fit instead of "
+                      f"'planes', e.g. " + " ".join(f"--placement {q}" for q in fit) +
+                      f" --placement {fit[0]}@rot=90") if fit else "it fits in none of the three planes"
+            raise InputError(f"layout 'planes': {artefact.name} cannot stand in the {plane.upper()} plane of "
+                             f"{machine.name}; {advice} ({exc})") from None
         resolved.append(pl)
-        for bid, c in zip(artefact.ids, artefact.centres):
-            x = pl.rotation @ (c - artefact.centroid) + centre
-            for pose in candidates:
-                if not _outside(_sweep_box(x, pose, offset, r), travel):
-                    break
-            else:
-                axis, lo, hi = _outside(_sweep_box(x, candidates[0], offset, r), travel)[0]
-                tlo, thi = travel[axis]
-                raise InputError(
-                    f"placement {k} ({pl.label}): ball {bid} at X {x[0]:.1f}, Y {x[1]:.1f}, Z {x[2]:.1f} mm is out "
-                    f"of reach: its sweep needs {'XYZ'[axis]} {lo:.1f}..{hi:.1f} mm with pose "
-                    f"{','.join(f'{a:g}' for a in candidates[0])}, beyond the {'XYZ'[axis]} travel {tlo:g}..{thi:g} "
-                    f"mm of {machine.name}, and no other pose of the pose library keeps it in travel")
-            scans.append(BallScan(k, int(bid), x, pose))
+        scans += mine
     return resolved, scans

@@ -28,7 +28,7 @@ import numpy as np
 
 from .atomicfile import save_figure
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet
-from .errors import InputError
+from .errors import InputError, InputTypeError
 from ._validate import finite
 
 __all__ = ["plot_ballbar_lengths", "plot_sphere_residuals", "plot_error_map", "plot_fleet_trend",
@@ -42,7 +42,7 @@ _DPI = 150
 
 
 # -- shared helpers ----------------------------------------------------------------
-def _figure(**kw):
+def new_figure(**kw):
     """A new Figure on an Agg canvas (lazy matplotlib import)."""
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -54,10 +54,12 @@ def _figure(**kw):
     return fig
 
 
-def _save(fig, path):
+def save_plot(fig, path):
+    """``fig`` written to ``path`` (PNG, PDF, SVG by suffix; atomically, a
+    special file as a stream) unless ``path`` is None; returns ``fig``."""
     if path is not None:
         if not isinstance(path, (str, PathLike)):
-            raise InputError(f"path: expected a file path or None, got {type(path).__name__}")
+            raise InputTypeError(f"path: expected a file path or None, got {type(path).__name__}")
         save_figure(fig, path, dpi=_DPI)  # atomic; a special file as a stream
     return fig
 
@@ -91,7 +93,7 @@ def _title(fig, title, text: str):
 # -- 1. ballbar lengths --------------------------------------------------------------
 def _ballbar_series(results):
     if isinstance(results, (str, bytes)) or not hasattr(results, "__iter__"):
-        raise InputError(f"results: expected a sequence of ballbar results, got {type(results).__name__}")
+        raise InputTypeError(f"results: expected a sequence of ballbar results, got {type(results).__name__}")
     results = list(results)
     if not results:
         raise InputError("results: expected at least one ballbar result, got none")
@@ -157,7 +159,7 @@ def plot_ballbar_lengths(results, path: str | PathLike | None = None, *, title: 
         matplotlib not installed.
     """
     series = _ballbar_series(results)
-    fig = _figure(figsize=(8.0, 5.0), layout="constrained")
+    fig = new_figure(figsize=(8.0, 5.0), layout="constrained")
     ax = fig.add_subplot()
     from matplotlib.ticker import FormatStrFormatter
 
@@ -187,7 +189,7 @@ def plot_ballbar_lengths(results, path: str | PathLike | None = None, *, title: 
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=1, frameon=False,
               title="dashed: mean; shaded: mean \u00b1 rms", title_fontsize="small")
     _title(fig, title, "Ballbar length per position")
-    return _save(fig, path)
+    return save_plot(fig, path)
 
 
 # -- 2. sphere residuals -----------------------------------------------------------------
@@ -268,7 +270,7 @@ def plot_sphere_residuals(points, fit, path: str | PathLike | None = None, *, ti
     scale_from = res_um[inlier] if inlier.any() else res_um
     vmax = float(np.max(np.abs(scale_from))) or 1.0
 
-    fig = _figure(figsize=(6.6, 6.0), layout="constrained")
+    fig = new_figure(figsize=(6.6, 6.0), layout="constrained")
     ax = fig.add_subplot(projection="polar")
     order = np.argsort(np.abs(res_um[inlier]), kind="stable")  # largest residuals drawn on top
     size = float(np.clip(4000.0 / np.sqrt(len(pts)) / 10.0, 1.0, 30.0))
@@ -292,7 +294,7 @@ def plot_sphere_residuals(points, fit, path: str | PathLike | None = None, *, ti
                        f"form {form * 1000:.1f} {_UM}\n"
                        f"{int(inlier.sum())} points" + ("" if inlier.all() else f", {int((~inlier).sum())} rejected (grey x)")
                        + f", cap axis ({ax_dir})")
-    return _save(fig, path)
+    return save_plot(fig, path)
 
 
 # -- 3. error maps -------------------------------------------------------------------------
@@ -370,12 +372,12 @@ def plot_error_map(error_map, path: str | PathLike | None = None, *, components=
     elif isinstance(error_map, ErrorMap):
         maps = [error_map]
     else:
-        raise InputError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
+        raise InputTypeError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
     comps = _components(components)
     columns = [(kind, [c for c in comps if c[0] == kind]) for kind in ("d", "e")]
     columns = [(k, cs) for k, cs in columns if cs]
 
-    fig = _figure(figsize=(5.2 * len(columns) + 1.6, 9.0), layout="constrained")
+    fig = new_figure(figsize=(5.2 * len(columns) + 1.6, 9.0), layout="constrained")
     axes = fig.subplots(len(CARRIAGES), len(columns), squeeze=False)
     styles = [("-", "o"), ("--", "s"), (":", "^"), ("-.", "D"), ((0, (5, 1, 1, 1)), "v")]
     colour = {"x": "C0", "y": "C1", "z": "C2"}
@@ -419,7 +421,7 @@ def plot_error_map(error_map, path: str | PathLike | None = None, *, components=
     if not several and maps[0].temperature is not None:
         heading += f" at {maps[0].temperature:g} \u00b0C"
     fig.suptitle(f"{heading}\nsquareness S_xy, S_yz, S_zx (arc-second): {sq}")
-    return _save(fig, path)
+    return save_plot(fig, path)
 
 
 def plot_fleet_trend(rows, path: str | PathLike | None = None, *, title: str | None = None):
@@ -453,7 +455,7 @@ def plot_fleet_trend(rows, path: str | PathLike | None = None, *, title: str | N
     if not rows:
         raise InputError("rows: no runs to plot")
     names = [str(_attr(r, "run", f"rows[{i}]")) for i, r in enumerate(rows)]
-    fig = _figure(figsize=(max(6.0, 0.6 * len(rows) + 3.0), 4.5), layout="constrained")
+    fig = new_figure(figsize=(max(6.0, 0.6 * len(rows) + 3.0), 4.5), layout="constrained")
     ax = fig.add_subplot()
     x = np.arange(len(rows))
     for attr, label, style in (("rms_uncompensated", "rms, uncompensated", "o--"),
@@ -476,7 +478,7 @@ def plot_fleet_trend(rows, path: str | PathLike | None = None, *, title: str | N
     fig.legend(handles, [h.get_label() for h in handles], loc="outside lower center", ncol=3,
                fontsize="small", frameon=False)
     fig.suptitle(title or f"Ballbar figures over {len(rows)} runs")
-    return _save(fig, path)
+    return save_plot(fig, path)
 
 
 # -- artefacts (cmmpose.artefact_evaluation) ------------------------------------------
@@ -500,7 +502,7 @@ def plot_artefact_deviations(artefact, result, path: str | PathLike | None = Non
     if not placements:
         raise InputError("result: no placements to plot")
     n = len(placements)
-    fig = _figure(figsize=(4.6 * n, 4.6), layout="constrained")
+    fig = new_figure(figsize=(4.6 * n, 4.6), layout="constrained")
     xy = artefact.centres[:, :2]
     extent = np.ptp(xy, axis=0)
     gaps = np.linalg.norm(xy[:, None] - xy[None], axis=2)
@@ -535,7 +537,7 @@ def plot_artefact_deviations(artefact, result, path: str | PathLike | None = Non
                      f"{_UM}", fontsize=9)
     fig.colorbar(dots, ax=fig.axes, label=f"deviation along artefact z ({_UM})", shrink=0.8)
     fig.suptitle(title or f"{artefact.name}: deviations, {result.label}")
-    return _save(fig, path)
+    return save_plot(fig, path)
 
 
 def plot_length_errors(results, path: str | PathLike | None = None, *, title: str | None = None):
@@ -544,7 +546,7 @@ def plot_length_errors(results, path: str | PathLike | None = None, *, title: st
     results = [r for r in results if r is not None]
     if not results:
         raise InputError("results: nothing to plot")
-    fig = _figure(figsize=(6.4 * len(results), 4.4), layout="constrained")
+    fig = new_figure(figsize=(6.4 * len(results), 4.4), layout="constrained")
     for i, r in enumerate(results):
         ax = fig.add_subplot(1, len(results), i + 1)
         for j, p in enumerate(r.placements):
@@ -561,4 +563,4 @@ def plot_length_errors(results, path: str | PathLike | None = None, *, title: st
         ax.set_title(r.label)
         ax.legend(fontsize="x-small")
     fig.suptitle(title or "Ball-pair length errors (error bars 2u)")
-    return _save(fig, path)
+    return save_plot(fig, path)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import pointformats
-from .errors import InputError
+from .errors import InputError, InputTypeError
 from .pointformats._common import numeric_column
 
 __all__ = ["PointCloud", "read_point_cloud", "write_point_cloud", "unit_factor", "UNITS"]
@@ -157,7 +157,7 @@ def write_point_cloud(path: str | Path, cloud: PointCloud, *, format: str | None
         cannot hold, integers beyond PLY's 32 bits).
     """
     if not isinstance(cloud, PointCloud):
-        raise InputError(f"write_point_cloud: expected a PointCloud, got {type(cloud).__name__}")
+        raise InputTypeError(f"write_point_cloud: expected a PointCloud, got {type(cloud).__name__}")
     fmt = pointformats.for_path(path, format)
     factor = _factor(units, fmt)
     writer = fmt.writer(path)

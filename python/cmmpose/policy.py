@@ -1,5 +1,9 @@
 """One temperature policy for every command and the API (docs/conventions.md,
-"Temperatures outside the maps and the log").
+"Temperatures outside the maps and the log"), and how the command line words
+the library's errors.
+
+The policy's home is :mod:`cmmpose.temperature` (:class:`TemperaturePolicy`);
+its names are re-exported here for the older import path.
 
 - A temperature within ``TEMPERATURE_TOLERANCE`` (K) outside the maps' range
   is held at the edge and counted: a machine at its 20 C reference reads a
@@ -18,75 +22,30 @@ The same names are the Python arguments (``out_of_range``,
 
 from __future__ import annotations
 
-import math
 import re
 
-import numpy as np
+from .errors import REMEDIES, Error
+from .temperature import (  # re-exported: the policy's home is cmmpose.temperature
+    BROKEN_HINT,
+    LOG_HOLD,
+    LOG_HOLD_HINT,
+    OUT_OF_RANGE,
+    TEMPERATURE_TOLERANCE,
+    TemperaturePolicy,
+    check_log_coverage,
+    check_policy,
+)
 
-from .errors import InputError
+__all__ = ["TEMPERATURE_TOLERANCE", "LOG_HOLD", "OUT_OF_RANGE", "TemperaturePolicy", "check_policy",
+           "check_log_coverage", "cli_wording", "shorten_numbers", "SCHEDULER_TIMEOUT_HINT"]
 
-__all__ = ["TEMPERATURE_TOLERANCE", "LOG_HOLD", "OUT_OF_RANGE", "check_policy", "check_log_coverage", "cli_wording",
-           "shorten_numbers", "SCHEDULER_TIMEOUT_HINT"]
-
-#: K: the thermocouples' uncertainty (thesis 6.4: 0.5 K class), within which
-#: a temperature outside the maps is held at the edge.
-TEMPERATURE_TOLERANCE = 0.5
-#: s: how far outside the thermocouple log a point may lie and still take
-#: the nearest reading (a logger sampling every few seconds, a recovered run).
-LOG_HOLD = 120.0
-#: Choices beyond the tolerance.
-OUT_OF_RANGE = ("raise", "clamp", "extrapolate")
-
-# The sentences the Python layer appends to out-of-range errors (written by
-# the bindings, rust/py/src/errors.rs) and what the CLI says instead.
-_PYTHON_TEMPERATURE = (" (choices: out_of_range='clamp' holds it at the edge, 'extrapolate' extends the maps "
-                       "linearly, or a wider temperature_tolerance in K)")
-_CLI_TEMPERATURE = (" (choices: --out-of-range clamp holds it at the edge, --out-of-range extrapolate extends "
-                    "the maps linearly, or a wider --temperature-tolerance K)")
-_PYTHON_POSITION = " (choices: out_of_range='clamp' holds it at the table's end)"
-_CLI_POSITION = " (choices: --out-of-range clamp holds it at the table's end)"
-_PYTHON_LOG = "pass log_hold= (s) to hold the nearest reading that far"
+# The errors of the kernel carry their remedy as a field (cmmpose.errors.REMEDIES) and are worded for the
+# command line from it (Error.render). The hints below are for messages that still carry a Python argument in
+# their text (Python-side raises, and a kernel error's text quoted inside another message).
+_PYTHON_LOG = LOG_HOLD_HINT
 _CLI_LOG = "use --log-hold S to hold the nearest reading that far"
 SKIP_INCOMPLETE_HINT = "pass skip_incomplete=True to evaluate the complete positions only and list the others"
 _CLI_SKIP = "use --skip-incomplete to evaluate the complete positions only and list the others"
-
-
-def check_policy(out_of_range: str, temperature_tolerance: float, log_hold: float | None = None) -> None:
-    """Raise ``InputError`` naming the argument if the policy is malformed."""
-    if out_of_range not in OUT_OF_RANGE:
-        raise InputError(f"out_of_range: expected one of {', '.join(map(repr, OUT_OF_RANGE))}, got {out_of_range!r}")
-    for name, value in (("temperature_tolerance", temperature_tolerance), ("log_hold", log_hold)):
-        if value is None and name == "log_hold":
-            continue
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-            raise InputError(f"{name}: expected a finite number >= 0 ({'K' if 'temperature' in name else 's'}), "
-                             f"got {value!r}")
-
-
-def check_log_coverage(run, t, log_hold: float) -> None:
-    """Raise ``InputError`` if a point lies more than ``log_hold`` s outside
-    the run's thermocouple log, naming the first such row and time.
-
-    Parameters
-    ----------
-    run : Run
-        The run whose ``temperatures['t']`` (s) is the log.
-    t : array_like, shape (N,)
-        The points' time stamps, s.
-    log_hold : float
-        How far outside the log a point may lie, s.
-    """
-    lt = np.asarray(run.temperatures["t"], dtype=float)
-    t = np.asarray(t, dtype=float)
-    if not len(lt) or not len(t):
-        return
-    far = (t < lt[0] - log_hold) | (t > lt[-1] + log_hold)
-    if np.any(far):
-        i = int(np.argmax(far))
-        gap = lt[0] - t[i] if t[i] < lt[0] else t[i] - lt[-1]
-        raise InputError(f"point row {i}: t = {t[i]:g} s is {gap:.1f} s outside the temperature log "
-                         f"({lt[0]:g}..{lt[-1]:g} s), more than the {log_hold:g} s held at its ends "
-                         f"({_PYTHON_LOG}, or give the temperature)")
 
 
 #: The hint cmmpose.scale gives when a scheduler does not answer in time.
@@ -96,16 +55,14 @@ SCHEDULER_TIMEOUT_HINT = "scheduler_timeout= sets the limit"
 # without that flag says instead, or a function of the command's flags giving it). Literal strings, or compiled
 # patterns whose groups the replacements use.
 _HINTS = (
-    (_PYTHON_TEMPERATURE, "--out-of-range", _CLI_TEMPERATURE,
-     " (this command has no option to clamp or extrapolate the maps)"),
-    (_PYTHON_POSITION, "--out-of-range", _CLI_POSITION, " (this command has no option to clamp it)"),
     (_PYTHON_LOG, "--log-hold", _CLI_LOG, "this command has no option to hold the log's readings"),
     (SKIP_INCOMPLETE_HINT, "--skip-incomplete", _CLI_SKIP, "complete or relabel the positions"),
-    ("pass nan_policy='propagate' to get NaN rows instead", "--nan-policy",
-     "use --nan-policy propagate to get NaN rows instead", "this command has no option to let NaN rows through"),
-    (re.compile(r"pass on_gap='interpolate' to interpolate across (it|the bad stretch)"), None, "",
+    (re.compile(r"pass on_gap='interpolate' to interpolate across (it|the bad stretch)"), "--on-gap",
+     r"use --on-gap interpolate to interpolate across \1",
      lambda flags: r"the command line has no option to interpolate across \1"
      + (" (give the machine temperature with --temperature instead)" if "--temperature" in flags else "")),
+    (BROKEN_HINT, "--broken-channels", "use --broken-channels drop to leave its bad samples out",
+     "this command has no option to leave a broken thermocouple out"),
     ("pass out_of_range='clamp' to clamp instead", "--out-of-range", "use --out-of-range clamp to clamp instead",
      "this command has no option to clamp it"),
     ("pass out_of_range='hold' to use the log's end values", None, "",
@@ -133,7 +90,7 @@ def shorten_numbers(message: str) -> str:
     return _LONG_DIGITS.sub(lambda m: f"{m[0][:20]}...({len(m[0])} digits)", message)
 
 
-def cli_wording(message: str, context=None) -> str:
+def cli_wording(message, context=None) -> str:
     """An error message as the command line says it: the hints that name a
     Python argument name the command's flag instead, or say the command has
     none, and numbers of more than 20 digits are shortened
@@ -141,8 +98,9 @@ def cli_wording(message: str, context=None) -> str:
 
     Parameters
     ----------
-    message : str
-        The library's message.
+    message : Error or str
+        The library's error (worded from its fields, :meth:`Error.render`)
+        or message.
     context : click.Context, optional
         The command running (``click.get_current_context(silent=True)``): a
         hint whose flag this command lacks says so. None: every flag counts
@@ -151,7 +109,10 @@ def cli_wording(message: str, context=None) -> str:
     flags = None
     if context is not None and getattr(context, "command", None) is not None:
         flags = {o for p in context.command.params for o in getattr(p, "opts", ())}
-    for hint, flag, cli, missing in _HINTS:
+    if isinstance(message, Error):
+        message = message.render("cli", flags)
+    remedies = tuple((r.python, r.flag, r.cli, r.missing) for r in REMEDIES.values())
+    for hint, flag, cli, missing in remedies + _HINTS:
         has = flag is not None and (flags is None or flag in flags)
         if callable(missing):
             missing = missing(flags if flags is not None else {"--temperature"})

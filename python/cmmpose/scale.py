@@ -51,8 +51,9 @@ import numpy as np
 from .compensation import compensate
 from .atomicfile import AtomicFile, ensure_folder
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import Error, InputError, SchedulerError, warn_clamped
-from .policy import SCHEDULER_TIMEOUT_HINT, TEMPERATURE_TOLERANCE, check_policy
+from .errors import Error, InputError, InputTypeError, SchedulerError, warn_clamped
+from .policy import SCHEDULER_TIMEOUT_HINT, TEMPERATURE_TOLERANCE
+from .temperature import TemperaturePolicy, as_policy
 from .pose import pose_tuple
 from ._arrays import as_triple
 from .report import KernelReport
@@ -307,12 +308,14 @@ class Compensator:
     temperature_tolerance: float = TEMPERATURE_TOLERANCE
 
     @classmethod
-    def make(cls, error_map, pose, offset, temperature=None, *, out_of_range="raise", nan_policy="raise",
-             temperature_tolerance=TEMPERATURE_TOLERANCE) -> Compensator:
-        """Checked arguments, as :func:`cmmpose.compensate` takes them."""
+    def make(cls, error_map, pose, offset, temperature=None, *, out_of_range=None, nan_policy="raise",
+             temperature_tolerance=None, temperature_policy: TemperaturePolicy | None = None) -> Compensator:
+        """Checked arguments, as :func:`cmmpose.compensate` takes them (the
+        keywords override ``temperature_policy``'s map side)."""
         if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
-            raise InputError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
-        check_policy(out_of_range, temperature_tolerance)
+            raise InputTypeError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
+        policy = as_policy(temperature_policy, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
+        out_of_range, temperature_tolerance = policy.out_of_range, policy.temperature_tolerance
         if nan_policy not in ("raise", "propagate"):
             raise InputError(f"nan_policy: expected 'raise' or 'propagate', got {nan_policy!r}")
         if temperature is not None:
@@ -503,10 +506,11 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
 
 
 def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
-                       out_of_range: str = "raise", nan_policy: str = "raise",
-                       temperature_tolerance: float = TEMPERATURE_TOLERANCE, scheduler="threads",
+                       out_of_range: str | None = None, nan_policy: str = "raise",
+                       temperature_tolerance: float | None = None, scheduler="threads",
                        batch_rows: int = BATCH_ROWS, progress=None,
-                       scheduler_timeout: float = SCHEDULER_TIMEOUT) -> DatasetResult:
+                       scheduler_timeout: float = SCHEDULER_TIMEOUT,
+                       temperature_policy: TemperaturePolicy | None = None) -> DatasetResult:
     """Compensate a folder of Parquet scans into a folder of Parquet files.
 
     Each input ``NAME.parquet`` (columns ``u, v`` mm, ``D, E, F`` mm, ``T`` C
@@ -524,7 +528,7 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         The input folder and the output folder (made if missing; must differ).
         An output file is written under a temporary name and renamed when
         whole; an existing one of the same name is replaced.
-    error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance
+    error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance, temperature_policy
         As in :func:`cmmpose.compensate` (``temperature`` a float, C, or None).
     scheduler : str or distributed.Client
         Where the work runs (see :func:`scheduler_client`); a cluster's workers
@@ -554,7 +558,8 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
     """
     t_start = time.perf_counter()
     kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
-                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance)
+                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
+                              temperature_policy=temperature_policy)
     if not isinstance(batch_rows, (int, np.integer)) or batch_rows < 1:
         raise InputError(f"batch_rows: expected a positive integer, got {batch_rows!r}")
     files = dataset_files(dataset_dir)
@@ -611,8 +616,8 @@ def _block(points: np.ndarray, kernel: Compensator) -> np.ndarray:
 
 
 def compensate_array(points, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
-                     out_of_range: str = "raise", nan_policy: str = "raise",
-                     temperature_tolerance: float = TEMPERATURE_TOLERANCE):
+                     out_of_range: str | None = None, nan_policy: str = "raise",
+                     temperature_tolerance: float | None = None, temperature_policy: TemperaturePolicy | None = None):
     """Compensate a Dask array of points, lazily, block by block.
 
     Parameters
@@ -620,7 +625,7 @@ def compensate_array(points, error_map: ErrorMap | ErrorMapSet, pose, offset, te
     points : dask.array.Array, shape (N, 5) or (N, 6)
         Columns u, v (mm), D, E, F (mm)[, T (C)], chunked along rows (the
         columns are made one chunk).
-    error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance
+    error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance, temperature_policy
         As in :func:`cmmpose.compensate` (``temperature`` a float, C; with a
         set and none, column T).
 
@@ -640,7 +645,8 @@ def compensate_array(points, error_map: ErrorMap | ErrorMapSet, pose, offset, te
         raise InputError(f"points: expected a dask array of shape (N, 5) or (N, 6) (u, v, D, E, F[, T]), "
                          f"got {type(points).__name__} {getattr(points, 'shape', '')}")
     kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
-                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance)
+                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
+                              temperature_policy=temperature_policy)
     if kernel.needs_temperature_column and points.shape[1] != 6:
         raise InputError("points: a map set without a temperature needs a sixth column T (C)")
     points = points.rechunk({1: -1})
@@ -665,15 +671,15 @@ def _partition(frame, kernel: Compensator, passthrough: list[str]):
 
 
 def compensate_dataframe(frame, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
-                         out_of_range: str = "raise", nan_policy: str = "raise",
-                         temperature_tolerance: float = TEMPERATURE_TOLERANCE):
+                         out_of_range: str | None = None, nan_policy: str = "raise",
+                         temperature_tolerance: float | None = None, temperature_policy: TemperaturePolicy | None = None):
     """Compensate a Dask dataframe, lazily, partition by partition.
 
     Parameters
     ----------
     frame : dask.dataframe.DataFrame
         Columns u, v, D, E, F (mm)[, T (C)] and any others.
-    error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance
+    error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance, temperature_policy
         As in :func:`compensate_array`.
 
     Returns
@@ -687,9 +693,10 @@ def compensate_dataframe(frame, error_map: ErrorMap | ErrorMapSet, pose, offset,
     import dask
 
     if not hasattr(frame, "map_partitions") or not hasattr(frame, "columns"):
-        raise InputError(f"frame: expected a dask dataframe, got {type(frame).__name__}")
+        raise InputTypeError(f"frame: expected a dask dataframe, got {type(frame).__name__}")
     kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
-                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance)
+                              nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
+                              temperature_policy=temperature_policy)
     names = list(frame.columns)
     for c in INPUT_COLUMNS + (("T",) if kernel.needs_temperature_column else ()):
         if c not in names:
@@ -772,13 +779,19 @@ def _maps_named_by(run):
 
 
 def _evaluate_run(run, maps, **kwargs):
+    from .artefact_evaluation import evaluate_artefact, is_artefact_run
     from .evaluation import evaluate
 
     if isinstance(maps, str) and maps == "run":
         maps = _maps_named_by(run)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ev = evaluate(run, maps, **kwargs)
+        if is_artefact_run(run):  # a plate or step gauge: deviations and length errors, not ballbar lengths
+            options = {k: v for k, v in kwargs.items() if k in ("temperature", "reject", "out_of_range",
+                                                                "temperature_tolerance", "log_hold")}
+            ev = evaluate_artefact(run, maps, **options)
+        else:
+            ev = evaluate(run, maps, **kwargs)
     ev.provenance.setdefault("run", {})["created"] = run.created  # for the fleet's trend
     return ev
 
@@ -867,9 +880,13 @@ class FleetRow:
     temperature : float
         Mean machine temperature over the run, C (NaN if unknown).
     rms_uncompensated, b89_uncompensated : float
-        rms accuracy error and B89 value of the uncompensated lengths, mm.
+        rms accuracy error and B89 value of the uncompensated lengths, mm;
+        of an artefact run (``kind`` not 'ballbar'): the rms ball deviation
+        and the largest |length error| (E) over all placements.
     rms_compensated, b89_compensated : float
         The same compensated, mm (NaN without maps).
+    kind : str
+        'ballbar', or the artefact's kind ('ball-plate', 'step-gauge', ...).
     """
 
     run: str
@@ -879,15 +896,29 @@ class FleetRow:
     b89_uncompensated: float
     rms_compensated: float
     b89_compensated: float
+    kind: str = "ballbar"
 
 
 def fleet_summary(run_dirs, evaluations) -> list[FleetRow]:
     """One :class:`FleetRow` per run from :func:`evaluate_runs`' results."""
+    from .artefact_evaluation import ArtefactEvaluation
+
+    def artefact_figures(result):  # rms deviation and largest |E| of an artefact run, mm
+        if result is None:
+            return math.nan, math.nan
+        worst = result.largest_length_error
+        return result.rms, math.nan if worst is None else abs(worst.error)
+
     rows = []
     for r, ev in zip(run_dirs, evaluations):
         t = ev.provenance.get("temperature", {}).get("mean_C", math.nan)
+        created = str(ev.provenance.get("run", {}).get("created", ""))
+        if isinstance(ev, ArtefactEvaluation):
+            rows.append(FleetRow(str(r), created, float(t), *artefact_figures(ev.uncompensated),
+                                 *artefact_figures(ev.compensated), kind=ev.artefact.kind))
+            continue
         c = ev.compensated
-        rows.append(FleetRow(str(r), str(ev.provenance.get("run", {}).get("created", "")), float(t),
+        rows.append(FleetRow(str(r), created, float(t),
                              ev.uncompensated.rms_accuracy_error, ev.uncompensated.b89,
                              math.nan if c is None else c.rms_accuracy_error, math.nan if c is None else c.b89))
     return rows

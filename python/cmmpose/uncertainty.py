@@ -22,7 +22,7 @@ from ._arrays import as_rows, as_triple, as_vector
 from ._validate import finite
 from .compensation import compensate
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import InputError, OutOfRangeError
+from .errors import InputError, InputTypeError, OutOfRangeError
 from .fitting import fit_sphere
 from .pose import pose_tuple
 
@@ -610,7 +610,7 @@ class _Problem:
         if len(self.uv) != len(self.scales):
             raise InputError(f"uv{label} and scales{label}: need the same number of rows, got {len(self.uv)} and {len(self.scales)}")
         if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
-            raise InputError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
+            raise InputTypeError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
         if isinstance(error_map, ErrorMapSet) and temperature is None:
             raise InputError("temperature: required with an ErrorMapSet (degrees C)")
         if isinstance(error_map, ErrorMap) and temperature is not None:

@@ -13,6 +13,16 @@ which. A plan is a JSON file (docs/protocols.md, "Plan")::
       "temperature_channels": [{"name": "X1", "role": "x_scale", "channel": 101}, ...]
     }
 
+A plan for an artefact run (a ball plate or step gauge at one or more
+placements; docs/artefacts.md) is made by :func:`artefact_plan` (``cmmpose
+artefact plan``): its ``artefact`` embeds the artefact's definition and the
+resolved placements as a simulated run's does, and each scan row says which
+ball of which placement it measures with which pose, and the sweep: its axis,
+direction and speed, and, for the operator or the part program, the scale
+readings it starts from (``sweep_start_mm``, D, E, F) and its length
+(``sweep_length_mm``). A plan whose scans name a ball the artefact lacks or
+a placement it does not record is refused when read.
+
 Every key is optional. Without ``poses`` one pose is used (the thesis
 digitizer unless given); a sweep missing from ``scans`` gets that pose,
 feature ``unknown``, position and ball -1, and its sweep axis, direction and
@@ -27,19 +37,16 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .. import artefacts, placement
 from ..atomicfile import write_text
-from ..errors import AcquisitionError
+from ..errors import AcquisitionError, InputError
+from ..machine import CHANNELS
 from ..run import CHANNEL_ROLES, POSES_COLUMNS, SCANS_COLUMNS, Run
 
-__all__ = ["Plan", "DEFAULT_CHANNELS", "plan_from_run"]
+__all__ = ["Plan", "DEFAULT_CHANNELS", "plan_from_run", "artefact_plan"]
 
-#: The thesis's thermocouples (name, role, multiplexer channel).
-DEFAULT_CHANNELS = (
-    ("X1", "x_scale"), ("X2", "x_scale"), ("X3", "x_scale"),
-    ("Y1", "y_scale"), ("Y2", "y_scale"), ("Y3", "y_scale"),
-    ("Z1", "z_scale"), ("Z2", "z_scale"), ("Z3", "z_scale"),
-    ("GT", "granite_top"), ("GB", "granite_bottom"),
-)  # fmt: skip
+#: The thesis's thermocouples (name, role), in log order (cmmpose.machine.CHANNELS).
+DEFAULT_CHANNELS = CHANNELS
 _KEYS = ("artefact", "maps", "metadata", "poses", "scans", "temperature_channels")
 
 
@@ -100,6 +107,34 @@ class Plan:
             missing = [c for c in SCANS_COLUMNS if c not in s]
             if missing:
                 raise AcquisitionError(f"plan: scans[{k}]: missing {missing[0]!r}")
+        seen: dict[int, int] = {}
+        for k, s in enumerate(self.scans):
+            if int(s["scan_id"]) in seen:
+                raise AcquisitionError(f"plan: scans[{k}]: scan_id {s['scan_id']} is also scans[{seen[int(s['scan_id'])]}]")
+            seen[int(s["scan_id"])] = k
+        self._check_artefact()
+
+    def _check_artefact(self) -> None:
+        """An artefact plan's scans against its artefact and placements."""
+        definition = self.artefact.get("definition")
+        if definition is None:
+            return
+        try:
+            art = artefacts.from_dict(definition, "plan: artefact.definition")
+        except InputError as exc:
+            raise AcquisitionError(str(exc)) from None
+        recorded = self.artefact.get("placements")
+        n = len(recorded) if isinstance(recorded, list) else 0
+        ids = set(art.ids.tolist())
+        for k, s in enumerate(self.scans):
+            if s["feature"] != "ball":
+                continue
+            if not 1 <= int(s["position"]) <= n:
+                raise AcquisitionError(f"plan: scans[{k}]: position {s['position']} is not one of the artefact's "
+                                       f"{n} placements (1..{n})")
+            if int(s["ball"]) not in ids:
+                raise AcquisitionError(f"plan: scans[{k}]: ball {s['ball']} is not a ball of {art.name} "
+                                       f"(balls {min(ids)}..{max(ids)})")
 
     @property
     def channels(self) -> list[tuple[str, int]]:
@@ -165,3 +200,68 @@ def plan_from_run(run: Run) -> Plan:
         temperature_channels=[{"name": ch["name"], "role": ch["role"], "channel": 101 + k}
                               for k, ch in enumerate(run.temperature_channels)],
     )
+
+
+def artefact_plan(artefact, placements, machine=None, *, speed: float = 35.0, bidirectional: bool = False,
+                  maps: dict | None = None, metadata: dict | None = None) -> Plan:
+    """The plan of an artefact run: every ball of every placement, the pose
+    that scans it and its sweep, as ``cmmpose.sim.artefact_runs`` scans it.
+
+    Parameters
+    ----------
+    artefact : cmmpose.artefacts.Artefact or str
+        The artefact (or a file or bundled example name).
+    placements : sequence of str or cmmpose.placement.Placement
+        Where it sits (shorthands or layout names; docs/artefacts.md).
+    machine : cmmpose.machine.Machine, optional
+        Travel, pose, mount offset and scanner; default the thesis machine.
+    speed : float
+        Sweep speed, mm/s (balls too small for PROFILES_PER_BALL profiles
+        at this speed are swept more slowly).
+    bidirectional : bool
+        Alternate the sweep direction from ball to ball.
+    maps : dict, optional
+        run.json's ``maps``; default what the machine's ``maps_record``
+        says (its bundled maps, so that the recorded run evaluates with them).
+    metadata : dict, optional
+        Copied into run.json.
+
+    Returns
+    -------
+    Plan
+
+    Raises
+    ------
+    InputError
+        A placement out of reach (naming the ball and the axis), bad speed.
+    """
+    from ..machine import Machine
+
+    machine = Machine.thesis() if machine is None else machine
+    if isinstance(artefact, str):
+        artefact = artefacts.load_artefact(artefact)
+    if not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
+        raise InputError(f"speed: must be > 0 mm/s, got {speed!r}")
+    if not placements:
+        raise InputError("placements: none given")
+    parsed = []
+    for p in placements:
+        parsed += placement.parse(p, machine.travel) if isinstance(p, str) else [p]
+    resolved, balls = placement.plan(parsed, artefact, machine)
+    offset = tuple(float(x) for x in machine.offset)
+    pose_ids: dict[tuple, int] = {}
+    scans = []
+    v = placement.ball_speed(speed, artefact.nominal_radius, machine.scanner.profile_rate)
+    for scan_id, b in enumerate(balls):
+        pid = pose_ids.setdefault(b.pose, len(pose_ids))
+        direction = -1 if bidirectional and scan_id % 2 else 1
+        sw = placement.sweep_of(b.centre, b.pose, offset, artefact.calibrated_radius, direction)
+        scans.append({"scan_id": scan_id, "pose_id": pid, "feature": "ball", "position": b.position, "ball": b.ball,
+                      "sweep_axis": sw.axis, "sweep_direction": direction, "sweep_speed": v,
+                      "sweep_start_mm": [round(x, 4) for x in sw.start], "sweep_length_mm": round(sw.length, 4)})
+    poses = [{"pose_id": i, "alpha": p[0], "beta": p[1], "gamma": p[2], "U1": offset[0], "V1": offset[1],
+              "W1": offset[2]} for p, i in pose_ids.items()]
+    return Plan(artefact=placement.run_record(artefact, resolved),
+                maps=machine.maps_record() if maps is None else dict(maps),
+                metadata={"plan_from": "artefact", "machine": machine.name, **(metadata or {})},
+                poses=poses, scans=scans)

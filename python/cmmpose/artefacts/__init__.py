@@ -19,7 +19,7 @@ import numpy as np
 from .._registry import discover
 from ..errormap import data_path
 from .._validate import parse_toml, vector3
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ._base import Artefact, ArtefactKind
 
 __all__ = ["Artefact", "ArtefactKind", "available", "get", "example_names", "example_text", "load_artefact",
@@ -94,7 +94,7 @@ def load_artefact(path) -> Artefact:
 def from_dict(doc: dict, where: str = "run.json: artefact.definition") -> Artefact:
     """The artefact of :meth:`Artefact.to_dict` (as embedded in a run)."""
     if not isinstance(doc, dict):
-        raise InputError(f"{where}: expected an artefact table, got {type(doc).__name__}")
+        raise InputTypeError(f"{where}: expected an artefact table, got {type(doc).__name__}")
     return parse_artefact(doc, where)
 
 

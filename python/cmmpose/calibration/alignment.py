@@ -32,7 +32,7 @@ from .. import _core
 from .._arrays import as_rows, as_triple
 from ..compensation import compensate, uncompensated
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import CalibrationError, GeometryError, InputError
+from ..errors import CalibrationError, GeometryError, InputError, InputTypeError
 from ..fitting import PlaneFit, SphereFit, fit_plane, fit_sphere
 from ..pose import MountOffset, Pose, pose_tuple
 
@@ -92,7 +92,7 @@ def _check_map(error_map, temperature):
             raise InputError("temperature: only meaningful with an error_map")
         return
     if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
-        raise InputError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
+        raise InputTypeError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
     if isinstance(error_map, ErrorMapSet) and temperature is None:
         raise InputError("temperature: an ErrorMapSet needs the machine temperature (C), one value or one per point")
 
@@ -984,7 +984,7 @@ def _as_alignments(alignments) -> list[ReferenceReading]:
         raise InputError("alignments: expected a sequence of ReferenceReading") from None
     for k, a in enumerate(items):
         if not isinstance(a, ReferenceReading):
-            raise InputError(f"alignments[{k}]: expected a ReferenceReading, got {type(a).__name__} "
+            raise InputTypeError(f"alignments[{k}]: expected a ReferenceReading, got {type(a).__name__} "
                              "(use ReferenceReading.from_reading for readings measured elsewhere)")
     return items
 

@@ -41,8 +41,9 @@ from pathlib import Path
 import numpy as np
 
 from ..atomicfile import save_figure, write_text
+from ..plots import new_figure
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
-from ..errors import InputError, MapError, read_lines
+from ..errors import InputError, InputTypeError, MapError, read_lines
 from .._validate import finite, nonnegative, positive, triple
 
 __all__ = [
@@ -794,7 +795,7 @@ def read_run(path: str | PathLike) -> InterferometerRun:
 def write_run(run: InterferometerRun, path: str | PathLike) -> None:
     """Write ``run`` as a run file at ``path`` (floats as their shortest exact text)."""
     if not isinstance(run, InterferometerRun):
-        raise InputError(f"run: expected an InterferometerRun, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected an InterferometerRun, got {type(run).__name__}")
     lines = [f"# {MAGIC}: {VERSION}", f"# axis: {run.axis}", f"# optics: {run.optics}"]
     if run.error_axis is not None:
         lines.append(f"# error_axis: {run.error_axis}")
@@ -989,7 +990,7 @@ def positional_deviations(run: InterferometerRun, *, air_correction: bool = True
         um, in the run's row order.
     """
     if not isinstance(run, InterferometerRun):
-        raise InputError(f"run: expected an InterferometerRun, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected an InterferometerRun, got {type(run).__name__}")
     label = run.source or run.name
     if run.optics != "linear":
         raise InputError(f"{label}: positional deviations need linear optics; this run is {run.optics} ({run.name})")
@@ -1075,7 +1076,7 @@ def process_run(
         section 3.3 constants are for 633 nm).
     """
     if not isinstance(run, InterferometerRun):
-        raise InputError(f"run: expected an InterferometerRun, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected an InterferometerRun, got {type(run).__name__}")
     if material not in _MATERIAL:
         raise InputError(f"material: expected 'keep' or 'normalise', got {material!r}")
     if straightness_line not in _LINES:
@@ -1242,7 +1243,7 @@ def build_map(
         elif isinstance(r, ProcessedRun):
             processed.append(r)
         else:
-            raise InputError(f"runs[{i}]: expected an InterferometerRun or ProcessedRun, got {type(r).__name__}")
+            raise InputTypeError(f"runs[{i}]: expected an InterferometerRun or ProcessedRun, got {type(r).__name__}")
     sq = triple("squareness", squareness, unit="arc-seconds")
     by_key: dict[tuple[str, str], ProcessedRun] = {}
     for p in processed:
@@ -1381,7 +1382,7 @@ def compare_maps(a: ErrorMap, b: ErrorMap) -> MapComparison:
     """
     for name, m in (("a", a), ("b", b)):
         if not isinstance(m, ErrorMap):
-            raise InputError(f"{name}: expected an ErrorMap, got {type(m).__name__}")
+            raise InputTypeError(f"{name}: expected an ErrorMap, got {type(m).__name__}")
     positions, diffs, maxima = {}, {}, {}
     for c in CARRIAGES:
         ta, tb = a.table(c), b.table(c)
@@ -1398,17 +1399,6 @@ def compare_maps(a: ErrorMap, b: ErrorMap) -> MapComparison:
     sq = tuple(float(x - y) for x, y in zip(a.squareness, b.squareness))
     dt = None if a.temperature is None or b.temperature is None else float(a.temperature - b.temperature)
     return MapComparison(positions, diffs, maxima, sq, dt)  # type: ignore[arg-type]
-
-
-def _figure(**kw):
-    try:
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-    except ImportError:
-        raise InputError("plots need matplotlib: pip install cmmpose[plot]") from None
-    fig = Figure(**kw)
-    FigureCanvasAgg(fig)
-    return fig
 
 
 def plot_map_difference(a: ErrorMap, b: ErrorMap, path: str | PathLike | None = None, *,
@@ -1436,7 +1426,7 @@ def plot_map_difference(a: ErrorMap, b: ErrorMap, path: str | PathLike | None = 
         3 x 2 axes.
     """
     cmp = compare_maps(a, b)
-    fig = _figure(figsize=(12.0, 9.0), layout="constrained")
+    fig = new_figure(figsize=(12.0, 9.0), layout="constrained")
     axes = fig.subplots(3, 2, squeeze=False)
     colour = {"x": "C0", "y": "C1", "z": "C2"}
     um = "\u00b5m"
@@ -1465,6 +1455,6 @@ def plot_map_difference(a: ErrorMap, b: ErrorMap, path: str | PathLike | None = 
     fig.suptitle(text if title is None else f"{title}\n{text}")
     if path is not None:
         if not isinstance(path, (str, PathLike)):
-            raise InputError(f"path: expected a file path or None, got {type(path).__name__}")
+            raise InputTypeError(f"path: expected a file path or None, got {type(path).__name__}")
         save_figure(fig, path, dpi=150)
     return fig

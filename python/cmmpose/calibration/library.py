@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomicfile import ensure_folder, write_text
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..pose import MountOffset, Pose, pose_tuple
 from ..errors import CalibrationError
 from .._validate import triple
@@ -292,7 +292,7 @@ class AlignmentRecord:
         else:
             p, pc = pose_tuple(pose), None
         if not isinstance(reading, ReferenceReading):
-            raise InputError(f"reading: expected a ReferenceReading, got {type(reading).__name__}")
+            raise InputTypeError(f"reading: expected a ReferenceReading, got {type(reading).__name__}")
         if pc is None and np.any(reading.pose_covariance != 0):
             pc = reading.pose_covariance
         if isinstance(offset, MountOffsetFit):
@@ -432,7 +432,7 @@ class AlignmentLibrary:
         if not isinstance(name, str) or not name.strip():
             raise InputError(f"name: expected a non-empty pose name, got {name!r}")
         if not isinstance(record, AlignmentRecord):
-            raise InputError(f"record: expected an AlignmentRecord, got {type(record).__name__}")
+            raise InputTypeError(f"record: expected an AlignmentRecord, got {type(record).__name__}")
         poses = self._read()
         if name in poses and not overwrite:
             raise CalibrationError(

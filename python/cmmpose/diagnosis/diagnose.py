@@ -13,10 +13,10 @@ import numpy as np
 
 from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputError
+from ..errors import InputTypeError
 from ..fitting import fit_spheres
 from ..run import Run
-from .identify import (ALPHA, Candidate, Problem, _value_text, check_effect_names, fit_model, model_uncertainties,
+from .identify import (ALPHA, Candidate, Problem, value_text, check_effect_names, fit_model, model_uncertainties,
                        rank_candidates)
 from .effects import EffectSpec, effect_spec, run_library
 from .model import Model
@@ -55,6 +55,11 @@ class Step:
     figures: ModelFigures
     ranking: list[Candidate]
     forced: bool = False
+    #: The model's residual observables (mm), for the cross-validation; not saved.
+    residual: np.ndarray | None = field(default=None, repr=False)
+    #: Cross-validated figures of this model (:class:`cmmpose.diagnosis.cv.CVScore` ``to_dict``):
+    #: ``cv_rms_um`` ± ``cv_rms_u_um`` beside ``in_sample_rms_um``, and the split.
+    cv: dict | None = None
 
     @property
     def effect(self) -> str:
@@ -70,7 +75,7 @@ class Step:
 
     def to_dict(self) -> dict:
         return {"label": self.label, "forced": self.forced, "replaces": self.replaces or None,
-                **self.figures.to_dict(),
+                **self.figures.to_dict(), "cross_validation": self.cv,
                 "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
                              "units": dict(zip(s.params, s.units))} for s, v in self.model.effects],
                 "ranking": [c.to_dict() for c in self.ranking]}
@@ -113,6 +118,18 @@ class Diagnosis:
     final_uncertainty: dict = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     unexplained: list = field(default_factory=list)
+    #: How the run's temperatures were read (cmmpose.temperature.log_provenance), None if given.
+    thermal: dict | None = None
+    #: When the starting model holds effects (``diagnose RUN --model m.json``):
+    #: whether it holds on this run, which it may never have seen, against
+    #: the plain maps (:func:`cmmpose.diagnosis.cv.verify`).
+    verification: dict | None = None
+    #: The noise floor of the headline figure and whether the final model
+    #: reaches it (:func:`cmmpose.diagnosis.floor.noise_floor`).
+    noise: dict | None = None
+    #: Errors varying with two axes at once that the final model leaves
+    #: (:func:`cmmpose.diagnosis.floor.two_axis_findings`): unexplained.
+    two_axis: list = field(default_factory=list)
 
     def decisions(self) -> list[dict]:
         """The decision on every candidate, with its reason, in one list:
@@ -144,7 +161,7 @@ class Diagnosis:
             vals = final.values(name)
             unc = np.asarray(self.final_uncertainty.get(name, np.full(spec.size, np.inf)), dtype=float)
             when = next((c for c in self.steps[self.steps.index(s) - 1].ranking if c.name == name), None)
-            why = ", ".join(_value_text(p, v, u, unit) for p, v, u, unit in zip(spec.params, vals, unc, spec.units))
+            why = ", ".join(value_text(p, v, u, unit) for p, v, u, unit in zip(spec.params, vals, unc, spec.units))
             if s.replaces and when is not None:
                 why += f" (final model); in place of {s.replaces}: {when.reason().split('; ')[0]}"
             elif when is not None and not s.forced:
@@ -179,8 +196,13 @@ class Diagnosis:
 
     @property
     def model(self) -> Model:
-        """The final model."""
-        return self.steps[-1].model
+        """The final model, holding its parameters' uncertainties (saved with it)."""
+        final = self.steps[-1].model
+        if self.final_uncertainty and not final.uncertainty:  # this model's own figures, attached once
+            object.__setattr__(final, "uncertainty", {k: np.array(v, float) for k, v in self.final_uncertainty.items()})
+        if self.thermal and not final.thermal:  # how the run's temperatures were read, saved with the model
+            object.__setattr__(final, "thermal", self.thermal)
+        return final
 
     @property
     def added(self) -> list[str]:
@@ -206,7 +228,9 @@ class Diagnosis:
         return {"steps": [s.to_dict() for s in self.steps], "decisions": decisions,
                 "significance": {"family_wise_alpha": ALPHA, "per_candidate_threshold": threshold},
                 "unexplained": [f.to_dict() for f in self.unexplained],
-                "unobservable": self.unobservable,
+                "unobservable": self.unobservable, "verification": self.verification,
+                "noise_floor": self.noise, "two_axis": self.two_axis,
+                "cross_validation": self.steps[-1].cv,
                 "ambiguous": [list(a) for a in self.ambiguous], "advice": self.advice,
                 "elapsed_s": self.elapsed, "n_points": self.n_points,
                 "patterns": None if self.patterns is None else self.patterns.to_dict(),
@@ -229,6 +253,8 @@ class Diagnosis:
                 "run thermocouple log: machine mean of the axis-scale channels (thesis 6.4)",
                 "policy": {"out_of_range": m.out_of_range, "temperature_tolerance_K": m.temperature_tolerance,
                            "log_hold_s": m.log_hold},
+                "temperature_policy": m.policy.to_dict(),
+                "temperature_log": self.thermal,
                 "base_effects": list(m.names)}
 
     def to_json(self, **kw) -> str:
@@ -248,7 +274,7 @@ class Diagnosis:
             t.add_column(col, justify="left" if col in ("effect", "fitted value ± u", "decision") else "right",
                          min_width=width, max_width=26 if col == "fitted value ± u" else None)
         for c in s.ranking:
-            vals = ", ".join(_value_text(p, v, u, unit) for p, v, u, unit in zip(c.spec.params, c.values, c.uncertainty,
+            vals = ", ".join(value_text(p, v, u, unit) for p, v, u, unit in zip(c.spec.params, c.values, c.uncertainty,
                                                                               c.spec.units))
             decision = c.decision
             if c.significant and c is s.ranking[0]:
@@ -269,18 +295,27 @@ class Diagnosis:
         plate = self.steps[0].figures.deviation_rms is not None
         first = (("rms deviation (um)", "rms_deviation_um"), ("largest deviation (um)", "largest_deviation_um")) \
             if plate else (("rms accuracy error (um)", "rms_accuracy_error_um"), ("B89 (um)", "b89_um"))
-        for col in ("model", first[0][0], first[1][0], "sphere form (um)", "fit rms (um)", "centre spread (um)",
-                    "effect values"):
-            t.add_column(col, justify="left" if col in ("model", "effect values") else "right")
+        for col in ("model", first[0][0], "CV rms (um)", first[1][0], "sphere form (um)", "fit rms (um)",
+                    "centre spread (um)", "effect values"):
+            # The headline's name whole (tests and readers look for it); the others may wrap.
+            t.add_column(col, justify="left" if col in ("model", "effect values") else "right",
+                         min_width=len(col) if col == first[0][0] else None)
         for s in self.steps:
             f = s.figures.to_dict()
             eff = "; ".join(f"{sp.name}: {sp.describe(v)}" for sp, v in s.model.effects[-1:]) if s.model.effects \
                 and s.label != "base" else ""
-            t.add_row(s.label + (" (forced)" if s.forced else ""), *(_um_text(f[k]) for _, k in first),
+            cv = s.cv or {}
+            cv_text = "-" if cv.get("cv_rms_um") is None else \
+                f"{cv['cv_rms_um']:.2f}±{cv['cv_rms_u_um']:.2f}" if cv.get("cv_rms_u_um") is not None else \
+                f"{cv['cv_rms_um']:.2f}"
+            t.add_row(s.label + (" (forced)" if s.forced else ""), _um_text(f[first[0][1]]), cv_text,
+                      _um_text(f[first[1][1]]),
                       f"{f['form_um']:.1f}", f"{f['fit_rms_um']:.2f}", _um_text(f["centre_spread_um"]), eff)
         return t
 
     def __rich_console__(self, console, options):
+        if self.verification is not None:
+            yield f"[bold]Verification of the given model:[/] {self.verification['verdict']}"
         yield self.history_table()
         yield self.table(0)
         if len(self.steps) > 1:
@@ -292,6 +327,10 @@ class Diagnosis:
             yield "[bold]Structure the final model does not explain[/] (diagnose --user-effect-skeleton FILE drafts an effect):"
             for f in self.unexplained:
                 yield f"  {f.input}: {f.description} (p {f.p_value:.1e})"
+        if self.noise is not None:
+            yield f"[bold]Noise floor:[/] {self.noise['verdict']}"
+        for f in self.two_axis:
+            yield f"[bold]Unexplained:[/] {f['description']} (p {f['p_value']:.1e})"
         if self.unobservable:
             yield "[bold]Not observable in this run[/] (what would reveal each):"
             for name, why in self.unobservable.items():
@@ -343,7 +382,7 @@ def as_model(model) -> Model:
     if isinstance(model, (ErrorMap, ErrorMapSet)):
         return Model(model)
     if not isinstance(model, Model):
-        raise InputError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
+        raise InputTypeError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
     return model
 
 
@@ -361,6 +400,9 @@ def diagnose(
     out_of_range: str | None = None,
     temperature_tolerance: float | None = None,
     log_hold: float | None = None,
+    map_corrections: bool = True,
+    reproducibility_um: float | None = None,
+    temperature_policy=None,
 ) -> Diagnosis:
     """Find which physical effects the model misses on ``run``, add them, and
     keep the history of the error falling.
@@ -400,6 +442,21 @@ def diagnose(
     log_hold : float, optional
         s: points this far outside the thermocouple log take its nearest
         reading; default the model's (120 s for a new one).
+    map_corrections : bool
+        Also offer corrections of the map's translational components by
+        smooth functions of their axis's position (polynomials, local
+        splines, sinusoids over the whole period range;
+        :mod:`cmmpose.diagnosis.mapfamily`), judged after the library's
+        named effects (not when ``candidates`` restricts the list).
+    reproducibility_um : float, optional
+        um per axis: the per-scan centre reproducibility, for the noise
+        floor of a run that repeats no scan (one that does measures it;
+        :mod:`cmmpose.diagnosis.floor`).
+    temperature_policy : TemperaturePolicy, optional
+        The whole temperature policy (cmmpose.temperature: also gaps, broken
+        channels, which sensor each role reads); the three keywords above
+        override its fields. None: the model's (``TemperaturePolicy()`` for
+        one made from maps), the same default as every other function.
 
     Returns
     -------
@@ -409,10 +466,14 @@ def diagnose(
 
     t0 = time.perf_counter()
     if not isinstance(run, Run):
-        raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     model = as_model(model)
     policy = {k: v for k, v in (("out_of_range", out_of_range), ("temperature_tolerance", temperature_tolerance),
                                 ("log_hold", log_hold)) if v is not None}
+    if temperature_policy is not None:  # the whole policy, then the keywords given
+        model = replace(model, temperature_policy=temperature_policy, out_of_range=temperature_policy.out_of_range,
+                        temperature_tolerance=temperature_policy.temperature_tolerance,
+                        log_hold=temperature_policy.log_hold, _inputs_cache={})
     if policy:
         model = replace(model, **policy, _inputs_cache={})
     cand = None
@@ -426,6 +487,8 @@ def diagnose(
                 cand[spec.name] = spec
     problem = Problem(model, run, cand,
                       extra=user_specs([a for a in add if not isinstance(a, str)] + list(user_effects)))
+    if map_corrections and candidates is None:  # a restricted list of candidates is the whole list
+        add_map_candidates(problem, model)
     add_names = [a if isinstance(a, str) else a.name for a in add]
     check_effect_names(add_names, problem)
     steps, model = select_effects(problem, model, add_names, auto, max_effects,
@@ -446,11 +509,20 @@ def diagnose(
         model = fit_model(model, run, iterations=2, problem=fine, only=shaping)
         last = steps[-1]
         steps[-1] = _step(last.label, model, problem, forced=last.forced)
+        from .cv import cv_groups, step_cv
+
+        folds, items, split = cv_groups(problem)
+        step_cv(problem, steps[-1], (folds, items), split)
         uncertainty_problem = fine
-    unobservable, advice, ambiguous = _unobservable(problem, steps)
+    unobservable, advice, ambiguous = unobservable_candidates(problem, steps)
     diag = Diagnosis(steps, unobservable, ambiguous, n_points=run.n_points, advice=advice,
                      final_uncertainty=model_uncertainties(uncertainty_problem, model),
-                     skipped=dict(problem.skipped))
+                     skipped=dict(problem.skipped), thermal=problem.inputs.thermal)
+    attach_floor(diag, problem, steps[-1], reproducibility_um)
+    if steps[0].model.effects:  # a found model on a run: does it hold here?
+        from .cv import verify
+
+        diag.verification = verify(steps[0].model, run)
     if patterns:
         try:
             from .patterns import find_patterns
@@ -473,6 +545,54 @@ def diagnose(
     return diag
 
 
+def _two_axis_first(problem, step, candidate) -> bool:
+    """Whether an error varying with two axes at once explains the structure
+    better than the map correction ``candidate`` (a smaller p-value): then the
+    candidate is refused, with the reason on it (``candidate.cv``)."""
+    from .floor import explained_beyond, two_axis_findings
+
+    found = getattr(step, "_two_axis", None)
+    if found is None:
+        found = step._two_axis = two_axis_findings(problem, step)
+    if not found:
+        return False
+    f = found[0]
+    beyond = min(1.0, explained_beyond(problem, step, f, problem.columns[candidate.name])
+                 * getattr(candidate.spec, "trials", 1))
+    if beyond < candidate.threshold:  # it explains more than the two-axis error does
+        return False
+    candidate.cv = {"passes": False, "why": (f"is refused: {f['description']}, explains the structure "
+                                             f"(p = {f['p_value']:.2g}); beyond it this correction has p = "
+                                             f"{beyond:.2g}")}
+    return True
+
+
+def attach_floor(diag, problem, step, reproducibility_um=None) -> None:
+    """Set ``diag.noise`` and ``diag.two_axis`` from ``step``'s model; then
+    let the steps drop their working arrays (residuals, the cross-validation's
+    designs), which a diagnosis sent between processes need not carry."""
+    from .floor import noise_floor, two_axis_findings
+
+    diag.noise = noise_floor(problem, step, reproducibility_um)
+    diag.two_axis = [{k: v for k, v in f.items() if not k.startswith("_")} for f in two_axis_findings(problem, step)]
+    for s in diag.steps:
+        s.residual = None
+        for k in ("_cv_state", "_cv_by_run", "_two_axis"):
+            s.__dict__.pop(k, None)
+
+
+def add_map_candidates(problem, model) -> None:
+    """Offer ``problem`` the map corrections (:func:`mapfamily.map_candidates`)
+    with their centre-level sensitivities."""
+    from .mapfamily import map_candidates
+
+    for name, spec in map_candidates(problem, model).items():
+        if name in problem.candidates:
+            continue
+        problem.candidates[name] = spec
+        problem.columns[name] = problem._columns(problem.base, spec, np.zeros(spec.size), problem.base_obs)
+
+
 def _subset(run: Run, keep: np.ndarray) -> Run:
     pts = {k: v[keep] for k, v in run.points.items()}
     return Run(pts, dict(run.scans), dict(run.poses), run.temperatures, run.temperature_channels, run.artefact,
@@ -483,7 +603,7 @@ def user_specs(user_effects) -> tuple[EffectSpec, ...]:
     """``user_effects`` checked: extra candidates for a :class:`Problem`."""
     for u in user_effects:
         if not isinstance(u, EffectSpec):
-            raise InputError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
+            raise InputTypeError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
     return tuple(user_effects)
 
 
@@ -492,11 +612,25 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
     significant or not), then the most significant candidate while one is
     left, refitting after each; ``step(label, model, forced)`` makes each
     step of the history. Returns the steps and the final model."""
+    from .cv import cv_groups, judge_candidate
+    from .cv import step_cv as _step_cv
+
+    # Cross-validation needs the problem's observables (a scripted problem has none: selection by significance).
+    cross_validate = hasattr(problem, "classes")
+    folds, items, split = cv_groups(problem) if cross_validate else (None, None, "")
+    groups = (folds, items)
+
+    def step_cv(problem, step, groups, split):
+        if cross_validate:
+            _step_cv(problem, step, groups, split)
+
     steps = [step("base", model, False)]
+    step_cv(problem, steps[-1], groups, split)
     for name in add_names:
         spec = problem.candidates[name]
         model = fit_model(model.with_values(spec, np.zeros(spec.size)), None, problem=problem)
         steps.append(step(f"+ {name}", model, True))
+        step_cv(problem, steps[-1], groups, split)
     added = 0
     swapped: set[str] = set()
     while auto:
@@ -511,12 +645,27 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
             swapped.add(c.alternative_to)
             model = fit_model(model.without(c.alternative_to).with_values(c.spec, c.values), None, problem=problem)
             steps.append(step(f"+ {c.name}{_INSTEAD}{c.alternative_to})", model, False))
+            step_cv(problem, steps[-1], groups, split)
             continue
-        best = steps[-1].ranking[0] if steps[-1].ranking else None
-        if added >= max_effects or best is None or not best.significant:
+        if added >= max_effects:
+            break
+        # The most significant candidate that also predicts held-out data
+        # better (cmmpose.diagnosis.cv): a step that raises the
+        # cross-validated error is never added.
+        best = None
+        for c in steps[-1].ranking:
+            if not c.significant or c.alternative_to:
+                break
+            if cross_validate and getattr(c.spec, "family", None) == "map" and _two_axis_first(problem, steps[-1], c):
+                continue  # an error of two axes at once: reported unexplained, not forced into one axis
+            if not cross_validate or judge_candidate(problem, steps[-1], c, groups, split):
+                best = c
+                break
+        if best is None:
             break
         model = fit_model(model.with_values(best.spec, best.values), None, problem=problem)
         steps.append(step(f"+ {best.name}", model, False))
+        step_cv(problem, steps[-1], groups, split)
         added += 1
     return steps, model
 
@@ -525,22 +674,22 @@ def _step(label: str, model: Model, problem: Problem, forced: bool = False, obs=
     if obs is None:
         obs = problem.base_obs if model is problem.base else problem.observe(model)
     figs = figures(problem.layout, None, model, observed=obs)
-    return Step(label, model, figs, rank_candidates(problem, model, obs), forced)
+    return Step(label, model, figs, rank_candidates(problem, model, obs), forced, residual=obs.residual)
 
 
-def _unobservable(problem: Problem, steps: list[Step]):
+def unobservable_candidates(problem: Problem, steps: list[Step]):
     """Candidates the run cannot show (from the base ranking), and groups
     that it cannot tell apart, each with the measurement that would help."""
     out = dict(problem.skipped)
     advice = {}
     for c in steps[0].ranking:
         advice[c.name] = c.spec.reveal
-        if c.name in [s.effect for s in steps[1:]]:
-            continue
+        if c.name in [s.effect for s in steps[1:]] or getattr(c.spec, "family", None) == "map":
+            continue  # map corrections: cmmpose.diagnosis.mapfamily.component_report says what the run determines
         # "Not observable" only where the design cannot determine the effect;
         # a determined but weak one is "not significant" (Candidate.reason says how weak).
         if not c.observable:
-            out[c.name] = c.reason().replace("; needs: ", "; ")
+            out[c.name] = _agrees_with_run(c.reason().replace("; needs: ", "; "), c.spec.reveal, problem)
     ambiguous = []
     for s in steps:
         for c in s.ranking[:1]:
@@ -550,3 +699,32 @@ def _unobservable(problem: Problem, steps: list[Step]):
                     ambiguous.append(group)
                     advice[group[0]] = "; ".join(f"{n}: {problem.candidates[n].reveal}" for n in group)
     return out, advice, ambiguous
+
+
+def _run_has(problem) -> dict[str, bool]:
+    """Which revealing measurements the run (every run of a joint problem) already holds."""
+    parts = getattr(problem, "parts", None) or [problem]
+    has = {"calibrated bar length": all(getattr(p.layout, "calibrated_length", None) is not None for p in parts),
+           "calibrated sphere radius": all(getattr(p.layout, "calibrated_radius", None) is not None for p in parts)}
+    try:
+        has["both directions"] = all(len(np.unique(np.sign(p.run.scans["sweep_direction"]))) > 1 for p in parts)
+        has["two or more poses"] = all(len(p.inputs.pose_ids) > 1 for p in parts)
+    except (AttributeError, KeyError):
+        pass
+    return has
+
+
+def _agrees_with_run(reason: str, reveal: str, problem) -> str:
+    """``reason`` without advice to take a measurement the run already has:
+    then the run has it, and it still does not pin the effect (a typical
+    size stands too little above the noise, or other effects take it up)."""
+    try:
+        has = _run_has(problem)
+    except AttributeError:  # a scripted problem
+        return reason
+    held = [k for k, v in has.items() if v and k in reveal]
+    if not held:
+        return reason
+    head = reason.split("; ")[0]
+    return (f"{head}; the run has {', '.join(held)}, and still does not pin it at a typical size "
+            f"(larger or more varied positions, or a longer run, would)")

@@ -17,16 +17,18 @@ cannot.
 
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
 from .. import effects as effects_registry
 from ..effects import Effect
-from ..errors import InputError
+from ..errors import Error, InputError
 
-__all__ = ["EffectSpec", "UserEffect", "LIBRARY", "library", "run_library", "effect_spec", "resolve", "USER_INPUTS"]
+__all__ = ["EffectSpec", "UserEffect", "load_user_effect", "LIBRARY", "library", "run_library", "effect_spec", "resolve", "USER_INPUTS"]
 
 
 @dataclass(frozen=True)
@@ -212,6 +214,10 @@ def run_library(inputs) -> dict[str, EffectSpec]:
 def resolve(name: str) -> EffectSpec:
     """The spec of a library name, variants included: 'alignment@3' (pose 3)
     or 'squareness-temperature@z_scale' (following the z-scale thermocouples)."""
+    if isinstance(name, str) and name.startswith("map:"):  # a map correction (cmmpose.diagnosis.mapfamily)
+        from .mapfamily import parse
+
+        return parse(name)
     base, at, suffix = name.partition("@")
     if at and base in LIBRARY:
         try:
@@ -233,3 +239,29 @@ def effect_spec(name, candidates: dict[str, EffectSpec] | None = None) -> Effect
     if name not in candidates:
         raise InputError(f"effect {name!r}: unknown; available: {', '.join(sorted(candidates))}")
     return candidates[name]
+
+
+def load_user_effect(path) -> UserEffect:
+    """The ``EFFECT`` a user-effect file defines (docs/user-effects.md). The
+    file is the user's own code and runs as such; an exception it raises
+    becomes an ``InputError`` naming the file (a cmmpose error passes as is).
+
+    Parameters
+    ----------
+    path : str or Path
+        A Python file that sets ``EFFECT = UserEffect.create(...)``.
+    """
+    spec = importlib.util.spec_from_file_location(f"cmmpose_user_effect_{Path(path).stem}", path)
+    if spec is None or spec.loader is None:
+        raise InputError(f"{path}: not a Python file")
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Error:
+        raise
+    except Exception as exc:  # the user's file: say where it failed
+        raise InputError(f"{path}: the user effect file failed to run: {type(exc).__name__}: {exc}") from None
+    effect = getattr(module, "EFFECT", None)
+    if not isinstance(effect, UserEffect):
+        raise InputError(f"{path}: must define EFFECT = UserEffect.create(...) (see docs/user-effects.md)")
+    return effect

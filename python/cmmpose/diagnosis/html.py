@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomicfile import ensure_folder, write_text
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 
 __all__ = ["write_html_report", "render_html_report", "figure_png"]
 
@@ -71,7 +71,7 @@ def figure_png(fig) -> bytes:
     except ImportError:
         raise InputError("HTML figures need matplotlib: pip install cmmpose[plot]") from None
     if not isinstance(fig, Figure):
-        raise InputError(f"figures: expected matplotlib Figures, got {type(fig).__name__}")
+        raise InputTypeError(f"figures: expected matplotlib Figures, got {type(fig).__name__}")
     if fig.canvas is None or not hasattr(fig.canvas, "print_png"):
         FigureCanvasAgg(fig)
     buf = io.BytesIO()
@@ -97,11 +97,11 @@ def _cell(value) -> tuple[str, bool]:
 
 def _table_html(rows, where: str) -> str:
     if isinstance(rows, (str, bytes, Mapping)) or not isinstance(rows, Sequence):
-        raise InputError(f"{where}: expected a list of dicts (one per row), got {type(rows).__name__}")
+        raise InputTypeError(f"{where}: expected a list of dicts (one per row), got {type(rows).__name__}")
     columns: list[str] = []
     for i, row in enumerate(rows):
         if not isinstance(row, Mapping):
-            raise InputError(f"{where}[{i}]: expected a dict of column -> value, got {type(row).__name__}")
+            raise InputTypeError(f"{where}[{i}]: expected a dict of column -> value, got {type(row).__name__}")
         for k in row:
             if str(k) not in columns:
                 columns.append(str(k))
@@ -121,7 +121,7 @@ def _table_html(rows, where: str) -> str:
 
 def _text_html(text, where: str) -> str:
     if not isinstance(text, str):
-        raise InputError(f"{where}: expected plain text (str), got {type(text).__name__}")
+        raise InputTypeError(f"{where}: expected plain text (str), got {type(text).__name__}")
     paragraphs = [p.strip() for p in text.replace("\r\n", "\n").split("\n\n") if p.strip()]
     return "\n".join("<p>" + html.escape(p).replace("\n", "<br>\n") + "</p>" for p in paragraphs)
 
@@ -144,7 +144,7 @@ def _section_html(i: int, section) -> str:
     figures = section.get("figures")
     if figures is not None:
         if isinstance(figures, (str, bytes)) or not isinstance(figures, Sequence):
-            raise InputError(f"{where}['figures']: expected a list of matplotlib Figures, got {type(figures).__name__}")
+            raise InputTypeError(f"{where}['figures']: expected a list of matplotlib Figures, got {type(figures).__name__}")
         for j, fig in enumerate(figures):
             try:
                 png = figure_png(fig)
@@ -175,7 +175,7 @@ def render_html_report(title: str, sections) -> str:
     if not isinstance(title, str) or not title.strip():
         raise InputError(f"title: expected a non-empty string, got {title!r}")
     if isinstance(sections, (str, bytes, Mapping)) or not isinstance(sections, Sequence):
-        raise InputError(f"sections: expected a list of dicts, got {type(sections).__name__}")
+        raise InputTypeError(f"sections: expected a list of dicts, got {type(sections).__name__}")
     body = "\n".join(_section_html(i, s) for i, s in enumerate(sections))
     try:
         from .. import __version__ as version
@@ -222,7 +222,7 @@ def write_html_report(path: str | PathLike, title: str, sections) -> Path:
         missing when there are figures.
     """
     if not isinstance(path, (str, PathLike)):
-        raise InputError(f"path: expected a file path, got {type(path).__name__}")
+        raise InputTypeError(f"path: expected a file path, got {type(path).__name__}")
     doc = render_html_report(title, sections)
     out = Path(path)
     ensure_folder(out.parent if str(out.parent) else ".")

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import Error, InputError
 from ..run import Run
+from .artefact import artefact_columns, linearised_columns
 from .effects import EffectSpec, run_library
 from .inputs import RunInputs
 from .observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, observe
@@ -62,7 +63,7 @@ _RSS_FLOOR = SIGMA_FLOOR ** 2
 PRIOR_WEIGHT = 0.3
 
 
-def _chi2_sf(x: float, k: int) -> float:
+def chi2_sf(x: float, k: int) -> float:
     """Upper tail of chi-square with k dof (scipy.special: no scipy.stats import)."""
     from scipy.special import chdtrc
 
@@ -159,9 +160,13 @@ class Problem:
         predicted length only), else finite differences of size ``spec.steps`` through the
         kernel and the sphere fits: forward, or backward where the forward
         step cannot be evaluated (it leaves the maps' range)."""
+        if getattr(spec, "family", None) == "map":  # map corrections: analytic, at the centre level
+            return spec.centre_columns(self, obs)
         if spec.kind == "length" and self.layout.artefact is None:
             ref = self.layout.calibrated_length or (float(np.mean(obs.lengths)) if len(obs.lengths) else 0.0)
             return self.layout.expansion_column(ref)[:, None] * np.asarray(spec.prior)
+        if self.layout.artefact is not None and linearised_columns(spec):  # a plate: linearised fits of a sample
+            return artefact_columns(self, model, spec, current, obs)
         cols = []
         for j in range(spec.size):
             for sign in (1.0, -1.0):
@@ -303,6 +308,17 @@ class Candidate:
     #: physics following another sensor): then ``lr`` is the likelihood
     #: ratio of the model holding this one instead (negative: worse).
     alternative_to: str = ""
+    #: Cross-validation against the current model (:mod:`cmmpose.diagnosis.cv`),
+    #: for the candidates the selection judged: ``cv_rms_um``, ``cv_rms_u_um``
+    #: and ``in_sample_rms_um`` with it added, the change (``gain_um``,
+    #: ``gain_u_um``, ``gain_whitened``, ``gain_whitened_u``), ``passes`` and ``why``.
+    cv: dict | None = None
+
+    @property
+    def rejected_out_of_sample(self) -> bool:
+        """Significant in sample, but it does not improve the prediction of
+        held-out data (the cross-validation rule): never added."""
+        return bool(self.cv is not None and not self.cv.get("passes", True))
 
     @property
     def aliases(self) -> list[str]:
@@ -343,6 +359,8 @@ class Candidate:
                 return "aliased"
             return "preferred" if self.lr > 0 else "not chosen"
         if self.significant:
+            if self.rejected_out_of_sample:
+                return "not significant out of sample"
             return "significant, aliased" if self.aliases else "significant"
         if not self.observable:
             return "not observable"
@@ -352,7 +370,7 @@ class Candidate:
 
     def reason(self) -> str:
         """Why the decision, in words with the numbers behind it."""
-        vals = ", ".join(_value_text(p, v, u, unit) for p, v, u, unit in
+        vals = ", ".join(value_text(p, v, u, unit) for p, v, u, unit in
                          zip(self.spec.params, self.values, self.uncertainty, self.spec.units))
         test = f"p = {self.p_value:.2g} against the threshold {self.threshold:.2g}"
         d = self.decision
@@ -370,6 +388,8 @@ class Candidate:
                         f"{math.sqrt(max(self.observability, 0.0)):.1f} sigma above the noise here; "
                         f"needs: {self.spec.reveal}")
             return f"the run does not determine it; needs: {self.spec.reveal}"
+        if d == "not significant out of sample":
+            return f"{vals}, {test} in sample, but it {self.cv['why']}"
         if d == "aliased":
             return f"same as {', '.join(self.aliases)} (already in the model); {vals}, {test}"
         if d.startswith("significant"):
@@ -395,10 +415,11 @@ class Candidate:
                 "observability": num(self.observability), "significant": self.significant,
                 "indistinguishable_from": list(self.indistinguishable_from), "reveal": self.spec.reveal,
                 "aliases": self.aliases, "decision": self.decision, "reason": self.reason(),
-                "threshold": num(self.threshold), "alternative_to": self.alternative_to or None}
+                "threshold": num(self.threshold), "alternative_to": self.alternative_to or None,
+                "cross_validation": self.cv}
 
 
-def _value_text(p, v, u, unit) -> str:
+def value_text(p, v, u, unit) -> str:
     """'xy = +8.1 ± 1.7 arc-second' (dimensionless values without a unit)."""
     unit = "" if unit in ("1", "") else f" {unit}"
     if not math.isfinite(u):
@@ -437,7 +458,10 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
                           target=np.r_[target0, np.zeros(J.shape[1])])
         dof = max(fit.rank - base.rank, 0)
         lr = max(base.neg2loglik - fit.neg2loglik, 0.0)
-        p = _chi2_sf(lr, dof) if dof else 1.0
+        p = chi2_sf(lr, dof) if dof else 1.0
+        # A candidate chosen by a search (a map correction's period or knot
+        # spacing) pays for its alternatives: Bonferroni over the search.
+        p = min(1.0, p * getattr(spec, "trials", 1))
         dbic = -lr + dof * math.log(max(n_total, 2.0))
         wb = 1.0 / base.sigma[problem.classes] ** 2
         before = float(np.sum(base.residual ** 2 * wb))
@@ -485,14 +509,19 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
         out.append(Candidate(name, spec, values, unc, lr, dof, p, dbic,
                              1 - after / before if before > 0 else 0.0,
                              1 - la / lb if lb > 0 else 0.0, corr, with_, cond, float(np.max(s2)) if k else 0.0))
-    threshold = ALPHA / max(len(todo) - len(alternatives), 1)
+    # The map corrections (cmmpose.diagnosis.mapfamily) are a family of
+    # their own, with their own Bonferroni threshold; the library's named
+    # effects rank before them (the better physics where they explain it).
+    n_map = sum(1 for c in out if getattr(c.spec, "family", None) == "map")
+    threshold = ALPHA / max(len(todo) - len(alternatives) - n_map, 1)
+    map_threshold = ALPHA / max(n_map, 1)
     for c in out:
-        c.significant = c.dof > 0 and c.p_value < threshold
-        c.threshold = threshold
+        c.threshold = map_threshold if getattr(c.spec, "family", None) == "map" else threshold
+        c.significant = c.dof > 0 and c.p_value < c.threshold
         c.model_effects = tuple(model.names)
     # Significant first; then by p-value, which weighs the likelihood gain
     # against the parameters spent on it.
-    out.sort(key=lambda c: (not c.significant, c.p_value, -c.lr))
+    out.sort(key=lambda c: (not c.significant, getattr(c.spec, "family", None) == "map", c.p_value, -c.lr))
     _flag_indistinguishable(problem, out, r0, X0, base, ridge0, target0)
     for c in alternatives:
         c.threshold = threshold

@@ -1,7 +1,10 @@
 """Per-point inputs of a run that the model kernel needs beyond (u, v) and
 the scale readings: the pose of each point, the machine mean temperature,
 each axis's scale temperature, the granite gradient, the scale velocity and
-the incidence angle. Built once per run, vectorised, read-only."""
+the incidence angle. Built once per run, vectorised, read-only. The
+temperatures come from :func:`cmmpose.temperature.run_sensor_temperatures`
+under the model's :class:`~cmmpose.temperature.TemperaturePolicy`, with
+their provenance (``RunInputs.thermal``)."""
 
 from __future__ import annotations
 
@@ -12,9 +15,9 @@ import numpy as np
 
 from .._core import euler313
 from ..effects import channel_roles
-from ..errors import InputError
-from ..policy import LOG_HOLD, check_log_coverage
+from ..errors import InputError, InputTypeError
 from ..run import Run
+from ..temperature import GRADIENT_WINDOW, TemperaturePolicy, as_policy, run_sensor_temperatures
 
 _log = logging.getLogger(__name__)
 
@@ -23,16 +26,6 @@ __all__ = ["RunInputs", "incidence_angles", "GRADIENT_WINDOW"]
 #: Per-point inputs handed to the kernel by name (rust/core/src/effects.rs).
 _NAMED = ("temperature", "axis_temperature", "gradient", "velocity", "incidence")
 
-#: Width of the running mean of the granite gradient, s.
-GRADIENT_WINDOW = 300.0
-
-
-def _running_mean(t: np.ndarray, y: np.ndarray, window: float) -> np.ndarray:
-    """Mean of y over [t - window/2, t + window/2] at every t (sorted t)."""
-    c = np.concatenate([[0.0], np.cumsum(y)])
-    lo = np.searchsorted(t, t - window / 2, side="left")
-    hi = np.searchsorted(t, t + window / 2, side="right")
-    return (c[hi] - c[lo]) / (hi - lo)
 
 
 @dataclass(frozen=True)
@@ -75,6 +68,11 @@ class RunInputs:
         of its channels minus the machine mean, averaged over
         ``GRADIENT_WINDOW``) at each point, C: what an effect that follows a
         sensor group the data choose reads.
+    thermal : dict or None
+        How the temperatures were read from the log (channels dropped and
+        why, points held and for how long, the channels each role read, the
+        policy: :func:`cmmpose.temperature.log_provenance`); None when a
+        temperature was given.
     """
 
     uv: np.ndarray
@@ -91,9 +89,11 @@ class RunInputs:
     incidence: np.ndarray | None = None
     role_temperatures: dict = field(default_factory=dict)
     sensors: dict = field(default_factory=dict)
+    thermal: dict | None = None
 
     @classmethod
-    def from_run(cls, run: Run, temperature: float | None = None, *, log_hold: float = LOG_HOLD) -> RunInputs:
+    def from_run(cls, run: Run, temperature: float | None = None, *, log_hold: float | None = None,
+                 temperature_policy: TemperaturePolicy | None = None) -> RunInputs:
         """Inputs of ``run``; ``temperature`` (C) overrides the log's machine mean.
 
         Parameters
@@ -103,12 +103,15 @@ class RunInputs:
         temperature : float, optional
             Machine temperature for every point, degrees C; default the mean of
             the axis-scale thermocouples at each time stamp.
-        log_hold : float
+        log_hold : float, optional
             s: points this far outside the thermocouple log take its nearest
-            reading; farther raise (cmmpose.policy).
+            reading; farther raise; overrides the policy's.
+        temperature_policy : TemperaturePolicy, optional
+            How the log becomes temperatures (cmmpose.temperature); default
+            ``TemperaturePolicy()``.
         """
         if not isinstance(run, Run):
-            raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+            raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
         n = run.n_points
         t = run.points["t"]
         pose_ids = tuple(int(p) for p in np.sort(run.poses["pose_id"]))
@@ -126,53 +129,23 @@ class RunInputs:
         v_scan = np.zeros((len(scan_ids), 3))
         v_scan[np.arange(len(scan_ids)), axis_of_scan] = run.scans["sweep_direction"] * run.scans["sweep_speed"]
         velocity = np.ascontiguousarray(v_scan[scan_row])
-        axis_t = gradient = None
+        axis_t = gradient = thermal = None
         role_t: dict[str, np.ndarray] = {}
         sensors: dict[str, np.ndarray] = {}
-        logs: dict[str, np.ndarray] = {}
         if temperature is not None:
             temps = np.full(n, float(temperature))
         elif run.temperatures is None:
             raise InputError("run has no temperature log: pass temperature= (C)")
         else:
-            from ..calibration.thermal import temperatures_at
-
-            check_log_coverage(run, t, log_hold)
-            # Points of a profile share a time stamp: interpolate the log once per time.
-            ut, inv = np.unique(t, return_inverse=True)
-            temps, _ = temperatures_at(ut, run, policy="machine_mean", on_gap="interpolate", out_of_range="hold")
-            temps = temps[inv]
-            roles = [c.get("role") for c in run.temperature_channels]
-            if all(r in roles for r in ("x_scale", "y_scale", "z_scale")):
-                axis_t, _ = temperatures_at(ut, run, policy="per_axis", on_gap="interpolate", out_of_range="hold")
-                axis_t = axis_t[inv]
-            tlog = np.asarray(run.temperatures["t"], dtype=float)
-            mean_log = temperatures_at(tlog, run, policy="machine_mean", on_gap="interpolate", out_of_range="hold")[0]
-            for role in dict.fromkeys(c.get("role") for c in run.temperature_channels if c.get("role")):
-                try:
-                    role_log = temperatures_at(tlog, run, policy=f"role:{role}", on_gap="interpolate",
-                                               out_of_range="hold")[0]
-                except InputError as e:  # every channel of the role broken: the role is not offered
-                    _log.info("thermocouple role %r left out of the run's sensors: %s", role, e)
-                    continue
-                logs[role] = role_log
-                # A sensor's departure from the mean changes over minutes; its
-                # per-sample noise (0.02 K) would otherwise move each profile
-                # on its own and masquerade as sphere-form structure.
-                departure = _running_mean(tlog, role_log - mean_log, GRADIENT_WINDOW)
-                sensors[role] = np.ascontiguousarray(temps + np.interp(ut, tlog, departure)[inv], dtype=float)
-            if "granite_top" in logs and "granite_bottom" in logs:
-                # The granite's gradient changes over hours, so the noise of
-                # the two groups is averaged out over GRADIENT_WINDOW first
-                # (0.02 K of noise times 15 arc-second/K is 1 um at 0.7 m).
-                g = _running_mean(tlog, logs["granite_top"] - logs["granite_bottom"], GRADIENT_WINDOW)
-                gradient = np.interp(ut, tlog, g)[inv]
+            read = run_sensor_temperatures(run, t, as_policy(temperature_policy, log_hold=log_hold))
+            temps, axis_t, gradient, sensors, thermal = (read.temperature, read.axis_temperature, read.gradient,
+                                                         read.sensors, read.provenance)
             role_t = {f"{role}_temperature": sensors[role] for role in channel_roles() if role in sensors}
         return cls(uv=run.uv, scales=run.scales, t=run.points["t"], scan_id=run.points["scan_id"], pose_ids=pose_ids, pose_index=np.ascontiguousarray(pose_index),
                    poses=poses, temperature=np.ascontiguousarray(temps, dtype=float),
                    axis_temperature=None if axis_t is None else np.ascontiguousarray(axis_t, dtype=float),
                    gradient=None if gradient is None else np.ascontiguousarray(gradient, dtype=float),
-                   velocity=velocity, role_temperatures=role_t, sensors=sensors)
+                   velocity=velocity, role_temperatures=role_t, sensors=sensors, thermal=thermal)
 
     def with_incidence(self, incidence: np.ndarray) -> RunInputs:
         """A copy holding incidence angles (degrees, (N,))."""

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..run import Run
-from .diagnose import Diagnosis, Step, _unobservable, as_model, select_effects, user_specs
+from .diagnose import Diagnosis, Step, unobservable_candidates, add_map_candidates, as_model, attach_floor, select_effects, user_specs
 from .identify import Problem, check_effect_names, model_uncertainties, rank_candidates
 from .model import Model
 from .observables import CLASSES, ModelFigures, figures
@@ -141,15 +141,18 @@ class JointDiagnosis(Diagnosis):
         t.add_column("model")
         for name, f in zip(self.run_names, self.run_figures[0] if self.run_figures else []):
             t.add_column(f"{name}: {f.headline[0]} (um)", justify="right")
+        t.add_column("CV rms (um)", justify="right")
         for s, per_run in zip(self.steps, self.run_figures):
+            cv = s.cv or {}
             t.add_row(s.label + (" (forced)" if s.forced else ""),
-                      *(f"{f.headline[1] * 1e3:.2f}" for f in per_run))
+                      *(f"{f.headline[1] * 1e3:.2f}" for f in per_run),
+                      "-" if cv.get("cv_rms_um") is None else f"{cv['cv_rms_um']:.2f} ± {cv.get('cv_rms_u_um') or 0:.2f}")
         return t
 
 
 def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, *, add=(), auto: bool = True,
                      max_effects: int = 4, user_effects=(), same_artefact: bool = True,
-                     run_names=None) -> JointDiagnosis:
+                     run_names=None, map_corrections: bool = True) -> JointDiagnosis:
     """One model for several runs: the effects' parameters shared, each run
     with its own noise levels (and its own nuisances unless ``same_artefact``).
 
@@ -184,9 +187,11 @@ def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, 
         raise InputError(f"runs: a joint diagnosis needs two or more runs, got {len(runs)}")
     for i, r in enumerate(runs):
         if not isinstance(r, Run):
-            raise InputError(f"runs[{i}]: expected a cmmpose.Run, got {type(r).__name__}")
+            raise InputTypeError(f"runs[{i}]: expected a cmmpose.Run, got {type(r).__name__}")
     model = as_model(model)
     problem = JointProblem(model, runs, same_artefact=same_artefact, extra=user_specs(list(user_effects)))
+    if map_corrections:
+        add_map_candidates(problem, model)
     check_effect_names(list(add), problem)
     names = list(run_names) if run_names is not None else [f"run {i + 1}" for i in range(len(runs))]
     per_run = []
@@ -194,13 +199,14 @@ def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, 
     def step(label, m, forced):
         obs = problem.base_obs if m is problem.base else problem.observe(m)
         per_run.append(problem.figures(m, obs))
-        return Step(label, m, per_run[-1][0], rank_candidates(problem, m, obs), forced)
+        return Step(label, m, per_run[-1][0], rank_candidates(problem, m, obs), forced, residual=obs.residual)
 
     steps, model = select_effects(problem, model, list(add), auto, max_effects, step)
-    unobservable, advice, ambiguous = _unobservable(problem, steps)
+    unobservable, advice, ambiguous = unobservable_candidates(problem, steps)
     diag = JointDiagnosis(steps, unobservable, ambiguous, n_points=sum(r.n_points for r in runs),
                           advice=advice,
                           final_uncertainty=model_uncertainties(problem, model), skipped=dict(problem.skipped),
                           run_figures=per_run, run_names=names)
+    attach_floor(diag, problem, steps[-1])
     diag.elapsed = time.perf_counter() - t0
     return diag

@@ -14,10 +14,11 @@ import numpy as np
 from .. import _core
 from ..atomicfile import write_text
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputError, MapError
+from ..errors import InputError, InputTypeError, MapError
 from ..policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy
 from ..pose import digitizer
 from ..run import Run
+from ..temperature import TemperaturePolicy
 from .effects import LIBRARY, EffectSpec, UserEffect, effect_spec, resolve
 from .inputs import RunInputs
 
@@ -49,6 +50,16 @@ class Model:
         K: temperatures this close outside the maps are held at the edge.
     log_hold : float
         s: points this far outside the thermocouple log take its nearest reading.
+    temperature_policy : TemperaturePolicy, optional
+        The rest of the temperature policy (gaps, broken channels, which
+        sensor each role reads; cmmpose.temperature). Its ``out_of_range``,
+        ``temperature_tolerance`` and ``log_hold`` are taken when the three
+        fields above are left at their defaults; the fields win otherwise.
+        :attr:`policy` is the whole policy in force.
+    thermal : dict
+        How the temperatures of the run the model was diagnosed on were read
+        (channels dropped and why, points held and how long, the channels
+        each role read); saved with the model, empty when unknown.
     """
 
     maps: ErrorMap | ErrorMapSet
@@ -57,12 +68,18 @@ class Model:
     out_of_range: str = "raise"
     temperature_tolerance: float = TEMPERATURE_TOLERANCE
     log_hold: float = LOG_HOLD
+    #: Standard uncertainty of each effect's parameters (name -> array in its
+    #: units) as the diagnosis found them; empty when unknown (saved, loaded).
+    uncertainty: dict = field(default_factory=dict, compare=False, repr=False)
+    temperature_policy: TemperaturePolicy | None = field(default=None, compare=False, repr=False)
+    thermal: dict = field(default_factory=dict, compare=False, repr=False)
     _inputs_cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):
         if not isinstance(self.maps, (ErrorMap, ErrorMapSet)):
-            raise InputError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(self.maps).__name__}")
+            raise InputTypeError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(self.maps).__name__}")
         check_policy(self.out_of_range, self.temperature_tolerance, self.log_hold)
+        _keep_policy(self)
         names = [s.name for s, _ in self.effects]
         if len(set(names)) != len(names):
             raise InputError(f"effects: each effect once, got {names}")
@@ -86,8 +103,7 @@ class Model:
         if not isinstance(other, Model):
             return NotImplemented
         return (self.maps == other.maps and self.temperature == other.temperature
-                and (self.out_of_range, self.temperature_tolerance, self.log_hold)
-                == (other.out_of_range, other.temperature_tolerance, other.log_hold)
+                and self.policy == other.policy
                 and len(self.effects) == len(other.effects)
                 and all(s == t and np.array_equal(v, w) for (s, v), (t, w) in zip(self.effects, other.effects)))
 
@@ -154,9 +170,15 @@ class Model:
         cached = self._inputs_cache.get(key)
         if cached is None or cached[0] is not run:
             self._inputs_cache.clear()
-            cached = (run, _with_incidence(self, RunInputs.from_run(run, self.temperature, log_hold=self.log_hold)))
+            cached = (run, inputs_with_incidence(self, RunInputs.from_run(run, self.temperature, temperature_policy=self.policy)))
             self._inputs_cache[key] = cached
         return cached[1]
+
+    @property
+    def policy(self) -> TemperaturePolicy:
+        """The temperature policy in force (cmmpose.temperature)."""
+        return replace(self.temperature_policy or TemperaturePolicy(), out_of_range=self.out_of_range,
+                       temperature_tolerance=self.temperature_tolerance, log_hold=self.log_hold)
 
     def kernel_terms(self) -> dict[str, list[float]]:
         """The per-point effects' parameters by name, as the Rust terms of
@@ -184,7 +206,7 @@ class Model:
                 return float(v[0])
         return 0.0
 
-    def compensate(self, run: Run | RunInputs, *, return_clamped: bool = False):
+    def compensate(self, run: Run | RunInputs, *, return_clamped: bool = False, return_report: bool = False):
         """Compensated machine coordinates of every point of ``run``, mm.
 
         Parameters
@@ -193,6 +215,8 @@ class Model:
             The run (or its prepared inputs).
         return_clamped : bool
             Also return how many points were clamped into the maps.
+        return_report : bool
+            Also return the kernel's report (a dict of ``cmmpose.KernelReport`` fields).
 
         Returns
         -------
@@ -202,7 +226,7 @@ class Model:
         inputs = run if isinstance(run, RunInputs) else self.inputs(run)
         needs_incidence = any(s.key == "incidence" and np.any(v != 0) for s, v in self.effects)
         if needs_incidence and inputs.incidence is None:
-            inputs = _with_incidence(self, inputs)
+            inputs = inputs_with_incidence(self, inputs)
         digitizers = [digitizer(p[:3], p[3:]) for p in self.poses(inputs)]
         named = inputs.named()
         # An effect following a chosen thermocouple group reads that group's temperature.
@@ -217,6 +241,8 @@ class Model:
             pts = _user_inputs(inputs, xyz)
             for spec, v in users:
                 xyz = xyz + spec.correction(pts, v)
+        if return_report:
+            return xyz, report
         return (xyz, clamped) if return_clamped else xyz
 
     def evaluate(self, run: Run):
@@ -252,8 +278,10 @@ class Model:
             "out_of_range": self.out_of_range,
             "temperature_tolerance_K": self.temperature_tolerance,
             "log_hold_s": self.log_hold,
+            "temperature_policy": self.policy.to_dict(),
+            **({"temperature_log": self.thermal} if self.thermal else {}),
             "effects": [{"name": s.name, "kind": s.kind, "params": dict(zip(s.params, map(float, v))),
-                         "units": dict(zip(s.params, s.units))} for s, v in self.effects],
+                         "units": dict(zip(s.params, s.units))} | _uncertainty_entry(self, s) for s, v in self.effects],
         }
 
     def save(self, path) -> Path:
@@ -310,10 +338,14 @@ class Model:
                 raise InputError(f"{path}: maps.kinematics must be a configuration name, got {kinematics!r}")
             model_maps = model_maps.with_kinematics(kinematics)
             users = {u.name: u for u in user_effects}
-            effects = []
+            effects, unc = [], {}
             for e in doc["effects"]:
                 name = e["name"]
-                if e.get("kind") == "python":
+                if name.startswith("map:"):  # a map correction: rebuilt from its name
+                    from .mapfamily import parse as parse_map
+
+                    spec = parse_map(name)
+                elif e.get("kind") == "python":
                     if name not in users:
                         raise InputError(f"{path}: effect {name!r} is user-defined; pass it in user_effects")
                     spec = users[name]
@@ -328,14 +360,57 @@ class Model:
                     raise InputError(f"{path}: effect {name!r}: parameter {bad[0]!r} = {e['params'][bad[0]]!r} "
                                      f"is not a number")
                 effects.append((spec, np.array([float(v) for v in values])))
+                if "uncertainty" in e:  # optional: null is a parameter the data did not determine
+                    unc[name] = np.array([np.inf if e["uncertainty"].get(p) is None else float(e["uncertainty"][p])
+                                          for p in spec.params])
             return cls(model_maps, tuple(effects), doc.get("temperature"), doc.get("out_of_range", "raise"),
-                       doc.get("temperature_tolerance_K", TEMPERATURE_TOLERANCE), doc.get("log_hold_s", LOG_HOLD))
+                       doc.get("temperature_tolerance_K", TEMPERATURE_TOLERANCE), doc.get("log_hold_s", LOG_HOLD),
+                       unc, _saved_policy(doc.get("temperature_policy"), path), doc.get("temperature_log") or {})
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{path}: malformed model file ({type(e).__name__}: {e})") from None
 
     def __repr__(self) -> str:
         eff = "; ".join(f"{s.name}: {s.describe(v)}" for s, v in self.effects) or "thesis model, no effects"
         return f"Model({eff})"
+
+
+def _keep_policy(model: Model) -> None:
+    """Model.__post_init__: a given temperature_policy's out_of_range,
+    temperature_tolerance and log_hold are taken when the model's own three
+    are at their defaults; the stored policy then keeps only the rest (its
+    three at their defaults), so that ``replace(model, out_of_range=...)``
+    means what it says."""
+    pol = model.temperature_policy
+    if pol is None:
+        return
+    if not isinstance(pol, TemperaturePolicy):
+        raise InputTypeError(f"temperature_policy: expected a cmmpose.TemperaturePolicy, got {type(pol).__name__}")
+    base = TemperaturePolicy()
+    mine = (model.out_of_range, model.temperature_tolerance, model.log_hold)
+    if mine == (base.out_of_range, base.temperature_tolerance, base.log_hold):
+        object.__setattr__(model, "out_of_range", pol.out_of_range)
+        object.__setattr__(model, "temperature_tolerance", pol.temperature_tolerance)
+        object.__setattr__(model, "log_hold", pol.log_hold)
+    object.__setattr__(model, "temperature_policy", replace(pol, out_of_range=base.out_of_range,
+                                                            temperature_tolerance=base.temperature_tolerance,
+                                                            log_hold=base.log_hold))
+
+
+def _saved_policy(doc, path) -> TemperaturePolicy | None:
+    if doc is None:  # files before the policy was saved whole
+        return None
+    try:
+        return TemperaturePolicy.from_dict(doc)
+    except InputError as exc:
+        raise InputError(f"{path}: temperature_policy: {exc}") from None
+
+
+def _uncertainty_entry(model: Model, spec: EffectSpec) -> dict:
+    """``{"uncertainty": {param: u}}`` of an effect whose uncertainty the model knows (null: undetermined)."""
+    u = model.uncertainty.get(spec.name)
+    if u is None:
+        return {}
+    return {"uncertainty": {p: (float(x) if np.isfinite(x) else None) for p, x in zip(spec.params, np.ravel(u))}}
 
 
 def _known(model: Model, effect) -> dict[str, EffectSpec]:
@@ -357,7 +432,7 @@ def _user_inputs(inputs: RunInputs, xyz: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
-def _with_incidence(model: Model, inputs: RunInputs) -> RunInputs:
+def inputs_with_incidence(model: Model, inputs: RunInputs) -> RunInputs:
     """Incidence angles from sphere fits of the points compensated by the
     thesis model (the angle barely depends on the effects); points of scans
     that cannot be fitted get 0."""

@@ -86,6 +86,8 @@ class ObservationLayout:
     calibrated_length: float | None
     calibrated_radius: float | None
     artefact: ArtefactLayout | None = None
+    #: Points of the run on the sphere scans (all of them: observe fits in place).
+    n_sphere_points: int = -1
 
     @classmethod
     def from_run(cls, run: Run, inputs: RunInputs, points_per_scan: int = POINTS_PER_SCAN) -> ObservationLayout:
@@ -148,7 +150,8 @@ class ObservationLayout:
             plate = ArtefactLayout.from_run(run, uniq, sphere_temperature)
         return cls(labels, sphere_of_scan, kinds, np.array(positions, int), np.array(ends, int).reshape(-1, 2),
                    temp, repeated, np.concatenate(sample), np.concatenate(sample_scan),
-                   art.get("calibrated_length_mm"), art.get("calibrated_radius_mm"), plate)
+                   art.get("calibrated_length_mm"), art.get("calibrated_radius_mm"), plate,
+                   int(np.sum(stops - starts)))
 
     @property
     def sizes(self) -> dict[str, int]:
@@ -240,9 +243,12 @@ def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin
     sid : ndarray (N,)
         Scan id of each point.
     """
-    keep = np.isin(sid, layout.labels)
-    # Usually every point is on a sphere: fit in place rather than copy the run.
-    fits = fit_spheres(xyz, sid) if keep.all() else fit_spheres(xyz[keep], sid[keep])
+    # Usually every point is on a sphere: fit in place rather than copy the run (nor test each point).
+    if layout.n_sphere_points == len(sid):
+        fits = fit_spheres(xyz, sid)
+    else:
+        keep = np.isin(sid, layout.labels)
+        fits = fit_spheres(xyz, sid) if keep.all() else fit_spheres(xyz[keep], sid[keep])
     at = fits.positions(layout.labels)
     centres, radii, rms, form = fits.centre[at], fits.radius[at], fits.rms[at], fits.form[at]
     n_sph = len(layout.sphere_kind)

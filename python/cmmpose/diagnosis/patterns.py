@@ -34,7 +34,7 @@ from numbers import Real
 import numpy as np
 
 from .. import _core
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..run import Run
 
 __all__ = ["Pattern", "Patterns", "find_patterns", "LEVELS", "f_test_p_value"]
@@ -333,7 +333,8 @@ class Patterns:
         s = self.strongest
         if s is None:
             return (f"no significant pattern: none of {self.tested} patterns has p < {self.threshold:.1e} "
-                    f"(alpha {self.alpha:g}, Bonferroni); the residuals look like noise")
+                    f"(alpha {self.alpha:g}, Bonferroni): no pattern stands out (whether the scatter is noise: the "
+                    f"diagnosis's noise floor)")
         return (f"strongest pattern: {s.title} (R^2 {s.r2:.2f}, {s.amplitude_um:.1f} um): "
                 f"consistent with {s.hint}")
 
@@ -432,7 +433,7 @@ def _scan_hint(observable: str, quantity: str, calibrated: bool) -> str:
 # -- checking the inputs ---------------------------------------------------------------
 def _check_inputs(run, xyz, fits, temperature, nominal_radius, alpha):
     if not isinstance(run, Run):
-        raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     n = run.n_points
     try:
         xyz = np.asarray(xyz, dtype=np.float64)
@@ -445,7 +446,7 @@ def _check_inputs(run, xyz, fits, temperature, nominal_radius, alpha):
         r = int(np.argmax(bad))
         raise InputError(f"xyz: row {r} is not finite ({xyz[r]}); compensate with nan_policy='raise'")
     if not isinstance(fits, Mapping):
-        raise InputError(f"fits: expected a dict scan_id -> SphereFit (cmmpose.fit_spheres), got {type(fits).__name__}")
+        raise InputTypeError(f"fits: expected a dict scan_id -> SphereFit (cmmpose.fit_spheres), got {type(fits).__name__}")
     if temperature is not None:
         try:
             temperature = np.asarray(temperature, dtype=np.float64)
@@ -469,7 +470,7 @@ def _check_inputs(run, xyz, fits, temperature, nominal_radius, alpha):
     return xyz, temperature, nominal_radius, float(alpha)
 
 
-def _scan_fits(run: Run, fits: Mapping):
+def scan_sphere_fits(run: Run, fits: Mapping):
     """Per scan with points (ascending scan id): the fit, checked against the
     points; the per-point residual and inlier arrays in run.points order."""
     sid = run.points["scan_id"]
@@ -515,7 +516,7 @@ def _scan_fits(run: Run, fits: Mapping):
 
 
 # -- the three levels -----------------------------------------------------------------
-def _continuous(level, observable, quantity, unit, x, y, hint, *, shape=False) -> Pattern | None:
+def continuous_pattern(level, observable, quantity, unit, x, y, hint, *, shape=False) -> Pattern | None:
     """Polynomial pattern of y (um) in x over individual observations."""
     degree = _degree(x, shape)
     if degree < 1:
@@ -527,7 +528,7 @@ def _continuous(level, observable, quantity, unit, x, y, hint, *, shape=False) -
                    (fit.df1, fit.df2), len(y), float(np.ptp(fit.fitted)), hint, x=x, y=y, fitted=fit.fitted)
 
 
-def _categorical(level, observable, quantity, labels, y, hint) -> Pattern | None:
+def categorical_pattern(level, observable, quantity, labels, y, hint) -> Pattern | None:
     """Group-means pattern of y (um) over category ``labels``."""
     names, inverse = np.unique(np.asarray(labels).astype(str), return_inverse=True)
     k = len(names)
@@ -586,8 +587,8 @@ def length_shape_patterns(direction, midpoint, dev) -> list:
     dx, dy, dz = np.asarray(direction).T
     shapes = [("dx", dx), ("dy", dy), ("dz", dz), ("dx^2", dx**2), ("dy^2", dy**2), ("dz^2", dz**2),
               ("dx*dy", dx * dy), ("dy*dz", dy * dz), ("dz*dx", dz * dx)]
-    out = [_continuous("length", obs, q, "1", x, dev, _LENGTH_HINTS[q], shape=True) for q, x in shapes]
-    out += [_continuous("length", obs, f"mid {a}", "mm", midpoint[:, j], dev, _LENGTH_HINTS[f"mid {a}"])
+    out = [continuous_pattern("length", obs, q, "1", x, dev, _LENGTH_HINTS[q], shape=True) for q, x in shapes]
+    out += [continuous_pattern("length", obs, f"mid {a}", "mm", midpoint[:, j], dev, _LENGTH_HINTS[f"mid {a}"])
             for j, a in enumerate("xyz")]
     return out
 
@@ -646,9 +647,9 @@ def _length_level(run, ids, counts, centres, scan_t, scan_temp):
 
     out = length_shape_patterns(direction, midpoint, dev)
     obs = "ballbar length deviation"
-    out.append(_continuous("length", obs, "time", "s", time_s, dev, _LENGTH_HINTS["time"]))
+    out.append(continuous_pattern("length", obs, "time", "s", time_s, dev, _LENGTH_HINTS["time"]))
     if scan_temp is not None:
-        out.append(_continuous("length", obs, "temperature", "C", temp, dev, _LENGTH_HINTS["temperature"]))
+        out.append(continuous_pattern("length", obs, "temperature", "C", temp, dev, _LENGTH_HINTS["temperature"]))
     return table, out
 
 
@@ -667,9 +668,9 @@ def _scan_level(run, ids, counts, centres, radii, forms, nominal_radius):
     def against(observable, y, hint_of, rows=slice(None), skip=()):
         for q, labels in quantities.items():
             if q not in skip:
-                out.append(_categorical("scan", observable, q, labels[rows], y, hint_of(q)))
+                out.append(categorical_pattern("scan", observable, q, labels[rows], y, hint_of(q)))
         # Speed is continuous; with two speeds this is the two-group test.
-        out.append(_continuous("scan", observable, "sweep speed", "mm/s", speed[rows], y, hint_of("sweep speed")))
+        out.append(continuous_pattern("scan", observable, "sweep speed", "mm/s", speed[rows], y, hint_of("sweep speed")))
 
     # Centre deviation from the mean of the scans of the same physical ball.
     key = np.array([f"{f}|{p}|{b}" for f, p, b in zip(scans["feature"][at], scans["position"][at], scans["ball"][at])])
@@ -691,13 +692,13 @@ def _scan_level(run, ids, counts, centres, radii, forms, nominal_radius):
     rdev = (radii - ref) * _UM
     obs = "sphere radius deviation" + (" from nominal" if calibrated else " from mean")
     if calibrated and len(rdev) >= 2:
-        out.append(_mean_offset("scan", obs, rdev, _scan_hint(obs, "(all scans)", True)))
+        out.append(mean_offset_pattern("scan", obs, rdev, _scan_hint(obs, "(all scans)", True)))
     against(obs, rdev, lambda q: _scan_hint(obs, q, calibrated))
     against("sphere form", forms * _UM, lambda q: _scan_hint("sphere form", q, calibrated))
     return out
 
 
-def _mean_offset(level, observable, y, hint) -> Pattern | None:
+def mean_offset_pattern(level, observable, y, hint) -> Pattern | None:
     """A constant offset of y (um) from zero: one-sample F (= t^2) test."""
     n = len(y)
     ss0 = float(np.sum(y**2))
@@ -790,7 +791,7 @@ def find_patterns(run: Run, xyz, fits, *, temperature=None, nominal_radius: floa
         match its points), a non-finite temperature, a non-positive radius.
     """
     xyz, temperature, nominal_radius, alpha = _check_inputs(run, xyz, fits, temperature, nominal_radius, alpha)
-    ids, counts, centres, radii, forms, residual, inlier = _scan_fits(run, fits)
+    ids, counts, centres, radii, forms, residual, inlier = scan_sphere_fits(run, fits)
     if len(ids) == 0:
         raise InputError("run: has no points, nothing to diagnose")
     sid_index = np.searchsorted(ids, run.points["scan_id"])

@@ -32,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..artefact_evaluation import _rigid_projection, rigid_fit
+from ..artefact_evaluation import rigid_projection, rigid_fit
 from ..artefacts import Artefact
 from .._csvtable import read_csv_table
 from ..errors import InputError
 from .artefact import rigid_dof
-from .patterns import Patterns, _categorical, _mean_offset, ranked_patterns
+from .patterns import Patterns, categorical_pattern, mean_offset_pattern, ranked_patterns
 
 __all__ = ["PlateFitDiagnosis", "diagnose_plate_fits", "read_plate_fits", "LINEAR_ERRORS"]
 
@@ -171,7 +171,7 @@ def diagnose_plate_fits(artefact: Artefact, table: dict, *, temperature: float =
         c = artefact.centres[[artefact.index(b) for b in ball[rows]]] * scale
         r, t = rigid_fit(c, m)
         devs.append(m - (c @ r.T + t))
-        proj = _rigid_projection(m)
+        proj = rigid_projection(m)
         blocks.append(devs[-1].reshape(-1))
         cols.append(proj @ _linear_columns(m))
         # Balls scanned with another pose read the scales at another offset
@@ -226,9 +226,9 @@ def diagnose_plate_fits(artefact: Artefact, table: dict, *, temperature: float =
     nominal = artefact.calibrated_radius
     rdev = (rr - nominal) * _UM
     obs = "sphere radius deviation from calibrated"
-    found = [_mean_offset("sphere", obs, rdev, "a coating, a scanner scale or an incidence error "
+    found = [mean_offset_pattern("sphere", obs, rdev, "a coating, a scanner scale or an incidence error "
                           "(a constant radius offset)"),
-             _categorical("sphere", obs, "placement", place.astype(str), rdev,
+             categorical_pattern("sphere", obs, "placement", place.astype(str), rdev,
                           "the view or place matters: incidence, scanner scale with the cap, local error")]
     ranked, threshold = ranked_patterns(found, alpha)
     size = np.linalg.norm(np.concatenate(devs), axis=1)

@@ -22,8 +22,8 @@ from os import PathLike
 
 import numpy as np
 
-from ..errors import InputError
-from ..plots import _figure, _save
+from ..errors import InputError, InputTypeError
+from ..plots import new_figure, save_plot
 from .patterns import Pattern, Patterns
 
 __all__ = ["plot_patterns", "plot_length_deviation", "plot_point_residuals", "plot_history"]
@@ -34,7 +34,7 @@ _DEG = "\u00b0"
 
 def _patterns(patterns) -> Patterns:
     if not isinstance(patterns, Patterns):
-        raise InputError(f"patterns: expected the Patterns of find_patterns, got {type(patterns).__name__}")
+        raise InputTypeError(f"patterns: expected the Patterns of find_patterns, got {type(patterns).__name__}")
     return patterns
 
 
@@ -122,7 +122,7 @@ def plot_patterns(patterns, top: int = 6, path: str | PathLike | None = None, *,
     n = max(len(shown), 1)
     cols = min(3, n)
     rows = math.ceil(n / cols)
-    fig = _figure(figsize=(4.3 * cols, 3.6 * rows + 0.8), layout="constrained")
+    fig = new_figure(figsize=(4.3 * cols, 3.6 * rows + 0.8), layout="constrained")
     if not shown:
         ax = fig.add_subplot()
         ax.text(0.5, 0.5, "no patterns could be tested", ha="center", va="center")
@@ -131,7 +131,7 @@ def plot_patterns(patterns, top: int = 6, path: str | PathLike | None = None, *,
         _draw_pattern(fig.add_subplot(rows, cols, k + 1), p)
     summary = "\n".join(textwrap.wrap(pats.summary(), 110))
     fig.suptitle(summary if title is None else f"{title}\n{summary}", fontsize=10)
-    return _save(fig, path)
+    return save_plot(fig, path)
 
 
 def _direction_label(d: np.ndarray) -> str:
@@ -178,7 +178,7 @@ def plot_length_deviation(patterns, path: str | PathLike | None = None, *, title
         raise InputError("patterns: the run has no ballbar lengths (needs >= 3 positions with both balls)")
     positions = np.asarray(table["position"])
     dev = np.asarray(table["deviation_um"], dtype=float)
-    fig = _figure(figsize=(max(7.0, 0.42 * len(positions) + 2.5), 4.8), layout="constrained")
+    fig = new_figure(figsize=(max(7.0, 0.42 * len(positions) + 2.5), 4.8), layout="constrained")
     ax = fig.add_subplot()
     idx = np.arange(len(positions))
     ax.bar(idx, dev, color=np.where(dev >= 0, "C3", "C0"), alpha=0.7, width=0.7, label="deviation from mean length")
@@ -198,7 +198,7 @@ def plot_length_deviation(patterns, path: str | PathLike | None = None, *, title
     ax.legend(fontsize=8, loc="best")
     text = f"Ballbar length deviation per position: rms {rms:.1f} {_UM}, range {np.ptp(dev):.1f} {_UM}"
     fig.suptitle(text if title is None else f"{title}\n{text}")
-    return _save(fig, path)
+    return save_plot(fig, path)
 
 
 def plot_point_residuals(patterns, path: str | PathLike | None = None, *, quantities: Sequence[str] = ("u", "v", "incidence"),
@@ -236,14 +236,14 @@ def plot_point_residuals(patterns, path: str | PathLike | None = None, *, quanti
     chosen = [by_q[q] for q in quantities if q in by_q]
     if not chosen:
         raise InputError(f"quantities: none of {list(quantities)} among the point-level patterns ({sorted(by_q)})")
-    fig = _figure(figsize=(4.2 * len(chosen), 4.0), layout="constrained")
+    fig = new_figure(figsize=(4.2 * len(chosen), 4.0), layout="constrained")
     axes = fig.subplots(1, len(chosen), sharey=True, squeeze=False)[0]
     for ax, p in zip(axes, chosen):
         _draw_pattern(ax, p)
     axes[0].legend(fontsize=7, loc="best")
     text = f"Sphere fit residuals per point (noise rms {pats.residual_rms_um:.1f} {_UM})"
     fig.suptitle(text if title is None else f"{title}\n{text}")
-    return _save(fig, path)
+    return save_plot(fig, path)
 
 
 _HISTORY_KEYS = (("rms_accuracy_error_um", "rms accuracy error"), ("b89_um", "B89 value"), ("form_um", "form"))
@@ -259,14 +259,14 @@ def _history_keys(steps) -> tuple:
 
 def _history(steps) -> tuple[list[str], dict[str, np.ndarray]]:
     if isinstance(steps, (str, bytes, Mapping)) or not isinstance(steps, Sequence):
-        raise InputError(f"steps: expected a list of dicts, got {type(steps).__name__}")
+        raise InputTypeError(f"steps: expected a list of dicts, got {type(steps).__name__}")
     if not steps:
         raise InputError("steps: expected at least one step (the base model)")
     keys = _history_keys(steps)
     labels, values = [], {k: [] for k, _ in keys}
     for i, s in enumerate(steps):
         if not isinstance(s, Mapping):
-            raise InputError(f"steps[{i}]: expected a dict, got {type(s).__name__}")
+            raise InputTypeError(f"steps[{i}]: expected a dict, got {type(s).__name__}")
         if not isinstance(s.get("label"), str):
             raise InputError(f"steps[{i}]: 'label' must be a string, got {s.get('label')!r}")
         labels.append(s["label"])
@@ -312,7 +312,7 @@ def plot_history(steps, path: str | PathLike | None = None, *, title: str | None
     labels, values = _history(steps)
     keys = _history_keys(steps)
     (main_key, main_name), (second_key, second_name) = keys[0], keys[1]
-    fig = _figure(figsize=(max(6.0, 1.4 * len(labels) + 3.0), 5.0), layout="constrained")
+    fig = new_figure(figsize=(max(6.0, 1.4 * len(labels) + 3.0), 5.0), layout="constrained")
     ax = fig.add_subplot()
     # The sphere form is the peak-to-valley of the fit residuals: mostly the
     # scanner's noise, tens of um while the rms error falls to a fraction of
@@ -347,4 +347,4 @@ def plot_history(steps, path: str | PathLike | None = None, *, title: str | None
     first, last = values[main_key][0], values[main_key][-1]
     text = f"Error as effects are added: {main_name} {first:.1f} \u2192 {last:.1f} {_UM}"
     fig.suptitle(text if title is None else f"{title}\n{text}")
-    return _save(fig, path)
+    return save_plot(fig, path)

@@ -7,9 +7,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from .diagnose import Diagnosis
 from .html import write_html_report
-from .identify import _value_text
+from .identify import value_text
 
 __all__ = ["write_report"]
 
@@ -29,10 +28,8 @@ def _unit(u: str) -> str:
 def _values_text(params, values, uncertainty, units) -> str:
     out = []
     for p, v, u, unit in zip(params, values, uncertainty, units):
-        unit = _unit(unit)
-        if unit == "" and abs(float(v)) < 0.1:  # dimensionless: a ppm reads better than 0.000601
-            v, u, unit = float(v) * 1e6, float(u) * 1e6, "ppm"
-        out.append(_value_text(p, float(v), float(u), unit))
+        unit = _unit(unit)  # the effect's declared unit, as declared (a gain is not a ppm)
+        out.append(value_text(p, float(v), float(u), unit))
     return ", ".join(out)
 
 
@@ -76,6 +73,13 @@ _READING = {
 }
 
 
+def _cv_text(cv) -> str:
+    """'2.31 ± 0.40 (in sample 2.20)' from a step's cross-validation, '-' without one."""
+    if not cv or cv.get("cv_rms_um") is None:
+        return "-"
+    return f"{cv['cv_rms_um']:.2f} ± {cv.get('cv_rms_u_um') or 0:.2f} (in sample {cv['in_sample_rms_um']:.2f})"
+
+
 def _verdict(d, model_file, run_dir) -> str:
     """The top of the report: what was missing, the final values, how far the error fell, what next."""
     steps = d.steps
@@ -103,6 +107,18 @@ def _verdict(d, model_file, run_dir) -> str:
         lines.append(f"The model was missing nothing the run can show: no candidate effect is significant. The rms "
                      f"accuracy error is {first.rms_accuracy_error * 1e3:.2f} um, the B89 value "
                      f"{first.b89 * 1e3:.2f} um.")
+    cv0, cv1 = steps[0].cv, steps[-1].cv
+    if cv0 and cv1 and cv0.get("cv_rms_um") is not None and cv1.get("cv_rms_um") is not None:
+        lines.append(f"Out of sample ({cv1.get('split', 'cross-validation')}): {cv0['cv_rms_um']:.2f} ± "
+                     f"{cv0.get('cv_rms_u_um') or 0:.2f} um with the base model, {cv1['cv_rms_um']:.2f} ± "
+                     f"{cv1.get('cv_rms_u_um') or 0:.2f} um with the final one (in sample "
+                     f"{cv0['in_sample_rms_um']:.2f} and {cv1['in_sample_rms_um']:.2f} um).")
+    if getattr(d, "verification", None):
+        lines.append("The given model on this run: " + d.verification["verdict"] + ".")
+    if getattr(d, "noise", None):
+        lines.append("Noise floor: " + d.noise["verdict"] + ".")
+    for f in getattr(d, "two_axis", [])[:2]:
+        lines.append(f"Unexplained: {f['description']} (p {f['p_value']:.1e}).")
     for x in decisions:
         if x["decision"] == "preferred":
             lines.append(f"The data prefer {x['name']}: {x['reason']} (diagnose --add {x['name']} instead).")
@@ -119,7 +135,7 @@ def _verdict(d, model_file, run_dir) -> str:
         target = model_file or "MODEL.json (save it with diagnose --save-model)"
         nxt.append(f"check the model on a new run: cmmpose diagnose NEW_RUN --model {target} --no-auto; "
                    f"compensate with it in Python: cmmpose.diagnosis.Model.load('{target}').compensate(...)")
-    needs = [x for x in decisions if x["decision"] == "not observable"]
+    needs = [x for x in decisions if x["decision"] == "not observable" and not x["name"].startswith("map:")]
     if d.ambiguous:
         for group in d.ambiguous:
             nxt.append(f"to tell {', '.join(group)} apart: {d.advice.get(group[0], '')}")
@@ -242,8 +258,11 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
     truth = _truth_rows(d, run_dir)
     if truth is not None:
         sections.append({"heading": "Found against the simulator's truth", "table": truth})
-    fig = plot_history(Diagnosis.history(d))  # a joint diagnosis: its first run's figures
+    # Each step's figures (a joint diagnosis: its first run's), as Diagnosis.history gives them; called on the
+    # steps here, since .diagnose imports this module to write its report (no circle back).
+    fig = plot_history([{"label": s.label, **s.figures.to_dict()} for s in d.steps])
     history = [{"model": s.label, **_headline_columns(s.figures),
+                "cross-validated rms (um)": _cv_text(s.cv),
                 "sphere form, peak-to-valley (um)": round(s.figures.to_dict()["form_um"], 2),
                 "fit rms (um)": round(s.figures.to_dict()["fit_rms_um"], 3)} for s in d.steps]
     sections.append({"heading": "The error falling", "text": _READING["history"], "table": history,

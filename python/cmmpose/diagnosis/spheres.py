@@ -26,7 +26,7 @@ import numpy as np
 
 from .._csvtable import read_csv_table
 from ..errors import InputError
-from .patterns import Patterns, _categorical, _continuous, _mean_offset, length_shape_patterns, ranked_patterns
+from .patterns import Patterns, categorical_pattern, continuous_pattern, mean_offset_pattern, length_shape_patterns, ranked_patterns
 
 __all__ = ["SphereFitDiagnosis", "diagnose_sphere_fits", "read_sphere_fits", "appendix_c_sphere_fits",
            "NOMINAL_RADIUS_MM"]
@@ -150,18 +150,18 @@ def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
     rdev = (rr - ref_r) * _UM
     robs = "sphere radius deviation" + (" from nominal" if calibrated else " from mean")
     if calibrated:
-        found.append(_mean_offset("sphere", robs, rdev, "a coating, a scanner scale or an incidence error "
+        found.append(mean_offset_pattern("sphere", robs, rdev, "a coating, a scanner scale or an incidence error "
                                   "(a constant radius offset)"))
     balls = np.tile(np.array(["1", "2"]), len(c))
     positions = np.repeat(np.arange(1, len(c) + 1), 2).astype(str)
-    found.append(_categorical("sphere", robs, "ball", balls, rdev, "the two balls differ (size, coating)"))
-    found.append(_categorical("sphere", robs, "position", positions, rdev,
+    found.append(categorical_pattern("sphere", robs, "ball", balls, rdev, "the two balls differ (size, coating)"))
+    found.append(categorical_pattern("sphere", robs, "position", positions, rdev,
                               "the view or place matters: incidence, scanner scale with the cap, local error"))
     if "points" in extra:
-        found.append(_continuous("sphere", robs, "points", "", extra["points"].ravel(), rdev,
+        found.append(continuous_pattern("sphere", robs, "points", "", extra["points"].ravel(), rdev,
                                  "the cap covered: incidence or scanner scale (more points, larger cap)"))
     if "fit_rms" in extra:
-        found.append(_continuous("sphere", robs, "fit rms", "mm", extra["fit_rms"].ravel(), rdev,
+        found.append(continuous_pattern("sphere", robs, "fit rms", "mm", extra["fit_rms"].ravel(), rdev,
                                  "noise or form error biasing the fitted radius"))
     ranked, threshold = ranked_patterns(found, alpha)
     excess = float(rr.mean() - nominal_radius) * _UM if calibrated else float("nan")

@@ -14,8 +14,10 @@ Two kinds of finding:
   n_axis (a sin(2 pi s / P) + b cos(2 pi s / P)), s the axis's scale reading
   and n_axis the outward sphere normal's component along it, for every period
   P from 2 mm to 40 mm at once (the sums are binned by s and taken with one
-  FFT per axis). Longer periods act on a ball like a scale or a squareness and
-  belong to the library; the sphere fit takes up the rest. A reading varies
+  FFT per axis). Longer periods barely change one ball's shape: they move
+  whole balls, and the map-correction family searches them over the whole
+  travel from the ball centres (:mod:`cmmpose.diagnosis.mapfamily`, 10 mm to
+  the travel, period and amplitude with uncertainties). A reading varies
   within a scan only along the sweep, so a periodic error shows on the axes
   the run sweeps (all X for the B89 layout; X and Y for the crossed one); on
   another axis it moves whole scans, which the sphere fits take up. And the
@@ -39,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..run import Run
-from .patterns import _scan_fits, f_test_p_value
+from .patterns import scan_sphere_fits, f_test_p_value
 
 __all__ = ["Finding", "periodic_errors", "unexplained_findings", "user_effect_skeleton"]
 
@@ -146,7 +148,7 @@ def periodic_errors(run: Run, xyz, fits, *, alpha: float = 1e-3, floor_um: float
     list of Finding
         The significant periodic error of each axis that has one, largest first.
     """
-    ids, counts, centres, _, _, residual, inlier = _scan_fits(run, fits)
+    ids, counts, centres, _, _, residual, inlier = scan_sphere_fits(run, fits)
     keep = inlier
     if keep.sum() < 100:
         return []
@@ -299,13 +301,44 @@ def user_effect_skeleton(finding: Finding, name: str = "my-effect") -> str:
             f"    {name!r}, correction, {{'sin_um': ('um', 1.0), 'cos_um': ('um', 1.0)}},\n"
             f"    physics='a periodic error along {finding.axis} with the {finding.input} reading',\n"
             f"    reveal='scans spread along {finding.axis} over several periods')\n")
-    unit = {"u": "mm", "v": "mm", "D": "mm", "E": "mm", "F": "mm", "x": "mm", "y": "mm", "z": "mm",
-            "incidence": "degree", "t": "s", "temperature": "C"}.get(finding.input, "1")
+    code, unit = _quantity_code(finding.input)
     return head + (
         f"def correction(inputs, gx, gy, gz):\n"
-        f"    s = np.asarray(inputs[{finding.input!r}], dtype=float)  # {unit}\n"
+        f"    {code}  # {finding.input}, {unit}\n"
         f"    s = s - s.mean()\n"
         f"    return np.column_stack([gx * s, gy * s, gz * s]) * 1e-3  # um per {unit} -> mm\n\n\n"
         f"EFFECT = UserEffect.create(\n"
         f"    {name!r}, correction, {{'gx': ('um/{unit}', 1.0), 'gy': ('um/{unit}', 1.0), 'gz': ('um/{unit}', 1.0)}},\n"
         f"    physics='an error linear in {finding.input} (edit me)', reveal='scans that vary {finding.input}')\n")
+
+
+def _quantity_code(quantity: str) -> tuple[str, str]:
+    """One line of Python that sets ``s`` (N,) to ``quantity`` from a user
+    effect's inputs (USER_INPUTS), and its unit: every quantity of the
+    pattern vocabulary (:mod:`cmmpose.diagnosis.patterns`) has one, so a
+    drafted skeleton runs as written. A quantity the inputs do not carry
+    (a ballbar's direction cosines, a categorical scan property) is
+    approximated from what they do carry, and the line says so."""
+    direct = {"u": "mm", "v": "mm", "D": "mm", "E": "mm", "F": "mm", "x": "mm", "y": "mm", "z": "mm",
+              "incidence": "degree", "t": "s", "temperature": "C", "scan_id": "1", "pose_id": "1"}
+    q = quantity.strip()
+    if q in direct:
+        return f"s = np.asarray(inputs[{q!r}], dtype=float)", direct[q]
+    if q.startswith("mid ") and q[4:] in ("x", "y", "z"):
+        return f"s = np.asarray(inputs[{q[4:]!r}], dtype=float)  # the point's position stands for the bar's mid-point", "mm"
+    if q.endswith(" in scan") and q[:-8] in ("D", "E", "F", "t"):
+        k = q[:-8]
+        return (f"_r = np.asarray(inputs[{k!r}], dtype=float); _, _i = np.unique(inputs['scan_id'], "
+                f"return_inverse=True); s = _r - (np.bincount(_i, _r) / np.bincount(_i))[_i]"), \
+            ("s" if k == "t" else "mm")
+    cos = {"dx": "_d[:, 0]", "dy": "_d[:, 1]", "dz": "_d[:, 2]"}
+    expr = q.replace("^2", "**2")
+    names = expr.replace("*", " ").split()
+    if names and all(n in cos or n == "2" for n in names):
+        for k, v in cos.items():
+            expr = expr.replace(k, v)
+        return ("_p = np.column_stack([inputs['x'], inputs['y'], inputs['z']]); _p = _p - _p.mean(axis=0); "
+                "_d = _p / np.maximum(np.linalg.norm(_p, axis=1), 1e-9)[:, None]; "
+                f"s = {expr}  # direction cosines of the point from the run's centroid stand for the bar's"), "1"
+    return (f"s = np.asarray(inputs['scan_id'], dtype=float)  # {q!r} is not a user-effect input: "
+            f"the scan id stands for it (edit me)"), "1"

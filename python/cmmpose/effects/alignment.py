@@ -9,7 +9,7 @@ from ._base import Effect, Param
 
 
 @dataclass(frozen=True)
-class AlignmentError(Effect):
+class Alignment(Effect):
     """The true pose differs from the calibrated one by (alpha, beta, gamma) degrees.
 
     Physics: alignment uncertainty (thesis section 4: about 0.01-0.05 deg).
@@ -33,3 +33,7 @@ class AlignmentError(Effect):
     @classmethod
     def adjust_poses(cls, values, poses, rows):
         poses[rows, 0:3] += values
+
+
+#: The older name of :class:`Alignment` (the class is named for its registry name now).
+AlignmentError = Alignment

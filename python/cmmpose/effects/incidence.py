@@ -9,7 +9,7 @@ from ._base import Effect, Param
 
 
 @dataclass(frozen=True)
-class IncidenceError(Effect):
+class Incidence(Effect):
     """Depth error growing with the incidence angle theta (degrees, between
     surface normal and beam) and depth: dv = per_degree theta + per_degree_mm v theta
     (bilinear, thesis section 7.2 after Feng 2001).
@@ -28,3 +28,7 @@ class IncidenceError(Effect):
 
     per_degree: float = 0.0
     per_degree_mm: float = 0.0
+
+
+#: The older name of :class:`Incidence` (the class is named for its registry name now).
+IncidenceError = Incidence

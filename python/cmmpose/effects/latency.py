@@ -9,7 +9,7 @@ from ._base import Effect, Param
 
 
 @dataclass(frozen=True)
-class ScannerLatency(Effect):
+class Latency(Effect):
     """The profile is taken ``seconds`` after the scale reading recorded with it.
 
     The simulator latches the scales ``seconds`` earlier on the trajectory;
@@ -32,3 +32,7 @@ class ScannerLatency(Effect):
 
     def latency(self):
         return self.seconds
+
+
+#: The older name of :class:`Latency` (the class is named for its registry name now).
+ScannerLatency = Latency

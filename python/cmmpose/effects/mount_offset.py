@@ -9,7 +9,7 @@ from ._base import Effect, Param
 
 
 @dataclass(frozen=True)
-class MountOffsetError(Effect):
+class MountOffset(Effect):
     """The true mount offset differs from the calibrated l1 by (u1, v1, w1) mm.
 
     Physics: the offset calibration's uncertainty, 40 um per component in the
@@ -32,3 +32,7 @@ class MountOffsetError(Effect):
     @classmethod
     def adjust_poses(cls, values, poses, rows):
         poses[rows, 3:6] += values
+
+
+#: The older name of :class:`MountOffset` (the class is named for its registry name now).
+MountOffsetError = MountOffset

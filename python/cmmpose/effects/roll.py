@@ -9,7 +9,7 @@ from ._base import Effect, Param
 
 
 @dataclass(frozen=True)
-class UnmeasuredRoll(Effect):
+class Roll(Effect):
     """Roll of each carriage about its own axis, linear in the reading, in
     arc-seconds per metre of travel from home.
 
@@ -25,3 +25,7 @@ class UnmeasuredRoll(Effect):
     x: float = 0.0
     y: float = 0.0
     z: float = 0.0
+
+
+#: The older name of :class:`Roll` (the class is named for its registry name now).
+UnmeasuredRoll = Roll

@@ -9,7 +9,7 @@ from ._base import Effect, Param
 
 
 @dataclass(frozen=True)
-class ScaleError(Effect):
+class Scale(Effect):
     """Per-axis scale error in ppm: the linear error grows by ppm 1e-6 x reading.
 
     Physics: scale expansion not in the map (a scale at another temperature
@@ -24,3 +24,7 @@ class ScaleError(Effect):
     x: float = 0.0
     y: float = 0.0
     z: float = 0.0
+
+
+#: The older name of :class:`Scale` (the class is named for its registry name now).
+ScaleError = Scale

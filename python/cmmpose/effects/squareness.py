@@ -9,7 +9,7 @@ from ._base import Effect, Param
 
 
 @dataclass(frozen=True)
-class SquarenessOffset(Effect):
+class Squareness(Effect):
     """S_xy, S_yz, S_zx differ from the map's by (xy, yz, zx) arc-seconds.
 
     Physics: squareness drifts after a crash, relevelling or a change of the
@@ -25,3 +25,7 @@ class SquarenessOffset(Effect):
     xy: float = 0.0
     yz: float = 0.0
     zx: float = 0.0
+
+
+#: The older name of :class:`Squareness` (the class is named for its registry name now).
+SquarenessOffset = Squareness

@@ -8,6 +8,13 @@ from typing import TYPE_CHECKING
 from .._lazy import lazy_attributes
 from .artefacts import BALL_RADIUS, Ballbar, Plane, Sphere, reference_sphere
 from .effects import (
+    Alignment,
+    Incidence,
+    Latency,
+    MountOffset,
+    Roll,
+    Scale,
+    Squareness,
     AlignmentError,
     AxisTemperature,
     Effect,
@@ -75,6 +82,13 @@ __all__ = [
     "IncidenceError",
     "AlignmentError",
     "MountOffsetError",
+    "Alignment",
+    "Incidence",
+    "Latency",
+    "MountOffset",
+    "Roll",
+    "Scale",
+    "Squareness",
     "available_effects",
     "vernier_points",
     "plane_scan",

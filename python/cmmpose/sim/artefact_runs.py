@@ -15,7 +15,7 @@ from ..artefacts import Artefact
 from ..effects import Effect, channels as effect_channels
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
-from ..placement import Placement, parse, plan
+from ..placement import PROFILES_PER_BALL, Placement, ball_speed, parse, plan, run_record
 from ..run import Run
 from .machine import Temperature, TruthMachine
 from .runs import SCAN_INTERVAL, SweepRecorder
@@ -23,11 +23,6 @@ from .scanner import Scanner
 from .thermocouples import CHANNELS, thermocouple_log
 
 __all__ = ["simulate_artefact_run", "PROFILES_PER_BALL"]
-
-#: Fewest profiles a sweep takes across a ball's diameter: small balls are
-#: swept more slowly than ``speed`` so that their fits stay well conditioned.
-PROFILES_PER_BALL = 12
-
 
 def simulate_artefact_run(
     artefact: Artefact,
@@ -129,7 +124,6 @@ def simulate_artefact_run(
 
     rec = SweepRecorder(truth_machine, machine.offset, scanner, temperature, speed, scan_interval, shifts, rng,
                         progress, total)
-    slow = 2 * artefact.nominal_radius * scanner.profile_rate / PROFILES_PER_BALL
     centres = []
     for scan_id, bs in enumerate(ball_scans):
         pl = resolved[bs.position - 1]
@@ -138,14 +132,12 @@ def simulate_artefact_run(
         centres.append(centre + shifts[scan_id])
         direction = -1 if bidirectional and scan_id % 2 else 1
         rec.sweep_over(scan_id, bs.pose, centre, artefact.calibrated_radius, direction, "ball", bs.position, bs.ball,
-                       speed=min(speed, slow))
+                       speed=ball_speed(speed, artefact.nominal_radius, scanner.profile_rate))
     points, scans, pose_table, true_xyz = rec.tables()
     extra = [(c, r) for c, r in effect_channels() if r in truth_machine.role_offsets(np.zeros(1))]
     log = thermocouple_log(total * scan_interval, temperature, role_offsets=truth_machine.role_offsets,
                            extra_channels=extra, rng=rng)
-    record = {"kind": artefact.kind, "name": artefact.name, "ball_radius_mm": artefact.nominal_radius,
-              "calibrated_radius_mm": artefact.calibrated_radius, "source": artefact.source,
-              "definition": artefact.to_dict(), "placements": [p.to_dict() for p in resolved]}
+    record = run_record(artefact, resolved)
     run = Run(
         points=points, scans=scans, poses=pose_table, temperatures=log,
         temperature_channels=[{"name": c, "role": r} for c, r in (*CHANNELS, *extra)],

@@ -3,8 +3,8 @@ section 5.3): optical-vernier points on the scan plane, plane scans taken while
 the machine moves, reference-sphere scans at several poses, and the true
 alignment readings to test the solvers of ``cmmpose.calibration`` against.
 
-Pose errors to recover come from the effects: ``AlignmentError`` makes the
-true pose the given (nominal) one plus its angles, ``MountOffsetError`` the
+Pose errors to recover come from the effects: ``Alignment`` makes the
+true pose the given (nominal) one plus its angles, ``MountOffset`` the
 true offset the given one plus its lengths. Units: mm, degrees, degrees C, s.
 """
 
@@ -18,7 +18,7 @@ import numpy as np
 from .. import _core
 from .._arrays import as_triple
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..pose import MountOffset, pose_tuple
 from .artefacts import Plane, Sphere, reference_sphere
 from ..effects import Effect
@@ -62,7 +62,7 @@ def _offset(offset) -> np.ndarray:
 def true_pose_and_offset(pose, offset=None, effects: Sequence[Effect] = ()) -> tuple[np.ndarray, np.ndarray]:
     """The pose (degrees) and mount offset (mm) the scanner really has: the
     given (calibrated, nominal) ones changed by the effects' pose hooks
-    (``AlignmentError``, ``MountOffsetError``)."""
+    (``Alignment``, ``MountOffset``)."""
     p = np.array(pose_tuple(pose), dtype=float)
     o = _offset(offset)
     for e in effects:
@@ -160,7 +160,7 @@ def vernier_points(pose, offset=None, n: int = 5, noise: float = VERNIER_NOISE, 
     Parameters
     ----------
     pose : Pose or sequence of 3 float
-        Calibrated (nominal) pose, degrees; ``AlignmentError`` in ``effects``
+        Calibrated (nominal) pose, degrees; ``Alignment`` in ``effects``
         makes the true one.
     offset : sequence of 3 float, optional
         Mount offset, mm; default the thesis digitizer.
@@ -259,7 +259,7 @@ def plane_scan(pose, offset=None, *, plane: Plane | None = None, axes: Sequence[
     Parameters
     ----------
     pose : Pose or sequence of 3 float
-        Calibrated (nominal) pose, degrees; ``AlignmentError`` in ``effects``
+        Calibrated (nominal) pose, degrees; ``Alignment`` in ``effects``
         makes the true one.
     offset : sequence of 3 float, optional
         Mount offset, mm; default the thesis digitizer.
@@ -356,7 +356,7 @@ def reference_sphere_scans(poses, offset=None, *, maps=None, temperature: float 
         ``cmmpose.calibration.STANDARD_POSES``.
     offset : sequence of 3 float, optional
         Mount offset the scans are planned with, mm; default the thesis digitizer.
-        ``MountOffsetError`` in ``effects`` makes the true one.
+        ``MountOffset`` in ``effects`` makes the true one.
     maps : ErrorMap or ErrorMapSet, optional
         The machine's errors; default the thesis maps.
     temperature : float
@@ -381,7 +381,7 @@ def reference_sphere_scans(poses, offset=None, *, maps=None, temperature: float 
         raise InputError("poses: at least one pose")
     maps = _maps(maps)
     if not isinstance(maps, (ErrorMap, ErrorMapSet)):
-        raise InputError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(maps).__name__}")
+        raise InputTypeError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(maps).__name__}")
     sphere = sphere or reference_sphere()
     l1 = _offset(offset)
     seeds = np.random.SeedSequence(seed).generate_state(len(poses))

@@ -5,21 +5,22 @@ module keeps the names the simulator has always exported."""
 from __future__ import annotations
 
 from ..effects import Effect, available, parse
-from ..effects.alignment import AlignmentError
+from ..effects.alignment import Alignment, AlignmentError
 from ..effects.artefact_expansion import ArtefactExpansion
 from ..effects.axis_temperature import AxisTemperature
 from ..effects.granite_gradient import GraniteGradient
-from ..effects.incidence import IncidenceError
-from ..effects.latency import ScannerLatency
-from ..effects.mount_offset import MountOffsetError
-from ..effects.roll import UnmeasuredRoll
-from ..effects.scale import ScaleError
+from ..effects.incidence import Incidence, IncidenceError
+from ..effects.latency import Latency, ScannerLatency
+from ..effects.mount_offset import MountOffset, MountOffsetError
+from ..effects.roll import Roll, UnmeasuredRoll
+from ..effects.scale import Scale, ScaleError
 from ..effects.scanner_scale import ScannerScale
-from ..effects.squareness import SquarenessOffset
+from ..effects.squareness import Squareness, SquarenessOffset
 
 __all__ = ["Effect", "available_effects", "parse_effect", "AlignmentError", "ArtefactExpansion", "AxisTemperature",
            "GraniteGradient", "IncidenceError", "ScannerLatency", "MountOffsetError", "UnmeasuredRoll", "ScaleError",
-           "ScannerScale", "SquarenessOffset"]
+           "ScannerScale", "SquarenessOffset",
+           "Alignment", "Incidence", "Latency", "MountOffset", "Roll", "Scale", "Squareness"]
 
 
 def available_effects():

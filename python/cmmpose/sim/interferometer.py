@@ -36,7 +36,7 @@ from ..calibration.interferometer import (
     refractive_index,
 )
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from .._validate import triple
 
 __all__ = [
@@ -171,7 +171,7 @@ def simulate_interferometer_run(
         mean over the run), ``carriage``, ``component``, ``optics``.
     """
     if not isinstance(truth, ErrorMap):
-        raise InputError(f"truth: expected an ErrorMap, got {type(truth).__name__}")
+        raise InputTypeError(f"truth: expected an ErrorMap, got {type(truth).__name__}")
     carriage = str(carriage).upper()
     if carriage not in CARRIAGES:
         raise InputError(f"carriage: expected X, Y or Z, got {carriage!r}")

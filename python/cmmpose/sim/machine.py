@@ -10,7 +10,7 @@ import numpy as np
 from .. import _core
 from .._arrays import as_rows
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..effects import Effect, channel_roles
 
 #: Thermocouple roles of the standard channels (cmmpose.sim.thermocouples.CHANNELS).
@@ -63,7 +63,7 @@ class TruthMachine:
                 raise InputError("maps: a single ErrorMap needs a temperature to act as a truth machine")
             maps = ErrorMapSet([maps])
         if not isinstance(maps, ErrorMapSet):
-            raise InputError(f"maps: expected ErrorMap or ErrorMapSet, got {type(maps).__name__}")
+            raise InputTypeError(f"maps: expected ErrorMap or ErrorMapSet, got {type(maps).__name__}")
         self.maps = maps
         self.effects = tuple(effects)
         roles = set(STANDARD_ROLES) | set(channel_roles())

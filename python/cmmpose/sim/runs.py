@@ -298,7 +298,7 @@ def simulate_reference_scan(
     offset : sequence of 3 float, optional
         Mount offset, mm; default the thesis digitizer.
     effects : sequence of Effect
-        Extra physics (e.g. ``AlignmentError`` for a pose to be recovered).
+        Extra physics (e.g. ``Alignment`` for a pose to be recovered).
     sphere : Sphere, optional
         Default ``reference_sphere()``.
     scanner : Scanner, optional

@@ -12,46 +12,10 @@ from .. import _core
 from ..errors import InputError
 from ..pose import Pose, digitizer, pose_tuple
 from ..effects import Effect
+from ..scanner import Scanner
 from .machine import Temperature, TruthMachine
 
 AXES = {"X": 0, "Y": 1, "Z": 2}
-
-
-@dataclass(frozen=True)
-class Scanner:
-    """The scanner's optics and noise.
-
-    Parameters
-    ----------
-    u_range, v_range : tuple of float
-        Field of view across the line and depth of view, mm (laser origin in
-        the middle; 60 x 60 mm at 140 mm stand-off).
-    points_per_profile : int
-        Samples across the line (up to 1024).
-    profile_rate : float
-        Profiles per second, Hz (mirror 3.3 Hz sinusoidal; bidirectional mirror
-        scanning gives two lines per period).
-    max_incidence : float
-        Largest angle between surface normal and beam that returns a point, degrees.
-    noise : float
-        Gaussian noise sigma on v (depth), mm (Table 17 probing uncertainty: 8-9 um).
-    noise_u : float
-        Gaussian noise sigma on u, mm.
-    """
-
-    u_range: tuple[float, float] = (-30.0, 30.0)
-    v_range: tuple[float, float] = (-30.0, 30.0)
-    points_per_profile: int = 1024
-    profile_rate: float = 6.6
-    max_incidence: float = 70.0
-    noise: float = 0.008
-    noise_u: float = 0.0
-
-    def __post_init__(self):
-        if not (self.profile_rate > 0 and np.isfinite(self.profile_rate)):
-            raise InputError(f"profile_rate: must be positive (Hz), got {self.profile_rate}")
-        if not (self.noise >= 0 and self.noise_u >= 0):
-            raise InputError("noise, noise_u: must be >= 0 (mm)")
 
 
 @dataclass(frozen=True)

@@ -9,15 +9,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..machine import CHANNELS  # noqa: F401  (the thesis machine's channels, simulated here)
 from .machine import Temperature
 
-#: Channel names and roles, in log order.
-CHANNELS = (
-    ("X1", "x_scale"), ("X2", "x_scale"), ("X3", "x_scale"),
-    ("Y1", "y_scale"), ("Y2", "y_scale"), ("Y3", "y_scale"),
-    ("Z1", "z_scale"), ("Z2", "z_scale"), ("Z3", "z_scale"),
-    ("GT", "granite_top"), ("GB", "granite_bottom"),
-)  # fmt: skip
 
 #: What an open-circuit channel reads (degrees C): far outside any room, as
 #: a data logger's burn-out detection reports it.

@@ -43,12 +43,13 @@ import numpy as np
 from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
 from .._validate import nonnegative
-from ..errors import InputError
-from ..evaluation import _machine_coordinates, evaluate, machine_temperature, skipped_note
+from ..errors import InputError, InputTypeError
+from ..evaluation import machine_coordinates, evaluate, machine_temperature, skipped_note
 from ..fitting import fit_sphere
 from ..metrics import STEEL_EXPANSION
-from ..plots import _figure, _save
+from ..plots import new_figure, save_plot
 from ..run import Run
+from ..temperature import TemperaturePolicy, as_policy, log_notes
 
 __all__ = [
     "DECISION_RULE",
@@ -222,6 +223,11 @@ class AcceptanceResult:
     skipped : tuple of dict
         Ballbar positions and scans left out as incomplete or ambiguous
         (``skip_incomplete=True``; :func:`cmmpose.evaluation.ballbar_scans`).
+    temperature_log : dict or None
+        How the run's temperatures were read from its thermocouple log
+        (channels dropped and why, points held and how long, the channels
+        each role read: :func:`cmmpose.temperature.log_provenance`); None
+        when a temperature was given.
     """
 
     checks: tuple[Check, ...]
@@ -232,6 +238,7 @@ class AcceptanceResult:
     uncertainty_notes: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
     skipped: tuple[dict, ...] = field(default=())
+    temperature_log: dict | None = None
 
     def tests(self) -> list[str]:
         """The tests made, in order."""
@@ -262,7 +269,7 @@ class AcceptanceResult:
                       for t, s in self.summary().items()},
             "checks": [c.to_dict() for c in self.checks],
             "uncertainty_notes": list(self.uncertainty_notes), "notes": list(self.notes),
-            "skipped": list(self.skipped),
+            "skipped": list(self.skipped), "temperature_log": self.temperature_log,
         }
 
     def to_json(self, **kw) -> str:
@@ -308,7 +315,7 @@ class AcceptanceResult:
         -------
         matplotlib.figure.Figure
         """
-        fig = _figure(figsize=(11, 4.2))
+        fig = new_figure(figsize=(11, 4.2))
         a1, a2 = fig.subplots(1, 2)
         lengths = [c for c in self.checks if c.test == "length"]
         if lengths:
@@ -335,7 +342,7 @@ class AcceptanceResult:
         a2.grid(alpha=0.3)
         fig.suptitle(f"Acceptance ({self.label}): {self.decision}")
         fig.tight_layout()
-        return _save(fig, path)
+        return save_plot(fig, path)
 
 
 def acceptance_test(
@@ -355,8 +362,9 @@ def acceptance_test(
     expansion: float = STEEL_EXPANSION,
     u_expansion_ppm_per_K: float = 1.0,
     u_part_temperature_K: float = 0.2,
-    out_of_range: str = "raise",
+    out_of_range: str | None = None,
     skip_incomplete: bool = False,
+    temperature_policy: TemperaturePolicy | None = None,
 ) -> AcceptanceResult:
     """Probing form and size errors and length measurement errors of a run,
     each decided against its MPE (module docstring; docs/standards.md).
@@ -396,20 +404,24 @@ def acceptance_test(
         Standard uncertainty of the expansion coefficient, ppm/K.
     u_part_temperature_K : float
         Standard uncertainty of the artefact's temperature, K.
-    out_of_range : {'raise', 'clamp', 'extrapolate'}
-        As :func:`cmmpose.evaluate`.
+    out_of_range : {'raise', 'clamp', 'extrapolate'}, optional
+        As :func:`cmmpose.evaluate`; overrides the policy's.
     skip_incomplete : bool
         As :func:`cmmpose.evaluate`: False (default) raises ``RunError`` on a
         position with a ball scan missing, duplicated or mislabelled; True
         leaves such positions out of every test and lists them in ``skipped``
         and the notes.
+    temperature_policy : TemperaturePolicy, optional
+        As :func:`cmmpose.evaluate` (cmmpose.temperature): how the log becomes
+        temperatures; the thermocouples dropped, the points held and the
+        channels each role read are in ``temperature_log`` and the notes.
 
     Returns
     -------
     AcceptanceResult
     """
     if not isinstance(run, Run):
-        raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     mpes = {n: (v if isinstance(v, MPE) else parse_mpe(v, n)) for n, v in
             (("mpe_form", mpe_form), ("mpe_size", mpe_size), ("mpe_length", mpe_length))}
     u_len = nonnegative("u_length_certificate_um", u_length_certificate_um)
@@ -425,10 +437,13 @@ def acceptance_test(
     if reference_radius_mm is None and isinstance(art.get("reference_sphere"), dict):
         reference_radius_mm = art["reference_sphere"].get("radius_mm")
 
-    ev = evaluate(run, maps, temperature, expansion=expansion, out_of_range=out_of_range, skip_incomplete=skip_incomplete)
+    policy = as_policy(temperature_policy, out_of_range=out_of_range)
+    ev = evaluate(run, maps, temperature, expansion=expansion, skip_incomplete=skip_incomplete,
+                  temperature_policy=policy)
     res = ev.compensated if ev.compensated is not None else ev.uncompensated
     checks: list[Check] = []
-    notes: list[str] = [n for n in (skipped_note(ev.skipped),) if n]
+    tlog = ev.provenance["temperature"].get("log")
+    notes: list[str] = [n for n in (skipped_note(ev.skipped),) if n] + (log_notes(tlog) if tlog else [])
     unotes: list[str] = []
     U_form = 2 * u_frm
     U_size = 2 * u_dia
@@ -447,7 +462,7 @@ def acceptance_test(
 
     ref_ids = run.scans["scan_id"][run.scans["feature"] == "reference"] if len(run.scans["scan_id"]) else []
     if len(ref_ids) and reference_radius_mm is not None:
-        checks += _reference_checks(run, maps, temperature, out_of_range, np.asarray(ref_ids), float(reference_radius_mm),
+        checks += _reference_checks(run, maps, temperature, policy, np.asarray(ref_ids), float(reference_radius_mm),
                                     mpes, U_form, U_size)
     elif len(ref_ids):
         notes.append("reference scans without a calibrated radius (artefact reference_sphere.radius_mm): "
@@ -479,22 +494,22 @@ def acceptance_test(
         raise InputError("run: nothing to test: give a calibrated length and/or calibrated radii")
     _log.info("acceptance: %d values tested", len(checks))
     return AcceptanceResult(tuple(checks), res.label, mpes["mpe_form"], mpes["mpe_size"], mpes["mpe_length"],
-                            tuple(unotes), tuple(notes), tuple(ev.skipped))
+                            tuple(unotes), tuple(notes), tuple(ev.skipped), tlog)
 
 
-def _reference_checks(run: Run, maps, temperature, out_of_range, ref_ids: np.ndarray, radius: float, mpes,
+def _reference_checks(run: Run, maps, temperature, policy, ref_ids: np.ndarray, radius: float, mpes,
                       U_form: float, U_size: float) -> list[Check]:
     """Probing tests on the reference sphere: every scan alone and all together."""
     if maps is None or isinstance(maps, ErrorMap):
-        xyz = _machine_coordinates(run, maps, None, out_of_range)
+        xyz = machine_coordinates(run, maps, None, policy.out_of_range, policy.temperature_tolerance)
     else:
         if temperature is not None:
             model_t = float(temperature)
         elif run.temperatures is not None:
-            model_t = machine_temperature(run, run.points["t"])
+            model_t = machine_temperature(run, run.points["t"], temperature_policy=policy)
         else:
             raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
-        xyz = _machine_coordinates(run, maps, model_t, out_of_range)
+        xyz = machine_coordinates(run, maps, model_t, policy.out_of_range, policy.temperature_tolerance)
     sid = run.points["scan_id"]
     out = []
     views = []

@@ -30,7 +30,7 @@ import numpy as np
 from .._csvtable import read_csv_table
 from ..errors import InputError
 from ..fitting import e3125
-from ..plots import _figure, _save
+from ..plots import new_figure, save_plot
 from .acceptance import DECISION_RULE, MPE, decide
 
 #: The decision rule, with what the test uncertainty holds here.
@@ -157,7 +157,7 @@ class E3125Distances:
         -------
         matplotlib.figure.Figure
         """
-        fig = _figure(figsize=(7, 4.2), layout="constrained")
+        fig = new_figure(figsize=(7, 4.2), layout="constrained")
         ax = fig.subplots()
         ref = np.array([e.reference for e in self.errors])
         ax.errorbar(ref, [e.error_um for e in self.errors], yerr=[2 * e.u_um for e in self.errors], fmt="o", ms=4,
@@ -177,7 +177,7 @@ class E3125Distances:
         ax.set_title("Sphere-centre distance errors (ASTM E3125 manner)")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
-        return _save(fig, path)
+        return save_plot(fig, path)
 
     def to_dict(self) -> dict:
         return {"targets": {n: {"centre_mm": t.centre.tolist(), "covariance_mm2": t.covariance.tolist(),

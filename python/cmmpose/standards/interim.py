@@ -33,10 +33,11 @@ import numpy as np
 
 from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..evaluation import evaluate, skipped_note
 from ..metrics import STEEL_EXPANSION
 from ..run import Run
+from ..temperature import TemperaturePolicy, log_notes
 
 __all__ = ["ARCSEC_PPM", "InterimValue", "InterimCheck", "interim_check"]
 
@@ -106,6 +107,9 @@ class InterimCheck:
         Lengths used.
     notes : tuple of str
         How the values were made, and the positions skipped.
+    temperature_log : dict or None
+        How the temperatures were read from the run's log
+        (:func:`cmmpose.temperature.log_provenance`); None when given.
     skipped : tuple of dict
         Ballbar positions and scans left out as incomplete or ambiguous
         (``skip_incomplete=True``; :func:`cmmpose.evaluation.ballbar_scans`).
@@ -118,6 +122,7 @@ class InterimCheck:
     positions: int
     notes: tuple[str, ...] = ()
     skipped: tuple[dict, ...] = ()
+    temperature_log: dict | None = None
 
     def __getitem__(self, name: str) -> InterimValue:
         for v in self.values:
@@ -128,7 +133,7 @@ class InterimCheck:
     def to_dict(self) -> dict:
         return {"label": self.label, "absolute_scale": self.absolute_scale, "positions": self.positions,
                 "residual_um": round(self.residual_um, 3), "values": [v.to_dict() for v in self.values],
-                "notes": list(self.notes), "skipped": list(self.skipped)}
+                "notes": list(self.notes), "skipped": list(self.skipped), "temperature_log": self.temperature_log}
 
     def to_json(self, **kw) -> str:
         return strict_json(self.to_dict(), **kw)
@@ -165,8 +170,9 @@ def interim_check(
     expansion: float = STEEL_EXPANSION,
     u_expansion_ppm_per_K: float = 1.0,
     u_temperature_K: float = 0.2,
-    out_of_range: str = "raise",
+    out_of_range: str | None = None,
     skip_incomplete: bool = False,
+    temperature_policy: TemperaturePolicy | None = None,
 ) -> InterimCheck:
     """Three squareness and three scale values from one ballbar run (module docstring).
 
@@ -191,12 +197,16 @@ def interim_check(
         Its standard uncertainty, ppm/K.
     u_temperature_K : float
         Standard uncertainty of the temperature reading, K.
-    out_of_range : {'raise', 'clamp', 'extrapolate'}
-        As :func:`cmmpose.evaluate`.
+    out_of_range : {'raise', 'clamp', 'extrapolate'}, optional
+        As :func:`cmmpose.evaluate`; overrides the policy's.
     skip_incomplete : bool
         As :func:`cmmpose.evaluate`: False (default) raises ``RunError`` on a
         position with a ball scan missing, duplicated or mislabelled; True
         leaves such positions out and lists them in ``skipped`` and the notes.
+    temperature_policy : TemperaturePolicy, optional
+        As :func:`cmmpose.evaluate` (cmmpose.temperature); the thermocouples
+        dropped, points held and channels each role read are in
+        ``temperature_log`` and the notes.
 
     Returns
     -------
@@ -208,14 +218,16 @@ def interim_check(
         Positions that do not determine every value (naming the ones missing).
     """
     if not isinstance(run, Run):
-        raise InputError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     for name, v in (("u_length_certificate_um", u_length_certificate_um), ("u_expansion_ppm_per_K", u_expansion_ppm_per_K),
                     ("u_temperature_K", u_temperature_K)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
             raise InputError(f"{name}: expected a finite value >= 0, got {v!r}")
     if calibrated_length_mm is None:
         calibrated_length_mm = run.artefact.get("calibrated_length_mm")
-    ev = evaluate(run, maps, temperature, expansion=expansion, out_of_range=out_of_range, skip_incomplete=skip_incomplete)
+    ev = evaluate(run, maps, temperature, expansion=expansion, out_of_range=out_of_range, skip_incomplete=skip_incomplete,
+                  temperature_policy=temperature_policy)
+    tlog = ev.provenance["temperature"].get("log")
     res = ev.compensated if ev.compensated is not None else ev.uncompensated
     balls = {(s.position, s.ball): s.centre for s in res.spheres}
     bar = np.array([balls[(int(p), 2)] - balls[(int(p), 1)] for p in res.positions])
@@ -226,7 +238,7 @@ def interim_check(
     a = np.column_stack([-n[:, 0] ** 2, -n[:, 1] ** 2, -n[:, 2] ** 2, ARCSEC_PPM * n[:, 0] * n[:, 1],
                          ARCSEC_PPM * n[:, 1] * n[:, 2], ARCSEC_PPM * n[:, 2] * n[:, 0]])
     absolute = calibrated_length_mm is not None
-    notes = [n for n in (skipped_note(ev.skipped),) if n]
+    notes = [n for n in (skipped_note(ev.skipped),) if n] + (log_notes(tlog) if tlog else [])
     if absolute:
         ref = float(calibrated_length_mm)
         y = (l20 - ref) / ref * 1e6  # ppm
@@ -275,7 +287,7 @@ def interim_check(
                  "run's reproducibility and every other error; u is Type A from them" +
                  (" plus the reference's common scale terms" if absolute else ""))
     residual_um = float(np.sqrt(np.mean(resid ** 2))) * ref * 1e-3
-    return InterimCheck(values, res.label, absolute, residual_um, len(y), tuple(notes), tuple(ev.skipped))
+    return InterimCheck(values, res.label, absolute, residual_um, len(y), tuple(notes), tuple(ev.skipped), tlog)
 
 
 def _undetermined(a: np.ndarray) -> list[str]:

@@ -52,8 +52,8 @@ from ..calibration.interferometer import (
     refractivity_uncertainty,
 )
 from .._json import dumps as strict_json
-from ..errors import Error, InputError, MapError, read_lines
-from ..plots import _figure, _save
+from ..errors import Error, InputError, InputTypeError, MapError, read_lines
+from ..plots import new_figure, save_plot
 
 __all__ = [
     "ISO230_2_CLAUSE",
@@ -279,7 +279,7 @@ class PositioningResult:
         matplotlib.figure.Figure
         """
         x = np.array([r.target_mm for r in self.targets])
-        fig = _figure(figsize=(8, 4.5))
+        fig = new_figure(figsize=(8, 4.5))
         ax = fig.subplots()
         for name, mean, s, colour in (("up (+1)", [r.mean_up for r in self.targets], [r.s_up for r in self.targets], "C0"),
                                       ("down (-1)", [r.mean_down for r in self.targets], [r.s_down for r in self.targets], "C3")):
@@ -297,7 +297,7 @@ class PositioningResult:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, ncol=2)
         fig.tight_layout()
-        return _save(fig, path)
+        return save_plot(fig, path)
 
 
 def _array(name: str, values, source: str) -> np.ndarray:
@@ -373,7 +373,7 @@ def evaluate_iso230_2(data: PositioningData, *, test_uncertainty_um: float | Non
         the source and the target or row.
     """
     if not isinstance(data, PositioningData):
-        raise InputError(f"data: expected a PositioningData, got {type(data).__name__}")
+        raise InputTypeError(f"data: expected a PositioningData, got {type(data).__name__}")
     d = _check(data)
     src = d.source
     key = np.round(d.target_mm, _TARGET_DECIMALS)
@@ -523,7 +523,7 @@ def positioning_from_interferometer(run, *, air_correction: bool = True, materia
         What that uncertainty covers.
     """
     if not isinstance(run, InterferometerRun):
-        raise InputError(f"run: expected an InterferometerRun, got {type(run).__name__}")
+        raise InputTypeError(f"run: expected an InterferometerRun, got {type(run).__name__}")
     dev = positional_deviations(run, air_correction=air_correction, material=material,
                                 expansion_ppm_per_C=expansion_ppm_per_C)
     label = run.source or run.name

@@ -7,9 +7,11 @@
 //!   share one scale reading, time and temperature. The machine's error
 //!   state is computed once per run of equal rows; the points of the run then
 //!   go through one short loop with no branch and no call.
-//! * **Random readings.** Rows are taken 64 at a time: the maps are read row
-//!   by row into structure-of-arrays buffers, then the rotation and the
-//!   lever are computed for the whole block in straight-line loops.
+//! * **Random readings.** Rows are taken 64 at a time: the maps are read
+//!   table by table into structure-of-arrays buffers (one map: every lane
+//!   located on the table at once; a map set: every lane's temperature
+//!   interval first, then the same), then the rotation and the lever are
+//!   computed for the whole block in straight-line loops.
 //!
 //! A block path never reports an error itself: on anything unusual (a
 //! non-finite input, a reading outside a map, an angle past the series'
@@ -20,8 +22,9 @@ use nalgebra::Vector3;
 
 use crate::effects::{Bound, MachineErrors, Temperatures};
 use crate::kernel::{position_error_at, Options, PointError, Report, Source};
-use crate::map::ErrorMap;
+use crate::map::{CarriageTable, ErrorMap, Located};
 use crate::pose::Digitizer;
+use crate::thermal::ErrorMapSet;
 
 /// Rows of one structure-of-arrays block (random readings).
 const LANES: usize = 64;
@@ -275,6 +278,40 @@ fn profile_points(
     finite
 }
 
+/// Segment and offset of the first `m` lanes' readings `x` on `table`, all
+/// inside its range (the operations of `CarriageTable::locate_inside`).
+#[inline(always)]
+fn locate_lanes(
+    table: &CarriageTable,
+    x: &[f64; LANES],
+    m: usize,
+    segment: &mut [usize; LANES],
+    offset: &mut [f64; LANES],
+) {
+    if let Some((first, inv, last)) = table.uniform_grid() {
+        // locate_inside's segment, (x - first) / pitch truncated: every
+        // reading is inside, so the quotient is a small non-negative
+        // number and a plain truncation gives what `as usize` does.
+        for (k, &x) in segment.iter_mut().zip(x).take(m) {
+            let q = (x - first) * inv;
+            debug_assert!((0.0..=(last + 1) as f64 * 1.000_001).contains(&q));
+            // SAFETY: q is finite and within [0, last + 1] (see above), far
+            // inside i32 (a table has fewer than 2^31 positions); i32 is the
+            // width AVX converts four lanes of at once.
+            *k = (unsafe { q.to_int_unchecked::<i32>() } as usize).min(last);
+        }
+        for ((o, &x), &k) in offset.iter_mut().zip(x).zip(segment.iter()).take(m) {
+            *o = x - table.positions()[k];
+        }
+    } else {
+        for r in 0..m {
+            let at = table.locate_inside(x[r]);
+            segment[r] = at.segment;
+            offset[r] = at.offset;
+        }
+    }
+}
+
 /// The components of one map for the first `m` lanes, table by table:
 /// locate every lane's reading, then interpolate (the operations of
 /// `CarriageTable::locate` and `at`). `None` if a reading is outside its
@@ -292,26 +329,7 @@ pub(crate) fn map_lanes(map: &ErrorMap, lanes: &mut Lanes, m: usize) -> Option<(
         if !inside {
             return None;
         }
-        if let Some((first, inv, last)) = table.uniform_grid() {
-            // locate_inside's segment, (x - first) / pitch truncated: every
-            // reading is inside, so the quotient is a small non-negative
-            // number and a plain truncation gives what `as usize` does.
-            for (k, &x) in segment.iter_mut().zip(&lanes.s[a]).take(m) {
-                let q = (x - first) * inv;
-                debug_assert!((0.0..=(last + 1) as f64 * 1.000_001).contains(&q));
-                // SAFETY: q is finite and within [0, last + 1] (see above).
-                *k = (unsafe { q.to_int_unchecked::<i64>() } as usize).min(last);
-            }
-            for ((o, &x), &k) in offset.iter_mut().zip(&lanes.s[a]).zip(&segment).take(m) {
-                *o = x - table.positions()[k];
-            }
-        } else {
-            for r in 0..m {
-                let at = table.locate_inside(lanes.s[a][r]);
-                segment[r] = at.segment;
-                offset[r] = at.offset;
-            }
-        }
+        locate_lanes(table, &lanes.s[a], m, &mut segment, &mut offset);
         for r in 0..m {
             let (v, slope) = table.segment(segment[r]);
             for k in 0..6 {
@@ -322,6 +340,86 @@ pub(crate) fn map_lanes(map: &ErrorMap, lanes: &mut Lanes, m: usize) -> Option<(
     let sq = map.squareness();
     for (lane, value) in lanes.sq.iter_mut().zip(sq) {
         lane[..m].fill(value);
+    }
+    Some(())
+}
+
+/// The components of a map set for the first `m` lanes at temperatures `t`
+/// (C, one per lane): every lane's interval and offset in temperature
+/// first, then table by table as [`map_lanes`], each lane reading its
+/// interval's base and slope (the operations of the per-row path:
+/// `ErrorMapSet::interval_of`, `CarriageTable::locate`, `Interval::at` and
+/// `Interval::squareness`, so the same bits). The readings are located once
+/// for the whole block when its lanes share one grid: one interval (a
+/// machine's temperature moves slowly), or maps measured on the same
+/// positions; else lane by lane. `None` if a
+/// temperature is outside the set's range (held, clamped or extrapolated
+/// temperatures are counted per row: the per-row path does them) or a
+/// reading outside its table.
+#[inline(always)]
+pub(crate) fn set_lanes(set: &ErrorMapSet, lanes: &mut Lanes, t: &[f64], m: usize) -> Option<()> {
+    let t = &t[..m];
+    let (lo, hi) = set.temperature_range();
+    let mut inside = true;
+    for &x in t {
+        inside &= (x >= lo) & (x <= hi);
+    }
+    if !inside {
+        return None;
+    }
+    let intervals = set.intervals();
+    let Some(last) = intervals.len().checked_sub(1) else {
+        // A single map: every temperature inside its range is its own.
+        return map_lanes(&set.maps()[0], lanes, m);
+    };
+    let mut which = [0usize; LANES];
+    let mut dt = [0.0; LANES];
+    for ((w, d), &x) in which.iter_mut().zip(dt.iter_mut()).zip(t) {
+        // interval_of's branch-free count.
+        *w = intervals[..last]
+            .iter()
+            .map(|iv| (x > iv.t_hi) as usize)
+            .sum::<usize>();
+        *d = x - intervals[*w].t_lo;
+    }
+    let shared = which[1..m].iter().all(|&w| w == which[0]);
+    for a in 0..3 {
+        let mut segment = [0usize; LANES];
+        let mut offset = [0.0; LANES];
+        if shared || set.shared_grid(a) {
+            // One grid for every lane: located once for the block.
+            let table = &intervals[which[0]].base.tables()[a];
+            let (lo, hi) = table.range();
+            for r in 0..m {
+                inside &= (lanes.s[a][r] >= lo) & (lanes.s[a][r] <= hi);
+            }
+            if !inside {
+                return None;
+            }
+            locate_lanes(table, &lanes.s[a], m, &mut segment, &mut offset);
+        } else {
+            for r in 0..m {
+                let at = intervals[which[r]].base.tables()[a].locate(lanes.s[a][r])?;
+                segment[r] = at.segment;
+                offset[r] = at.offset;
+            }
+        }
+        for r in 0..m {
+            let loc = Located {
+                segment: segment[r],
+                offset: offset[r],
+            };
+            let c = intervals[which[r]].at(a, loc, dt[r]);
+            for k in 0..6 {
+                lanes.c[a][k][r] = c[k];
+            }
+        }
+    }
+    for r in 0..m {
+        let sq = intervals[which[r]].squareness(dt[r]);
+        for k in 0..3 {
+            lanes.sq[k][r] = sq[k];
+        }
     }
     Some(())
 }
@@ -431,7 +529,193 @@ fn inv_sqrt_series(a: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernel::{inv_sqrt_one_plus, tan_small};
+    use crate::kernel::{compensate_at_temperatures, inv_sqrt_one_plus, tan_small, OutOfRange};
+    use crate::map::Carriage;
+    use crate::pose::Pose;
+
+    /// Uniform in [0, 1), a fixed sequence.
+    struct Seq(f64);
+
+    impl Seq {
+        fn next(&mut self) -> f64 {
+            self.0 = (self.0 * 997.0 + 0.618_033_988_7).fract();
+            self.0
+        }
+    }
+
+    /// A thesis-like map at `t` C on `grid(a)` of each carriage.
+    fn map(t: f64, grid: impl Fn(usize) -> Vec<f64>) -> ErrorMap {
+        let tables = std::array::from_fn(|a| {
+            let rows: Vec<[f64; 7]> = grid(a)
+                .into_iter()
+                .map(|p| {
+                    let w = (p / 97.0 + a as f64 + 0.3 * t).sin();
+                    [
+                        p,
+                        80.0 * p / 900.0 + t,
+                        2.0 * w,
+                        -w,
+                        3.0 * w,
+                        5.0 * w * w,
+                        -2.0 * w,
+                    ]
+                })
+                .collect();
+            CarriageTable::from_table_units(Carriage::ALL[a], &rows).unwrap()
+        });
+        ErrorMap::new(tables, [-173.0 + t, -19.0, 21.0 - t], Some(t)).unwrap()
+    }
+
+    const RANGES: [(f64, f64); 3] = [(0.0, 900.0), (0.0, 550.0), (-500.0, 0.0)];
+
+    fn uniform(a: usize) -> Vec<f64> {
+        let (lo, hi) = RANGES[a];
+        (0..=((hi - lo) / 25.0) as usize)
+            .map(|i| lo + 25.0 * i as f64)
+            .collect()
+    }
+
+    /// Non-uniform grids, the X range shorter: the intervals' union grids
+    /// and ranges then differ from interval to interval.
+    fn uneven(a: usize) -> Vec<f64> {
+        let (lo, hi) = RANGES[a];
+        let hi = if a == 0 { hi - 100.0 } else { hi };
+        let mut g: Vec<f64> = (0..=20)
+            .map(|i| lo + (hi - lo) * (i as f64 / 20.0).powf(1.3))
+            .collect();
+        g.dedup();
+        g
+    }
+
+    /// Sets of 1, 2 and 4 maps (uniform, uneven and mixed grids).
+    fn sets() -> Vec<ErrorMapSet> {
+        vec![
+            ErrorMapSet::new(vec![map(22.0, uniform)]).unwrap(),
+            ErrorMapSet::new(vec![map(20.0, uniform), map(30.0, uniform)]).unwrap(),
+            ErrorMapSet::new(vec![
+                map(20.0, uniform),
+                map(23.0, uniform),
+                map(26.0, uniform),
+                map(30.0, uniform),
+            ])
+            .unwrap(),
+            ErrorMapSet::new(vec![
+                map(20.0, uniform),
+                map(24.0, uneven),
+                map(27.0, uniform),
+                map(30.0, uneven),
+            ])
+            .unwrap(),
+        ]
+    }
+
+    #[test]
+    fn set_lanes_give_the_per_row_components_bit_for_bit() {
+        let opts = Options::default();
+        let mut q = Seq(0.123_456_789);
+        for set in sets() {
+            let (tlo, thi) = set.temperature_range();
+            // Blocks whose lanes share one interval, span several, sit on
+            // map temperatures and interval ends, and readings on the ends.
+            for block in 0..40 {
+                let m = [LANES, 1, 17, LANES][block % 4];
+                let mut lanes = Lanes::default();
+                let mut t = [0.0; LANES];
+                for r in 0..m {
+                    for a in 0..3 {
+                        let (lo, hi) = RANGES[a];
+                        let hi = if a == 0 { hi - 100.0 } else { hi };
+                        lanes.s[a][r] = match (block + r) % 13 {
+                            0 => lo,
+                            1 => hi,
+                            _ => lo + (hi - lo) * q.next(),
+                        };
+                    }
+                    t[r] = match block % 5 {
+                        0 => tlo + (thi - tlo) * (0.2 + 0.1 * q.next()),
+                        1 => set.temperatures()[r % set.temperatures().len()],
+                        _ => tlo + (thi - tlo) * q.next(),
+                    };
+                }
+                let mut report = Report::default();
+                set_lanes(&set, &mut lanes, &t, m).expect("every input inside");
+                for r in 0..m {
+                    let s = [lanes.s[0][r], lanes.s[1][r], lanes.s[2][r]];
+                    let temps = Temperatures::uniform(t[r]);
+                    let (c, sq) = set.components(s, &temps, &opts, &mut report).unwrap();
+                    for a in 0..3 {
+                        assert_eq!(lanes.sq[a][r].to_bits(), sq[a].to_bits());
+                        for k in 0..6 {
+                            assert_eq!(
+                                lanes.c[a][k][r].to_bits(),
+                                c[a][k].to_bits(),
+                                "{block} {r} {a} {k}"
+                            );
+                        }
+                    }
+                }
+                assert_eq!(report, Report::default());
+            }
+            // A temperature or a reading outside: the block goes back.
+            let mut lanes = Lanes::default();
+            let mut t = [tlo; LANES];
+            t[5] = thi + 0.01;
+            assert!(set_lanes(&set, &mut lanes, &t, LANES).is_none());
+            t[5] = thi;
+            lanes.s[1][7] = 551.0;
+            assert!(set_lanes(&set, &mut lanes, &t, LANES).is_none());
+            t[5] = f64::NAN;
+            assert!(set_lanes(&set, &mut lanes, &t, LANES).is_none());
+        }
+    }
+
+    #[test]
+    fn random_readings_with_a_set_give_the_per_row_paths_points() {
+        // The lane path (the default options) against the per-row path
+        // (clamping, which no input here needs): the same bits, and the
+        // same error for a reading outside a table.
+        let d = Digitizer::new(
+            &Pose::new(90.0, 90.0, 0.0).unwrap(),
+            [1.001, 264.505, 129.575],
+        )
+        .unwrap();
+        let mut q = Seq(0.271_828);
+        let n = 10_000;
+        let mut uv = Vec::with_capacity(2 * n);
+        let mut s = Vec::with_capacity(3 * n);
+        for _ in 0..n {
+            uv.extend([-30.0 + 60.0 * q.next(), 110.0 + 60.0 * q.next()]);
+            for (a, (lo, hi)) in RANGES.into_iter().enumerate() {
+                let hi = if a == 0 { hi - 100.0 } else { hi };
+                s.push(lo + (hi - lo) * q.next());
+            }
+        }
+        for set in sets() {
+            let (tlo, thi) = set.temperature_range();
+            let t: Vec<f64> = (0..n).map(|_| tlo + (thi - tlo) * q.next()).collect();
+            let mut lane = vec![0.0; 3 * n];
+            let mut row = vec![0.0; 3 * n];
+            let clamp = Options {
+                out_of_range: OutOfRange::Clamp,
+                ..Default::default()
+            };
+            let a =
+                compensate_at_temperatures(&uv, &s, &t, &set, &d, Options::default(), &mut lane)
+                    .unwrap();
+            let b = compensate_at_temperatures(&uv, &s, &t, &set, &d, clamp, &mut row).unwrap();
+            assert_eq!(a, b);
+            assert!(lane
+                .iter()
+                .zip(&row)
+                .all(|(x, y)| x.to_bits() == y.to_bits()));
+            let mut bad = s.clone();
+            bad[3 * 6000 + 2] = 1.0;
+            let e =
+                compensate_at_temperatures(&uv, &bad, &t, &set, &d, Options::default(), &mut lane)
+                    .unwrap_err();
+            assert!(e.to_string().contains("6000"), "{e}");
+        }
+    }
 
     #[test]
     fn series_match_the_scalar_functions_inside_their_range() {

@@ -1,6 +1,8 @@
 //! One error enum for the whole core; the bindings map each variant to one
 //! Python exception (polars' shape). Messages name the row, carriage or
-//! argument at fault so a user can find it in their data.
+//! argument at fault so a user can find it in their data; they say what is
+//! wrong, never which option of an interface changes it (the bindings add
+//! that from the variant's fields).
 
 use thiserror::Error;
 
@@ -40,9 +42,18 @@ pub enum CoreError {
         tolerance: f64,
     },
 
-    /// NaN or infinity in an input array.
-    #[error("{argument}: non-finite value (NaN or inf) in row {row} (pass nan_policy='propagate' to get NaN rows instead)")]
+    /// NaN or infinity in an input array. (The bindings add how to let
+    /// such rows through, in each interface's words.)
+    #[error("{argument}: non-finite value (NaN or inf) in row {row}")]
     NonFinite { argument: String, row: usize },
+
+    /// NaN or infinity given for one scalar argument.
+    #[error("{argument}: {value} {unit} is not finite")]
+    NotFinite {
+        argument: String,
+        value: f64,
+        unit: &'static str,
+    },
 
     /// An argument with the wrong shape, length or value.
     #[error("{argument}: {reason}")]

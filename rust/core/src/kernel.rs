@@ -395,6 +395,24 @@ impl Source for ErrorMapSet {
         ErrorMapSet::kinematics(self)
     }
 
+    /// Interval by interval, table by table over the lanes (see
+    /// [`crate::blocks::set_lanes`]).
+    #[inline(always)]
+    fn fill_lanes(
+        &self,
+        lanes: &mut Lanes,
+        t: Option<&[f64]>,
+        m: usize,
+        opts: &Options,
+        _report: &mut Report,
+    ) -> Option<()> {
+        // Clamping counts per row: that case goes row by row.
+        if opts.out_of_range == OutOfRange::Clamp {
+            return None;
+        }
+        crate::blocks::set_lanes(self, lanes, t?, m)
+    }
+
     #[inline(always)]
     fn miss_error(
         &self,
@@ -1027,7 +1045,11 @@ pub fn compensate_at_temperature(
 ) -> Result<Report> {
     if !temperature.is_finite() {
         if opts.nan_policy == NanPolicy::Raise {
-            return Err(CoreError::invalid_argument("temperature", format!("{temperature} C is not finite (pass nan_policy='propagate' to get NaN rows instead)")));
+            return Err(CoreError::NotFinite {
+                argument: "temperature".into(),
+                value: temperature,
+                unit: "C",
+            });
         }
         let columns = Columns::new();
         let n = Inputs {

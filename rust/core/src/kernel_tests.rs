@@ -262,8 +262,8 @@ fn out_of_range_raises_naming_row_or_clamps_and_counts() {
     assert_eq!(r.clamped_position, [1, 2, 1]);
 
     let set = ErrorMapSet::new(vec![
-        map.clone().with_temperature(Some(20.0)),
-        map.with_temperature(Some(30.0)),
+        map.clone().with_temperature(Some(20.0)).unwrap(),
+        map.with_temperature(Some(30.0)).unwrap(),
     ])
     .unwrap();
     let s_ok = [10.0, 10.0, -10.0, 10.0, 10.0, -10.0, 10.0, 10.0, -10.0];

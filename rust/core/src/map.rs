@@ -337,14 +337,7 @@ impl ErrorMap {
                 ));
             }
         }
-        if let Some(t) = temperature {
-            if !t.is_finite() {
-                return Err(CoreError::invalid_map(
-                    "temperature",
-                    format!("{t} C is not finite"),
-                ));
-            }
-        }
+        Self::check_temperature(temperature)?;
         Ok(ErrorMap {
             tables,
             squareness: squareness_arcsec.map(|s| s * ARCSEC_TO_RAD),
@@ -392,9 +385,23 @@ impl ErrorMap {
         self.temperature
     }
 
-    pub fn with_temperature(mut self, temperature: Option<f64>) -> Self {
+    /// A non-finite temperature is refused as in [`ErrorMap::new`].
+    pub fn with_temperature(mut self, temperature: Option<f64>) -> Result<Self> {
+        Self::check_temperature(temperature)?;
         self.temperature = temperature;
-        self
+        Ok(self)
+    }
+
+    /// The map temperature's check, one for [`ErrorMap::new`] and
+    /// [`ErrorMap::with_temperature`].
+    fn check_temperature(temperature: Option<f64>) -> Result<()> {
+        match temperature {
+            Some(t) if !t.is_finite() => Err(CoreError::invalid_map(
+                "temperature",
+                format!("{t} C is not finite"),
+            )),
+            _ => Ok(()),
+        }
     }
 
     /// How the machine's carriages are stacked (the thesis's X-Y-Z chain

@@ -86,6 +86,10 @@ impl Interval {
 pub struct ErrorMapSet {
     maps: Vec<ErrorMap>,
     intervals: Vec<Interval>,
+    /// Per carriage: whether every interval has the same grid (maps
+    /// measured on the same positions), so that a reading is located once
+    /// for whichever interval its temperature falls in.
+    shared_grid: [bool; 3],
 }
 
 /// Resample a table onto `grid` (inside its range) by linear interpolation.
@@ -160,7 +164,16 @@ impl ErrorMapSet {
         for w in maps.windows(2) {
             intervals.push(Self::interval(&w[0], &w[1])?);
         }
-        Ok(ErrorMapSet { maps, intervals })
+        let shared_grid = std::array::from_fn(|a| {
+            intervals
+                .windows(2)
+                .all(|w| w[0].base.tables()[a].positions() == w[1].base.tables()[a].positions())
+        });
+        Ok(ErrorMapSet {
+            maps,
+            intervals,
+            shared_grid,
+        })
     }
 
     fn interval(lo: &ErrorMap, hi: &ErrorMap) -> Result<Interval> {
@@ -233,6 +246,19 @@ impl ErrorMapSet {
             self.maps[0].temperature().unwrap(),
             self.maps[self.maps.len() - 1].temperature().unwrap(),
         )
+    }
+
+    /// The intervals between neighbouring maps, coldest first (none for a
+    /// single map).
+    #[inline(always)]
+    pub(crate) fn intervals(&self) -> &[Interval] {
+        &self.intervals
+    }
+
+    /// Whether every interval's table of carriage `a` has the same grid.
+    #[inline(always)]
+    pub(crate) fn shared_grid(&self, a: usize) -> bool {
+        self.shared_grid[a]
     }
 
     /// Which interval holds `t` (already inside the range) and the offset

@@ -2,7 +2,7 @@
 //! conversion lives here, one module per concern: arrays and named inputs
 //! in (float64, C-contiguous, read without copying), one output array
 //! allocated, the kernel run with the GIL released, core errors converted
-//! once (`errors::Failure`) onto the Python exception hierarchy.
+//! once (`errors::Failure`) onto the exception classes of `cmmpose.errors`.
 
 mod arrays;
 mod compensate;
@@ -24,7 +24,6 @@ fn thread_count() -> usize {
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    errors::register(m)?;
     maps::register(m)?;
     pose::register(m)?;
     compensate::register(m)?;

@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::arrays::{options, options_with, rows, run_kernel};
-use crate::errors::{input, MapError, Res};
+use crate::errors::{input, Res};
 
 /// The maps a compensation reads: an ErrorMap, or an ErrorMapSet (one map
 /// alone in a set holds at every temperature, as a single map does).
@@ -105,13 +105,8 @@ impl PyErrorMap {
     }
 
     fn with_temperature(&self, temperature: Option<f64>) -> Res<Self> {
-        if let Some(t) = temperature {
-            if !t.is_finite() {
-                return Err(MapError::new_err(format!("temperature: {t} C is not finite")).into());
-            }
-        }
         Ok(PyErrorMap {
-            inner: self.inner.clone().with_temperature(temperature),
+            inner: self.inner.clone().with_temperature(temperature)?,
         })
     }
 

@@ -14,18 +14,15 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from . import artefacts
-from .atomicfile import ensure_folder, write_text
-from .errors import Error, InputError
-from .policy import cli_wording
+from .. import artefacts
+from ..atomicfile import ensure_folder, write_text
+from ..errors import Error, InputError
+from .common import json_option, table_data, console, show, machine_option
+from .common import fail as _fail
 
 __all__ = ["artefact_group", "simulate_artefact", "evaluate_artefact_run", "diagnose_plate_fits_cli"]
 
-console = Console(stderr=True)
 
-
-def _fail(exc: Exception) -> click.ClickException:
-    return click.ClickException(cli_wording(str(exc), click.get_current_context(silent=True)))
 
 
 def _write_text(path: Path, text: str) -> None:
@@ -61,7 +58,7 @@ def artefact_example_cmd(name, out, overwrite) -> None:
     console.print(f"wrote {escape(str(path))}: the {name} example (cmmpose artefact show {escape(str(path))})")
 
 
-def _show(path, check: bool) -> None:
+def _show(path, check: bool, as_json: bool = False) -> None:
     try:
         a = artefacts.load_artefact(path)
     except Error as exc:
@@ -82,6 +79,9 @@ def _show(path, check: bool) -> None:
         ("placements", f"e.g. --placement {kind.layout}"),
     ):
         table.add_row(key, escape(value))
+    if as_json:
+        show(table, True, table_data(table) | ({"ok": True} if check else {}))
+        return
     Console().print(table)
     if check:
         console.print("ok: every key known, every ball with its uncertainties, the geometry fits the kind")
@@ -89,25 +89,66 @@ def _show(path, check: bool) -> None:
 
 @artefact_group.command("show")
 @click.argument("path", metavar="FILE|NAME")
-def artefact_show_cmd(path) -> None:
+@json_option
+def artefact_show_cmd(path, as_json) -> None:
     """Print what an artefact file (or a bundled example) says."""
-    _show(path, check=False)
+    _show(path, check=False, as_json=as_json)
 
 
 @artefact_group.command("check")
 @click.argument("path", metavar="FILE|NAME")
-def artefact_check_cmd(path) -> None:
+@json_option
+def artefact_check_cmd(path, as_json) -> None:
     """Check an artefact file: keys, numbers, repeated balls, uncertainties, geometry."""
-    _show(path, check=True)
+    _show(path, check=True, as_json=as_json)
+
+
+@artefact_group.command("plan")
+@click.argument("path", metavar="FILE|NAME")
+@click.option("--placement", "placements", multiple=True,
+              help="Where the artefact sits (repeatable; e.g. xy@z=-450,rot=90, planes, iso10360-2; "
+                   "default: the kind's layout).")
+@machine_option
+@click.option("--speed", type=float, default=35.0, show_default=True, help="Sweep speed, mm/s.")
+@click.option("--bidirectional", is_flag=True, help="Alternate the sweep direction from ball to ball.")
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
+              help="Plan file (JSON) for `cmmpose acquire --plan`.")
+def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out) -> None:
+    """Write the acquisition plan of an artefact run: the pose and sweep of every ball of every placement
+    (docs/artefacts.md, 'Recording a plate'), for `cmmpose acquire --plan`."""
+    from ..acquire.plan import artefact_plan
+    from ..machine import load_machine
+
+    try:
+        machine = load_machine(machine_file)
+        artefact = artefacts.load_artefact(path)
+        plan = artefact_plan(artefact, list(placements) or [artefacts.get(artefact.kind).layout], machine,
+                             speed=speed, bidirectional=bidirectional)
+        plan.write(out)
+    except Error as exc:
+        raise _fail(exc) from None
+    table = Table(title=f"cmmpose artefact plan -> {escape(str(out))}")
+    for c in ("scan", "placement", "ball", "pose", "sweep"):
+        table.add_column(c)
+    labels = [p["label"] for p in plan.artefact["placements"]]
+    poses = {p["pose_id"]: f"{p['alpha']:g},{p['beta']:g},{p['gamma']:g}" for p in plan.poses}
+    for s in plan.scans:
+        start = ", ".join(f"{x:.1f}" for x in s["sweep_start_mm"])
+        table.add_row(str(s["scan_id"]), escape(f"{s['position']}: {labels[s['position'] - 1]}"), str(s["ball"]),
+                      poses[s["pose_id"]], f"{'+' if s['sweep_direction'] > 0 else '-'}{s['sweep_axis']} "
+                      f"{s['sweep_length_mm']:.1f} mm from {start} at {s['sweep_speed']:g} mm/s")
+    Console(width=max(120, Console().width)).print(table)
+    console.print(f"wrote {escape(str(out))}: {len(plan.scans)} sweeps, {len(plan.poses)} poses "
+                  f"(cmmpose acquire --plan {escape(str(out))} ...)")
 
 
 def simulate_artefact(artefact_spec, placements, machine, maps, temperature, effects, speed, bidirectional,
-                      jitter_um, seed, run_dir, overwrite, progress_columns, record_maps) -> None:
+                      jitter_um, seed, run_dir, overwrite, progress_columns, record_maps, as_json=False) -> None:
     """``cmmpose simulate --artefact A --placement P ...``: simulate, save, print a summary;
     ``record_maps(run)`` gives the run with its record of the maps (as a ballbar run's)."""
     from rich.progress import Progress
 
-    from .sim.artefact_runs import simulate_artefact_run
+    from ..sim.artefact_runs import simulate_artefact_run
 
     try:
         artefact = artefacts.load_artefact(artefact_spec)
@@ -134,13 +175,13 @@ def simulate_artefact(artefact_spec, placements, machine, maps, temperature, eff
     table.add_row("temperature", f"{temperature:g} C")
     table.add_row("effects", escape(", ".join(e.name for e in effects)) or "none")
     table.add_row("time", f"{elapsed:.2f} s")
-    Console().print(table)
+    show(table, as_json)
 
 
 def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json, policy) -> None:
-    """``cmmpose evaluate RUN`` on an artefact run: the table or JSON, and the report."""
-    from .artefact_evaluation import evaluate_artefact
-    from .evaluation_uncertainty import DEFAULT_U_TEMPERATURE_K
+    """``cmmpose evaluate RUN_DIR`` on an artefact run: the table or JSON, and the report."""
+    from ..artefact_evaluation import evaluate_artefact
+    from ..evaluation_uncertainty import DEFAULT_U_TEMPERATURE_K
 
     try:
         ev = evaluate_artefact(run, model, temperature, reject=reject,
@@ -164,7 +205,7 @@ def diagnose_plate_fits_cli(fits_file, artefact_spec, state, temperature, nomina
     artefact's measured centres (:mod:`cmmpose.diagnosis.plate_fits`)."""
     import json
 
-    from .diagnosis.plate_fits import LINEAR_ERRORS, diagnose_plate_fits, read_plate_fits
+    from ..diagnosis.plate_fits import LINEAR_ERRORS, diagnose_plate_fits, read_plate_fits
 
     if artefact_spec is None:
         raise click.UsageError("--temperature takes --artefact (a ballbar's fits are at 20 C)")
@@ -233,7 +274,7 @@ def write_artefact_report(ev, directory: Path, poses: dict | None = None) -> lis
     except ImportError:
         console.print("matplotlib is not installed: no plots (pip install 'cmmpose[plot]')")
         return files
-    from .plots import plot_artefact_deviations, plot_length_errors
+    from ..plots import plot_artefact_deviations, plot_length_errors
 
     for r in ev.results:
         path = directory / f"deviations_{r.label}.png"

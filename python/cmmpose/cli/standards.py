@@ -1,7 +1,9 @@
-"""The standards' commands of the ``cmmpose`` command line (docs/standards.md):
-``iso230-2`` (positioning of an axis), ``acceptance`` (ISO 10360-8-style
-probing and length tests against MPEs) and ``interim-check`` (squareness and
-scale from one ballbar run). ``cmmpose.cli`` adds them to its group."""
+"""``cmmpose standards``: the standards' commands (docs/standards.md):
+``iso230-2`` (positioning of an axis), ``acceptance`` and
+``acceptance-sphere`` (ISO 10360-8-style probing and length tests against
+MPEs), ``interim-check`` (squareness and scale from one ballbar run) and
+``e3125-distances``. Their old top-level spellings (``cmmpose iso230-2``)
+still work (cmmpose.cli)."""
 
 from __future__ import annotations
 
@@ -10,30 +12,18 @@ from pathlib import Path
 import click
 from rich.console import Console
 
-from ._json import dumps as strict_json
-from .atomicfile import check_not_input, ensure_folder, write_text
-from .errors import Error
-from .machine import check_map_specs
-from .pointclouds import UNITS
-from .policy import cli_wording
+from .._json import dumps as strict_json
+from ..atomicfile import check_not_input, ensure_folder, write_text
+from ..errors import Error
+from ..pointclouds import UNITS
+from .common import skip_incomplete_option, console, map_specs, policy_options
+from .common import fail as _fail
 
-__all__ = ["iso230_2_cmd", "acceptance_cmd", "acceptance_sphere_cmd", "interim_cmd", "e3125_distances_cmd"]
-
-console = Console(stderr=True)
+__all__ = ["standards_group", "iso230_2_cmd", "acceptance_cmd", "acceptance_sphere_cmd", "interim_cmd", "e3125_distances_cmd"]
 
 
-def _fail(exc: Exception) -> click.ClickException:
-    return click.ClickException(cli_wording(str(exc), click.get_current_context(silent=True)))
 
 
-def map_specs(ctx, param, value):
-    """The ``--maps`` callback of every command (here, as cmmpose.cli imports
-    this module): an empty value (``--maps ""``) is a usage error, not the
-    current folder."""
-    try:
-        return check_map_specs(value)
-    except Error as exc:
-        raise click.BadParameter(str(exc).removeprefix("maps: "), param_hint="--maps") from None
 
 
 def _show(result, files, as_json: bool) -> None:
@@ -114,7 +104,7 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
     takes). Prints A, A_up, A_down, B, B_mean, E, E_up, E_down, M, R, R_up,
     R_down in um, and the figures per target.
     """
-    from .standards.iso230_2 import evaluate_iso230_2, load_positioning
+    from ..standards.iso230_2 import evaluate_iso230_2, load_positioning
 
     try:
         data, u, note = load_positioning(data_file, air_correction=not no_air_correction)
@@ -128,7 +118,7 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
 
 
 @click.command("acceptance")
-@click.argument("run_dir", metavar="RUN", type=click.Path(exists=True, file_okay=False))
+@click.argument("run_dir", metavar="RUN_DIR", type=click.Path(exists=True, file_okay=False))
 @click.option("--mpe-form", required=True, help="MPE of the probing form error, um (e.g. 12).")
 @click.option("--mpe-size", required=True, help="MPE of the probing size error, um (e.g. 10).")
 @click.option("--mpe-length", required=True, help="MPE of the length measurement error, um: A or A+L/K, L in mm (e.g. 8+L/300).")
@@ -151,27 +141,25 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write acceptance.json, acceptance.md (a report section) and acceptance.png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
-@click.option("--skip-incomplete", is_flag=True,
-              help="Leave out positions whose ball scans are missing, duplicated or mislabelled (listed in the "
-                   "output, its JSON and the report); without it such a position is an error.")
+@skip_incomplete_option
+@policy_options()
 def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, temperature, calibrated_length,
                    calibrated_radius, expansion, u_length_cert, u_diameter_cert, u_form_cert, u_expansion, u_part_temperature,
-                   plot_path, report_dir, as_json, skip_incomplete) -> None:
-    """Probing form and size errors and length measurement errors of RUN (in the manner of ISO 10360-8),
+                   plot_path, report_dir, as_json, skip_incomplete, temperature_policy) -> None:
+    """Probing form and size errors and length measurement errors of RUN_DIR (in the manner of ISO 10360-8),
     each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven.
 
     Exit status: 0 when the decision is pass; 1 when it is fail or not
     proven (conformance not shown), or on an error; 2 on a usage error.
     """
-    from .cli import _maps_for_run
-    from .machine import load_machine
-    from .run import Run
-    from .standards.acceptance import acceptance_test
+    from ..machine import load_machine
+    from ..run import Run
+    from ..standards.acceptance import acceptance_test
 
     try:
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
-        model = _maps_for_run(run, maps, machine)
+        model = machine.maps_for_run(run, maps)
         result = acceptance_test(
             run, model, temperature, mpe_form=mpe_form, mpe_size=mpe_size, mpe_length=mpe_length,
             calibrated_length_mm=calibrated_length, calibrated_radius_mm=calibrated_radius,
@@ -179,7 +167,7 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
             u_form_certificate_um=u_form_cert,
             expansion=machine.artefact_expansion if expansion is None else expansion * 1e-6,
             u_expansion_ppm_per_K=u_expansion, u_part_temperature_K=u_part_temperature,
-            skip_incomplete=skip_incomplete)
+            skip_incomplete=skip_incomplete, temperature_policy=temperature_policy)
         files = _outputs(result, "acceptance", result.plot, plot_path, report_dir)
     except Error as exc:
         raise _fail(exc) from None
@@ -188,7 +176,7 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
 
 
 @click.command("interim-check")
-@click.argument("run_dir", metavar="RUN", type=click.Path(exists=True, file_okay=False))
+@click.argument("run_dir", metavar="RUN_DIR", type=click.Path(exists=True, file_okay=False))
 @click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
               help="Machine file (kinematics, maps, artefact expansion); default the thesis machine.")
 @click.option("--maps", "maps", multiple=True, callback=map_specs,
@@ -202,36 +190,30 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write interim-check.json and interim-check.md (a report section) here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
-@click.option("--skip-incomplete", is_flag=True,
-              help="Leave out positions whose ball scans are missing, duplicated or mislabelled (listed in the "
-                   "output, its JSON and the report); without it such a position is an error.")
+@skip_incomplete_option
+@policy_options()
 def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_length_cert, u_temperature,
-                report_dir, as_json, skip_incomplete) -> None:
-    """Interim check of RUN, in the manner of the ballbar and gauge products: three scale and three
+                report_dir, as_json, skip_incomplete, temperature_policy) -> None:
+    """Interim check of RUN_DIR, in the manner of the ballbar and gauge products: three scale and three
     squareness values with their uncertainties (k = 2). Next to it, 'cmmpose diagnose' gives the full diagnosis."""
-    from .cli import _maps_for_run
-    from .machine import load_machine
-    from .run import Run
-    from .standards.interim import interim_check
+    from ..machine import load_machine
+    from ..run import Run
+    from ..standards.interim import interim_check
 
     try:
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
-        model = _maps_for_run(run, maps, machine)
+        model = machine.maps_for_run(run, maps)
         result = interim_check(run, model, temperature, calibrated_length_mm=calibrated_length,
                                u_length_certificate_um=u_length_cert, expansion=machine.artefact_expansion,
-                               u_temperature_K=u_temperature, skip_incomplete=skip_incomplete)
+                               u_temperature_K=u_temperature, skip_incomplete=skip_incomplete,
+                               temperature_policy=temperature_policy)
         files = _write_report(result, report_dir, "interim-check") if report_dir else []
     except Error as exc:
         raise _fail(exc) from None
     except OSError as exc:
         raise click.ClickException(f"{exc.filename}: {exc.strerror or exc}") from None
-    if as_json:
-        click.echo(strict_json(result.to_dict(), indent=2))
-    else:
-        Console(width=max(Console().width, 100)).print(result)
-    for f in files:
-        console.print(f"wrote {f}")
+    _show(result, files, as_json)
 
 
 @click.command("acceptance-sphere")
@@ -256,10 +238,10 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
     Exit status: 0 when the decision is pass; 1 when it is fail or not
     proven (conformance not shown), or on an error; 2 on a usage error.
     """
-    from .cli import triple
-    from .fitting import e3125
-    from .pointclouds import read_point_cloud, unit_factor
-    from .standards.acceptance import probing_test
+    from ..fitting import e3125
+    from ..pointclouds import read_point_cloud, unit_factor
+    from ..standards.acceptance import probing_test
+    from .common import triple
 
     try:
         scale = unit_factor(scan, units)  # --scanner-origin is in the file's units
@@ -297,9 +279,9 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
     """Sphere-centre distance errors in the manner of ASTM E3125: each NAME=SCAN is a raw scan of one
     sphere target (any point-cloud format), segmented and fitted with the radius fixed; each pair of
     --pairs is compared with its reference distance (docs/standards.md)."""
-    from .pointclouds import read_point_cloud, unit_factor
-    from .standards.acceptance import parse_mpe
-    from .standards.e3125_distances import distance_errors, read_pairs, sphere_targets
+    from ..pointclouds import read_point_cloud, unit_factor
+    from ..standards.acceptance import parse_mpe
+    from ..standards.e3125_distances import distance_errors, read_pairs, sphere_targets
 
     if not (radius > 0):
         raise click.BadParameter(f"expected a positive radius in mm, got {radius}", param_hint="--radius")
@@ -328,3 +310,13 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
     except Error as exc:
         raise _fail(exc) from None
     _show(result, files, as_json)
+
+
+@click.group("standards")
+def standards_group() -> None:
+    """Standard evaluations: ISO 230-2 positioning, acceptance tests against MPEs, the interim check, ASTM E3125
+    sphere-centre distances (docs/standards.md)."""
+
+
+for _command in (iso230_2_cmd, acceptance_cmd, acceptance_sphere_cmd, interim_cmd, e3125_distances_cmd):
+    standards_group.add_command(_command)

@@ -1,0 +1,5 @@
+"""``python -m cmmpose.cli``."""
+
+from . import main
+
+main()

@@ -1,0 +1,77 @@
+"""``cmmpose acquire``: recording a run from the scanner and the thermocouple logger."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+from rich.console import Console
+
+from ..errors import Error
+from .common import console, fail, machine_option, offset_mm, pose_angles
+
+
+@click.command("acquire")
+@click.option("--scanner", default=None, help="Scanner + scales port: device path or pyserial URL (socket://, rfc2217://).")
+@click.option("--thermo", default=None, help="Thermocouple logger port: device path or pyserial URL.")
+@click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
+@click.option("--duration", type=float, default=None, help="Seconds to record (default: until Ctrl-C).")
+@click.option("--plan", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Plan JSON: scans, poses, channels, artefact, maps (docs/protocols.md).")
+@click.option("--pose", default=None, help="alpha,beta,gamma in degrees, when the plan has no poses. Default: the machine's.")
+@click.option("--offset", default=None, help="U1,V1,W1 in mm, when the plan has no poses. Default: the machine's.")
+@machine_option
+@click.option("--tc-type", default="E", show_default=True, help="Thermocouple type.")
+@click.option("--thermo-interval", type=float, default=1.0, show_default=True, help="Seconds between logger scans.")
+@click.option("--flush-interval", type=float, default=0.2, show_default=True, help="Longest wait before records reach disk, s.")
+@click.option("--scanner-baud", type=int, default=921600, show_default=True,
+              help="Baud rate of the scanner + scales port (a serial device; ignored by socket:// URLs).")
+@click.option("--thermo-baud", type=int, default=9600, show_default=True,
+              help="Baud rate of the thermocouple logger port.")
+@click.option("--overwrite", is_flag=True, help="Replace a recording already in RUN_DIR.")
+@click.option("--recover", is_flag=True, help="Rebuild RUN_DIR from its journal (after a crash); opens no ports.")
+@click.option("--no-display", is_flag=True, help="No live display.")
+def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, machine_file, tc_type, thermo_interval,
+                flush_interval, scanner_baud, thermo_baud, overwrite, recover, no_display) -> None:
+    """Record the scanner + scales stream and the thermocouple logger into RUN_DIR
+    (live display; Ctrl-C stops cleanly and closes the run)."""
+    from ..acquire import recover as recover_run
+    from ..acquire.display import record_live, summary_table
+    from ..machine import load_machine
+
+    try:
+        if recover:
+            rec = recover_run(run_dir)
+            console.print(repr(rec))
+            run = rec.run
+        else:
+            if not (scanner or thermo):
+                raise click.UsageError("give --scanner, --thermo or both")
+            machine = load_machine(machine_file)
+            pose_t = pose_angles(pose, "--pose") if pose is not None else machine.pose.as_tuple()
+            offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
+            run = record_live(run_dir, scanner, thermo, duration=duration, console=console, show=not no_display,
+                              plan=_plan_for(plan, machine, machine_file), pose=pose_t, offset=offset_t, tc_type=tc_type,
+                              thermo_interval=thermo_interval, flush_interval=flush_interval,
+                              scanner_baudrate=scanner_baud, thermo_baudrate=thermo_baud, overwrite=overwrite)
+    except Error as exc:
+        raise fail(exc) from None
+    Console().print(summary_table(run, run_dir))
+
+
+def _plan_for(plan_file, machine, machine_file):
+    """The plan to record with: the plan file's, with the machine file's
+    thermocouple channels (in the file's order, multiplexer channels 101, 102,
+    ...) where the plan lists none."""
+    from ..acquire.plan import Plan
+
+    if machine_file is None:
+        return plan_file
+    plan = Plan.read(plan_file) if plan_file else Plan()
+    listed = plan_file and json.loads(Path(plan_file).read_text(encoding="utf-8")).get("temperature_channels")
+    if not listed:
+        plan.temperature_channels = [{"name": name, "role": role, "channel": 101 + k}
+                                     for k, (name, role) in enumerate(machine.thermocouples.items())]
+        plan.__post_init__()  # the same checks as a plan file's channels
+    return plan

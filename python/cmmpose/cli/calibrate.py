@@ -1,0 +1,218 @@
+"""``cmmpose calibrate``: digitizer alignment, mount offset, error maps from interferometer runs."""
+
+from __future__ import annotations
+
+import click
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from .._json import dumps as strict_json
+from ..atomicfile import check_not_input
+from ..errormap import ErrorMapSet
+from ..errors import CalibrationError, Error
+from ..pointclouds import read_point_cloud
+from ..pointfiles import read_points
+from .common import json_option, console, fail, load_maps, machine_option, map_specs, offset_mm, travel_notes, triple
+
+
+@click.group("calibrate")
+def calibrate() -> None:
+    """Calibration solvers: digitizer alignment, mount offset, error maps."""
+
+
+@calibrate.command("alignment")
+@click.option("--vernier", "vernier_file", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Optical-vernier points x, y, z (mm, machine; CSV with that header, NPY or any point-cloud format), "
+                   "in order counter-clockwise seen from +w.")
+@click.option("--plane-scan", "plane_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="Scan(s) of a flat plane while moving (CSV u,v,D,E,F), for gamma: one with --plane-normal, or two "
+                   "sweeps. Required to store an alignment.")
+@click.option("--plane-normal", default=None, help="Known outward normal of the scanned plane, nx,ny,nz.")
+@click.option("--reference-scan", "ref_file", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Reference-sphere scan at this pose (CSV u,v,D,E,F) for D0, E0, F0.")
+@click.option("--offset", default=None, help="U1,V1,W1 mount offset in mm. Default: the machine's.")
+@click.option("--name", required=True, help="Name of the indexed trunnion pose, e.g. A90B90.")
+@click.option("--library", "library_file", default=None, type=click.Path(dir_okay=False),
+              help="Alignment library (JSON). Default: the machine file's mount.alignments.")
+@click.option("--temperature", type=float, default=None,
+              help="Machine temperature during the alignment, C (needed with a map set).")
+@machine_option
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
+              help="Error maps the readings are compensated with ('thesis' or files); default: the machine's "
+                   "when --machine is given, else none (then the squareness shear biases alpha: a warning says so).")
+@click.option("--vernier-uncertainty", type=float, default=None,
+              help="Standard uncertainty of one vernier position along the normal, um (Type B). Default: from the "
+                   "fit's residuals (N - 3 degrees of freedom; three points need this option).")
+@click.option("--json", "as_json", is_flag=True, help="Print the stored record as JSON instead of the table.")
+def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, offset, name, library_file, temperature,
+                            machine_file, maps, vernier_uncertainty, as_json) -> None:
+    """Align the digitizer at one trunnion pose: alpha, beta from vernier points, gamma from plane
+    scans, D0 E0 F0 from a reference-sphere scan; store the result in the library."""
+    from ..calibration import (
+        AlignmentLibrary,
+        AlignmentRecord,
+        alpha_beta_from_vernier,
+        calibrated_pose,
+        gamma_from_plane_scan,
+        reference_centre_reading,
+    )
+    from ..machine import load_machine
+
+    normal = triple(plane_normal, "--plane-normal") if plane_normal else None
+    if not plane_files:
+        raise click.UsageError("--plane-scan is needed to store an alignment (gamma; with --plane-normal, or two "
+                               "sweeps along different axes)")
+    if not ref_file:
+        raise click.UsageError("--reference-scan is needed to store an alignment (D0, E0, F0)")
+    if vernier_uncertainty is not None and not (vernier_uncertainty > 0 and np.isfinite(vernier_uncertainty)):
+        raise click.BadParameter(f"expected a positive number of um, got {vernier_uncertainty}",
+                                 param_hint="--vernier-uncertainty")
+    try:
+        machine = load_machine(machine_file)
+        if library_file is None:
+            if machine_file is None or machine.alignments is None:
+                raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
+            library_file = machine.alignments
+        check_not_input(library_file, [vernier_file, *plane_files, ref_file, machine_file, *maps], "--library")
+        offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
+        error_map = load_maps(maps, machine) if (maps or machine_file) else None
+        if error_map is None:
+            console.print("[yellow]warning:[/] no error map: the readings are taken as positions, and the "
+                          "squareness shear biases alpha (give --maps or --machine)")
+        elif isinstance(error_map, ErrorMapSet) and temperature is None:
+            raise click.UsageError("a map set needs --temperature (the machine's during the alignment, C)")
+        em = {"error_map": error_map, "temperature": temperature if error_map is not None else None}
+        point_u = None if vernier_uncertainty is None else vernier_uncertainty * 1e-3
+        vern = alpha_beta_from_vernier(read_point_cloud(vernier_file).xyz, point_uncertainty=point_u, **em)
+        scans = [read_points(f) for f in plane_files]
+        gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
+                                    vern.alpha, vern.beta, normal=normal, offset=offset_t,
+                                    alpha_beta_covariance=vern.covariance, **em)
+        cp = calibrated_pose(vern, gam)
+        uv, scales, _ = read_points(ref_file)
+        # The pose's covariance goes into the reading through its Jacobian; the
+        # record keeps both apart (reading_uncertainty is the reading's own).
+        ref = reference_centre_reading(uv, scales, cp.pose, offset_t, pose_covariance=cp.covariance, **em)
+        residuals = {"vernier_rms": float(vern.fit.rms), "plane_rms": float(gam.rms)}
+        record = AlignmentRecord.from_calibration(cp, ref, offset_t, temperature=temperature, residuals=residuals)
+        AlignmentLibrary(library_file).save(name, record)
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(strict_json({"name": name, "library": str(library_file), **record.to_dict()}, indent=2))
+        return
+    table = Table(title=f"alignment {name!r} -> {library_file}", show_header=False)
+    table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in record.pose))
+    table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in record.pose_uncertainty))
+    table.add_row("D0, E0, F0 (mm)", ", ".join(f"{v:.4f}" for v in record.reading))
+    table.add_row("u, the reading's own (mm)", ", ".join(f"{v:.4f}" for v in record.reading_uncertainty))
+    total = np.sqrt(np.diag(ref.covariance))
+    table.add_row("u, with the pose's (mm)", ", ".join(f"{v:.4f}" for v in total))
+    Console().print(table)
+
+
+@calibrate.command("offset")
+@click.argument("names", nargs=-1, required=True)
+@click.option("--library", "library_file", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Alignment library (JSON). Default: the machine file's mount.alignments.")
+@machine_option
+@click.option("--tolerance", type=float, default=4.0, show_default=True,
+              help="Largest standardised residual before the alignments count as disagreeing.")
+@click.option("--json", "as_json", is_flag=True, help="Print the fit (offset, covariances, residuals, chi-square) as JSON.")
+def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) -> None:
+    """Mount offset U1, V1, W1 by least squares from three or more aligned poses NAMES in the library."""
+    from ..calibration import AlignmentLibrary, mount_offset
+    from ..machine import load_machine
+
+    try:
+        if library_file is None:
+            machine = load_machine(machine_file)
+            if machine.alignments is None:
+                raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
+            library_file = machine.alignments
+        lib = AlignmentLibrary(library_file)
+        readings = []
+        for n in names:
+            try:  # the solver's reading back: full pose covariance, its Jacobian, the lever
+                readings.append(lib.load(n).reference_reading())
+            except CalibrationError as exc:
+                raise CalibrationError(f"{library_file}: alignment {n!r}: {exc}") from None
+        fit = mount_offset(readings, tolerance=tolerance)
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(strict_json({
+            "poses": list(names), "units": {"offset": "mm", "centre": "mm", "residuals": "mm"},
+            "offset": [float(v) for v in fit.offset], "covariance": np.asarray(fit.covariance).tolist(),
+            "uncertainty": [float(v) for v in fit.uncertainty], "centre": [float(v) for v in fit.centre],
+            "centre_covariance": np.asarray(fit.centre_covariance).tolist(),
+            "residuals": {n: [float(v) for v in r] for n, r in zip(names, fit.residuals)},
+            "chi2": float(fit.chi2), "dof": int(fit.dof), "p_value": float(fit.p_value),
+        }, indent=2))
+        return
+    table = Table(title=f"mount offset from {', '.join(names)}")
+    table.add_column("")
+    table.add_column("U1 / x", justify="right")
+    table.add_column("V1 / y", justify="right")
+    table.add_column("W1 / z", justify="right")
+    table.add_row("offset (mm)", *(f"{v:.4f}" for v in fit.offset))
+    table.add_row("u (mm)", *(f"{v:.4f}" for v in fit.uncertainty))
+    for n, r in zip(names, fit.residuals):
+        table.add_row(f"residual {n} (um)", *(f"{v * 1e3:+.1f}" for v in r))
+    table.caption = f"chi-square p = {fit.p_value:.3f} ({fit.dof} dof)"
+    Console().print(table)
+
+
+@calibrate.command("map")
+@click.argument("run_files", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--squareness", required=True, help="S_xy,S_yz,S_zx in arc-seconds (thesis sign convention).")
+@click.option("--temperature", type=float, default=None, help="Map temperature, C (default: mean material temperature).")
+@click.option("--no-air-correction", is_flag=True, help="Do not correct linear readings for the refractive index of air.")
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
+@click.option("--compare", "compare_to", default=None, help="A map ('thesis@20', 'appendix-b' or a file) to compare with.")
+@click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False), help="Difference plot (with --compare).")
+@machine_option
+@json_option
+def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out, compare_to, plot_path,
+                      machine_file, as_json) -> None:
+    """Build an error map from raw laser-interferometer RUN_FILES (docs/interferometer.md). With
+    --machine, the map is checked against the machine's travel."""
+    from ..calibration.interferometer import build_map, compare_maps, plot_map_difference, read_run
+    from ..machine import load_machine
+
+    sq = triple(squareness, "--squareness")
+    try:
+        for given, flag in ((out, "--output"), (plot_path, "--plot")):
+            check_not_input(given, [*run_files, machine_file, compare_to], flag)
+        runs = [read_run(f) for f in run_files]
+        built = build_map(runs, sq, temperature, air_correction=not no_air_correction)
+        notes = list(built.notes) + (travel_notes(load_machine(machine_file), built.map) if machine_file else [])
+        built.map.write(out)
+        comparison = None
+        if compare_to:
+            if compare_to.startswith("thesis@"):
+                other = ErrorMapSet.thesis().at(float(compare_to.split("@", 1)[1]))
+            else:
+                other = load_maps((compare_to,))
+                if isinstance(other, ErrorMapSet):
+                    raise click.BadParameter("give one map (e.g. thesis@20)", param_hint="--compare")
+            comparison = compare_maps(built.map, other)
+            if not as_json:
+                Console().print(comparison.table())
+            if plot_path:
+                plot_map_difference(built.map, other, plot_path)
+                console.print(f"wrote {plot_path}")
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(strict_json({"output": str(out), "map": repr(built.map), "notes": notes, "comparison": None
+                                if comparison is None else {"max_difference": comparison.max_difference,
+                                                            "squareness_difference_arcsec":
+                                                                list(comparison.squareness_difference),
+                                                            "temperature_difference_K":
+                                                                comparison.temperature_difference}}, indent=2))
+        return
+    for note in notes:
+        console.print(f"note: {note}")
+    console.print(f"wrote {out}: {built.map!r}")

@@ -1,0 +1,224 @@
+"""What every command shares: the console, the --machine/--maps/policy/scheduler options, argument parsing, and a library error as the command line says it."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import click
+from rich.console import Console
+
+from .._arrays import as_triple
+from .._json import dumps as strict_json
+from ..atomicfile import check_not_input
+from ..errormap import ErrorMap, ErrorMapSet
+from ..errors import Error
+from ..machine import check_map_specs
+from ..policy import cli_wording
+from ..pose import check_pose_angles
+from ..scale import SCHEDULER_TIMEOUT, check_scheduler
+from ..temperature import temperature_options
+
+console = Console(stderr=True)
+
+def map_specs(ctx, param, value):
+    """The ``--maps`` callback of every command : an empty value (``--maps ""``) is a usage error, not the
+    current folder."""
+    try:
+        return check_map_specs(value)
+    except Error as exc:
+        raise click.BadParameter(str(exc).removeprefix("maps: "), param_hint="--maps") from None
+
+
+
+def load_maps(specs: tuple[str, ...], machine=None) -> ErrorMap | ErrorMapSet:
+    """'thesis' (bundled 20/25/30 C set), 'appendix-b' (22 C controller map),
+    or paths: canonical .csv maps or controller .txt files; several make a
+    set. With a machine: its maps when none are named, stacked as it is."""
+    from ..machine import read_maps
+
+    return machine.maps(specs) if machine is not None else read_maps(specs)
+
+
+def machine_option(f):
+    """--machine FILE, the same on every command."""
+    return click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
+                        help="Machine file (TOML: configuration, travel, maps, scanner, mount; "
+                             "`cmmpose machine example`). Default: the thesis machine.")(f)
+
+
+def machine_row(table, machine) -> None:
+    """The machine a command used, in its summary table."""
+    table.add_row("machine", f"{machine.name} ({machine.kinematics}; {machine.source})")
+
+
+def kernel_report_rows(table, report, temperature_tolerance) -> None:
+    """What the kernel clamped, held or extrapolated, in a summary table (rows only where it did)."""
+    if report.clamped:
+        x, y, z = report.clamped_position
+        table.add_row("clamped", f"X {x}, Y {y}, Z {z}, temperature {report.clamped_temperature}")
+    if report.held_temperature:
+        table.add_row("held at the maps' edge",
+                      f"{report.held_temperature:,} temperatures within {temperature_tolerance:g} K outside")
+    if report.extrapolated_temperature:
+        table.add_row("extrapolated", f"{report.extrapolated_temperature:,} temperatures, up to "
+                                      f"{report.max_extrapolation:.2f} K beyond the maps")
+
+
+def travel_notes(machine, built) -> list[str]:
+    """Where a map misses the machine's travel (a point there cannot be compensated)."""
+    return [f"the map covers {axis} {mlo:g}..{mhi:g} mm, less than {machine.name}'s travel {lo:g}..{hi:g} mm "
+            f"({machine.source}): points beyond it cannot be compensated"
+            for axis, (lo, hi), (mlo, mhi) in machine.uncovered(built.ranges)]
+
+
+def triple(text: str, name: str) -> tuple[float, float, float]:
+    if not text.strip():
+        # An empty value would otherwise fall back to a default in silence.
+        raise click.BadParameter("an empty value: give three comma-separated numbers, or leave the option out",
+                                 param_hint=name)
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise click.BadParameter(f"expected three comma-separated numbers, got {text!r}", param_hint=name) from None
+    if len(vals) != 3:
+        raise click.BadParameter(f"expected three comma-separated numbers, got {text!r}", param_hint=name)
+    return vals  # type: ignore[return-value]
+
+
+def pose_angles(text: str, name: str) -> tuple[float, float, float]:
+    """Three pose angles alpha,beta,gamma in degrees from an option's ``text``:
+    a usage error when empty, not three finite numbers or beyond +-360 deg."""
+    try:
+        return check_pose_angles(name, triple(text, name))
+    except Error as exc:
+        raise click.BadParameter(str(exc).removeprefix(f"{name}: "), param_hint=name) from None
+
+
+def offset_mm(text: str, name: str) -> tuple[float, float, float]:
+    """A mount offset U1,V1,W1 in mm from an option's ``text``: a usage error
+    when empty or not three finite numbers."""
+    try:
+        return as_triple(name, triple(text, name))
+    except Error as exc:
+        raise click.BadParameter(str(exc).removeprefix(f"{name}: "), param_hint=name) from None
+
+
+def check_outputs(outputs: dict, run_dirs=(), files=()) -> None:
+    """``InputError`` if an output (flag -> path, None for not given) is one of the
+    files the command reads: the runs' files (``cmmpose.run.RUN_FILES``) and ``files``
+    (cmmpose.atomicfile.check_not_input: any spelling or link)."""
+    from ..run import RUN_FILES
+
+    inputs = [Path(r) / n for r in run_dirs for n in RUN_FILES] + [f for f in files if f]
+    for flag, path in outputs.items():
+        check_not_input(path, inputs, flag)
+
+
+def fail(exc: Exception) -> click.ClickException:
+    """A library error as the CLI reports it: worded from its fields for the
+    command line (the remedy names this command's flag, or says it has none;
+    cmmpose.errors.Error.render)."""
+    return click.ClickException(cli_wording(exc, click.get_current_context(silent=True)))
+
+
+def policy_options(log_hold: bool = True):
+    """The temperature policy's flags, the same on every command: built from
+    the fields of cmmpose.temperature.TemperaturePolicy
+    (:func:`cmmpose.temperature.temperature_options`; ``log_hold=False``: the
+    map side only, for a command given temperatures rather than a log)."""
+    return temperature_options(log=log_hold)
+
+
+def _scheduler_spec(ctx, param, value):
+    """--scheduler: a usage error unless threads, processes or tcp://host:port."""
+    try:
+        return None if value is None else check_scheduler(value)
+    except Error as exc:
+        raise click.BadParameter(str(exc), param_hint="--scheduler") from None
+
+
+def scheduler_options(help_text: str):
+    """--scheduler and --scheduler-timeout, the same on every command that scales out (cmmpose.scale)."""
+
+    def wrap(f):
+        f = click.option("--scheduler-timeout", type=click.FloatRange(min=0, min_open=True, max=1e6),
+                         default=SCHEDULER_TIMEOUT, show_default=True,
+                         help="s: the longest wait for a scheduler at an address to accept the connection "
+                              "and answer (a port that never answers is an error after it).")(f)
+        return click.option("--scheduler", default=None, callback=_scheduler_spec, help=help_text)(f)
+
+    return wrap
+
+class console_log:  # noqa: N801 - used as a function: with console_log(): ...
+    """Library log lines (logger ``cmmpose``, level INFO and above) printed as notes and warnings while a
+    command runs."""
+
+    def __enter__(self):
+        import logging
+
+        from rich.markup import escape
+
+        class Handler(logging.Handler):
+            def emit(self, record):
+                level = "warning" if record.levelno >= logging.WARNING else "note"
+                console.print(f"{level}: {escape(record.getMessage())}")
+
+        self.logger = logging.getLogger("cmmpose")
+        self.handler = Handler(logging.INFO)
+        self.level = self.logger.level
+        self.logger.addHandler(self.handler)
+        if self.logger.getEffectiveLevel() > logging.INFO:
+            self.logger.setLevel(logging.INFO)
+        return self
+
+    def __exit__(self, *exc):
+        self.logger.removeHandler(self.handler)
+        self.logger.setLevel(self.level)
+        return False
+
+
+def json_option(f):
+    """--json, the same on every command that prints results."""
+    return click.option("--json", "as_json", is_flag=True, help="Print the result as JSON instead of the table.")(f)
+
+
+def table_data(table) -> dict | list:
+    """A rich summary table's cells as JSON-ready data: label -> value for a
+    table without a header, else one dict per row keyed by the headers."""
+    columns = [[str(c) for c in col._cells] for col in table.columns]
+    rows = list(zip(*columns))
+    if not table.show_header and len(columns) == 2:
+        return dict(rows)
+    headers = [str(col.header).replace("\n", " ") for col in table.columns]
+    return [dict(zip(headers, row)) for row in rows]
+
+
+def show(table, as_json: bool, data=None, width: int | None = None) -> None:
+    """Print ``table``, or with ``as_json`` ``data`` (default: the table's
+    cells, :func:`table_data`) as standard JSON on stdout."""
+    if as_json:
+        click.echo(strict_json(table_data(table) if data is None else data, indent=2))
+    else:
+        Console(width=width).print(table)
+
+
+def report_folder_html(ctx, param, value):
+    """--report of a command whose report is one HTML file: the folder it goes in (``DIR/<command>.html``);
+    a value ending in .html, or an existing file, is the older spelling: that file (a FutureWarning says so;
+    the command's checks then refuse it if it is one of its inputs)."""
+    if value is None:
+        return None
+    if value.lower().endswith(".html") or Path(value).is_file():  # a file named: the older spelling
+        warnings.warn_explicit(f"--report {value}: --report takes a folder now (the report is "
+                               f"FOLDER/{ctx.info_name}.html); a file name still works for now", FutureWarning,
+                               "cmmpose", 0)
+        return value
+    return str(Path(value) / f"{ctx.info_name}.html")
+
+
+def skip_incomplete_option(f):
+    """--skip-incomplete, the same on every command that evaluates ballbar positions."""
+    return click.option("--skip-incomplete", is_flag=True,
+                        help="Leave out positions whose ball scans are missing, duplicated or mislabelled (listed in "
+                             "the output, its JSON and the report); without it such a position is an error.")(f)

@@ -1,0 +1,193 @@
+"""``cmmpose compensate``: scanner points to machine coordinates (a file, or a folder of Parquet files on Dask)."""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from pathlib import Path
+
+import click
+from rich.markup import escape
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from ..atomicfile import check_not_input
+from ..compensation import warn_single_map
+from ..errormap import ErrorMap, ErrorMapSet
+from ..errors import Error, MapTemperatureWarning
+from ..filecompensation import compensate_file
+from ..pointfiles import check_writable
+from ..pointformats._common import check_file
+from .common import (console, json_option, show, fail, kernel_report_rows, load_maps, machine_option, machine_row, map_specs,
+                     offset_mm, policy_options, pose_angles, scheduler_options)
+
+
+@click.command("compensate")
+@click.argument("points_in", metavar="IN", type=click.Path())
+@click.argument("points_out", metavar="OUT", type=click.Path(writable=True))
+@machine_option
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
+              help="'thesis', 'appendix-b', or map files (.csv canonical, .txt controller); repeat for a set. "
+                   "Default: the machine's maps.")
+@click.option("--temperature", type=float, default=None,
+              help="Machine temperature in C for every point (default: the T column, if the file has one).")
+@click.option("--pose", default=None, help="alpha,beta,gamma in degrees (Euler 3-1-3). Default: the machine's.")
+@click.option("--offset", default=None, help="U1,V1,W1 mount offset in mm. Default: the machine's.")
+@click.option("--alignment", default=None,
+              help="Pose and offset from this alignment in the library (`cmmpose calibrate alignment --name`).")
+@click.option("--library", "library_file", type=click.Path(dir_okay=False), default=None,
+              help="Alignment library (JSON) for --alignment. Default: the machine file's mount.alignments.")
+@policy_options(log_hold=False)
+@click.option("--nan-policy", type=click.Choice(["raise", "propagate"]), default="raise", show_default=True,
+              help="A row with NaN or infinity in IN: stop naming it, or write it as a NaN row.")
+@json_option
+@scheduler_options("For a folder IN: 'threads' (default), 'processes', or a Dask scheduler address tcp://host:port "
+                   "(needs the dask extra).")
+@click.option("--model", "model_file", type=click.Path(dir_okay=False), default=None,
+              help="Compensate with a model a diagnosis saved (`cmmpose diagnose --save-model`): its maps and effects, "
+                   "which read their inputs from IN's columns (t and scan_id for latency, T_<role> for a "
+                   "thermocouple role; docs/diagnosis.md). Instead of --maps.")
+@click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="With --model: a Python file defining a user effect the model holds (repeatable).")
+def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
+                   out_of_range, temperature_tolerance, nan_policy, scheduler, scheduler_timeout, model_file,
+                   user_files, as_json) -> None:
+    """Compensate scanner points IN (CSV, NPY, Parquet, PLY or XYZ: u, v, D, E, F[, T])
+    into machine coordinates OUT (by suffix: CSV, NPY, Parquet, PLY, XYZ, PTS or E57;
+    X, Y, Z in mm, E57 in metres). Any other column of IN (scan_id, intensity, ...)
+    is written to OUT unchanged.
+
+    IN may be a folder of Parquet files (a dataset): OUT is then a folder that
+    gets one Parquet file per input, named after it, with X, Y, Z and the
+    input's other columns, compensated on the --scheduler in bounded memory."""
+    from ..machine import load_machine
+
+    try:
+        machine = load_machine(machine_file)
+        if alignment is not None:
+            if pose is not None or offset is not None:
+                raise click.UsageError("give --alignment or --pose/--offset, not both")
+            pose, offset = _aligned(alignment, library_file or machine.alignments)
+    except Error as exc:
+        raise fail(exc) from None
+    pose_t = pose_angles(pose, "--pose") if pose is not None else machine.pose.as_tuple()
+    offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
+    if model_file is None and user_files:
+        raise click.UsageError("--user-effect is for the effects of a --model")
+    if model_file is not None and maps:
+        raise click.UsageError("give --maps or --model (whose maps it holds), not both")
+    if Path(points_in).is_dir():
+        if model_file is not None:
+            raise click.UsageError(f"{points_in} is a folder: --model compensates a point file")
+        return _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
+                                   temperature_tolerance, nan_policy, scheduler or "threads", scheduler_timeout,
+                                   as_json)
+    if scheduler is not None:
+        raise click.BadParameter(f"{points_in} is a file; --scheduler is for a folder of Parquet files",
+                                 param_hint="--scheduler")
+    try:
+        check_writable(points_out)  # before any work: a missing folder is found now, not after
+        check_not_input(points_out, [points_in, *([model_file] if model_file else []), *user_files], "OUT")
+        error_map = load_model(model_file, user_files) if model_file is not None else load_maps(maps, machine)
+        size = check_file(points_in).stat().st_size
+        # One bar over reading, compensating and writing, by bytes of input;
+        # memory stays bounded by a few chunks whatever the file's size.
+        with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                      TimeRemainingColumn(), console=console, disable=size < (32 << 20)) as bar, \
+                warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MapTemperatureWarning)
+            task = bar.add_task("", total=size)
+            done = compensate_file(points_in, points_out, error_map, pose_t, offset_t, temperature,
+                                   out_of_range=out_of_range, nan_policy=nan_policy,
+                                   temperature_tolerance=temperature_tolerance,
+                                   progress=lambda at, _: bar.update(task, completed=at))
+            bar.update(task, completed=size)
+        for w in caught:
+            if issubclass(w.category, MapTemperatureWarning):
+                console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    except Error as exc:
+        raise fail(exc) from None
+    report, elapsed, t_all = done.report, done.kernel_seconds, done.temperature
+    n = report.points
+    table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
+    machine_row(table, machine)
+    table.add_row("points", f"{n:,}")
+    table.add_row("maps", repr(error_map))
+    table.add_row("temperature", t_all or "-")
+    table.add_row("pose (deg)", ", ".join(f"{v:g}" for v in pose_t))
+    table.add_row("offset (mm)", ", ".join(f"{v:g}" for v in offset_t))
+    kernel_report_rows(table, report, temperature_tolerance)
+    table.add_row("kernel time", f"{elapsed * 1e3:.1f} ms ({n / max(elapsed, 1e-9) / 1e6:.1f} M points/s)")
+    show(table, as_json, {"input": str(points_in), "output": str(points_out), "machine": machine.name,
+                          "points": n, "maps": repr(error_map), "temperature": t_all, "pose_deg": list(pose_t),
+                          "offset_mm": list(offset_t), "kernel_report": dataclasses.asdict(report),
+                          "kernel_seconds": elapsed})
+
+
+def load_model(model_file, user_files=()):
+    """The diagnosis model saved in ``model_file`` (``--model``), with the user effects it names."""
+    from ..diagnosis import Model
+    from ..diagnosis.effects import load_user_effect
+
+    return Model.load(model_file, [load_user_effect(f) for f in user_files])
+
+
+def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
+                        temperature_tolerance, nan_policy, scheduler, scheduler_timeout, as_json=False) -> None:
+    """`compensate DATASET_DIR OUT_DIR`: a folder of Parquet files on a Dask scheduler (cmmpose.scale)."""
+    import logging
+
+    from ..scale import compensate_dataset, dataset_temperature_range
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
+    try:
+        error_map = load_maps(maps, machine)
+        given = temperature if temperature is not None else dataset_temperature_range(points_in)
+        if isinstance(error_map, ErrorMap) and given is not None:  # T from the files' statistics, no data read
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", MapTemperatureWarning)
+                note = warn_single_map(error_map, given, temperature_tolerance)
+            if note:
+                console.print(f"[yellow]warning:[/] {escape(note)}")
+        with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                      TextColumn("{task.completed:,.0f} points"),
+                      TimeRemainingColumn(), console=console) as bar:
+            task = bar.add_task("", total=None)
+            result = compensate_dataset(points_in, points_out, error_map, pose_t, offset_t, temperature,
+                                        out_of_range=out_of_range, nan_policy=nan_policy,
+                                        temperature_tolerance=temperature_tolerance, scheduler=scheduler,
+                                        scheduler_timeout=scheduler_timeout, progress=lambda done, total: bar.update(task, completed=done, total=total))
+    except Error as exc:
+        raise fail(exc) from None
+    report = result.report
+    table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
+    machine_row(table, machine)
+    table.add_row("files", f"{len(result.outputs)}")
+    table.add_row("points", f"{result.points:,}")
+    table.add_row("maps", repr(error_map))
+    t_text = f"{temperature:g} C" if temperature is not None else "per point (T column)"
+    table.add_row("temperature", t_text if isinstance(error_map, ErrorMapSet) else "-")
+    table.add_row("pose (deg)", ", ".join(f"{v:g}" for v in pose_t))
+    table.add_row("offset (mm)", ", ".join(f"{v:g}" for v in offset_t))
+    table.add_row("scheduler", scheduler)
+    kernel_report_rows(table, report, temperature_tolerance)
+    table.add_row("wall time", f"{result.elapsed:.1f} s ({result.points / max(result.elapsed, 1e-9) / 1e6:.1f} M points/s)")
+    show(table, as_json, {"input": str(points_in), "output": str(points_out), "machine": machine.name,
+                          "files": [str(f) for f in result.outputs], "points": result.points, "maps": repr(error_map),
+                          "temperature": temperature, "pose_deg": list(pose_t), "offset_mm": list(offset_t),
+                          "scheduler": scheduler, "kernel_report": dataclasses.asdict(report),
+                          "wall_seconds": result.elapsed})
+
+
+def _aligned(name: str, library_file) -> tuple[str, str]:
+    """--pose and --offset text of the alignment ``name`` in the library."""
+    from ..calibration.library import AlignmentLibrary
+
+    if library_file is None:
+        raise click.UsageError("--alignment needs --library FILE (or mount.alignments in the machine file)")
+    if not Path(library_file).is_file():
+        raise click.BadParameter(f"{library_file}: no such alignment library", param_hint="--library")
+    record = AlignmentLibrary(library_file).load(name)
+    return ",".join(map(repr, record.as_pose().as_tuple())), ",".join(map(repr, record.as_offset()))

@@ -1,0 +1,292 @@
+"""``cmmpose diagnose`` and ``diagnose-fits``: which effect the model misses."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, Progress, TextColumn
+from rich.table import Table
+
+from .._json import dumps as strict_json
+from ..atomicfile import ensure_folder, write_text
+from ..errors import Error
+from ..temperature import log_notes
+from .artefact import diagnose_plate_fits_cli
+from .common import (check_outputs, console, fail, load_maps, machine_option, map_specs, policy_options,
+                     report_folder_html, scheduler_options)
+
+
+@click.command("diagnose")
+@click.argument("run_dirs", metavar="RUN_DIR...", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
+@machine_option
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
+              help="Model maps ('thesis' or files); default: the machine's, or as run.json says.")
+@click.option("--model", "model_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Start from a model saved by an earlier diagnosis (its maps and effects).")
+@click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
+@policy_options()
+@click.option("--add", "add", multiple=True, help="Add this effect first, whether significant or not (repeatable).")
+@click.option("--no-auto", is_flag=True, help="Only rank the candidates (and add --add ones); add nothing automatically.")
+@click.option("--max-effects", type=int, default=4, show_default=True, help="Most effects added automatically.")
+@click.option("--report", "report_file", type=click.Path(), default=None, callback=report_folder_html,
+              help="Folder for the report: a self-contained diagnose.html (made if missing). A FILE.html is the "
+                   "older spelling (that file).")
+@click.option("--save-model", "model_out", type=click.Path(dir_okay=False), default=None, help="Write the final model (JSON) here.")
+@click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="A Python file defining EFFECT (a cmmpose.diagnosis.UserEffect), added to the candidates "
+                   "(repeatable; docs/user-effects.md).")
+@click.option("--user-effect-skeleton", "skeleton_out", type=click.Path(dir_okay=False), default=None,
+              help="Write a user-effect draft (Python) built on the first unexplained finding here.")
+@click.option("--joint", is_flag=True,
+              help="With several runs: one model for all (shared effect parameters, per-run noise levels; the same "
+                   "artefact: one bar length), instead of one diagnosis per run.")
+@click.option("--separate-artefacts", is_flag=True, help="With --joint: each run measured its own artefact.")
+@scheduler_options("With several runs: where each run's diagnosis runs (threads, processes or tcp://host:port; "
+                   "the [dask] extra; docs/scale-out.md).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
+@click.option("--reproducibility", "reproducibility_um", type=float, default=None, metavar="UM",
+              help="Per-scan centre reproducibility, um per axis: the noise floor of a run that repeats no scan.")
+@click.option("--no-map-corrections", is_flag=True,
+              help="Offer only the library's named effects (no corrections of the map components).")
+@click.option("--corrected-maps", "corrected_out", type=click.Path(dir_okay=False), default=None,
+              help="Write the maps with the found map corrections in them (CSV; a set: one file per temperature).")
+def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
+                 add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, joint, separate_artefacts,
+                 scheduler, scheduler_timeout, as_json, temperature_policy, reproducibility_um=None,
+                 no_map_corrections=False, corrected_out=None) -> None:
+    """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall.
+    Several RUN_DIRs are diagnosed one by one on a Dask scheduler, with one table across them."""
+    from ..diagnosis import diagnose
+    from ..machine import load_machine
+    from ..run import Run
+
+    if joint:
+        if len(run_dirs) < 2 or scheduler:
+            raise click.UsageError("--joint takes two or more runs and runs in this process (no --scheduler)")
+        if skeleton_out:
+            raise click.UsageError("--user-effect-skeleton takes one run: diagnose the run of interest on its own")
+        return _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file,
+                               temperature=temperature, out_of_range=out_of_range,
+                               temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
+                               auto=not no_auto, max_effects=max_effects, same_artefact=not separate_artefacts)
+    if len(run_dirs) > 1 or scheduler:
+        for flag, given in (("--report", report_file), ("--save-model", model_out), ("--user-effect", user_files),
+                            ("--user-effect-skeleton", skeleton_out)):
+            if given:
+                raise click.UsageError(f"{flag} takes one run: diagnose the run of interest on its own")
+        return _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler or "threads", as_json,
+                               scheduler_timeout=scheduler_timeout,
+                               temperature=temperature, out_of_range=out_of_range,
+                               temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
+                               auto=not no_auto, max_effects=max_effects, temperature_policy=temperature_policy)
+    run_dir = run_dirs[0]
+    try:
+        check_outputs({"--save-model": model_out, "--report": report_file, "--user-effect-skeleton": skeleton_out,
+                       "--corrected-maps": corrected_out},
+                      run_dirs, [model_file, machine_file, *user_files])
+        machine = load_machine(machine_file)
+        run = Run.load(run_dir)
+        from ..diagnosis.effects import load_user_effect  # here: the diagnosis's imports, only for this command
+
+        user = [load_user_effect(f) for f in user_files]
+        model = _starting_model(run, machine, maps, model_file, user, temperature=temperature,
+                                out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+                                log_hold=log_hold, temperature_policy=temperature_policy)
+        with console.status("diagnosing ..."):
+            known = set(model.names)
+            diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects,
+                            user_effects=[u for u in user if u.name not in known],
+                            map_corrections=not no_map_corrections, reproducibility_um=reproducibility_um)
+        files = []
+        if skeleton_out:
+            from ..diagnosis.unexplained import user_effect_skeleton
+
+            if diag.unexplained:
+                write_text(skeleton_out, user_effect_skeleton(diag.unexplained[0]))
+                files.append(skeleton_out)
+            else:
+                console.print("no unexplained structure: no user-effect draft written")
+        if model_out:
+            files.append(diag.model.save(model_out))
+        if corrected_out:
+            files += _write_corrected_maps(diag.model, corrected_out)
+        if report_file:
+            try:
+                ensure_folder(Path(report_file).parent)
+                files.append(diag.write_report(report_file, run, run_dir=run_dir, model_file=model_out))
+            except ImportError as exc:  # the diagnosis is still printed and the model saved
+                console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
+    except Error as exc:
+        raise fail(exc) from None
+    _print_diagnosis(diag, files, as_json)
+
+
+def _write_corrected_maps(model, path) -> list:
+    """The model's maps with its map corrections in them (cmmpose.diagnosis.mapfamily.corrected_maps):
+    one CSV at ``path``, or for a set one per temperature beside it (``NAME_<T>C.csv``)."""
+    from ..errormap import ErrorMapSet
+    from ..diagnosis.mapfamily import corrected_maps
+
+    maps = corrected_maps(model)
+    path = Path(path)
+    if not isinstance(maps, ErrorMapSet):
+        maps.write(path)
+        return [path]
+    out = []
+    for m in maps.maps:
+        p = path.with_name(f"{path.stem}_{m.temperature:g}C{path.suffix or '.csv'}")
+        m.write(p)
+        out.append(p)
+    return out
+
+
+def _print_diagnosis(diag, files, as_json: bool) -> None:
+    if as_json:
+        click.echo(diag.to_json(indent=1))
+    else:
+        Console(width=150).print(diag)
+        for note in log_notes(diag.thermal or {}):  # the thermocouples dropped, held, read
+            console.print(f"note: {escape(note)}")
+    for f in files:
+        console.print(f"wrote {f}")
+
+
+def _starting_model(run, machine, maps, model_file, user, **policy):
+    """The model a diagnosis starts from: a saved one (with its user effects),
+    or the maps (--maps, the machine's, or the run's) with the temperature policy."""
+    from ..diagnosis import Model
+
+    if model_file:
+        return Model.load(model_file, user_effects=user)
+    if policy.get("temperature_policy") is None:
+        policy.pop("temperature_policy", None)
+    maps_ = machine.maps_for_run(run, maps)
+    if maps_ is None:
+        raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
+    return Model(maps_, **policy)
+
+
+def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file, *,
+                    temperature, out_of_range, temperature_tolerance, log_hold, **options) -> None:
+    """`diagnose RUN_DIR... --joint`: one model for several runs (cmmpose.diagnosis.joint); the
+    report shows the first run's plots and every run's error at each step."""
+    from ..diagnosis.joint import diagnose_jointly
+    from ..machine import load_machine
+    from ..run import Run
+
+    try:
+        check_outputs({"--save-model": model_out, "--report": report_file}, run_dirs,
+                      [model_file, machine_file, *user_files])
+        machine = load_machine(machine_file)
+        runs = [Run.load(r) for r in run_dirs]
+        from ..diagnosis.effects import load_user_effect  # here: the diagnosis's imports, only for this command
+
+        user = [load_user_effect(f) for f in user_files]
+        model = _starting_model(runs[0], machine, maps, model_file, user, temperature=temperature,
+                                out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+                                log_hold=log_hold)
+        with console.status(f"diagnosing {len(runs)} runs together ..."):
+            diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
+                                    run_names=[str(r) for r in run_dirs], **options)
+        files = [diag.model.save(model_out)] if model_out else []
+        if report_file:
+            try:
+                ensure_folder(Path(report_file).parent)
+                files.append(diag.write_report(report_file, runs[0], run_dir=run_dirs[0], model_file=model_out))
+            except ImportError as exc:  # the diagnosis is still printed and the model saved
+                console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
+    except Error as exc:
+        raise fail(exc) from None
+    _print_diagnosis(diag, files, as_json)
+
+
+def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json, *, scheduler_timeout, temperature,
+                    out_of_range, temperature_tolerance, log_hold, **options) -> None:
+    """`diagnose RUN_DIR...`: each run's diagnosis on a Dask scheduler (cmmpose.scale), one table across them."""
+    from ..diagnosis import Model
+    from ..machine import load_machine
+    from ..scale import diagnose_runs
+
+    try:
+        machine = load_machine(machine_file)
+        model = "run"  # each run's bundled maps, on its worker
+        if model_file:
+            model = Model.load(model_file)
+        elif maps == ("none",):
+            raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
+        elif maps or machine_file:
+            model = Model(load_maps(maps, machine))
+        with Progress(TextColumn("diagnosing"), BarColumn(), TextColumn("{task.completed}/{task.total} runs"),
+                      console=console) as bar:
+            task = bar.add_task("", total=len(run_dirs))
+            diags = diagnose_runs(run_dirs, model, scheduler=scheduler, scheduler_timeout=scheduler_timeout,
+                                  progress=lambda done, total: bar.update(task, completed=done, total=total),
+                                  temperature=temperature, out_of_range=out_of_range,
+                                  temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+                                  **options)
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(strict_json({str(r): json.loads(d.to_json()) for r, d in zip(run_dirs, diags)}, indent=1))
+        return
+    table = Table(title=f"diagnosis of {len(run_dirs)} runs ({scheduler})")
+    for col in ("run", "added (final values ± u)", "rms before (um)", "rms after (um)", "unexplained"):
+        table.add_column(col, justify="left" if col in ("run", "added (final values ± u)", "unexplained") else "right")
+    for r, d in zip(run_dirs, diags):
+        added = "; ".join(f"{x['name']}: {x['reason'].split(' (final model)')[0]}" for x in d.decisions()
+                          if x["decision"].startswith("added")) or "-"
+        table.add_row(str(r), added, f"{d.steps[0].figures.rms_accuracy_error * 1e3:.2f}",
+                      f"{d.steps[-1].figures.rms_accuracy_error * 1e3:.2f}",
+                      "; ".join(f.input + ": " + f.description.split(":")[0] for f in d.unexplained) or "-")
+    Console(width=160).print(table)
+
+
+@click.command("diagnose-fits")
+@click.argument("fits_file", metavar="FITS")
+@click.option("--state", default=None, help="Rows of this state only (a 'state' column, e.g. compensated).")
+@click.option("--nominal-radius", type=float, default=None, help="Calibrated ball radius, mm.")
+@click.option("--reference-length", type=float, default=None, help="Calibrated bar length, mm (default: the mean).")
+@click.option("--artefact", "artefact_spec", default=None, metavar="FILE|NAME",
+              help="FITS holds measured centres of this artefact (ball plate, step gauge): columns placement, ball, "
+                   "x_mm, y_mm, z_mm, radius_mm (docs/artefacts.md).")
+@click.option("--temperature", type=float, default=None,
+              help="With --artefact: the artefact's temperature while measured, C (default 20).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
+def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, artefact_spec, temperature,
+                      as_json) -> None:
+    """Diagnose a ballbar run from its sphere fits alone (centres, radii, points, fit rms per ball): FITS is a
+    CSV (docs/appendix-c.md) or 'appendix-c' (thesis Appendix C, 20 C, nominal radius 38.125 mm). With
+    --artefact, FITS holds the measured ball centres of a ball plate or step gauge at its placements."""
+    if artefact_spec is not None or temperature is not None:
+        return diagnose_plate_fits_cli(fits_file, artefact_spec, state, temperature, nominal_radius,
+                                       reference_length, as_json)
+    from ..diagnosis.spheres import NOMINAL_RADIUS_MM, appendix_c_sphere_fits, diagnose_sphere_fits, read_sphere_fits
+
+    try:
+        if fits_file == "appendix-c":
+            fits = appendix_c_sphere_fits(state or "compensated")
+            nominal_radius = NOMINAL_RADIUS_MM if nominal_radius is None else nominal_radius
+        else:
+            if not Path(fits_file).is_file():
+                raise click.BadParameter(f"{fits_file}: no such file", param_hint="FITS")
+            fits = read_sphere_fits(fits_file, state)
+        d = diagnose_sphere_fits(fits["centres"], fits["radii"], nominal_radius=nominal_radius,
+                                 reference_length=reference_length, points=fits.get("points"),
+                                 fit_rms=fits.get("fit_rms"))
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(strict_json(d.to_dict(), indent=1))
+        return
+    table = Table(title=f"sphere fits of {fits_file}" + (f" ({state})" if state else ""), show_header=False)
+    table.add_row("positions", str(len(d.lengths)))
+    table.add_row("rms accuracy error (um)", f"{d.rms_um:.2f}")
+    table.add_row("mean radius (mm)", f"{d.radius_mean:.4f}" + ("" if d.nominal_radius is None else
+                  f" ({d.radius_excess_um:+.1f} ± {d.radius_excess_u_um:.1f} um over {d.nominal_radius:g})"))
+    table.add_row("radius scatter between balls (um)", f"{d.radius_sd_um:.1f}")
+    Console().print(table)
+    Console(width=150).print(d.patterns)

@@ -1,0 +1,206 @@
+"""``cmmpose evaluate``: ballbar (and artefact) runs evaluated, one or a fleet."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, Progress, TextColumn
+from rich.table import Table
+
+from .._json import dumps as strict_json
+from ..atomicfile import ensure_folder, write_text
+from ..errors import Error, InputError, MapTemperatureWarning
+from ..evaluation_files import write_evaluation_files
+from ..metrics import STEEL_EXPANSION
+from .artefact import evaluate_artefact_run, write_artefact_report
+from .compensate import load_model
+from .common import skip_incomplete_option, console, console_log, fail, load_maps, machine_option, map_specs, policy_options, scheduler_options
+
+
+def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
+    """The evaluation's files (:func:`cmmpose.evaluation_files.write_evaluation_files`), the library's notes
+    (no matplotlib: no plots) printed; the files written."""
+    with console_log():
+        return write_evaluation_files(evaluation, directory, maps)
+
+
+@click.command("evaluate")
+@click.argument("run_dir", metavar="RUN_DIR...", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
+@machine_option
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
+              help="Compensation maps ('thesis', files, or 'none'); default: the machine's, or as run.json says.")
+@click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
+@policy_options()
+@click.option("--expansion", type=float, default=None,
+              help=f"Artefact expansion coefficient for lengths at 20 C, ppm/K (default: the machine's, "
+                   f"{STEEL_EXPANSION * 1e6:g} for the thesis machine).")
+@click.option("--reject", type=float, default=None, help="Robust sphere fits: reject beyond this many robust sigmas.")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None, help="Write JSON, CSV and plots here.")
+@click.option("--u-temperature", type=float, default=None,
+              help="Standard uncertainty of the machine temperature reading, K (default 0.2).")
+@click.option("--u-map", type=float, default=None,
+              help="Standard uncertainty of each axis's map scale, ppm (default: the interferometer's air, ~1.4).")
+@click.option("--u-model", type=float, default=0.0, show_default=True,
+              help="Standard uncertainty of the residual model error, ppm of the length (0: left out of the budget).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+@skip_incomplete_option
+@scheduler_options("Evaluate the runs on Dask: 'threads', 'processes' or a scheduler address tcp://host:port "
+                   "(default with several runs: threads; needs the dask extra).")
+@click.option("--model", "model_file", type=click.Path(dir_okay=False), default=None,
+              help="Compensate with a model a diagnosis saved (`cmmpose diagnose --save-model`): its maps and effects "
+                   "(inputs the run lacks are an error naming them); its parameters' uncertainties enter the budgets. "
+                   "Instead of --maps; one run.")
+@click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="With --model: a Python file defining a user effect the model holds (repeatable).")
+def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
+                 reject, u_temperature, u_map, u_model, report_dir, as_json, skip_incomplete, scheduler,
+                 scheduler_timeout, temperature_policy, model_file, user_files) -> None:
+    """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated.
+
+    With several runs (a fleet, or a day's runs), each is evaluated on the
+    --scheduler and a summary table across them is printed; --report writes
+    the summary (CSV), each run's report and a plot of the trend. One run:
+    every figure with its uncertainty (k = 2) and budget (docs/uncertainty.md)."""
+    from ..evaluation import evaluate
+    from ..machine import load_machine
+    from ..run import Run
+
+    if model_file is None and user_files:
+        raise click.UsageError("--user-effect is for the effects of a --model")
+    if model_file is not None and maps:
+        raise click.UsageError("give --maps or --model (whose maps it holds), not both")
+    if model_file is not None and (len(run_dir) > 1 or scheduler is not None):
+        raise click.UsageError("--model takes one run (evaluate each run on its own with it)")
+    try:
+        machine = load_machine(machine_file)
+        if expansion is None:
+            expansion = machine.artefact_expansion * 1e6
+        if len(run_dir) > 1 or scheduler is not None:
+            # The table across runs carries no uncertainties: their options would do nothing.
+            for flag, given in (("--u-temperature", u_temperature is not None), ("--u-map", u_map is not None),
+                                ("--u-model", u_model != 0.0)):
+                if given:
+                    raise click.UsageError(f"{flag} takes one run: the table across runs has no uncertainties "
+                                           "(evaluate each run on its own for them)")
+            return _evaluate_fleet(run_dir, machine, maps, scheduler or "threads", report_dir, as_json,
+                                   scheduler_timeout=scheduler_timeout,
+                                   temperature=temperature, reject=reject, out_of_range=out_of_range,
+                                   temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+                                   expansion=expansion * 1e-6, skip_incomplete=skip_incomplete,
+                                   temperature_policy=temperature_policy)
+        run_dir = run_dir[0]
+        run = Run.load(run_dir)
+        model = load_model(model_file, user_files) if model_file is not None else machine.maps_for_run(run, maps)
+        if "definition" in run.artefact:  # an artefact run (cmmpose simulate --artefact): cli/artefact.py
+            return evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json,
+                                         {"temperature_policy": temperature_policy})
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MapTemperatureWarning)
+            ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
+                          temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion=expansion * 1e-6,
+                          skip_incomplete=skip_incomplete, temperature_policy=temperature_policy)
+        for w in caught:
+            console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
+        unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
+                                      log_hold, u_temperature, u_map, u_model, temperature_policy)
+        files = write_report(ev, Path(report_dir), getattr(model, "maps", model) if model_file else model) \
+            if report_dir else []
+        if report_dir:
+            files += [Path(report_dir) / "uncertainty.json", Path(report_dir) / "uncertainty.md"]
+            write_text(files[-2], unc.to_json(indent=2))
+            write_text(files[-1], unc.to_markdown())
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(strict_json({**ev.to_dict(), "uncertainty": unc.to_dict()}, indent=2))
+    else:
+        Console().print(ev)
+        Console(width=max(Console().width, 130)).print(unc)
+    for f in files:
+        console.print(f"wrote {f}")
+
+
+def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance, log_hold,
+                            u_temperature, u_map, u_model, temperature_policy=None):
+    """u (k = 2) and budgets of every figure of ``ev`` (cmmpose.evaluation_uncertainty)."""
+    from ..evaluation_uncertainty import DEFAULT_U_TEMPERATURE_K, evaluation_uncertainty
+
+    return evaluation_uncertainty(
+        run, ev, model, temperature, reject=reject, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+        log_hold=log_hold, u_temperature_K=DEFAULT_U_TEMPERATURE_K if u_temperature is None else u_temperature,
+        u_map_ppm=u_map, u_model_ppm=u_model, temperature_policy=temperature_policy)
+
+
+def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, scheduler_timeout,
+                    **options) -> None:
+    """`evaluate RUN_DIR...`: every run on a Dask scheduler (cmmpose.scale), then one table across them."""
+    import logging
+
+    from ..evaluation import skipped_note
+    from ..scale import evaluate_runs, fleet_summary
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
+    if maps == ("none",):
+        model = None
+    elif maps or not machine.is_default:
+        model = load_maps(maps, machine)
+    else:
+        model = "run"  # each run.json names its bundled maps
+    with Progress(TextColumn("evaluating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} runs"),
+                  console=console) as bar:
+        task = bar.add_task("", total=len(run_dirs))
+        evaluations = evaluate_runs(run_dirs, model, scheduler=scheduler, scheduler_timeout=scheduler_timeout,
+                                    progress=lambda done, total: bar.update(task, completed=done), **options)
+    rows = fleet_summary(run_dirs, evaluations)
+    files = []
+    if report_dir:
+        from ..artefact_evaluation import ArtefactEvaluation  # here: the uncertainty budget's imports, ~80 ms
+        from ..plots import plot_fleet_trend
+
+        directory = ensure_folder(report_dir)
+        for r, ev in zip(run_dirs, evaluations):
+            if isinstance(ev, ArtefactEvaluation):  # a plate or step-gauge run of the fleet
+                files += write_artefact_report(ev, directory / Path(r).name)
+                continue
+            files += write_report(ev, directory / Path(r).name, model if not isinstance(model, str) else None)
+        summary = directory / "summary.csv"
+        fields = list(rows[0].__dataclass_fields__)
+        write_text(summary, "\n".join([",".join(fields)] + [",".join(str(getattr(row, f)) for f in fields)
+                                                             for row in rows]) + "\n")
+        files.append(summary)
+        try:
+            plot_fleet_trend(rows, directory / "trend.png")
+            files.append(directory / "trend.png")
+        except (ImportError, InputError) as exc:  # the table is still printed
+            console.print(f"[yellow]no trend plot:[/] {escape(str(exc))}")
+    if as_json:
+        click.echo(strict_json([{**{k: (None if isinstance(v, float) and v != v else v) for k, v in row.__dict__.items()},
+                                "skipped": ev.skipped} for row, ev in zip(rows, evaluations)],
+                               indent=2))  # NaN (no value) as null: strict JSON
+    else:
+        table = Table(title=f"cmmpose evaluate: {len(rows)} runs on {scheduler}")
+        table.add_column("run")
+        table.add_column("created")
+        table.add_column("temperature (C)", justify="right")
+        artefact_runs = any(row.kind != "ballbar" for row in rows)
+        for what in ("uncompensated", "compensated"):
+            table.add_column(f"{what}\nrms (um)", justify="right")
+            table.add_column("B89 | max|E| (um)" if artefact_runs else "B89 (um)", justify="right")
+        if artefact_runs:  # a plate or step gauge has no ballbar lengths: its own figures
+            table.caption = ("artefact runs (kind after the run): rms = rms ball deviation after each placement's "
+                             "best-fit rigid transform, max|E| = largest ball-pair length error")
+        um = lambda x: "-" if x != x else f"{x * 1e3:.1f}"  # noqa: E731 - NaN: no value
+        for row in rows:
+            table.add_row(escape(row.run) + ("" if row.kind == "ballbar" else f" ({row.kind})"), row.created, "-" if row.temperature != row.temperature else f"{row.temperature:.2f}",
+                          um(row.rms_uncompensated), um(row.b89_uncompensated), um(row.rms_compensated),
+                          um(row.b89_compensated))
+        Console(width=max(120, Console().width)).print(table)
+        for row, ev in zip(rows, evaluations):
+            if ev.skipped:
+                console.print(f"[yellow]{escape(row.run)}:[/] {escape(skipped_note(ev.skipped))}")
+    for f in files:
+        console.print(f"wrote {f}")

@@ -1,0 +1,186 @@
+"""``cmmpose map`` and ``plot-map``: exchange of linear-axis results (docs/formats.md) and plots of maps."""
+
+from __future__ import annotations
+
+import click
+from rich.markup import escape
+
+from ..atomicfile import check_not_input, ensure_folder
+from ..errormap import ErrorMapSet
+from .._json import dumps as strict_json
+from ..errors import Error
+from .common import json_option, console, console_log, fail, load_maps, machine_option, travel_notes
+
+
+def _units_option(f):
+    """--units of the map files, one meaning with every command's --units: the length unit of the file's values."""
+    return click.option("--units", type=click.Choice(["mm", "in", "inch"]), default="mm", show_default=True,
+                        callback=lambda ctx, param, value: "inch" if value == "in" else value,
+                        help="Length unit of the files' values (linuxcnc: the machine units; 'in' as in `cmmpose "
+                             "fit`, 'inch' its older spelling).")(f)
+
+
+@click.command("plot-map")
+@click.argument("maps", nargs=-1)
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="PNG (or PDF, SVG) to write.")
+@machine_option
+def plot_map_cmd(maps, out, machine_file) -> None:
+    """Plot error-map components against position (like thesis Figures 3-7 to 3-18).
+    MAPS: 'thesis', 'appendix-b', or map files (several make a set); default: the machine's."""
+    from ..machine import load_machine
+    from ..plots import plot_error_map
+
+    try:
+        if not maps and machine_file is None:
+            raise click.UsageError("give MAPS or --machine")
+        check_not_input(out, [*maps, machine_file], "--output")
+        plot_error_map(load_maps(tuple(maps), load_machine(machine_file) if machine_file else None), out)
+    except Error as exc:
+        raise fail(exc) from None
+    console.print(f"wrote {out}")
+
+
+_MAP_IMPORT_FORMATS = ("iso230-2", "linuxcnc")
+
+
+_MAP_EXPORT_FORMATS = ("csv", "iso230-2", "linuxcnc")
+
+
+def _map_spec(spec: str, what: str):
+    """One map: 'appendix-b', 'thesis@T' (the bundled set at T degrees C) or a map file of any registered format."""
+    from ..errormap import ErrorMap, ErrorMapSet
+
+    if spec == "appendix-b":
+        return ErrorMap.appendix_b()
+    if spec.startswith("thesis@"):
+        try:
+            t = float(spec.split("@", 1)[1])
+        except ValueError:
+            raise click.BadParameter(f"expected thesis@<temperature C>, got {spec!r}", param_hint=what) from None
+        return ErrorMapSet.thesis().at(t)
+    return ErrorMap.read(spec, format="auto")
+
+
+
+@click.group("map")
+def map_group() -> None:
+    """Error maps: plot them; import and export linear-axis results (ISO 230-2 style CSV, LinuxCNC
+    compensation files)."""
+
+
+@map_group.command("import")
+@click.argument("fmt", metavar="FORMAT", type=click.Choice(_MAP_IMPORT_FORMATS))
+@click.argument("files", metavar="FILE...", nargs=-1, required=True)
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
+@click.option("--base", default=None,
+              help="Replace only the linear components of this map ('appendix-b', 'thesis@T' or a map file); "
+                   "the results are interpolated onto its grid.")
+@click.option("--temperature", type=float, default=None, help="Map temperature, C (default: the base's, else none).")
+@click.option("--comp-file-type", type=click.Choice(["0", "1"]), default="0", show_default=True,
+              help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
+@_units_option
+@click.option("--hold-ends", is_flag=True, help="With --base: hold the end values where its grid runs beyond the targets.")
+@machine_option
+@json_option
+def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, hold_ends, machine_file, as_json) -> None:
+    """Build a canonical map from linear-axis results in FORMAT.
+
+    iso230-2: one CSV file. linuxcnc: one AXIS=FILE per axis, e.g. X=x.comp Y=y.comp.
+    The map keeps the mean of the two approach directions; axes without results
+    are zero (or, with --base, keep the base's component). With --machine, the
+    map is checked against the machine's travel.
+    """
+    from ..errors import Error
+    from ..iso230 import read_iso230
+    from ..linuxcnc import read_comp_files
+    from ..machine import load_machine
+
+    try:
+        read = files if fmt == "iso230-2" else [f.partition("=")[2] for f in files]
+        check_not_input(out, [*read, base, machine_file], "--output")
+        base_map = None if base is None else _map_spec(base, "--base")
+        with console_log():
+            if fmt == "iso230-2":
+                if len(files) != 1:
+                    raise click.UsageError(f"iso230-2 takes one FILE, got {len(files)}")
+                built = read_iso230(files[0], base=base_map, temperature=temperature, hold_ends=hold_ends)
+            else:
+                pairs = {}
+                for item in files:
+                    axis, sep, path = item.partition("=")
+                    if not sep or not path or axis.upper() not in ("X", "Y", "Z"):
+                        raise click.BadParameter(f"expected AXIS=FILE with AXIS X, Y or Z, got {item!r}",
+                                                 param_hint="FILE")
+                    if axis.upper() in pairs:
+                        raise click.BadParameter(f"axis {axis.upper()} given twice", param_hint="FILE")
+                    pairs[axis.upper()] = path
+                built = read_comp_files(pairs, comp_file_type=int(comp_file_type), units=units, base=base_map,
+                                        temperature=temperature, hold_ends=hold_ends)
+        notes = travel_notes(load_machine(machine_file), built) if machine_file else []
+        built.write(out)
+    except Error as exc:
+        raise fail(exc) from None
+    for note in notes:
+        console.print(f"[yellow]warning:[/] {escape(note)}")
+    if as_json:
+        click.echo(strict_json({"output": str(out), "map": repr(built), "notes": notes}, indent=2))
+        return
+    console.print(f"wrote {out}: {built!r}")
+
+
+@map_group.command("export")
+@click.argument("map_spec", metavar="MAP", required=False)
+@click.option("--format", "fmt", type=click.Choice(_MAP_EXPORT_FORMATS), required=True,
+              help="Format to write (linuxcnc: one file per axis in the directory OUT).")
+@click.option("-o", "--output", "out", required=True, type=click.Path(), help="File to write (linuxcnc: a directory).")
+@click.option("--comp-file-type", type=click.Choice(["0", "1"]), default="0", show_default=True,
+              help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
+@_units_option
+@machine_option
+@click.option("--temperature", type=float, default=None,
+              help="With --machine and a map set: the temperature to export the map at, C.")
+@json_option
+def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temperature, as_json) -> None:
+    """Write the linear components of MAP ('appendix-b', 'thesis@T' or a map file) in FORMAT;
+    without MAP, the machine's map (--machine; a set at --temperature).
+
+    iso230-2 and linuxcnc carry delta_x of X, delta_y of Y and delta_z of Z only,
+    the same value in both approach directions; linuxcnc writes x.comp, y.comp
+    and z.comp into the directory OUT.
+    """
+    from ..errors import Error
+    from ..linuxcnc import write_comp_files
+    from ..machine import load_machine
+
+    try:
+        if map_spec is not None:
+            source = _map_spec(map_spec, "MAP")
+        elif machine_file is None:
+            raise click.UsageError("give MAP or --machine")
+        else:
+            source = load_maps((), load_machine(machine_file))
+            if isinstance(source, ErrorMapSet):
+                if temperature is None:
+                    raise click.UsageError("the machine's maps are a set: give --temperature (C)")
+                source = source.at(temperature)
+        inputs = [map_spec, machine_file]
+        if fmt == "linuxcnc":
+            folder = ensure_folder(out)
+            files = {a: folder / f"{a.lower()}.comp" for a in ("X", "Y", "Z")}
+            for f in files.values():
+                check_not_input(f, inputs, "--output")
+            write_comp_files(source, files, comp_file_type=int(comp_file_type), units=units)
+            written = ", ".join(str(p) for p in files.values())
+        else:
+            check_not_input(out, inputs, "--output")
+            source.write(out, format=fmt)
+            written = out
+    except Error as exc:
+        raise fail(exc) from None
+    except OSError as exc:
+        raise click.ClickException(f"{out}: {exc.strerror or exc}") from None
+    if as_json:
+        click.echo(strict_json({"output": written.split(", ") if fmt == "linuxcnc" else str(written),
+                                "format": fmt}, indent=2))
+        return
+    console.print(f"wrote {written}")

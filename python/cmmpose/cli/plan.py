@@ -1,0 +1,118 @@
+"""``cmmpose plan``: the next placements that best separate what the runs
+leave aliased or invisible (:mod:`cmmpose.diagnosis.plan`; docs/plan.md),
+and, with ``--simulate``, a simulated run of them."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.markup import escape
+
+from .._json import dumps as strict_json
+from ..errors import Error
+from .common import check_outputs, console, fail, load_maps, machine_option, map_specs
+
+
+@click.command("plan")
+@click.argument("run_dirs", metavar="RUN_DIR...", nargs=-1, required=True,
+                type=click.Path(exists=True, file_okay=False))
+@machine_option
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
+              help="The model's maps ('thesis' or files); default: the machine's.")
+@click.option("--model", "model_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="The current model (`cmmpose diagnose --save-model`): its maps, and its effects planned for too.")
+@click.option("--artefact", "artefact", default=None, metavar="FILE|NAME",
+              help="What to place next (an artefact file or bundled example); default the runs' artefact, else "
+                   "the thesis ballbar.")
+@click.option("--budget", type=int, default=3, show_default=True, help="How many placements to propose.")
+@click.option("--plan-for", "plan_for", multiple=True, metavar="EFFECT",
+              help="An effect whose parameters the placements should determine (repeatable; default squareness, "
+                   "scale, roll).")
+@click.option("--sigma", "sigma_um", type=float, default=None,
+              help="Noise per ball-centre coordinate, um (default: from the runs' residuals).")
+@click.option("--simulate", "simulate", is_flag=True,
+              help="Simulate the proposed placements on the machine (with --effect physics) into -o RUN_DIR.")
+@click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
+              help="With --simulate: the physics the simulated machine has beyond its maps (as `cmmpose simulate`).")
+@click.option("--temperature", type=float, default=20.0, show_default=True, help="With --simulate: machine temperature, C.")
+@click.option("--jitter", type=float, default=0.0, show_default=True,
+              help="With --simulate: per-scan reproducibility, um per axis.")
+@click.option("--seed", type=int, default=0, show_default=True, help="With --simulate: noise seed.")
+@click.option("-o", "--output", "run_out", type=click.Path(file_okay=False), default=None,
+              help="With --simulate: the run directory to write.")
+@click.option("--overwrite", is_flag=True, help="With --simulate: replace an existing run in -o.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_for, sigma_um, simulate, effects,
+             temperature, jitter, seed, run_out, overwrite, as_json) -> None:
+    """Propose the next placements of an artefact (ballbar positions, plate placements, step-gauge lines) that
+    best determine what RUN_DIR... leave aliased or invisible (D-optimal on the centre-level sensitivities,
+    greedy over the placements the machine reaches), with the parameters' predicted uncertainties before and
+    after each; --simulate measures them on a virtual machine."""
+    from ..artefacts import load_artefact
+    from ..diagnosis.model import Model
+    from ..diagnosis.plan import DEFAULT_EFFECTS, plan
+    from ..machine import load_machine
+    from ..run import Run
+    from ..sim import parse_effect
+
+    if simulate and run_out is None:
+        raise click.UsageError("--simulate needs -o RUN_DIR (where the simulated run goes)")
+    if not simulate:
+        for flag, given in (("-o", run_out is not None), ("--effect", bool(effects)), ("--overwrite", overwrite)):
+            if given:
+                raise click.UsageError(f"{flag} is for --simulate")
+    if model_file is not None and maps:
+        raise click.UsageError("give --maps or --model (whose maps it holds), not both")
+    if not math.isfinite(temperature):
+        raise click.BadParameter(f"{temperature!r} is not a temperature in C", param_hint="--temperature")
+    if not (math.isfinite(jitter) and jitter >= 0):
+        raise click.BadParameter(f"{jitter!r} is not a reproducibility >= 0 um", param_hint="--jitter")
+    if simulate and any(Path(run_out).resolve() == Path(r).resolve() for r in run_dirs):
+        raise click.UsageError(f"-o {run_out}: is one of the runs read; the simulated run goes elsewhere")
+    if simulate and Path(run_out).exists() and not overwrite and (not Path(run_out).is_dir()
+                                                                  or any(Path(run_out).iterdir())):
+        raise click.UsageError(f"{run_out}: exists and is not empty (use --overwrite to replace the run in it)")
+    try:
+        if simulate:
+            check_outputs({"-o": run_out}, run_dirs, [model_file])
+        machine = load_machine(machine_file)
+        runs = [Run.load(d) for d in run_dirs]
+        model = Model.load(model_file) if model_file is not None else Model(load_maps(maps, machine))
+        art = load_artefact(artefact) if artefact is not None else None
+        parsed = [parse_effect(e) for e in effects]
+        result = plan(runs, art, budget, machine=machine, model=model, effects=plan_for or DEFAULT_EFFECTS,
+                      sigma_um=sigma_um)
+        written = None
+        if simulate:
+            written = _simulate(result, runs, art, machine, maps, parsed, temperature, jitter, seed, run_out,
+                                overwrite)
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(strict_json({**result.to_dict(), "simulated": written}, indent=2))
+    else:
+        Console(width=max(Console().width, 140)).print(result)
+    if written:
+        console.print(f"wrote {escape(written)}: the {len(result.proposals)} proposed placements, simulated")
+
+
+def _simulate(result, runs, art, machine, maps, effects, temperature, jitter_um, seed, run_out, overwrite) -> str:
+    """The proposals measured on the virtual machine, saved as a run; its directory."""
+    import dataclasses
+
+    from .. import artefacts
+    from ..artefact_evaluation import is_artefact_run
+    from ..sim.artefact_runs import simulate_artefact_run
+
+    if art is None:
+        first = next((r for r in runs if is_artefact_run(r)), None)
+        art = (artefacts.from_dict(first.artefact["definition"]) if first is not None
+               else artefacts.load_artefact("thesis-ballbar"))
+    run, truth = simulate_artefact_run(art, [p.where for p in result.proposals], load_maps(maps, machine),
+                                       temperature, effects, machine=machine, jitter=jitter_um * 1e-3, seed=seed)
+    run = dataclasses.replace(run, maps=machine.maps_record(maps))  # as `cmmpose simulate` records them
+    run.save(run_out, truth=truth, overwrite=overwrite)
+    return str(run_out)

@@ -1,0 +1,165 @@
+"""``cmmpose simulate`` and ``simulate-alignment``: virtual runs and alignment measurements."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import click
+import numpy as np
+from rich.progress import BarColumn, Progress, TextColumn
+from rich.table import Table
+
+from .. import effects as effects_registry
+from .._json import dumps as strict_json
+from ..atomicfile import atomic_write, ensure_folder, write_text
+from ..errors import Error
+from .artefact import simulate_artefact
+from .common import json_option, show, console, fail, load_maps, machine_option, machine_row, map_specs, pose_angles
+
+
+@click.command("simulate")
+@click.option("--layout", type=click.Choice(["b89", "crossed"]), default="b89", show_default=True,
+              help="20 ASME B89.4.1 positions (thesis Appendix C geometry) or the 8 crossed-ballbar positions.")
+@click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
+@machine_option
+@click.option("--maps", "maps", multiple=True, callback=map_specs,
+              help="The machine's real maps: 'thesis', 'appendix-b' or map files. Default: the machine's.")
+@click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
+              help="Extra physics, repeatable, e.g. latency:seconds=0.005 (`cmmpose effects` lists them). One of: "
+                   + "; ".join(f"{name} ({', '.join(f'{k} {u}'.strip() for k, u in cls.units().items())}): "
+                               f"{cls.summary}" for name, cls in effects_registry.available().items()) + ".")
+@click.option("--speed", type=float, default=35.0, show_default=True, help="Sweep speed, mm/s.")
+@click.option("--bidirectional", is_flag=True, help="Alternate forward and reverse sweeps.")
+@click.option("--jitter", type=float, default=0.0, show_default=True,
+              help="Per-scan reproducibility: sd of where the artefact really sits at each sweep, um per axis.")
+@click.option("--calibrated", is_flag=True, help="Record the bar length at 20 C and the ball radius as calibrated values.")
+@click.option("--reference-pose", "reference_poses", multiple=True, metavar="A,B,G",
+              help="After the ballbar, scan the reference sphere at this pose (degrees; repeatable).")
+@click.option("--artefact", "artefact", default=None, metavar="FILE|NAME",
+              help="Simulate this artefact file or bundled example (docs/artefacts.md) instead of the --layout.")
+@click.option("--placement", "placements", multiple=True, metavar="PLACEMENT",
+              help="With --artefact: where it sits, e.g. 'xy@z=-525,rot=45', 'planes', 'iso10360-2' (repeatable; "
+                   "default the kind's layout).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random numbers (noise, jitter): the same seed, the same run.")
+@json_option
+@click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing run in RUN_DIR.")
+def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidirectional, jitter, calibrated,
+                 reference_poses, artefact, placements, seed, as_json, run_dir, overwrite) -> None:
+    """Simulate a ballbar run (or, with --artefact, an artefact at its placements) on a virtual machine (default:
+    the thesis's Iota 1102 + Hyscan 45C) and write it as a run directory."""
+    from ..machine import load_machine
+    from ..sim import parse_effect, simulate_ballbar_run
+
+    if placements and artefact is None:
+        raise click.UsageError("--placement needs --artefact")
+    try:
+        machine = load_machine(machine_file)
+        parsed = [parse_effect(e) for e in effects]
+        machine_maps = load_maps(maps, machine)
+        if artefact is not None:
+            for flag, given in (("--calibrated", calibrated), ("--reference-pose", reference_poses)):
+                if given:
+                    raise click.UsageError(f"{flag} is for ballbar runs, not with --artefact")
+            return simulate_artefact(artefact, placements, machine, machine_maps, temperature, parsed, speed,
+                                     bidirectional, jitter, seed, run_dir, overwrite,
+                                     (TextColumn("simulating"), BarColumn(),
+                                      TextColumn("{task.completed}/{task.total} sweeps")),
+                                     lambda r: dataclasses.replace(r, maps=machine.maps_record(maps)), as_json=as_json)
+        start = time.perf_counter()
+        with Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.completed}/{task.total} sweeps"),
+                      console=console) as bar:
+            task = bar.add_task("", total=None)
+            run, truth = simulate_ballbar_run(
+                machine_maps, temperature, parsed, layout=layout, speed=speed, bidirectional=bidirectional, seed=seed,
+                scanner=machine.scanner, offset=tuple(machine.offset), jitter=jitter * 1e-3,
+                calibrated=("length", "radius") if calibrated else (),
+                reference_poses=[pose_angles(p, "--reference-pose") for p in reference_poses],
+                progress=lambda done, total: bar.update(task, completed=done, total=total))
+        run = dataclasses.replace(run, maps=machine.maps_record(maps))
+        elapsed = time.perf_counter() - start
+        run.save(run_dir, truth=truth, overwrite=overwrite)
+    except Error as exc:
+        raise fail(exc) from None
+    table = Table(title=f"cmmpose simulate -> {run_dir}", show_header=False)
+    machine_row(table, machine)
+    table.add_row("layout", f"{layout} ({len(run.scans['scan_id'])} sweeps)")
+    table.add_row("points", f"{run.n_points:,} ({run.n_points / len(run.scans['scan_id']):,.0f} per sphere)")
+    table.add_row("temperature", f"{temperature:g} C")
+    table.add_row("effects", ", ".join(effects) or "none")
+    table.add_row("time", f"{elapsed:.2f} s")
+    show(table, as_json, {"run": str(run_dir), "machine": machine.name, "layout": layout,
+                          "sweeps": len(run.scans["scan_id"]), "points": run.n_points, "temperature_C": temperature,
+                          "effects": list(effects), "seconds": elapsed})
+
+
+@click.command("simulate-alignment")
+@machine_option
+@click.option("--pose", "pose_text", required=True, help="Nominal pose alpha,beta,gamma of the trunnion stop, degrees.")
+@click.option("--name", required=True, help="Name of the pose, e.g. A90B90: the files are NAME-vernier.csv, ...")
+@click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
+@click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
+              help="What the calibration should find, e.g. alignment:alpha=0.03 or mount-offset:u=0.02 "
+                   "(`cmmpose effects`); repeatable.")
+@click.option("--vernier-points", type=click.IntRange(3), default=3, show_default=True,
+              help="Optical-vernier positions (the thesis uses 3).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random numbers: the same seed, the same measurements.")
+@json_option
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Folder for the measurement files.")
+def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, vernier_points, seed, as_json,
+                           out_dir) -> None:
+    """Simulate the measurements that align the scanner at one pose (thesis chapter 4): optical-vernier
+    positions, a plane scan and a reference-sphere scan, as `cmmpose calibrate alignment` reads them.
+
+    Writes NAME-vernier.csv (x,y,z, mm), NAME-plane.csv and NAME-sphere.csv (u,v,D,E,F, mm) and
+    NAME-truth.json (the plane's normal, the true pose, reading and offset), and prints the command
+    that calibrates from them."""
+    from ..machine import load_machine
+    from ..sim import parse_effect
+    from ..sim.calibration_data import VERNIER_NOISE, plane_scan, reference_sphere_scans
+    from ..sim.calibration_data import vernier_points as vernier
+
+    nominal = pose_angles(pose_text, "--pose")
+    try:
+        machine = load_machine(machine_file)
+        parsed = [parse_effect(e) for e in effects]
+        maps = machine.maps()
+        offset = tuple(machine.offset)
+        rng = np.random.default_rng(seed)
+        common = {"maps": maps, "temperature": temperature, "effects": parsed}
+        v = vernier(nominal, offset, n=vernier_points, seed=rng, **common)
+        plane = plane_scan(nominal, offset, scanner=machine.scanner, seed=rng, **common)
+        sphere = reference_sphere_scans([nominal], offset, scanner=machine.scanner,
+                                        seed=int(rng.integers(1 << 30)), **common)[0]
+        folder = ensure_folder(out_dir)
+        files = {k: folder / f"{name}-{k}.csv" for k in ("vernier", "plane", "sphere")}
+        with atomic_write(files["vernier"]) as f:
+            np.savetxt(f, v.points, delimiter=",", header="x,y,z", comments="", fmt="%.9f")
+        for k, d in (("plane", plane), ("sphere", sphere.data)):
+            with atomic_write(files[k]) as f:
+                np.savetxt(f, np.column_stack([d.uv, d.scales]), delimiter=",", header="u,v,D,E,F",
+                           comments="", fmt="%.9f")
+        normal = [float(c) for c in plane.plane.normal]
+        truth = {"units": {"pose": "degree", "reading": "mm", "offset": "mm", "vernier_uncertainty": "um"},
+                 "nominal_pose": list(nominal), "plane_normal": normal,
+                 "true_pose": [float(c) for c in sphere.true_pose], "true_reading": [float(c) for c in sphere.true_reading],
+                 "true_offset": [float(c) for c in sphere.true_offset], "vernier_uncertainty": VERNIER_NOISE * 1e3,
+                 "temperature": temperature, "effects": list(effects), "seed": seed}
+        write_text(folder / f"{name}-truth.json", strict_json(truth, indent=2))
+    except Error as exc:
+        raise fail(exc) from None
+    machine_arg = f" --machine {machine_file}" if machine_file else " --maps thesis"
+    command = ("cmmpose calibrate alignment" + machine_arg
+               + f" --temperature {temperature:g} --vernier {files['vernier']} --vernier-uncertainty "
+               f"{VERNIER_NOISE * 1e3:g} --plane-scan {files['plane']} --plane-normal "
+               + ",".join(f"{c + 0.0:.6g}" for c in normal) + f" --reference-scan {files['sphere']} --name {name} "
+               "--library LIBRARY")
+    if as_json:
+        click.echo(strict_json({"files": {k: str(f) for k, f in files.items()}, "truth": truth,
+                                "calibrate_with": command}, indent=2))
+        return
+    for f in files.values():
+        console.print(f"wrote {f}")
+    console.print("calibrate with:\n  " + command, soft_wrap=True)
