@@ -99,18 +99,9 @@ class LengthError:
     u: float
 
 
-@dataclass(frozen=True)
-class PlacementResult:
-    """One placement: its balls, pairs, fitted transform and temperature."""
-
-    position: int
-    label: str
-    temperature: float
-    rotation: np.ndarray
-    translation: np.ndarray
-    balls: tuple[BallDeviation, ...]
-    lengths: tuple[LengthError, ...]
-    missing: tuple[int, ...] = ()
+class _Figures:
+    """The summary figures of a set of ball deviations and length errors
+    (``balls`` and ``lengths``): one placement or all of them."""
 
     @property
     def rms(self) -> float:
@@ -127,7 +118,21 @@ class PlacementResult:
 
 
 @dataclass(frozen=True)
-class ArtefactResult:
+class PlacementResult(_Figures):
+    """One placement: its balls, pairs, fitted transform and temperature."""
+
+    position: int
+    label: str
+    temperature: float
+    rotation: np.ndarray
+    translation: np.ndarray
+    balls: tuple[BallDeviation, ...]
+    lengths: tuple[LengthError, ...]
+    missing: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class ArtefactResult(_Figures):
     """All placements under one model ('uncompensated' or 'compensated')."""
 
     label: str
@@ -138,18 +143,8 @@ class ArtefactResult:
         return [b for p in self.placements for b in p.balls]
 
     @property
-    def rms(self) -> float:
-        """Rms of every ball's deviation magnitude over all placements, mm."""
-        return float(np.sqrt(np.mean([b.magnitude ** 2 for b in self.balls])))
-
-    @property
-    def largest(self) -> BallDeviation:
-        return max(self.balls, key=lambda b: b.magnitude)
-
-    @property
-    def largest_length_error(self) -> LengthError | None:
-        errors = [e for p in self.placements for e in p.lengths]
-        return max(errors, key=lambda e: abs(e.error)) if errors else None
+    def lengths(self) -> list[LengthError]:
+        return [e for p in self.placements for e in p.lengths]
 
     def to_dict(self) -> dict:
         out = {"label": self.label, "rms_deviation_um": self.rms * 1e3, "largest_deviation_um": self.largest.magnitude * 1e3,

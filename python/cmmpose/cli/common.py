@@ -222,3 +222,30 @@ def skip_incomplete_option(f):
     return click.option("--skip-incomplete", is_flag=True,
                         help="Leave out positions whose ball scans are missing, duplicated or mislabelled (listed in "
                              "the output, its JSON and the report); without it such a position is an error.")(f)
+
+
+def model_options(help_text: str):
+    """--model and --user-effect: a model a diagnosis saved, used where maps would be (compensate, evaluate)."""
+    def wrap(f):
+        f = click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+                         help="With --model: a Python file defining a user effect the model holds (repeatable).")(f)
+        return click.option("--model", "model_file", type=click.Path(dir_okay=False), default=None,
+                            help="Compensate with a model a diagnosis saved (`cmmpose diagnose --save-model`): its "
+                                 f"maps and effects{help_text} Instead of --maps.")(f)
+    return wrap
+
+
+def check_model_or_maps(model_file, user_files, maps) -> None:
+    """--model replaces --maps; --user-effect only makes sense with --model."""
+    if model_file is None and user_files:
+        raise click.UsageError("--user-effect is for the effects of a --model")
+    if model_file is not None and maps:
+        raise click.UsageError("give --maps or --model (whose maps it holds), not both")
+
+
+def load_model(model_file, user_files=()):
+    """The diagnosis model saved in ``model_file`` (``--model``), with the user effects it names."""
+    from ..diagnosis import Model
+    from ..diagnosis.effects import load_user_effect
+
+    return Model.load(model_file, [load_user_effect(f) for f in user_files])

@@ -18,8 +18,9 @@ from ..errors import Error, MapTemperatureWarning
 from ..filecompensation import compensate_file
 from ..pointfiles import check_writable
 from ..pointformats._common import check_file
-from .common import (console, json_option, show, fail, kernel_report_rows, load_maps, machine_option, machine_row, map_specs,
-                     offset_mm, policy_options, pose_angles, scheduler_options)
+from .common import (check_model_or_maps, console, fail, json_option, kernel_report_rows, load_maps, load_model,
+                     machine_option, machine_row, map_specs, model_options, offset_mm, policy_options, pose_angles,
+                     scheduler_options, show)
 
 
 @click.command("compensate")
@@ -43,12 +44,8 @@ from .common import (console, json_option, show, fail, kernel_report_rows, load_
 @json_option
 @scheduler_options("For a folder IN: 'threads' (default), 'processes', or a Dask scheduler address tcp://host:port "
                    "(needs the dask extra).")
-@click.option("--model", "model_file", type=click.Path(dir_okay=False), default=None,
-              help="Compensate with a model a diagnosis saved (`cmmpose diagnose --save-model`): its maps and effects, "
-                   "which read their inputs from IN's columns (t and scan_id for latency, T_<role> for a "
-                   "thermocouple role; docs/diagnosis.md). Instead of --maps.")
-@click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
-              help="With --model: a Python file defining a user effect the model holds (repeatable).")
+@model_options(", which read their inputs from IN's columns (t and scan_id for latency, T_<role> for a "
+               "thermocouple role; docs/diagnosis.md).")
 def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
                    out_of_range, temperature_tolerance, nan_policy, scheduler, scheduler_timeout, model_file,
                    user_files, as_json) -> None:
@@ -72,10 +69,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         raise fail(exc) from None
     pose_t = pose_angles(pose, "--pose") if pose is not None else machine.pose.as_tuple()
     offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
-    if model_file is None and user_files:
-        raise click.UsageError("--user-effect is for the effects of a --model")
-    if model_file is not None and maps:
-        raise click.UsageError("give --maps or --model (whose maps it holds), not both")
+    check_model_or_maps(model_file, user_files, maps)
     if Path(points_in).is_dir():
         if model_file is not None:
             raise click.UsageError(f"{points_in} is a folder: --model compensates a point file")
@@ -124,14 +118,6 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                           "points": n, "maps": repr(error_map), "temperature": t_all, "pose_deg": list(pose_t),
                           "offset_mm": list(offset_t), "kernel_report": dataclasses.asdict(report),
                           "kernel_seconds": elapsed})
-
-
-def load_model(model_file, user_files=()):
-    """The diagnosis model saved in ``model_file`` (``--model``), with the user effects it names."""
-    from ..diagnosis import Model
-    from ..diagnosis.effects import load_user_effect
-
-    return Model.load(model_file, [load_user_effect(f) for f in user_files])
 
 
 def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,

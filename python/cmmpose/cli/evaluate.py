@@ -17,8 +17,8 @@ from ..errors import Error, InputError, MapTemperatureWarning
 from ..evaluation_files import write_evaluation_files
 from ..metrics import STEEL_EXPANSION
 from .artefact import evaluate_artefact_run, write_artefact_report
-from .compensate import load_model
-from .common import skip_incomplete_option, console, console_log, fail, load_maps, machine_option, map_specs, policy_options, scheduler_options
+from .common import (check_model_or_maps, console, console_log, fail, load_maps, load_model, machine_option, map_specs,
+                     model_options, policy_options, scheduler_options, skip_incomplete_option)
 
 
 def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
@@ -50,12 +50,8 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @skip_incomplete_option
 @scheduler_options("Evaluate the runs on Dask: 'threads', 'processes' or a scheduler address tcp://host:port "
                    "(default with several runs: threads; needs the dask extra).")
-@click.option("--model", "model_file", type=click.Path(dir_okay=False), default=None,
-              help="Compensate with a model a diagnosis saved (`cmmpose diagnose --save-model`): its maps and effects "
-                   "(inputs the run lacks are an error naming them); its parameters' uncertainties enter the budgets. "
-                   "Instead of --maps; one run.")
-@click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
-              help="With --model: a Python file defining a user effect the model holds (repeatable).")
+@model_options(" (inputs the run lacks are an error naming them); its parameters' uncertainties enter the "
+               "budgets. One run.")
 def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
                  reject, u_temperature, u_map, u_model, report_dir, as_json, skip_incomplete, scheduler,
                  scheduler_timeout, temperature_policy, model_file, user_files) -> None:
@@ -69,10 +65,7 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
     from ..machine import load_machine
     from ..run import Run
 
-    if model_file is None and user_files:
-        raise click.UsageError("--user-effect is for the effects of a --model")
-    if model_file is not None and maps:
-        raise click.UsageError("give --maps or --model (whose maps it holds), not both")
+    check_model_or_maps(model_file, user_files, maps)
     if model_file is not None and (len(run_dir) > 1 or scheduler is not None):
         raise click.UsageError("--model takes one run (evaluate each run on its own with it)")
     try:
