@@ -5,9 +5,16 @@ slowly enough for about 1e6 points, with a hidden squareness and scale
 error. Timed in this process after one warm-up call each (what loads on
 first use is not counted); the simulation is not timed.
 
-    python benches/artefact_speed.py [--repeats 5] [--speed 3.5]
+    python benches/artefact_speed.py [--repeats 5] [--speed 3.5] [--artefact koba-0420] [--placement P ...]
 
-Prints min-max over --repeats calls of ``cmmpose.artefact_evaluation.evaluate_artefact``
+The issue's KOBA 0620 case (5 x 5 balls at 133 mm: it stands only in the XY
+plane of the thesis machine, so four XY placements at two heights and two
+turns; --speed 3.5 for about 1e6 points, 35 for about 3e5):
+
+    python benches/artefact_speed.py --artefact koba-0620 --placement xy --placement xy@rot=90 \
+        --placement xy@z=-150 --placement xy@z=-400,rot=45
+
+Prints min-max over --repeats calls of ``cmmpose.evaluation.artefact.evaluate_artefact``
 (uncompensated and compensated with the thesis maps) and of ``cmmpose.diagnose``
 (the whole effect library, residual patterns included; then also without the
 map-correction candidates, ``map_corrections=False``), and the peak resident
@@ -24,7 +31,7 @@ import resource
 import time
 
 from cmmpose import artefacts
-from cmmpose.artefact_evaluation import evaluate_artefact
+from cmmpose.evaluation.artefact import evaluate_artefact
 from cmmpose.diagnosis import diagnose
 from cmmpose.errormap import ErrorMapSet
 from cmmpose.sim import Scale, Squareness
@@ -47,14 +54,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=5, help="Timed calls of each (min-max printed).")
     ap.add_argument("--speed", type=float, default=3.5, help="Sweep speed, mm/s (3.5: about 1e6 points).")
+    ap.add_argument("--artefact", default="koba-0420", help="Bundled artefact (or file) measured.")
+    ap.add_argument("--placement", action="append", default=None,
+                    help=f"Placement shorthand, repeatable (default: {' '.join(PLACEMENTS)}).")
     args = ap.parse_args(argv)
-    plate = artefacts.load_artefact("koba-0420")
-    run, _ = simulate_artefact_run(plate, PLACEMENTS, None, 20.0, [Squareness(6.0, -4.0, 3.0),
-                                                                     Scale(8.0, -6.0, 5.0)],
+    plate = artefacts.load_artefact(args.artefact)
+    run, _ = simulate_artefact_run(plate, args.placement or PLACEMENTS, None, 20.0, [Squareness(6.0, -4.0, 3.0),
+                                                                                     Scale(8.0, -6.0, 5.0)],
                                    speed=args.speed, seed=1)
     maps = ErrorMapSet.thesis()
     n_balls = len(run.scans["scan_id"])
-    print(f"KOBA 0420 at {len(run.artefact['placements'])} placements: {n_balls} balls, {run.n_points:,} points; "
+    print(f"{plate.name} at {len(run.artefact['placements'])} placements: {n_balls} balls, {run.n_points:,} points; "
           f"CPU: {cpu_name()}")
     ev = evaluate_artefact(run, maps)  # warm-up calls: what loads on first use is not counted
     d = diagnose(run, maps)

@@ -31,7 +31,7 @@ import pyarrow.parquet as pq
 #: no compensation: the floor under `cmmpose compensate`.
 FLOOR = """
 import sys
-from cmmpose.pointfiles import PointWriter, point_chunks
+from cmmpose.formats.pointfiles import PointWriter, point_chunks
 _, chunks = point_chunks(sys.argv[1])
 w = PointWriter(sys.argv[2])
 for uv, scales, temps, done in chunks:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 import cmmpose
-from cmmpose.evaluation import evaluate, machine_temperature
+from cmmpose.evaluation.ballbar import evaluate, machine_temperature
 from cmmpose.sim import simulate_ballbar_run
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -97,7 +97,7 @@ def main() -> None:
     numpy_evaluation(run, maps_np, 0)
     t_0 = time.perf_counter() - t
     t_np = t_0 + (t_k - t_0) * n_spheres / max(k, 1)
-    agree = np.abs(comp - cmmpose.evaluation._machine_coordinates(run, maps, machine_temperature(run, run.points["t"]))).max()
+    agree = np.abs(comp - cmmpose.evaluation.ballbar._machine_coordinates(run, maps, machine_temperature(run, run.points["t"]))).max()
     print(f"NumPy+SciPy way of the same work: {t_np:.2f} s (fits scaled from {k} per set) -> "
           f"{t_np / min(t_eval):.0f}x the fastest evaluate; compensated points agree to {agree:.1e} mm")
 

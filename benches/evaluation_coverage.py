@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 import cmmpose
-from cmmpose.evaluation_uncertainty import (
+from cmmpose.evaluation.ballbar_uncertainty import (
     DEFAULT_U_EXPANSION_PPM_PER_K,
     DEFAULT_U_TEMPERATURE_K,
     default_map_ppm,
@@ -51,7 +51,7 @@ def one_run(i: int, args, maps) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     run, truth = simulate_ballbar_run(maps, args.temperature, effects, jitter=args.jitter * 1e-3,
                                       scanner=Scanner(points_per_profile=args.points), seed=10_000 + i)
     told = args.temperature + d_t
-    ev = cmmpose.evaluate(run, maps, told, expansion=ALPHA_PPM * 1e-6)
+    ev = cmmpose.evaluate(run, maps, told, expansion_ppm_per_K=ALPHA_PPM)
     unc = evaluation_uncertainty(run, ev, maps, told, u_temperature_K=args.u_temperature, u_map_ppm=args.u_map,
                                  u_expansion_ppm_per_K=args.u_expansion)["compensated"]
     res = ev.compensated

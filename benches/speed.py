@@ -12,7 +12,7 @@ measured in the same run:
 - the diagnosis's model kernel (effects switched on) against plain
   compensation of the same run.
 
-    python benches/speed.py [--points 4000000] [--repeats 7]
+    python benches/speed.py [--points 4000000] [--repeats 7] [--only kernel]
 
 The first line names the CPU and the load average: compare ratios
 between machines, not absolute figures. Inputs are larger than the 32 MB L3 cache by default, so the figures are
@@ -169,15 +169,23 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--points", type=int, default=4_000_000)
     ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--only", choices=("kernel", "overhead", "fresh", "model"), action="append",
+                    help="run only these sections (repeatable); default: all. `--only kernel` is the quick "
+                         "check of the compensation rows")
     args = ap.parse_args()
+    only = set(args.only or ("kernel", "overhead", "fresh", "model"))
     print(f"{cpu_model()}; load average {os.getloadavg()[0]:.1f}")
     print(f"cmmpose {cmmpose.__version__}, {cmmpose.thread_count()} threads, {args.points:,} points "
           f"(NumPy on {NUMPY_POINTS:,}), best of {args.repeats}")
     t0 = time.perf_counter()
-    kernel_rows(args.points, args.repeats)
-    call_overhead(args.repeats)
-    fresh_output(args.points, args.repeats)
-    model_kernel(args.repeats)
+    if "kernel" in only:
+        kernel_rows(args.points, args.repeats)
+    if "overhead" in only:
+        call_overhead(args.repeats)
+    if "fresh" in only:
+        fresh_output(args.points, args.repeats)
+    if "model" in only:
+        model_kernel(args.repeats)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 
 from cmmpose import artefacts
-from cmmpose.artefact_evaluation import evaluate_artefact
+from cmmpose.evaluation.artefact import evaluate_artefact
 from cmmpose.errormap import ErrorMap
 from cmmpose.sim import Scanner
 from cmmpose.sim.artefact_runs import simulate_artefact_run
@@ -116,7 +116,7 @@ def main(argv=None) -> int:
         from PIL import Image
 
         from cmmpose.atomicfile import ensure_folder, write_bytes
-        from cmmpose.plots import plot_artefact_deviations
+        from cmmpose.evaluation.plots import plot_artefact_deviations
 
         ensure_folder(args.images)
         artefact = artefacts.load_artefact(ARTEFACT)

@@ -31,7 +31,7 @@ import numpy as np
 
 import cmmpose
 from cmmpose.diagnosis import Model
-from cmmpose.pointfiles import read_points
+from cmmpose.formats.pointfiles import read_points
 from cmmpose.run import Run
 
 HERE = Path(__file__).resolve().parent

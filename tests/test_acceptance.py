@@ -12,11 +12,11 @@ from click.testing import CliRunner
 import cmmpose
 from cmmpose.calibration import STANDARD_POSES
 from cmmpose.cli import main
-from cmmpose.evaluation import machine_coordinates, machine_temperature
+from cmmpose.evaluation.ballbar import machine_coordinates, machine_temperature
 from cmmpose.sim import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
 from cmmpose.fitting import e3125
-from cmmpose.pointclouds import read_point_cloud
+from cmmpose.formats.pointclouds import read_point_cloud
 from cmmpose.standards.acceptance import MPE, acceptance_test, decide, parse_mpe, probing_test
 from nist import NIST
 from numpy_sphere_fit import fit_sphere_reference
@@ -123,7 +123,7 @@ def test_no_calibrated_values_is_a_clear_error(sim):
     with pytest.raises(cmmpose.InputError, match="nothing to test"):
         acceptance_test(bare, MAPS, mpe_form=10, mpe_size=10, mpe_length="10")
     only_length = acceptance_test(bare, MAPS, mpe_form=10, mpe_size=10, mpe_length="10",
-                                  calibrated_length_mm=run.artefact["calibrated_length_mm"])
+                                  calibrated_length=run.artefact["calibrated_length_mm"])
     assert only_length.tests() == ["length"]
     assert any("no calibrated ball radius" in n for n in only_length.notes)
 
@@ -169,7 +169,7 @@ def test_probing_test_by_hand():
     assert probing_test(pts, 12.7, mpe_form=1, mpe_size=10.5, u_diameter_certificate_um=0.5).decision == "not proven"
     assert probing_test(pts, 12.7, mpe_form=1, mpe_size=8.9, u_diameter_certificate_um=0.5).decision == "fail"
     assert r.to_dict()["mpe"]["length"] == "not tested"
-    with pytest.raises(cmmpose.InputError, match="calibrated_radius_mm"):
+    with pytest.raises(cmmpose.InputError, match="calibrated_radius"):
         probing_test(pts, -1, mpe_form=1, mpe_size=1)
 
 

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from cmmpose import artefacts
 from cmmpose.acquire.plan import Plan, artefact_plan
-from cmmpose.artefact_evaluation import evaluate_artefact
+from cmmpose.evaluation.artefact import evaluate_artefact
 from cmmpose.cli import main
 from cmmpose.errormap import ErrorMapSet
 from cmmpose.errors import AcquisitionError, InputError

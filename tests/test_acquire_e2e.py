@@ -15,7 +15,7 @@ import numpy as np
 import cmmpose
 from cmmpose import sim
 from cmmpose.acquire import plan_from_run, read_journal, recover
-from cmmpose.evaluation_uncertainty import evaluation_uncertainty
+from cmmpose.evaluation.ballbar_uncertainty import evaluation_uncertainty
 from cmmpose.run import Run
 from cmmpose.sim.instruments import SimClock, SimLogger, SimScanner, synthetic_profiles
 
@@ -87,7 +87,7 @@ def test_simulated_ballbar_acquired_then_evaluated(tmp_path):
     doc = json.loads(res.stdout.decode())
     direct, acquired = cmmpose.evaluate(run, maps), cmmpose.evaluate(got, maps)
     lib = json.loads(acquired.to_json())
-    # The CLI adds every figure's uncertainty (cmmpose.evaluation_uncertainty): the library's, too.
+    # The CLI adds every figure's uncertainty (cmmpose.evaluation.ballbar_uncertainty): the library's, too.
     lib["uncertainty"] = json.loads(json.dumps(evaluation_uncertainty(got, acquired, maps).to_dict()))
     for d in (lib, doc):  # when each evaluation ran is the one thing that may differ
         d["provenance"].pop("date_utc")

@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from cmmpose import artefacts
-from cmmpose.artefact_evaluation import evaluate_artefact
+from cmmpose.evaluation.artefact import evaluate_artefact
 from cmmpose.cli import main
 from cmmpose.diagnosis.plate_fits import diagnose_plate_fits, read_plate_fits
 from cmmpose.errormap import ErrorMap

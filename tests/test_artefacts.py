@@ -11,11 +11,11 @@ import pytest
 from click.testing import CliRunner
 
 from cmmpose import artefacts, placement
-from cmmpose.artefact_evaluation import evaluate_artefact, is_artefact_run, rigid_fit
+from cmmpose.evaluation.artefact import evaluate_artefact, is_artefact_run, rigid_fit
 from cmmpose.cli import main
 from cmmpose.errormap import ErrorMap
 from cmmpose.errors import InputError
-from cmmpose.evaluation import evaluate
+from cmmpose.evaluation.ballbar import evaluate
 from cmmpose.machine import Machine
 from cmmpose.run import Run
 from cmmpose.sim import Scanner, simulate_ballbar_run
@@ -361,7 +361,7 @@ def test_fleet_table_gives_an_artefact_run_its_own_figures(plate_run):
 
     run, _ = plate_run
     maps = ErrorMapSet.thesis()
-    ev = scale._evaluate_run(run, maps, temperature=20.0, expansion=11.5e-6, skip_incomplete=False)
+    ev = scale._evaluate_run(run, maps, temperature=20.0, expansion_ppm_per_K=11.5, skip_incomplete=False)
     direct = evaluate_artefact(run, maps, 20.0)
     bar, _ = simulate_ballbar_run(maps, 20.0, layout="crossed", scanner=Scanner(points_per_profile=64), seed=1)
     rows = scale.fleet_summary(["plate", "bar"], [ev, scale._evaluate_run(bar, maps)])

@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from cmmpose import _core, artefacts
-from cmmpose.artefact_evaluation import evaluate_artefact
+from cmmpose.evaluation.artefact import evaluate_artefact
 from cmmpose.errormap import ErrorMap, data_path
 from cmmpose.machine import load_machine
 from cmmpose.sim import Scanner, SquarenessOffset

@@ -66,7 +66,7 @@ def tilted_plane(pose):
 @pytest.mark.parametrize("pose", [*STANDARD_POSES, (90.0, 90.0, -60.0)])
 def test_vernier_recovers_alpha_beta_within_3u(pose):
     v = vernier_points(pose, maps=MAPS, temperature=T, effects=[ALIGN_ERR], seed=3)
-    r = alpha_beta_from_vernier(v.points, point_uncertainty=VERNIER_NOISE, error_map=MAPS, temperature=T)
+    r = alpha_beta_from_vernier(v.points, point_uncertainty=VERNIER_NOISE, maps=MAPS, temperature=T)
     err = np.array([angle_diff(r.alpha, v.true_pose[0]), r.beta - v.true_pose[1]])
     assert np.all(np.abs(err) < 3 * r.uncertainty), (err, r.uncertainty)
     assert 0.005 < r.uncertainty[0] < 0.03  # the thesis's 0.01-0.05 deg class
@@ -80,11 +80,11 @@ def test_vernier_uncertainty_matches_monte_carlo():
     z_b, z_a = [], []
     for seed in range(300):
         v = vernier_points((90.0, 90.0, 0.0), maps=MAPS, temperature=T, effects=[ALIGN_ERR], seed=seed)
-        r = alpha_beta_from_vernier(v.points, point_uncertainty=VERNIER_NOISE, error_map=MAPS, temperature=T)
+        r = alpha_beta_from_vernier(v.points, point_uncertainty=VERNIER_NOISE, maps=MAPS, temperature=T)
         z_b.append(np.array([angle_diff(r.alpha, v.true_pose[0]), r.beta - v.true_pose[1]]) / r.uncertainty)
         # Type A (sigma from the fit's residuals) with enough points to be a fair estimate.
         v = vernier_points((180.0, 90.0, 0.0), n=30, maps=MAPS, temperature=T, effects=[ALIGN_ERR], seed=1000 + seed)
-        r = alpha_beta_from_vernier(v.points, error_map=MAPS, temperature=T)
+        r = alpha_beta_from_vernier(v.points, maps=MAPS, temperature=T)
         z_a.append(np.array([angle_diff(r.alpha, v.true_pose[0]), r.beta - v.true_pose[1]]) / r.uncertainty)
     assert np.all(np.abs(rms(z_b) - 1) < 0.15), rms(z_b)
     # Student t with 27 degrees of freedom: sd sqrt(27/25) = 1.04.
@@ -95,7 +95,7 @@ def test_vernier_without_the_map_sees_the_squareness():
     """Uncompensated vernier readings lie on a plane sheared by the machine's
     squareness: alpha comes out off by S_xy (-174 a-s at 21 C), beta by S_zx."""
     v = vernier_points((90.0, 90.0, 0.0), noise=0.0, maps=MAPS, temperature=T)
-    comp = alpha_beta_from_vernier(v.points, point_uncertainty=VERNIER_NOISE, error_map=MAPS, temperature=T)
+    comp = alpha_beta_from_vernier(v.points, point_uncertainty=VERNIER_NOISE, maps=MAPS, temperature=T)
     raw = alpha_beta_from_vernier(v.points, point_uncertainty=VERNIER_NOISE)
     s_xy, _, s_zx = np.array(MAPS.at(T).squareness) / 3600.0
     # compensated: a few arc-seconds (the ram's rotation changes between the vernier points, acting on the
@@ -136,7 +136,7 @@ def test_vernier_bad_inputs():
     with pytest.raises(cmmpose.GeometryError, match="w_hint"):
         alpha_beta_from_vernier(bowtie)
     with pytest.raises(cmmpose.InputError, match="temperature"):
-        alpha_beta_from_vernier(pts, error_map=MAPS)
+        alpha_beta_from_vernier(pts, maps=MAPS)
     assert np.array_equal(pts, v.points)  # inputs never modified
     three = alpha_beta_from_vernier(pts[:3])  # 3 points: a plane, but no Type A uncertainty
     assert np.all(np.isnan(three.uncertainty))
@@ -151,7 +151,7 @@ def test_vernier_bad_inputs():
 def test_gamma_known_normal_recovers_truth(pose):
     d = plane_scan(pose, maps=MAPS, temperature=T, effects=[ALIGN_ERR], seed=5, scanner=FAST)
     g = gamma_from_plane_scan(d.uv, d.scales, d.true_pose[0], d.true_pose[1], normal=d.plane.normal,
-                              offset=OFFSET, error_map=MAPS, temperature=T)
+                              offset=OFFSET, maps=MAPS, temperature=T)
     assert g.method == "known normal" and g.rms < 0.01
     assert abs(angle_diff(g.gamma, d.true_pose[2])) < 3 * g.uncertainty, (g.gamma, d.true_pose[2], g.uncertainty)
     # Without gamma0 the whole circle is searched; the facing condition picks the branch.
@@ -163,7 +163,7 @@ def test_gamma_known_normal_recovers_truth(pose):
 def test_gamma_fitted_plane_from_two_sweeps_recovers_truth(pose, axes):
     d = plane_scan(pose, plane=tilted_plane(pose), axes=axes, maps=MAPS, temperature=T, effects=[ALIGN_ERR],
                    seed=2, scanner=FAST)
-    g = gamma_from_plane_scan(d.uv, d.scales, d.true_pose[0], d.true_pose[1], offset=OFFSET, error_map=MAPS,
+    g = gamma_from_plane_scan(d.uv, d.scales, d.true_pose[0], d.true_pose[1], offset=OFFSET, maps=MAPS,
                               temperature=T)
     assert g.method == "fitted plane"
     assert abs(angle_diff(g.gamma, d.true_pose[2])) < 3 * g.uncertainty
@@ -176,13 +176,13 @@ def test_gamma_uncertainty_matches_monte_carlo():
     for seed in range(120):
         d = plane_scan(pose, maps=MAPS, temperature=T, effects=[ALIGN_ERR], seed=seed, scanner=SMALL)
         g = gamma_from_plane_scan(d.uv, d.scales, d.true_pose[0], d.true_pose[1], normal=d.plane.normal,
-                                  gamma0=30.0, offset=OFFSET, error_map=MAPS, temperature=T)
+                                  gamma0=30.0, offset=OFFSET, maps=MAPS, temperature=T)
         z_known.append(angle_diff(g.gamma, d.true_pose[2]) / g.uncertainty)
     for seed in range(80):
         d = plane_scan(pose, plane=tilted_plane(pose), axes=("X", "Y"), maps=MAPS, temperature=T,
                        effects=[ALIGN_ERR], seed=500 + seed, scanner=SMALL)
         g = gamma_from_plane_scan(d.uv, d.scales, d.true_pose[0], d.true_pose[1], gamma0=30.0, offset=OFFSET,
-                                  error_map=MAPS, temperature=T)
+                                  maps=MAPS, temperature=T)
         z_free.append(angle_diff(g.gamma, d.true_pose[2]) / g.uncertainty)
     assert abs(rms(z_known) - 1) < 0.2, rms(z_known)
     assert abs(rms(z_free) - 1) < 0.2, rms(z_free)
@@ -191,10 +191,10 @@ def test_gamma_uncertainty_matches_monte_carlo():
 def test_gamma_propagates_alpha_beta_and_combines_into_a_pose():
     pose = (90.0, 90.0, -60.0)
     v = vernier_points(pose, maps=MAPS, temperature=T, effects=[ALIGN_ERR], seed=8)
-    ab = alpha_beta_from_vernier(v.points, point_uncertainty=VERNIER_NOISE, error_map=MAPS, temperature=T)
+    ab = alpha_beta_from_vernier(v.points, point_uncertainty=VERNIER_NOISE, maps=MAPS, temperature=T)
     d = plane_scan(pose, maps=MAPS, temperature=T, effects=[ALIGN_ERR], seed=8, scanner=FAST)
     g = gamma_from_plane_scan(d.uv, d.scales, ab.alpha, ab.beta, normal=d.plane.normal, gamma0=-60.0,
-                              offset=OFFSET, error_map=MAPS, temperature=T, alpha_beta_covariance=ab.covariance)
+                              offset=OFFSET, maps=MAPS, temperature=T, alpha_beta_covariance=ab.covariance)
     assert g.uncertainty > g.noise_uncertainty  # alpha, beta add to it
     assert abs(angle_diff(g.gamma, d.true_pose[2])) < 3 * g.uncertainty
     cp = calibrated_pose(ab, g)
@@ -202,7 +202,7 @@ def test_gamma_propagates_alpha_beta_and_combines_into_a_pose():
     assert cp.uncertainty[2] == pytest.approx(g.uncertainty, rel=1e-9)
     assert np.all(np.abs(angle_diff(cp.pose.as_tuple(), d.true_pose)) < 3 * cp.uncertainty)
     other = gamma_from_plane_scan(d.uv, d.scales, ab.alpha + 0.1, ab.beta, normal=d.plane.normal, gamma0=-60.0,
-                                  error_map=MAPS, temperature=T)
+                                  maps=MAPS, temperature=T)
     with pytest.raises(cmmpose.InputError, match="solve gamma with the vernier's angles"):
         calibrated_pose(ab, other)
 
@@ -224,21 +224,21 @@ def test_gamma_bad_inputs():
         gamma_from_plane_scan(bad, d.scales, a, b, normal=(0, 0, 1))
     # one straight sweep over a plane of unknown orientation: flat for every gamma
     with pytest.raises(CalibrationError, match="does not determine gamma"):
-        gamma_from_plane_scan(d.uv, d.scales, a, b, error_map=MAPS, temperature=T)
+        gamma_from_plane_scan(d.uv, d.scales, a, b, maps=MAPS, temperature=T)
     # moving only within the scan plane (W along X, sweeps along Y and Z)
     inplane = plane_scan((90.0, 90.0, 0.0), plane=tilted_plane((90.0, 90.0, 0.0)), axes=("Y", "Z"), maps=MAPS,
                          temperature=T, seed=1, scanner=SMALL)
     with pytest.raises(CalibrationError, match="scan plane"):
-        gamma_from_plane_scan(inplane.uv, inplane.scales, a, b, error_map=MAPS, temperature=T)
+        gamma_from_plane_scan(inplane.uv, inplane.scales, a, b, maps=MAPS, temperature=T)
     # a normal pointing into the material: the scanner cannot face it near gamma0
     with pytest.raises(CalibrationError, match="outward normal"):
-        gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, -1), gamma0=0.0, error_map=MAPS, temperature=T)
+        gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, -1), gamma0=0.0, maps=MAPS, temperature=T)
     with pytest.raises(cmmpose.InputError, match="normal"):
         gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, 0))
     with pytest.raises(cmmpose.InputError, match="temperature"):
-        gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, 1), error_map=MAPS)
+        gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, 1), maps=MAPS)
     with pytest.raises(cmmpose.InputError, match="temperature"):
-        gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, 1), error_map=MAPS, temperature=[20.0, 21.0])
+        gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, 1), maps=MAPS, temperature=[20.0, 21.0])
 
 
 # ---------------------------------------------------------------------------
@@ -259,14 +259,14 @@ def test_general_form_gives_eqs_16_to_18():
 @pytest.mark.parametrize("pose", [*STANDARD_POSES, (0.0, 90.0, 0.0)])
 def test_reference_reading_recovers_truth(pose):
     x = reference_sphere_scans([pose], maps=MAPS, temperature=T, effects=[OFFSET_ERR], seed=4)[0]
-    r = reference_centre_reading(x.data.uv, x.data.scales, pose, offset=OFFSET, error_map=MAPS, temperature=T)
+    r = reference_centre_reading(x.data.uv, x.data.scales, pose, offset=OFFSET, maps=MAPS, temperature=T)
     err = r.reading - x.true_reading
     assert np.all(np.abs(err) < 3 * r.uncertainty), (err * 1e3, r.uncertainty * 1e3)
     assert np.all(r.uncertainty < 0.002)  # ~5000 points at 8 um: about 0.2-0.5 um
     # the centre, with the offset the scan was planned with (the true one is 40 um away)
     assert np.all(np.abs(r.centre - x.centre) < 0.1)
     # no offset: D0 within 0.5 um (the ram's rotation between the scan and D0, docs)
-    r0 = reference_centre_reading(x.data.uv, x.data.scales, pose, error_map=MAPS, temperature=T)
+    r0 = reference_centre_reading(x.data.uv, x.data.scales, pose, maps=MAPS, temperature=T)
     assert np.abs(r0.reading - r.reading).max() < 0.0006
     assert np.allclose(r0.position, r.position) and np.allclose(r0.lever, r.lever)
 
@@ -274,7 +274,7 @@ def test_reference_reading_recovers_truth(pose):
 def test_reference_reading_noise_free_is_exact():
     x = reference_sphere_scans([STANDARD_POSES[1]], maps=MAPS, temperature=T, effects=[OFFSET_ERR], seed=1,
                                scanner=sim.Scanner(noise=0.0, points_per_profile=256))[0]
-    r = reference_centre_reading(x.data.uv, x.data.scales, x.pose, offset=x.true_offset, error_map=MAPS, temperature=T)
+    r = reference_centre_reading(x.data.uv, x.data.scales, x.pose, offset=x.true_offset, maps=MAPS, temperature=T)
     assert np.abs(r.reading - x.true_reading).max() < 2e-6  # mm
     assert np.abs(r.centre - x.centre).max() < 2e-6
 
@@ -317,7 +317,7 @@ def monte_carlo_alignments():
     for seed in range(200):
         scans = reference_sphere_scans(STANDARD_POSES, maps=MAPS, temperature=T, effects=[OFFSET_ERR], seed=seed,
                                        scanner=FAST)
-        al = [reference_centre_reading(x.data.uv, x.data.scales, x.pose, offset=OFFSET, error_map=MAPS,
+        al = [reference_centre_reading(x.data.uv, x.data.scales, x.pose, offset=OFFSET, maps=MAPS,
                                        temperature=T) for x in scans]
         runs.append((scans, al))
     return runs
@@ -409,7 +409,7 @@ def test_fourth_noisy_alignment_degrades_gracefully(monte_carlo_alignments):
     noisy = sim.Scanner(points_per_profile=64, noise=0.03)
     x4 = reference_sphere_scans([(0.0, 90.0, 0.0)], maps=MAPS, temperature=T, effects=[OFFSET_ERR], seed=77,
                                 scanner=noisy)[0]
-    a4 = reference_centre_reading(x4.data.uv, x4.data.scales, x4.pose, error_map=MAPS, temperature=T)
+    a4 = reference_centre_reading(x4.data.uv, x4.data.scales, x4.pose, maps=MAPS, temperature=T)
     assert a4.uncertainty.min() > 2 * max(a.uncertainty.max() for a in al)
     m3, m4 = mount_offset(al), mount_offset([*al, a4])
     change = np.array(m4.offset) - np.array(m3.offset)
@@ -440,7 +440,7 @@ def test_alignments_that_disagree_raise(monte_carlo_alignments):
     _, al = monte_carlo_alignments[5]
     # A fourth alignment 0.2 mm off (trunnion not seated): named, in standard deviations.
     x4 = reference_sphere_scans([(0.0, 90.0, 0.0)], maps=MAPS, temperature=T, seed=78, scanner=FAST)[0]
-    a4 = reference_centre_reading(x4.data.uv, x4.data.scales + [0.0, 0.2, 0.0], x4.pose, error_map=MAPS,
+    a4 = reference_centre_reading(x4.data.uv, x4.data.scales + [0.0, 0.2, 0.0], x4.pose, maps=MAPS,
                                   temperature=T)
     with pytest.raises(CalibrationError, match=r"alignments disagree: alignment \d .*standard deviations"):
         mount_offset([*al, a4])
@@ -488,15 +488,15 @@ def test_full_calibration_recovers_pose_readings_and_offset():
             eff = [ALIGN_ERR, OFFSET_ERR]
             v = vernier_points(nominal, maps=MAPS, temperature=T, effects=eff, seed=rng)
             ab = alpha_beta_from_vernier(v.points, w_hint=cmmpose.Pose(*nominal).normal,
-                                         point_uncertainty=VERNIER_NOISE, error_map=MAPS, temperature=T)
+                                         point_uncertainty=VERNIER_NOISE, maps=MAPS, temperature=T)
             d = plane_scan(nominal, maps=MAPS, temperature=T, effects=eff, seed=rng, scanner=SMALL)
             g = gamma_from_plane_scan(d.uv, d.scales, ab.alpha, ab.beta, normal=d.plane.normal, gamma0=nominal[2],
-                                      offset=OFFSET, error_map=MAPS, temperature=T,
+                                      offset=OFFSET, maps=MAPS, temperature=T,
                                       alpha_beta_covariance=ab.covariance)
             cp = calibrated_pose(ab, g)
             x = reference_sphere_scans([nominal], maps=MAPS, temperature=T, effects=eff,
                                        seed=int(rng.integers(1 << 30)), scanner=FAST)[0]
-            r = reference_centre_reading(x.data.uv, x.data.scales, cp.pose, offset=OFFSET, error_map=MAPS,
+            r = reference_centre_reading(x.data.uv, x.data.scales, cp.pose, offset=OFFSET, maps=MAPS,
                                          temperature=T, pose_covariance=cp.covariance)
             out.append((x, cp, r))
         return out
@@ -605,7 +605,7 @@ def test_library_malformed_file(tmp_path, content, message):
 
 def test_library_record_from_calibration(tmp_path):
     x = reference_sphere_scans([STANDARD_POSES[0]], maps=MAPS, temperature=T, seed=3, scanner=FAST)[0]
-    r = reference_centre_reading(x.data.uv, x.data.scales, x.pose, offset=OFFSET, error_map=MAPS, temperature=T)
+    r = reference_centre_reading(x.data.uv, x.data.scales, x.pose, offset=OFFSET, maps=MAPS, temperature=T)
     rec = AlignmentRecord.from_calibration(x.pose, r, OFFSET, residuals={"plane_rms": 0.008})
     assert rec.temperature == pytest.approx(T) and rec.reading == pytest.approx(tuple(r.reading))
     assert rec.residuals["sphere_rms"] == pytest.approx(r.fit.rms) and rec.pose_uncertainty is None
@@ -627,7 +627,7 @@ def test_library_record_keeps_the_solvers_reading_whole(tmp_path):
     for k, nominal in enumerate(STANDARD_POSES):
         x = reference_sphere_scans([nominal], maps=MAPS, temperature=T, seed=10 + k, scanner=FAST)[0]
         pc = np.array([[2.8e-4, 1e-5, 3e-7], [1e-5, 2.8e-4, -2e-7], [3e-7, -2e-7, 1e-8]])  # deg^2, correlated
-        r = reference_centre_reading(x.data.uv, x.data.scales, x.pose, offset=OFFSET, error_map=MAPS,
+        r = reference_centre_reading(x.data.uv, x.data.scales, x.pose, offset=OFFSET, maps=MAPS,
                                      temperature=T, pose_covariance=pc)
         rec = AlignmentRecord.from_calibration(x.pose, r, OFFSET)
         np.testing.assert_allclose(rec.pose_covariance, pc)
@@ -650,3 +650,17 @@ def test_library_record_keeps_the_solvers_reading_whole(tmp_path):
     np.testing.assert_allclose(back.pose_covariance, np.diag(np.square(hand.pose_uncertainty)))
     with pytest.raises(CalibrationError, match="no reading uncertainty"):
         record(reading_uncertainty=None).reference_reading()
+
+
+def test_the_alignment_solvers_take_the_temperature_policy():
+    # Issue 26: every function that turns readings into temperatures takes the one TemperaturePolicy. 35 C is beyond
+    # the thesis maps (20-30 C): an error by default, the 30 C map with out_of_range='clamp' (as at 30 C exactly).
+    x = reference_sphere_scans([STANDARD_POSES[1]], maps=MAPS, temperature=30.0, seed=1, scanner=FAST)[0]
+    args = (x.data.uv, x.data.scales, x.pose)
+    with pytest.raises(cmmpose.OutOfRangeError):
+        reference_centre_reading(*args, offset=OFFSET, maps=MAPS, temperature=35.0)
+    clamp = cmmpose.TemperaturePolicy(out_of_range="clamp")
+    with pytest.warns(cmmpose.ClampWarning):
+        held = reference_centre_reading(*args, offset=OFFSET, maps=MAPS, temperature=35.0, temperature_policy=clamp)
+    at_edge = reference_centre_reading(*args, offset=OFFSET, maps=MAPS, temperature=30.0)
+    np.testing.assert_array_equal(held.reading, at_edge.reading)

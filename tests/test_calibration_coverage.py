@@ -36,7 +36,7 @@ def test_cli_record_and_offset_are_the_python_chains(tmp_path):
     cli_trial(7, tmp_path)
     machine = Machine.example("moving-bridge")
     maps = machine.maps()
-    em = {"error_map": maps, "temperature": TEMPERATURE}
+    em = {"maps": maps, "temperature": TEMPERATURE}
     lib = AlignmentLibrary(tmp_path / "alignments.json")
     readings = []
     for k in range(3):

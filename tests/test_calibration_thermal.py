@@ -18,7 +18,7 @@ from cmmpose.calibration.thermal import (
     select_map_temperature,
     temperatures_at,
 )
-from cmmpose.evaluation import machine_temperature
+from cmmpose.evaluation.ballbar import machine_temperature
 
 CH = sim.CHANNELS
 NOISE = 0.02  # K per sample, the simulator's default

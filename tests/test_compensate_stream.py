@@ -14,8 +14,8 @@ import pytest
 from click.testing import CliRunner
 
 import cmmpose
-from cmmpose import pointfiles
-from cmmpose.pointformats import csv as csvformat
+from cmmpose.formats import pointfiles
+from cmmpose.formats.pointformats import csv as csvformat
 from cmmpose.cli import main
 
 MAPS = cmmpose.ErrorMapSet.thesis()

@@ -16,7 +16,7 @@ import cmmpose  # noqa: E402
 from cmmpose.diagnosis.html import render_html_report, write_html_report  # noqa: E402
 from cmmpose.diagnosis.patterns import find_patterns  # noqa: E402
 from cmmpose.diagnosis.plots import plot_history, plot_length_deviation, plot_patterns, plot_point_residuals  # noqa: E402
-from cmmpose.evaluation import machine_coordinates  # noqa: E402
+from cmmpose.evaluation.ballbar import machine_coordinates  # noqa: E402
 from cmmpose.fitting import fit_spheres  # noqa: E402
 from cmmpose.sim.effects import ScannerScale, Squareness  # noqa: E402
 from cmmpose.sim.runs import simulate_ballbar_run  # noqa: E402

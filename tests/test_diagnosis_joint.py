@@ -60,14 +60,20 @@ def test_joint_from_the_command_line(tmp_path):
         r.save(tmp_path / f"run{i}")
         dirs.append(str(tmp_path / f"run{i}"))
     res = CliRunner().invoke(main, ["diagnose", *dirs, "--joint", "--max-effects", "3", "--json",
-                                    "--save-model", str(tmp_path / "m.json")], catch_exceptions=False)
+                                    "--save-model", str(tmp_path / "m.json"), "--corrected-maps",
+                                    str(tmp_path / "corrected.csv")], catch_exceptions=False)
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert doc["runs"] == dirs and {x["name"] for x in doc["decisions"] if x["decision"] == "added"} == {
         "artefact-expansion", "squareness"}
     assert (tmp_path / "m.json").is_file()
+    # --corrected-maps works jointly too (one CSV, or one per temperature of a set beside it)
+    assert list(tmp_path.glob("corrected*.csv"))
     res = CliRunner().invoke(main, ["diagnose", dirs[0], "--joint"])
     assert res.exit_code != 0 and "two or more runs" in res.output
+    # an option the joint diagnosis cannot honour is refused, not ignored
+    res = CliRunner().invoke(main, ["diagnose", *dirs, "--joint", "--reproducibility", "1.0"])
+    assert res.exit_code == 2 and "--reproducibility takes one run" in res.output
 
 
 def test_bad_inputs():

@@ -18,7 +18,7 @@ from cmmpose.calibration import STANDARD_POSES
 from cmmpose.cli import main
 from cmmpose.diagnosis import LIBRARY, Model, UserEffect
 from cmmpose.diagnosis.effects import library
-from cmmpose.evaluation import machine_coordinates, machine_temperature
+from cmmpose.evaluation.ballbar import machine_coordinates, machine_temperature
 from cmmpose.run import load_truth
 from cmmpose.sim import effects as E
 from cmmpose.sim.runs import simulate_ballbar_run

@@ -217,7 +217,7 @@ def test_component_report_names_what_the_run_determines_and_what_it_cannot_see()
     model = Model(cmmpose.ErrorMapSet.thesis())
     problem = Problem(model, run, {})
     rep = mf.component_report(problem)
-    assert set(rep) == set(mf.COMPONENTS)
+    assert set(rep) == set(mf.COMPONENTS) | set(mf.SQUARENESS)
     assert rep["dx(X)"]["status"] in ("determined", "aliased") and rep["dx(X)"]["shapes_determined"] > 0
     for r in rep.values():
         assert r["status"] in ("determined", "aliased", "invisible")
@@ -247,7 +247,7 @@ def test_every_drafted_skeleton_runs_as_written(quantity):
 
 
 def test_report_values_carry_the_declared_unit():
-    from cmmpose.diagnosis.report import _values_text
+    from cmmpose.diagnosis.html_report import _values_text
 
     text = _values_text(("gain",), [4.75e-2], [0.35], ("1",))
     assert "ppm" not in text

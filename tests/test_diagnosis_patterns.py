@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 import cmmpose
 from cmmpose.diagnosis.patterns import Patterns, f_test_p_value, find_patterns
-from cmmpose.evaluation import machine_coordinates, machine_temperature
+from cmmpose.evaluation.ballbar import machine_coordinates, machine_temperature
 from cmmpose.fitting import fit_spheres
 from cmmpose.sim.effects import IncidenceError, ScaleError, ScannerLatency, ScannerScale, SquarenessOffset
 from cmmpose.sim.runs import simulate_ballbar_run
@@ -270,3 +270,20 @@ def test_bad_input_raises_clear_errors():
         find_patterns(run, xyz, fits, alpha=1.5)
     with pytest.raises(cmmpose.InputError, match="degrees of freedom"):
         f_test_p_value(1.0, 0, 10)
+
+
+def test_pattern_hints_come_from_the_effect_files():
+    # Issue 26: which effect could make a pattern is declared in the effect's own file (Effect.hints); the pattern
+    # tables only add the causes outside the library. Every declared quantity is one the patterns draw.
+    from cmmpose import effects
+    from cmmpose.diagnosis import patterns
+
+    tables = {"length": patterns._LENGTH_TEMPLATES, "point": patterns._POINT_TEMPLATES}
+    for name, cls in effects.available().items():
+        for kind, declared in cls.hints.items():
+            assert set(declared) <= set(tables[kind]), (name, kind, set(declared) - set(tables[kind]))
+            built = patterns._hints(kind, tables[kind])
+            for quantity, phrase in declared.items():
+                assert phrase in built[quantity], (name, quantity)
+    assert patterns._LENGTH_HINTS["dx*dy"] == "squareness xy"
+    assert patterns._LENGTH_HINTS["dy*dz"] == "squareness yz or granite gradient"

@@ -91,5 +91,5 @@ def test_open_thermocouple_is_left_out_of_the_machine_mean(run_22):
     temps["X1"] = np.full_like(temps["X1"], sim.OPEN_CIRCUIT_READING)
     broken = cmmpose.Run(points=run.points, scans=run.scans, poses=run.poses, temperatures=temps,
                          temperature_channels=run.temperature_channels)
-    t = cmmpose.evaluation.machine_temperature(broken, run.points["t"][:100])
+    t = cmmpose.evaluation.ballbar.machine_temperature(broken, run.points["t"][:100])
     np.testing.assert_allclose(t, 22.5, atol=0.05)

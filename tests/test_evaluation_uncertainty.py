@@ -1,4 +1,4 @@
-"""Uncertainties of the ballbar figures (cmmpose.evaluation_uncertainty): the
+"""Uncertainties of the ballbar figures (cmmpose.evaluation.ballbar_uncertainty): the
 budget's arithmetic, the temperature sensitivity against evaluate itself, and
 coverage over simulated runs with per-scan reproducibility."""
 
@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 import cmmpose
 from cmmpose.cli import main
-from cmmpose.evaluation_uncertainty import default_map_ppm, evaluation_uncertainty
+from cmmpose.evaluation.ballbar_uncertainty import default_map_ppm, evaluation_uncertainty
 from cmmpose.sim import parse_effect, simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
 

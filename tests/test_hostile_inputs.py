@@ -17,7 +17,7 @@ import cmmpose
 from cmmpose.acquire.plan import Plan, plan_from_run
 from cmmpose.cli import main
 from cmmpose.diagnosis import Model
-from cmmpose.pointfiles import read_points, write_points
+from cmmpose.formats.pointfiles import read_points, write_points
 from cmmpose.run import Run
 from cmmpose.sim.runs import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner

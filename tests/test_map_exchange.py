@@ -1,5 +1,5 @@
-"""Map exchange (docs/formats.md): ISO 230-2 style CSV (cmmpose.iso230) and
-LinuxCNC compensation files (cmmpose.linuxcnc) to and from the canonical map.
+"""Map exchange (docs/formats.md): ISO 230-2 style CSV (cmmpose.formats.iso230) and
+LinuxCNC compensation files (cmmpose.formats.linuxcnc) to and from the canonical map.
 
 Tolerances of the round trips (map -> format -> map, linear components):
 - ISO 230-2 CSV: deviations are written with 3 decimals of um, so each comes
@@ -21,10 +21,11 @@ import pytest
 from click.testing import CliRunner
 
 import cmmpose
-from cmmpose import ErrorMap, ErrorMapSet, mapformats
+from cmmpose import ErrorMap, ErrorMapSet
+from cmmpose.formats import mapformats
 from cmmpose.cli import main
-from cmmpose.iso230 import read_iso230, write_iso230
-from cmmpose.linuxcnc import read_comp_files, write_comp_files
+from cmmpose.formats.iso230 import read_iso230, write_iso230
+from cmmpose.formats.linuxcnc import read_comp_files, write_comp_files
 
 FLOAT = 1e-9  # float rounding of the arithmetic, um
 

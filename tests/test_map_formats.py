@@ -1,4 +1,4 @@
-"""The registry of error-map file formats (cmmpose.mapformats): the formats it
+"""The registry of error-map file formats (cmmpose.formats.mapformats): the formats it
 lists, dispatch by name and by sniffing, errors naming an unknown format, and
 no import cycle between errormap, mapfiles and controller."""
 
@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 import cmmpose
-from cmmpose import ErrorMap, mapformats
+from cmmpose import ErrorMap
+from cmmpose.formats import mapformats
 
 PACKAGE = Path(cmmpose.__file__).parent
 THESIS_20C = cmmpose.data_path("maps", "thesis_20C.csv")
@@ -53,30 +54,35 @@ def test_dispatch_by_name_and_by_sniffing(tmp_path):
         ErrorMap.read(other, format="auto")
 
 
-@pytest.mark.parametrize("module", ["cmmpose.controller", "cmmpose.mapfiles", "cmmpose.errormap", "cmmpose.mapformats"])
+@pytest.mark.parametrize("module", ["cmmpose.formats.controller", "cmmpose.formats.mapfiles", "cmmpose.errormap", "cmmpose.formats.mapformats"])
 def test_each_module_imports_alone(module):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(PACKAGE.parent), os.environ.get("PYTHONPATH", "")]))
-    code = f"import {module}; from cmmpose import mapformats; print(','.join(mapformats.names()))"
+    code = f"import {module}; from cmmpose.formats import mapformats; print(','.join(mapformats.names()))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "csv,controller,iso230-2"
 
 
 def imported_modules(name):
-    """Every cmmpose module that ``name`` imports, at module level or inside functions."""
-    tree = ast.parse((PACKAGE / f"{name}.py").read_text(encoding="utf-8"))
+    """Every cmmpose module (dotted, under the package) that module ``name`` imports, at module level or inside
+    functions, resolved from its relative imports."""
+    path = PACKAGE / (name.replace(".", "/") + ".py")
+    here = name.split(".")[:-1]
+    tree = ast.parse(path.read_text(encoding="utf-8"))
     found = set()
     for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.level == 1:
+        if isinstance(node, ast.ImportFrom) and node.level >= 1:
+            base = here[:len(here) - (node.level - 1)]
             if node.module:
-                found.add(node.module.split(".")[0])
+                found.add(".".join([*base, *node.module.split(".")]))
             else:
-                found.update(a.name for a in node.names)
+                found.update(".".join([*base, a.name]) for a in node.names)
     return found
 
 
 def test_no_import_cycle_between_errormap_and_the_format_modules():
-    assert not imported_modules("errormap") & {"mapfiles", "controller", "iso230", "linuxcnc", "linearaxis"}
-    assert imported_modules("mapformats") == {"errors"}
+    formats = {f"formats.{m}" for m in ("mapfiles", "controller", "iso230", "linuxcnc", "linearaxis")}
+    assert not imported_modules("errormap") & formats
+    assert imported_modules("formats.mapformats") == {"errors"}
     for fmt in ("mapfiles", "controller", "iso230"):
-        assert {"errormap", "mapformats"} <= imported_modules(fmt)
+        assert {"errormap", "formats.mapformats"} <= imported_modules(f"formats.{fmt}")

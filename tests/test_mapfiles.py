@@ -1,4 +1,4 @@
-"""The canonical error-map CSV (cmmpose.mapfiles): exact round trips and one
+"""The canonical error-map CSV (cmmpose.formats.mapfiles): exact round trips and one
 test per kind of malformed file, each naming the file and line at fault."""
 
 import numpy as np

@@ -16,7 +16,7 @@ import pytest
 from click.testing import CliRunner
 from cmmpose import Model
 from cmmpose.errors import InputError
-from cmmpose.evaluation_uncertainty import evaluation_uncertainty
+from cmmpose.evaluation.ballbar_uncertainty import evaluation_uncertainty
 from cmmpose.filecompensation import compensate_file
 from cmmpose.sim import parse_effect, simulate_ballbar_run
 
@@ -187,7 +187,7 @@ def test_artefact_deviation_u_carries_the_model_parameters():
     from dataclasses import replace
 
     from cmmpose import artefacts
-    from cmmpose.artefact_evaluation import evaluate_artefact
+    from cmmpose.evaluation.artefact import evaluate_artefact
     from cmmpose.sim.artefact_runs import simulate_artefact_run
 
     run, _ = simulate_artefact_run(artefacts.load_artefact("koba-0420"), ["xy@z=-450,rot=30"], MAPS, 20.5, [], seed=1)

@@ -1,4 +1,4 @@
-"""cmmpose.plots: every figure has the expected axes and artists, saves a
+"""cmmpose.evaluation.plots: every figure has the expected axes and artists, saves a
 non-empty PNG, and bad inputs raise InputError."""
 
 import sys
@@ -12,7 +12,7 @@ import cmmpose
 pytest.importorskip("matplotlib")
 from matplotlib.figure import Figure  # noqa: E402
 
-from cmmpose import plots  # noqa: E402
+from cmmpose.evaluation import plots
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -1,4 +1,4 @@
-"""Point-cloud formats (cmmpose.pointformats, read_point_cloud /
+"""Point-cloud formats (cmmpose.formats.pointformats, read_point_cloud /
 write_point_cloud): round trips per format with extra columns and their
 types, the NIST scans, PLY in all three encodings, units, clear errors
 naming the file and the line or element, and `cmmpose compensate` passing
@@ -16,7 +16,9 @@ import pytest
 from click.testing import CliRunner
 
 import cmmpose
-from cmmpose import PointCloud, pointfiles, pointformats, read_point_cloud, write_point_cloud
+from cmmpose import PointCloud, read_point_cloud, write_point_cloud
+from cmmpose.formats import pointfiles
+from cmmpose.formats import pointformats
 from cmmpose.cli import main
 from nist import NIST
 
@@ -416,7 +418,7 @@ def test_compensate_passes_scan_id_and_intensity_through(tmp_path, scanner_point
 def test_a_csv_the_fast_reader_refuses_keeps_its_extra_columns(tmp_path, scanner_points, monkeypatch):
     """scan_id read as whole numbers first; a later block the fast reader
     refuses is read again by the strict reader, which keeps scan_id int."""
-    from cmmpose.pointformats import csv as csvformat
+    from cmmpose.formats.pointformats import csv as csvformat
 
     a, extras, want = scanner_points
     src = tmp_path / "in.csv"

@@ -11,7 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 import cmmpose
 import numpy_reference as ref
-from cmmpose.pointfiles import read_points
+from cmmpose.formats.pointfiles import read_points
 
 MAPS = cmmpose.ErrorMapSet.thesis()
 DICTS = [{"temperature": m.temperature, "squareness": m.squareness, **{a: m.table(a) for a in "XYZ"}}

@@ -309,8 +309,8 @@ def _writers(tmp_path):
     from cmmpose.calibration.library import AlignmentLibrary, AlignmentRecord
     from cmmpose.diagnosis import Model
     from cmmpose.diagnosis.html import write_html_report
-    from cmmpose.linuxcnc import write_comp_files
-    from cmmpose.plots import plot_error_map
+    from cmmpose.formats.linuxcnc import write_comp_files
+    from cmmpose.evaluation.plots import plot_error_map
 
     em = cmmpose.ErrorMap.appendix_b()
     cloud = cmmpose.PointCloud(np.arange(30.0).reshape(10, 3), {"intensity": np.arange(10.0)})

@@ -171,7 +171,7 @@ def runs(tmp_path_factory):
 
 def test_fleet_evaluation_on_worker_processes_equals_one_by_one(client, runs):
     evs = scale.evaluate_runs(runs, scheduler=client)
-    evs_map = scale.evaluate_runs(runs, MAPS, scheduler=client, expansion=11.5e-6)
+    evs_map = scale.evaluate_runs(runs, MAPS, scheduler=client, expansion_ppm_per_K=11.5)
     for r, ev, ev_map in zip(runs, evs, evs_map):
         one = cmmpose.evaluate(cmmpose.Run.load(r), MAPS)
         assert _same_bits(ev.compensated.lengths, one.compensated.lengths)
@@ -263,3 +263,12 @@ def test_fleet_diagnosis_keeps_the_temperature_and_policy(runs):
     assert d.steps[0].model.temperature == 22.0 and d.steps[0].model.temperature_tolerance == 1.5
     res = CliRunner().invoke(main, ["diagnose", *map(str, runs[:2]), "--maps", "none"])
     assert res.exit_code != 0 and "'none' is not a model" in res.output
+
+
+def test_a_single_map_on_a_dataset_is_said_by_the_library(dataset, tmp_path):
+    # Issue 26: the choice of the map-set temperature (and the note when one map meets other temperatures) lives in
+    # compensate_dataset, not in the command line: the T columns' range is read from the files' statistics.
+    src, files = dataset
+    with pytest.warns(cmmpose.MapTemperatureWarning, match="a single map at 22 C was used for points at"):
+        scale.compensate_dataset(src, tmp_path / "out", cmmpose.ErrorMap.appendix_b(), (90.0, 90.0, 0.0),
+                                 cmmpose.MountOffset.thesis(), scheduler="threads")

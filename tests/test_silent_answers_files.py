@@ -22,8 +22,8 @@ from cmmpose.calibration.library import AlignmentLibrary, AlignmentRecord
 from cmmpose.cli import main
 from cmmpose.errors import CalibrationError, InputError, MapError
 from cmmpose.machine import Machine, example_names, example_text, load_machine
-from cmmpose.mapfiles import body_sha256
-from cmmpose.pointclouds import PointCloud, read_point_cloud, write_point_cloud
+from cmmpose.formats.mapfiles import body_sha256
+from cmmpose.formats.pointclouds import PointCloud, read_point_cloud, write_point_cloud
 
 BUNDLED = cmmpose.data_path("maps", "thesis_20C.csv")
 SCAN = cmmpose.data_path("examples", "sphere_scan.csv")

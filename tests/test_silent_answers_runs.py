@@ -19,7 +19,7 @@ from click.testing import CliRunner
 import cmmpose
 from cmmpose._json import dumps as strict_json
 from cmmpose.cli import main
-from cmmpose.pointfiles import PointWriter
+from cmmpose.formats.pointfiles import PointWriter
 from cmmpose.sim import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
 from cmmpose.standards.acceptance import acceptance_test

@@ -41,7 +41,7 @@ def cli(*args):
 @pytest.mark.parametrize("t", [20.0, 30.0])
 def test_runs_at_the_maps_ends_evaluate_and_diagnose_at_the_defaults(t):
     run = simulate(t)
-    temps = cmmpose.evaluation.machine_temperature(run, run.points["t"])
+    temps = cmmpose.evaluation.ballbar.machine_temperature(run, run.points["t"])
     assert (temps < 20.0).any() if t == 20.0 else (temps > 30.0).any()  # thermocouple noise crosses the edge
     ev = cmmpose.evaluate(run, MAPS)
     assert ev.compensated.rms_accuracy_error < 2e-3
@@ -153,7 +153,7 @@ def test_simulating_beyond_the_maps_names_the_temperature_not_the_reading(tmp_pa
 
 def test_evaluation_json_carries_provenance_rounded_numbers_and_the_expansion(tmp_path):
     run = simulate(22.5)
-    ev = cmmpose.evaluate(run, MAPS, expansion=11.5e-6)
+    ev = cmmpose.evaluate(run, MAPS, expansion_ppm_per_K=11.5)
     doc = json.loads(ev.to_json())
     p = doc["provenance"]
     assert p["expansion_ppm_per_K"] == 11.5
@@ -210,7 +210,7 @@ def test_every_function_has_the_same_default_policy():
 
     for f in (cmmpose.compensate, cmmpose.evaluate, cmmpose.diagnose, acceptance_test, interim_check,
               compensate_file, compensate_array, compensate_dataframe, compensate_dataset, Compensator.make,
-              RunInputs.from_run, cmmpose.evaluation.machine_temperature):
+              RunInputs.from_run, cmmpose.evaluation.ballbar.machine_temperature):
         assert inspect.signature(f).parameters["temperature_policy"].default is None, f.__qualname__
     # None is TemperaturePolicy() everywhere; a new diagnosis model holds it too (diagnose once defaulted
     # out_of_range=None, 'the model's', while evaluate defaulted 'raise')
@@ -234,7 +234,7 @@ def test_every_function_gives_the_old_keyword_paths_results():
         assert old.provenance["policy"] == new.provenance["policy"]
         rows = run.points["scan_id"] == run.points["scan_id"][0]
         pose, offset = run.pose(int(run.poses["pose_id"][0]))
-        t = cmmpose.evaluation.machine_temperature(run, run.points["t"][rows])
+        t = cmmpose.evaluation.ballbar.machine_temperature(run, run.points["t"][rows])
         assert np.array_equal(
             cmmpose.compensate(run.uv[rows], run.scales[rows], MAPS, pose, offset, t, **CLAMP),
             cmmpose.compensate(run.uv[rows], run.scales[rows], MAPS, pose, offset, t, temperature_policy=pol))
@@ -275,7 +275,7 @@ def _command(path: str):
 
     cmd = main
     for name in path.split():
-        cmd = cmd.commands[name]
+        cmd = cmd.get_command(click.Context(cmd), name)
     assert isinstance(cmd, click.Command)
     return cmd
 

@@ -11,8 +11,8 @@ import pytest
 
 import cmmpose
 from cmmpose import sim
-from cmmpose import uncertainty as unc
-from cmmpose.uncertainty import Budget, Input
+from cmmpose.evaluation import uncertainty as unc
+from cmmpose.evaluation.uncertainty import Budget, Input
 
 MAPS = cmmpose.ErrorMapSet.thesis()
 POSE = (90.0, 90.0, 0.0)

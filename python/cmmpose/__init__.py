@@ -7,23 +7,16 @@ map tables, degrees for pose angles, degrees C for temperatures.
 
 from typing import TYPE_CHECKING
 
-from . import mapfiles, controller, iso230  # noqa: F401  (each registers its map file format, cmmpose.mapformats)
-from . import linuxcnc  # noqa: F401  (LinuxCNC compensation tables: one file per axis, not a registered format)
-from . import layouts
+from . import _moved
 from ._core import __version__, thread_count
 from ._lazy import lazy_attributes
 from .compensation import compensate, uncompensated
-from .filecompensation import FileCompensation, compensate_file
-from .metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
-from .fitting import E3125Result, PlaneFit, SphereFit, SphereFits, SphereSegmentation, e3125, fit_plane, fit_sphere, fit_spheres, segment_sphere
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
-from .errors import (AcquisitionError, CalibrationError, ClampWarning, Error, ExtrapolationWarning, GeometryError,
-                     IllConditionedFit, InputError, InputTypeError, MapError, MapTemperatureWarning, OutOfRangeError,
-                     OutputError, RunError, SchedulerError)
-from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
-from .pointclouds import PointCloud, read_point_cloud, write_point_cloud
+from .errors import (AcquisitionError, AliasedChoiceWarning, CalibrationError, ClampWarning, Error,
+                     ExtrapolationWarning, GeometryError, IllConditionedFit, InputError, InputTypeError, MapError,
+                     MapTemperatureWarning, OutOfRangeError, OutputError, RunError, SchedulerError)
 from .pose import MountOffset, Pose
-from .report import KernelReport
+from .kernel_report import KernelReport
 
 # The acquisition, calibration, uncertainty and diagnosis modules load on
 # first use: together about 70 ms of imports that `cmmpose simulate`,
@@ -32,18 +25,29 @@ from .report import KernelReport
 # which the run format reads through): `cmmpose fit` or `compensate` never
 # needs them (tests/test_speed_footprint.py checks what `import cmmpose` loads).
 __getattr__, __dir__ = lazy_attributes(__name__, {
+    # What `cmmpose fit` or `compensate` need is loaded by those commands themselves (start-up, issue 27).
+    **{name: ("filecompensation", name) for name in ("FileCompensation", "compensate_file")},
+    **{name: ("evaluation.metrics", name) for name in ("b89_value", "improvement", "length_at_20c",
+                                                       "rms_accuracy_error")},
+    **{name: ("fitting", name) for name in ("E3125Result", "PlaneFit", "SphereFit", "SphereFits", "SphereSegmentation",
+                                            "e3125", "fit_plane", "fit_sphere", "fit_spheres", "segment_sphere")},
+    "layouts": ("layouts", None),
+    **{name: ("layouts", name) for name in ("BallbarPosition", "b89_positions", "crossed_ballbar_positions",
+                                            "digitizer_pose_for")},
+    **{name: ("formats.pointclouds", name) for name in ("PointCloud", "read_point_cloud", "write_point_cloud")},
     "evaluation": ("evaluation", None),
-    "evaluate": ("evaluation", "evaluate"),
-    "Evaluation": ("evaluation", "Evaluation"),
-    "BallbarResult": ("evaluation", "BallbarResult"),
-    "SphereResult": ("evaluation", "SphereResult"),
+    "evaluate": ("evaluation.ballbar", "evaluate"),
+    "Evaluation": ("evaluation.ballbar", "Evaluation"),
+    "BallbarResult": ("evaluation.ballbar", "BallbarResult"),
+    "SphereResult": ("evaluation.ballbar", "SphereResult"),
     "run": ("run", None),
     "Run": ("run", "Run"),
     "load_truth": ("run", "load_truth"),
     "acquire": ("acquire", None),
     "Recorder": ("acquire", "Recorder"),
     "calibration": ("calibration", None),
-    "uncertainty": ("uncertainty", None),
+    "uncertainty": ("evaluation.uncertainty", None),
+    "formats": ("formats", None),
     "standards": ("standards", None),
     "evaluate_iso230_2": ("standards", "evaluate_iso230_2"),
     "Diagnosis": ("diagnosis", "Diagnosis"),
@@ -52,17 +56,34 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "diagnose": ("diagnosis", "diagnose"),
     "TemperaturePolicy": ("temperature", "TemperaturePolicy"),
 }, globals())
+_moved.install()  # old module paths (cmmpose.mapfiles, ...) forward to the folders they moved to, with a FutureWarning
+
+
+def __getattr__(name: str, _lazy=__getattr__, _old=_moved.attribute):
+    try:
+        return _lazy(name)
+    except AttributeError:
+        return _old(name)
+
 
 if TYPE_CHECKING:
-    from . import acquire, calibration, evaluation, run, standards, uncertainty
-    from .evaluation import BallbarResult, Evaluation, SphereResult, evaluate
+    from . import layouts
+    from .evaluation.metrics import b89_value, improvement, length_at_20c, rms_accuracy_error
+    from .filecompensation import FileCompensation, compensate_file
+    from .fitting import (E3125Result, PlaneFit, SphereFit, SphereFits, SphereSegmentation, e3125, fit_plane,
+                          fit_sphere, fit_spheres, segment_sphere)
+    from .formats.pointclouds import PointCloud, read_point_cloud, write_point_cloud
+    from .layouts import BallbarPosition, b89_positions, crossed_ballbar_positions, digitizer_pose_for
+    from . import acquire, calibration, evaluation, formats, run, standards
+    from .evaluation import uncertainty
+    from .evaluation.ballbar import BallbarResult, Evaluation, SphereResult, evaluate
     from .run import Run, load_truth
     from .standards import evaluate_iso230_2
     from .acquire import Recorder
     from .diagnosis import Diagnosis, Model, UserEffect, diagnose
     from .temperature import TemperaturePolicy
 
-del TYPE_CHECKING, lazy_attributes  # not part of the package's face (dir(cmmpose))
+del TYPE_CHECKING, lazy_attributes, _moved  # not part of the package's face (dir(cmmpose))
 
 __all__ = [
     "__version__",
@@ -101,6 +122,8 @@ __all__ = [
     "Recorder",
     "layouts",
     "uncertainty",
+    "evaluation",
+    "formats",
     "standards",
     "evaluate_iso230_2",
     "BallbarPosition",
@@ -132,5 +155,6 @@ __all__ = [
     "ClampWarning",
     "ExtrapolationWarning",
     "MapTemperatureWarning",
+    "AliasedChoiceWarning",
     "IllConditionedFit",
 ]

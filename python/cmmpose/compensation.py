@@ -9,18 +9,20 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_rows, as_triple, as_vector
+from ._renamed import renamed
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import InputError, InputTypeError, MapTemperatureWarning, warn_clamped
 from .policy import TEMPERATURE_TOLERANCE, check_policy
 from .pose import digitizer
-from .report import KernelReport
+from .kernel_report import KernelReport
 from .temperature import TemperaturePolicy, as_policy
 
 
+@renamed(error_map="maps")
 def compensate(
     uv,
     scales,
-    error_map: ErrorMap | ErrorMapSet,
+    maps: ErrorMap | ErrorMapSet,
     pose,
     offset,
     temperature=None,
@@ -43,7 +45,7 @@ def compensate(
         Scan-plane coordinates u, v in mm (laser frame; w = 0).
     scales : array_like, shape (N, 3)
         Scale readings D, E, F in mm at which each point was taken.
-    error_map : ErrorMap, ErrorMapSet or Model
+    maps : ErrorMap, ErrorMapSet or Model
         The machine's component errors; a set needs ``temperature``. Or a
         model a diagnosis found (``cmmpose.Model.load('m.json')``): its maps
         and effects, with the inputs its effects read from ``columns``
@@ -105,11 +107,11 @@ def compensate(
     out_of_range, temperature_tolerance = policy.out_of_range, policy.temperature_tolerance
     uv = as_rows("uv", uv, 2)
     scales = as_rows("scales", scales, 3)
-    if is_model(error_map):
-        return _compensate_model(uv, scales, error_map, pose, offset, temperature, out_of_range, nan_policy,
+    if is_model(maps):
+        return _compensate_model(uv, scales, maps, pose, offset, temperature, out_of_range, nan_policy,
                                  temperature_tolerance, return_report, out, columns)
-    if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
-        raise InputTypeError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
+    if not isinstance(maps, (ErrorMap, ErrorMapSet)):
+        raise InputTypeError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(maps).__name__}")
     if temperature is not None and np.ndim(temperature) > 0:
         temperature = as_vector("temperature", temperature, scales.shape[0])
     elif temperature is not None:
@@ -121,7 +123,7 @@ def compensate(
     xyz, report = _core.compensate(
         uv,
         scales,
-        error_map._core,
+        maps._core,
         digitizer(pose, offset),
         temperature,
         out_of_range,

@@ -12,11 +12,12 @@ from os import PathLike
 
 import numpy as np
 
-from . import _core, mapformats
+from . import _core
+from .formats import mapformats
 from ._arrays import as_rows, as_triple
 from .policy import TEMPERATURE_TOLERANCE, check_policy
 from .errors import InputError, warn_clamped
-from .report import KernelReport
+from .kernel_report import KernelReport
 
 #: Carriages in kinematic order.
 CARRIAGES = ("X", "Y", "Z")
@@ -66,7 +67,7 @@ class ErrorMap:
     def read(cls, path: str | PathLike, format: str = "csv", **options) -> ErrorMap:
         """Read a map file: by default the canonical CSV format (docs/formats.md).
 
-        ``format`` names a registered map file format (:mod:`cmmpose.mapformats`:
+        ``format`` names a registered map file format (:mod:`cmmpose.formats.mapformats`:
         ``'csv'``, ``'controller'``, ``'iso230-2'``), or ``'auto'`` for the one that recognises
         the file; ``options`` go to that format's reader.
         """

@@ -204,6 +204,12 @@ class MapTemperatureWarning(UserWarning):
     """A single map was used at temperatures other than its own."""
 
 
+class AliasedChoiceWarning(UserWarning):
+    """A diagnosis model applied where an aliased choice matters: the effect
+    its diagnosis chose and an alternative the data could not rule out
+    predict these data differently (:mod:`cmmpose.diagnosis.aliases`)."""
+
+
 def warn_clamped(report) -> None:
     """Warn once per call when a report says anything was clamped or
     extrapolated; log the points held at the edge within the tolerance."""

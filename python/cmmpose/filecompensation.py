@@ -2,7 +2,7 @@
 (``cmmpose compensate IN OUT``; :func:`compensate_file`).
 
 Reading, compensating and writing run at once in a pipeline: a reader
-thread parses chunks of :data:`~cmmpose.pointfiles.CHUNK_POINTS` rows into
+thread parses chunks of :data:`~cmmpose.formats.pointfiles.CHUNK_POINTS` rows into
 a queue of at most :data:`QUEUE_CHUNKS` chunks, the calling thread runs the
 kernel on them (the Rust kernel releases the GIL) into a second queue of the
 same bound, and a writer thread writes them. A reader that runs ahead of a
@@ -21,11 +21,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .compensation import compensate, is_model, warn_single_map
+from ._renamed import renamed
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import InputError
-from .pointfiles import PointWriter, RereadPoints, check_writable, point_chunks
+from .formats.pointfiles import PointWriter, RereadPoints, check_writable, point_chunks
 from .atomicfile import check_not_input
-from .report import KernelReport
+from .kernel_report import KernelReport
 from .temperature import TemperaturePolicy, as_policy
 
 __all__ = ["compensate_file", "FileCompensation", "QUEUE_CHUNKS"]
@@ -76,7 +77,8 @@ class _Failed:
         self.exc = exc
 
 
-def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
+@renamed(error_map="maps")
+def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
                     out_of_range: str | None = None, nan_policy: str = "raise",
                     temperature_tolerance: float | None = None, progress=None,
                     chunk: int | None = None, temperature_policy: TemperaturePolicy | None = None) -> FileCompensation:
@@ -87,14 +89,14 @@ def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, po
     ----------
     points_in : path-like
         A point file with columns u, v, D, E, F (mm) and optionally T
-        (degrees C), in any registered format (:mod:`cmmpose.pointfiles`).
+        (degrees C), in any registered format (:mod:`cmmpose.formats.pointfiles`).
         Its other columns (scan_id, intensity, ...) are written to
         ``points_out`` unchanged.
     points_out : path-like
         The output, in the format of its suffix (CSV for an unknown one):
         X, Y, Z in mm (E57 in metres). Written through a temporary file
         renamed into place when whole; never one of the inputs.
-    error_map : ErrorMap, ErrorMapSet or Model
+    maps : ErrorMap, ErrorMapSet or Model
         The machine's component errors; a set needs ``temperature`` or a T column.
         Or a model a diagnosis found (``cmmpose.Model.load``): its effects
         read their inputs from the file's columns (``cmmpose.diagnosis.apply``;
@@ -113,7 +115,7 @@ def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, po
         ``progress(bytes_done, size)``: how far into the input (bytes) the
         written points reach, called in the calling thread.
     chunk : int, optional
-        Rows per chunk (default :data:`cmmpose.pointfiles.CHUNK_POINTS`).
+        Rows per chunk (default :data:`cmmpose.formats.pointfiles.CHUNK_POINTS`).
 
     Returns
     -------
@@ -134,7 +136,7 @@ def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, po
     check_not_input(points_out, [points_in], "OUT")
     size, chunks = point_chunks(points_in, chunk, extras=True)
     state = {"temperature": None, "warned": False, "kernel": 0.0}
-    model = error_map if is_model(error_map) else None
+    model = maps if is_model(maps) else None
     if model is not None:
         from .diagnosis.apply import needs_scans, whole_scans
 
@@ -156,7 +158,7 @@ def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, po
             xyz, raw = m.compensate(inputs, return_report=True)
             state["kernel"] += time.perf_counter() - t0
             return xyz, KernelReport(**raw)
-        if isinstance(error_map, ErrorMapSet):
+        if isinstance(maps, ErrorMapSet):
             if temperature is None and temps is None:
                 raise InputError(f"{points_in}: a map set needs a temperature (--temperature, temperature=) "
                                  f"or a T column in the input")
@@ -166,10 +168,10 @@ def compensate_file(points_in, points_out, error_map: ErrorMap | ErrorMapSet, po
             t = None
             given = temperature if temperature is not None else temps
             if given is not None and not state["warned"]:
-                warn_single_map(error_map, given, temperature_tolerance)
+                warn_single_map(maps, given, temperature_tolerance)
                 state["warned"] = True
         t0 = time.perf_counter()
-        out = compensate(uv, scales, error_map, pose, offset, t, out_of_range=out_of_range, nan_policy=nan_policy,
+        out = compensate(uv, scales, maps, pose, offset, t, out_of_range=out_of_range, nan_policy=nan_policy,
                          temperature_tolerance=temperature_tolerance, return_report=True)
         state["kernel"] += time.perf_counter() - t0
         return out

@@ -34,7 +34,7 @@ from ._lazy import LazyModule
 from .atomicfile import staged_folder
 from .effects import channel_roles as effect_channel_roles
 from .errors import RunError
-from .pointformats._common import parquet_options
+from .formats.pointformats._common import parquet_options
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
 pa = LazyModule("pyarrow")

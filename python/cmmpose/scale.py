@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .compensation import compensate
+from .compensation import compensate, warn_single_map
 from .atomicfile import AtomicFile, ensure_folder
 from .errormap import ErrorMap, ErrorMapSet
 from .errors import Error, InputError, InputTypeError, SchedulerError, warn_clamped
@@ -56,8 +56,8 @@ from .policy import SCHEDULER_TIMEOUT_HINT, TEMPERATURE_TOLERANCE
 from .temperature import TemperaturePolicy, as_policy
 from .pose import pose_tuple
 from ._arrays import as_triple
-from .report import KernelReport
-from .pointformats._common import parquet_options
+from .kernel_report import KernelReport
+from .formats.pointformats._common import parquet_options
 from ._lazy import LazyModule
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
@@ -557,6 +557,13 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         be reached or does not answer within ``scheduler_timeout``.
     """
     t_start = time.perf_counter()
+    if isinstance(error_map, ErrorMap):
+        # One map holds at one temperature: said (a MapTemperatureWarning) when the given temperature, or the T
+        # columns' range from the files' statistics (no data read), is not the map's own.
+        given = temperature if temperature is not None else dataset_temperature_range(dataset_dir)
+        if given is not None:
+            policy = as_policy(temperature_policy, temperature_tolerance=temperature_tolerance)
+            warn_single_map(error_map, given, policy.temperature_tolerance)
     kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
                               nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
                               temperature_policy=temperature_policy)
@@ -779,8 +786,8 @@ def _maps_named_by(run):
 
 
 def _evaluate_run(run, maps, **kwargs):
-    from .artefact_evaluation import evaluate_artefact, is_artefact_run
-    from .evaluation import evaluate
+    from .evaluation.artefact import evaluate_artefact, is_artefact_run
+    from .evaluation.ballbar import evaluate
 
     if isinstance(maps, str) and maps == "run":
         maps = _maps_named_by(run)
@@ -901,7 +908,7 @@ class FleetRow:
 
 def fleet_summary(run_dirs, evaluations) -> list[FleetRow]:
     """One :class:`FleetRow` per run from :func:`evaluate_runs`' results."""
-    from .artefact_evaluation import ArtefactEvaluation
+    from .evaluation.artefact import ArtefactEvaluation
 
     def artefact_figures(result):  # rms deviation and largest |E| of an artefact run, mm
         if result is None:

@@ -40,7 +40,7 @@ import cmmpose
 from cmmpose import sim
 from cmmpose.calibration import STANDARD_POSES
 from cmmpose.diagnosis import LIBRARY, Model
-from cmmpose.pointfiles import read_points
+from cmmpose.formats.pointfiles import read_points
 from cmmpose.sim import effects as E
 from cmmpose.sim.scanner import Scanner
 

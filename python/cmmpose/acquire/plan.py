@@ -72,6 +72,8 @@ class Plan:
     poses: list = field(default_factory=list)
     scans: list = field(default_factory=list)
     temperature_channels: list = field(default_factory=list)
+    #: Whether the channels are the defaults (the plan listed none): a machine file's may replace them.
+    channels_defaulted: bool = field(default=False, repr=False, compare=False)
 
     def __post_init__(self):
         # Every type checked now, not when the run is assembled after the
@@ -91,6 +93,7 @@ class Plan:
                         raise AcquisitionError(f"plan: {name}[{k}]: {c} = {row[c]!r} is not "
                                                f"{'a string' if dt == 'str' else 'an integer' if dt != 'float64' else 'a finite number'}")
         if not self.temperature_channels:
+            self.channels_defaulted = True
             self.temperature_channels = [{"name": n, "role": r, "channel": 101 + k} for k, (n, r) in enumerate(DEFAULT_CHANNELS)]
         for k, ch in enumerate(self.temperature_channels):
             if not isinstance(ch, dict) or "name" not in ch or ch.get("role") not in CHANNEL_ROLES:
@@ -160,6 +163,23 @@ class Plan:
             return cls(**doc)
         except AcquisitionError as exc:
             raise AcquisitionError(f"{path}: {exc}") from None
+
+    def with_machine_channels(self, machine) -> Plan:
+        """This plan, or where it lists no thermocouple channels, a copy with
+        the machine file's thermocouples (in the file's order, on multiplexer
+        channels 101, 102, ...), checked as a plan file's channels are.
+
+        Parameters
+        ----------
+        machine : cmmpose.machine.Machine
+            The machine file's contents (its ``thermocouples``: name -> role).
+        """
+        if not self.channels_defaulted:
+            return self
+        doc = self.to_dict()
+        doc["temperature_channels"] = [{"name": name, "role": role, "channel": 101 + k}
+                                       for k, (name, role) in enumerate(machine.thermocouples.items())]
+        return type(self)(**doc)
 
     def write(self, path) -> None:
         """Write as JSON (atomically, :mod:`cmmpose.atomicfile`)."""

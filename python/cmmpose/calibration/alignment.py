@@ -31,10 +31,12 @@ import numpy as np
 from .. import _core
 from .._arrays import as_rows, as_triple
 from ..compensation import compensate, uncompensated
+from .._renamed import renamed
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import CalibrationError, GeometryError, InputError, InputTypeError
 from ..fitting import PlaneFit, SphereFit, fit_plane, fit_sphere
 from ..pose import MountOffset, Pose, pose_tuple
+from ..temperature import TemperaturePolicy, as_policy
 
 __all__ = [
     "CalibrationError",
@@ -86,14 +88,14 @@ def _e313_derivatives(pose) -> np.ndarray:
     return out
 
 
-def _check_map(error_map, temperature):
-    if error_map is None:
+def _check_map(maps, temperature):
+    if maps is None:
         if temperature is not None:
-            raise InputError("temperature: only meaningful with an error_map")
+            raise InputError("temperature: only meaningful with maps")
         return
-    if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
-        raise InputTypeError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
-    if isinstance(error_map, ErrorMapSet) and temperature is None:
+    if not isinstance(maps, (ErrorMap, ErrorMapSet)):
+        raise InputTypeError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(maps).__name__}")
+    if isinstance(maps, ErrorMapSet) and temperature is None:
         raise InputError("temperature: an ErrorMapSet needs the machine temperature (C), one value or one per point")
 
 
@@ -112,19 +114,20 @@ def _temperature(temperature, n: int):
     return t
 
 
-def _single_map(error_map, temperature) -> ErrorMap:
+def _single_map(maps, temperature, policy: TemperaturePolicy) -> ErrorMap:
     """The map at the (mean) temperature, for evaluating e(S) and R(S) at one reading."""
-    if isinstance(error_map, ErrorMap):
-        return error_map
-    return error_map.at(float(np.mean(temperature)))
+    if isinstance(maps, ErrorMap):
+        return maps
+    return maps.at(float(np.mean(temperature)), out_of_range=policy.out_of_range,
+                   temperature_tolerance=policy.temperature_tolerance)
 
 
-def _machine_points(uv, scales, pose, offset, error_map, temperature) -> np.ndarray:
+def _machine_points(uv, scales, pose, offset, maps, temperature, policy: TemperaturePolicy) -> np.ndarray:
     """Scanner points in machine coordinates (mm): compensated with the map, or
     the error-free model S + E313 ((u, v, 0) - l1) without one."""
-    if error_map is None:
+    if maps is None:
         return uncompensated(uv, scales, pose, offset)
-    return compensate(uv, scales, error_map, pose, offset, temperature)
+    return compensate(uv, scales, maps, pose, offset, temperature, temperature_policy=policy)
 
 
 def _covariance(name: str, c, n: int) -> np.ndarray:
@@ -210,8 +213,10 @@ class VernierAlignment:
         return Pose(self.alpha, self.beta, float(gamma))
 
 
-def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | None = None, error_map=None,
-                            temperature=None, min_spread: float = 1.0) -> VernierAlignment:
+@renamed(error_map="maps")
+def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | None = None, maps=None,
+                            temperature=None, min_spread: float = 1.0,
+                            temperature_policy: TemperaturePolicy | None = None) -> VernierAlignment:
     """alpha, beta (degrees) of the scan plane from three or more optical-vernier points.
 
     The CMM is moved until the laser line falls on the fixed vernier (HSV),
@@ -225,7 +230,7 @@ def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | N
     ----------
     points : array_like, shape (N, 3)
         Machine positions, mm, at which the line fell on the vernier (N >= 3);
-        scale readings D, E, F if ``error_map`` is given (they are then
+        scale readings D, E, F if ``maps`` is given (they are then
         compensated to positions S + e(S) first).
     w_hint : array_like, shape (3,), optional
         A direction (any length, machine axes) on the +w side of the scan plane,
@@ -238,17 +243,20 @@ def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | N
         Standard uncertainty of one vernier position along the normal, mm
         (Type B: the vernier's null). Default: estimated from the fit's
         residuals (Type A, N - 3 degrees of freedom; undefined, NaN, for N = 3).
-    error_map : ErrorMap or ErrorMapSet, optional
+    maps : ErrorMap or ErrorMapSet, optional
         Treat ``points`` as scale readings and compensate them: positions
         S + e(S), and the normal turned back by the ram's rotation R(S) at
         their mean (the pose is the orientation before R: docs/conventions.md,
         The compensation).
     temperature : float or array_like of shape (N,), optional
-        Machine temperature, C, for ``error_map``.
+        Machine temperature, C, for ``maps``.
     min_spread : float
         Smallest rms distance of the points from their best-fit line, mm;
         closer to a line the normal is not determined.
 
+    temperature_policy : TemperaturePolicy, optional
+        Temperatures outside the maps (docs/conventions.md): the default
+        raises; ``TemperaturePolicy(out_of_range='clamp')`` holds the edge map.
     Returns
     -------
     VernierAlignment
@@ -279,11 +287,13 @@ def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | N
         raise InputError(f"min_spread: must be a length >= 0 in mm, got {min_spread}")
     if point_uncertainty is not None and not (np.isfinite(point_uncertainty) and point_uncertainty > 0):
         raise InputError(f"point_uncertainty: must be a positive length in mm, got {point_uncertainty}")
-    _check_map(error_map, temperature)
+    _check_map(maps, temperature)
+    policy = as_policy(temperature_policy)
     temperature = _temperature(temperature, n_pts)
     raw = pts
-    if error_map is not None:
-        pts = compensate(np.zeros((n_pts, 2)), pts, error_map, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), temperature)
+    if maps is not None:
+        pts = compensate(np.zeros((n_pts, 2)), pts, maps, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), temperature,
+                         temperature_policy=policy)
     centred = pts - pts.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
     off_line = sv[1] / math.sqrt(n_pts)
@@ -321,12 +331,12 @@ def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | N
         sigma = float(np.sqrt(np.sum(np.asarray(fit.residuals) ** 2) / dof)) if dof > 0 else float("nan")
         tilt_cov = np.asarray(fit.tilt_covariance, dtype=float)
     cov_n = axes.T @ tilt_cov @ axes
-    if error_map is not None:
+    if maps is not None:
         # The plane found is the true scan plane, R(S) E313 w: the ram's rotation at
         # the vernier readings is part of it. The pose is E313 before R
         # (docs/conventions.md, The compensation), so turn it back by R at the
         # mean reading (up to ~10 a-s with the thesis maps).
-        rot = _single_map(error_map, temperature).rotation_error(raw.mean(axis=0)[None, :])[0]
+        rot = _single_map(maps, temperature, policy).rotation_error(raw.mean(axis=0)[None, :])[0]
         n = rot.T @ n
         n = n / np.linalg.norm(n)
         cov_n = rot.T @ cov_n @ rot
@@ -400,15 +410,15 @@ class _PlaneProblem:
     """The points of a plane scan as a function of gamma; the objective and one
     Gauss-Newton step of the plane-with-gamma least-squares problem."""
 
-    def __init__(self, uv, scales, alpha, beta, normal, offset, error_map, temperature):
+    def __init__(self, uv, scales, alpha, beta, normal, offset, maps, temperature, policy):
         self.uv, self.scales = uv, scales
         self.alpha, self.beta = alpha, beta
         self.normal = normal
-        self.offset, self.error_map, self.temperature = offset, error_map, temperature
+        self.offset, self.maps, self.temperature, self.policy = offset, maps, temperature, policy
 
     def points(self, gamma: float) -> np.ndarray:
         return _machine_points(self.uv, self.scales, (self.alpha, self.beta, gamma), self.offset,
-                               self.error_map, self.temperature)
+                               self.maps, self.temperature, self.policy)
 
     def cost(self, gamma: float) -> float:
         x = self.points(gamma)
@@ -470,9 +480,10 @@ def _wrap180(a: float) -> float:
     return a - 180.0
 
 
+@renamed(error_map="maps")
 def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None, gamma0: float | None = None,
-                          offset=None, error_map=None, temperature=None, alpha_beta_covariance=None,
-                          step: float = 2.0) -> GammaAlignment:
+                          offset=None, maps=None, temperature=None, alpha_beta_covariance=None,
+                          step: float = 2.0, temperature_policy: TemperaturePolicy | None = None) -> GammaAlignment:
     """gamma (degrees) from a flat plane scanned while the machine moves.
 
     With alpha and beta known, every profile is a straight line in the scan
@@ -509,17 +520,20 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
     offset : MountOffset or sequence of 3 float, optional
         Mount offset l1, mm (default 0). Only the map's rotation R(S) acts on
         it, but R changes along a sweep: with a map give the nominal offset.
-    error_map : ErrorMap or ErrorMapSet, optional
+    maps : ErrorMap or ErrorMapSet, optional
         Compensate the points with the machine's map (recommended: squareness
         skews the sweep direction otherwise).
     temperature : float or array_like of shape (N,), optional
-        Machine temperature, C, for ``error_map``.
+        Machine temperature, C, for ``maps``.
     alpha_beta_covariance : array_like, shape (2, 2), optional
         Covariance of (alpha, beta), deg^2 (``VernierAlignment.covariance``),
         propagated into the uncertainty.
     step : float
         Grid step of the initial search, degrees.
 
+    temperature_policy : TemperaturePolicy, optional
+        Temperatures outside the maps (docs/conventions.md): the default
+        raises; ``TemperaturePolicy(out_of_range='clamp')`` holds the edge map.
     Returns
     -------
     GammaAlignment
@@ -552,7 +566,8 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
             f"gamma: the plane scan has no motion: all {len(scales)} scale readings are equal "
             f"(D, E, F = {scales[0].tolist()} mm). gamma needs the machine to move while the plane is "
             "scanned (thesis section 4.3)")
-    _check_map(error_map, temperature)
+    _check_map(maps, temperature)
+    policy = as_policy(temperature_policy)
     temperature = _temperature(temperature, len(uv))
     if normal is not None:
         nv = np.asarray(as_triple("normal", normal))
@@ -570,11 +585,11 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
             raise CalibrationError(
                 f"gamma: the machine moved only within the scan plane (travel along w {across:.2g} mm): every "
                 "point lies in the scan plane whatever gamma is; sweep across it (along w), or give `normal`")
-    problem = _PlaneProblem(uv, scales, alpha, beta, nv, l1, error_map, temperature)
+    problem = _PlaneProblem(uv, scales, alpha, beta, nv, l1, maps, temperature, policy)
     # The grid search needs no more than a few thousand points: an even subsample.
     idx = np.unique(np.linspace(0, len(uv) - 1, min(len(uv), 2000)).astype(np.int64))
     t_sub = temperature[idx] if isinstance(temperature, np.ndarray) else temperature
-    coarse = _PlaneProblem(uv[idx], scales[idx], alpha, beta, nv, l1, error_map, t_sub)
+    coarse = _PlaneProblem(uv[idx], scales[idx], alpha, beta, nv, l1, maps, t_sub, policy)
 
     if gamma0 is None:
         grid = np.arange(-180.0, 180.0, step)
@@ -608,7 +623,7 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
         for sgn in (1.0, -1.0):
             d = np.array([alpha, beta])
             d[j] += sgn * h
-            p = _PlaneProblem(uv, scales, d[0], d[1], nv, l1, error_map, temperature)
+            p = _PlaneProblem(uv, scales, d[0], d[1], nv, l1, maps, temperature, policy)
             sol.append(gamma + p.step(gamma)[0])
         sens[j] = (sol[0] - sol[1]) / (2 * h)
     noise_u = math.degrees(math.sqrt(var))
@@ -782,9 +797,11 @@ def _sandwich_centre_covariance(points: np.ndarray, fit: SphereFit, fixed_radius
     return (a @ meat @ a)[:3, :3] * (m / max(m - k, 1))
 
 
-def reference_centre_reading(uv, scales, pose, offset=None, error_map=None, temperature=None, *,
+@renamed(error_map="maps")
+def reference_centre_reading(uv, scales, pose, offset=None, maps=None, temperature=None, *,
                              pose_covariance=None, reading_uncertainty=None, radius: float | None = None,
-                             reject: float | None = None) -> ReferenceReading:
+                             reject: float | None = None,
+                             temperature_policy: TemperaturePolicy | None = None) -> ReferenceReading:
     """D0, E0, F0: the scale reading at which the laser origin sits at the
     reference-sphere centre (thesis section 4.4, eq. 14; the D_k, E_k, F_k of
     eqs. 16-18).
@@ -814,10 +831,10 @@ def reference_centre_reading(uv, scales, pose, offset=None, error_map=None, temp
     offset : MountOffset or sequence of 3 float, optional
         Mount offset l1, mm: to report the sphere ``centre`` and, with a map,
         the exact reading (see above). Not needed for :func:`mount_offset`.
-    error_map : ErrorMap or ErrorMapSet, optional
+    maps : ErrorMap or ErrorMapSet, optional
         The machine's map: compensate the scan (recommended).
     temperature : float or array_like of shape (N,), optional
-        Machine temperature, C, for ``error_map``.
+        Machine temperature, C, for ``maps``.
     pose_covariance : array_like, shape (3, 3), optional
         Covariance of the pose, deg^2 (``CalibratedPose.covariance``),
         propagated into ``covariance`` through the numerical ``pose_jacobian``.
@@ -829,6 +846,9 @@ def reference_centre_reading(uv, scales, pose, offset=None, error_map=None, temp
     reject : float, optional
         Robust fit threshold, as in :func:`cmmpose.fit_sphere`.
 
+    temperature_policy : TemperaturePolicy, optional
+        Temperatures outside the maps (docs/conventions.md): the default
+        raises; ``TemperaturePolicy(out_of_range='clamp')`` holds the edge map.
     Returns
     -------
     ReferenceReading
@@ -846,7 +866,8 @@ def reference_centre_reading(uv, scales, pose, offset=None, error_map=None, temp
         raise InputError(f"uv and scales: expected the same number of rows, got {len(uv)} and {len(scales)}")
     if len(uv) < 4:
         raise InputError(f"uv: a sphere needs at least 4 points, got {len(uv)}")
-    _check_map(error_map, temperature)
+    _check_map(maps, temperature)
+    policy = as_policy(temperature_policy)
     temperature = _temperature(temperature, len(uv))
     p = pose_tuple(pose)
     pc = np.zeros((3, 3)) if pose_covariance is None else _covariance("pose_covariance", pose_covariance, 3)
@@ -854,19 +875,19 @@ def reference_centre_reading(uv, scales, pose, offset=None, error_map=None, temp
     zero = (0.0, 0.0, 0.0)
 
     def centre_of(angles, l1=zero):
-        y = _machine_points(uv, scales, angles, l1, error_map, temperature)
+        y = _machine_points(uv, scales, angles, l1, maps, temperature, policy)
         return fit_sphere(y, radius, reject=reject)
 
     fit = centre_of(p)
     c_y = np.asarray(fit.centre, dtype=float)
     e313 = _e313(p)
     l1 = None if offset is None else np.asarray(as_triple("offset", offset))
-    if error_map is None:
+    if maps is None:
         # Error-free model: the points for l1 are those for 0 moved by -E313 l1.
         reading, position, lever = c_y.copy(), c_y.copy(), e313
         t_mean = None
     else:
-        m = _single_map(error_map, temperature)
+        m = _single_map(maps, temperature, policy)
         # lever = d centre / d(-l1): R(S) E313 averaged the way the fit averages
         # the scan's points (numerical; the centre is linear in l1).
         big = 100.0
@@ -899,7 +920,7 @@ def reference_centre_reading(uv, scales, pose, offset=None, error_map=None, temp
         plus = np.asarray(centre_of(tuple(np.add(p, d))).centre)
         minus = np.asarray(centre_of(tuple(np.subtract(p, d))).centre)
         jac[:, j] = (plus - minus) / (2 * h)
-    fit_cov = _sandwich_centre_covariance(_machine_points(uv, scales, p, zero, error_map, temperature), fit,
+    fit_cov = _sandwich_centre_covariance(_machine_points(uv, scales, p, zero, maps, temperature, policy), fit,
                                           radius is not None)
     if extra is not None:
         fit_cov = fit_cov + np.diag(extra**2)

@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomicfile import save_figure, write_text
-from ..plots import new_figure
+from ..evaluation.plots import new_figure
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from ..errors import InputError, InputTypeError, MapError, read_lines
 from .._validate import finite, nonnegative, positive, triple
@@ -319,10 +319,10 @@ def refractive_index_budget(
 
     Returns
     -------
-    cmmpose.uncertainty.Budget
+    cmmpose.evaluation.uncertainty.Budget
         Budget in ppm; ``combined_standard_uncertainty`` is u_N.
     """
-    from ..uncertainty import Budget, Input
+    from ..evaluation.uncertainty import Budget, Input
 
     us = {
         "air_temperature_C": nonnegative("u_air_temperature_C", u_air_temperature_C),

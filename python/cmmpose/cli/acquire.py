@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 
 import click
 from rich.console import Console
@@ -61,17 +59,10 @@ def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, machine_
 
 
 def _plan_for(plan_file, machine, machine_file):
-    """The plan to record with: the plan file's, with the machine file's
-    thermocouple channels (in the file's order, multiplexer channels 101, 102,
-    ...) where the plan lists none."""
+    """The plan to record with (cmmpose.acquire.plan.Plan.with_machine_channels); a plan file alone when no
+    machine file is given (the recorder reads it)."""
     from ..acquire.plan import Plan
 
     if machine_file is None:
         return plan_file
-    plan = Plan.read(plan_file) if plan_file else Plan()
-    listed = plan_file and json.loads(Path(plan_file).read_text(encoding="utf-8")).get("temperature_channels")
-    if not listed:
-        plan.temperature_channels = [{"name": name, "role": role, "channel": 101 + k}
-                                     for k, (name, role) in enumerate(machine.thermocouples.items())]
-        plan.__post_init__()  # the same checks as a plan file's channels
-    return plan
+    return (Plan.read(plan_file) if plan_file else Plan()).with_machine_channels(machine)

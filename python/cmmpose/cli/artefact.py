@@ -180,8 +180,8 @@ def simulate_artefact(artefact_spec, placements, machine, maps, temperature, eff
 
 def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json, policy) -> None:
     """``cmmpose evaluate RUN_DIR`` on an artefact run: the table or JSON, and the report."""
-    from ..artefact_evaluation import evaluate_artefact
-    from ..evaluation_uncertainty import DEFAULT_U_TEMPERATURE_K
+    from ..evaluation.artefact import evaluate_artefact
+    from ..evaluation.ballbar_uncertainty import DEFAULT_U_TEMPERATURE_K
 
     try:
         ev = evaluate_artefact(run, model, temperature, reject=reject,
@@ -274,7 +274,7 @@ def write_artefact_report(ev, directory: Path, poses: dict | None = None) -> lis
     except ImportError:
         console.print("matplotlib is not installed: no plots (pip install 'cmmpose[plot]')")
         return files
-    from ..plots import plot_artefact_deviations, plot_length_errors
+    from ..evaluation.plots import plot_artefact_deviations, plot_length_errors
 
     for r in ev.results:
         path = directory / f"deviations_{r.label}.png"

@@ -11,8 +11,8 @@ from .._json import dumps as strict_json
 from ..atomicfile import check_not_input
 from ..errormap import ErrorMapSet
 from ..errors import CalibrationError, Error
-from ..pointclouds import read_point_cloud
-from ..pointfiles import read_points
+from ..formats.pointclouds import read_point_cloud
+from ..formats.pointfiles import read_points
 from .common import json_option, console, fail, load_maps, machine_option, map_specs, offset_mm, travel_notes, triple
 
 
@@ -82,7 +82,7 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
                           "squareness shear biases alpha (give --maps or --machine)")
         elif isinstance(error_map, ErrorMapSet) and temperature is None:
             raise click.UsageError("a map set needs --temperature (the machine's during the alignment, C)")
-        em = {"error_map": error_map, "temperature": temperature if error_map is not None else None}
+        em = {"maps": error_map, "temperature": temperature if error_map is not None else None}
         point_u = None if vernier_uncertainty is None else vernier_uncertainty * 1e-3
         vern = alpha_beta_from_vernier(read_point_cloud(vernier_file).xyz, point_uncertainty=point_u, **em)
         scans = [read_points(f) for f in plane_files]

@@ -13,10 +13,8 @@ from .._json import dumps as strict_json
 from ..atomicfile import check_not_input
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import Error
-from ..machine import check_map_specs
 from ..policy import cli_wording
 from ..pose import check_pose_angles
-from ..scale import SCHEDULER_TIMEOUT, check_scheduler
 from ..temperature import temperature_options
 
 console = Console(stderr=True)
@@ -25,6 +23,8 @@ def map_specs(ctx, param, value):
     """The ``--maps`` callback of every command : an empty value (``--maps ""``) is a usage error, not the
     current folder."""
     try:
+        from ..machine import check_map_specs  # here: the machine file's imports only for commands given maps
+
         return check_map_specs(value)
     except Error as exc:
         raise click.BadParameter(str(exc).removeprefix("maps: "), param_hint="--maps") from None
@@ -132,6 +132,8 @@ def policy_options(log_hold: bool = True):
 
 def _scheduler_spec(ctx, param, value):
     """--scheduler: a usage error unless threads, processes or tcp://host:port."""
+    from ..scale import check_scheduler  # here: the scale-out's imports only for the commands that scale out
+
     try:
         return None if value is None else check_scheduler(value)
     except Error as exc:
@@ -140,6 +142,8 @@ def _scheduler_spec(ctx, param, value):
 
 def scheduler_options(help_text: str):
     """--scheduler and --scheduler-timeout, the same on every command that scales out (cmmpose.scale)."""
+
+    from ..scale import SCHEDULER_TIMEOUT
 
     def wrap(f):
         f = click.option("--scheduler-timeout", type=click.FloatRange(min=0, min_open=True, max=1e6),
@@ -241,6 +245,25 @@ def check_model_or_maps(model_file, user_files, maps) -> None:
         raise click.UsageError("--user-effect is for the effects of a --model")
     if model_file is not None and maps:
         raise click.UsageError("give --maps or --model (whose maps it holds), not both")
+
+
+class aliased_choices_once:  # noqa: N801 - used as a function: with aliased_choices_once(): ...
+    """While a command applies a --model: its aliased-choice warnings (``AliasedChoiceWarning``, which the
+    command prints) are not printed a second time from the library's log line."""
+
+    def __enter__(self):
+        import logging
+
+        self.logger = logging.getLogger("cmmpose.diagnosis.aliases")
+        self.propagate, self.handler = self.logger.propagate, logging.NullHandler()
+        self.logger.addHandler(self.handler)
+        self.logger.propagate = False
+        return self
+
+    def __exit__(self, *exc):
+        self.logger.removeHandler(self.handler)
+        self.logger.propagate = self.propagate
+        return False
 
 
 def load_model(model_file, user_files=()):

@@ -12,15 +12,14 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from ..atomicfile import check_not_input
-from ..compensation import warn_single_map
-from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import Error, MapTemperatureWarning
+from ..errormap import ErrorMapSet
+from ..errors import AliasedChoiceWarning, Error, MapTemperatureWarning
 from ..filecompensation import compensate_file
-from ..pointfiles import check_writable
-from ..pointformats._common import check_file
-from .common import (check_model_or_maps, console, fail, json_option, kernel_report_rows, load_maps, load_model,
-                     machine_option, machine_row, map_specs, model_options, offset_mm, policy_options, pose_angles,
-                     scheduler_options, show)
+from ..formats.pointfiles import check_writable
+from ..formats.pointformats._common import check_file
+from .common import (aliased_choices_once, check_model_or_maps, console, fail, json_option, kernel_report_rows,
+                     load_maps, load_model, machine_option, machine_row, map_specs, model_options, offset_mm,
+                     policy_options, pose_angles, scheduler_options, show)
 
 
 @click.command("compensate")
@@ -88,8 +87,9 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         # memory stays bounded by a few chunks whatever the file's size.
         with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                       TimeRemainingColumn(), console=console, disable=size < (32 << 20)) as bar, \
-                warnings.catch_warnings(record=True) as caught:
+                warnings.catch_warnings(record=True) as caught, aliased_choices_once():
             warnings.simplefilter("always", MapTemperatureWarning)
+            warnings.simplefilter("always", AliasedChoiceWarning)
             task = bar.add_task("", total=size)
             done = compensate_file(points_in, points_out, error_map, pose_t, offset_t, temperature,
                                    out_of_range=out_of_range, nan_policy=nan_policy,
@@ -97,7 +97,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                                    progress=lambda at, _: bar.update(task, completed=at))
             bar.update(task, completed=size)
         for w in caught:
-            if issubclass(w.category, MapTemperatureWarning):
+            if issubclass(w.category, (MapTemperatureWarning, AliasedChoiceWarning)):
                 console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
             else:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -125,19 +125,12 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
     """`compensate DATASET_DIR OUT_DIR`: a folder of Parquet files on a Dask scheduler (cmmpose.scale)."""
     import logging
 
-    from ..scale import compensate_dataset, dataset_temperature_range
+    from ..scale import compensate_dataset
 
     logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
     try:
         error_map = load_maps(maps, machine)
-        given = temperature if temperature is not None else dataset_temperature_range(points_in)
-        if isinstance(error_map, ErrorMap) and given is not None:  # T from the files' statistics, no data read
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", MapTemperatureWarning)
-                note = warn_single_map(error_map, given, temperature_tolerance)
-            if note:
-                console.print(f"[yellow]warning:[/] {escape(note)}")
-        with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+        with warnings.catch_warnings(record=True) as caught, Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                       TextColumn("{task.completed:,.0f} points"),
                       TimeRemainingColumn(), console=console) as bar:
             task = bar.add_task("", total=None)
@@ -145,6 +138,11 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
                                         out_of_range=out_of_range, nan_policy=nan_policy,
                                         temperature_tolerance=temperature_tolerance, scheduler=scheduler,
                                         scheduler_timeout=scheduler_timeout, progress=lambda done, total: bar.update(task, completed=done, total=total))
+        for w in caught:  # the single map's temperature note (cmmpose.scale.compensate_dataset), printed
+            if issubclass(w.category, MapTemperatureWarning):
+                console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     except Error as exc:
         raise fail(exc) from None
     report = result.report

@@ -30,7 +30,7 @@ def demo_cmd(temperature, seed, jitter, report_dir, machine_file, as_json) -> No
     """Simulate the default B89 ballbar run on the bundled thesis maps (or the machine's), with a realistic
     per-scan reproducibility of 3 um, and evaluate it uncompensated and compensated: the error falls from
     about 70 um to about 4 um, the floor that reproducibility and the scanner's noise leave."""
-    from ..evaluation import evaluate
+    from ..evaluation.ballbar import evaluate
     from ..machine import load_machine
     from ..sim import REALISTIC_JITTER, simulate_ballbar_run
 

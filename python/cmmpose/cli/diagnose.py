@@ -69,10 +69,14 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
             raise click.UsageError("--joint takes two or more runs and runs in this process (no --scheduler)")
         if skeleton_out:
             raise click.UsageError("--user-effect-skeleton takes one run: diagnose the run of interest on its own")
+        if reproducibility_um is not None:  # the joint floor comes from the runs themselves (each its own noise)
+            raise click.UsageError("--reproducibility takes one run: with --joint each run's noise is estimated")
         return _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file,
                                temperature=temperature, out_of_range=out_of_range,
-                               temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
-                               auto=not no_auto, max_effects=max_effects, same_artefact=not separate_artefacts)
+                               temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+                               temperature_policy=temperature_policy, add=add, auto=not no_auto,
+                               max_effects=max_effects, same_artefact=not separate_artefacts,
+                               map_corrections=not no_map_corrections, corrected_out=corrected_out)
     if len(run_dirs) > 1 or scheduler:
         for flag, given in (("--report", report_file), ("--save-model", model_out), ("--user-effect", user_files),
                             ("--user-effect-skeleton", skeleton_out)):
@@ -171,7 +175,8 @@ def _starting_model(run, machine, maps, model_file, user, **policy):
 
 
 def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file, *,
-                    temperature, out_of_range, temperature_tolerance, log_hold, **options) -> None:
+                    temperature, out_of_range, temperature_tolerance, log_hold, temperature_policy=None,
+                    corrected_out=None, **options) -> None:
     """`diagnose RUN_DIR... --joint`: one model for several runs (cmmpose.diagnosis.joint); the
     report shows the first run's plots and every run's error at each step."""
     from ..diagnosis.joint import diagnose_jointly
@@ -179,8 +184,8 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
     from ..run import Run
 
     try:
-        check_outputs({"--save-model": model_out, "--report": report_file}, run_dirs,
-                      [model_file, machine_file, *user_files])
+        check_outputs({"--save-model": model_out, "--report": report_file, "--corrected-maps": corrected_out},
+                      run_dirs, [model_file, machine_file, *user_files])
         machine = load_machine(machine_file)
         runs = [Run.load(r) for r in run_dirs]
         from ..diagnosis.effects import load_user_effect  # here: the diagnosis's imports, only for this command
@@ -188,11 +193,13 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
         user = [load_user_effect(f) for f in user_files]
         model = _starting_model(runs[0], machine, maps, model_file, user, temperature=temperature,
                                 out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
-                                log_hold=log_hold)
+                                log_hold=log_hold, temperature_policy=temperature_policy)
         with console.status(f"diagnosing {len(runs)} runs together ..."):
             diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
                                     run_names=[str(r) for r in run_dirs], **options)
         files = [diag.model.save(model_out)] if model_out else []
+        if corrected_out:
+            files += _write_corrected_maps(diag.model, corrected_out)
         if report_file:
             try:
                 ensure_folder(Path(report_file).parent)

@@ -13,16 +13,16 @@ from rich.table import Table
 
 from .._json import dumps as strict_json
 from ..atomicfile import ensure_folder, write_text
-from ..errors import Error, InputError, MapTemperatureWarning
-from ..evaluation_files import write_evaluation_files
-from ..metrics import STEEL_EXPANSION
+from ..errors import AliasedChoiceWarning, Error, InputError, MapTemperatureWarning
+from ..evaluation.files import write_evaluation_files
+from ..evaluation.metrics import STEEL_EXPANSION
 from .artefact import evaluate_artefact_run, write_artefact_report
-from .common import (check_model_or_maps, console, console_log, fail, load_maps, load_model, machine_option, map_specs,
-                     model_options, policy_options, scheduler_options, skip_incomplete_option)
+from .common import (aliased_choices_once, check_model_or_maps, console, console_log, fail, load_maps, load_model,
+                     machine_option, map_specs, model_options, policy_options, scheduler_options, skip_incomplete_option)
 
 
 def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
-    """The evaluation's files (:func:`cmmpose.evaluation_files.write_evaluation_files`), the library's notes
+    """The evaluation's files (:func:`cmmpose.evaluation.files.write_evaluation_files`), the library's notes
     (no matplotlib: no plots) printed; the files written."""
     with console_log():
         return write_evaluation_files(evaluation, directory, maps)
@@ -51,7 +51,8 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @scheduler_options("Evaluate the runs on Dask: 'threads', 'processes' or a scheduler address tcp://host:port "
                    "(default with several runs: threads; needs the dask extra).")
 @model_options(" (inputs the run lacks are an error naming them); its parameters' uncertainties enter the "
-               "budgets. One run.")
+               "budgets. Several runs: each evaluated in turn with the model, with its budgets; --json prints a "
+               "list, --report a folder per run.")
 def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
                  reject, u_temperature, u_map, u_model, report_dir, as_json, skip_incomplete, scheduler,
                  scheduler_timeout, temperature_policy, model_file, user_files) -> None:
@@ -61,13 +62,18 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
     --scheduler and a summary table across them is printed; --report writes
     the summary (CSV), each run's report and a plot of the trend. One run:
     every figure with its uncertainty (k = 2) and budget (docs/uncertainty.md)."""
-    from ..evaluation import evaluate
+    from ..evaluation.ballbar import evaluate
     from ..machine import load_machine
     from ..run import Run
 
     check_model_or_maps(model_file, user_files, maps)
-    if model_file is not None and (len(run_dir) > 1 or scheduler is not None):
-        raise click.UsageError("--model takes one run (evaluate each run on its own with it)")
+    if model_file is not None and scheduler is not None:
+        raise click.UsageError("--model evaluates its runs one after another in this process, each with its "
+                               "budgets: --scheduler is for maps")
+    if model_file is not None and len(run_dir) > 1:
+        return _evaluate_with_model(run_dir, machine_file, model_file, user_files, temperature, out_of_range,
+                                    temperature_tolerance, log_hold, expansion, reject, u_temperature, u_map, u_model,
+                                    report_dir, as_json, skip_incomplete, temperature_policy)
     try:
         machine = load_machine(machine_file)
         if expansion is None:
@@ -83,7 +89,7 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
                                    scheduler_timeout=scheduler_timeout,
                                    temperature=temperature, reject=reject, out_of_range=out_of_range,
                                    temperature_tolerance=temperature_tolerance, log_hold=log_hold,
-                                   expansion=expansion * 1e-6, skip_incomplete=skip_incomplete,
+                                   expansion_ppm_per_K=expansion, skip_incomplete=skip_incomplete,
                                    temperature_policy=temperature_policy)
         run_dir = run_dir[0]
         run = Run.load(run_dir)
@@ -91,10 +97,11 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         if "definition" in run.artefact:  # an artefact run (cmmpose simulate --artefact): cli/artefact.py
             return evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json,
                                          {"temperature_policy": temperature_policy})
-        with warnings.catch_warnings(record=True) as caught:
+        with warnings.catch_warnings(record=True) as caught, aliased_choices_once():
             warnings.simplefilter("always", MapTemperatureWarning)
+            warnings.simplefilter("always", AliasedChoiceWarning)
             ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
-                          temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion=expansion * 1e-6,
+                          temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion_ppm_per_K=expansion,
                           skip_incomplete=skip_incomplete, temperature_policy=temperature_policy)
         for w in caught:
             console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
@@ -117,10 +124,66 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         console.print(f"wrote {f}")
 
 
+def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, temperature, out_of_range,
+                         temperature_tolerance, log_hold, expansion, reject, u_temperature, u_map, u_model, report_dir,
+                         as_json, skip_incomplete, temperature_policy) -> None:
+    """`evaluate RUN_DIR... --model m.json`: each run evaluated with the found model in turn (the model loaded
+    once), each with its figures, budgets and warnings (an aliased choice that matters on that run); --json a
+    list of the single-run documents, each with its ``run``; --report a folder per run."""
+    from ..evaluation.ballbar import evaluate
+    from ..machine import load_machine
+    from ..run import Run
+
+    docs, files = [], []
+    try:
+        machine = load_machine(machine_file)
+        if expansion is None:
+            expansion = machine.artefact_expansion * 1e6
+        model = load_model(model_file, user_files)
+        names = [Path(r).name or str(r) for r in run_dirs]
+        if report_dir and len(set(names)) < len(names):
+            raise InputError("--report: two runs share a folder name; their reports would overwrite each other")
+        for r, name in zip(run_dirs, names):
+            run = Run.load(r)
+            if "definition" in run.artefact:
+                raise InputError(f"{r}: an artefact run: evaluate it on its own with --model")
+            with warnings.catch_warnings(record=True) as caught, aliased_choices_once():
+                warnings.simplefilter("always", MapTemperatureWarning)
+                warnings.simplefilter("always", AliasedChoiceWarning)
+                ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
+                              temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+                              expansion_ppm_per_K=expansion, skip_incomplete=skip_incomplete,
+                              temperature_policy=temperature_policy)
+            said = [str(w.message) for w in caught if not issubclass(w.category, (DeprecationWarning,
+                                                                                   PendingDeprecationWarning))]
+            for text in said:
+                console.print(f"[yellow]warning:[/] {escape(name)}: {escape(text)}")
+            unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
+                                          log_hold, u_temperature, u_map, u_model, temperature_policy)
+            if report_dir:
+                folder = Path(report_dir) / name
+                files += write_report(ev, folder, model.maps)
+                files += [folder / "uncertainty.json", folder / "uncertainty.md"]
+                write_text(files[-2], unc.to_json(indent=2))
+                write_text(files[-1], unc.to_markdown())
+            if as_json:
+                docs.append({"run": str(r), **ev.to_dict(), "uncertainty": unc.to_dict(), "warnings": said})
+            else:
+                console.print(f"[bold]{escape(str(r))}[/]")
+                Console().print(ev)
+                Console(width=max(Console().width, 130)).print(unc)
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(strict_json(docs, indent=2))
+    for f in files:
+        console.print(f"wrote {f}")
+
+
 def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance, log_hold,
                             u_temperature, u_map, u_model, temperature_policy=None):
-    """u (k = 2) and budgets of every figure of ``ev`` (cmmpose.evaluation_uncertainty)."""
-    from ..evaluation_uncertainty import DEFAULT_U_TEMPERATURE_K, evaluation_uncertainty
+    """u (k = 2) and budgets of every figure of ``ev`` (cmmpose.evaluation.ballbar_uncertainty)."""
+    from ..evaluation.ballbar_uncertainty import DEFAULT_U_TEMPERATURE_K, evaluation_uncertainty
 
     return evaluation_uncertainty(
         run, ev, model, temperature, reject=reject, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
@@ -133,7 +196,7 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, 
     """`evaluate RUN_DIR...`: every run on a Dask scheduler (cmmpose.scale), then one table across them."""
     import logging
 
-    from ..evaluation import skipped_note
+    from ..evaluation.ballbar import skipped_note
     from ..scale import evaluate_runs, fleet_summary
 
     logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
@@ -151,8 +214,8 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, 
     rows = fleet_summary(run_dirs, evaluations)
     files = []
     if report_dir:
-        from ..artefact_evaluation import ArtefactEvaluation  # here: the uncertainty budget's imports, ~80 ms
-        from ..plots import plot_fleet_trend
+        from ..evaluation.artefact import ArtefactEvaluation  # here: the uncertainty budget's imports, ~80 ms
+        from ..evaluation.plots import plot_fleet_trend
 
         directory = ensure_folder(report_dir)
         for r, ev in zip(run_dirs, evaluations):

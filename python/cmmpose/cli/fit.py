@@ -12,8 +12,8 @@ from rich.table import Table
 
 from .._json import dumps as strict_json
 from ..errors import Error
-from ..pointclouds import UNITS as POINT_UNITS
-from ..pointclouds import read_point_cloud, unit_factor
+from ..formats.pointclouds import UNITS as POINT_UNITS
+from ..formats.pointclouds import read_point_cloud, unit_factor
 from .common import console, fail, triple
 
 

@@ -28,7 +28,7 @@ def plot_map_cmd(maps, out, machine_file) -> None:
     """Plot error-map components against position (like thesis Figures 3-7 to 3-18).
     MAPS: 'thesis', 'appendix-b', or map files (several make a set); default: the machine's."""
     from ..machine import load_machine
-    from ..plots import plot_error_map
+    from ..evaluation.plots import plot_error_map
 
     try:
         if not maps and machine_file is None:
@@ -65,7 +65,40 @@ def _map_spec(spec: str, what: str):
 @click.group("map")
 def map_group() -> None:
     """Error maps: plot them; import and export linear-axis results (ISO 230-2 style CSV, LinuxCNC
-    compensation files)."""
+    compensation files); convert a moving table's own measured motion into map components."""
+
+
+@map_group.command("table-motion")
+@click.argument("map_spec", metavar="MAP")
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
+@click.option("--carriage", type=click.Choice(["X", "Y", "Z"], case_sensitive=False), required=True,
+              help="The carriage that carries the part: its table in MAP holds the table's own motion as an "
+                   "instrument riding on it read it.")
+@click.option("--measured-at", required=True, metavar="X,Y,Z",
+              help="mm: where on the table its translations were measured (the table's frame).")
+@click.option("--part-point", required=True, metavar="X,Y,Z",
+              help="mm: where the part sits on the table (same frame); the map is exact for points there.")
+@json_option
+def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_json) -> None:
+    """Turn a moving table's own measured motion into map components (the probe relative to the part):
+    d = -(d_T + eps_T x (part point - measured at)), eps = -eps_T for that carriage; the other carriages and
+    the squareness are kept (docs/conventions.md, moving tables). `map import` takes probe-relative results:
+    convert a table's own results with this command first."""
+    from ..formats.tablemotion import table_motion_to_map
+    from .common import triple
+
+    try:
+        check_not_input(out, [map_spec], "--output")
+        base = _map_spec(map_spec, "MAP")
+        converted = table_motion_to_map(base, carriage, triple(measured_at, "--measured-at"),
+                                        triple(part_point, "--part-point"))
+        converted.write(out)
+    except Error as exc:
+        raise fail(exc) from None
+    if as_json:
+        click.echo(strict_json({"output": str(out), "map": repr(converted), "source": converted.source}, indent=2))
+        return
+    console.print(f"wrote {out}: {escape(converted.source)}")
 
 
 @map_group.command("import")
@@ -83,7 +116,8 @@ def map_group() -> None:
 @machine_option
 @json_option
 def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, hold_ends, machine_file, as_json) -> None:
-    """Build a canonical map from linear-axis results in FORMAT.
+    """Build a canonical map from linear-axis results in FORMAT (probe-relative results; a moving table's own
+    motion, read by an instrument riding on it, is converted by `cmmpose map table-motion`).
 
     iso230-2: one CSV file. linuxcnc: one AXIS=FILE per axis, e.g. X=x.comp Y=y.comp.
     The map keeps the mean of the two approach directions; axes without results
@@ -91,8 +125,8 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
     map is checked against the machine's travel.
     """
     from ..errors import Error
-    from ..iso230 import read_iso230
-    from ..linuxcnc import read_comp_files
+    from ..formats.iso230 import read_iso230
+    from ..formats.linuxcnc import read_comp_files
     from ..machine import load_machine
 
     try:
@@ -149,7 +183,7 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temp
     and z.comp into the directory OUT.
     """
     from ..errors import Error
-    from ..linuxcnc import write_comp_files
+    from ..formats.linuxcnc import write_comp_files
     from ..machine import load_machine
 
     try:

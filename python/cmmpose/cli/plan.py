@@ -104,7 +104,7 @@ def _simulate(result, runs, art, machine, maps, effects, temperature, jitter_um,
     import dataclasses
 
     from .. import artefacts
-    from ..artefact_evaluation import is_artefact_run
+    from ..evaluation.artefact import is_artefact_run
     from ..sim.artefact_runs import simulate_artefact_run
 
     if art is None:

@@ -15,7 +15,7 @@ from rich.console import Console
 from .._json import dumps as strict_json
 from ..atomicfile import check_not_input, ensure_folder, write_text
 from ..errors import Error
-from ..pointclouds import UNITS
+from ..formats.pointclouds import UNITS
 from .common import skip_incomplete_option, console, map_specs, policy_options
 from .common import fail as _fail
 
@@ -162,10 +162,10 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
         model = machine.maps_for_run(run, maps)
         result = acceptance_test(
             run, model, temperature, mpe_form=mpe_form, mpe_size=mpe_size, mpe_length=mpe_length,
-            calibrated_length_mm=calibrated_length, calibrated_radius_mm=calibrated_radius,
+            calibrated_length=calibrated_length, calibrated_radius=calibrated_radius,
             u_length_certificate_um=u_length_cert, u_diameter_certificate_um=u_diameter_cert,
             u_form_certificate_um=u_form_cert,
-            expansion=machine.artefact_expansion if expansion is None else expansion * 1e-6,
+            expansion_ppm_per_K=machine.artefact_expansion * 1e6 if expansion is None else expansion,
             u_expansion_ppm_per_K=u_expansion, u_part_temperature_K=u_part_temperature,
             skip_incomplete=skip_incomplete, temperature_policy=temperature_policy)
         files = _outputs(result, "acceptance", result.plot, plot_path, report_dir)
@@ -204,8 +204,8 @@ def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_l
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
         model = machine.maps_for_run(run, maps)
-        result = interim_check(run, model, temperature, calibrated_length_mm=calibrated_length,
-                               u_length_certificate_um=u_length_cert, expansion=machine.artefact_expansion,
+        result = interim_check(run, model, temperature, calibrated_length=calibrated_length,
+                               u_length_certificate_um=u_length_cert, expansion_ppm_per_K=machine.artefact_expansion * 1e6,
                                u_temperature_K=u_temperature, skip_incomplete=skip_incomplete,
                                temperature_policy=temperature_policy)
         files = _write_report(result, report_dir, "interim-check") if report_dir else []
@@ -239,7 +239,7 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
     proven (conformance not shown), or on an error; 2 on a usage error.
     """
     from ..fitting import e3125
-    from ..pointclouds import read_point_cloud, unit_factor
+    from ..formats.pointclouds import read_point_cloud, unit_factor
     from ..standards.acceptance import probing_test
     from .common import triple
 
@@ -279,7 +279,7 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
     """Sphere-centre distance errors in the manner of ASTM E3125: each NAME=SCAN is a raw scan of one
     sphere target (any point-cloud format), segmented and fitted with the radius fixed; each pair of
     --pairs is compared with its reference distance (docs/standards.md)."""
-    from ..pointclouds import read_point_cloud, unit_factor
+    from ..formats.pointclouds import read_point_cloud, unit_factor
     from ..standards.acceptance import parse_mpe
     from ..standards.e3125_distances import distance_errors, read_pairs, sphere_targets
 

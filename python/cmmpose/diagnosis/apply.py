@@ -24,7 +24,10 @@ a per-pose alignment         ``pose_id`` (which rows are that pose)
 ==========================  ====================================================
 
 A model needing an input the data lack is refused, naming the effect and the
-input (never applied without it). Units: mm, s, degrees C, degrees.
+input (never applied without it). A model holding aliased choices (effects
+its run could not tell apart, saved as ``alternatives``) warns where they
+predict the data at hand differently (:mod:`cmmpose.diagnosis.aliases`).
+Units: mm, s, degrees C, degrees.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError, InputTypeError
+from .aliases import check_alternatives
 from .inputs import RunInputs
 from .model import Model
 
@@ -74,7 +78,22 @@ def _input_text(need: str) -> str:
 def check_run(model: Model, inputs: RunInputs, where: str = "run") -> None:
     """Refuse a model whose effects need an input ``inputs`` lacks, naming
     the effect and the input (the incidence is computed from the run's
-    sphere fits, so it is never lacking)."""
+    sphere fits, so it is never lacking); warn where an aliased choice of
+    the model matters on this run (:mod:`cmmpose.diagnosis.aliases`)."""
+    _check_inputs(model, inputs, where)
+    # An aliased choice that matters here warns (cmmpose.diagnosis.aliases); the run, when the model's own
+    # cache holds it with these inputs, lets the comparison be on its lengths rather than its points.
+    # Once per run: the models an uncertainty budget perturbs share the cache, and need no check of their own.
+    if model.alternatives:
+        run = next((r for r, i in model._inputs_cache.values() if i is inputs), None)
+        key = ("aliased choice checked", id(run))
+        if run is None or key not in model._inputs_cache:
+            check_alternatives(model, inputs, where, run=run)
+            if run is not None:
+                model._inputs_cache[key] = (None, None)
+
+
+def _check_inputs(model: Model, inputs: RunInputs, where: str) -> None:
     for spec, _ in model.effects:
         for need in spec.needs:
             if need in ("poses>1", "incidence") or inputs.available(need):
@@ -240,8 +259,16 @@ def point_inputs(model: Model, uv: np.ndarray, scales: np.ndarray, pose, offset,
                                            f"the {spec.sensor} thermocouples' temperature")
     t = np.asarray(extras["t"], float) if "t" in extras else np.full(n, np.nan)
     sid = np.asarray(extras["scan_id"]) if "scan_id" in extras else np.zeros(n, np.int64)
-    return RunInputs(uv=np.ascontiguousarray(uv, dtype=float), scales=np.ascontiguousarray(scales, dtype=float),
-                     t=t, scan_id=sid, pose_ids=pose_ids, pose_index=np.ascontiguousarray(pose_index), poses=poses,
-                     temperature=np.ascontiguousarray(mean), axis_temperature=axis_t, gradient=gradient,
-                     velocity=np.ascontiguousarray(velocity), incidence=incidence, role_temperatures=role_t,
-                     sensors=sensors)
+    inputs = RunInputs(uv=np.ascontiguousarray(uv, dtype=float), scales=np.ascontiguousarray(scales, dtype=float),
+                       t=t, scan_id=sid, pose_ids=pose_ids, pose_index=np.ascontiguousarray(pose_index), poses=poses,
+                       temperature=np.ascontiguousarray(mean), axis_temperature=axis_t, gradient=gradient,
+                       velocity=np.ascontiguousarray(velocity), incidence=incidence, role_temperatures=role_t,
+                       sensors=sensors)
+    if model.alternatives:
+        # A file's chunks: once it has warned, the rest of the file is not compared again.
+        key = ("aliased choice warned", str(path))
+        if str(path) == "points" or key not in model._inputs_cache:
+            found = check_alternatives(model, inputs, str(path))
+            if any(f["warned"] for f in found) and str(path) != "points":
+                model._inputs_cache[key] = (None, None)
+    return inputs

@@ -1,7 +1,7 @@
 """The observables of an artefact run (ball plate, step gauge, ...; docs/artefacts.md)
 for a diagnosis: each ball's centre per placement relative to its
 calibrated centre after the placement's best-fit rigid transform, as
-:mod:`cmmpose.artefact_evaluation` defines the deviation.
+:mod:`cmmpose.evaluation.artefact` defines the deviation.
 
 For each placement the calibrated centres (the certificate's, in the
 artefact's frame) are expanded to the placement's mean machine temperature
@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .. import artefacts
-from ..artefact_evaluation import ball_scans, rigid_fit
+from ..evaluation.artefact import ball_scans, rigid_fit
 from ..artefacts._base import line_distance
 from ..errors import Error
 from .model import inputs_with_incidence

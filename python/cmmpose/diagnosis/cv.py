@@ -56,6 +56,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from .observables import CLASSES
 
@@ -66,7 +67,7 @@ HEADLINE_RISE_SIGMA = 2.0
 #: whitened figure falls (it would trade the figure users read for sphere-fit residuals).
 HEADLINE_RISE_SHARE = 0.01
 
-__all__ = ["CVScore", "compare", "cv_groups", "cv_score", "judge", "model_design", "verify"]
+__all__ = ["CVDesign", "CVScore", "compare", "cv_groups", "cv_score", "judge", "model_design", "verify"]
 
 
 def _single_groups(layout) -> tuple[np.ndarray, str]:
@@ -233,50 +234,166 @@ def cv_score(problem, r0: np.ndarray, X: np.ndarray, ridge: np.ndarray, target: 
     items : ndarray (n,) of int, optional
         The item of each row, whose spread gives the uncertainty (default the folds).
     """
-    if isinstance(groups, tuple):
-        groups, items = groups[0], groups[1]
-    items = groups if items is None else items
-    s = sigma[problem.classes]
-    Xw = X / s[:, None]
-    rw = r0 / s
-    k = X.shape[1]
-    head = (problem.classes % len(CLASSES)) == 0
-    # An artefact's deviations count per ball (3 rows), as its rms deviation does (of |deviation|).
-    parts = getattr(problem, "parts", None) or [problem]
-    per_row = np.concatenate([np.where(p.classes == 0, 1.0 / 3.0 if p.layout.artefact is not None else 1.0, 0.0)
-                              for p in parts])
-    G_all = Xw.T @ Xw
-    b_all = Xw.T @ rw
-    R2 = np.diag(ridge ** 2)
-    prior_rhs = ridge ** 2 * target
-    ids = np.unique(groups[groups >= 0])
-    pred_w = np.zeros(len(r0))
-    held = np.zeros(len(r0), bool)
-    order = np.argsort(groups, kind="stable")
-    starts = np.searchsorted(groups[order], ids)
-    stops = np.searchsorted(groups[order], ids, side="right")
-    for a, b in zip(starts, stops):
-        rows = order[a:b]
-        Xg, rg = Xw[rows], rw[rows]
-        A = G_all - Xg.T @ Xg + R2
-        rhs = -(b_all - Xg.T @ rg) + prior_rhs
-        beta = np.linalg.lstsq(A, rhs, rcond=1e-12)[0] if k else np.zeros(0)
-        pred_w[rows] = rg + Xg @ beta
-        held[rows] = True
-    it = np.where(held & (items >= 0), items, -1)
-    uniq, inv = np.unique(it[it >= 0], return_inverse=True)
-    m = len(uniq)
-    sel = it >= 0
-    e_w = np.bincount(inv, pred_w[sel] ** 2, minlength=m)
-    n_w = np.bincount(inv, minlength=m).astype(float)
-    ph = np.where(head, pred_w * s, 0.0)[sel]
-    e_h = np.bincount(inv, ph ** 2, minlength=m)
-    n_h = np.bincount(inv, per_row[sel], minlength=m)
-    # In sample: the same fit on every row.
-    beta = np.linalg.lstsq(G_all + R2, -b_all + prior_rhs, rcond=1e-12)[0] if k else np.zeros(0)
-    res = (r0 + X @ beta)[head]
-    ins = float(np.sqrt(np.sum(res ** 2) / np.sum(per_row))) * 1e3 if len(res) else float("nan")
-    return CVScore(e_h, n_h, e_w, n_w, ins)
+    return CVDesign(problem, r0, X, ridge, target, sigma, groups, items).score_with()
+
+
+class CVDesign:
+    """A model's design with its per-fold normal-equation blocks, computed
+    once: :meth:`score_with` cross-validates it with extra columns (a
+    candidate) added, solving every fold at once.
+
+    Each fold's fit is the full data's normal equations minus the fold's
+    own block (exact leave-one-group-out, the same as refitting without the
+    fold); the folds' small systems are solved as one stacked
+    pseudo-inverse (singular directions cut as the full fit's ``lstsq``
+    cuts them, at 1e-12 of the largest). The held-out squared residuals of
+    each item follow from the item's own blocks, ``r'r + 2 beta'X'r +
+    beta'X'X beta`` with its fold's beta, so no candidate touches the rows
+    of the design again: the extra columns' blocks are summed over the rows
+    where they are not zero only (a map correction's: centres and radii, not
+    the point residuals). Parameters as :func:`cv_score`.
+    """
+
+    def __init__(self, problem, r0, X, ridge, target, sigma, groups, items=None):
+        if isinstance(groups, tuple):
+            groups, items = groups[0], groups[1]
+        self.problem = problem
+        items = groups if items is None else items
+        self.r0 = r0
+        self.X = X
+        self.ridge = np.asarray(ridge, float)
+        self.target = np.asarray(target, float)
+        self.s = s = sigma[problem.classes]
+        self.Xw = Xw = X / s[:, None]
+        self.rw = rw = r0 / s
+        n = len(r0)
+        sel = groups >= 0
+        self.ids, ginv = np.unique(groups[sel], return_inverse=True)
+        self.gidx = np.full(n, -1)
+        self.gidx[sel] = ginv
+        self.head = head = (problem.classes % len(CLASSES)) == 0
+        # An artefact's deviations count per ball (3 rows), as its rms deviation does (of |deviation|).
+        parts = getattr(problem, "parts", None) or [problem]
+        self.per_row = np.concatenate([np.where(p.classes == 0, 1.0 / 3.0 if p.layout.artefact is not None else 1.0,
+                                                0.0) for p in parts])
+        # Items (the units the figures sum over): held rows with an item, each inside one fold.
+        it = np.where(sel & (items >= 0), items, -1)
+        isel = it >= 0
+        self.uniq, iinv = np.unique(it[isel], return_inverse=True)
+        self.iidx = np.full(n, -1)
+        self.iidx[isel] = iinv
+        m = len(self.uniq)
+        self.item_fold = np.zeros(m, int)
+        self.item_fold[iinv] = self.gidx[isel]
+        if not np.array_equal(self.item_fold[iinv], self.gidx[isel]):
+            raise ValueError("cross-validation: an item spans two folds")
+        self.n_w = np.bincount(iinv, minlength=m).astype(float)
+        self.n_h = np.bincount(iinv, self.per_row[isel], minlength=m)
+        self.A, self.b = Xw.T @ Xw, Xw.T @ rw
+        self.A_g, self.b_g = self._blocks(self.gidx, len(self.ids), Xw, rw)
+        # The items' blocks about the full fit (r0 holds the nuisances' whole size, a ball's radius:
+        # its squares would swamp the held-out residuals' in the sums).
+        k = X.shape[1]
+        R2 = np.diag(self.ridge ** 2)
+        self.beta0 = (np.linalg.lstsq(self.A + R2, -self.b + self.ridge ** 2 * self.target, rcond=1e-12)[0]
+                      if k else np.zeros(0))
+        self.rt = r0 + X @ self.beta0
+        self.rtw = self.rt / s
+        self.Aw_i, self.bw_i, self.rw_i = self._blocks(self.iidx, m, Xw, self.rtw, True)
+        hi = np.where(head, self.iidx, -1)
+        self.Ah_i, self.bh_i, self.rh_i = self._blocks(hi, m, X, self.rt, True)
+        self.head_rows = np.flatnonzero(head)
+
+    @staticmethod
+    def _blocks(index, m, X, r, with_rr=False):
+        """Per block b of ``index`` (-1: none): X_b'X_b (m, k, k), X_b'r_b
+        (m, k) and, with ``with_rr``, r_b'r_b (m,)."""
+        k = X.shape[1]
+        keep = np.flatnonzero(index >= 0)
+        order = keep[np.argsort(index[keep], kind="stable")]
+        ids = index[order]
+        starts = np.searchsorted(ids, np.arange(m))
+        stops = np.searchsorted(ids, np.arange(m), side="right")
+        Xs, rs = X[order], r[order]
+        A = np.zeros((m, k, k))
+        b = np.zeros((m, k))
+        rr = np.zeros(m)
+        for g, (a, z) in enumerate(zip(starts, stops)):
+            A[g] = Xs[a:z].T @ Xs[a:z]
+            b[g] = Xs[a:z].T @ rs[a:z]
+            rr[g] = rs[a:z] @ rs[a:z]
+        return (A, b, rr) if with_rr else (A, b)
+
+    @staticmethod
+    def _extend(A0, b0, index, m, Xn, Jn, rn):
+        """Blocks (m, k0 + kj, k0 + kj) and (m, k0 + kj) of [X | J] from the
+        blocks of X and sums over the rows of J (Xn, Jn, rn at them, their
+        block ``index``)."""
+        k0, kj = A0.shape[1], Jn.shape[1]
+        on = index >= 0
+        H = csr_matrix((np.ones(int(on.sum())), (index[on], np.flatnonzero(on))), shape=(m, len(index)))
+        cross = (H @ (Xn[:, :, None] * Jn[:, None, :]).reshape(len(index), -1)).reshape(m, k0, kj)
+        jj = (H @ (Jn[:, :, None] * Jn[:, None, :]).reshape(len(index), -1)).reshape(m, kj, kj)
+        A = np.empty((m, k0 + kj, k0 + kj))
+        A[:, :k0, :k0] = A0
+        A[:, :k0, k0:] = cross
+        A[:, k0:, :k0] = cross.transpose(0, 2, 1)
+        A[:, k0:, k0:] = jj
+        return A, np.concatenate([b0, np.asarray(H @ (Jn * rn[:, None])).reshape(m, kj)], axis=1)
+
+    def score_with(self, J: np.ndarray | None = None, ridge: float | None = None, target: float = 0.0,
+                   rows: np.ndarray | None = None) -> CVScore:
+        """The cross-validated score of the design with columns ``J`` added
+        (prior ``ridge``, default the diagnosis's weak prior, about
+        ``target``); None: the design alone. ``J`` is (n, kj), or
+        (len(rows), kj) at ``rows`` and zero elsewhere."""
+        n_g, m = len(self.ids), len(self.uniq)
+        k0 = self.X.shape[1]
+        kj = 0 if J is None else J.shape[1]
+        A_all, b_all, A_g, b_g = self.A, self.b, self.A_g, self.b_g
+        Aw, bw, Ah, bh = self.Aw_i, self.bw_i, self.Ah_i, self.bh_i
+        ridge_all, target_all = self.ridge, self.target
+        J_head = np.zeros((len(self.head_rows), 0))
+        if kj:
+            ridge = _pw() if ridge is None else ridge
+            if rows is None:
+                rows = np.arange(len(self.r0))
+            nzm = np.any(J != 0, axis=1)
+            nz, Jn = rows[nzm], J[nzm]
+            Jnw = Jn / self.s[nz, None]
+            Xn, rn = self.Xw[nz], self.rw[nz]
+            A_all = np.block([[self.A, Xn.T @ Jnw], [Jnw.T @ Xn, Jnw.T @ Jnw]])
+            b_all = np.r_[self.b, Jnw.T @ rn]
+            A_g, b_g = self._extend(self.A_g, self.b_g, self.gidx[nz], n_g, Xn, Jnw, rn)
+            Aw, bw = self._extend(self.Aw_i, self.bw_i, self.iidx[nz], m, Xn, Jnw, self.rtw[nz])
+            hn = self.head[nz]
+            Ah, bh = self._extend(self.Ah_i, self.bh_i, np.where(hn, self.iidx[nz], -1), m, self.X[nz], Jn,
+                                  self.rt[nz])
+            J_head = np.zeros((len(self.head_rows), kj))
+            J_head[np.searchsorted(self.head_rows, nz[hn])] = Jn[hn]
+            ridge_all = np.r_[self.ridge, np.full(kj, ridge)]
+            target_all = np.r_[self.target, np.full(kj, target)]
+        k = k0 + kj
+        R2 = np.diag(ridge_all ** 2)
+        prior_rhs = ridge_all ** 2 * target_all
+        if k and n_g:
+            A = A_all[None] - A_g + R2[None]
+            rhs = -(b_all[None] - b_g) + prior_rhs[None]
+            beta = np.einsum("gij,gj->gi", np.linalg.pinv(A, rcond=1e-12), rhs)[self.item_fold]  # (m, k)
+            d = beta - np.r_[self.beta0, np.zeros(kj)][None]  # about the full fit of the design alone
+            e_w = self.rw_i + 2 * np.einsum("mk,mk->m", d, bw) + np.einsum("mi,mij,mj->m", d, Aw, d)
+            e_h = self.rh_i + 2 * np.einsum("mk,mk->m", d, bh) + np.einsum("mi,mij,mj->m", d, Ah, d)
+        else:
+            e_w, e_h = self.rw_i.copy(), self.rh_i.copy()
+        e_w, e_h = np.maximum(e_w, 0.0), np.maximum(e_h, 0.0)  # sums of squares (rounding)
+        # In sample: the same fit on every row.
+        h = self.head_rows
+        res = self.r0[h].copy()
+        if k:
+            beta = np.linalg.lstsq(A_all + R2, -b_all + prior_rhs, rcond=1e-12)[0]
+            res += self.X[h] @ beta[:k0] + J_head @ beta[k0:]
+        ins = float(np.sqrt(np.sum(res ** 2) / np.sum(self.per_row))) * 1e3 if len(res) else float("nan")
+        return CVScore(e_h, self.n_h.copy(), e_w, self.n_w.copy(), ins)
 
 
 def compare(old: CVScore, new: CVScore) -> dict:
@@ -348,6 +465,7 @@ def judge_candidate(problem, step, candidate, groups: np.ndarray, split: str) ->
         step_cv(problem, step, groups, split)
         state = step._cv_state
     r0, X0, ridge0, target0, sigma, old = state
+    by_run = False
     if getattr(candidate.spec, "family", None) == "map" and getattr(problem, "parts", None):
         # A map shape is a function of position: it must carry from one
         # set-up to the next, so with several runs it is judged holding out
@@ -355,15 +473,15 @@ def judge_candidate(problem, step, candidate, groups: np.ndarray, split: str) ->
         # can still fail a placement it never saw).
         folds, items, split = cv_groups(problem, by_run=True)
         groups = (folds, items)
-        cache = step.__dict__.setdefault("_cv_by_run", {})
-        if "old" not in cache:
-            cache["old"] = cv_score(problem, r0, X0, ridge0, target0, sigma, groups)
-        old = cache["old"]
+        by_run = True
+    # The model's design and its folds' blocks, once per step and split; each candidate adds its columns.
+    designs = step.__dict__.setdefault("_cv_by_run", {})
+    if by_run not in designs:
+        design = CVDesign(problem, r0, X0, ridge0, target0, sigma, groups)
+        designs[by_run] = (design, design.score_with() if by_run else old)
+    design, old = designs[by_run]
     J = problem.columns[candidate.name]
-    X = np.column_stack([X0, J])
-    ridge = np.r_[ridge0, np.full(J.shape[1], _pw())]
-    target = np.r_[target0, np.zeros(J.shape[1])]
-    new = cv_score(problem, r0, X, ridge, target, sigma, groups)
+    new = design.score_with(J, _pw(), 0.0)
     change = compare(old, new)
     ok, why = judge(change)
     candidate.cv = _clean({**new.to_dict(), **change, "passes": ok, "why": why, "split": split})

@@ -15,6 +15,7 @@ from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputTypeError
 from ..fitting import fit_spheres
+from .._renamed import renamed
 from ..run import Run
 from .identify import (ALPHA, Candidate, Problem, value_text, check_effect_names, fit_model, model_uncertainties,
                        rank_candidates)
@@ -130,6 +131,15 @@ class Diagnosis:
     #: Errors varying with two axes at once that the final model leaves
     #: (:func:`cmmpose.diagnosis.floor.two_axis_findings`): unexplained.
     two_axis: list = field(default_factory=list)
+    #: What the run determines of each map component and squareness, against
+    #: the final model (:func:`cmmpose.diagnosis.mapfamily.component_report`):
+    #: component -> status ('determined', 'aliased', 'invisible'), shapes
+    #: determined, the components and named effects it is aliased with.
+    #: Empty when the map corrections were not offered.
+    components: dict = field(default_factory=dict)
+    #: Effects the data could not tell from one in the final model, fitted in
+    #: its place (:mod:`cmmpose.diagnosis.aliases`): saved with the model.
+    alternatives: tuple = ()
 
     def decisions(self) -> list[dict]:
         """The decision on every candidate, with its reason, in one list:
@@ -202,6 +212,8 @@ class Diagnosis:
             object.__setattr__(final, "uncertainty", {k: np.array(v, float) for k, v in self.final_uncertainty.items()})
         if self.thermal and not final.thermal:  # how the run's temperatures were read, saved with the model
             object.__setattr__(final, "thermal", self.thermal)
+        if self.alternatives and not final.alternatives:  # aliased choices stay aliased in the file
+            object.__setattr__(final, "alternatives", tuple(self.alternatives))
         return final
 
     @property
@@ -230,6 +242,7 @@ class Diagnosis:
                 "unexplained": [f.to_dict() for f in self.unexplained],
                 "unobservable": self.unobservable, "verification": self.verification,
                 "noise_floor": self.noise, "two_axis": self.two_axis,
+                "alternatives": [a.to_dict() for a in self.alternatives], "components": self.components,
                 "cross_validation": self.steps[-1].cv,
                 "ambiguous": [list(a) for a in self.ambiguous], "advice": self.advice,
                 "elapsed_s": self.elapsed, "n_points": self.n_points,
@@ -356,7 +369,7 @@ class Diagnosis:
             import matplotlib  # noqa: F401 - an optional extra
         except ImportError:
             raise ImportError("the HTML report needs matplotlib: pip install 'cmmpose[plot]'") from None
-        from .report import write_report
+        from .html_report import write_report
 
         return write_report(self, path, run=run, run_dir=run_dir, model_file=model_file, title=title)
 
@@ -386,9 +399,10 @@ def as_model(model) -> Model:
     return model
 
 
+@renamed(model="maps")
 def diagnose(
     run: Run,
-    model: Model | ErrorMap | ErrorMapSet | None = None,
+    maps: Model | ErrorMap | ErrorMapSet | None = None,
     *,
     add=(),
     auto: bool = True,
@@ -411,9 +425,11 @@ def diagnose(
     ----------
     run : Run
         A measurement run with sphere scans (ballbar balls, reference sphere).
-    model : Model, ErrorMap or ErrorMapSet, optional
-        The starting model; maps alone make the thesis model. Default: the
-        run's bundled maps (``run.maps``) or the thesis set.
+    maps : Model, ErrorMap or ErrorMapSet, optional
+        What compensates at the start (``maps`` as everywhere in the API,
+        docs/conventions.md "Names"): a saved Model, or maps alone, which
+        make the thesis model. Default: the run's bundled maps
+        (``run.maps``) or the thesis set. (``model=`` is its older name.)
     add : sequence of str or EffectSpec
         Effects to add first, in order, whether significant or not.
     auto : bool
@@ -443,11 +459,14 @@ def diagnose(
         s: points this far outside the thermocouple log take its nearest
         reading; default the model's (120 s for a new one).
     map_corrections : bool
-        Also offer corrections of the map's translational components by
-        smooth functions of their axis's position (polynomials, local
-        splines, sinusoids over the whole period range;
+        Also offer corrections of the map's 18 per-axis components (the
+        translational ones and each axis's three angles) by smooth
+        functions of their axis's position (polynomials, local splines,
+        sinusoids over the whole period range;
         :mod:`cmmpose.diagnosis.mapfamily`), judged after the library's
-        named effects (not when ``candidates`` restricts the list).
+        named effects (not when ``candidates`` restricts the list), and
+        report which components the run determines, which are aliased
+        with which, and which it cannot see (``Diagnosis.components``).
     reproducibility_um : float, optional
         um per axis: the per-scan centre reproducibility, for the noise
         floor of a run that repeats no scan (one that does measures it;
@@ -467,7 +486,7 @@ def diagnose(
     t0 = time.perf_counter()
     if not isinstance(run, Run):
         raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
-    model = as_model(model)
+    model = as_model(maps)
     policy = {k: v for k, v in (("out_of_range", out_of_range), ("temperature_tolerance", temperature_tolerance),
                                 ("log_hold", log_hold)) if v is not None}
     if temperature_policy is not None:  # the whole policy, then the keywords given
@@ -487,6 +506,8 @@ def diagnose(
                 cand[spec.name] = spec
     problem = Problem(model, run, cand,
                       extra=user_specs([a for a in add if not isinstance(a, str)] + list(user_effects)))
+    if reproducibility_um is not None:  # the lengths' noise level never below the floor it implies
+        problem.state_reproducibility(reproducibility_um)
     if map_corrections and candidates is None:  # a restricted list of candidates is the whole list
         add_map_candidates(problem, model)
     add_names = [a if isinstance(a, str) else a.name for a in add]
@@ -518,7 +539,14 @@ def diagnose(
     diag = Diagnosis(steps, unobservable, ambiguous, n_points=run.n_points, advice=advice,
                      final_uncertainty=model_uncertainties(uncertainty_problem, model),
                      skipped=dict(problem.skipped), thermal=problem.inputs.thermal)
+    from .aliases import find_alternatives
+
+    diag.alternatives = find_alternatives(problem, steps, model)
     attach_floor(diag, problem, steps[-1], reproducibility_um)
+    if map_corrections and candidates is None:
+        from .mapfamily import component_report
+
+        diag.components = component_report(problem, model)
     if steps[0].model.effects:  # a found model on a run: does it hold here?
         from .cv import verify
 

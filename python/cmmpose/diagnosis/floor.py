@@ -37,7 +37,7 @@ import numpy as np
 from .identify import ALPHA, chi2_sf
 from .observables import CLASSES
 
-__all__ = ["FLOOR_ALPHA", "noise_floor", "two_axis_findings"]
+__all__ = ["FLOOR_ALPHA", "headline_floors", "noise_floor", "two_axis_findings"]
 
 #: Upper-tail probability below which the residual scatter is not noise at the floor.
 FLOOR_ALPHA = 0.01
@@ -45,6 +45,17 @@ FLOOR_ALPHA = 0.01
 
 def _parts(problem):
     return getattr(problem, "parts", None) or [problem]
+
+
+def headline_floors(layout, centre_sigma: float) -> np.ndarray:
+    """The floor of each headline observable of a run (``layout``: an
+    ObservationLayout) when each scan's centre scatters by ``centre_sigma``
+    per axis (mm): a length's sqrt(1/n1 + 1/n2) * sigma, a deviation
+    component's sigma / sqrt(n) (n: scans of the sphere)."""
+    counts = np.bincount(layout.sphere_of_scan, minlength=len(layout.sphere_kind)).astype(float)
+    if layout.artefact is None:
+        return centre_sigma * np.sqrt(1 / counts[layout.ends[:, 0]] + 1 / counts[layout.ends[:, 1]])
+    return np.repeat(centre_sigma / np.sqrt(counts[np.concatenate(layout.artefact.spheres)]), 3)
 
 
 def noise_floor(problem, step, reproducibility_um: float | None = None) -> dict:
@@ -84,16 +95,7 @@ def noise_floor(problem, step, reproducibility_um: float | None = None) -> dict:
                 "verdict": ("no noise floor: the run repeats no scan of a sphere and no per-scan reproducibility "
                             "was stated (repeat a few scans, or give one), so whether the residuals are noise "
                             "cannot be said")}
-    floors = []
-    for p in _parts(problem):
-        lay = p.layout
-        counts = np.bincount(lay.sphere_of_scan, minlength=len(lay.sphere_kind)).astype(float)
-        if lay.artefact is None:
-            f = sc * np.sqrt(1 / counts[lay.ends[:, 0]] + 1 / counts[lay.ends[:, 1]])
-        else:
-            f = np.repeat(sc / np.sqrt(counts[np.concatenate(lay.artefact.spheres)]), 3)
-        floors.append(f)
-    f = np.concatenate(floors)
+    f = np.concatenate([headline_floors(p.layout, sc) for p in _parts(problem)])
     r = res[head]
     k_head = int(np.linalg.matrix_rank(X0[head])) if X0.shape[1] else 0
     if problem.layout.artefact is not None:

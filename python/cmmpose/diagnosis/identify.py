@@ -9,8 +9,13 @@ radii, point residuals) has its own unknown noise sigma_c, estimated from
 its residuals (iteratively reweighted least squares). The profile
 log-likelihood is -2 log L = sum_c n_c log(RSS_c / n_c); adding an effect
 with k identifiable parameters gains LR = -2 log L(before) + 2 log L(after),
-asymptotically chi-square with k degrees of freedom under "no effect". An
-effect is proposed only if its p-value beats 1e-3 divided by the number of
+asymptotically chi-square with k degrees of freedom under "no effect". A
+class of few observables (a crossed layout's 8 lengths) estimates its own
+noise level poorly: residuals that happen to fall below the scatter its
+centres allow make any fit to them look like a large gain. When the run's
+per-scan reproducibility is stated, that class's noise level is never
+taken below the floor it implies (:meth:`Problem.state_reproducibility`).
+An effect is proposed only if its p-value beats 1e-3 divided by the number of
 candidates (Bonferroni); the BIC change is reported alongside. (BIC alone
 would charge every parameter ln n with n counted over all classes, tens of
 thousands of point residuals, and so miss effects seen only in the 20
@@ -28,6 +33,7 @@ import numpy as np
 
 from ..errors import Error, InputError
 from ..run import Run
+from ._blas import one_blas_thread
 from .artefact import artefact_columns, linearised_columns
 from .effects import EffectSpec, run_library
 from .inputs import RunInputs
@@ -84,6 +90,9 @@ class Fit:
     #: The whitened design (X over each row's final sigma) reduced to the R
     #: factors of its classes: the same inner products of columns.
     whitened_r: np.ndarray | None = None
+    #: (class, R_c) of each class present: the unweighted R factor of X's
+    #: rows of that class (R_c^T R_c = X_c^T X_c), in ``whitened_r``'s order.
+    blocks: list | None = None
 
 
 class Problem:
@@ -117,6 +126,8 @@ class Problem:
         if self.layout.artefact is not None:  # each placement's rigid fit takes its degrees of freedom
             self.n_eff[0] = max(self.n_class[0] - self.layout.artefact.fitted_dof, 0)
         self.nuisance, self.nuisance_names = self.layout.nuisance()
+        #: Smallest noise level credited to each class, mm (state_reproducibility raises the headline's).
+        self.class_floor = np.full(len(CLASSES), SIGMA_FLOOR)
         self.candidates = dict(run_library(self.inputs) if candidates is None else candidates)
         self.candidates |= {spec.name: spec for spec in extra}
         for spec, _ in model.effects:
@@ -132,6 +143,24 @@ class Problem:
         self.base = model
         self.base_obs = self.observe(model)
         self.columns = self._sensitivities(model, self.base_obs)
+
+    def state_reproducibility(self, reproducibility_um: float) -> None:
+        """Never take the headline class's noise level (ballbar lengths, an
+        artefact's ball deviations) below what a stated per-scan centre
+        reproducibility (um per axis) implies: the rms of its observables'
+        floors (:func:`cmmpose.diagnosis.floor.headline_floors`). A class of
+        few observables whose residuals happen to fall below that floor
+        would otherwise credit any fit to them with a large likelihood gain
+        (a crossed layout's 8 lengths at 1.9 um rms against a 4.24 um
+        floor: a 3-parameter map correction at p = 2e-6 on noise alone)."""
+        from .floor import headline_floors
+
+        sc = float(reproducibility_um) * 1e-3
+        if not math.isfinite(sc) or sc <= 0:
+            raise InputError(f"reproducibility_um: expected a positive number of um, got {reproducibility_um!r}")
+        f = headline_floors(self.layout, sc)
+        if len(f):
+            self.class_floor[0] = max(SIGMA_FLOOR, float(np.sqrt(np.mean(f ** 2))))
 
     def observe(self, model) -> Observed:
         return observe(self.layout, model.compensate(self.inputs), model.expansion_ppm_per_kelvin,
@@ -201,13 +230,28 @@ class Problem:
         of X_c only adds a constant to the objective."""
         cls, n_eff = self.classes, self.n_eff
         present = self.n_class > 0
+        floor = getattr(self, "class_floor", None)  # mm per class (state_reproducibility), else SIGMA_FLOOR
+        rss_floor = (_RSS_FLOOR if floor is None else np.maximum(floor, SIGMA_FLOOR) ** 2) * np.maximum(n_eff, 1)
         k = X.shape[1]
         blocks = []  # (class, R_c, Q_c^T r0_c)
         if k:
             for c in np.flatnonzero(present):
                 rows = self._class_rows[c]
-                r = np.linalg.qr(np.column_stack([X[rows], r0[rows]]), mode="r")
+                Xc = X[rows]
                 m = min(len(rows), k)
+                used = np.flatnonzero(np.any(Xc != 0, axis=0))
+                if len(used) < k:
+                    # Columns zero on this class (a map correction's on the point residuals) are zero
+                    # columns of its R factor: the QR of the others gives the same normal equations.
+                    r = np.linalg.qr(np.column_stack([Xc[:, used], r0[rows]]), mode="r")
+                    mu = min(r.shape[0], m, len(used))
+                    R = np.zeros((m, k))
+                    R[:mu, used] = r[:mu, :len(used)]
+                    q = np.zeros(m)
+                    q[:mu] = r[:mu, len(used)]
+                    blocks.append((c, R, q))
+                    continue
+                r = np.linalg.qr(np.column_stack([Xc, r0[rows]]), mode="r")
                 blocks.append((c, r[:m, :k], r[:m, k]))
         w = np.ones(len(self.n_class))
         beta = np.zeros(k)
@@ -222,14 +266,14 @@ class Problem:
                 beta, _, rank, _ = np.linalg.lstsq(np.vstack(A), np.concatenate(rhs), rcond=1e-10)
             res = r0 + X @ beta
             rss = np.bincount(cls, res ** 2, minlength=len(self.n_class))
-            sigma = np.sqrt(np.maximum(rss, _RSS_FLOOR * np.maximum(n_eff, 1)) / np.maximum(n_eff, 1))
+            sigma = np.sqrt(np.maximum(rss, rss_floor) / np.maximum(n_eff, 1))
             w = 1.0 / sigma
         Rw = np.vstack([w[c] * R for c, R, _ in blocks]) if blocks else np.zeros((0, k))
         cov = np.linalg.pinv(Rw.T @ Rw, rcond=1e-10) if k else np.zeros((0, 0))
         use = present & (n_eff > 0)
-        rss_f = np.maximum(rss, _RSS_FLOOR * np.maximum(n_eff, 1))
+        rss_f = np.maximum(rss, rss_floor)
         n2ll = float(np.sum(n_eff[use] * np.log(rss_f[use] / n_eff[use])))
-        return Fit(beta, cov, res, sigma, n2ll, int(rank), rss, Rw)
+        return Fit(beta, cov, res, sigma, n2ll, int(rank), rss, Rw, [(c, R) for c, R, _ in blocks])
 
     def model_design(self, model) -> tuple[np.ndarray, list[tuple[str, int]]]:
         """Nuisance columns and the columns of the effects already in ``model``."""
@@ -427,6 +471,7 @@ def value_text(p, v, u, unit) -> str:
     return f"{p} = {v:+.3g} ± {u:.2g}{unit}"
 
 
+@one_blas_thread
 def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> list[Candidate]:
     """Every candidate not in ``model``, evaluated against it, best first
     (significant before not, then by p-value)."""
@@ -447,30 +492,46 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
     labels = [n for n in problem.nuisance_names] + [name for name, k in index for _ in range(k)]
     held = {s.key: s.name for s, _ in model.effects if s.kind == "kernel"}
     alternatives = []
+    betas: dict[str, np.ndarray] = {}  # each candidate's fitted change, for _flag_indistinguishable
+    every_row, map_rows = (problem, r0, X0, base, W0, q0), None
     for name in todo:
         spec = problem.candidates[name]
         if spec.kind == "kernel" and spec.key in held:
             alternatives.append(_alternative(problem, model, spec, held[spec.key], r0, X0, index, ridge0, target0,
                                              base))
             continue
-        J = problem.columns[name]
-        fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
+        P, r0_, X0_, base_, _, q0_ = every_row
+        if getattr(spec, "family", None) == "map":
+            # A map correction moves centres and radii only: it is ranked on a view of the problem whose
+            # point residuals are compressed to their R factor (the same fits, at a fraction of the cost).
+            if map_rows is None:
+                from .mapfamily import compressed_view
+
+                view, r0v, X0v = compressed_view(problem, r0, X0)
+                bv = view.wls(r0v, X0v, ridge=ridge0, target=target0)
+                W0v = view.whitened(X0v, bv.sigma)
+                map_rows = (view, r0v, X0v, bv, W0v, np.linalg.qr(W0v)[0] if X0v.shape[1] else
+                            np.zeros((len(r0v), 0)))
+            P, r0_, X0_, base_, _, q0_ = map_rows
+        J = P.columns[name]
+        fit = P.wls(r0_, np.column_stack([X0_, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
                           target=np.r_[target0, np.zeros(J.shape[1])])
-        dof = max(fit.rank - base.rank, 0)
-        lr = max(base.neg2loglik - fit.neg2loglik, 0.0)
+        dof = max(fit.rank - base_.rank, 0)
+        lr = max(base_.neg2loglik - fit.neg2loglik, 0.0)
         p = chi2_sf(lr, dof) if dof else 1.0
         # A candidate chosen by a search (a map correction's period or knot
         # spacing) pays for its alternatives: Bonferroni over the search.
         p = min(1.0, p * getattr(spec, "trials", 1))
         dbic = -lr + dof * math.log(max(n_total, 2.0))
-        wb = 1.0 / base.sigma[problem.classes] ** 2
-        before = float(np.sum(base.residual ** 2 * wb))
+        wb = 1.0 / base_.sigma[P.classes] ** 2
+        before = float(np.sum(base_.residual ** 2 * wb))
         after = float(np.sum(fit.residual ** 2 * wb))
-        L = problem.classes % len(CLASSES) == 0  # lengths (of every run, in a joint problem)
-        lb = float(np.sum(base.residual[L] ** 2))
+        L = P.classes % len(CLASSES) == 0  # lengths (of every run, in a joint problem)
+        lb = float(np.sum(base_.residual[L] ** 2))
         la = float(np.sum(fit.residual[L] ** 2))
         k = J.shape[1]
         beta = fit.beta[-k:]
+        betas[name] = beta
         sd = np.sqrt(np.clip(np.diag(fit.cov)[-k:], 0, None))
         current = model.values(name) if name in model.names else np.zeros(spec.size)
         values = current + beta * np.asarray(spec.prior)
@@ -481,9 +542,9 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
         # Projections depend only on the columns' inner products, so they are
         # taken on the fit's reduced whitened design [X0 | J] (a few rows per
         # column), which has the inner products of its thousands of rows.
-        Wk = problem.whitened(J, fit.sigma)
+        k0_ = X0_.shape[1]
         Rf = fit.whitened_r
-        Rm, Rk = Rf[:, :X0.shape[1]], Rf[:, X0.shape[1]:]
+        Rm, Rk = Rf[:, :k0_], Rf[:, k0_:]
         unc = np.empty(k)
         for j in range(k):
             others = np.column_stack([Rm, np.delete(Rk, j, axis=1)])
@@ -492,20 +553,23 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
             s = float(np.sum(rest * rest))
             unc[j] = np.inf if s <= 1e-10 * float(np.sum(Rk[:, j] ** 2)) or s == 0 else spec.prior[j] / math.sqrt(s)
         # Observability at the prior magnitude, against the current model only.
-        Wb = problem.whitened(J, base.sigma)
-        perp = Wb - q0 @ (q0.T @ Wb)
+        Wb = P.whitened(J, base_.sigma)
+        perp = Wb - q0_ @ (q0_.T @ Wb)
         s2 = np.sum(perp ** 2, axis=0)
+        # The model's columns whitened by the base fit's noise levels beside the candidate's by its own fit's:
+        # their inner products (correlations, singular values) from each class's R factor of [X0 | J], which
+        # has the inner products of the class's rows.
+        wf, wb0 = 1.0 / fit.sigma, 1.0 / base_.sigma
+        mixed = np.vstack([np.concatenate([wb0[c] * R[:, :k0_], wf[c] * R[:, k0_:]], axis=1) for c, R in fit.blocks])
+        norms = np.maximum(np.linalg.norm(mixed, axis=0), 1e-300)
+        mixed = mixed / norms
         corr, with_ = 0.0, ""
-        if X0.shape[1]:
-            a = Wk / np.maximum(np.linalg.norm(Wk, axis=0), 1e-300)
-            b = W0 / np.maximum(np.linalg.norm(W0, axis=0), 1e-300)
-            c = np.abs(a.T @ b)
+        if k0_:
+            c = np.abs(mixed[:, k0_:].T @ mixed[:, :k0_])
             i, j = np.unravel_index(np.argmax(c), c.shape)
             corr, with_ = float(c[i, j]), labels[j]
-        full = np.column_stack([W0, Wk])
-        full = full / np.maximum(np.linalg.norm(full, axis=0), 1e-300)
-        sv = np.linalg.svd(full, compute_uv=False)
-        cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+        sv = np.linalg.svd(mixed, compute_uv=False)
+        cond = float(sv[0] / sv[-1]) if len(sv) == mixed.shape[1] and sv[-1] > 0 else float("inf")
         out.append(Candidate(name, spec, values, unc, lr, dof, p, dbic,
                              1 - after / before if before > 0 else 0.0,
                              1 - la / lb if lb > 0 else 0.0, corr, with_, cond, float(np.max(s2)) if k else 0.0))
@@ -522,7 +586,7 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
     # Significant first; then by p-value, which weighs the likelihood gain
     # against the parameters spent on it.
     out.sort(key=lambda c: (not c.significant, getattr(c.spec, "family", None) == "map", c.p_value, -c.lr))
-    _flag_indistinguishable(problem, out, r0, X0, base, ridge0, target0)
+    _flag_indistinguishable(problem, out, r0, X0, base, ridge0, target0, betas)
     for c in alternatives:
         c.threshold = threshold
         c.model_effects = tuple(model.names)
@@ -568,7 +632,8 @@ def _alternative(problem: Problem, model, spec: EffectSpec, held: str, r0, X0, i
                      0.0, 0.0, corr, held, cond, float(np.max(s2)) if k else 0.0, alternative_to=held)
 
 
-def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, base: Fit, ridge0, target0) -> None:
+def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, base: Fit, ridge0, target0,
+                            betas: dict | None = None) -> None:
     """Mark candidates whose fitted contributions the data cannot tell apart
     from the leader's: a likelihood gain within INDISTINGUISHABLE_LR of the
     leader's and fitted contributions that correlate above INDISTINGUISHABLE."""
@@ -583,9 +648,12 @@ def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, b
 
     def contribution(c: Candidate) -> np.ndarray:
         J = problem.columns[c.name]
-        fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
-                          target=np.r_[target0, np.zeros(J.shape[1])])
-        return (J @ fit.beta[-J.shape[1]:]) / base.sigma[problem.classes] * balance
+        beta = (betas or {}).get(c.name)
+        if beta is None:  # not fitted by the ranking: fit it against the model here
+            fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
+                              target=np.r_[target0, np.zeros(J.shape[1])])
+            beta = fit.beta[-J.shape[1]:]
+        return (J @ beta) / base.sigma[problem.classes] * balance
 
     a = contribution(lead)
     for c in ranked[1:]:
@@ -602,6 +670,7 @@ def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, b
                 c.stands_for.append(lead.name)
 
 
+@one_blas_thread
 def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = None, only=None):
     """Fit the parameters of every effect in ``model`` to ``run`` (Gauss-Newton
     through the kernel, nuisances and class noise levels estimated alongside).
@@ -683,6 +752,7 @@ def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = No
     return model
 
 
+@one_blas_thread
 def model_uncertainties(problem: Problem, model) -> dict[str, np.ndarray]:
     """Standard uncertainty of every parameter of the effects in ``model``
     (each effect's units), jointly with the nuisances and each other: the
@@ -695,14 +765,50 @@ def model_uncertainties(problem: Problem, model) -> dict[str, np.ndarray]:
     if not index:
         return {}
     fit = problem.wls(obs.residual, X0)
-    var = np.diag(fit.cov)
-    undetermined = fit.rank < X0.shape[1]
+    var, free = design_variances(fit.whitened_r)
     out, pos = {}, k0
     for name, k in index:
-        sd = np.sqrt(np.clip(var[pos:pos + k], 0.0, None)) * np.asarray(problem.candidates[name].prior)
-        out[name] = np.where((sd > 0) | ~undetermined, sd, np.inf)
+        prior = np.asarray(problem.candidates[name].prior, float)
+        sd = np.sqrt(np.clip(var[pos:pos + k], 0.0, None)) * prior
+        # A parameter the data alone cannot tell from zero at UNDETERMINED_PRIORS typical magnitudes is not
+        # determined by them: its fitted value is the prior's (an XY-plane run's squareness yz and zx).
+        out[name] = np.where(free[pos:pos + k] | (sd > UNDETERMINED_PRIORS * np.abs(prior)), np.inf, sd)
         pos += k
     return out
+
+
+#: Relative singular value below which a direction of the (column-normalised,
+#: whitened) design counts as undetermined, and the share of a parameter on
+#: such directions that makes it undetermined.
+UNDETERMINED_RCOND, UNDETERMINED_SHARE = 1e-10, 1e-6
+#: Data-only standard uncertainty, in typical magnitudes (priors), above which
+#: a model parameter counts as undetermined (inf).
+UNDETERMINED_PRIORS = 5.0
+
+
+def design_variances(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Variances of the least-squares parameters of the whitened design ``R``
+    (columns in their own units), and which parameters the design leaves
+    free (a share of ``UNDETERMINED_SHARE`` or more on a direction whose
+    singular value is below ``UNDETERMINED_RCOND`` of the largest): their
+    variance is infinite. The SVD acts on ``R`` with its columns normalised,
+    not on ``R^T R``: the normal matrix squares the condition number, and a
+    pseudo-inverse of it drops directions the data do determine weakly
+    (then their variance reads near zero: an XY-plane run's squareness yz
+    and zx at 1e-5 arc-seconds instead of tens)."""
+    k = R.shape[1]
+    if k == 0:
+        return np.zeros(0), np.zeros(0, bool)
+    norm = np.linalg.norm(R, axis=0)
+    zero = norm <= 0
+    A = R / np.where(zero, 1.0, norm)
+    _, s, vt = np.linalg.svd(A, full_matrices=True)
+    s = np.r_[s, np.zeros(k - len(s))]
+    keep = s > UNDETERMINED_RCOND * (s[0] if len(s) and s[0] > 0 else 1.0)
+    v = vt.T
+    var = np.sum((v[:, keep] / s[keep]) ** 2, axis=1) / np.where(zero, 1.0, norm) ** 2
+    free = zero | (np.sum(v[:, ~keep] ** 2, axis=1) > UNDETERMINED_SHARE)
+    return var, free
 
 
 def check_effect_names(names, problem: Problem) -> None:

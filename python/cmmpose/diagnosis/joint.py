@@ -19,10 +19,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._renamed import renamed
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError, InputTypeError
 from ..run import Run
-from .diagnose import Diagnosis, Step, unobservable_candidates, add_map_candidates, as_model, attach_floor, select_effects, user_specs
+from ._blas import one_blas_thread
+from .aliases import find_alternatives
+from .diagnose import (Diagnosis, Step, unobservable_candidates, add_map_candidates, as_model, attach_floor,
+                       select_effects, user_specs)
 from .identify import Problem, check_effect_names, model_uncertainties, rank_candidates
 from .model import Model
 from .observables import CLASSES, ModelFigures, figures
@@ -78,6 +82,7 @@ class JointProblem(Problem):
         self.classes = np.concatenate([p.classes + i * k for i, p in enumerate(self.parts)])
         self.n_class = np.concatenate([p.n_class for p in self.parts])
         self.n_eff = np.concatenate([p.n_eff for p in self.parts])
+        self.class_floor = np.concatenate([p.class_floor for p in self.parts])
         sizes = [len(p.classes) for p in self.parts]
         offsets = np.r_[0, np.cumsum(sizes)[:-1]]
         self._class_rows = [rows + off for p, off in zip(self.parts, offsets) for rows in p._class_rows]
@@ -150,7 +155,9 @@ class JointDiagnosis(Diagnosis):
         return t
 
 
-def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, *, add=(), auto: bool = True,
+@one_blas_thread
+@renamed(model="maps")
+def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *, add=(), auto: bool = True,
                      max_effects: int = 4, user_effects=(), same_artefact: bool = True,
                      run_names=None, map_corrections: bool = True) -> JointDiagnosis:
     """One model for several runs: the effects' parameters shared, each run
@@ -160,8 +167,9 @@ def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, 
     ----------
     runs : sequence of Run
         Two or more runs (different temperatures, poses, layouts).
-    model : Model, ErrorMap or ErrorMapSet, optional
-        The starting model; default the thesis maps.
+    maps : Model, ErrorMap or ErrorMapSet, optional
+        What compensates at the start (a saved Model, or maps alone);
+        default the thesis maps. (``model=`` is its older name.)
     add : sequence of str
         Effects to add first, whether significant or not.
     auto : bool
@@ -188,7 +196,7 @@ def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, 
     for i, r in enumerate(runs):
         if not isinstance(r, Run):
             raise InputTypeError(f"runs[{i}]: expected a cmmpose.Run, got {type(r).__name__}")
-    model = as_model(model)
+    model = as_model(maps)
     problem = JointProblem(model, runs, same_artefact=same_artefact, extra=user_specs(list(user_effects)))
     if map_corrections:
         add_map_candidates(problem, model)
@@ -207,6 +215,11 @@ def diagnose_jointly(runs, model: Model | ErrorMap | ErrorMapSet | None = None, 
                           advice=advice,
                           final_uncertainty=model_uncertainties(problem, model), skipped=dict(problem.skipped),
                           run_figures=per_run, run_names=names)
+    diag.alternatives = find_alternatives(problem, steps, model)
     attach_floor(diag, problem, steps[-1])
+    if map_corrections:  # what the runs together determine of each map component (mapfamily)
+        from .mapfamily import component_report
+
+        diag.components = component_report(problem, model)
     diag.elapsed = time.perf_counter() - t0
     return diag

@@ -2,37 +2,74 @@
 
 Where no named effect of the library explains what the run shows, the
 structure may be in the map: one of its components is wrong by a smooth
-function of its axis's position. Each candidate here corrects one
-translational map component -- the position error of an axis (``dx(X)``,
-``dy(Y)``, ``dz(Z)``) or one of its two straightnesses (``dy(X)``, ``dz(X)``,
-``dx(Y)``, ``dz(Y)``, ``dx(Z)``, ``dy(Z)``) -- by one of three shapes of the
-axis's scale reading q (mm) over the travel the run used, ``[lo, hi]``:
+function of its axis's position. Each candidate here corrects one of the 18
+per-axis map components (:data:`COMPONENTS`) or one squareness
+(:data:`SQUARENESS`):
 
-- ``poly``: Legendre polynomials of degree 2 and 3 in ``t = (2q - lo - hi) /
-  (hi - lo)`` (degrees 0 and 1 are a rigid offset and a scale or squareness,
-  which the nuisances and the library's named ``scale`` and ``squareness``
-  hold);
+- the *translational* components of an axis: its position error (``dx(X)``,
+  ``dy(Y)``, ``dz(Z)``) and its two straightnesses (``dy(X)``, ``dz(X)``,
+  ``dx(Y)``, ``dz(Y)``, ``dx(Z)``, ``dy(Z)``), um;
+- the *rotational* components: each axis's three angles as functions of its
+  own position, ``ex(A)``, ``ey(A)``, ``ez(A)`` (rotation about x, y, z:
+  roll of X is ``ex(X)``, pitch ``ey(X)``, yaw ``ez(X)``; roll of Y
+  ``ey(Y)``, pitch ``ex(Y)``, yaw ``ez(Y)``; roll of Z ``ez(Z)``, its tilts
+  ``ex(Z)`` and ``ey(Z)``), arc-seconds. An angle eps of carriage A moves the
+  probe by ``eps x (arm(A) + p)`` (docs/conventions.md: ``arm(A)`` the
+  travel of the carriages it carries, from the machine configuration, and
+  ``p`` the probe's lever from the ram, the compensated point minus the
+  scale reading);
+- the *squarenesses* ``sq(xy)``, ``sq(yz)``, ``sq(zx)`` as a constant
+  (arc-seconds; the map's shear ``-E S_xy`` in x etc.). A squareness that
+  varies with position is not a new component: its change along the reading
+  is the slope of a straightness (``dx(Y)`` for ``sq(xy)``), which the
+  translational shapes hold. The library's named ``squareness`` is the same
+  physics; the squareness corrections are offered only when that named
+  effect is not a candidate (a restricted library), and the component
+  report (below) always covers them.
+
+Each component is corrected by one of these shapes of the axis's scale
+reading q (mm) over the travel the run used, ``[lo, hi]``:
+
+- ``poly``: Legendre polynomials in ``t = (2q - lo - hi) / (hi - lo)``:
+  degrees 2 and 3 for a translational component (degrees 0 and 1 are a
+  rigid offset and a scale or squareness, which the nuisances and the
+  library's named ``scale`` and ``squareness`` hold), degrees 1 to 3 for an
+  angle (a constant angle is a squareness or a tilt of the whole run; a
+  linear roll is also the library's named ``roll``, which ranks first);
 - ``hat<h>``: local linear B-splines (hats) with knots every ``h`` mm over the
   travel; ``h`` chosen by cross-validation (:mod:`cmmpose.diagnosis.cv`)
   among a few spacings;
 - ``sine<P>``: a sine and a cosine of period ``P`` mm, the period found by a
   search over the whole range from PERIOD_MIN (10 mm) to the travel (the
   likelihood profile over periods; ``P`` and its uncertainty from where
-  -2 log L rises by 1 from its minimum).
+  -2 log L rises by 1 from its minimum);
+- ``const``: a squareness (one value).
 
 Names read ``map:<component>:<shape>[lo,hi]``, e.g. ``map:dx(X):sine170.2[-120,780]``
-(:func:`parse`): a model file records the correction by its name and
-parameters (um), so ``Model.load`` rebuilds it with no code from the user,
-and :func:`corrected_maps` writes it into the maps themselves (a corrected map
-file in any format the project reads, :mod:`cmmpose.mapfiles`).
+or ``map:ez(X):poly[0,900]`` (:func:`parse`); an angle on a machine
+configured other than the thesis's X-Y-Z bridge carries the configuration
+(``map:ez(X):poly[0,900]@moving-bridge``), since its arms depend on it. A
+model file records the correction by its name and parameters (um or
+arc-seconds), so ``Model.load`` rebuilds it with no code from the user,
+and :func:`corrected_maps` writes it into the maps themselves (the
+component's column of its carriage's table, or the map's squareness: a
+corrected map file in any format the project reads, :mod:`cmmpose.mapfiles`).
 
-Sensitivities are taken at the centre level: the correction moves each
-sphere scan's points by the component's function at their readings, so the
-scan's centre moves by its mean over the scan (to first order, for a shape
-smooth over a ball's scan) and the radius and point residuals do not change;
-the ballbar lengths (or an artefact's deviations after each placement's
-rigid fit) follow from the moved centres. No kernel call and no finite
-differences over the point cloud.
+Sensitivities are taken at the centre level, linear in each shape's
+coefficients: a correction moves each sphere scan's points by the
+component's function at their readings times a per-point displacement (a
+unit along one direction for a translational component, ``e_j x lever``
+for an angle), and the linearised sphere fit of the scan turns the normal
+parts of those displacements into the centre's move (radius and point
+residuals do not change at first order for a shape smooth over one ball's
+scan). The ballbar lengths (or an artefact's deviations after each
+placement's rigid fit) follow from the moved centres. For speed, each
+component's per-point weights are spread once onto a fine grid of its
+axis's reading (GRID_MM, linear interpolation; at the shortest period the
+interpolation errs by (pi GRID_MM / PERIOD_MIN)^2 / 2, about 1 %): a shape's
+columns are then one sparse product with the shape's values at the grid
+nodes, shared by every shape and period of the search. No kernel call,
+no finite differences and no loop over points in Python.
 
 Statistics. The map candidates are a family of their own: a significance
 threshold ALPHA / (number of map candidates), and a periodic candidate's
@@ -43,17 +80,20 @@ better physics where they explain the structure); a map correction is added
 only where no named effect is both significant and better out of sample.
 
 Observability (:func:`component_report`): for each component, the whitened
-sensitivities of its shape basis (Legendre degrees 2-5 and hats at a fifth of
-the travel) after the nuisances and the model's effects are projected out;
-its singular values say how many shapes the data determine (above 2 sigma at
-the prior), and the principal angles between two components' spaces say
-which are aliased (cosine above 0.95: the data cannot tell them apart).
+sensitivities of its shape basis (the polynomials above and hats at a fifth of
+the travel; a squareness's constant) after the nuisances and the model's
+effects are projected out; its singular values say how many shapes the data
+determine (above 2 sigma at the prior), and the principal angles between two
+components' spaces say which are aliased (cosine above 0.95: the data cannot
+tell them apart), with other components and with the library's named effects.
 
-Units: positions mm, corrections um (parameters), priors um.
+Units: positions mm, translational corrections um, angles and squareness
+arc-seconds (parameters), priors in the same units.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass, field, replace
@@ -66,8 +106,13 @@ from .effects import EffectSpec
 
 __all__ = [
     "COMPONENTS",
+    "GRID_MM",
     "PERIOD_MIN",
+    "PRIOR_AS",
     "PRIOR_UM",
+    "ROTATIONAL",
+    "SQUARENESS",
+    "TRANSLATIONAL",
     "MapCorrection",
     "component_report",
     "corrected_maps",
@@ -76,17 +121,66 @@ __all__ = [
     "parse",
 ]
 
-#: The translational map components a correction can act on: name -> (axis
-#: index whose reading it follows, direction index it moves the point along).
-COMPONENTS = {f"d{d}({a})": ("XYZ".index(a), "xyz".index(d)) for a in "XYZ" for d in "xyz"}
+#: Translational components: name -> (axis index whose reading it follows,
+#: direction index it moves the point along).
+TRANSLATIONAL = {f"d{d}({a})": ("XYZ".index(a), "xyz".index(d)) for a in "XYZ" for d in "xyz"}
+#: Rotational components: name -> (axis index whose reading it follows,
+#: index of the machine axis it turns about).
+ROTATIONAL = {f"e{d}({a})": ("XYZ".index(a), "xyz".index(d)) for a in "XYZ" for d in "xyz"}
+#: The 18 per-axis map components a correction can act on.
+COMPONENTS = {**TRANSLATIONAL, **ROTATIONAL}
+#: Squarenesses: name -> (index of the reading the shear grows with, direction
+#: it moves the point along): e_x holds -E S_xy - F S_zx, e_y holds -F S_yz.
+SQUARENESS = {"sq(xy)": (1, 0), "sq(yz)": (2, 1), "sq(zx)": (2, 0)}
 #: Shortest period searched, mm.
 PERIOD_MIN = 10.0
-#: Typical size of a map correction's coefficient, um (a map calibrated to
-#: a few um leaves errors of this size).
+#: Typical size of a translational correction's coefficient, um (a map
+#: calibrated to a few um leaves errors of this size).
 PRIOR_UM = 3.0
+#: Typical size of an angle's or squareness's coefficient, arc-seconds.
+PRIOR_AS = 2.0
 #: Knot spacings tried, as fractions of the travel.
 HAT_FRACTIONS = (1 / 3, 1 / 5, 1 / 8, 1 / 12, 1 / 18)
-_NAME = re.compile(r"^map:(d[xyz]\([XYZ]\)):(poly|hat|sine)([0-9.]*)\[(-?[0-9.]+),(-?[0-9.]+)\]$")
+#: Spacing of the reading grid the centre-level sensitivities are spread on, mm.
+GRID_MM = 0.5
+#: One arc-second in radians.
+ARCSEC = math.pi / 648000.0
+_NAME = re.compile(r"^map:([de][xyz]\([XYZ]\)|sq\((?:xy|yz|zx)\)):(poly|hat|sine|const)([0-9.]*)"
+                   r"\[(-?[0-9.]+),(-?[0-9.]+)\](?:@([a-z-]+))?$")
+_ANGLE_WORDS = {"ex(X)": "roll of X", "ey(X)": "pitch of X", "ez(X)": "yaw of X",
+                "ex(Y)": "pitch of Y", "ey(Y)": "roll of Y", "ez(Y)": "yaw of Y",
+                "ex(Z)": "tilt of Z about x", "ey(Z)": "tilt of Z about y", "ez(Z)": "roll of Z"}
+
+
+def kind_of(component: str) -> str:
+    """'translational', 'rotational' or 'squareness'."""
+    return "squareness" if component in SQUARENESS else "rotational" if component in ROTATIONAL else "translational"
+
+
+def reading_axis(component: str) -> int:
+    """Index of the scale reading a component's shape follows."""
+    return SQUARENESS[component][0] if component in SQUARENESS else COMPONENTS[component][0]
+
+
+@functools.cache
+def arms(kinematics: str) -> np.ndarray:
+    """(3, 3): ``arms[A, B]`` = 1 when carriage B's travel is in carriage A's
+    arm (docs/conventions.md, Machine configurations), from the stacking the
+    kernel reports for ``kinematics``."""
+    from ..machine import configurations
+
+    conf = next((c for c in configurations() if c["name"] == kinematics), None)
+    if conf is None:
+        raise InputError(f"map correction: machine configuration {kinematics!r} is unknown")
+    probe = ["XYZ".index(a) for a, side in conf["stack"] if side == "probe"]
+    part = ["XYZ".index(a) for a, side in conf["stack"] if side == "part"]
+    out = np.zeros((3, 3))
+    for k, a in enumerate(probe):
+        out[a, probe[k + 1:]] = 1.0
+    for k, a in enumerate(part):
+        out[a, probe + part[:k]] = 1.0
+    out.setflags(write=False)
+    return out
 
 
 @dataclass(frozen=True)
@@ -98,10 +192,11 @@ class MapCorrection(EffectSpec):
     Attributes (beyond :class:`EffectSpec`)
     ---------------------------------------
     component : str
-        'dx(X)', 'dy(X)', ... (:data:`COMPONENTS`).
-    shape : {'poly', 'hat', 'sine'}
+        'dx(X)', ..., 'ez(Z)' (:data:`COMPONENTS`) or 'sq(xy)', 'sq(yz)',
+        'sq(zx)' (:data:`SQUARENESS`).
+    shape : {'poly', 'hat', 'sine', 'const'}
     scale_mm : float
-        Knot spacing (hat) or period (sine), mm; 0 for poly.
+        Knot spacing (hat) or period (sine), mm; 0 for poly and const.
     lo, hi : float
         Travel the shape spans, mm (the readings are clipped to it).
     scale_u_mm : float
@@ -109,6 +204,8 @@ class MapCorrection(EffectSpec):
     trials : int
         Independent alternatives the search chose among (the p-value's
         Bonferroni factor).
+    kinematics : str
+        The machine configuration whose arms an angle acts over.
     """
 
     component: str = ""
@@ -118,16 +215,24 @@ class MapCorrection(EffectSpec):
     hi: float = 1.0
     scale_u_mm: float = float("nan")
     trials: int = 1
+    kinematics: str = "thesis"
     family: str = field(default="map", compare=False)
 
     # -- the shape ---------------------------------------------------------
 
+    @property
+    def kind_of_component(self) -> str:
+        return kind_of(self.component)
+
     def basis(self, q: np.ndarray) -> np.ndarray:
-        """(N, k) basis functions at readings ``q`` (mm), unitless (x prior um)."""
+        """(N, k) basis functions at readings ``q`` (mm), unitless (x the parameters' unit)."""
         q = np.clip(np.asarray(q, float), self.lo, self.hi)
+        if self.shape == "const":
+            return np.ones((len(q), 1))
         if self.shape == "poly":
             t = (2 * q - self.lo - self.hi) / (self.hi - self.lo)
-            return np.column_stack([(3 * t ** 2 - 1) / 2, (5 * t ** 3 - 3 * t) / 2])
+            cols = [(3 * t ** 2 - 1) / 2, (5 * t ** 3 - 3 * t) / 2]
+            return np.column_stack(([t] if self.kind_of_component == "rotational" else []) + cols)
         if self.shape == "sine":
             w = 2 * np.pi * q / self.scale_mm
             return np.column_stack([np.sin(w), np.cos(w)])
@@ -139,34 +244,78 @@ class MapCorrection(EffectSpec):
         return self.lo + self.scale_mm * np.arange(n + 1)
 
     def function_um(self, q: np.ndarray, values) -> np.ndarray:
-        """The correction of the component at readings ``q`` (mm), um."""
-        return self.basis(q) @ np.asarray(values, float)
+        """The correction of the component at readings ``q`` (mm), in the
+        parameters' unit (um, or arc-seconds for an angle or a squareness).
+        O(N) for every shape (a hat sum is the linear interpolation of its
+        knot values), so a model applies it to every point of a run cheaply."""
+        v = np.asarray(values, float)
+        q = np.clip(np.asarray(q, float), self.lo, self.hi)
+        if self.shape == "hat":
+            return np.interp(q, self.knots(), v)
+        if self.shape == "const":
+            return np.full(len(q), v[0])
+        if self.shape == "sine":
+            w = (2 * np.pi / self.scale_mm) * q
+            return v[0] * np.sin(w) + v[1] * np.cos(w)
+        t = (2 * q - self.lo - self.hi) / (self.hi - self.lo)
+        t2 = t * t
+        out = v[-2] * (1.5 * t2 - 0.5) + v[-1] * ((2.5 * t2 - 1.5) * t)
+        return out + v[0] * t if len(v) == 3 else out
 
     def correction(self, inputs: dict, values) -> np.ndarray:
         """(N, 3) mm added to the compensated points (the UserEffect interface)."""
+        reading = [inputs["D"], inputs["E"], inputs["F"]]
+        out = np.zeros((len(reading[0]), 3))
+        kind = self.kind_of_component
+        if kind == "squareness":
+            r, d = SQUARENESS[self.component]
+            out[:, d] = reading[r] * (-float(np.asarray(values, float)[0]) * ARCSEC)
+            return out
         axis, d = COMPONENTS[self.component]
-        q = inputs["DEF"[axis]]
-        out = np.zeros((len(q), 3))
-        out[:, d] = self.function_um(q, values) * 1e-3
+        f = self.function_um(reading[axis], values)
+        if kind == "translational":
+            out[:, d] = f * 1e-3
+            return out
+        # e_d x lever, lever = arm + (point - reading): only the two components across the turning axis count.
+        f *= ARCSEC
+        a, b = (d + 1) % 3, (d + 2) % 3
+        arm = arms(self.kinematics)[axis]
+        lev = [inputs["xyz"[c]] + (arm[c] - 1.0) * reading[c] if arm[c] != 1.0 else inputs["xyz"[c]] for c in (a, b)]
+        out[:, b] = lev[0] * f
+        out[:, a] = -lev[1] * f
         return out
 
     def describe(self, values) -> str:
         v = np.asarray(values, float)
+        unit = "um" if self.kind_of_component == "translational" else "arc-second"
         if self.shape == "sine":
             amp = float(np.hypot(*v))
             per = f"{self.scale_mm:.1f}" + (f" ± {self.scale_u_mm:.1g}" if math.isfinite(self.scale_u_mm) else "")
-            return f"{self.component}: {amp:.3g} um amplitude at a period of {per} mm"
-        return f"{self.component}: " + ", ".join(f"{p}={x:+.3g} um" for p, x in zip(self.params, v))
+            return f"{self.component}: {amp:.3g} {unit} amplitude at a period of {per} mm"
+        return f"{self.component}: " + ", ".join(f"{p}={x:+.3g} {unit}" for p, x in zip(self.params, v))
 
     # -- sensitivities -----------------------------------------------------
 
     def centre_columns(self, problem, obs) -> np.ndarray:
         """Change of ``problem``'s observables per prior magnitude of each
         parameter (centre level: see the module docstring), mm."""
-        axis, d = COMPONENTS[self.component]
-        sub = _subset(problem)
-        B = self.basis(sub["q"][:, axis])  # (m, k)
-        return observable_change(problem, obs, B, d) * (np.asarray(self.prior) * 1e-3)
+        return component_columns(problem, obs, self.component, self.basis, self.kinematics) * np.asarray(self.prior)
+
+
+def _lever(S: np.ndarray, xyz: np.ndarray, axis: int, kinematics: str) -> np.ndarray:
+    """(N, 3) mm: the arm an angle of carriage ``axis`` turns the probe tip
+    over: its arm (the carriages it carries) plus the probe's lever from the
+    ram (the point minus the scale reading)."""
+    return S * arms(kinematics)[axis][None, :] + (xyz - S)
+
+
+def _turn(j: int, lever: np.ndarray) -> np.ndarray:
+    """(N, 3): e_j x lever."""
+    out = np.zeros_like(lever)
+    a, b = (j + 1) % 3, (j + 2) % 3
+    out[:, b] = lever[:, a]
+    out[:, a] = -lever[:, b]
+    return out
 
 
 #: Points per scan the linearised sphere fits use.
@@ -175,9 +324,10 @@ READINGS_PER_SCAN = 128
 
 def _subset(problem) -> dict:
     """Up to READINGS_PER_SCAN of each scan's sampled points, evenly spread,
-    with their readings ``q`` (m, 3) mm, scan index, outward normals ``n``
-    (m, 3) from the base model's fits, and each scan's inverse normal matrix
-    of the linearised sphere fit ``Minv`` (S, 4, 4) (cached on the problem)."""
+    with their readings ``q`` (m, 3) mm, compensated points ``xyz`` (m, 3)
+    mm, scan index, outward normals ``n`` (m, 3) from the base model's fits,
+    and each scan's inverse normal matrix of the linearised sphere fit
+    ``Minv`` (S, 4, 4) (cached on the problem)."""
     cache = problem.__dict__.get("_map_subset")
     if cache is not None:
         return cache
@@ -191,19 +341,120 @@ def _subset(problem) -> dict:
     keep = rank % step == 0
     rows = layout.sample[keep]
     scan = ss[keep]
-    xyz = problem.base.compensate(problem.inputs)[rows]
+    xyz = _compensate_rows(problem, rows)
     n = xyz - problem.base_obs.centres[scan]
     n /= np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
     a = np.column_stack([n, np.ones(len(n))])
     M = np.zeros((S, 4, 4))
     np.add.at(M, scan, a[:, :, None] * a[:, None, :])
     Minv = np.linalg.pinv(M)
-    cache = {"q": np.ascontiguousarray(problem.inputs.scales[rows]), "scan": scan, "n": n, "a": a, "Minv": Minv,
+    cache = {"q": np.ascontiguousarray(problem.inputs.scales[rows]), "xyz": xyz, "scan": scan, "n": n, "a": a,
+             "Minv": Minv, "S": S,
              # Row 4 s + j sums a_j over scan s's points: (4 S, m), sparse.
              "sum": csr_matrix((a.reshape(-1), (((4 * scan)[:, None] + np.arange(4)).reshape(-1),
-                                                np.repeat(np.arange(len(a)), 4))), shape=(4 * S, len(a)))}
+                                                np.repeat(np.arange(len(a)), 4))), shape=(4 * S, len(a))),
+             "weights": {}, "grids": {}, "rigid": {}}
     problem.__dict__["_map_subset"] = cache
     return cache
+
+
+def _compensate_rows(problem, rows: np.ndarray) -> np.ndarray:
+    """The base model's compensated points at ``rows`` (mm): those of the
+    problem's base observation when it kept them, else one compensation."""
+    xyz = getattr(problem, "_base_xyz", None)
+    if xyz is None:
+        xyz = problem.base.compensate(problem.inputs)
+    return xyz[rows]
+
+
+def _weights(problem, component: str, kinematics: str = "thesis") -> np.ndarray:
+    """Per subset point (m,): the normal part of its displacement per unit
+    of the component's function (mm per um, or per arc-second)."""
+    sub = _subset(problem)
+    key = (component, kinematics)
+    w = sub["weights"].get(key)
+    if w is not None:
+        return w
+    n, q = sub["n"], sub["q"]
+    kind = kind_of(component)
+    if kind == "translational":
+        w = n[:, COMPONENTS[component][1]] * 1e-3
+    elif kind == "squareness":
+        r, d = SQUARENESS[component]
+        w = -n[:, d] * q[:, r] * ARCSEC
+    else:
+        axis, j = COMPONENTS[component]
+        w = np.einsum("mi,mi->m", n, _turn(j, _lever(q, sub["xyz"], axis, kinematics))) * ARCSEC
+    sub["weights"][key] = w
+    return w
+
+
+def _grid(problem, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reading grid of ``axis`` over the subset: nodes (G,), and each
+    point's lower node index and interpolation fraction."""
+    sub = _subset(problem)
+    g = sub["grids"].get(axis)
+    if g is None:
+        q = sub["q"][:, axis]
+        lo = math.floor(float(q.min()) / GRID_MM) * GRID_MM
+        G = math.ceil((float(q.max()) - lo) / GRID_MM) + 2
+        nodes = lo + GRID_MM * np.arange(G)
+        x = (q - lo) / GRID_MM
+        i = np.minimum(np.floor(x).astype(int), G - 2)
+        g = sub["grids"][axis] = (nodes, i, x - i)
+    return g
+
+
+def _spread(problem, component: str, kinematics: str):
+    """(nodes, W): the component's sparse (4 S, G) map from values of its
+    function at the grid nodes to each scan's right-hand side of the
+    linearised sphere fit (cached)."""
+    sub = _subset(problem)
+    key = ("spread", component, kinematics)
+    out = sub["grids"].get(key)
+    if out is not None:
+        return out
+    nodes, i, t = _grid(problem, reading_axis(component))
+    w = _weights(problem, component, kinematics)
+    aw = sub["a"] * w[:, None]  # (m, 4)
+    row = ((4 * sub["scan"])[:, None] + np.arange(4)).reshape(-1)
+    rows = np.r_[row, row]
+    cols = np.r_[np.repeat(i, 4), np.repeat(i + 1, 4)]
+    data = np.r_[(aw * (1 - t)[:, None]).reshape(-1), (aw * t[:, None]).reshape(-1)]
+    W = csr_matrix((data, (rows, cols)), shape=(4 * sub["S"], len(nodes)))
+    W.sum_duplicates()
+    out = sub["grids"][key] = (nodes, W)
+    return out
+
+
+def component_columns(problem, obs, component: str, basis, kinematics: str = "thesis", *,
+                      compact: bool = False) -> np.ndarray:
+    """Change of ``problem``'s observables (n, k) when the component is off
+    by ``basis(q)`` (a function of the reading returning (N, k), um or
+    arc-seconds per unit): centre level, through the reading grid. A joint
+    problem stacks its runs'. ``compact``: only the rows of the lengths (or
+    deviations), centres and radii (the point residuals' rows are zero),
+    in the order of ``_rows(problem)``."""
+    parts = getattr(problem, "parts", None)
+    if parts:
+        return np.concatenate([component_columns(p, o, component, basis, kinematics, compact=compact)
+                               for p, o in zip(parts, obs.parts)])
+    nodes, W = _spread(problem, component, kinematics)
+    return _through_fits(problem, obs, W @ basis(nodes), compact)
+
+
+def _rows(problem) -> np.ndarray:
+    """Indices of the observables a map correction moves: lengths (or an
+    artefact's deviations), centre deviations and radii of every run."""
+    return np.flatnonzero(np.isin(problem.classes % 4, (0, 1, 2)))
+
+
+def _through_fits(problem, obs, rhs: np.ndarray, compact: bool = False) -> np.ndarray:
+    """Observables (n, k) from the scans' right-hand sides (4 S, k)."""
+    sub = _subset(problem)
+    S = sub["S"]
+    theta = np.einsum("sij,sjk->sik", sub["Minv"], np.asarray(rhs).reshape(S, 4, -1))
+    return _centre_level(problem.layout, obs, theta[:, :3, :], theta[:, 3, :], sub["rigid"], compact)
 
 
 def observable_change(problem, obs, field: np.ndarray, direction: int | None = None) -> np.ndarray:
@@ -214,16 +465,11 @@ def observable_change(problem, obs, field: np.ndarray, direction: int | None = N
     as unchanged (a shape smooth over one ball's scan). With ``direction``
     (0, 1, 2), ``field`` is (m, k): the displacement along that axis."""
     sub = _subset(problem)
-    layout = problem.layout
     if direction is None:
         normal_move = np.einsum("mj,mjk->mk", sub["n"], field)  # (m, k)
     else:  # field (m, k) along one direction
         normal_move = sub["n"][:, direction, None] * field
-    # The subset's points come scan by scan: sum each scan's block.
-    S = len(layout.labels)
-    rhs = (sub["sum"] @ normal_move).reshape(S, 4, -1)
-    theta = np.einsum("sij,sjk->sik", sub["Minv"], rhs)  # (S, 4, k): centre (3) and radius
-    return _centre_level(layout, obs, theta[:, :3, :], theta[:, 3, :])
+    return _through_fits(problem, obs, sub["sum"] @ normal_move)
 
 
 def _sphere_means(layout, per_scan_vec: np.ndarray) -> np.ndarray:
@@ -234,18 +480,48 @@ def _sphere_means(layout, per_scan_vec: np.ndarray) -> np.ndarray:
     return out / np.maximum(counts, 1).reshape((-1,) + (1,) * (per_scan_vec.ndim - 1))
 
 
-def _centre_level(layout, obs, dc: np.ndarray, dr: np.ndarray | None = None) -> np.ndarray:
+def _rigid_projectors(layout, obs, cache: dict | None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per placement of an artefact: its rigid motions' columns G (3 n_b, 6)
+    and their pseudo-inverse (6, 3 n_b); ``D - G (G^+ D)`` removes what the
+    placement's best-fit rigid transform takes up, to first order."""
+    key = id(obs)
+    if cache is not None and key in cache and cache[key][0] is obs:
+        return cache[key][1]
+    mean_c = _sphere_means(layout, obs.centres)
+    out = []
+    for idx in layout.artefact.spheres:
+        m = mean_c[idx]
+        r = m - m.mean(axis=0)
+        n_b = len(idx)
+        G = np.zeros((n_b, 3, 6))
+        G[:, 0, 0] = G[:, 1, 1] = G[:, 2, 2] = 1.0
+        # omega x r for omega along x, y, z
+        G[:, 1, 3], G[:, 2, 3] = -r[:, 2], r[:, 1]
+        G[:, 0, 4], G[:, 2, 4] = r[:, 2], -r[:, 0]
+        G[:, 0, 5], G[:, 1, 5] = -r[:, 1], r[:, 0]
+        G = G.reshape(3 * n_b, 6)
+        out.append((G, np.linalg.pinv(G)))
+    if cache is not None:
+        cache[key] = (obs, out)
+    return out
+
+
+def _centre_level(layout, obs, dc: np.ndarray, dr: np.ndarray | None = None, cache: dict | None = None,
+                  compact: bool = False) -> np.ndarray:
     """Observable changes (n, k) when scan s's centre moves by dc[s, :, j]
-    (S, 3, k) and its radius by dr[s, j] (S, k)."""
+    (S, 3, k) and its radius by dr[s, j] (S, k); ``compact``: without the
+    point residuals' rows (zero), which come last."""
     k = dc.shape[2]
     sizes = layout.sizes
     n = sum(sizes.values())
+    if compact:
+        n = sizes["length"] + 3 * len(layout.repeated) + len(layout.labels)
     out = np.zeros((n, k))
-    mean_c = _sphere_means(layout, obs.centres)
     shift = _sphere_means(layout, dc)  # (K, 3, k)
     P = sizes["length"]
     if layout.artefact is None:
         if P:
+            mean_c = _sphere_means(layout, obs.centres)
             u = mean_c[layout.ends[:, 1]] - mean_c[layout.ends[:, 0]]
             u /= np.linalg.norm(u, axis=1)[:, None]
             out[:P] = np.einsum("pj,pjk->pk", u, shift[layout.ends[:, 1]] - shift[layout.ends[:, 0]])
@@ -253,19 +529,11 @@ def _centre_level(layout, obs, dc: np.ndarray, dr: np.ndarray | None = None) -> 
         # Each placement's best-fit rigid transform takes up, to first order,
         # the part of the centres' shifts that is a rigid motion of its balls.
         at = 0
-        for idx in layout.artefact.spheres:
-            m = mean_c[idx]
-            r = m - m.mean(axis=0)
+        for idx, (G, Gp) in zip(layout.artefact.spheres, _rigid_projectors(layout, obs, cache)):
             n_b = len(idx)
-            G = np.zeros((n_b, 3, 6))
-            G[:, 0, 0] = G[:, 1, 1] = G[:, 2, 2] = 1.0
-            # omega x r for omega along x, y, z
-            G[:, 1, 3], G[:, 2, 3] = -r[:, 2], r[:, 1]
-            G[:, 0, 4], G[:, 2, 4] = r[:, 2], -r[:, 0]
-            G[:, 0, 5], G[:, 1, 5] = -r[:, 1], r[:, 0]
-            G = G.reshape(3 * n_b, 6)
             D = shift[idx].reshape(3 * n_b, k)
-            out[at:at + 3 * n_b] = D - G @ np.linalg.lstsq(G, D, rcond=None)[0]
+            # Thin products by einsum: small, and free of the BLAS threads' start-up on a busy machine.
+            out[at:at + 3 * n_b] = D - np.einsum("ir,rk->ik", G, np.einsum("ri,ik->rk", Gp, D))
             at += 3 * n_b
     rep = layout.repeated
     if len(rep):
@@ -281,49 +549,74 @@ def is_map(spec) -> bool:
     return getattr(spec, "family", None) == "map"
 
 
-def make(component: str, shape: str, lo: float, hi: float, scale_mm: float = 0.0, **changes) -> MapCorrection:
+def make(component: str, shape: str, lo: float, hi: float, scale_mm: float = 0.0, *, kinematics: str = "thesis",
+         **changes) -> MapCorrection:
     """A map correction spec (see the module docstring for the shapes)."""
-    if component not in COMPONENTS:
-        raise InputError(f"map correction: component {component!r} is not one of {', '.join(COMPONENTS)}")
+    if component not in COMPONENTS and component not in SQUARENESS:
+        raise InputError(f"map correction: component {component!r} is not one of "
+                         f"{', '.join([*COMPONENTS, *SQUARENESS])}")
     if not (hi > lo):
         raise InputError(f"map correction {component}: travel [{lo}, {hi}] mm is empty")
+    kind = kind_of(component)
+    if (shape == "const") != (kind == "squareness"):
+        raise InputError(f"map correction {component}: shape {shape!r} does not apply (a squareness is 'const', "
+                         f"a component poly, hat or sine)")
+    u = "um" if kind == "translational" else "as"
     if shape == "poly":
-        params = ("p2_um", "p3_um")
+        params = (f"p2_{u}", f"p3_{u}") if kind == "translational" else (f"p1_{u}", f"p2_{u}", f"p3_{u}")
+        tag = ""
+    elif shape == "const":
+        params = (f"s_{u}",)
         tag = ""
     elif shape == "sine":
         if not scale_mm > 0:
             raise InputError(f"map correction {component}: period must be > 0 mm, got {scale_mm}")
-        params = ("sin_um", "cos_um")
+        params = (f"sin_{u}", f"cos_{u}")
         tag = f"{scale_mm:.6g}"
     elif shape == "hat":
         if not scale_mm > 0:
             raise InputError(f"map correction {component}: knot spacing must be > 0 mm, got {scale_mm}")
         n = max(int(math.ceil((hi - lo) / scale_mm - 1e-9)), 1) + 1
-        params = tuple(f"k{i}_um" for i in range(n))
+        params = tuple(f"k{i}_{u}" for i in range(n))
         tag = f"{scale_mm:.6g}"
     else:
-        raise InputError(f"map correction {component}: shape {shape!r} is not poly, hat or sine")
-    axis, d = COMPONENTS[component]
-    what = {"poly": "a smooth bow (Legendre degrees 2-3)", "hat": f"local bumps (knots every {scale_mm:.4g} mm)",
-            "sine": f"a periodic error of period {scale_mm:.4g} mm"}[shape]
-    kind = "position error" if axis == d else "straightness"
-    name = f"map:{component}:{shape}{tag}[{lo:.6g},{hi:.6g}]"
-    return MapCorrection(name=name, params=params, units=("um",) * len(params), prior=(PRIOR_UM,) * len(params),
-                         kind="python", key="map",
-                         physics=f"the map's {kind} {component} is off by {what} along {'XYZ'[axis]}",
-                         reveal=f"scans spread along {'XYZ'[axis]} (bar positions or plate placements along it)",
+        raise InputError(f"map correction {component}: shape {shape!r} is not poly, hat, sine or const")
+    if kind == "rotational":
+        arms(kinematics)  # a known configuration
+    else:
+        kinematics = "thesis"  # only an angle's action depends on the stacking
+    axis = reading_axis(component)
+    deg = "1-3" if kind == "rotational" else "2-3"
+    what = {"poly": f"a smooth bow (Legendre degrees {deg})", "hat": f"local bumps (knots every {scale_mm:.4g} mm)",
+            "sine": f"a periodic error of period {scale_mm:.4g} mm", "const": "a constant"}[shape]
+    if kind == "squareness":
+        physics = f"the map's squareness {component[3:5].upper()} is off by {what}"
+        reveal = "ballbar positions or plate placements on the face diagonals of that plane"
+    else:
+        label = {"translational": "position error" if axis == COMPONENTS[component][1] else "straightness",
+                 "rotational": _ANGLE_WORDS.get(component, "angle")}[kind]
+        physics = f"the map's {label} {component} is off by {what} along {'XYZ'[axis]}"
+        reveal = f"scans spread along {'XYZ'[axis]} (bar positions or plate placements along it)"
+        if kind == "rotational":
+            reveal += ", with different levers (heights, offsets across the axis, probe poses)"
+    name = f"map:{component}:{shape}{tag}[{lo:.6g},{hi:.6g}]" + (f"@{kinematics}" if kinematics != "thesis" else "")
+    unit = "um" if kind == "translational" else "arc-second"
+    prior = PRIOR_UM if kind == "translational" else PRIOR_AS
+    return MapCorrection(name=name, params=params, units=(unit,) * len(params), prior=(prior,) * len(params),
+                         kind="python", key="map", physics=physics, reveal=reveal,
                          component=component, shape=shape, scale_mm=float(scale_mm), lo=float(lo), hi=float(hi),
-                         **changes)
+                         kinematics=kinematics, **changes)
 
 
 def parse(name: str) -> MapCorrection:
-    """The spec of a map-correction name ('map:dx(X):sine170.2[-120,780]')."""
+    """The spec of a map-correction name ('map:dx(X):sine170.2[-120,780]',
+    'map:ez(X):poly[0,900]@moving-bridge')."""
     m = _NAME.match(name)
     if not m:
         raise InputError(f"effect {name!r}: not a map correction name (map:<component>:<shape>[lo,hi], e.g. "
-                         f"'map:dy(X):poly[0,900]')")
-    comp, shape, scale, lo, hi = m.groups()
-    return make(comp, shape, float(lo), float(hi), float(scale) if scale else 0.0)
+                         f"'map:dy(X):poly[0,900]' or 'map:ez(X):hat90[0,900]')")
+    comp, shape, scale, lo, hi, kin = m.groups()
+    return make(comp, shape, float(lo), float(hi), float(scale) if scale else 0.0, kinematics=kin or "thesis")
 
 
 # -- candidates for a run -------------------------------------------------
@@ -336,8 +629,15 @@ def _travel(problem) -> list[tuple[float, float]]:
     return [(math.floor(a), math.ceil(b)) for a, b in zip(lo, hi)]
 
 
+def _kinematics(model) -> str:
+    try:
+        return str(model.maps.kinematics)
+    except AttributeError:
+        return "thesis"
+
+
 def _columns(problem, spec: MapCorrection) -> np.ndarray:
-    return problem._columns(problem.base, spec, np.zeros(spec.size), problem.base_obs)
+    return spec.centre_columns(problem, problem.base_obs)
 
 
 def _whitened_gain(W0q, r, Wj, rows=None) -> float:
@@ -360,15 +660,35 @@ def _whitened_gain(W0q, r, Wj, rows=None) -> float:
     return float(np.sum(z * z / w[keep]))
 
 
+def _pair_gains(W0q, r, J, rows) -> np.ndarray:
+    """:func:`_whitened_gain` of each column pair (2 i, 2 i + 1) of ``J``
+    (len(rows), 2 K: the columns at ``rows``, zero elsewhere) at once: (K,)."""
+    Jr = J
+    Q = W0q[rows]
+    K = J.shape[1] // 2
+    C = (Jr.T @ Q).reshape(K, 2, -1)
+    b = (Jr.T @ r[rows]).reshape(K, 2) - C @ (W0q.T @ r)
+    J3 = Jr.reshape(len(rows), K, 2)
+    M = np.einsum("nka,nkb->kab", J3, J3) - np.einsum("kaq,kbq->kab", C, C)
+    w, V = np.linalg.eigh(M)
+    top = np.maximum(w[:, -1:], 1e-300)
+    z = np.einsum("kab,ka->kb", V, b)
+    keep = w > 1e-9 * top
+    return np.sum(np.where(keep, z * z / np.where(keep, w, 1.0), 0.0), axis=1)
+
+
 def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapCorrection]:
     """The map-correction candidates for ``problem`` (a Problem or
-    JointProblem at its base model): for each of the nine translational
-    components of an axis the run moves along, a ``poly``, a ``hat`` with
-    its knot spacing chosen by cross-validation, and a ``sine`` with its
-    period found by the search over [PERIOD_MIN, travel]."""
-    from .cv import cv_groups, cv_score, model_design
+    JointProblem at its base model): for each of the 18 components of an
+    axis the run moves along, a ``poly``, a ``hat`` with its knot spacing
+    chosen by cross-validation, and a ``sine`` with its period found by the
+    search over [PERIOD_MIN, travel]; and a constant squareness of each
+    plane the run spans when the library's named ``squareness`` is not a
+    candidate."""
+    from .cv import CVDesign, cv_groups, model_design
 
     model = problem.base if model is None else model
+    kin = _kinematics(model)
     travel = _travel(problem)
     r0 = problem.base_obs.residual
     X0, ridge0, target0 = model_design(problem, model)
@@ -380,88 +700,98 @@ def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapC
     W0q = np.linalg.qr(W0)[0] if W0.shape[1] else np.zeros((len(r0), 0))
     # Knot spacing must carry from one set-up to the next: whole runs held out when there are several.
     folds, items, _ = cv_groups(problem, by_run=True if getattr(problem, "parts", None) else None)
-    groups = (folds, items)
+    design = CVDesign(problem, r0, X0, ridge0, target0, sigma, (folds, items))
     # Map corrections move centres and radii only (point residuals at first order unchanged).
-    rows = np.flatnonzero(np.isin(problem.classes % 4, (0, 1, 2)))
+    rows = _rows(problem)
     out: dict[str, MapCorrection] = {}
-    for comp, (axis, _d) in COMPONENTS.items():
+    for comp in COMPONENTS:
+        axis = reading_axis(comp)
         lo, hi = travel[axis]
         span = hi - lo
         if span < 3 * PERIOD_MIN:  # the run does not move along this axis
             continue
-        poly = make(comp, "poly", lo, hi)
+        poly = make(comp, "poly", lo, hi, kinematics=kin)
         out[poly.name] = poly
-        # Knot spacing by cross-validation.
+        # Knot spacing by cross-validation (the base design's folds solved once, each spacing added to it).
         best = None
         for f in HAT_FRACTIONS:
-            h = make(comp, "hat", lo, hi, round(span * f, 1))
-            J = _columns(problem, h)
-            X = np.column_stack([X0, J])
-            from .identify import PRIOR_WEIGHT
-
-            sc = cv_score(problem, r0, X, np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
-                          np.r_[target0, np.zeros(J.shape[1])], sigma, groups)
+            h = make(comp, "hat", lo, hi, round(span * f, 1), kinematics=kin)
+            J = component_columns(problem, problem.base_obs, comp, h.basis, kin, compact=True) * np.asarray(h.prior)
+            sc = design.score_with(J, rows=rows)
             if best is None or sc.whitened < best[0]:
                 best = (sc.whitened, h)
         out[best[1].name] = replace(best[1], trials=len(HAT_FRACTIONS))
         # Period search: log-spaced from PERIOD_MIN to the travel.
         grid = np.exp(np.linspace(math.log(PERIOD_MIN), math.log(span), periods))
-        gains = _sine_gains(problem, comp, lo, hi, grid, W0q, rw, s, rows)
+        gains = _sine_gains(problem, comp, kin, lo, hi, grid, W0q, rw, s, rows)
         i = int(np.argmax(gains))
-        P, u = _refine_period(problem, comp, lo, hi, grid, i, W0q, rw, s, rows)
+        P, u = _refine_period(problem, comp, kin, lo, hi, grid, i, W0q, rw, s, rows)
         # Independent periods in the range: frequencies resolvable over the travel.
         trials = max(int(math.ceil(span / PERIOD_MIN - 1)), 1)
-        sine = make(comp, "sine", lo, hi, P, scale_u_mm=u, trials=trials)
+        sine = make(comp, "sine", lo, hi, P, scale_u_mm=u, trials=trials, kinematics=kin)
         out[sine.name] = sine
+    if "squareness" not in problem.candidates and "squareness" not in model.names:
+        for comp, (r, _d) in SQUARENESS.items():
+            lo, hi = travel[r]
+            if hi - lo >= 3 * PERIOD_MIN:
+                sq = make(comp, "const", lo, hi)
+                out[sq.name] = sq
     return out
 
 
-def _sine_columns(problem, comp: str, lo: float, hi: float, periods) -> np.ndarray:
-    """(n, 2 len(periods)) sensitivities of sin and cos at every period, per
-    prior magnitude, mm: one batched centre-level evaluation per run."""
-    axis, d = COMPONENTS[comp]
+def _sine_basis(lo: float, hi: float, periods: np.ndarray):
     periods = np.asarray(periods, float)
-    prior = PRIOR_UM * 1e-3
-    out = []
-    for p in getattr(problem, "parts", None) or [problem]:
-        q = np.clip(_subset(p)["q"][:, axis], lo, hi)
-        w = 2 * np.pi * q[:, None] / periods[None, :]
-        field = np.empty((len(q), 2 * len(periods)))
-        field[:, 0::2] = np.sin(w)
-        field[:, 1::2] = np.cos(w)
-        out.append(observable_change(p, p.base_obs, field, d) * prior)
-    return np.concatenate(out)
+
+    def basis(q):
+        w = 2 * np.pi * np.clip(q, lo, hi)[:, None] / periods[None, :]
+        out = np.empty((len(q), 2 * len(periods)))
+        out[:, 0::2] = np.sin(w)
+        out[:, 1::2] = np.cos(w)
+        return out
+
+    return basis
 
 
-def _sine_gains(problem, comp, lo, hi, periods, W0q, rw, s, rows) -> np.ndarray:
-    """Whitened chi-square gain of a sine and cosine at each period."""
-    J = _sine_columns(problem, comp, lo, hi, periods) / s[:, None]
-    return np.array([_whitened_gain(W0q, rw, J[:, 2 * i:2 * i + 2], rows) for i in range(len(periods))])
+def _sine_columns(problem, comp: str, kin: str, lo: float, hi: float, periods) -> np.ndarray:
+    """(n, 2 len(periods)) sensitivities of sin and cos at every period, per
+    prior magnitude, mm: one sparse product per run."""
+    prior = PRIOR_UM if kind_of(comp) == "translational" else PRIOR_AS
+    return component_columns(problem, problem.base_obs, comp, _sine_basis(lo, hi, periods), kin, compact=True) * prior
 
 
-def _refine_period(problem, comp, lo, hi, grid, i, W0q, rw, s, rows):
+def _sine_gains(problem, comp, kin, lo, hi, periods, W0q, rw, s, rows) -> np.ndarray:
+    """Whitened chi-square gain of a sine and cosine at each period (the
+    columns only at ``rows``, where they are not zero)."""
+    J = _sine_columns(problem, comp, kin, lo, hi, periods) / s[rows, None]
+    return _pair_gains(W0q, rw, J, rows)
+
+
+def _refine_period(problem, comp, kin, lo, hi, grid, i, W0q, rw, s, rows):
     """The period at the peak of the gain (a finer grid around it) and its
     standard uncertainty: half the width where the gain is within 1 of the
     peak (-2 log L up by 1), from a grid of offsets about it."""
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
     fine = np.linspace(a, b, 21)
-    g = _sine_gains(problem, comp, lo, hi, fine, W0q, rw, s, rows)
+    g = _sine_gains(problem, comp, kin, lo, hi, fine, W0q, rw, s, rows)
     j = int(np.argmax(g))
     P, top = float(fine[j]), float(g[j])
     offsets = P * np.geomspace(1e-3, 0.5, 48)
+    Ps = np.r_[P - offsets, P + offsets]
+    ok = (Ps > PERIOD_MIN / 2) & (Ps < 2 * (hi - lo))
+    gs_all = np.full(len(Ps), -np.inf)
+    if ok.any():
+        gs_all[ok] = _sine_gains(problem, comp, kin, lo, hi, Ps[ok], W0q, rw, s, rows)
     half = []
-    for sign in (-1, 1):
-        Ps = P + sign * offsets
-        ok = (Ps > PERIOD_MIN / 2) & (Ps < 2 * (hi - lo))
-        if not ok.any():
+    for side in (slice(0, 48), slice(48, 96)):
+        oks, gs = ok[side], gs_all[side][ok[side]]
+        if not oks.any():
             continue
-        gs = _sine_gains(problem, comp, lo, hi, Ps[ok], W0q, rw, s, rows)
         below = np.flatnonzero(gs < top - 1.0)
         if len(below):
             k = below[0]
             # Linear interpolation of where the gain crosses top - 1.
-            x0, g0 = (0.0, top) if k == 0 else (offsets[ok][k - 1], gs[k - 1])
-            x1, g1 = offsets[ok][k], gs[k]
+            x0, g0 = (0.0, top) if k == 0 else (offsets[oks][k - 1], gs[k - 1])
+            x1, g1 = offsets[oks][k], gs[k]
             half.append(x0 + (g0 - (top - 1.0)) * (x1 - x0) / max(g0 - g1, 1e-12))
     u = float(np.mean(half)) if half else float("nan")
     return P, u
@@ -470,21 +800,32 @@ def _refine_period(problem, comp, lo, hi, grid, i, W0q, rw, s, rows):
 # -- what the data determine ----------------------------------------------
 
 
+def _report_spec(comp: str, lo: float, hi: float, kin: str) -> list[MapCorrection]:
+    if comp in SQUARENESS:
+        return [make(comp, "const", lo, hi)]
+    return [make(comp, "poly", lo, hi, kinematics=kin), make(comp, "hat", lo, hi, round((hi - lo) / 5, 1),
+                                                            kinematics=kin)]
+
+
 def component_report(problem, model=None, *, cos_alias: float = 0.95, detect: float = 2.0) -> dict:
-    """For each translational map component: how many shapes the run
-    determines, which other components it is aliased with, or whether it is
+    """For each of the 18 map components and the three squarenesses: how
+    many shapes the run determines, which other components (and which of
+    the library's named effects) it is aliased with, or whether it is
     invisible (see the module docstring).
 
     Returns
     -------
     dict
-        component -> {'status': 'determined' | 'aliased' | 'invisible',
-        'shapes_determined': int, 'shapes_tried': int, 'singular_values':
-        [...] (whitened, per prior magnitude), 'aliased_with': [names]}.
+        component -> {'kind': 'translational' | 'rotational' | 'squareness',
+        'status': 'determined' | 'aliased' | 'invisible', 'shapes_determined':
+        int, 'shapes_tried': int, 'singular_values': [...] (whitened, per
+        prior magnitude, largest first), 'aliased_with': [components],
+        'aliased_with_effects': [named effects], 'why': str}.
     """
     from .cv import model_design
 
     model = problem.base if model is None else model
+    kin = _kinematics(model)
     travel = _travel(problem)
     r0 = problem.base_obs.residual
     X0, ridge0, target0 = model_design(problem, model)
@@ -492,36 +833,77 @@ def component_report(problem, model=None, *, cos_alias: float = 0.95, detect: fl
     s = sigma[problem.classes]
     W0 = X0 / s[:, None]
     W0q = np.linalg.qr(W0)[0] if W0.shape[1] else np.zeros((len(r0), 0))
-    spaces, out = {}, {}
-    for comp, (axis, _d) in COMPONENTS.items():
-        lo, hi = travel[axis]
-        if hi - lo < 3 * PERIOD_MIN:
-            out[comp] = {"status": "invisible", "shapes_determined": 0, "shapes_tried": 0, "singular_values": [],
-                         "aliased_with": [], "why": f"the run does not move along {'XYZ'[axis]}"}
-            continue
-        poly = make(comp, "poly", lo, hi)
-        hat = make(comp, "hat", lo, hi, round((hi - lo) / 5, 1))
-        J = np.column_stack([_columns(problem, poly), _columns(problem, hat)]) / s[:, None]
-        P = J - W0q @ (W0q.T @ J)
-        u, sv, _ = np.linalg.svd(P, full_matrices=False)
+    # Everything below is inner products of whitened columns with the
+    # nuisances and the model's effects projected out: P^T P' = J^T J' -
+    # (Q^T J)^T (Q^T J'), with J zero outside ``rows`` for a map component.
+    rows = _rows(problem)
+    Qr, sr = W0q[rows], s[rows]
+
+    def space(G):
+        w, V = np.linalg.eigh(G)
+        sv = np.sqrt(np.clip(w[::-1], 0.0, None))
+        V = V[:, ::-1]
         keep = sv > detect
-        spaces[comp] = u[:, keep]
-        out[comp] = {"status": "determined" if keep.any() else "invisible",
-                     "shapes_determined": int(keep.sum()), "shapes_tried": int(J.shape[1]),
-                     "singular_values": [float(x) for x in sv], "aliased_with": []}
-    names = list(spaces)
+        return sv, V[:, keep] / sv[keep]  # P @ B: an orthonormal basis of what the data determine
+
+    spaces, out = {}, {}
+    for comp in [*COMPONENTS, *SQUARENESS]:
+        axis = reading_axis(comp)
+        lo, hi = travel[axis]
+        base = {"kind": kind_of(comp), "aliased_with": [], "aliased_with_effects": []}
+        if hi - lo < 3 * PERIOD_MIN:
+            out[comp] = {**base, "status": "invisible", "shapes_determined": 0, "shapes_tried": 0,
+                         "singular_values": [], "why": f"the run does not move along {'XYZ'[axis]}"}
+            continue
+        specs = _report_spec(comp, lo, hi, kin)
+        J = np.column_stack([component_columns(problem, problem.base_obs, comp, sp.basis, kin, compact=True)
+                             * np.asarray(sp.prior) for sp in specs]) / sr[:, None]
+        C = Qr.T @ J
+        sv, B = space(J.T @ J - C.T @ C)
+        spaces[comp] = (J, C, B)
+        determined = B.shape[1]
+        out[comp] = {**base, "status": "determined" if determined else "invisible",
+                     "shapes_determined": int(determined), "shapes_tried": int(J.shape[1]),
+                     "singular_values": [float(x) for x in sv],
+                     "why": ("" if determined else
+                             "no shape of it moves the observables by 2 sigma at a typical size, beyond what the "
+                             "nuisances and the model's effects take up")}
+    names = [c for c in spaces if spaces[c][2].shape[1]]
     for i, a in enumerate(names):
+        Ja, Ca, Ba = spaces[a]
         for b in names[i + 1:]:
-            A, B = spaces[a], spaces[b]
-            if not A.shape[1] or not B.shape[1]:
-                continue
-            c = float(np.linalg.svd(A.T @ B, compute_uv=False)[0])
+            Jb, Cb, Bb = spaces[b]
+            c = float(np.linalg.svd(Ba.T @ (Ja.T @ Jb - Ca.T @ Cb) @ Bb, compute_uv=False)[0])
             if c > cos_alias:
                 out[a]["aliased_with"].append(b)
                 out[b]["aliased_with"].append(a)
+    # The library's named effects (not in the model: those are projected out already).
+    named = {n: J for n, J in getattr(problem, "columns", {}).items()
+             if n not in model.names and not is_map(problem.candidates.get(n))}
+    for n, Jn in named.items():
+        Jw = Jn / s[:, None]
+        Cn = W0q.T @ Jw
+        _, Bn = space(Jw.T @ Jw - Cn.T @ Cn)
+        if not Bn.shape[1]:
+            continue
+        Jwr = Jw[rows]
+        for comp in names:
+            Ja, Ca, Ba = spaces[comp]
+            c = float(np.linalg.svd(Ba.T @ (Ja.T @ Jwr - Ca.T @ Cn) @ Bn, compute_uv=False)[0])
+            if c > cos_alias:
+                out[comp]["aliased_with_effects"].append(n)
     for comp, r in out.items():
         if r["status"] == "determined" and r["aliased_with"]:
             r["status"] = "aliased"
+        if r["status"] != "invisible":
+            parts = []
+            if r["aliased_with"]:
+                parts.append(f"the run cannot tell it from {', '.join(r['aliased_with'])}")
+            if r["aliased_with_effects"]:
+                parts.append(f"it looks like the named effect{'s' if len(r['aliased_with_effects']) > 1 else ''} "
+                             f"{', '.join(r['aliased_with_effects'])}")
+            r["why"] = (f"{r['shapes_determined']} of {r['shapes_tried']} shapes determined"
+                        + (f"; {'; '.join(parts)}" if parts else ""))
     return out
 
 
@@ -534,7 +916,8 @@ _TABLE_SIGN = 1.0
 
 def corrected_maps(model):
     """``model``'s maps with its map corrections written into the component
-    tables (the other effects are not maps: they stay in the model). The
+    tables (translational components in um, angles in arc-seconds) and the
+    squareness (the other effects are not maps: they stay in the model). The
     tables keep their nodes: within the travel a correction spans, one node
     in from its ends, the maps correct as the model does; over the end
     intervals they interpolate linearly towards the value held beyond it.
@@ -543,6 +926,12 @@ def corrected_maps(model):
     -------
     ErrorMap or ErrorMapSet
         Write it with ``.write(path, format)`` (:mod:`cmmpose.mapfiles`).
+
+    Raises
+    ------
+    InputError
+        An angle's correction was found for another machine configuration
+        than the maps'.
     """
     from ..errormap import ErrorMap, ErrorMapSet
 
@@ -551,11 +940,74 @@ def corrected_maps(model):
     new = []
     for m in maps:
         tables = {c: m.table(c).copy() for c in "XYZ"}
+        sq = list(m.squareness)
         for spec, v in corr:
+            kind = spec.kind_of_component
+            if kind == "squareness":
+                sq[list(SQUARENESS).index(spec.component)] += _TABLE_SIGN * float(np.asarray(v, float)[0])
+                continue
+            if kind == "rotational" and spec.kinematics != m.kinematics:
+                raise InputError(f"map correction {spec.name}: found for a {spec.kinematics} machine, the maps "
+                                 f"are for {m.kinematics}")
             axis, d = COMPONENTS[spec.component]
             t = tables["XYZ"[axis]]
-            t[:, 1 + d] += _TABLE_SIGN * spec.function_um(t[:, 0], v)
-        out = ErrorMap(tables["X"], tables["Y"], tables["Z"], m.squareness, m.temperature,
+            t[:, (1 if kind == "translational" else 4) + d] += _TABLE_SIGN * spec.function_um(t[:, 0], v)
+        out = ErrorMap(tables["X"], tables["Y"], tables["Z"], tuple(sq), m.temperature,
                        source=f"{getattr(m, 'source', None) or 'maps'} + map corrections")
         new.append(out.with_kinematics(m.kinematics) if hasattr(out, "with_kinematics") else out)
     return ErrorMapSet(new) if isinstance(model.maps, ErrorMapSet) else new[0]
+
+
+# -- ranking map corrections on the rows they move -------------------------
+
+
+class _PaddedColumns(dict):
+    """A problem's columns at the kept rows, zero on the pseudo-rows (lazy)."""
+
+    def __init__(self, columns, keep, pts, n_pseudo):
+        super().__init__()
+        self._columns, self._keep, self._pts, self._n = columns, keep, pts, n_pseudo
+
+    def __missing__(self, name):
+        J = self._columns[name]
+        if np.any(J[self._pts]):
+            raise KeyError(f"{name}: moves the point residuals (not a centre-level column)")
+        out = self[name] = np.vstack([J[self._keep], np.zeros((self._n, J.shape[1]))])
+        return out
+
+
+def compressed_view(problem, r0: np.ndarray, X0: np.ndarray):
+    """``problem`` with each run's point residuals replaced by the R factor
+    of their ``[X0 | r0]``: at most ``X0.shape[1] + 1`` pseudo-rows a class
+    instead of thousands of points. A column that is zero on the point
+    residuals (a map correction's: centre level) keeps every inner product,
+    so every fit, likelihood ratio and uncertainty of such a candidate
+    against the model ``X0`` is the same on the view (an orthogonal
+    transformation of rows where it is zero), at a fraction of the cost.
+
+    Returns
+    -------
+    (view, r0, X0) : the view (a shallow copy of the problem whose
+    ``classes``, ``_class_rows`` and ``columns`` are the compressed ones;
+    its ``columns`` hold only what is zero on the point residuals), and r0
+    and X0 on its rows.
+    """
+    import copy
+
+    classes = problem.classes
+    pts = classes % 4 == 3
+    keep = np.flatnonzero(~pts)
+    xs, rs, cs = [X0[keep]], [r0[keep]], [classes[keep]]
+    k0 = X0.shape[1]
+    for c in np.unique(classes[pts]):
+        rows = problem._class_rows[c]
+        R = np.linalg.qr(np.column_stack([X0[rows], r0[rows]]), mode="r")
+        xs.append(R[:, :k0])
+        rs.append(R[:, k0])
+        cs.append(np.full(len(R), c))
+    view = copy.copy(problem)
+    view.classes = np.concatenate(cs)
+    view._class_rows = [np.flatnonzero(view.classes == c) for c in range(len(problem._class_rows))]
+    n_pseudo = len(view.classes) - len(keep)
+    view.columns = _PaddedColumns(problem.columns, keep, pts, n_pseudo)
+    return view, np.concatenate(rs), np.vstack(xs)

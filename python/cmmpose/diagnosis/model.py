@@ -5,6 +5,7 @@ Immutable: :meth:`Model.add` returns a new model."""
 from __future__ import annotations
 
 import json
+import math
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -12,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
+from .._json import dumps as strict_json
 from ..atomicfile import write_text
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError, InputTypeError, MapError
@@ -73,6 +75,10 @@ class Model:
     uncertainty: dict = field(default_factory=dict, compare=False, repr=False)
     temperature_policy: TemperaturePolicy | None = field(default=None, compare=False, repr=False)
     thermal: dict = field(default_factory=dict, compare=False, repr=False)
+    #: Effects the data the model was found on could not tell from one it
+    #: holds (:class:`cmmpose.diagnosis.aliases.Alternative`): saved, and
+    #: applying the model warns where they predict differently.
+    alternatives: tuple = field(default=(), compare=False, repr=False)
     _inputs_cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):
@@ -128,7 +134,9 @@ class Model:
         effects = [(s, v) for s, v in self.effects if s.name != spec.name]
         at = next((i for i, (s, _) in enumerate(self.effects) if s.name == spec.name), len(effects))
         effects.insert(at, (spec, values))
-        return replace(self, effects=tuple(effects), _inputs_cache=self._inputs_cache)
+        # Alternatives were fitted in place of the effect's values: a changed value leaves them behind.
+        alternatives = tuple(a for a in self.alternatives if a.chosen != spec.name)
+        return replace(self, effects=tuple(effects), alternatives=alternatives, _inputs_cache=self._inputs_cache)
 
     def without(self, name: str) -> Model:
         """A model without effect ``name``."""
@@ -224,7 +232,9 @@ class Model:
             X, Y, Z in mm, machine frame.
         """
         inputs = run if isinstance(run, RunInputs) else self.inputs(run)
-        needs_incidence = any(s.key == "incidence" and np.any(v != 0) for s, v in self.effects)
+        # Incidence angles come from a first pass through the model (the points' surface normals): computed only
+        # when an effect declares it needs them (``needs``) and is switched on.
+        needs_incidence = any("incidence" in s.needs and np.any(v != 0) for s, v in self.effects)
         if needs_incidence and inputs.incidence is None:
             inputs = inputs_with_incidence(self, inputs)
         digitizers = [digitizer(p[:3], p[3:]) for p in self.poses(inputs)]
@@ -282,6 +292,8 @@ class Model:
             **({"temperature_log": self.thermal} if self.thermal else {}),
             "effects": [{"name": s.name, "kind": s.kind, "params": dict(zip(s.params, map(float, v))),
                          "units": dict(zip(s.params, s.units))} | _uncertainty_entry(self, s) for s, v in self.effects],
+            **({"alternatives": [a.to_dict() for a in self.alternatives if a.chosen in self.names]}
+               if self.alternatives else {}),
         }
 
     def save(self, path) -> Path:
@@ -289,10 +301,15 @@ class Model:
         (:mod:`cmmpose.atomicfile`: ``OutputError`` on a full disk, the earlier
         file left whole)."""
         path = Path(path)
+        doc = self.to_dict()
+        if _holds_nan(doc):
+            raise InputError(f"{path}: the model holds a value that is not a number (NaN): not written")
         try:
-            text = json.dumps(self.to_dict(), indent=1, allow_nan=False)  # standard JSON only
+            # Standard JSON only (cmmpose._json): an undetermined uncertainty (inf) is written null and named
+            # in the top-level "non_finite" list; load reads null back as inf.
+            text = strict_json(doc, indent=1)
         except ValueError:
-            raise InputError(f"{path}: the model holds a value that is not finite (NaN or inf): not written") from None
+            raise InputError(f"{path}: the model holds a value that is not finite (inf): not written") from None
         write_text(path, text)
         return path
 
@@ -363,9 +380,12 @@ class Model:
                 if "uncertainty" in e:  # optional: null is a parameter the data did not determine
                     unc[name] = np.array([np.inf if e["uncertainty"].get(p) is None else float(e["uncertainty"][p])
                                           for p in spec.params])
+            alternatives = _saved_alternatives(doc.get("alternatives") or [], users, [s.name for s, _ in effects],
+                                               path)
             return cls(model_maps, tuple(effects), doc.get("temperature"), doc.get("out_of_range", "raise"),
                        doc.get("temperature_tolerance_K", TEMPERATURE_TOLERANCE), doc.get("log_hold_s", LOG_HOLD),
-                       unc, _saved_policy(doc.get("temperature_policy"), path), doc.get("temperature_log") or {})
+                       unc, _saved_policy(doc.get("temperature_policy"), path), doc.get("temperature_log") or {},
+                       alternatives)
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{path}: malformed model file ({type(e).__name__}: {e})") from None
 
@@ -396,6 +416,48 @@ def _keep_policy(model: Model) -> None:
                                                             log_hold=base.log_hold))
 
 
+def _saved_spec(name: str, kind, users: dict, path) -> EffectSpec:
+    """The spec of a saved effect named ``name`` (a map correction is rebuilt from its name)."""
+    if name.startswith("map:"):
+        from .mapfamily import parse as parse_map
+
+        return parse_map(name)
+    if kind == "python":
+        if name not in users:
+            raise InputError(f"{path}: effect {name!r} is user-defined; pass it in user_effects")
+        return users[name]
+    return resolve(name)
+
+
+def _saved_alternatives(entries, users: dict, names, path) -> tuple:
+    """The ``alternatives`` of a model file (files before them: none). An
+    alternative to an effect the model lacks is refused; a user-defined one
+    whose spec was not passed is left out, with a log line (the model still
+    applies; only the check of that alternative is lost)."""
+    from .aliases import Alternative
+
+    out = []
+    for i, e in enumerate(entries):
+        name, chosen = e["name"], e["chosen"]
+        if chosen not in names:
+            raise InputError(f"{path}: alternatives[{i}] ({name}) is an alternative to {chosen!r}, "
+                             f"which the model does not hold")
+        if e.get("kind") == "python" and name not in users:
+            import logging
+
+            logging.getLogger("cmmpose.diagnosis.aliases").warning(
+                "%s: the alternative %s to %s is user-defined and was not passed: it is not checked", path, name,
+                chosen)
+            continue
+        spec = _saved_spec(name, e.get("kind"), users, path)
+        values = [e["params"][p] for p in spec.params]
+        if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
+            raise InputError(f"{path}: alternatives[{i}] ({name}): a parameter is not a number")
+        out.append(Alternative(chosen, spec, np.array(values, float), float(e.get("in_sample_difference_um") or 0.0),
+                               str(e.get("reason", ""))))
+    return tuple(out)
+
+
 def _saved_policy(doc, path) -> TemperaturePolicy | None:
     if doc is None:  # files before the policy was saved whole
         return None
@@ -406,11 +468,20 @@ def _saved_policy(doc, path) -> TemperaturePolicy | None:
 
 
 def _uncertainty_entry(model: Model, spec: EffectSpec) -> dict:
-    """``{"uncertainty": {param: u}}`` of an effect whose uncertainty the model knows (null: undetermined)."""
+    """``{"uncertainty": {param: u}}`` of an effect whose uncertainty the model knows (inf: undetermined,
+    which :meth:`Model.save` writes null and names in ``non_finite``)."""
     u = model.uncertainty.get(spec.name)
     if u is None:
         return {}
-    return {"uncertainty": {p: (float(x) if np.isfinite(x) else None) for p, x in zip(spec.params, np.ravel(u))}}
+    return {"uncertainty": {p: (float(x) if np.isfinite(x) else math.inf) for p, x in zip(spec.params, np.ravel(u))}}
+
+
+def _holds_nan(obj) -> bool:
+    if isinstance(obj, dict):
+        return any(_holds_nan(v) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return any(_holds_nan(v) for v in obj)
+    return isinstance(obj, float) and math.isnan(obj)
 
 
 def _known(model: Model, effect) -> dict[str, EffectSpec]:

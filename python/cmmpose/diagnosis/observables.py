@@ -26,9 +26,9 @@ import numpy as np
 
 from ..errors import InputError
 from ..fitting import fit_spheres
-from ..metrics import b89_value, rms_accuracy_error
+from ..evaluation.metrics import b89_value, rms_accuracy_error
 from ..run import Run
-from ..artefact_evaluation import is_artefact_run
+from ..evaluation.artefact import is_artefact_run
 from .artefact import ArtefactLayout, artefact_deviations
 from .inputs import RunInputs
 

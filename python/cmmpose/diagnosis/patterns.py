@@ -33,7 +33,7 @@ from numbers import Real
 
 import numpy as np
 
-from .. import _core
+from .. import _core, effects
 from ..errors import InputError, InputTypeError
 from ..run import Run
 
@@ -387,26 +387,40 @@ def _json_list(a) -> list:
 
 
 # -- hints: which physics could make each pattern -------------------------------------
-_LENGTH_HINTS = {
-    **{a: (f"scanner latency (the two balls swept in opposite directions along {a[1]}), "
-           f"or drift along {a[1]} between the two balls' scans") for a in ("dx", "dy", "dz")},
-    **{f"d{a}^2": f"scale error {a} (or per-axis temperature {a})" for a in "xyz"},
-    "dx*dy": "squareness xy",
-    "dy*dz": "squareness yz (or granite gradient)",
-    "dz*dx": "squareness zx (or granite gradient)",
-    **{f"mid {a}": f"error varying along {a}: unmeasured roll, map error" for a in "xyz"},
-    "time": "thermal: per-axis temperature, artefact expansion, granite gradient",
-    "temperature": "thermal: per-axis temperature, artefact expansion, granite gradient",
+# Each quantity's hint: the effects that declare it (their ``hints``, in the registry's order, joined by "or") put
+# into the causes outside the effect library (drift, the map itself).
+_LENGTH_TEMPLATES = {
+    **{a: f"{{effects}}, or drift along {a[1]} between the two balls' scans" for a in ("dx", "dy", "dz")},
+    **{f"d{a}^2": "{effects}" for a in "xyz"},
+    "dx*dy": "{effects}", "dy*dz": "{effects}", "dz*dx": "{effects}",
+    **{f"mid {a}": f"error varying along {a}: {{effects}}, map error" for a in "xyz"},
+    "time": "thermal: {effects}",
+    "temperature": "thermal: {effects}",
 }
-_POINT_HINTS = {
-    "u": "scanner lateral scale",
-    "v": "scanner depth scale",
-    "incidence": "scanner incidence-angle error",
-    **{f"{c} in scan": f"machine error varying within a ball along {a}: map interpolation, unmeasured roll"
+_POINT_TEMPLATES = {
+    "u": "{effects}",
+    "v": "{effects}",
+    "incidence": "{effects}",
+    **{f"{c} in scan": f"machine error varying within a ball along {a}: map interpolation, {{effects}}"
        for c, a in zip("DEF", "xyz")},
-    "t in scan": "drift, or latency with non-uniform motion, during the sweep",
+    "t in scan": "drift, or {effects}, during the sweep",
     "temperature": "thermal: temperature sensitivity of scanner or machine",
 }
+
+
+def _hints(kind: str, templates: dict[str, str]) -> dict[str, str]:
+    """Quantity -> hint, from the effect files' declared ``hints`` (cmmpose.effects)."""
+    out = {}
+    for quantity, template in templates.items():
+        named = [cls.hints[kind][quantity] for cls in effects.available().values()
+                 if quantity in cls.hints.get(kind, {})]
+        text = " or ".join(dict.fromkeys(named))  # one phrase once, in the registry's order
+        out[quantity] = template.format(effects=text) if text else template.replace("{effects}", "no library effect")
+    return out
+
+
+_LENGTH_HINTS = _hints("length", _LENGTH_TEMPLATES)
+_POINT_HINTS = _hints("point", _POINT_TEMPLATES)
 
 
 def _scan_hint(observable: str, quantity: str, calibrated: bool) -> str:

@@ -45,7 +45,7 @@ import numpy as np
 
 from .. import artefacts
 from .._json import dumps as strict_json, finite_or_none
-from ..artefact_evaluation import is_artefact_run
+from ..evaluation.artefact import is_artefact_run
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import Error, InputError, InputTypeError
 from ..layouts import sweep_readings

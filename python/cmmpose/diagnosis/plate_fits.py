@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..artefact_evaluation import rigid_projection, rigid_fit
+from ..evaluation.artefact import rigid_projection, rigid_fit
 from ..artefacts import Artefact
 from .._csvtable import read_csv_table
 from ..errors import InputError

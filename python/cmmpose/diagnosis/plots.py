@@ -1,7 +1,7 @@
 """Figures of the diagnosis: residual patterns, ballbar length deviations,
 point residuals and the error falling as effects are added.
 
-Like :mod:`cmmpose.plots`, matplotlib is imported lazily (``pip install
+Like :mod:`cmmpose.evaluation.plots`, matplotlib is imported lazily (``pip install
 cmmpose[plot]``) and every figure is a plain Figure on an Agg canvas (no
 pyplot, headless-safe). Each function returns the Figure and also saves it
 when ``path`` is given. Deviations and residuals are in um (written ``µm``).
@@ -23,7 +23,7 @@ from os import PathLike
 import numpy as np
 
 from ..errors import InputError, InputTypeError
-from ..plots import new_figure, save_plot
+from ..evaluation.plots import new_figure, save_plot
 from .patterns import Pattern, Patterns
 
 __all__ = ["plot_patterns", "plot_length_deviation", "plot_point_residuals", "plot_history"]

@@ -20,8 +20,12 @@ parameter, named: the interface a measurement planner
   J (how many directions the run determines; the planner's criterion acts on
   the same matrix).
 
-Map corrections (:mod:`cmmpose.diagnosis.mapfamily`) are included when
-``map_corrections`` is true (their analytic centre-level columns).
+Map corrections (:mod:`cmmpose.diagnosis.mapfamily`: each of the 18
+per-axis components -- position errors, straightnesses and the three angles
+of each axis, e.g. ``"map:ez(X):poly[169,729].p1_as"`` in arc-seconds -- and
+the squarenesses when the library's named ``squareness`` is absent) are
+included when ``map_corrections`` is true (their analytic centre-level
+columns, linear in each shape's coefficients).
 """
 
 from __future__ import annotations

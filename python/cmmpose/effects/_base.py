@@ -66,6 +66,13 @@ class Effect:
         thermocouple role), 'poses>1'.
     channels : tuple of (str, str)
         Thermocouple channels (name, role) the effect brings to a run.
+    hints : dict of str -> dict of str -> str
+        How the effect shows in the residual patterns the diagnosis draws
+        (diagnosis/patterns.py): ``{"length": {quantity: phrase}, "point":
+        {quantity: phrase}}``, quantities such as ``'dx^2'``, ``'dx*dy'``,
+        ``'mid x'``, ``'time'`` (ballbar lengths) or ``'u'``, ``'incidence'``,
+        ``'D in scan'`` (point residuals). The pattern's hint names every
+        effect that declares its quantity.
     on_scanner : bool
         Whether its term acts on what the scanner reports (u, v): the
         simulator applies it to each profile rather than in the machine.
@@ -85,6 +92,7 @@ class Effect:
     channels: ClassVar[tuple[tuple[str, str], ...]] = ()
     on_scanner: ClassVar[bool] = False
     sensor_input: ClassVar[str | None] = None
+    hints: ClassVar[dict[str, dict[str, str]]] = {}
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -20,6 +20,7 @@ class ArtefactExpansion(Effect):
     """
 
     name: ClassVar[str] = "artefact-expansion"
+    hints: ClassVar[dict[str, dict[str, str]]] = {"length": {"time": "artefact expansion", "temperature": "artefact expansion"}}
     summary: ClassVar[str] = "the artefact's length follows the part temperature: L = L20 (1 + a (T - 20))"
     reveal: ClassVar[str] = "a calibrated bar length at 20 C, or runs at two temperatures"
     params: ClassVar[dict[str, Param]] = {"ppm_per_kelvin": Param("ppm/K", 5.0)}

@@ -23,6 +23,8 @@ class AxisTemperature(Effect):
     """
 
     name: ClassVar[str] = "axis-temperature"
+    hints: ClassVar[dict[str, dict[str, str]]] = {"length": {**{f"d{a}^2": f"per-axis temperature {a}" for a in "xyz"},
+                        "time": "per-axis temperature", "temperature": "per-axis temperature"}}
     summary: ClassVar[str] = ("each carriage's map taken at its own scale thermocouples instead of the machine mean "
                               "(gain 1: fully per axis)")
     reveal: ClassVar[str] = "axis-scale thermocouples that differ between axes (a run with a vertical gradient)"

@@ -22,6 +22,8 @@ class GraniteGradient(Effect):
     """
 
     name: ClassVar[str] = "granite-gradient"
+    hints: ClassVar[dict[str, dict[str, str]]] = {"length": {"dy*dz": "granite gradient", "dz*dx": "granite gradient", "time": "granite gradient",
+                        "temperature": "granite gradient"}}
     summary: ClassVar[str] = "granite top-minus-bottom gradient bending the base and changing squareness"
     reveal: ClassVar[str] = "a run over which the granite gradient changes (otherwise it equals a squareness offset)"
     params: ClassVar[dict[str, Param]] = {p: Param("arc-second/K", 5.0) for p in ("xy", "yz", "zx")}

@@ -19,6 +19,7 @@ class Incidence(Effect):
     """
 
     name: ClassVar[str] = "incidence"
+    hints: ClassVar[dict[str, dict[str, str]]] = {"point": {"incidence": "scanner incidence-angle error"}}
     summary: ClassVar[str] = "depth error growing with incidence angle and depth (thesis section 7.2)"
     reveal: ClassVar[str] = "a calibrated sphere radius"
     on_scanner: ClassVar[bool] = True

@@ -20,6 +20,9 @@ class Latency(Effect):
     """
 
     name: ClassVar[str] = "latency"
+    hints: ClassVar[dict[str, dict[str, str]]] = {"length": {a: f"scanner latency (the two balls swept in opposite directions along {a[1]})"
+                       for a in ("dx", "dy", "dz")},
+             "point": {"t in scan": "latency with non-uniform motion"}}
     summary: ClassVar[str] = "time between the scale latch and the profile: a shift of speed x latency along the sweep"
     reveal: ClassVar[str] = "the same ball swept in both directions (bidirectional sweeps)"
     params: ClassVar[dict[str, Param]] = {"seconds": Param("s", 0.005)}

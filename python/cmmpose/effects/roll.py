@@ -18,6 +18,8 @@ class Roll(Effect):
     """
 
     name: ClassVar[str] = "roll"
+    hints: ClassVar[dict[str, dict[str, str]]] = {"length": {f"mid {a}": "unmeasured roll" for a in "xyz"},
+             "point": {f"{c} in scan": "unmeasured roll" for c in "DEF"}}
     summary: ClassVar[str] = "unmeasured roll of each carriage, linear in travel, acting through the digitizer lever"
     reveal: ClassVar[str] = "a second digitizer pose with a different lever, or the bar along each axis at two heights"
     params: ClassVar[dict[str, Param]] = {p: Param("arc-second/m", 10.0) for p in ("x", "y", "z")}

@@ -17,6 +17,7 @@ class Scale(Effect):
     """
 
     name: ClassVar[str] = "scale"
+    hints: ClassVar[dict[str, dict[str, str]]] = {"length": {f"d{a}^2": f"scale error {a}" for a in "xyz"}}
     summary: ClassVar[str] = "scale error per axis not in the map (scale at another temperature, pitch)"
     reveal: ClassVar[str] = "a calibrated bar length (the common part of the three scale errors equals a length change)"
     params: ClassVar[dict[str, Param]] = {p: Param("ppm", 5.0) for p in ("x", "y", "z")}

@@ -17,6 +17,7 @@ class ScannerScale(Effect):
     """
 
     name: ClassVar[str] = "scanner-scale"
+    hints: ClassVar[dict[str, dict[str, str]]] = {"point": {"u": "scanner lateral scale", "v": "scanner depth scale"}}
     summary: ClassVar[str] = "triangulation scale errors across (u) and along (v) the beam"
     reveal: ClassVar[str] = "a calibrated sphere radius"
     on_scanner: ClassVar[bool] = True

@@ -18,6 +18,7 @@ class Squareness(Effect):
     """
 
     name: ClassVar[str] = "squareness"
+    hints: ClassVar[dict[str, dict[str, str]]] = {"length": {"dx*dy": "squareness xy", "dy*dz": "squareness yz", "dz*dx": "squareness zx"}}
     summary: ClassVar[str] = "the machine's squareness differs from the map's (relevelling, a crash)"
     reveal: ClassVar[str] = "ballbar positions on the face diagonals of each plane"
     params: ClassVar[dict[str, Param]] = {p: Param("arc-second", 5.0) for p in ("xy", "yz", "zx")}

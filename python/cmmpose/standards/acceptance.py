@@ -42,12 +42,13 @@ import numpy as np
 
 from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
-from .._validate import nonnegative
+from .._renamed import per_kelvin_to_ppm, renamed
+from .._validate import finite, nonnegative
 from ..errors import InputError, InputTypeError
-from ..evaluation import machine_coordinates, evaluate, machine_temperature, skipped_note
+from ..evaluation.ballbar import machine_coordinates, evaluate, machine_temperature, skipped_note
 from ..fitting import fit_sphere
-from ..metrics import STEEL_EXPANSION
-from ..plots import new_figure, save_plot
+from ..evaluation.metrics import STEEL_EXPANSION_PPM_PER_K
+from ..evaluation.plots import new_figure, save_plot
 from ..run import Run
 from ..temperature import TemperaturePolicy, as_policy, log_notes
 
@@ -222,7 +223,7 @@ class AcceptanceResult:
         and the positions skipped.
     skipped : tuple of dict
         Ballbar positions and scans left out as incomplete or ambiguous
-        (``skip_incomplete=True``; :func:`cmmpose.evaluation.ballbar_scans`).
+        (``skip_incomplete=True``; :func:`cmmpose.evaluation.ballbar.ballbar_scans`).
     temperature_log : dict or None
         How the run's temperatures were read from its thermocouple log
         (channels dropped and why, points held and how long, the channels
@@ -345,6 +346,8 @@ class AcceptanceResult:
         return save_plot(fig, path)
 
 
+@renamed(calibrated_length_mm="calibrated_length", calibrated_radius_mm="calibrated_radius",
+         reference_radius_mm="reference_radius", expansion=("expansion_ppm_per_K", per_kelvin_to_ppm))
 def acceptance_test(
     run: Run,
     maps: ErrorMap | ErrorMapSet | None = None,
@@ -353,13 +356,13 @@ def acceptance_test(
     mpe_form,
     mpe_size,
     mpe_length,
-    calibrated_length_mm: float | None = None,
-    calibrated_radius_mm: float | None = None,
-    reference_radius_mm: float | None = None,
+    calibrated_length: float | None = None,
+    calibrated_radius: float | None = None,
+    reference_radius: float | None = None,
     u_length_certificate_um: float = 0.0,
     u_diameter_certificate_um: float = 0.0,
     u_form_certificate_um: float = 0.0,
-    expansion: float = STEEL_EXPANSION,
+    expansion_ppm_per_K: float = STEEL_EXPANSION_PPM_PER_K,
     u_expansion_ppm_per_K: float = 1.0,
     u_part_temperature_K: float = 0.2,
     out_of_range: str | None = None,
@@ -383,13 +386,13 @@ def acceptance_test(
         MPEs of the probing form and size errors, um.
     mpe_length : str, float or MPE
         MPE of the length measurement error, um, e.g. ``'8+L/300'`` (L in mm).
-    calibrated_length_mm : float, optional
+    calibrated_length : float, optional
         Certified centre distance of the artefact at 20 C, mm; default the
         run's ``artefact['calibrated_length_mm']``. Without one, no length test.
-    calibrated_radius_mm : float, optional
+    calibrated_radius : float, optional
         Certified radius of the ballbar's balls, mm; default the run's
         ``artefact['calibrated_radius_mm']``. Without one, no probing test on the balls.
-    reference_radius_mm : float, optional
+    reference_radius : float, optional
         Certified radius of the reference sphere, mm; default the run's
         ``artefact['reference_sphere']['radius_mm']``.
     u_length_certificate_um : float
@@ -398,8 +401,9 @@ def acceptance_test(
         Standard uncertainty of a certified diameter, um.
     u_form_certificate_um : float
         Standard uncertainty of the spheres' form (certified form deviation), um.
-    expansion : float
-        Expansion coefficient of the artefact, 1/K.
+    expansion_ppm_per_K : float
+        Expansion coefficient of the artefact, ppm/K (``expansion=`` in 1/K is
+        its older spelling: converted, with a FutureWarning).
     u_expansion_ppm_per_K : float
         Standard uncertainty of the expansion coefficient, ppm/K.
     u_part_temperature_K : float
@@ -428,17 +432,18 @@ def acceptance_test(
     u_dia = nonnegative("u_diameter_certificate_um", u_diameter_certificate_um)
     u_frm = nonnegative("u_form_certificate_um", u_form_certificate_um)
     u_alpha = nonnegative("u_expansion_ppm_per_K", u_expansion_ppm_per_K)
+    expansion = finite("expansion_ppm_per_K", expansion_ppm_per_K) * 1e-6  # 1/K
     u_t = nonnegative("u_part_temperature_K", u_part_temperature_K)
     art = run.artefact
-    if calibrated_length_mm is None:
-        calibrated_length_mm = art.get("calibrated_length_mm")
-    if calibrated_radius_mm is None:
-        calibrated_radius_mm = art.get("calibrated_radius_mm")
-    if reference_radius_mm is None and isinstance(art.get("reference_sphere"), dict):
-        reference_radius_mm = art["reference_sphere"].get("radius_mm")
+    if calibrated_length is None:
+        calibrated_length = art.get("calibrated_length_mm")
+    if calibrated_radius is None:
+        calibrated_radius = art.get("calibrated_radius_mm")
+    if reference_radius is None and isinstance(art.get("reference_sphere"), dict):
+        reference_radius = art["reference_sphere"].get("radius_mm")
 
     policy = as_policy(temperature_policy, out_of_range=out_of_range)
-    ev = evaluate(run, maps, temperature, expansion=expansion, skip_incomplete=skip_incomplete,
+    ev = evaluate(run, maps, temperature, expansion_ppm_per_K=expansion_ppm_per_K, skip_incomplete=skip_incomplete,
                   temperature_policy=policy)
     res = ev.compensated if ev.compensated is not None else ev.uncompensated
     checks: list[Check] = []
@@ -447,8 +452,8 @@ def acceptance_test(
     unotes: list[str] = []
     U_form = 2 * u_frm
     U_size = 2 * u_dia
-    if calibrated_radius_mm is not None:
-        r_cal = float(calibrated_radius_mm)
+    if calibrated_radius is not None:
+        r_cal = float(calibrated_radius)
         for s in res.spheres:
             item = f"position {s.position} ball {s.ball} (scan {s.scan_id})"
             checks.append(Check.judged("probing form, single view", item, s.form * 1e3, mpes["mpe_form"].at(),
@@ -461,8 +466,8 @@ def acceptance_test(
         notes.append("no calibrated ball radius (artefact calibrated_radius_mm): no probing tests on the ballbar's balls")
 
     ref_ids = run.scans["scan_id"][run.scans["feature"] == "reference"] if len(run.scans["scan_id"]) else []
-    if len(ref_ids) and reference_radius_mm is not None:
-        checks += _reference_checks(run, maps, temperature, policy, np.asarray(ref_ids), float(reference_radius_mm),
+    if len(ref_ids) and reference_radius is not None:
+        checks += _reference_checks(run, maps, temperature, policy, np.asarray(ref_ids), float(reference_radius),
                                     mpes, U_form, U_size)
     elif len(ref_ids):
         notes.append("reference scans without a calibrated radius (artefact reference_sphere.radius_mm): "
@@ -470,8 +475,8 @@ def acceptance_test(
     else:
         notes.append("no scans of the reference sphere: no all-points probing tests")
 
-    if calibrated_length_mm is not None:
-        l_cal = float(calibrated_length_mm)
+    if calibrated_length is not None:
+        l_cal = float(calibrated_length)
         l20 = res.lengths_at_20c
         if not np.all(np.isfinite(l20)):
             raise InputError("temperature: the run has no temperature log; give the part temperature (C) for the "
@@ -530,7 +535,8 @@ def _reference_checks(run: Run, maps, temperature, policy, ref_ids: np.ndarray, 
     return out
 
 
-def probing_test(points, calibrated_radius_mm: float, *, mpe_form, mpe_size, u_form_certificate_um: float = 0.0,
+@renamed(calibrated_radius_mm="calibrated_radius")
+def probing_test(points, calibrated_radius: float, *, mpe_form, mpe_size, u_form_certificate_um: float = 0.0,
                  u_diameter_certificate_um: float = 0.0, item: str = "sphere scan") -> AcceptanceResult:
     """Probing form and size errors of one scan of a calibrated sphere (a
     single view; all points given are used, as the test asks), decided
@@ -541,7 +547,7 @@ def probing_test(points, calibrated_radius_mm: float, *, mpe_form, mpe_size, u_f
     points : array_like, shape (N, 3)
         The sphere's points, mm (segmented from a raw scan first, e.g. with
         ``cmmpose.fitting.e3125``; the caller's array is not modified).
-    calibrated_radius_mm : float
+    calibrated_radius : float
         Certified radius, mm.
     mpe_form, mpe_size : str, float or MPE
         MPEs of the probing form and size errors, um.
@@ -558,9 +564,9 @@ def probing_test(points, calibrated_radius_mm: float, *, mpe_form, mpe_size, u_f
         Two checks: probing form and probing size, single view.
     """
     mpes = {n: (v if isinstance(v, MPE) else parse_mpe(v, n)) for n, v in (("mpe_form", mpe_form), ("mpe_size", mpe_size))}
-    r_cal = float(calibrated_radius_mm)
+    r_cal = float(calibrated_radius)
     if not (math.isfinite(r_cal) and r_cal > 0):
-        raise InputError(f"calibrated_radius_mm: expected a positive radius in mm, got {calibrated_radius_mm!r}")
+        raise InputError(f"calibrated_radius: expected a positive radius in mm, got {calibrated_radius!r}")
     U_form = 2 * nonnegative("u_form_certificate_um", u_form_certificate_um)
     U_size = 2 * nonnegative("u_diameter_certificate_um", u_diameter_certificate_um)
     f = fit_sphere(points)

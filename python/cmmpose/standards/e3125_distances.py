@@ -30,7 +30,7 @@ import numpy as np
 from .._csvtable import read_csv_table
 from ..errors import InputError
 from ..fitting import e3125
-from ..plots import new_figure, save_plot
+from ..evaluation.plots import new_figure, save_plot
 from .acceptance import DECISION_RULE, MPE, decide
 
 #: The decision rule, with what the test uncertainty holds here.

@@ -32,10 +32,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._json import dumps as strict_json
+from .._renamed import per_kelvin_to_ppm, renamed
+from .._validate import finite
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError, InputTypeError
-from ..evaluation import evaluate, skipped_note
-from ..metrics import STEEL_EXPANSION
+from ..evaluation.ballbar import evaluate, skipped_note
+from ..evaluation.metrics import STEEL_EXPANSION_PPM_PER_K
 from ..run import Run
 from ..temperature import TemperaturePolicy, log_notes
 
@@ -112,7 +114,7 @@ class InterimCheck:
         (:func:`cmmpose.temperature.log_provenance`); None when given.
     skipped : tuple of dict
         Ballbar positions and scans left out as incomplete or ambiguous
-        (``skip_incomplete=True``; :func:`cmmpose.evaluation.ballbar_scans`).
+        (``skip_incomplete=True``; :func:`cmmpose.evaluation.ballbar.ballbar_scans`).
     """
 
     values: tuple[InterimValue, ...]
@@ -160,14 +162,15 @@ class InterimCheck:
         return t
 
 
+@renamed(calibrated_length_mm="calibrated_length", expansion=("expansion_ppm_per_K", per_kelvin_to_ppm))
 def interim_check(
     run: Run,
     maps: ErrorMap | ErrorMapSet | None = None,
     temperature: float | None = None,
     *,
-    calibrated_length_mm: float | None = None,
+    calibrated_length: float | None = None,
     u_length_certificate_um: float = 0.0,
-    expansion: float = STEEL_EXPANSION,
+    expansion_ppm_per_K: float = STEEL_EXPANSION_PPM_PER_K,
     u_expansion_ppm_per_K: float = 1.0,
     u_temperature_K: float = 0.2,
     out_of_range: str | None = None,
@@ -186,13 +189,14 @@ def interim_check(
         values are then beyond the maps'); without, of the raw machine.
     temperature : float, optional
         Machine temperature, C; default the run's log.
-    calibrated_length_mm : float, optional
+    calibrated_length : float, optional
         Certified bar length at 20 C, mm; default the run's
         ``artefact['calibrated_length_mm']``. Without one: scale mismatches.
     u_length_certificate_um : float
         Standard uncertainty of the certified length, um.
-    expansion : float
-        Bar expansion coefficient, 1/K.
+    expansion_ppm_per_K : float
+        Bar expansion coefficient, ppm/K (``expansion=`` in 1/K is its older
+        spelling: converted, with a FutureWarning).
     u_expansion_ppm_per_K : float
         Its standard uncertainty, ppm/K.
     u_temperature_K : float
@@ -223,9 +227,10 @@ def interim_check(
                     ("u_temperature_K", u_temperature_K)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
             raise InputError(f"{name}: expected a finite value >= 0, got {v!r}")
-    if calibrated_length_mm is None:
-        calibrated_length_mm = run.artefact.get("calibrated_length_mm")
-    ev = evaluate(run, maps, temperature, expansion=expansion, out_of_range=out_of_range, skip_incomplete=skip_incomplete,
+    if calibrated_length is None:
+        calibrated_length = run.artefact.get("calibrated_length_mm")
+    expansion = finite("expansion_ppm_per_K", expansion_ppm_per_K) * 1e-6  # 1/K
+    ev = evaluate(run, maps, temperature, expansion_ppm_per_K=expansion_ppm_per_K, out_of_range=out_of_range, skip_incomplete=skip_incomplete,
                   temperature_policy=temperature_policy)
     tlog = ev.provenance["temperature"].get("log")
     res = ev.compensated if ev.compensated is not None else ev.uncompensated
@@ -237,10 +242,10 @@ def interim_check(
         raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
     a = np.column_stack([-n[:, 0] ** 2, -n[:, 1] ** 2, -n[:, 2] ** 2, ARCSEC_PPM * n[:, 0] * n[:, 1],
                          ARCSEC_PPM * n[:, 1] * n[:, 2], ARCSEC_PPM * n[:, 2] * n[:, 0]])
-    absolute = calibrated_length_mm is not None
+    absolute = calibrated_length is not None
     notes = [n for n in (skipped_note(ev.skipped),) if n] + (log_notes(tlog) if tlog else [])
     if absolute:
-        ref = float(calibrated_length_mm)
+        ref = float(calibrated_length)
         y = (l20 - ref) / ref * 1e6  # ppm
         design, basis = a, np.eye(6)
     else:

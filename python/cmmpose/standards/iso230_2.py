@@ -53,7 +53,7 @@ from ..calibration.interferometer import (
 )
 from .._json import dumps as strict_json
 from ..errors import Error, InputError, InputTypeError, MapError, read_lines
-from ..plots import new_figure, save_plot
+from ..evaluation.plots import new_figure, save_plot
 
 __all__ = [
     "ISO230_2_CLAUSE",

@@ -1,5 +1,5 @@
 //! The compensation kernel's block paths: the same equations as the per-row
-//! path in [`crate::kernel`], the same IEEE operations in the same order (so
+//! path in [`crate::kernel`] (which drives them), the same IEEE operations in the same order (so
 //! the same bits), arranged so that the compiler can keep them in vector
 //! registers.
 //!
@@ -7,11 +7,13 @@
 //!   share one scale reading, time and temperature. The machine's error
 //!   state is computed once per run of equal rows; the points of the run then
 //!   go through one short loop with no branch and no call.
-//! * **Random readings.** Rows are taken 64 at a time: the maps are read
-//!   table by table into structure-of-arrays buffers (one map: every lane
-//!   located on the table at once; a map set: every lane's temperature
-//!   interval first, then the same), then the rotation and the lever are
-//!   computed for the whole block in straight-line loops.
+//! * **Random readings.** Rows are taken 64 at a time into a
+//!   structure-of-arrays block ([`crate::lanes`]): the maps are read table
+//!   by table (one map: every lane located on the table at once, see
+//!   [`crate::lanes::map_lanes`]; a map set: every lane's temperature
+//!   interval first, then the same, see [`crate::thermal`]), then the
+//!   rotation and the lever are computed for the whole block in
+//!   straight-line loops.
 //!
 //! A block path never reports an error itself: on anything unusual (a
 //! non-finite input, a reading outside a map, an angle past the series'
@@ -21,17 +23,13 @@
 use nalgebra::Vector3;
 
 use crate::effects::{Bound, MachineErrors, Temperatures};
-use crate::kernel::{position_error_at, Options, PointError, Report, Source};
-use crate::map::{CarriageTable, ErrorMap, Located};
+use crate::lanes::{Lanes, LANES};
 use crate::pose::Digitizer;
-use crate::thermal::ErrorMapSet;
+use crate::source::{position_error_at, Options, PointError, Report, Source};
 
-/// Rows of one structure-of-arrays block (random readings).
-const LANES: usize = 64;
-
-/// Largest |angle| (rad) for which [`tan_small`](crate::kernel::tan_small) takes its series.
+/// Largest |angle| (rad) for which [`tan_small`](crate::source::tan_small) takes its series.
 const TAN_SERIES: f64 = 1.0 / 64.0;
-/// Largest argument for which [`inv_sqrt_one_plus`](crate::kernel::inv_sqrt_one_plus) takes its series.
+/// Largest argument for which [`inv_sqrt_one_plus`](crate::source::inv_sqrt_one_plus) takes its series.
 const INV_SQRT_SERIES: f64 = 1e-6;
 
 /// One compensation call, as the block paths read it (with or without
@@ -101,14 +99,12 @@ impl<S: Source> Call<'_, S> {
         let mut j = 0;
         while j < n {
             let m = LANES.min(n - j);
-            for r in 0..m {
-                self.gather(start + j + r, r, &mut lanes)?;
-            }
             let first = start + j;
+            self.gather(first, m, &mut lanes)?;
             let t = self.temperature.map(|t| &t[first..first + m]);
             self.source
                 .fill_lanes(&mut lanes, t, m, &self.opts, &mut report)?;
-            if !lanes.solve(m, &self.arms, &mut block[3 * j..3 * (j + m)]) {
+            if !solve(&lanes, m, &self.arms, &mut block[3 * j..3 * (j + m)]) {
                 return None;
             }
             j += m;
@@ -226,27 +222,49 @@ impl<S: Source> Call<'_, S> {
         finite
     }
 
-    /// Row `i` into lane `r`: its reading and lever. `None` on a
-    /// non-finite input.
+    /// Rows `first..first + m` into the lanes: readings and levers, loop
+    /// by loop over the block. `None` on a non-finite input.
     #[inline(always)]
-    fn gather(&self, i: usize, r: usize, lanes: &mut Lanes) -> Option<()> {
-        let s = self.reading(i);
-        let (u, v) = (self.uv[2 * i], self.uv[2 * i + 1]);
-        let t = self.temperature.map_or(f64::NAN, |t| t[i]);
-        let finite = s.iter().all(|x| x.is_finite())
-            && u.is_finite()
-            && v.is_finite()
-            && (self.temperature.is_none() || t.is_finite());
+    fn gather(&self, first: usize, m: usize, lanes: &mut Lanes) -> Option<()> {
+        let scales = &self.scales[3 * first..3 * (first + m)];
+        let uv = &self.uv[2 * first..2 * (first + m)];
+        let mut finite = true;
+        for (r, s) in scales.chunks_exact(3).enumerate() {
+            for (lane, &value) in lanes.s.iter_mut().zip(s) {
+                lane[r] = value;
+                finite &= value.is_finite();
+            }
+        }
+        for p in uv {
+            finite &= p.is_finite();
+        }
+        if let Some(t) = self.temperature {
+            for x in &t[first..first + m] {
+                finite &= x.is_finite();
+            }
+        }
         if !finite {
             return None;
         }
-        for (lane, value) in lanes.s.iter_mut().zip(s) {
-            lane[r] = value;
-        }
-        let d = &self.digitizers[self.pose_index.map_or(0, |p| p[i] as usize)];
-        let l = d.lever(u, v);
-        for a in 0..3 {
-            lanes.lever[a][r] = l[a];
+        // Digitizer::lever's operations, (origin + u_dir u) + v_dir v.
+        let lever = |r: usize, d: &Digitizer, lanes: &mut Lanes| {
+            let (u, v) = (uv[2 * r], uv[2 * r + 1]);
+            for a in 0..3 {
+                lanes.lever[a][r] = (d.origin[a] + d.u_dir[a] * u) + d.v_dir[a] * v;
+            }
+        };
+        match self.pose_index {
+            None => {
+                let d = &self.digitizers[0];
+                for r in 0..m {
+                    lever(r, d, lanes);
+                }
+            }
+            Some(p) => {
+                for (r, &k) in p[first..first + m].iter().enumerate() {
+                    lever(r, &self.digitizers[k as usize], lanes);
+                }
+            }
         }
         Some(())
     }
@@ -278,249 +296,67 @@ fn profile_points(
     finite
 }
 
-/// Segment and offset of the first `m` lanes' readings `x` on `table`, all
-/// inside its range (the operations of `CarriageTable::locate_inside`).
+/// [`PointError::new`] and the point, for the first `m` lanes, written
+/// row-major into `out`. The series of `tan_small` and
+/// `inv_sqrt_one_plus` are taken without their branch; a lane outside
+/// their range or a non-finite result returns false (checked in the one
+/// vector loop; the copy into `out` is a plain interleave).
 #[inline(always)]
-fn locate_lanes(
-    table: &CarriageTable,
-    x: &[f64; LANES],
-    m: usize,
-    segment: &mut [usize; LANES],
-    offset: &mut [f64; LANES],
-) {
-    if let Some((first, inv, last)) = table.uniform_grid() {
-        // locate_inside's segment, (x - first) / pitch truncated: every
-        // reading is inside, so the quotient is a small non-negative
-        // number and a plain truncation gives what `as usize` does.
-        for (k, &x) in segment.iter_mut().zip(x).take(m) {
-            let q = (x - first) * inv;
-            debug_assert!((0.0..=(last + 1) as f64 * 1.000_001).contains(&q));
-            // SAFETY: q is finite and within [0, last + 1] (see above), far
-            // inside i32 (a table has fewer than 2^31 positions); i32 is the
-            // width AVX converts four lanes of at once.
-            *k = (unsafe { q.to_int_unchecked::<i32>() } as usize).min(last);
-        }
-        for ((o, &x), &k) in offset.iter_mut().zip(x).zip(segment.iter()).take(m) {
-            *o = x - table.positions()[k];
-        }
-    } else {
-        for r in 0..m {
-            let at = table.locate_inside(x[r]);
-            segment[r] = at.segment;
-            offset[r] = at.offset;
-        }
-    }
-}
-
-/// The components of one map for the first `m` lanes, table by table:
-/// locate every lane's reading, then interpolate (the operations of
-/// `CarriageTable::locate` and `at`). `None` if a reading is outside its
-/// table.
-#[inline(always)]
-pub(crate) fn map_lanes(map: &ErrorMap, lanes: &mut Lanes, m: usize) -> Option<()> {
+fn solve(lanes: &Lanes, m: usize, arms: &[[f64; 3]; 3], out: &mut [f64]) -> bool {
+    let [cx, cy, cz] = &lanes.c;
     let mut inside = true;
-    for (a, table) in map.tables().iter().enumerate() {
-        let (lo, hi) = table.range();
-        let mut segment = [0usize; LANES];
-        let mut offset = [0.0; LANES];
-        for r in 0..m {
-            inside &= (lanes.s[a][r] >= lo) & (lanes.s[a][r] <= hi);
-        }
-        if !inside {
-            return None;
-        }
-        locate_lanes(table, &lanes.s[a], m, &mut segment, &mut offset);
-        for r in 0..m {
-            let (v, slope) = table.segment(segment[r]);
-            for k in 0..6 {
-                lanes.c[a][k][r] = v[k] + offset[r] * slope[k];
-            }
-        }
-    }
-    let sq = map.squareness();
-    for (lane, value) in lanes.sq.iter_mut().zip(sq) {
-        lane[..m].fill(value);
-    }
-    Some(())
-}
-
-/// The components of a map set for the first `m` lanes at temperatures `t`
-/// (C, one per lane): every lane's interval and offset in temperature
-/// first, then table by table as [`map_lanes`], each lane reading its
-/// interval's base and slope (the operations of the per-row path:
-/// `ErrorMapSet::interval_of`, `CarriageTable::locate`, `Interval::at` and
-/// `Interval::squareness`, so the same bits). The readings are located once
-/// for the whole block when its lanes share one grid: one interval (a
-/// machine's temperature moves slowly), or maps measured on the same
-/// positions; else lane by lane. `None` if a
-/// temperature is outside the set's range (held, clamped or extrapolated
-/// temperatures are counted per row: the per-row path does them) or a
-/// reading outside its table.
-#[inline(always)]
-pub(crate) fn set_lanes(set: &ErrorMapSet, lanes: &mut Lanes, t: &[f64], m: usize) -> Option<()> {
-    let t = &t[..m];
-    let (lo, hi) = set.temperature_range();
-    let mut inside = true;
-    for &x in t {
-        inside &= (x >= lo) & (x <= hi);
-    }
-    if !inside {
-        return None;
-    }
-    let intervals = set.intervals();
-    let Some(last) = intervals.len().checked_sub(1) else {
-        // A single map: every temperature inside its range is its own.
-        return map_lanes(&set.maps()[0], lanes, m);
-    };
-    let mut which = [0usize; LANES];
-    let mut dt = [0.0; LANES];
-    for ((w, d), &x) in which.iter_mut().zip(dt.iter_mut()).zip(t) {
-        // interval_of's branch-free count.
-        *w = intervals[..last]
-            .iter()
-            .map(|iv| (x > iv.t_hi) as usize)
-            .sum::<usize>();
-        *d = x - intervals[*w].t_lo;
-    }
-    let shared = which[1..m].iter().all(|&w| w == which[0]);
-    for a in 0..3 {
-        let mut segment = [0usize; LANES];
-        let mut offset = [0.0; LANES];
-        if shared || set.shared_grid(a) {
-            // One grid for every lane: located once for the block.
-            let table = &intervals[which[0]].base.tables()[a];
-            let (lo, hi) = table.range();
-            for r in 0..m {
-                inside &= (lanes.s[a][r] >= lo) & (lanes.s[a][r] <= hi);
-            }
-            if !inside {
-                return None;
-            }
-            locate_lanes(table, &lanes.s[a], m, &mut segment, &mut offset);
-        } else {
-            for r in 0..m {
-                let at = intervals[which[r]].base.tables()[a].locate(lanes.s[a][r])?;
-                segment[r] = at.segment;
-                offset[r] = at.offset;
-            }
-        }
-        for r in 0..m {
-            let loc = Located {
-                segment: segment[r],
-                offset: offset[r],
-            };
-            let c = intervals[which[r]].at(a, loc, dt[r]);
-            for k in 0..6 {
-                lanes.c[a][k][r] = c[k];
-            }
-        }
-    }
+    let mut x = [[0.0; LANES]; 3];
     for r in 0..m {
-        let sq = intervals[which[r]].squareness(dt[r]);
-        for k in 0..3 {
-            lanes.sq[k][r] = sq[k];
-        }
+        let s = [lanes.s[0][r], lanes.s[1][r], lanes.s[2][r]];
+        let c = [
+            std::array::from_fn(|k| cx[k][r]),
+            std::array::from_fn(|k| cy[k][r]),
+            std::array::from_fn(|k| cz[k][r]),
+        ];
+        let sq = [lanes.sq[0][r], lanes.sq[1][r], lanes.sq[2][r]];
+        let [ex, ey, ez] = position_error_at(s, &c, sq, arms);
+        let ax = cx[3][r] + cy[3][r] + cz[3][r];
+        let ay = cx[4][r] + cy[4][r] + cz[4][r];
+        let az = cx[5][r] + cy[5][r] + cz[5][r];
+        inside &= (ax.abs() < TAN_SERIES) & (ay.abs() < TAN_SERIES) & (az.abs() < TAN_SERIES);
+        let tx = tan_series(ax);
+        let ty = tan_series(ay);
+        let tz = tan_series(az);
+        let a_z = tx * tx + ty * ty;
+        let xz = tx * tz - ty;
+        let a_x = tz * tz + xz * xz;
+        inside &= (a_z < INV_SQRT_SERIES) & (a_x < INV_SQRT_SERIES);
+        let nz = inv_sqrt_series(a_z);
+        let nx = inv_sqrt_series(a_x);
+        // Z_p = (ty, -tx, 1) nz; X_p = (1, tz, xz) nx; Y_p = Z_p x X_p.
+        let (zx, zy, zz) = (ty * nz, -tx * nz, 1.0 * nz);
+        let (xx, xy, xzz) = (1.0 * nx, tz * nx, xz * nx);
+        let yx = zy * xzz - zz * xy;
+        let yy = zz * xx - zx * xzz;
+        let yz = zx * xy - zy * xx;
+        let (lx, ly, lz) = (lanes.lever[0][r], lanes.lever[1][r], lanes.lever[2][r]);
+        // (S + e) + (X_p lx + Y_p ly + Z_p lz), in PointError::rotate's order.
+        x[0][r] = (lanes.s[0][r] + ex) + ((xx * lx + yx * ly) + zx * lz);
+        x[1][r] = (lanes.s[1][r] + ey) + ((xy * lx + yy * ly) + zy * lz);
+        x[2][r] = (lanes.s[2][r] + ez) + ((xzz * lx + yz * ly) + zz * lz);
+        inside &= x[0][r].is_finite() & x[1][r].is_finite() & x[2][r].is_finite();
     }
-    Some(())
+    for (r, o) in out.chunks_exact_mut(3).enumerate().take(m) {
+        o[0] = x[0][r];
+        o[1] = x[1][r];
+        o[2] = x[2][r];
+    }
+    inside
 }
 
-/// One block of rows in structure-of-arrays form.
-pub(crate) struct Lanes {
-    /// Scale readings D, E, F (mm).
-    pub(crate) s: [[f64; LANES]; 3],
-    /// Per carriage: dx, dy, dz (mm), ex, ey, ez (rad).
-    c: [[[f64; LANES]; 6]; 3],
-    /// Squareness S_xy, S_yz, S_zx (rad).
-    sq: [[f64; LANES]; 3],
-    /// E313 . ((u, v, 0) - l1) (mm).
-    lever: [[f64; LANES]; 3],
-}
-
-impl Default for Lanes {
-    fn default() -> Self {
-        Lanes {
-            s: [[0.0; LANES]; 3],
-            c: [[[0.0; LANES]; 6]; 3],
-            sq: [[0.0; LANES]; 3],
-            lever: [[0.0; LANES]; 3],
-        }
-    }
-}
-
-impl Lanes {
-    /// Lane `r`'s components and squareness.
-    #[inline(always)]
-    pub(crate) fn set(&mut self, r: usize, c: &[[f64; 6]; 3], sq: [f64; 3]) {
-        for a in 0..3 {
-            self.sq[a][r] = sq[a];
-            for (lane, value) in self.c[a].iter_mut().zip(c[a]) {
-                lane[r] = value;
-            }
-        }
-    }
-
-    /// [`PointError::new`] and the point, for the first `m` lanes, written
-    /// row-major into `out`. The series of `tan_small` and
-    /// `inv_sqrt_one_plus` are taken without their branch; a lane outside
-    /// their range (or a non-finite result) returns false.
-    #[inline(always)]
-    fn solve(&self, m: usize, arms: &[[f64; 3]; 3], out: &mut [f64]) -> bool {
-        let [cx, cy, cz] = &self.c;
-        let mut inside = true;
-        let mut x = [[0.0; LANES]; 3];
-        for r in 0..m {
-            let s = [self.s[0][r], self.s[1][r], self.s[2][r]];
-            let c = [
-                std::array::from_fn(|k| cx[k][r]),
-                std::array::from_fn(|k| cy[k][r]),
-                std::array::from_fn(|k| cz[k][r]),
-            ];
-            let sq = [self.sq[0][r], self.sq[1][r], self.sq[2][r]];
-            let [ex, ey, ez] = position_error_at(s, &c, sq, arms);
-            let ax = cx[3][r] + cy[3][r] + cz[3][r];
-            let ay = cx[4][r] + cy[4][r] + cz[4][r];
-            let az = cx[5][r] + cy[5][r] + cz[5][r];
-            inside &= (ax.abs() < TAN_SERIES) & (ay.abs() < TAN_SERIES) & (az.abs() < TAN_SERIES);
-            let tx = tan_series(ax);
-            let ty = tan_series(ay);
-            let tz = tan_series(az);
-            let a_z = tx * tx + ty * ty;
-            let xz = tx * tz - ty;
-            let a_x = tz * tz + xz * xz;
-            inside &= (a_z < INV_SQRT_SERIES) & (a_x < INV_SQRT_SERIES);
-            let nz = inv_sqrt_series(a_z);
-            let nx = inv_sqrt_series(a_x);
-            // Z_p = (ty, -tx, 1) nz; X_p = (1, tz, xz) nx; Y_p = Z_p x X_p.
-            let (zx, zy, zz) = (ty * nz, -tx * nz, 1.0 * nz);
-            let (xx, xy, xzz) = (1.0 * nx, tz * nx, xz * nx);
-            let yx = zy * xzz - zz * xy;
-            let yy = zz * xx - zx * xzz;
-            let yz = zx * xy - zy * xx;
-            let (lx, ly, lz) = (self.lever[0][r], self.lever[1][r], self.lever[2][r]);
-            // (S + e) + (X_p lx + Y_p ly + Z_p lz), in PointError::rotate's order.
-            x[0][r] = (self.s[0][r] + ex) + ((xx * lx + yx * ly) + zx * lz);
-            x[1][r] = (self.s[1][r] + ey) + ((xy * lx + yy * ly) + zy * lz);
-            x[2][r] = (self.s[2][r] + ez) + ((xzz * lx + yz * ly) + zz * lz);
-        }
-        let mut finite = true;
-        for (r, o) in out.chunks_exact_mut(3).enumerate().take(m) {
-            o[0] = x[0][r];
-            o[1] = x[1][r];
-            o[2] = x[2][r];
-            finite &= x[0][r].is_finite() & x[1][r].is_finite() & x[2][r].is_finite();
-        }
-        inside & finite
-    }
-}
-
-/// The series branch of [`tan_small`](crate::kernel::tan_small), with the same operations.
+/// The series branch of [`tan_small`](crate::source::tan_small), with the same operations.
 #[inline(always)]
 fn tan_series(x: f64) -> f64 {
     let x2 = x * x;
     x + x * x2 * (1.0 / 3.0 + x2 * (2.0 / 15.0 + x2 * (17.0 / 315.0)))
 }
 
-/// The series branch of [`inv_sqrt_one_plus`](crate::kernel::inv_sqrt_one_plus), with the same operations.
+/// The series branch of [`inv_sqrt_one_plus`](crate::source::inv_sqrt_one_plus), with the same operations.
 #[inline(always)]
 fn inv_sqrt_series(a: f64) -> f64 {
     1.0 - a * (0.5 - 0.375 * a)
@@ -529,9 +365,12 @@ fn inv_sqrt_series(a: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernel::{compensate_at_temperatures, inv_sqrt_one_plus, tan_small, OutOfRange};
-    use crate::map::Carriage;
+    use crate::kernel::compensate_at_temperatures;
+    use crate::lanes::PORTABLE;
+    use crate::map::{Carriage, CarriageTable, ErrorMap};
     use crate::pose::Pose;
+    use crate::source::{inv_sqrt_one_plus, tan_small, OutOfRange};
+    use crate::thermal::{set_lanes, ErrorMapSet};
 
     /// Uniform in [0, 1), a fixed sequence.
     struct Seq(f64);
@@ -611,6 +450,16 @@ mod tests {
 
     #[test]
     fn set_lanes_give_the_per_row_components_bit_for_bit() {
+        // The four-lane AVX path (where the CPU has AVX) and the portable
+        // loops alike.
+        for portable in [false, true] {
+            PORTABLE.with(|p| p.set(portable));
+            set_lanes_against_rows();
+        }
+        PORTABLE.with(|p| p.set(false));
+    }
+
+    fn set_lanes_against_rows() {
         let opts = Options::default();
         let mut q = Seq(0.123_456_789);
         for set in sets() {

@@ -525,6 +525,24 @@ mod tests {
     }
 
     #[test]
+    fn with_temperature_refuses_what_new_refuses() {
+        let tables = || [0.0, 1.0, 2.0].map(|_| table(&[0.0, 25.0, 50.0]).unwrap());
+        let map = ErrorMap::new(tables(), [1.5, -2.0, 0.25], None).unwrap();
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let e = map.clone().with_temperature(Some(bad)).unwrap_err();
+            let n = ErrorMap::new(tables(), [1.5, -2.0, 0.25], Some(bad)).unwrap_err();
+            assert_eq!(e.to_string(), n.to_string());
+            assert!(
+                e.to_string().contains("temperature") && e.to_string().contains("not finite"),
+                "{e}"
+            );
+        }
+        let warm = map.clone().with_temperature(Some(21.5)).unwrap();
+        assert_eq!(warm.temperature(), Some(21.5));
+        assert_eq!(warm.with_temperature(None).unwrap().temperature(), None);
+    }
+
+    #[test]
     fn clamping_reports_and_holds_end_values() {
         let t = table(&[0.0, 25.0, 50.0]).unwrap();
         let (l, c) = t.locate_clamped(60.0);

@@ -6,10 +6,19 @@
 //! (exact, since both are piecewise linear there) and keep a base map and a
 //! per-degree slope map. A point at temperature T then costs one table lookup
 //! of base and slope.
+//!
+//! Everything a set does lives here: the temperature policy per point
+//! (`at_with`, held / clamped / extrapolated temperatures), the `Source`
+//! the kernel reads it through, and a block of rows at once (`set_lanes`).
 
+use crate::effects::Temperatures;
 use crate::error::{CoreError, Result};
 use crate::kinematics::Kinematics;
+#[cfg(target_arch = "x86_64")]
+use crate::lanes::set_rows_avx;
+use crate::lanes::{map_lanes, use_avx, Lanes, LANES};
 use crate::map::{Carriage, CarriageTable, Components, ErrorMap, Located};
+use crate::source::{axis_error, Evaluated, Miss, Options, OutOfRange, Report, Source};
 
 /// Base map at `t_lo` and its rate of change per degree C up to `t_hi`.
 #[derive(Debug, Clone)]
@@ -51,8 +60,14 @@ impl Interval {
 
     #[inline(always)]
     pub fn at(&self, carriage: usize, loc: Located, dt: f64) -> Components {
-        let r = &self.packed[carriage][loc.segment];
-        let x = loc.offset;
+        Self::row_at(&self.packed[carriage][loc.segment], loc.offset, dt)
+    }
+
+    /// The components of one packed segment row at `x` mm into the segment
+    /// and `dt` C above `t_lo`: (base + x . per mm) + dt . (slope + x .
+    /// slope per mm), the one formula of the per-row and the lane paths.
+    #[inline(always)]
+    fn row_at(r: &[f64; 24], x: f64, dt: f64) -> Components {
         std::array::from_fn(|k| (r[k] + x * r[6 + k]) + dt * (r[12 + k] + x * r[18 + k]))
     }
 
@@ -248,19 +263,6 @@ impl ErrorMapSet {
         )
     }
 
-    /// The intervals between neighbouring maps, coldest first (none for a
-    /// single map).
-    #[inline(always)]
-    pub(crate) fn intervals(&self) -> &[Interval] {
-        &self.intervals
-    }
-
-    /// Whether every interval's table of carriage `a` has the same grid.
-    #[inline(always)]
-    pub(crate) fn shared_grid(&self, a: usize) -> bool {
-        self.shared_grid[a]
-    }
-
     /// Which interval holds `t` (already inside the range) and the offset
     /// from its lower temperature. `None` when the set has a single map.
     #[inline]
@@ -321,16 +323,334 @@ impl ErrorMapSet {
     /// for all 21 components. Outside the range: an error, or the end map
     /// when `clamp` is set (no tolerance; see [`ErrorMapSet::at_with`]).
     pub fn at(&self, t: f64, clamp: bool) -> Result<ErrorMap> {
-        let opts = crate::kernel::Options {
+        let opts = Options {
             out_of_range: if clamp {
-                crate::kernel::OutOfRange::Clamp
+                OutOfRange::Clamp
             } else {
-                crate::kernel::OutOfRange::Raise
+                OutOfRange::Raise
             },
             ..Default::default()
         };
         Ok(self.at_with(t, &opts)?.0)
     }
+}
+
+impl Source for ErrorMapSet {
+    fn kinematics(&self) -> Kinematics {
+        ErrorMapSet::kinematics(self)
+    }
+
+    /// Interval by interval, table by table over the lanes (see
+    /// [`set_lanes`]).
+    #[inline(always)]
+    fn fill_lanes(
+        &self,
+        lanes: &mut Lanes,
+        t: Option<&[f64]>,
+        m: usize,
+        opts: &Options,
+        _report: &mut Report,
+    ) -> Option<()> {
+        // Clamping counts per row: that case goes row by row.
+        if opts.out_of_range == OutOfRange::Clamp {
+            return None;
+        }
+        set_lanes(self, lanes, t?, m)
+    }
+
+    #[inline(always)]
+    fn miss_error(
+        &self,
+        miss: Miss,
+        row: usize,
+        s: [f64; 3],
+        t: &Temperatures,
+        opts: &Options,
+    ) -> CoreError {
+        match miss {
+            Miss::Temperature(value) => {
+                let (lo, hi) = self.temperature_range();
+                CoreError::TemperatureOutOfRange {
+                    row: Some(row),
+                    value,
+                    lo,
+                    hi,
+                    tolerance: opts.temperature_tolerance,
+                }
+            }
+            // Every interval's grid is the same common range, so any map names it.
+            Miss::Axis(a) => match self.interval_of(self.clamp_temperature(t.squareness).0) {
+                Some((iv, _)) => axis_error(&iv.base, a, row, s),
+                None => axis_error(&self.maps()[0], a, row, s),
+            },
+        }
+    }
+
+    #[inline(always)]
+    fn components(
+        &self,
+        s: [f64; 3],
+        t: &Temperatures,
+        opts: &Options,
+        report: &mut Report,
+    ) -> std::result::Result<Evaluated, Miss> {
+        let mut fate = Fate::Inside;
+        let tc = self.resolve(t.squareness, opts, &mut fate)?;
+        // Carriages at their own temperatures (an effect's choice) look up
+        // their own interval; the usual case shares the squareness one.
+        let uniform = t.map == [t.squareness; 3];
+        let mut per_axis = [tc; 3];
+        if !uniform {
+            for (a, slot) in per_axis.iter_mut().enumerate() {
+                *slot = self.resolve(t.map[a], opts, &mut fate)?;
+            }
+        }
+        fate.count(report);
+        let Some((iv, dt)) = self.interval_of(tc) else {
+            // A single map holds at its own temperature (and within the tolerance).
+            return self.maps()[0].components(s, t, opts, report);
+        };
+        let clamp = opts.out_of_range == OutOfRange::Clamp;
+        let mut c = [[0.0; 6]; 3];
+        for a in 0..3 {
+            let (iva, dta) = if uniform {
+                (iv, dt)
+            } else {
+                self.interval_of(per_axis[a])
+                    .expect("a set of two or more maps has intervals")
+            };
+            let table = &iva.base.tables()[a];
+            let loc = if clamp {
+                let (loc, moved) = table.locate_clamped(s[a]);
+                report.clamped_position[a] += moved as usize;
+                loc
+            } else {
+                table.locate(s[a]).ok_or(Miss::Axis(a))?
+            };
+            c[a] = iva.at(a, loc, dta);
+        }
+        Ok((c, iv.squareness(dt)))
+    }
+}
+
+/// What happened to one point's temperatures (the worst of its carriages').
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Fate {
+    Inside,
+    Held,
+    Clamped,
+    Extrapolated(f64),
+}
+
+impl Fate {
+    #[inline(always)]
+    fn worse(&mut self, other: Fate) {
+        let rank = |f: &Fate| match f {
+            Fate::Inside => 0,
+            Fate::Held => 1,
+            Fate::Clamped => 2,
+            Fate::Extrapolated(_) => 3,
+        };
+        *self = match (*self, other) {
+            (Fate::Extrapolated(a), Fate::Extrapolated(b)) => Fate::Extrapolated(a.max(b)),
+            (a, b) if rank(&b) > rank(&a) => b,
+            (a, _) => a,
+        };
+    }
+
+    #[inline(always)]
+    fn count(self, report: &mut Report) {
+        match self {
+            Fate::Inside => {}
+            Fate::Held => report.held_temperature += 1,
+            Fate::Clamped => report.clamped_temperature += 1,
+            Fate::Extrapolated(d) => {
+                report.extrapolated_temperature += 1;
+                report.max_extrapolation = report.max_extrapolation.max(d);
+            }
+        }
+    }
+}
+
+impl ErrorMapSet {
+    /// The map at temperature `t` (C) under `opts` (tolerance, clamp or
+    /// extrapolate, as per point), and what happened to it, counted as one
+    /// point of a [`Report`].
+    pub fn at_with(&self, t: f64, opts: &Options) -> Result<(ErrorMap, Report)> {
+        if !t.is_finite() {
+            return Err(CoreError::NonFinite {
+                argument: "temperature".into(),
+                row: 0,
+            });
+        }
+        let mut fate = Fate::Inside;
+        let tu = self.resolve(t, opts, &mut fate).map_err(|_| {
+            let (lo, hi) = self.temperature_range();
+            CoreError::TemperatureOutOfRange {
+                row: None,
+                value: t,
+                lo,
+                hi,
+                tolerance: opts.temperature_tolerance,
+            }
+        })?;
+        let mut report = Report {
+            points: 1,
+            ..Default::default()
+        };
+        fate.count(&mut report);
+        report.clamped_points = (fate == Fate::Clamped) as usize;
+        if let Some(m) = self.maps().iter().find(|m| m.temperature() == Some(tu)) {
+            return Ok((m.clone(), report));
+        }
+        let (iv, _) = self
+            .interval_of(tu)
+            .expect("a temperature off the maps' own ones needs two or more maps");
+        Ok((iv.blend(tu), report))
+    }
+
+    /// The temperature at which to read the maps for `t` (C) under `opts`:
+    /// inside the range as is; within the tolerance outside, held at the
+    /// edge; beyond it, an error, the edge (clamp) or `t` itself
+    /// (extrapolate, read off the end interval's slope).
+    #[inline(always)]
+    fn resolve(&self, t: f64, opts: &Options, fate: &mut Fate) -> std::result::Result<f64, Miss> {
+        let (tc, moved) = self.clamp_temperature(t);
+        if !moved {
+            return Ok(t);
+        }
+        let distance = (t - tc).abs();
+        if distance <= opts.temperature_tolerance {
+            fate.worse(Fate::Held);
+            return Ok(tc);
+        }
+        match opts.out_of_range {
+            OutOfRange::Raise => Err(Miss::Temperature(t)),
+            OutOfRange::Clamp => {
+                fate.worse(Fate::Clamped);
+                Ok(tc)
+            }
+            OutOfRange::Extrapolate if self.maps().len() > 1 => {
+                fate.worse(Fate::Extrapolated(distance));
+                Ok(t)
+            }
+            // One map has no slope to extend: it holds.
+            OutOfRange::Extrapolate => {
+                fate.worse(Fate::Clamped);
+                Ok(tc)
+            }
+        }
+    }
+}
+
+/// The components of a map set for the first `m` lanes at temperatures `t`
+/// (C, one per lane): every lane's interval and offset in temperature
+/// first, then table by table as [`map_lanes`], each lane reading its
+/// interval's base and slope (the operations of the per-row path:
+/// `ErrorMapSet::interval_of`, `CarriageTable::locate`, `Interval::at` and
+/// `Interval::squareness`, so the same bits). The readings are located once
+/// for the whole block when its lanes share one grid: one interval (a
+/// machine's temperature moves slowly), or maps measured on the same
+/// positions; else lane by lane. `None` if a temperature is outside the
+/// set's range (held, clamped or extrapolated temperatures are counted per
+/// row: the per-row path does them) or a reading outside its table.
+#[inline(always)]
+pub(crate) fn set_lanes(set: &ErrorMapSet, lanes: &mut Lanes, t: &[f64], m: usize) -> Option<()> {
+    let t = &t[..m];
+    let (lo, hi) = set.temperature_range();
+    let mut inside = true;
+    for &x in t {
+        inside &= (x >= lo) & (x <= hi);
+    }
+    if !inside {
+        return None;
+    }
+    let intervals = &set.intervals[..];
+    let Some(last) = intervals.len().checked_sub(1) else {
+        // A single map: every temperature inside its range is its own.
+        return map_lanes(&set.maps[0], lanes, m);
+    };
+    // interval_of's branch-free count, interval by interval over the
+    // lanes (one vector loop each; a set has a few intervals), then each
+    // lane's offset from its interval's lower temperature.
+    let mut which = [0usize; LANES];
+    let mut dt = [0.0; LANES];
+    for iv in &intervals[..last] {
+        for (w, &x) in which.iter_mut().zip(t) {
+            *w += (x > iv.t_hi) as usize;
+        }
+    }
+    for (i, iv) in intervals.iter().enumerate() {
+        for ((d, &w), &x) in dt.iter_mut().zip(&which).zip(t) {
+            *d = if w == i { x - iv.t_lo } else { *d };
+        }
+    }
+    let shared = which[1..m].iter().all(|&w| w == which[0]);
+    for a in 0..3 {
+        if shared || set.shared_grid[a] {
+            // One grid for every lane: located once for the block.
+            let table = &intervals[which[0]].base.tables()[a];
+            if !lanes.inside(a, m, table.range()) {
+                return None;
+            }
+            lanes.locate(a, table, m);
+        } else {
+            for r in 0..m {
+                let at = intervals[which[r]].base.tables()[a].locate(lanes.s[a][r])?;
+                lanes.segment[r] = at.segment;
+                lanes.offset[r] = at.offset;
+            }
+            lanes.pad(m);
+        }
+        #[cfg(target_arch = "x86_64")]
+        if use_avx() {
+            let segment = lanes.segment;
+            let row = |r: usize| &intervals[which[r]].packed[a][segment[r]];
+            // SAFETY: the CPU has AVX (checked above); every lane below the
+            // next multiple of four holds an interval (padding: the first)
+            // and a segment of its table (see `Lanes::pad`).
+            unsafe { set_rows_avx(row, &dt, lanes, a, m) };
+            continue;
+        }
+        if shared {
+            let packed = &intervals[which[0]].packed[a][..];
+            for (((row, &k), &x), &d) in lanes
+                .rows
+                .iter_mut()
+                .zip(&lanes.segment)
+                .zip(&lanes.offset)
+                .zip(&dt)
+                .take(m)
+            {
+                row[..6].copy_from_slice(&Interval::row_at(&packed[k], x, d));
+            }
+        } else {
+            for ((((row, &k), &x), &d), &w) in lanes
+                .rows
+                .iter_mut()
+                .zip(&lanes.segment)
+                .zip(&lanes.offset)
+                .zip(&dt)
+                .zip(&which)
+                .take(m)
+            {
+                row[..6].copy_from_slice(&Interval::row_at(&intervals[w].packed[a][k], x, d));
+            }
+        }
+        lanes.transpose(a, m);
+    }
+    // Interval::squareness, interval by interval over the lanes.
+    for (i, iv) in intervals.iter().enumerate() {
+        if !shared || i == which[0] {
+            let (b, s) = (iv.base.squareness(), iv.slope.squareness());
+            for (k, lane) in lanes.sq.iter_mut().enumerate() {
+                for ((q, &w), &d) in lane.iter_mut().zip(&which).zip(&dt).take(m) {
+                    *q = if w == i { b[k] + d * s[k] } else { *q };
+                }
+            }
+        }
+    }
+    Some(())
 }
 
 #[cfg(test)]

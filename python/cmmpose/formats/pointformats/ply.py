@@ -1,0 +1,286 @@
+"""PLY point files (the ``plyfile`` package, extra ``[pointcloud]``).
+
+Read: the ``vertex`` element, one column per scalar property under its own
+name (coordinates are ``x, y, z``); other elements (faces) are ignored. A
+binary file (either byte order) is memory-mapped and read chunk by chunk;
+an ASCII file is read whole by plyfile. Written: binary little endian
+(``"ply"``), ASCII (``"ply-ascii"``) or binary big endian
+(``"ply-big-endian"``), with properties ``x, y, z`` (double) and the extra
+columns. PLY has no 64-bit integers: an int64 or uint64 column is written as
+int32 or uint32 when its values fit, else refused. The header comes from
+plyfile; the body is written chunk by chunk, and the vertex count, known only
+at the end, is written into a fixed-width field of the header."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ...errors import InputError
+from . import PointFormat, register
+from ._common import ColumnWriter, arrow_table, check_file, require, release_pages
+from ..._lazy import LazyModule
+
+# Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
+pa_csv = LazyModule("pyarrow.csv")
+
+
+def _plyfile():
+    try:
+        import plyfile
+    except ImportError:
+        raise InputError("PLY files need the plyfile package: pip install 'cmmpose[pointcloud]'") from None
+    return plyfile
+
+
+def _header_lines(path: Path) -> int:
+    """Lines of the header up to and including ``end_header`` (0 if none):
+    to turn an ASCII element row into a line of the file."""
+    with path.open("rb") as f:
+        for k, line in enumerate(f, start=1):
+            if line.strip() == b"end_header":
+                return k
+            if k > 10_000:
+                break
+    return 0
+
+
+#: bytes: a body this much (beyond twice its size) shorter than its header declares is refused before reading.
+_SHORT_BODY = 1 << 20
+#: Bytes of each PLY scalar type (binary); list properties need at least their count's.
+_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
+              "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _check_counts(path: Path) -> None:
+    """``InputError`` when the header declares more rows than the file's size
+    can hold (at least two bytes per ASCII value, the type's size per binary
+    one): checked before anything is allocated for them (a header declaring
+    1e12 vertices is an error, not a 22 TiB allocation; a body short by
+    less than a factor 2 and 1 MiB is plyfile's "early end-of-file", naming
+    the row). A header this
+    cannot parse is left to plyfile, which names the line."""
+    fmt, need, body = None, [], 0
+    with path.open("rb") as f:
+        for _ in range(10_000):
+            line = f.readline()
+            if not line:
+                return
+            words = line.decode("ascii", "replace").split()
+            if words[:1] == ["format"] and len(words) > 1:
+                fmt = words[1]
+            elif words[:1] == ["element"] and len(words) == 3 and words[2].isdigit():
+                need.append([words[1], int(words[2]), 0])
+            elif words[:1] == ["property"] and need and len(words) >= 3:
+                kind = words[2] if words[1] == "list" and len(words) >= 5 else words[1]
+                if kind not in _PLY_SIZES:
+                    return
+                need[-1][2] += 2 if fmt == "ascii" else _PLY_SIZES[kind]
+            elif line.strip() == b"end_header":
+                body = path.stat().st_size - f.tell()
+                break
+        else:
+            return
+    total = 0
+    for name, count, row in need:
+        total += count * max(row, 1)
+        # a modestly short body is left to plyfile, which names the row where it ends
+        if total > 2 * body + _SHORT_BODY:
+            raise InputError(f"{path}: the PLY header declares {count:,} {name!r} rows, which need at least "
+                             f"{count * max(row, 1):,} bytes; the file holds {body:,} bytes after its header "
+                             f"(the count is wrong or the file is cut)")
+
+
+def read_ply(path: Path):
+    """The ``PlyData`` of ``path`` (binary data memory-mapped), or
+    ``InputError`` naming the file, the header line or the element row at
+    fault."""
+    plyfile = _plyfile()
+    _check_counts(path)
+    text = _format_line(path) == "ascii"
+    try:
+        # Opened here (text mode for ASCII, as plyfile would) so that where the
+        # declared elements end can be compared with where the file ends.
+        with path.open("r", encoding="ascii") if text else path.open("rb") as f:
+            data = plyfile.PlyData.read(f, mmap=True)
+            _check_no_more_rows(path, f, data, text)
+        return data
+    except plyfile.PlyHeaderParseError as exc:
+        raise InputError(f"{path}:{exc.line}: malformed PLY header: {exc.message}") from None
+    except plyfile.PlyElementParseError as exc:
+        where = f"element {exc.element.name!r}, row {exc.row}" if exc.element is not None else "data"
+        if exc.prop is not None:
+            where += f", property {exc.prop.name!r}"
+        ply_format = _format_line(path)
+        if ply_format == "ascii" and exc.row is not None:
+            where += f" (line {_header_lines(path) + _rows_before(path, exc.element) + exc.row + 1})"
+        message = exc.message
+        if message == "early end-of-file" and exc.element is not None and exc.row is not None:
+            message += (f": the header declares {exc.element.count} {exc.element.name!r} rows, the file holds "
+                        f"{exc.row}; the file is cut or its header is wrong")
+        raise InputError(f"{path}: PLY {where}: {message}") from None
+    except (ValueError, OSError, UnicodeDecodeError, IndexError, KeyError) as exc:
+        raise InputError(f"{path}: not a readable PLY file ({type(exc).__name__}: {exc})") from None
+
+
+def _check_no_more_rows(path: Path, f, data, text: bool) -> None:
+    """``InputError`` when the file ``f`` (just read by plyfile, positioned
+    after the declared elements) holds more data than its header declares:
+    plyfile reads the declared count and ignores the rest, which would
+    silently drop points (fewer rows than declared is plyfile's own
+    "early end-of-file")."""
+    declared = ", ".join(f"{e.count} {e.name!r}" for e in data.elements) or "no elements"
+    if text:
+        lineno = _header_lines(path) + sum(e.count for e in data.elements)
+        first, extra = 0, 0
+        for line in f:
+            lineno += 1
+            if line.strip():
+                extra += 1
+                first = first or lineno
+        if extra:
+            raise InputError(f"{path}:{first}: PLY body has {extra} rows beyond the header's count "
+                             f"(it declares {declared} rows); the header disagrees with the body")
+        return
+    end = f.tell()
+    size = f.seek(0, 2)
+    if size > end:
+        last = data.elements[-1] if data.elements else None
+        rows = ""
+        fixed = last is not None and not any(isinstance(q, _plyfile().PlyListProperty) for q in last.properties)
+        if fixed and (size - end) % last.data.dtype.itemsize == 0:
+            rows = f", {(size - end) // last.data.dtype.itemsize} more {last.name!r} rows"
+        raise InputError(f"{path}: PLY body has {size - end} bytes beyond the header's count{rows} "
+                         f"(it declares {declared} rows); the header disagrees with the body")
+
+
+def _format_line(path: Path) -> str | None:
+    with path.open("rb") as f:
+        for line in f:
+            words = line.split()
+            if words[:1] == [b"format"] and len(words) > 1:
+                return words[1].decode("ascii", "replace")
+            if line.strip() == b"end_header":
+                break
+    return None
+
+
+def _rows_before(path: Path, element) -> int:
+    """Rows of the elements before ``element`` (an ASCII file lists them first)."""
+    rows = 0
+    with path.open("rb") as f:
+        for line in f:
+            words = line.split()
+            if words[:1] == [b"element"] and len(words) >= 3:
+                if words[1].decode("ascii", "replace") == element.name:
+                    return rows
+                rows += int(words[2])
+            if line.strip() == b"end_header":
+                break
+    return rows
+
+
+def chunks(path: Path, chunk: int, need):
+    """The ``vertex`` element's scalar properties in chunks of at most ``chunk`` rows."""
+    path = check_file(path)
+    size = path.stat().st_size
+    data = read_ply(path)
+    try:
+        vertex = data["vertex"]
+    except KeyError:
+        raise InputError(f"{path}: no 'vertex' element (has {[e.name for e in data.elements]})") from None
+    lists = [p.name for p in vertex.properties if isinstance(p, _plyfile().PlyListProperty)]
+    if lists:
+        raise InputError(f"{path}: vertex properties {lists} are lists; expected one number per property")
+    v = vertex.data
+    require(path, v.dtype.names, need, "vertex properties")
+    return size, _chunks(v, chunk, size)
+
+
+def _chunks(v, chunk, size):
+    n = len(v)
+    for lo in range(0, max(n, 1), chunk):
+        hi = min(lo + chunk, n)
+        block = v[lo:hi]
+        cols = {c: np.array(block[c], dtype=v.dtype.fields[c][0].newbyteorder("=")) for c in v.dtype.names}
+        release_pages(block)  # copied out: its pages of the file leave resident memory
+        yield cols, int(size * hi / max(n, 1))
+
+
+#: Digits the vertex count is padded to in a written header.
+_COUNT_WIDTH = 20
+
+
+def _ply_dtype(dt: np.dtype) -> np.dtype:
+    """The PLY property type for a column of ``dt``: 64-bit integers narrowed
+    to 32 bits (the writer refuses values that do not fit), float16 as float."""
+    if dt.kind in "iu" and dt.itemsize == 8:
+        return np.dtype(np.int32 if dt.kind == "i" else np.uint32)
+    if dt.kind == "f" and dt.itemsize == 2:
+        return np.dtype(np.float32)
+    return dt
+
+
+class Writer(ColumnWriter):
+    """PLY, binary (either byte order) or ASCII."""
+
+    encoding = "binary_little_endian"
+
+    def _start(self):
+        plyfile = _plyfile()
+        order = {"binary_little_endian": "<", "binary_big_endian": ">", "ascii": "="}[self.encoding]
+        fields = [("x", "f8"), ("y", "f8"), ("z", "f8")] + [(n, _ply_dtype(dt))
+                                                              for n, dt in self.schema]
+        self.dtype = np.dtype([(n, np.dtype(t).newbyteorder(order if order != "=" else "<")) for n, t in fields])
+        element = plyfile.PlyElement.describe(np.empty(0, self.dtype), "vertex")
+        text = plyfile.PlyData([element], text=self.encoding == "ascii",
+                               byte_order=order).header
+        self.count_line = "element vertex 0"
+        if self.count_line not in text:  # pragma: no cover - plyfile's header layout
+            raise InputError(f"{self.path}: unexpected PLY header from plyfile")
+        self.header = text
+        self.f.write(self._header(0))
+
+    def _header(self, rows: int) -> bytes:
+        line = f"element vertex {rows}".ljust(len("element vertex ") + _COUNT_WIDTH)
+        return (self.header.replace(self.count_line, line, 1) + "\n").encode("ascii")
+
+    def _write(self, xyz, extras):
+        for n, v in extras.items():
+            narrow = self.dtype.fields[n][0]
+            if narrow.kind in "iu" and len(v) and v.dtype.itemsize > narrow.itemsize:
+                info = np.iinfo(narrow)
+                if v.min() < info.min or v.max() > info.max:
+                    raise InputError(f"{self.path}: column {n!r} holds values beyond PLY's {narrow.name} "
+                                     f"({v.min()}..{v.max()})")
+        if self.encoding == "ascii":
+            if len(xyz):
+                native = {n: v.astype(self.dtype.fields[n][0].newbyteorder("=")) for n, v in extras.items()}
+                table = arrow_table({"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], **native})
+                pa_csv.write_csv(table, self.f, pa_csv.WriteOptions(include_header=False, delimiter=" ",
+                                                                    quoting_style="none"))
+            return
+        rec = np.empty(len(xyz), self.dtype)
+        rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        for n, v in extras.items():
+            rec[n] = v
+        self.f.write(rec.tobytes())
+
+    def _finish(self):
+        self.f.seek(0)
+        self.f.write(self._header(self.rows))
+
+
+class AsciiWriter(Writer):
+    encoding = "ascii"
+
+
+class BigEndianWriter(Writer):
+    encoding = "binary_big_endian"
+
+
+_DESC = "PLY vertex element (plyfile)"
+register(PointFormat("ply", (".ply",), chunks, Writer, description=_DESC + "; written binary little endian"))
+register(PointFormat("ply-ascii", (), chunks, AsciiWriter, description=_DESC + "; written as ASCII"))
+register(PointFormat("ply-big-endian", (), chunks, BigEndianWriter, description=_DESC + "; written binary big endian"))
