@@ -143,7 +143,7 @@ def is_model(obj) -> bool:
 def _compensate_model(uv, scales, model, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance,
                       return_report, out, columns):
     """:func:`compensate` with a diagnosis model (its maps and effects)."""
-    from .diagnosis.apply import point_inputs, policy_model
+    from .diagnosis.apply import compensate_points, point_inputs, policy_model
     from .pose import MountOffset, Pose
 
     if out is not None or nan_policy != "raise":
@@ -158,7 +158,7 @@ def _compensate_model(uv, scales, model, pose, offset, temperature, out_of_range
         temperature = None if temperature is None else float(temperature)
     model = policy_model(model, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
     inputs = point_inputs(model, uv, scales, pose_t, offset_t, temperature, temps, dict(columns or {}), "points")
-    xyz, raw = model.compensate(inputs, return_report=True)
+    xyz, raw = compensate_points(model, inputs)
     return _finish(xyz, raw, return_report)
 
 

@@ -148,14 +148,14 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     def kernel(uv, scales, temps, extras=None):
         """One chunk through the kernel: its coordinates and report."""
         if model is not None:
-            from .diagnosis.apply import point_inputs, policy_model
+            from .diagnosis.apply import compensate_points, point_inputs, policy_model
 
             m = policy_model(model, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
             inputs = point_inputs(m, uv, scales, pose, offset, temperature, temps, extras, points_in)
             state["temperature"] = (f"{temperature:g} C" if temperature is not None else
                                     "per point (T column)" if temps is not None else None)
             t0 = time.perf_counter()
-            xyz, raw = m.compensate(inputs, return_report=True)
+            xyz, raw = compensate_points(m, inputs, points_in)
             state["kernel"] += time.perf_counter() - t0
             return xyz, KernelReport(**raw)
         if isinstance(maps, ErrorMapSet):

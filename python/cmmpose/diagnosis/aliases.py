@@ -246,17 +246,17 @@ def alternative_difference_um(model, alt: Alternative, inputs, run=None, xyz=Non
     return points_difference_um(other.compensate(inputs), model.compensate(inputs) if xyz is None else xyz)
 
 
-def check_alternatives(model, inputs, where: str = "run", run=None) -> list[dict]:
+def check_alternatives(model, inputs, where: str = "run", run=None, xyz=None) -> list[dict]:
     """Warn where an alternative of the model's choices predicts ``inputs``
     differently by more than its threshold (:class:`AliasedChoiceWarning`,
     and the ``cmmpose.diagnosis.aliases`` logger). Returns one dict per alternative
     compared (``chosen``, ``name``, ``difference_um``, ``threshold_um``,
-    ``warned``); empty when the model holds none."""
+    ``warned``); empty when the model holds none. ``xyz``: the model's
+    compensation of ``inputs`` when the caller has it (mm), not computed again."""
     alternatives = getattr(model, "alternatives", ())
     if not alternatives:
         return []
     out = []
-    xyz = None
     for alt in alternatives:
         if alt.chosen not in model.names:
             continue

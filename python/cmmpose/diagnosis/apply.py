@@ -41,7 +41,8 @@ from .aliases import check_alternatives
 from .inputs import RunInputs
 from .model import Model
 
-__all__ = ["POINT_COLUMNS", "check_run", "needs_scans", "point_inputs", "policy_model", "whole_scans"]
+__all__ = ["POINT_COLUMNS", "check_run", "compensate_points", "needs_scans", "point_inputs", "policy_model",
+           "whole_scans"]
 
 #: Point-file columns each kernel input is read from (module docstring).
 POINT_COLUMNS = {"axis_temperature": ("T_x_scale", "T_y_scale", "T_z_scale"),
@@ -264,11 +265,20 @@ def point_inputs(model: Model, uv: np.ndarray, scales: np.ndarray, pose, offset,
                        temperature=np.ascontiguousarray(mean), axis_temperature=axis_t, gradient=gradient,
                        velocity=np.ascontiguousarray(velocity), incidence=incidence, role_temperatures=role_t,
                        sensors=sensors)
+    return inputs
+
+
+def compensate_points(model: Model, inputs: RunInputs, path="points") -> tuple[np.ndarray, dict]:
+    """The model's compensation of a point file's inputs (:func:`point_inputs`):
+    ``(xyz, raw report)``; where the model keeps aliased alternatives, they
+    are compared on these points against the same ``xyz`` (compensated once)
+    and warn where they matter (:mod:`cmmpose.diagnosis.aliases`)."""
+    xyz, raw = model.compensate(inputs, return_report=True)
     if model.alternatives:
         # A file's chunks: once it has warned, the rest of the file is not compared again.
         key = ("aliased choice warned", str(path))
         if str(path) == "points" or key not in model._inputs_cache:
-            found = check_alternatives(model, inputs, str(path))
+            found = check_alternatives(model, inputs, str(path), xyz=xyz)
             if any(f["warned"] for f in found) and str(path) != "points":
                 model._inputs_cache[key] = (None, None)
-    return inputs
+    return xyz, raw

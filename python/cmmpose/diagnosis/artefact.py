@@ -26,7 +26,6 @@ import numpy as np
 from .. import artefacts
 from ..evaluation.artefact import ball_scans, rigid_fit
 from ..artefacts._base import line_distance
-from ..errors import Error
 from .model import inputs_with_incidence
 
 __all__ = ["ArtefactLayout", "artefact_columns", "artefact_deviations", "linearised_columns", "rigid_dof"]
@@ -275,17 +274,4 @@ def artefact_columns(problem, model, spec, current: np.ndarray, obs) -> np.ndarr
         d_point = along[observed] - np.einsum("ij,ij->i", normal[observed], d_centre[at]) - d_radius[at]
         return np.concatenate([d_first, d_repeat, d_radius, d_point])
 
-    cols = []
-    for j in range(spec.size):
-        for sign in (1.0, -1.0):
-            v = np.array(current, dtype=float)
-            v[j] += sign * spec.steps[j]
-            try:
-                moved = change(v)
-            except Error:
-                if sign < 0:
-                    raise
-                continue
-            cols.append(moved * sign * spec.prior[j] / spec.steps[j])
-            break
-    return np.column_stack(cols)
+    return spec.difference_columns(current, change)

@@ -197,20 +197,9 @@ class CVScore:
 def model_design(problem, model, extra: np.ndarray | None = None):
     """Nuisance and effect columns of ``model`` (plus ``extra`` columns),
     with the diagnosis's weak prior: ``(X, ridge, target)`` as
-    :meth:`Problem.wls` takes them."""
-    from .identify import PRIOR_WEIGHT
-
-    X0, index = problem.model_design(model)
-    k0 = problem.nuisance.shape[1]
-    now = np.concatenate([model.values(n) / np.asarray(problem.candidates[n].prior) for n, _ in index]) \
-        if index else np.zeros(0)
-    ridge = np.r_[np.zeros(k0), np.full(len(now), PRIOR_WEIGHT)]
-    target = np.r_[np.zeros(k0), -now]
-    if extra is not None and extra.shape[1]:
-        X0 = np.column_stack([X0, extra])
-        ridge = np.r_[ridge, np.full(extra.shape[1], PRIOR_WEIGHT)]
-        target = np.r_[target, np.zeros(extra.shape[1])]
-    return X0, ridge, target
+    :meth:`Problem.wls` takes them (:meth:`Problem.prior_design`)."""
+    X, ridge, target, _ = problem.prior_design(model, extra)
+    return X, ridge, target
 
 
 def cv_score(problem, r0: np.ndarray, X: np.ndarray, ridge: np.ndarray, target: np.ndarray, sigma: np.ndarray,

@@ -107,6 +107,26 @@ class EffectSpec:
     def size(self) -> int:
         return len(self.params)
 
+    def difference_columns(self, current, change: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """Sensitivity columns (one per parameter, scaled by its prior) by
+        one-sided differences: ``change(values)`` is the residual change at
+        ``values``; a forward step, or backward where the forward one cannot be
+        evaluated (it leaves the maps' range)."""
+        cols = []
+        for j in range(self.size):
+            for sign in (1.0, -1.0):
+                v = np.array(current, dtype=float)
+                v[j] += sign * self.steps[j]
+                try:
+                    moved = change(v)
+                except Error:
+                    if sign < 0:
+                        raise
+                    continue
+                cols.append(moved * sign * self.prior[j] / self.steps[j])
+                break
+        return np.column_stack(cols)
+
     def describe(self, values) -> str:
         """'xy=+5.2 arc-second, ...' for parameter ``values`` (dimensionless ones without a unit)."""
         return ", ".join(f"{p}={v:+.4g}" + ("" if u in ("1", "") else f" {u}")

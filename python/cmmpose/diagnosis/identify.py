@@ -196,20 +196,8 @@ class Problem:
             return self.layout.expansion_column(ref)[:, None] * np.asarray(spec.prior)
         if self.layout.artefact is not None and linearised_columns(spec):  # a plate: linearised fits of a sample
             return artefact_columns(self, model, spec, current, obs)
-        cols = []
-        for j in range(spec.size):
-            for sign in (1.0, -1.0):
-                v = np.array(current, dtype=float)
-                v[j] += sign * spec.steps[j]
-                try:
-                    moved = self.observe(model.with_values(spec, v)).residual
-                except Error:
-                    if sign < 0:
-                        raise
-                    continue
-                cols.append((moved - obs.residual) * sign * spec.prior[j] / spec.steps[j])
-                break
-        return np.column_stack(cols)
+        return spec.difference_columns(current, lambda v: self.observe(model.with_values(spec, v)).residual
+                                       - obs.residual)
 
     # -- fitting ------------------------------------------------------------
 
@@ -283,6 +271,22 @@ class Problem:
                 blocks.append(self.columns[name])
                 index.append((name, self.columns[name].shape[1]))
         return np.column_stack(blocks) if blocks else np.zeros((len(self.classes), 0)), index
+
+    def prior_design(self, model, extra: np.ndarray | None = None):
+        """Nuisance and effect columns of ``model`` (plus ``extra`` columns)
+        with the diagnosis's weak prior: ``(X, ridge, target, index)``, the
+        first three as :meth:`wls` takes them, ``index`` as :meth:`model_design`."""
+        X, index = self.model_design(model)
+        k0 = self.nuisance.shape[1]
+        now = np.concatenate([model.values(n) / np.asarray(self.candidates[n].prior) for n, _ in index]) \
+            if index else np.zeros(0)
+        ridge = np.r_[np.zeros(k0), np.full(len(now), PRIOR_WEIGHT)]
+        target = np.r_[np.zeros(k0), -now]
+        if extra is not None and extra.shape[1]:
+            X = np.column_stack([X, extra])
+            ridge = np.r_[ridge, np.full(extra.shape[1], PRIOR_WEIGHT)]
+            target = np.r_[target, np.zeros(extra.shape[1])]
+        return X, ridge, target, index
 
     def whitened(self, X: np.ndarray, sigma: np.ndarray) -> np.ndarray:
         return X / sigma[self.classes][:, None]
@@ -477,12 +481,7 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
     (significant before not, then by p-value)."""
     obs = problem.observe(model) if obs is None else obs
     r0 = obs.residual
-    X0, index = problem.model_design(model)
-    k0 = problem.nuisance.shape[1]
-    now = np.concatenate([model.values(n) / np.asarray(problem.candidates[n].prior) for n, _ in index]) \
-        if index else np.zeros(0)
-    ridge0 = np.r_[np.zeros(k0), np.full(len(now), PRIOR_WEIGHT)]
-    target0 = np.r_[np.zeros(k0), -now]
+    X0, ridge0, target0, index = problem.prior_design(model)
     base = problem.wls(r0, X0, ridge=ridge0, target=target0)
     n_total = float(np.sum(problem.n_eff))
     todo = [n for n in problem.candidates if n not in model.names]
