@@ -255,7 +255,13 @@ mod avx {
             let mut lo = [_mm256_setzero_pd(); 4];
             let mut hi = [_mm_setzero_pd(); 4];
             for j in 0..4 {
-                let (v, s) = (&values[lanes.segment[r + j]], &slopes[lanes.segment[r + j]]);
+                let k = lanes.segment[r + j];
+                debug_assert!(k < values.len() && k < slopes.len());
+                // SAFETY: `Lanes::locate` gives segments below the table's
+                // last position and `Lanes::pad` segment 0 (a table has two
+                // or more positions and one row of slopes fewer): unchecked,
+                // the four lanes' loads carry no compare and branch each.
+                let (v, s) = (values.get_unchecked(k), slopes.get_unchecked(k));
                 let x = _mm256_set1_pd(lanes.offset[r + j]);
                 // SAFETY: v and s are six values each: [0, 4) and [4, 6).
                 lo[j] = _mm256_add_pd(

@@ -517,7 +517,7 @@ mod tests {
                     })
                     .collect();
                 let m = median(&mut sq);
-                if m.is_finite() && best.map_or(true, |b| m < b.0) {
+                if m.is_finite() && best.is_none_or(|b| m < b.0) {
                     best = Some((m, c, r));
                 }
             }
