@@ -4,7 +4,8 @@ scan_id, in profiles of 1000 points as scanner data come), each compensated
 into the same format. A pipeline with a bounded queue between a reader
 thread, the kernel and a writer thread (:func:`cmmpose.compensate_file`)
 keeps the peak flat in the input's size. NPY, binary PLY and XYZ inputs are
-made too (``--formats``).
+made too (``--formats``; ``ply-ascii`` is an ASCII PLY input, compensated
+into a binary PLY).
 
     python benches/compensate_memory.py [--points 5e6,2e7,1e8] [--formats csv,parquet] [--dir DIR]
     python benches/compensate_memory.py --points 5e6,2e7 --formats npy,ply,xyz
@@ -30,6 +31,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
+
+#: File suffixes of the formats not named by theirs (the output of an
+#: ASCII PLY input is a binary PLY: the command writes PLY binary).
+SUFFIX = {"ply-ascii": "ply"}
 
 #: Rows generated at a time (generation is bounded too).
 GENERATE_ROWS = 1_000_000
@@ -66,6 +71,11 @@ def generate(path: Path, fmt: str, n: int) -> None:
         path.write_bytes(f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\n{props}end_header\n".encode())
         dtype = np.dtype([(c, "<f8" if dtype[c].kind == "f" else "<i4") for c in dtype.names])
         writer = _ArrayWriter(path.open("ab"), dtype)
+    elif fmt == "ply-ascii":  # the header, then blank-separated rows as text
+        props = "".join(f"property {'double' if dtype[c].kind == 'f' else 'int'} {c}\n" for c in dtype.names)
+        path.write_text(f"ply\nformat ascii 1.0\nelement vertex {n}\n{props}end_header\n")
+        writer = pa_csv.CSVWriter(pa.OSFile(str(path), "ab"), schema,
+                                  write_options=pa_csv.WriteOptions(include_header=False, delimiter=" "))
     else:
         raise SystemExit(f"no generator for {fmt!r}")
     with writer:
@@ -133,7 +143,8 @@ def main() -> None:
     try:
         for fmt in args.formats.split(","):
             for n in sizes:
-                src, out = folder / f"in.{fmt}", folder / f"out.{fmt}"
+                suffix = SUFFIX.get(fmt, fmt)
+                src, out = folder / f"in.{suffix}", folder / f"out.{suffix}"
                 t0 = time.perf_counter()
                 generate(src, fmt, n)
                 made = time.perf_counter() - t0

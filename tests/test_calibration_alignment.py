@@ -235,6 +235,19 @@ def test_gamma_bad_inputs():
         gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, -1), gamma0=0.0, maps=MAPS, temperature=T)
     with pytest.raises(cmmpose.InputError, match="normal"):
         gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, 0))
+    # a normal with a component along the sweep: no gamma puts the points on a plane with it (the least bad
+    # one is 45 degrees off and 12 mm rms), refused rather than returned
+    with pytest.raises(CalibrationError, match="45.0 deg from the given normal"):
+        gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(1, 0, 1), maps=MAPS, temperature=T)
+    # the true normal tilted by 0.5 deg (a face not quite level) is taken
+    tilt = np.radians(0.5)
+    g = gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(np.sin(tilt), 0, np.cos(tilt)), maps=MAPS,
+                              temperature=T)
+    assert g.method == "known normal"
+    # a covariance that is not finite names itself and the usual cause
+    with pytest.raises(cmmpose.InputError, match="alpha_beta_covariance: expected finite entries.*point_uncertainty"):
+        gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, 1), maps=MAPS, temperature=T,
+                              alpha_beta_covariance=np.full((2, 2), np.nan))
     with pytest.raises(cmmpose.InputError, match="temperature"):
         gamma_from_plane_scan(d.uv, d.scales, a, b, normal=(0, 0, 1), maps=MAPS)
     with pytest.raises(cmmpose.InputError, match="temperature"):

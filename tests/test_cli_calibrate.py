@@ -145,6 +145,18 @@ def test_simulate_alignment_writes_what_calibrate_alignment_reads(tmp_path):
     rec = json.loads(res.output)
     assert abs(rec["pose"][0] - 90.03) < 3 * rec["pose_uncertainty"][0]
     assert np.shape(rec["pose_covariance"]) == (3, 3) and np.shape(rec["pose_jacobian"]) == (3, 3)
+    # Three vernier points without a stated uncertainty, and a plane normal the sweep moved along: each refused
+    # by name, the library not written.
+    base = ["calibrate", "alignment", "--maps", "thesis", "--temperature", "21", "--vernier",
+            str(tmp_path / "m" / "A90B90-vernier.csv"), "--plane-scan", str(tmp_path / "m" / "A90B90-plane.csv"),
+            "--reference-scan", str(tmp_path / "m" / "A90B90-sphere.csv"), "--name", "A90B90",
+            "--library", str(tmp_path / "refused.json")]
+    for args, message in ((["--plane-normal", normal], "--vernier-uncertainty"),
+                          (["--plane-normal", "1,0,1", "--vernier-uncertainty", "9"], "from the given normal")):
+        res = CliRunner().invoke(main, [*base, *args])
+        assert res.exit_code != 0 and message in res.output and "Traceback" not in res.output, res.output
+        assert "A90B90" in res.output or "vernier.csv" in res.output
+        assert not (tmp_path / "refused.json").exists()
     for args, message in ((["--pose", "90,90"], "--pose"), (["--pose", "90,90,0", "--effect", "nonsense:x=1"],
                                                             "nonsense"),
                           (["--pose", "90,90,0", "--vernier-points", "2"], "--vernier-points")):

@@ -210,6 +210,56 @@ def test_ply_written_by_plyfile_is_read_in_every_encoding(tmp_path, encoding):
     assert got.columns["scan_id"].dtype.byteorder in "=|<"  # native, whatever the file's order
 
 
+def test_ascii_ply_is_read_a_chunk_of_lines_at_a_time_with_plyfiles_values(tmp_path):
+    import plyfile
+
+    # Every scalar type, values that round when parsed (float32 from decimal text), a face element after the
+    # vertices and one before them: the chunked reader gives plyfile's whole-file values bit for bit.
+    rng = np.random.default_rng(3)
+    n = 1001
+    v = np.empty(n, dtype=[("x", "f8"), ("y", "f8"), ("z", "f4"), ("scan_id", "i4"), ("red", "u1"),
+                           ("q", "i2")])
+    v["x"], v["y"] = rng.normal(0, 300, n), rng.uniform(-1e-9, 1e9, n)
+    v["z"], v["scan_id"] = rng.normal(0, 1, n).astype("f4"), rng.integers(-2**31, 2**31, n)
+    v["red"], v["q"] = rng.integers(0, 256, n), rng.integers(-2**15, 2**15, n)
+    faces = np.array([([0, 1, 2],)] * 5, dtype=[("vertex_indices", "i4", (3,))])
+    cam = np.array([(1.0,)], dtype=[("f", "f8")])
+    path = tmp_path / "a.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(cam, "camera"), plyfile.PlyElement.describe(v, "vertex"),
+                     plyfile.PlyElement.describe(faces, "face")], text=True).write(str(path))
+    whole = plyfile.PlyData.read(str(path))["vertex"].data
+    need = pointformats.Need(names=("x", "y", "z"))
+    size, chunks = pointformats.get("ply").chunks(path, 100, need)
+    parts = [c for c, _ in chunks]
+    assert [len(c["x"]) for c in parts] == [100] * 10 + [1]  # a chunk of lines at a time, never the whole file
+    for name in v.dtype.names:
+        got = np.concatenate([c[name] for c in parts])
+        assert got.dtype == whole.dtype[name] and got.tobytes() == whole[name].tobytes(), name
+    got = read_point_cloud(path)
+    assert got.xyz.tobytes() == np.column_stack([whole["x"], whole["y"], whole["z"].astype("f8")]).tobytes()
+
+
+def test_ascii_ply_memory_is_bounded_by_the_chunk_not_the_file(tmp_path):
+    import tracemalloc
+
+    n = 200_000  # 6.4 MB of text, 4.8 MB as float64 columns
+    path = tmp_path / "big.ply"
+    with path.open("w") as f:
+        f.write(f"ply\nformat ascii 1.0\nelement vertex {n}\nproperty double x\nproperty double y\n"
+                "property double z\nend_header\n")
+        np.savetxt(f, np.arange(3 * n, dtype=float).reshape(n, 3) / 7, fmt="%.6f")
+    need = pointformats.Need(names=("x", "y", "z"))
+    tracemalloc.start()
+    try:
+        _, chunks = pointformats.get("ply").chunks(path, 1000, need)
+        first, _ = next(chunks)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert len(first["x"]) == 1000 and first["y"][1] == pytest.approx(4 / 7, abs=1e-6)
+    assert peak < 1_000_000, peak  # the whole file parsed would be > 4.8 MB; one chunk of lines is ~0.1 MB
+
+
 def test_ply_header_of_each_written_encoding(tmp_path, cloud):
     encodings = (("ply", b"binary_little_endian"), ("ply-ascii", b"ascii"), ("ply-big-endian", b"binary_big_endian"))
     for fmt, word in encodings:
@@ -238,6 +288,10 @@ PLY_HEAD = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty 
     ("bad.ply", "not a ply at all\n", r"bad\.ply:1: malformed PLY header"),
     ("bad.ply", PLY_HEAD + "1 2 3\n1 x 3\n",
      r"bad\.ply: PLY element 'vertex', row 1, property 'y' \(line 9\): malformed input"),
+    ("bad.ply", PLY_HEAD + "1 2 3\n\n", r"bad\.ply: PLY element 'vertex', row 1, property 'x' \(line 9\): early end-of-line"),
+    ("bad.ply", PLY_HEAD + "1 2 3 4\n1 2 3\n", r"bad\.ply: PLY element 'vertex', row 0 \(line 8\): expected end-of-line"),
+    ("bad.ply", PLY_HEAD.replace("float z", "int z") + "1 2 3\n1 2 3.5\n",
+     r"bad\.ply: PLY element 'vertex', row 1, property 'z' \(line 9\): malformed input"),
     ("bad.ply", "ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n3 0 1 2\n",
      r"bad\.ply: no 'vertex' element \(has \['face'\]\)"),
     ("bad.xyz", "1 2 3\n4 5 6\n7 8 nine\n", r"bad\.xyz:3: value 'nine' in column 3 is not a number"),

@@ -132,8 +132,13 @@ def _machine_points(uv, scales, pose, offset, maps, temperature, policy: Tempera
 
 def _covariance(name: str, c, n: int) -> np.ndarray:
     a = np.asarray(c, dtype=float)
-    if a.shape != (n, n) or not np.all(np.isfinite(a)):
-        raise InputError(f"{name}: expected a finite ({n}, {n}) covariance, got shape {a.shape}")
+    if a.shape != (n, n):
+        raise InputError(f"{name}: expected a ({n}, {n}) covariance, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        # The usual way here: a vernier fit of three points without a stated
+        # point uncertainty has no residuals to estimate one from.
+        raise InputError(f"{name}: expected finite entries, got {a.tolist()} (a vernier fit of 3 points has no "
+                         "Type A uncertainty: give its point_uncertainty)")
     # Symmetric to rounding relative to the largest entry (computed covariances
     # carry rounding-level asymmetry in near-zero off-diagonal terms).
     if not np.allclose(a, a.T, rtol=1e-9, atol=1e-12 * np.abs(a).max()):
@@ -474,6 +479,27 @@ def _solve_gamma(problem: _PlaneProblem, gamma: float, max_iter: int = 30):
     return gamma, var, rms, n, it
 
 
+#: Largest angle (degrees) between the given normal and the plane the points
+#: lie on at the solution before the normal counts as another face's: far
+#: above a real face's flatness over a scan (0.01 deg is 10 um over 60 mm),
+#: far below a mistyped axis (45-90 deg).
+NORMAL_MISMATCH_DEG = 1.0
+
+
+def _check_normal(points: np.ndarray, normal: np.ndarray, rms: float) -> None:
+    """Raise if the points at the solved gamma lie on a plane tilted from
+    ``normal``: the sweep moved along the given normal, so no gamma puts the
+    points on a plane with it and the solution is only the least bad one."""
+    free = fit_plane(points)
+    tilt = math.degrees(math.acos(min(1.0, abs(float(np.asarray(free.normal) @ normal)))))
+    if tilt > NORMAL_MISMATCH_DEG and rms > 3.0 * free.rms:
+        raise CalibrationError(
+            f"gamma: the plane-scan points lie on a plane whose normal is {tilt:.1f} deg from the given normal "
+            f"{np.round(normal, 6).tolist()} (rms about a plane with the given normal {rms * 1e3:.0f} um, about "
+            f"their own best plane {free.rms * 1e3:.1f} um): the sweep moved along the given normal; is it the "
+            "scanned face's outward normal, in machine axes?")
+
+
 def _wrap180(a: float) -> float:
     a = math.fmod(a + 180.0, 360.0)
     a = a + 360.0 if a <= 0 else a
@@ -545,7 +571,12 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
     CalibrationError
         No motion (all scale readings equal); a scan that does not determine
         gamma (a single straight sweep without ``normal``); no gamma within the
-        search window makes the scanner face ``normal``.
+        search window makes the scanner face ``normal``; the points lie on a
+        plane more than 1 degree from ``normal`` at the best gamma (the sweep
+        moved along it: a wrong normal). One straight sweep cannot tell a
+        wrong normal perpendicular to its motion from the right one; sweeps
+        along two axes of the face can (any other normal has a component
+        along one of them).
     """
     uv = as_rows("uv", uv, 2)
     scales = as_rows("scales", scales, 3)
@@ -608,6 +639,8 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
     costs = np.array([coarse.cost(g) for g in grid])  # one kernel call per candidate
     start = float(grid[int(np.argmin(costs))])
     gamma, var, rms, n_fit, iterations = _solve_gamma(problem, start)
+    if nv is not None:
+        _check_normal(problem.points(gamma), nv, rms)
     if nv is None and abs(float(np.asarray(n_fit) @ _e313((alpha, beta, gamma))[:, 2])) > 0.95:
         # The best "plane" is the scan plane itself: the motion hardly left it, so every gamma fits.
         raise CalibrationError(

@@ -84,11 +84,21 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
             raise click.UsageError("a map set needs --temperature (the machine's during the alignment, C)")
         em = {"maps": error_map, "temperature": temperature if error_map is not None else None}
         point_u = None if vernier_uncertainty is None else vernier_uncertainty * 1e-3
-        vern = alpha_beta_from_vernier(read_point_cloud(vernier_file).xyz, point_uncertainty=point_u, **em)
+        vernier_points = read_point_cloud(vernier_file).xyz
+        if len(vernier_points) == 3 and point_u is None:
+            raise click.UsageError(f"{vernier_file}: three vernier points fit the plane exactly, leaving no "
+                                   "residuals to estimate their uncertainty from: give --vernier-uncertainty "
+                                   "(um; the vernier's null, Type B)")
+        vern = alpha_beta_from_vernier(vernier_points, point_uncertainty=point_u, **em)
         scans = [read_points(f) for f in plane_files]
-        gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
-                                    vern.alpha, vern.beta, normal=normal, offset=offset_t,
-                                    alpha_beta_covariance=vern.covariance, **em)
+        try:
+            gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
+                                        vern.alpha, vern.beta, normal=normal, offset=offset_t,
+                                        alpha_beta_covariance=vern.covariance, **em)
+        except CalibrationError as exc:  # name the files and flags the solver was given
+            given = "--plane-scan" + (" with --plane-normal" if normal is not None else "")
+            raise CalibrationError(f"{', '.join(map(str, plane_files))} ({given}): {exc.message}",
+                                   **exc.fields) from None
         cp = calibrated_pose(vern, gam)
         uv, scales, _ = read_points(ref_file)
         # The pose's covariance goes into the reading through its Jacobian; the

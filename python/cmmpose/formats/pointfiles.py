@@ -9,8 +9,8 @@ through to its output unchanged.
 Reading is strict: a CSV must be UTF-8 with every row as wide as the header
 (an extra field would shift the columns) and plain numbers; an NPY must be
 a real-valued array whose header matches the file's size; a Parquet file
-must hold real-valued columns without nulls. Every format but an ASCII PLY
-is read and written in chunks, so a file of any size takes bounded memory.
+must hold real-valued columns without nulls. Every format is read and
+written in chunks, so a file of any size takes bounded memory.
 Writing goes to a temporary file renamed into place, so a failure leaves
 nothing behind. A file whose suffix names no registered format is read and
 written as CSV."""

@@ -400,9 +400,9 @@ fn inv_sqrt_series(a: f64) -> f64 {
 }
 
 #[cfg(test)]
-// Lane, carriage and component indices are the quantities compared here.
-#[allow(clippy::needless_range_loop)]
 mod tests {
+    // Lane, carriage and component indices are the quantities compared here.
+    #![allow(clippy::needless_range_loop)]
     use super::*;
     use crate::kernel::compensate_at_temperatures;
     use crate::lanes::PORTABLE;

@@ -3,7 +3,8 @@
 Read: the ``vertex`` element, one column per scalar property under its own
 name (coordinates are ``x, y, z``); other elements (faces) are ignored. A
 binary file (either byte order) is memory-mapped and read chunk by chunk;
-an ASCII file is read whole by plyfile. Written: binary little endian
+an ASCII file's rows are parsed a chunk of lines at a time (plyfile checks
+its header), so memory stays bounded either way. Written: binary little endian
 (``"ply"``), ASCII (``"ply-ascii"``) or binary big endian
 (``"ply-big-endian"``), with properties ``x, y, z`` (double) and the extra
 columns. PLY has no 64-bit integers: an int64 or uint64 column is written as
@@ -13,6 +14,10 @@ at the end, is written into a fixed-width field of the header."""
 
 from __future__ import annotations
 
+import io
+import re
+import warnings
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
@@ -185,17 +190,132 @@ def chunks(path: Path, chunk: int, need):
     """The ``vertex`` element's scalar properties in chunks of at most ``chunk`` rows."""
     path = check_file(path)
     size = path.stat().st_size
+    if _format_line(path) == "ascii":
+        _check_counts(path)
+        header, elements = _ascii_header(path)
+        vertex = _vertex(path, [e for e, _ in elements])
+        require(path, [q.name for q in vertex.properties], need, "vertex properties")
+        return size, _ascii_chunks(path, header, elements, min(chunk, ASCII_CHUNK_LINES), size)
     data = read_ply(path)
-    try:
-        vertex = data["vertex"]
-    except KeyError:
-        raise InputError(f"{path}: no 'vertex' element (has {[e.name for e in data.elements]})") from None
+    v = _vertex(path, data.elements).data
+    require(path, v.dtype.names, need, "vertex properties")
+    return size, _chunks(v, chunk, size)
+
+
+def _vertex(path: Path, elements):
+    """The ``vertex`` element of ``elements``, or ``InputError`` when there is
+    none or one of its properties is a list."""
+    vertex = next((e for e in elements if e.name == "vertex"), None)
+    if vertex is None:
+        raise InputError(f"{path}: no 'vertex' element (has {[e.name for e in elements]})")
     lists = [p.name for p in vertex.properties if isinstance(p, _plyfile().PlyListProperty)]
     if lists:
         raise InputError(f"{path}: vertex properties {lists} are lists; expected one number per property")
-    v = vertex.data
-    require(path, v.dtype.names, need, "vertex properties")
-    return size, _chunks(v, chunk, size)
+    return vertex
+
+
+#: Lines of an ASCII PLY body parsed at a time (as XYZ files are read).
+ASCII_CHUNK_LINES = 1_000_000
+_ELEMENT_COUNT = re.compile(rb"^(\s*element\s+\S+\s+)(\d+)(\s*)$")
+
+
+def _ascii_header(path: Path):
+    """The header's bytes and its elements with their declared row counts.
+
+    plyfile parses the header (naming the line of a malformed one) from a
+    copy whose element counts are 0, so that it reads no body: the rows are
+    then parsed here a chunk at a time."""
+    plyfile = _plyfile()
+    lines, counts = [], []
+    with path.open("rb") as f:
+        for line in islice(f, 10_000):
+            m = _ELEMENT_COUNT.match(line)
+            if m:
+                counts.append(int(m.group(2)))
+                line = m.group(1) + b"0" + m.group(3)
+            lines.append(line)
+            if line.strip() == b"end_header":
+                break
+    try:
+        data = plyfile.PlyData.read(io.BytesIO(b"".join(lines)))
+    except plyfile.PlyHeaderParseError as exc:
+        raise InputError(f"{path}:{exc.line}: malformed PLY header: {exc.message}") from None
+    except (plyfile.PlyParseError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable PLY file ({type(exc).__name__}: {exc})") from None
+    return len(lines), list(zip(data.elements, counts))
+
+
+def _ascii_chunks(path: Path, header: int, elements, chunk: int, size: int):
+    """The vertex rows of an ASCII PLY as columns, ``chunk`` lines at a time
+    (one row a line, as plyfile reads them), then the rest of the body
+    counted: a body shorter or longer than its header declares is refused,
+    as for a binary file."""
+    line_no = header  # lines read so far
+    with path.open("rb") as f:
+        for _ in range(header):
+            f.readline()
+        for element, count in elements:
+            if element.name != "vertex":
+                got = sum(1 for _ in islice(f, count))
+                if got < count:
+                    raise InputError(f"{path}: PLY element {element.name!r}, row {got}: early end-of-file: the "
+                                     f"header declares {count} {element.name!r} rows, the file holds {got}; the "
+                                     "file is cut or its header is wrong")
+                line_no += count
+                continue
+            dtype = np.dtype([(q.name, q.val_dtype) for q in element.properties])
+            if count == 0:
+                yield {c: np.zeros(0, dtype[c].newbyteorder("=")) for c in dtype.names}, f.tell()
+            rows = 0
+            while rows < count:
+                raw = list(islice(f, min(chunk, count - rows)))
+                if len(raw) < min(chunk, count - rows):
+                    raise InputError(f"{path}: PLY element 'vertex', row {rows + len(raw)}: early end-of-file: the "
+                                     f"header declares {count} 'vertex' rows, the file holds {rows + len(raw)}; "
+                                     "the file is cut or its header is wrong")
+                block = _ascii_rows(path, raw, dtype, rows, line_no)
+                cols = {c: np.ascontiguousarray(block[c]).astype(dtype[c].newbyteorder("="), copy=False)
+                        for c in dtype.names}
+                rows += len(raw)
+                line_no += len(raw)
+                yield cols, f.tell()
+        extra, first = 0, 0
+        for line in f:
+            line_no += 1
+            if line.strip():
+                extra += 1
+                first = first or line_no
+    if extra:
+        declared = ", ".join(f"{count} {e.name!r}" for e, count in elements)
+        raise InputError(f"{path}:{first}: PLY body has {extra} rows beyond the header's count "
+                         f"(it declares {declared} rows); the header disagrees with the body")
+
+
+def _ascii_rows(path: Path, raw: list[bytes], dtype: np.dtype, first_row: int, line_no: int) -> np.ndarray:
+    """``raw`` lines as rows of ``dtype``; a line that is not one row names
+    its row, property and line as plyfile would."""
+    try:
+        text = b"".join(raw).decode("ascii")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", UserWarning)  # loadtxt on an empty chunk
+            block = np.loadtxt(io.StringIO(text), dtype=dtype, comments=None, ndmin=1)
+        if len(block) == len(raw):  # loadtxt passes over blank lines; plyfile does not
+            return block
+    except (ValueError, UnicodeDecodeError, UserWarning):
+        pass
+    for k, line in enumerate(raw):
+        tokens = line.split()
+        where = f"{path}: PLY element 'vertex', row {first_row + k}"
+        for j, name in enumerate(dtype.names):
+            if j >= len(tokens):
+                raise InputError(f"{where}, property {name!r} (line {line_no + k + 1}): early end-of-line")
+            try:
+                dtype[name].type(tokens[j].decode("ascii"))
+            except (ValueError, OverflowError, UnicodeDecodeError):
+                raise InputError(f"{where}, property {name!r} (line {line_no + k + 1}): malformed input") from None
+        if len(tokens) > len(dtype.names):
+            raise InputError(f"{where} (line {line_no + k + 1}): expected end-of-line")
+    raise InputError(f"{path}: PLY element 'vertex', rows {first_row}-{first_row + len(raw) - 1}: not readable")
 
 
 def _chunks(v, chunk, size):
