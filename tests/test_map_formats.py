@@ -86,3 +86,25 @@ def test_no_import_cycle_between_errormap_and_the_format_modules():
     assert imported_modules("formats.mapformats") == {"errors"}
     for fmt in ("mapfiles", "controller", "iso230"):
         assert {"errormap", "formats.mapformats"} <= imported_modules(f"formats.{fmt}")
+
+
+def test_threads_reading_maps_at_once_in_a_fresh_process_all_see_the_formats():
+    # The built-in formats load on first use; threads arriving together (a Dask scheduler's workers evaluating
+    # several runs) each got "unknown map file format 'csv' (known: none)" while the first was still loading them.
+    code = """
+import threading, cmmpose
+errors, start = [], threading.Barrier(8)
+def load():
+    start.wait()
+    try:
+        cmmpose.ErrorMapSet.thesis()
+    except Exception as exc:
+        errors.append(repr(exc))
+threads = [threading.Thread(target=load) for _ in range(8)]
+[t.start() for t in threads]
+[t.join() for t in threads]
+print(errors)
+"""
+    for _ in range(3):
+        out = subprocess.run([sys.executable, "-W", "ignore", "-c", code], capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0 and out.stdout.strip() == "[]", (out.stdout, out.stderr)

@@ -315,3 +315,41 @@ def test_a_clean_log_has_nothing_dropped_or_held(crossed_run):
     tlog = ev.provenance["temperature"]["log"]
     assert tlog["channels_dropped"] == [] and tlog["held"] is None
     assert len(tlog["channels_used"]) == 9
+
+
+# -- compensate: an error late in a file names the file and its row ---------------------------------------------
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npy"])
+def test_compensate_file_names_the_file_and_its_row_not_the_chunks(tmp_path, suffix):
+    n = 2500  # three chunks of 1000 rows
+    rng = np.random.default_rng(0)
+    a = np.column_stack([rng.uniform(-20, 20, n), rng.uniform(110, 170, n), rng.uniform(100, 800, n),
+                         rng.uniform(50, 500, n), rng.uniform(-450, -50, n), np.full(n, 22.0)])
+    maps = cmmpose.ErrorMapSet.thesis()
+    for row, col, value, cls, words in ((1234, 2, 950.0, cmmpose.OutOfRangeError, "X scale reading 950 mm"),
+                                        (2345, 5, np.nan, InputError, "column T: non-finite")):
+        bad = a.copy()
+        bad[row, col] = value
+        src = tmp_path / f"in{suffix}"
+        if suffix == ".csv":
+            src.write_text("u,v,D,E,F,T\n" + "\n".join(",".join(repr(float(x)) for x in r) for r in bad) + "\n")
+        else:
+            np.save(src, bad)
+        with pytest.raises(cls) as info:
+            cmmpose.compensate_file(src, tmp_path / "out.csv", maps, (90, 90, 0), (1, 2, 3), chunk=1000)
+        assert f"{src}: " in str(info.value) and f"row {row}" in str(info.value) and words in str(info.value)
+        assert info.value.row == row and info.value.file == str(src)
+        assert not (tmp_path / "out.csv").exists()
+
+
+@pytest.mark.parametrize("name", ["out.csv.gz", "out.xyz.bz2", "out.zip"])
+def test_a_compressed_point_file_name_is_refused_not_written_as_plain_text(tmp_path, name):
+    src = tmp_path / "p.csv"
+    src.write_text("u,v,D,E,F\n0,0,450,275,-250\n")
+    res = CliRunner().invoke(main, ["compensate", str(src), str(tmp_path / name), "--temperature", "22"])
+    assert res.exit_code != 0 and "compressed point files" in res.output and name in res.output, res.output
+    assert not (tmp_path / name).exists()
+    (tmp_path / "in.csv.gz").write_bytes(b"\x1f\x8b\x08\x00")
+    with pytest.raises(InputError, match=r"in\.csv\.gz: compressed point files"):
+        read_point_cloud(tmp_path / "in.csv.gz")

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import re
 import threading
 import time
 from dataclasses import dataclass
@@ -23,7 +24,7 @@ from pathlib import Path
 from .compensation import compensate, is_model, warn_single_map
 from ._renamed import renamed
 from .errormap import ErrorMap, ErrorMapSet
-from .errors import InputError
+from .errors import Error, InputError
 from .formats.pointfiles import PointWriter, RereadPoints, check_writable, point_chunks
 from .atomicfile import check_not_input
 from .kernel_report import KernelReport
@@ -135,7 +136,7 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     check_writable(points_out)  # before any work: a missing folder is found now, not after
     check_not_input(points_out, [points_in], "OUT")
     size, chunks = point_chunks(points_in, chunk, extras=True)
-    state = {"temperature": None, "warned": False, "kernel": 0.0}
+    state = {"temperature": None, "warned": False, "kernel": 0.0, "rows": 0}
     model = maps if is_model(maps) else None
     if model is not None:
         from .diagnosis.apply import needs_scans, whole_scans
@@ -146,7 +147,16 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
             chunks = whole_scans(chunks)
 
     def kernel(uv, scales, temps, extras=None):
-        """One chunk through the kernel: its coordinates and report."""
+        """One chunk through the kernel: its coordinates and report; an
+        error naming a row of the chunk names the file and the file's row."""
+        first = state["rows"]
+        state["rows"] += len(uv)
+        try:
+            return chunk_kernel(uv, scales, temps, extras)
+        except Error as exc:
+            raise _in_file(exc, points_in, first) from None
+
+    def chunk_kernel(uv, scales, temps, extras):
         if model is not None:
             from .diagnosis.apply import compensate_points, point_inputs, policy_model
 
@@ -185,7 +195,7 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
             writer.abort()
             writer = PointWriter(points_out, inputs=[points_in])
             reports.clear()
-            state["kernel"] = 0.0
+            state["kernel"], state["rows"] = 0.0, 0
             _pipeline(iter([(*again.points, again.extras, size)]), kernel, writer, reports, size, progress)
     except BaseException:
         writer.abort()
@@ -194,6 +204,25 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     report = KernelReport.total(reports)
     _log.info("compensated %d points of %s into %s", report.points, points_in, points_out)
     return FileCompensation(points_in, points_out, report.points, report, state["kernel"], state["temperature"])
+
+
+#: The kernel's argument names and the columns of a point file they are read from.
+_COLUMNS = {"uv": "columns u, v", "scales": "columns D, E, F", "temperature": "column T"}
+
+
+def _in_file(exc: Error, path, first: int) -> Error:
+    """``exc``, raised for a chunk whose first row is the file's row
+    ``first``, as the same error naming ``path`` and the file's row (data
+    rows counted from 0, as the arrays the Python API takes)."""
+    if exc.row is None or exc.file is not None:
+        return exc
+    row = exc.row + first
+    message = re.sub(r"\brow \d+\b", f"row {row}", exc.message, count=1)
+    for argument, columns in _COLUMNS.items():
+        if message.startswith(argument + ":"):
+            message = columns + message[len(argument):]
+    again = type(exc)(f"{path}: {message}", **{**exc.fields, "file": str(path), "row": row})
+    return again
 
 
 def _pipeline(chunks, kernel, writer: PointWriter, reports: list, size: int, progress) -> None:

@@ -13,6 +13,7 @@ This module imports nothing else from cmmpose but the exceptions.
 from __future__ import annotations
 
 import importlib
+import threading
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -57,14 +58,19 @@ _FORMATS: dict[str, MapFormat] = {}
 #: module was imported first, then any other format in the order registered.
 BUILTIN = {"mapfiles": "csv", "controller": "controller", "iso230": "iso230-2"}
 _builtin_state = {"loaded": False}
+#: Held while the built-in modules load: threads reading maps at once (a Dask
+#: scheduler's workers) must not see the registry before they have registered.
+_builtin_lock = threading.RLock()
 
 
 def _formats() -> dict[str, MapFormat]:
     """The registry, built-in formats loaded, in order."""
     if not _builtin_state["loaded"]:
-        _builtin_state["loaded"] = True
-        for module in BUILTIN:
-            importlib.import_module(f"{__package__}.{module}")
+        with _builtin_lock:
+            if not _builtin_state["loaded"]:
+                for module in BUILTIN:
+                    importlib.import_module(f"{__package__}.{module}")
+                _builtin_state["loaded"] = True
     first = [n for n in BUILTIN.values() if n in _FORMATS]
     return {n: _FORMATS[n] for n in [*first, *(n for n in _FORMATS if n not in first)]}
 

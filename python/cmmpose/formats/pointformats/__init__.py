@@ -112,6 +112,10 @@ def get(name: str) -> PointFormat:
         raise InputError(f"unknown point-file format {name!r}; known: {', '.join(_FORMATS)}") from None
 
 
+#: Suffixes of compressed files, refused by name rather than read or written as CSV.
+COMPRESSED = (".gz", ".bz2", ".xz", ".zst", ".zip", ".7z", ".lz4", ".z")
+
+
 def for_path(path: str | Path, format: str | None = None, default: str | None = None) -> PointFormat:
     """The format for ``path``: ``format`` by name if given, else by the
     file's suffix (any case), else ``default``.
@@ -120,11 +124,16 @@ def for_path(path: str | Path, format: str | None = None, default: str | None = 
     ------
     InputError
         Naming the file and the known suffixes when the suffix is unknown and
-        there is no default.
+        there is no default; naming the file when its suffix says it is
+        compressed (``.gz``, ``.zip``, ...), whatever the default.
     """
     if format is not None:
         return get(format)
     suffix = Path(path).suffix.lower()
+    if suffix in COMPRESSED:
+        # Read as text, such a file is garbage; written as CSV, a file named .gz is not gzip.
+        raise InputError(f"{path}: compressed point files ({suffix!r}) are neither read nor written: decompress "
+                         f"the input first, and name an output without {suffix!r} (compress it afterwards)")
     for fmt in _FORMATS.values():
         if suffix in fmt.suffixes:
             return fmt
