@@ -13,7 +13,8 @@ must hold real-valued columns without nulls. Every format is read and
 written in chunks, so a file of any size takes bounded memory.
 Writing goes to a temporary file renamed into place, so a failure leaves
 nothing behind. A file whose suffix names no registered format is read and
-written as CSV."""
+written as CSV, except a compressed one (``.gz``, ``.zip``, ...), refused by
+name."""
 
 from __future__ import annotations
 
