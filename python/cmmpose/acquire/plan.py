@@ -23,6 +23,14 @@ readings it starts from (``sweep_start_mm``, D, E, F) and its length
 (``sweep_length_mm``). A plan whose scans name a ball the artefact lacks or
 a placement it does not record is refused when read.
 
+Every plan is checked completely when it is read, before a port is opened,
+so that a recording is never made that cannot become a run: each scan's pose
+exists (without ``poses``: pose 0), pose and scan ids are unique, sweep axes
+and directions are those a run allows, channel names and multiplexer channel
+numbers are unique (two thermocouples on one channel would log the same
+readings twice), and the whole plan is storable as JSON. Errors name the
+plan file and the scan, pose or channel at fault.
+
 Every key is optional. Without ``poses`` one pose is used (the thesis
 digitizer unless given); a sweep missing from ``scans`` gets that pose,
 feature ``unknown``, position and ball -1, and its sweep axis, direction and
@@ -41,7 +49,7 @@ from .. import artefacts, placement
 from ..atomicfile import write_text
 from ..errors import AcquisitionError, InputError
 from ..machine import CHANNELS
-from ..run import CHANNEL_ROLES, POSES_COLUMNS, SCANS_COLUMNS, Run
+from ..run import CHANNEL_ROLES, POSES_COLUMNS, SCANS_COLUMNS, SWEEP_AXES, Run
 
 __all__ = ["Plan", "DEFAULT_CHANNELS", "plan_from_run", "artefact_plan"]
 
@@ -115,7 +123,55 @@ class Plan:
             if int(s["scan_id"]) in seen:
                 raise AcquisitionError(f"plan: scans[{k}]: scan_id {s['scan_id']} is also scans[{seen[int(s['scan_id'])]}]")
             seen[int(s["scan_id"])] = k
+        self._check_references()
         self._check_artefact()
+        try:
+            json.dumps(self.to_dict(), allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise AcquisitionError(f"plan: not storable as JSON ({exc})") from None
+
+    def _check_references(self) -> None:
+        """Everything the run's tables will require of the plan, checked when it
+        is read (not when the run is assembled after the recording): unique pose
+        ids, every scan's pose among them, sweep axes and directions the run
+        allows, unique channel names and multiplexer channel numbers."""
+        poses: dict[int, int] = {}
+        for k, p in enumerate(self.poses):
+            pid = int(p["pose_id"])
+            if pid in poses:
+                raise AcquisitionError(f"plan: poses[{k}]: pose_id {pid} is also poses[{poses[pid]}]")
+            poses[pid] = k
+        for k, s in enumerate(self.scans):
+            what = f"plan: scans[{k}] (scan_id {s['scan_id']})"
+            pid = int(s["pose_id"])
+            if poses and pid not in poses:
+                raise AcquisitionError(f"{what}: pose_id {pid} is not a pose of the plan (poses: "
+                                       f"{', '.join(str(i) for i in sorted(poses))})")
+            if not poses and pid != 0:
+                raise AcquisitionError(f"{what}: pose_id {pid}, but the plan lists no poses (the one pose used "
+                                       f"then is pose_id 0)")
+            if s["sweep_axis"] not in SWEEP_AXES:
+                raise AcquisitionError(f"{what}: sweep_axis {s['sweep_axis']!r} is not one of {', '.join(SWEEP_AXES)}")
+            if s["sweep_direction"] not in (1, -1):
+                raise AcquisitionError(f"{what}: sweep_direction {s['sweep_direction']!r} is not +1 or -1")
+        names: dict[str, int] = {}
+        numbers: dict[int, int] = {}
+        for k, ch in enumerate(self.temperature_channels):
+            what = f"plan: temperature_channels[{k}]"
+            name, number = ch["name"], int(ch["channel"])
+            if not name or name == "t":
+                raise AcquisitionError(f"{what}: name {name!r} is not allowed (empty, or the time column 't')")
+            if name in names:
+                raise AcquisitionError(f"{what}: name {name!r} is also temperature_channels[{names[name]}]")
+            if number <= 0:
+                raise AcquisitionError(f"{what}: channel {number} of {name!r} is not a multiplexer channel number "
+                                       f"(slot * 100 + channel, e.g. 101)")
+            if number in numbers:
+                other = numbers[number]
+                raise AcquisitionError(f"{what}: {name!r} on channel {number}, which is also "
+                                       f"{self.temperature_channels[other]['name']!r} "
+                                       f"(temperature_channels[{other}]); each thermocouple needs its own channel")
+            names[name], numbers[number] = k, k
 
     def _check_artefact(self) -> None:
         """An artefact plan's scans against its artefact and placements."""

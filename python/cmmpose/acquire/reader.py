@@ -81,7 +81,10 @@ class _PortReader(threading.Thread):
     def run(self) -> None:
         try:
             port = self._port
+            wait = self.BACKOFF[0]
             while True:
+                with self.sink.stats.lock:
+                    before = self.stats.records
                 try:
                     self.session(port)
                 except (_Reconnect, *_PORT_ERRORS) as exc:
@@ -96,32 +99,44 @@ class _PortReader(threading.Thread):
                         pass
                 if self.stop.is_set():
                     return
-                port = self._reopen()
+                with self.sink.stats.lock:
+                    if self.stats.records > before:
+                        wait = self.BACKOFF[0]  # the connection delivered records: start the backoff over
+                port, wait = self._reopen(wait)
                 if port is None:
                     return
         except BaseException as exc:  # noqa: BLE001 - reported by the recorder
             self.error = exc
             self.sink.event(self.stream, "reader_failed", port=self.url, error=repr(exc))
 
-    def _reopen(self):
-        wait, top = self.BACKOFF
+    def _reopen(self, wait: float):
+        """Wait, then open the port again, the wait doubling (up to ``BACKOFF[1]``)
+        after every failed attempt. Every reconnect waits: a device that accepts
+        the connection but fails every session (a configuration it rejects) is
+        retried at the backoff's pace, never in a tight loop.
+
+        Returns
+        -------
+        (port, wait)
+            The open port (None when stopped) and the wait before the next reconnect, s.
+        """
+        top = self.BACKOFF[1]
         attempts = 0
-        while not self.stop.is_set():
+        while not self.stop.wait(wait):
+            wait = min(2 * wait, top)
             attempts += 1
             try:
                 port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=self.poll_timeout,
                                              write_timeout=max(self.timeout, 1.0))
             except _PORT_ERRORS as exc:
                 self._set_connected(False, str(exc))
-                self.stop.wait(wait)
-                wait = min(2 * wait, top)
                 continue
             with self.sink.stats.lock:
                 self.stats.reconnects += 1
             self._set_connected(True)
             self.sink.event(self.stream, "reconnected", port=self.url, attempts=attempts)
-            return port
-        return None
+            return port, wait
+        return None, wait
 
     def session(self, port) -> None:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -259,6 +274,8 @@ class ThermoReader(_PortReader):
 
     def __init__(self, url, sink, stop, *, channels, tc_type: str = "E", interval: float = 1.0,
                  baudrate: int = 9600, timeout: float = 2.0, retries: int = 3):
+        if not isinstance(tc_type, str) or tc_type.upper() not in scpi.TC_TYPES:
+            raise AcquisitionError(f"{url}: thermocouple type {tc_type!r} is not one of {', '.join(scpi.TC_TYPES)}")
         self.channels = list(channels)
         self.tc_type = tc_type
         self.interval = interval

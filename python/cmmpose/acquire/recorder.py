@@ -5,6 +5,7 @@ run (docs/protocols.md)."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import threading
 import time
@@ -19,10 +20,11 @@ from .buffer import BoundedBuffer
 from .clock import host_time
 from .plan import Plan
 from .reader import ScannerReader, ThermoReader
+from .scpi import TC_TYPES
 from .stats import Snapshot, Stats
 from .store import EVENT, JOURNAL_NAME, LOG_NAME, JournalContents, JournalWriter, encode_record, event_data, read_journal
 
-__all__ = ["Recorder", "acquire", "recover", "Recovery", "PLAN_NAME"]
+__all__ = ["Recorder", "acquire", "recover", "Recovery", "PLAN_NAME", "check_options"]
 
 PLAN_NAME = "plan.json"
 _RUN_FILES = ("run.json", "points.parquet", "scans.parquet", "poses.parquet", "temperatures.parquet")
@@ -81,6 +83,9 @@ class Recorder:
                  fsync: bool = True, disk_rate: float | None = None, overwrite: bool = False):
         if scanner is None and thermo is None:
             raise AcquisitionError("nothing to record: give a scanner port, a thermo port or both")
+        check_options(tc_type=tc_type, thermo_interval=thermo_interval, flush_interval=flush_interval,
+                      buffer_bytes=buffer_bytes, scanner_baudrate=scanner_baudrate, thermo_baudrate=thermo_baudrate,
+                      scanner_timeout=scanner_timeout, thermo_timeout=thermo_timeout, disk_rate=disk_rate)
         self.run_dir = Path(run_dir)
         self.scanner_url, self.thermo_url = scanner, thermo
         if plan is None:
@@ -146,7 +151,12 @@ class Recorder:
 
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> Recorder:
-        """Create the run directory and journal, open the ports, start the threads.
+        """Open the ports, then create the run directory and journal, start the threads.
+
+        The ports are opened before anything is written: a port that cannot be
+        opened leaves ``run_dir`` as it was (a recording to be replaced with
+        ``overwrite`` is kept). Should the files then fail to be created, what
+        this call created is removed again.
 
         Raises
         ------
@@ -155,20 +165,33 @@ class Recorder:
         """
         d = self.run_dir
         journal = d / JOURNAL_NAME
-        if journal.exists() or (d / "run.json").exists():
-            if not self.overwrite:
-                raise AcquisitionError(f"{d}: already holds a recording (pass overwrite=True / --overwrite to replace it)")
-            for name in (JOURNAL_NAME, LOG_NAME, PLAN_NAME, *_RUN_FILES):
-                if (d / name).is_file():
-                    (d / name).unlink()
+        if (journal.exists() or (d / "run.json").exists()) and not self.overwrite:
+            raise AcquisitionError(f"{d}: already holds a recording (pass overwrite=True / --overwrite to replace it)")
+        if d.exists() and not d.is_dir():
+            raise AcquisitionError(f"{d}: not a directory")
+        self._open_readers()
+        created: list[Path] = []
         try:
-            d.mkdir(parents=True, exist_ok=True)
-            self.plan.write(d / PLAN_NAME)
-            self._log = open(d / LOG_NAME, "a", encoding="utf-8")
-        except OSError as exc:
-            raise AcquisitionError(f"{d}: cannot create the run directory ({exc.strerror or exc})") from None
-        self._journal = JournalWriter(journal, fsync=self.fsync)
+            self._create_files(created)
+        except BaseException:
+            self._close_readers()
+            for f in (self._journal, self._log):
+                if f is not None:
+                    f.close()
+            self._journal = self._log = None
+            _remove_created(created)
+            raise
         self.started = host_time()
+        self.event("journal", "start", created=_utc(self.started), scanner=self.scanner_url, thermo=self.thermo_url,
+                   flush_interval_s=self.flush_interval, buffer_bytes=self.buffer.capacity, **self.options)
+        self._writer = threading.Thread(target=self._write_loop, name="cmmpose-journal", daemon=True)
+        self._writer.start()
+        for r in self._readers:
+            r.start()
+        return self
+
+    def _open_readers(self) -> None:
+        """Open both ports (the readers' threads are not started); on a failure close what was opened."""
         o = self.options
         try:
             if self.scanner_url:
@@ -178,19 +201,44 @@ class Recorder:
                 self._readers.append(ThermoReader(self.thermo_url, self, self._stop, channels=self.plan.channels,
                                                   tc_type=o["tc_type"], interval=o["thermo_interval"],
                                                   baudrate=o["thermo_baudrate"], timeout=o["thermo_timeout"]))
-        except AcquisitionError:
-            for r in self._readers:
-                r._port.close()
-            self._journal.close()
-            self._log.close()
+        except BaseException:
+            self._close_readers()
             raise
-        self.event("journal", "start", created=_utc(self.started), scanner=self.scanner_url, thermo=self.thermo_url,
-                   flush_interval_s=self.flush_interval, buffer_bytes=self.buffer.capacity, **o)
-        self._writer = threading.Thread(target=self._write_loop, name="cmmpose-journal", daemon=True)
-        self._writer.start()
+
+    def _close_readers(self) -> None:
         for r in self._readers:
-            r.start()
-        return self
+            try:
+                r._port.close()
+            except OSError:
+                pass
+        self._readers.clear()
+
+    def _create_files(self, created: list[Path]) -> None:
+        """Create the run directory (and its missing parents), plan.json, acquire.log and the
+        journal, appending to ``created`` every path this call made, in the order made."""
+        d = self.run_dir
+        try:
+            missing = []
+            p = d
+            while not p.exists():
+                missing.append(p)
+                p = p.parent
+            created.extend(reversed(missing))  # listed first: removed again even if mkdir fails half-way
+            d.mkdir(parents=True, exist_ok=True)
+            if self.overwrite:
+                for name in (JOURNAL_NAME, LOG_NAME, PLAN_NAME, *_RUN_FILES):
+                    if (d / name).is_file():
+                        (d / name).unlink()
+            plan, log = d / PLAN_NAME, d / LOG_NAME
+            made = [path for path in (plan, log) if not path.exists()]
+            self.plan.write(plan)
+            created.extend(path for path in made if path == plan)
+            self._log = open(log, "a", encoding="utf-8")
+            created.extend(path for path in made if path == log)
+        except OSError as exc:
+            raise AcquisitionError(f"{d}: cannot create the run directory ({exc.strerror or exc})") from None
+        self._journal = JournalWriter(d / JOURNAL_NAME, fsync=self.fsync)
+        created.append(d / JOURNAL_NAME)
 
     def _write_loop(self) -> None:
         try:
@@ -291,6 +339,55 @@ class Recovery:
                 f"{self.contents.blocks} blocks, torn tail: {tail}, clean stop: {self.clean_stop})")
 
 
+def _remove_created(paths: list[Path]) -> None:
+    """Remove files and (empty) directories a failed start created, newest first."""
+    for p in reversed(paths):
+        try:
+            if p.is_dir():
+                p.rmdir()
+            else:
+                p.unlink()
+        except OSError:
+            pass
+
+
+def _positive(name: str, value, *, integer: bool = False, optional: bool = False) -> None:
+    if optional and value is None:
+        return
+    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+    if ok and integer:
+        ok = float(value).is_integer()
+    if not ok:
+        raise AcquisitionError(f"{name}: expected a finite {'integer' if integer else 'number'} > 0, got {value!r}")
+
+
+def check_options(*, tc_type="E", thermo_interval=1.0, flush_interval=0.2, buffer_bytes=64 << 20,
+                  scanner_baudrate=921600, thermo_baudrate=9600, scanner_timeout=2.0, thermo_timeout=2.0,
+                  disk_rate=None, duration=None) -> None:
+    """Check the recorder's options before any port is opened or file written.
+
+    Parameters are those of ``Recorder`` (and ``acquire``'s ``duration``, s,
+    None: until stopped).
+
+    Raises
+    ------
+    AcquisitionError
+        Naming the option: a thermocouple type the logger code does not know
+        (``scpi.TC_TYPES``), an interval, timeout or duration that is not a
+        finite number > 0, a baud rate or buffer size that is not an integer > 0.
+    """
+    if not isinstance(tc_type, str) or tc_type.upper() not in TC_TYPES:
+        raise AcquisitionError(f"tc_type: {tc_type!r} is not a thermocouple type ({', '.join(TC_TYPES)})")
+    for name, value in (("thermo_interval", thermo_interval), ("flush_interval", flush_interval),
+                        ("scanner_timeout", scanner_timeout), ("thermo_timeout", thermo_timeout)):
+        _positive(name, value)
+    _positive("duration", duration, optional=True)
+    _positive("disk_rate", disk_rate, optional=True)
+    for name, value in (("buffer_bytes", buffer_bytes), ("scanner_baudrate", scanner_baudrate),
+                        ("thermo_baudrate", thermo_baudrate)):
+        _positive(name, value, integer=True)
+
+
 def recover(run_dir, *, save: bool = True) -> Recovery:
     """Rebuild the run in ``run_dir`` from its journal (after a clean stop or a crash).
 
@@ -306,13 +403,29 @@ def recover(run_dir, *, save: bool = True) -> Recovery:
     Recovery
         Every record in the journal's good blocks; the torn tail, if any, is
         reported (and left in the file untouched).
+
+    Raises
+    ------
+    AcquisitionError
+        A journal holding no points (a recording that never started, or a
+        scanner that sent nothing) -- unless it is a logger-only recording
+        holding logger scans; a plan.json that is not a valid plan.
     """
     d = Path(run_dir)
+    if not (d / JOURNAL_NAME).is_file():
+        raise AcquisitionError(f"{d}: no journal ({JOURNAL_NAME}) to recover a run from")
     contents = read_journal(d / JOURNAL_NAME)
     plan = Plan.read(d / PLAN_NAME) if (d / PLAN_NAME).is_file() else Plan()
     start = next((e for e in contents.events if e.get("type") == "start"), None)
+    if not contents.scanner and not contents.thermo:
+        raise AcquisitionError(f"{d / JOURNAL_NAME}: holds no points and no temperatures, no run to build "
+                               f"({contents.blocks} blocks" + ("" if start else ", no start event: the recording "
+                               "never started") + ")")
     created = start["created"] if start else _utc(os.path.getmtime(d / JOURNAL_NAME))
     run = assemble(contents, plan, created=created)
+    if run.n_points == 0 and (not contents.thermo or (start or {}).get("scanner")):
+        raise AcquisitionError(f"{d / JOURNAL_NAME}: holds no points, no run to build ({len(contents.scanner)} "
+                               f"scanner records, {len(contents.thermo)} logger scans)")
     if save:
         run.save(d, overwrite=True)
     return Recovery(run, contents)
@@ -345,6 +458,7 @@ def acquire(run_dir, scanner: str | None = None, thermo: str | None = None, *, d
     Run
         The run, also saved in ``run_dir``.
     """
+    check_options(duration=duration)
     rec = Recorder(run_dir, scanner, thermo, **options).start()
     stop = stop or threading.Event()
     end = None if duration is None else time.monotonic() + duration

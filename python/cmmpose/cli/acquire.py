@@ -2,30 +2,63 @@
 
 from __future__ import annotations
 
+import math
 
 import click
 from rich.console import Console
 
+from ..acquire.scpi import TC_TYPES
 from ..errors import Error
 from .common import console, fail, machine_option, offset_mm, pose_angles
+
+
+class PositiveSeconds(click.ParamType):
+    """A finite number of seconds > 0 (click's FloatRange lets nan through)."""
+
+    name = "seconds"
+
+    def convert(self, value, param, ctx):
+        try:
+            x = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number of seconds", param, ctx)
+        if not (math.isfinite(x) and x > 0):
+            self.fail(f"{value!r} is not a finite number of seconds > 0", param, ctx)
+        return x
+
+
+class ThermocoupleType(click.ParamType):
+    """A thermocouple type the logger code configures (``cmmpose.acquire.scpi.TC_TYPES``), any case."""
+
+    name = "[" + "|".join(TC_TYPES) + "]"
+
+    def convert(self, value, param, ctx):
+        if not isinstance(value, str) or value.upper() not in TC_TYPES:
+            self.fail(f"{value!r} is not a thermocouple type ({', '.join(TC_TYPES)})", param, ctx)
+        return value.upper()
+
+
+SECONDS = PositiveSeconds()
+BAUD = click.IntRange(min=1)
 
 
 @click.command("acquire")
 @click.option("--scanner", default=None, help="Scanner + scales port: device path or pyserial URL (socket://, rfc2217://).")
 @click.option("--thermo", default=None, help="Thermocouple logger port: device path or pyserial URL.")
 @click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
-@click.option("--duration", type=float, default=None, help="Seconds to record (default: until Ctrl-C).")
+@click.option("--duration", type=SECONDS, default=None, help="Seconds to record (default: until Ctrl-C).")
 @click.option("--plan", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Plan JSON: scans, poses, channels, artefact, maps (docs/protocols.md).")
 @click.option("--pose", default=None, help="alpha,beta,gamma in degrees, when the plan has no poses. Default: the machine's.")
 @click.option("--offset", default=None, help="U1,V1,W1 in mm, when the plan has no poses. Default: the machine's.")
 @machine_option
-@click.option("--tc-type", default="E", show_default=True, help="Thermocouple type.")
-@click.option("--thermo-interval", type=float, default=1.0, show_default=True, help="Seconds between logger scans.")
-@click.option("--flush-interval", type=float, default=0.2, show_default=True, help="Longest wait before records reach disk, s.")
-@click.option("--scanner-baud", type=int, default=921600, show_default=True,
+@click.option("--tc-type", type=ThermocoupleType(), default="E", show_default=True,
+              help="Thermocouple type.")
+@click.option("--thermo-interval", type=SECONDS, default=1.0, show_default=True, help="Seconds between logger scans.")
+@click.option("--flush-interval", type=SECONDS, default=0.2, show_default=True, help="Longest wait before records reach disk, s.")
+@click.option("--scanner-baud", type=BAUD, default=921600, show_default=True,
               help="Baud rate of the scanner + scales port (a serial device; ignored by socket:// URLs).")
-@click.option("--thermo-baud", type=int, default=9600, show_default=True,
+@click.option("--thermo-baud", type=BAUD, default=9600, show_default=True,
               help="Baud rate of the thermocouple logger port.")
 @click.option("--overwrite", is_flag=True, help="Replace a recording already in RUN_DIR.")
 @click.option("--recover", is_flag=True, help="Rebuild RUN_DIR from its journal (after a crash); opens no ports.")
