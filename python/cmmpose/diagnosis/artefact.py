@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .. import artefacts
-from ..evaluation.artefact import ball_scans, rigid_fit
+from ..evaluation.artefact import ball_scans, check_ball_positions, rigid_fit
 from ..artefacts._base import line_distance
 from .model import inputs_with_incidence
 
@@ -137,14 +137,28 @@ def artefact_deviations(layout: ArtefactLayout, mean_centres: np.ndarray,
     expansion_ppm_per_kelvin : float
         The model's artefact expansion on top of the certificate's
         coefficient, ppm/K.
+
+    Raises
+    ------
+    InputError
+        On the layout's first centres (the run as first observed): a ball
+        further from its calibrated place than any machine error could take
+        it, mislabelled or mismeasured (as the evaluation,
+        :func:`cmmpose.evaluation.artefact.check_ball_positions`).
     """
     a = layout.artefact
+    check = not layout.__dict__.get("_balls_checked")
     out = []
-    for idx, cal, temp in zip(layout.spheres, layout.calibrated, layout.temperature):
+    for pos, balls, idx, cal, temp in zip(layout.positions, layout.balls, layout.spheres, layout.calibrated,
+                                          layout.temperature):
         m = mean_centres[idx]
-        c = cal * (float(a.scale_to(temp)) * (1.0 + expansion_ppm_per_kelvin * 1e-6 * (temp - 20.0)))
+        scale = float(a.scale_to(temp)) * (1.0 + expansion_ppm_per_kelvin * 1e-6 * (temp - 20.0))
+        c = cal * scale
+        if check:
+            check_ball_positions(a, f"scans: position {pos} of the run of {a.name!r}", balls, m, a.centres * scale)
         r, t = rigid_fit(c, m)
         out.append(m - (c @ r.T + t))
+    layout.__dict__["_balls_checked"] = True  # later calls are the diagnosis's steps on the same balls
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 

@@ -38,10 +38,11 @@ from .ballbar import machine_coordinates, evaluation_provenance, rounded_dict, l
 from ..temperature import TemperaturePolicy, as_policy
 from .ballbar_uncertainty import DEFAULT_U_TEMPERATURE_K
 from ..fitting import fit_spheres
+from ..artefacts._base import line_distance
 from ..run import Run
 
 __all__ = ["BallDeviation", "LengthError", "PlacementResult", "ArtefactResult", "ArtefactEvaluation",
-           "evaluate_artefact", "is_artefact_run", "rigid_fit"]
+           "evaluate_artefact", "is_artefact_run", "rigid_fit", "check_ball_positions", "gross_tolerance"]
 
 
 def is_artefact_run(run: Run) -> bool:
@@ -304,6 +305,143 @@ def _check_labels(groups, fits, radius: float) -> None:
                                      f"um apart): one of them is mislabelled")
 
 
+#: How far (mm) a ball's centre may be from where the placement's best fit
+#: puts it before it is mislabelled or mismeasured rather than measured with
+#: a machine error: ``min(GROSS_FRACTION * smallest ball spacing,
+#: max(GROSS_RESIDUAL, GROSS_PER_LENGTH * largest ball spacing))``
+#: (:func:`gross_tolerance`). A machine's error leaves after the rigid fit
+#: what no rigid motion explains, and grows with the artefact: the thesis
+#: machine uncompensated (its maps, 20-29.5 C) leaves up to 0.22 mm on a KOBA
+#: 0620 (752 mm diagonal), 0.29 um per mm, and 0.14 mm on the 0420 and the
+#: APMP plate (tests/test_artefact_labels.py measures it); 1 mm, or 2 um per
+#: mm of the artefact's largest spacing (2000 ppm, 400 arcsec of shear: a
+#: machine no one measures a calibrated plate on), is 6.9 times the worst of
+#: these. A swapped or wrong label moves a ball to another ball's place, at
+#: least the smallest spacing (the pitch: 20-133 mm on the bundled
+#: artefacts) away: a tenth of it leaves a margin of 10 the other way, and
+#: caps the tolerance of an artefact whose balls are close together.
+GROSS_RESIDUAL = 1.0
+GROSS_PER_LENGTH = 2e-3
+GROSS_FRACTION = 0.1
+
+
+def gross_tolerance(artefact: artefacts.Artefact) -> float:
+    """The residual (mm) beyond which a ball of ``artefact`` is mislabelled
+    or mismeasured (GROSS_RESIDUAL explains the choice)."""
+    c = artefact.centres
+    if len(c) < 2:
+        return GROSS_RESIDUAL
+    gap = np.linalg.norm(c[:, None] - c[None], axis=2)[~np.eye(len(c), dtype=bool)]
+    return float(min(GROSS_FRACTION * gap.min(), max(GROSS_RESIDUAL, GROSS_PER_LENGTH * gap.max())))
+
+
+def _balls(ids) -> str:
+    ids = [str(int(b)) for b in ids]
+    return f"ball {ids[0]}" if len(ids) == 1 else "balls " + ", ".join(ids[:-1]) + " and " + ids[-1]
+
+
+def check_ball_positions(artefact: artefacts.Artefact, where: str, ids, measured: np.ndarray,
+                         calibrated: np.ndarray, scans_of=None) -> None:
+    """Refuse a placement whose balls are not where their labels put them.
+
+    The measured centres are judged first by the distances between them,
+    which need no fit: a ball stays trusted while its distances to the other
+    trusted balls match the calibrated ones within twice
+    :func:`gross_tolerance` (what two balls each within it can differ by);
+    the ball with the most (then the largest) mismatches is left out until
+    the rest agree, so one swapped or stray ball cannot spoil the fit that
+    judges it. The rigid fit (Kabsch) of the trusted balls then places the
+    whole artefact; a ball further than the tolerance from its calibrated
+    place is an error, which says which ball it did measure where one of
+    the placed balls is within the tolerance (two labels swapped, or a
+    permutation among the offending balls). Vectorised over balls
+    (n^2 distances, n at most a few hundred).
+
+    Parameters
+    ----------
+    artefact : Artefact
+    where : str
+        Names the run and placement in the message.
+    ids : sequence of int (n,)
+        The placement's ball labels.
+    measured : ndarray (n, 3)
+        Their measured centres, mm.
+    calibrated : ndarray (N, 3)
+        Every ball of the artefact (``artefact.ids`` order), calibrated, in
+        the measured centres' temperature state, mm.
+    scans_of : sequence of sequences of int, optional
+        Each ball's scan ids, for the message.
+
+    Raises
+    ------
+    InputError
+        A ball further than the tolerance from its calibrated place.
+    """
+    ids = np.asarray(ids, dtype=np.int64)
+    n = len(ids)
+    if n < 2:
+        return
+    tol = gross_tolerance(artefact)
+    c = calibrated[[artefact.index(int(b)) for b in ids]]
+    err = np.abs(np.linalg.norm(measured[:, None] - measured[None], axis=2)
+                 - np.linalg.norm(c[:, None] - c[None], axis=2))
+    # Balls each within tol of their places change their distance by at most 2 tol: such balls stay trusted.
+    gross = err > 2.0 * tol
+    trusted = np.ones(n, dtype=bool)
+    while gross.any():
+        among = gross & trusted[:, None] & trusted[None, :]
+        count = among.sum(axis=1)
+        if not count.any():
+            break
+        size = np.where(among, err, 0.0).sum(axis=1)
+        trusted[np.lexsort((size, count))[-1]] = False
+
+    def scans(mask) -> str:
+        if scans_of is None:
+            return ""
+        return " (" + ", ".join(f"scan{'s' if len(s) > 1 else ''} {', '.join(map(str, s))} labelled ball {b}"
+                                for b, s, m in zip(ids.tolist(), scans_of, mask) if m) + ")"
+
+    in_a_row = line_distance(artefact.centres).max() <= artefact.nominal_radius
+    if trusted.sum() < (2 if in_a_row else 3):  # too few agree to place the artefact
+        i, j = np.unravel_index(int(np.argmax(err)), err.shape)
+        which = "" if n == 2 else f"; the distances of {_balls(ids[~trusted])} disagree with the others'"
+        named = scans(~trusted if n > 2 else np.ones(n, dtype=bool))
+        raise InputError(
+            f"{where}: the balls' centres do not match the artefact's geometry: balls {ids[i]} and {ids[j]} lie "
+            f"{np.linalg.norm(measured[i] - measured[j]):.3f} mm apart, calibrated {np.linalg.norm(c[i] - c[j]):.3f} "
+            f"mm, more than the {2 * tol:.3f} mm machine errors could explain{which}{named}: mislabelled or "
+            f"mismeasured balls (check the 'ball' column of the scans)")
+    r, t = rigid_fit(c[trusted], measured[trusted])
+    placed = calibrated @ r.T + t
+    own = placed[[artefact.index(int(b)) for b in ids]]
+    off = np.linalg.norm(measured - own, axis=1)
+    bad = off > tol
+    if not bad.any():
+        return
+    near = np.linalg.norm(measured[bad][:, None] - placed[None], axis=2)
+    nearest = near.argmin(axis=1)
+    guess = {int(a): int(artefact.ids[k]) for a, k, d in zip(ids[bad], nearest, near.min(axis=1)) if d <= tol}
+    k = int(bad.sum())
+    offs = " and ".join(", ".join(f"{d:.3f}" for d in off[bad]).rsplit(", ", 1))
+    msg = (f"{where}: {_balls(ids[bad])} {'lies' if k == 1 else 'lie'} {offs} mm from where the best fit of the "
+           f"artefact to the other {int(trusted.sum())} balls puts {'it' if k == 1 else 'them'}, more than the "
+           f"{tol:.3f} mm a machine error could explain{scans(bad)}: mislabelled or mismeasured")
+    bad_ids = set(ids[bad].tolist())
+    if guess and set(guess) == bad_ids and set(guess.values()) == bad_ids:
+        pairs = sorted({tuple(sorted((a, b))) for a, b in guess.items()})
+        if all(guess[b] == a for a, b in pairs):
+            msg += "; " + "; ".join(f"labels {a} and {b} look swapped" for a, b in pairs)
+        else:
+            msg += "; the labels look permuted: " + ", ".join(f"the ball labelled {a} is ball {b}"
+                                                               for a, b in sorted(guess.items()))
+    elif guess:
+        msg += "; " + ", ".join(f"the ball labelled {a} looks like ball {b}" +
+                                ("" if b in ids.tolist() else " (not otherwise measured)")
+                                for a, b in sorted(guess.items()))
+    raise InputError(msg + " (check the 'ball' column of the scans)")
+
+
 def _model_moves(run, model, model_t, groups, reject, out_of_range, temperature_tolerance, base_xyz) -> list[dict]:
     """Per parameter of a diagnosis model that states its standard uncertainty u: each scan's fitted centre
     move for a change of u (mm), by a difference of one step of the effect through the kernel and the fits."""
@@ -326,7 +464,7 @@ def _model_moves(run, model, model_t, groups, reject, out_of_range, temperature_
 
 
 def _evaluate_state(label, run, xyz, groups, artefact, temps, labels, reject, u_temperature,
-                    model_moves=()) -> ArtefactResult:
+                    model_moves=(), check=False) -> ArtefactResult:
     sid = run.points["scan_id"]
     wanted = [s for balls in groups.values() for scans in balls.values() for s in scans]
     keep = np.isin(sid, wanted)
@@ -345,6 +483,9 @@ def _evaluate_state(label, run, xyz, groups, artefact, temps, labels, reject, u_
         k20 = float(artefact.scale_to(20.0) / artefact.scale_to(T))
         m = np.array([np.mean([fits.centre[row[s]] for s in scans], axis=0) for scans in scans_of])
         m20 = m.mean(axis=0) + (m - m.mean(axis=0)) * k20
+        if check:  # the labels, once (uncompensated): a swapped pair would read as pitch-sized deviations
+            check_ball_positions(artefact, f"scans: position {pos} ({labels.get(pos, 'unlabelled')}) of "
+                                 f"the run of {artefact.name!r}", ids, m20, cal20_all, scans_of)
         c20 = cal20_all[[artefact.index(b) for b in ids]]
         r, t = rigid_fit(c20, m20)
         placed = c20 @ r.T + t
@@ -435,7 +576,10 @@ def evaluate_artefact(
     InputError
         A run without an artefact, a scan labelled with a ball the artefact
         lacks or a placement the run does not record, two labels on one ball,
-        no temperature.
+        a ball (uncompensated) further from where the placement's best fit
+        puts it than any machine error could take it (mislabelled, e.g. two
+        labels swapped, or mismeasured: :func:`check_ball_positions`), no
+        temperature.
     """
     if not isinstance(run, Run):
         raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
@@ -471,7 +615,7 @@ def evaluate_artefact(
     if skipped:
         prov["notes"].append(f"{skipped} scans of other features (not 'ball') are not part of the evaluation")
     raw = _evaluate_state("uncompensated", run, machine_coordinates(run, None, None), groups, artefact, temps,
-                          labels, reject, u_temperature)
+                          labels, reject, u_temperature, check=True)
     if maps is None:
         return ArtefactEvaluation(artefact, raw, provenance=prov)
     model_t = temperature if temperature is not None else temps
