@@ -135,7 +135,8 @@ def test_command_line_plan(tmp_path, xy_plate):
     assert len(doc["proposals"]) == 2 and doc["status"]["squareness.yz"] == "invisible"
     assert doc["proposals"][0]["placement"][:2] in ("xz", "yz")
     res = CliRunner().invoke(main, ["plan", str(tmp_path / "plate"), "--budget", "0"])
-    assert res.exit_code == 1 and "budget" in res.output and "Traceback" not in res.output
+    # A usage error naming the flag (exit 2, as the README promises), not the Python argument.
+    assert res.exit_code == 2 and "--budget" in res.output and "Traceback" not in res.output
     res = CliRunner().invoke(main, ["plan", str(tmp_path / "plate"), "--artefact", "no-such-plate"])
     assert res.exit_code == 1 and "no-such-plate" in res.output
     res = CliRunner().invoke(main, ["plan", str(tmp_path / "plate"), "--simulate"])

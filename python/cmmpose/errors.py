@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 __all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "InputTypeError", "GeometryError", "RunError",
            "CalibrationError", "AcquisitionError", "SchedulerError", "OutputError", "ClampWarning",
-           "ExtrapolationWarning", "IllConditionedFit", "MapTemperatureWarning", "Remedy", "REMEDIES", "warn_clamped",
+           "ExtrapolationWarning", "IllConditionedFit", "ImplausibleFit", "MapTemperatureWarning", "Remedy", "REMEDIES", "warn_clamped",
            "read_lines"]
 
 _log = logging.getLogger("cmmpose")
@@ -198,6 +198,12 @@ class IllConditionedFit(UserWarning):
     """A free-radius sphere fit whose centre is ill-determined: the centre and
     the radius are so correlated (a small cap) that the centre moves with the
     radius; fix the radius at its calibrated value (docs/fitting.md)."""
+
+
+class ImplausibleFit(UserWarning):
+    """A sphere fit whose answer is implausible: an rms too large for the
+    radius, or a fixed radius the points disagree with (a wrong radius, a
+    diameter, a raw scan not segmented); docs/fitting.md, Sanity checks."""
 
 
 class MapTemperatureWarning(UserWarning):

@@ -17,7 +17,7 @@ import numpy as np
 from . import _core
 from ._arrays import as_rows
 from ._validate import vector3
-from .errors import GeometryError, IllConditionedFit, InputError
+from .errors import GeometryError, IllConditionedFit, ImplausibleFit, InputError
 
 _log = logging.getLogger(__name__)
 
@@ -32,6 +32,39 @@ ILL_CONDITIONED_CORRELATION = 0.99
 #: point makes the rest look collinear or coplanar to the fit's moments: the
 #: degenerate-geometry error then names it instead (:func:`_far_point`).
 FAR_POINT_RATIO = 1e4
+
+#: A sphere fit warns (:class:`ImplausibleFit`) when its rms exceeds this
+#: fraction of the radius. Scanners used on spheres scatter by well under 1 %
+#: of the radius (the NIST DMG scans: 0.1-0.2 mm on 50 mm, 0.2-0.4 %; a CMM
+#: line scanner: microns on millimetres); at 10 % the points no longer
+#: describe one sphere (a raw scan with its stand and background, another
+#: unit, another radius) and the centre is whatever the rest pulls it to.
+MAX_RMS_FRACTION = 0.10
+
+#: A fixed-radius fit warns (:class:`ImplausibleFit`) when a free-radius fit of
+#: the same points has an rms this many times smaller: fixing the radius then
+#: adds a misfit larger than the scanner's own scatter (sqrt(1.5^2 - 1) = 1.1
+#: times it). With the right calibrated radius the two agree to a few percent
+#: (the NIST DMG scans: at most 1.02); 1 mm off on 50 mm already gives 1.9.
+RADIUS_MISFIT_RMS_RATIO = 1.5
+
+#: ... and when that free radius differs from the fixed one by more than this
+#: fraction of it: no scanner bias reaches it (coating, incidence, mixed
+#: pixels: the NIST DMG scans' free radii lie within 0.33 % of 50 mm, a CMM
+#: scanner's within tens of microns), a wrong radius (a diameter, another
+#: sphere's, another unit) or points not on the sphere do.
+RADIUS_MISFIT_FRACTION = 0.02
+
+#: Length units a point cloud is often written in, with their size in mm (the
+#: unit hint of :func:`_unit_hint`).
+_UNITS_MM = {"m": 1000.0, "in": 25.4, "cm": 10.0}
+_UNIT_NAMES = {"m": "metres", "in": "inches", "cm": "centimetres"}
+
+
+def unit_remedy(unit: str) -> str:
+    """The Python API's words for reading points in ``unit`` (the command
+    line replaces them with its ``--units`` flag)."""
+    return f" (read_point_cloud(path, units={unit!r}))"
 
 RULES = ("none", "mad", "e3125")
 STARTS = ("algebraic", "lmeds")
@@ -368,6 +401,69 @@ def _far_point(rows: np.ndarray, message: str, row_of=lambda k: k) -> str:
             f"its units")
 
 
+def _unit_hint(rows: np.ndarray, radius: float) -> tuple[str, str | None]:
+    """A sentence on the points' units when they span far less than the
+    sphere (a scan in metres read as mm) and the likely unit (or None): a
+    scan that sees a sphere spans at least about its radius, so points
+    spanning under half of it, at the scale of another unit, are in that
+    unit."""
+    span = float(np.max(np.ptp(rows, axis=0))) if len(rows) else 0.0
+    if not (span > 0) or span >= 0.5 * radius:
+        return "", None
+    need = 2.0 * radius / span  # the factor that makes the points span the sphere's diameter
+    unit, size = min(_UNITS_MM.items(), key=lambda kv: abs(np.log(need / kv[1])))
+    if abs(np.log(need / size)) > np.log(4.0):
+        return (f"; the points span only {span:.3g} mm against the sphere's {2 * radius:g} mm diameter: are the "
+                f"points and the radius in the same unit (mm)?"), None
+    return (f"; the points span only {span:.3g} mm against the sphere's {2 * radius:g} mm diameter: the "
+            f"coordinates look like {_UNIT_NAMES[unit]} ({span * size:.4g} mm if they are): convert them to mm"
+            + unit_remedy(unit)), unit
+
+
+def _coverage_error(rows: np.ndarray, radius: float, coverage: float, min_coverage: float, what: str) -> GeometryError:
+    hint, unit = _unit_hint(rows, radius)
+    return GeometryError(f"{what}: polar coverage {coverage:.3g} deg is below min_coverage = {min_coverage:g} deg with "
+                         f"the radius fixed at {radius:g} mm: the points are too small a cap of that sphere for its "
+                         f"centre to mean anything{hint}", what="units" if unit else None, value=unit)
+
+
+def _implausible(rows: np.ndarray, fit: SphereFit, fixed: bool, what: str) -> str | None:
+    """Why ``fit`` (of ``rows``, its inliers) is implausible, or None:
+    its rms over :data:`MAX_RMS_FRACTION` of the radius, or (a fixed radius)
+    a free-radius fit of the same points that fits far better with a
+    radius far from the fixed one. Run in Rust, once more per fit."""
+    radius, rms = float(fit.radius), float(fit.rms)
+    reasons = []
+    if rms > MAX_RMS_FRACTION * radius:
+        reasons.append(f"the rms {rms:.4g} mm is {100 * rms / radius:.0f} % of the {radius:g} mm radius (over "
+                       f"{100 * MAX_RMS_FRACTION:g} %): the points do not lie on one sphere")
+    if fixed and len(rows) >= 4:
+        try:
+            free = _core.fit_sphere(np.ascontiguousarray(rows), radius=None, reject=None, rule=None,
+                                    max_iterations=100, min_coverage=0.0, samples=1, seed=0, start="algebraic")
+        except Exception:  # noqa: BLE001 - no free fit, no comparison (the fixed fit stands)
+            free = None
+        if free is not None and np.isfinite(free["radius"]) and free["rms"] >= 0:
+            rf, sf = float(free["radius"]), float(free["rms"])
+            if rms > RADIUS_MISFIT_RMS_RATIO * sf and abs(rf - radius) > RADIUS_MISFIT_FRACTION * radius:
+                ratio = radius / rf
+                guess = " (twice the points' radius: a diameter?)" if abs(ratio - 2) < 0.1 else ""
+                reasons.append(f"the fixed radius {radius:g} mm misfits the points: a free-radius fit of the same "
+                               f"points gives {rf:.4g} mm with rms {sf:.4g} mm against {rms:.4g} mm{guess}")
+    if not reasons:
+        return None
+    hint, _ = _unit_hint(rows, radius)
+    return (f"{what}: " + "; ".join(reasons) + hint + ": check the radius, the units, and that the points are the "
+            "sphere's alone (a raw scan needs segmentation or a rejection rule); the centre is not to be trusted")
+
+
+def _warn_implausible(rows: np.ndarray, fit: SphereFit, fixed: bool, what: str) -> None:
+    msg = _implausible(rows, fit, fixed, what)
+    if msg:
+        _log.warning("%s", msg)
+        warnings.warn(msg, ImplausibleFit, stacklevel=3)
+
+
 def fit_sphere(points, radius: float | None = None, *, reject: float | None = None, rule: str | None = None,
                start=None, samples: int = 500, seed: int = 0, max_iterations: int = 100,
                min_coverage: float = 2.0) -> SphereFit:
@@ -416,13 +512,21 @@ def fit_sphere(points, radius: float | None = None, *, reject: float | None = No
         A free radius with a centre-radius correlation above
         ``ILL_CONDITIONED_CORRELATION`` (0.99): the centre is ill-determined;
         fix the radius. Also logged (logger ``cmmpose.fitting``).
+    ImplausibleFit
+        An rms over ``MAX_RMS_FRACTION`` (10 %) of the radius, or a fixed
+        radius the points disagree with: a free-radius fit of the same points
+        fits ``RADIUS_MISFIT_RMS_RATIO`` (1.5) times better with a radius
+        more than ``RADIUS_MISFIT_FRACTION`` (2 %) away (docs/fitting.md,
+        Sanity checks). Also logged.
 
     Raises
     ------
     InputError
         Fewer than 4 points, NaN or inf (naming the row), bad options.
     GeometryError
-        Coplanar or collinear points, a cap too small to fit, no convergence,
+        Coplanar or collinear points, a cap too small to fit (with a fixed
+        radius, naming the points' likely unit when they span far less than
+        the sphere: ``what='units'``, ``value`` the unit), no convergence,
         rejection leaving too few points.
     """
     opts = _check(radius, reject, rule, max_iterations, min_coverage, samples, seed)
@@ -430,9 +534,14 @@ def fit_sphere(points, radius: float | None = None, *, reject: float | None = No
     try:
         raw = _core.fit_sphere(rows, **opts, **_start(start))
     except GeometryError as exc:
-        raise GeometryError(_far_point(rows, str(exc))) from None
+        text = _far_point(rows, str(exc))
+        if radius is not None and text == str(exc) and "polar coverage" in text:
+            hint, unit = _unit_hint(rows, float(radius))
+            raise GeometryError(text + hint, what="units" if unit else None, value=unit) from None
+        raise GeometryError(text) from None
     fit = SphereFit._from(raw)
     _warn_conditioning(fit, radius is None)
+    _warn_implausible(rows[fit.inlier], fit, radius is not None, "sphere fit")
     return fit
 
 
@@ -584,7 +693,7 @@ class SphereSegmentation:
 
 def segment_sphere(points, radius: float, scanner_origin=(0.0, 0.0, 0.0), *, start=None, half_angle: float = 60.0,
                    rule: str = "e3125", reject: float | None = None, max_rounds: int = 50, samples: int = 500,
-                   seed: int = 0, max_iterations: int = 100) -> SphereSegmentation:
+                   seed: int = 0, max_iterations: int = 100, min_coverage: float = 2.0) -> SphereSegmentation:
     """Segment a sphere from a raw scan in the manner of ASTM E3125 and fit it
     with the radius fixed (docs/fitting.md, Segmentation).
 
@@ -620,17 +729,29 @@ def segment_sphere(points, radius: float, scanner_origin=(0.0, 0.0, 0.0), *, sta
         region (as ``start='lmeds'`` in :func:`fit_sphere`).
     max_iterations : int
         Levenberg-Marquardt steps allowed per fit.
+    min_coverage : float
+        Smallest polar coverage (degrees) of the final fit's points accepted,
+        as in :func:`fit_sphere`.
 
     Returns
     -------
     SphereSegmentation
+
+    Warns
+    -----
+    ImplausibleFit
+        The final fit's rms is over ``MAX_RMS_FRACTION`` of the radius, or a
+        free-radius fit of its points disagrees with the radius
+        (docs/fitting.md, Sanity checks).
 
     Raises
     ------
     InputError
         Bad points (naming the row) or options, a scanner origin on a point.
     GeometryError
-        A region with fewer than 4 points, a fit that fails.
+        A region with fewer than 4 points, a fit that fails, a final cap
+        under ``min_coverage`` (naming the points' likely unit when they span
+        far less than the sphere: ``what='units'``, ``value`` the unit).
     """
     pts = as_rows("points", points, 3)
     origin = tuple(vector3("scanner_origin", scanner_origin, unit="mm").tolist())
@@ -648,6 +769,12 @@ def segment_sphere(points, radius: float, scanner_origin=(0.0, 0.0, 0.0), *, sta
     fit = SphereFit._from(d["fit"])
     if not d["converged"]:
         _log.warning("segment_sphere: the region still changed after %d fits (max_rounds)", d["rounds"])
+    used = pts[fit.inlier]
+    # The region fits run without a coverage floor (a first region may be a
+    # sliver); the answer needs the same cap as any fit (fit_sphere's 2 deg).
+    if not fit.polar_coverage >= min_coverage:
+        raise _coverage_error(pts, float(radius), float(fit.polar_coverage), float(min_coverage), "segment_sphere")
+    _warn_implausible(used, fit, True, "segment_sphere")
     return SphereSegmentation(fit=fit, mask=fit.inlier, region=d["region"], closest=d["closest"],
                               initial_centre=np.asarray(d["initial_centre"]),
                               first_centre=np.asarray(d["first_centre"]), iterations=int(d["rounds"]),
@@ -730,7 +857,13 @@ def e3125(points, radius: float, scanner_origin=(0.0, 0.0, 0.0), *, start=None) 
     Raises
     ------
     InputError, GeometryError
-        As :func:`segment_sphere`.
+        As :func:`segment_sphere` (a cap under 2 degrees, e.g. a scan in
+        metres read as mm, is a GeometryError).
+
+    Warns
+    -----
+    ImplausibleFit
+        As :func:`segment_sphere`: a wrong radius, a scan that is not one sphere.
     """
     s = segment_sphere(points, radius, scanner_origin, start=start)
     f = s.fit

@@ -396,6 +396,14 @@ class GammaAlignment:
         ``"known normal"`` or ``"fitted plane"``.
     iterations : int
         Gauss-Newton iterations.
+    opposite_rms : float or None
+        With a given normal: the rms distance of the points from a plane with
+        the opposite normal at gamma + 180 deg, mm (None without a normal).
+        Turning the scanner 180 deg about w and flipping the normal maps a
+        scan whose sweeps run along the face onto itself, so there this is
+        about ``rms``: only the sign of ``normal`` picks the branch
+        (:attr:`branch_from_normal`). A sweep with motion along the normal
+        tells them apart (then it is far larger).
     """
 
     gamma: float
@@ -409,6 +417,15 @@ class GammaAlignment:
     n_points: int
     method: str
     iterations: int
+    opposite_rms: float | None = None
+
+    @property
+    def branch_from_normal(self) -> bool:
+        """True when the scan fits gamma + 180 deg with the opposite normal as
+        well (within 3 times ``rms``): the 180 degree branch then rests on
+        the given normal being the face's outward one, which the scan cannot
+        check (a nominal ``gamma0`` or other alignments can)."""
+        return self.opposite_rms is not None and self.opposite_rms <= 3.0 * self.rms
 
 
 class _PlaneProblem:
@@ -542,7 +559,10 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
         whose normal has a positive component along v.
     gamma0 : float, optional
         Nominal gamma, degrees (the trunnion index): the solution is searched
-        within +-90 degrees of it. Default: the whole circle.
+        within +-90 degrees of it. Default: the whole circle. With a normal
+        and sweeps along the face, only this can catch an inward normal (the
+        scan fits gamma + 180 deg with it equally well: see
+        ``GammaAlignment.opposite_rms``).
     offset : MountOffset or sequence of 3 float, optional
         Mount offset l1, mm (default 0). Only the map's rotation R(S) acts on
         it, but R changes along a sweep: with a map give the nominal offset.
@@ -634,13 +654,20 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
         grid = grid[e_v @ nv > 0]
         if len(grid) == 0:
             raise CalibrationError(
-                "gamma: no gamma in the search window turns the scanner towards the plane; is `normal` the "
-                "outward normal of the scanned face (pointing towards the scanner)?")
+                f"gamma: at every gamma within 90 deg of the nominal gamma0 {float(gamma0):g} deg the scanner "
+                f"would look at the back of a face whose outward normal is {(np.round(nv, 6) + 0.0).tolist()} (v . normal "
+                f"<= 0); is `normal` the outward normal of the scanned face (pointing towards the scanner), or is "
+                f"it {(np.round(-nv, 6) + 0.0).tolist()}?"
+                if gamma0 is not None else
+                "gamma: no gamma turns the scanner towards the plane; is `normal` the outward normal of the "
+                "scanned face (pointing towards the scanner)?")
     costs = np.array([coarse.cost(g) for g in grid])  # one kernel call per candidate
     start = float(grid[int(np.argmin(costs))])
     gamma, var, rms, n_fit, iterations = _solve_gamma(problem, start)
+    opposite_rms = None
     if nv is not None:
         _check_normal(problem.points(gamma), nv, rms)
+        opposite_rms = _PlaneProblem(uv, scales, alpha, beta, -nv, l1, maps, temperature, policy).cost(gamma + 180.0)
     if nv is None and abs(float(np.asarray(n_fit) @ _e313((alpha, beta, gamma))[:, 2])) > 0.95:
         # The best "plane" is the scan plane itself: the motion hardly left it, so every gamma fits.
         raise CalibrationError(
@@ -666,7 +693,8 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
         n_out = -n_out
     return GammaAlignment(gamma=_wrap180(gamma), uncertainty=math.sqrt(total_var), noise_uncertainty=noise_u,
                           sensitivity=sens, alpha=alpha, beta=beta, normal=n_out, rms=rms, n_points=len(uv),
-                          method="fitted plane" if nv is None else "known normal", iterations=iterations)
+                          method="fitted plane" if nv is None else "known normal", iterations=iterations,
+                          opposite_rms=opposite_rms)
 
 
 # ---------------------------------------------------------------------------
@@ -1043,6 +1071,55 @@ def _as_alignments(alignments) -> list[ReferenceReading]:
     return items
 
 
+#: Largest noise amplification of the mount offset accepted: the standard
+#: uncertainty of U1, V1 or W1 per unit (uncorrelated) uncertainty of the
+#: readings, sqrt of the largest diagonal entry of (A^T A)^-1 for the
+#: unweighted design A (columns: identity for the centre, the levers ~ E313
+#: for l1; dimensionless). The thesis's three poses give 0.93; two poses never
+#: determine l1 (the part along their relative rotation axis trades off
+#: against the centre along it; the map's rotations leave only ~1e-7 of the
+#: design to tell them, amplification ~1e6). At 100, readings good to 10 um
+#: would give an offset good to no better than 1 mm: not a calibration.
+MAX_OFFSET_AMPLIFICATION = 100.0
+
+
+def _check_offset_design(a_flat: np.ndarray, items: list[ReferenceReading]) -> None:
+    """Raise ``GeometryError`` naming the undetermined part of l1 when the
+    poses' design amplifies the readings' noise beyond MAX_OFFSET_AMPLIFICATION."""
+    _, sv, vt = np.linalg.svd(a_flat, full_matrices=False)
+    with np.errstate(divide="ignore"):
+        inv2 = np.where(sv > 1e-300, 1.0 / sv**2, np.inf)
+    amp = float(np.sqrt(np.max((vt[:, 3:] ** 2 * inv2[:, None]).sum(axis=0))))
+    if amp <= MAX_OFFSET_AMPLIFICATION:
+        return
+    k = len(items)
+    poses = ", ".join(_pose_name(a.pose) for a in items)
+    free = int(np.sum(sv < 1.0 / MAX_OFFSET_AMPLIFICATION))
+    u_read = float(np.median([np.sqrt(np.max(np.diag(a.fit_covariance))) for a in items]))
+    size = ("the uncertainty of U1, V1, W1 would have no practical bound" if amp > 1e8 else
+            f"U1, V1, W1 would be uncertain by up to {amp:.3g} times the readings' uncertainty"
+            + (f", about {amp * u_read:.3g} mm" if u_read > 0 else ""))
+    if free == 1:
+        null = vt[-1]
+        a_dir = null[3:] / max(float(np.linalg.norm(null[3:])), 1e-300)
+        m_dir = null[:3] / max(float(np.linalg.norm(null[:3])), 1e-300)
+        big = int(np.argmax(np.abs(a_dir)))
+        what = (("U1", "V1", "W1")[big] if abs(a_dir[big]) > 0.95 else
+                f"the part of (U1, V1, W1) along {(np.round(a_dir, 3) + 0.0).tolist()}")
+        raise GeometryError(
+            f"alignments: the {k} poses {poses} do not determine the mount offset: {what} is not determined. "
+            f"The poses are all turned from each other about one machine axis, "
+            f"{(np.round(np.sign(m_dir[np.argmax(np.abs(m_dir))]) * m_dir, 3) + 0.0).tolist()}, and the offset along it "
+            f"trades off against the sphere centre along it ({size}); add an alignment turned about another "
+            "machine axis, as the thesis's three (W along X at gamma 0 and 90 turn about X, W along Y turns about "
+            "Z)")
+    raise GeometryError(
+        f"alignments: the {k} poses {poses} do not determine the mount offset: {free} combinations of U1, V1, "
+        f"W1 and the sphere centre are not determined, the poses hardly turn the scanner relative to each other "
+        f"({size}); align at poses turned about two different machine axes, as the thesis's three (W along X at "
+        "gamma 0 and 90, W along Y)")
+
+
 def mount_offset(alignments, *, tolerance: float | None = 4.0, max_residual: float | None = None,
                  significance: float | None = None, pose_uncertainty: bool = True) -> MountOffsetFit:
     """U1, V1, W1 from two or more alignments by generalised least squares.
@@ -1082,7 +1159,11 @@ def mount_offset(alignments, *, tolerance: float | None = 4.0, max_residual: flo
     InputError
         Fewer than 2 alignments, bad items or options.
     GeometryError
-        Poses that do not determine l1 (e.g. all with the same w axis).
+        Poses that do not determine l1: any two poses (the part of l1 along
+        their relative rotation axis is free), all poses turned about one
+        machine axis, or a design that amplifies the readings' uncertainty
+        more than ``MAX_OFFSET_AMPLIFICATION`` times; the message names the
+        free component and the axis.
     CalibrationError
         Alignments that disagree beyond ``tolerance`` (or ``max_residual``,
         ``significance``);
@@ -1106,6 +1187,7 @@ def mount_offset(alignments, *, tolerance: float | None = 4.0, max_residual: flo
     d_e = np.stack([_e313_derivatives(a.pose) for a in items])  # (K, angle, 3, 3)
     rot = lev @ np.linalg.inv(np.stack([_e313(a.pose) for a in items]))  # R_k (identity without a map)
     a_mat = np.concatenate([np.broadcast_to(np.eye(3), (k, 3, 3)), lev], axis=2)  # (K, 3, 6)
+    _check_offset_design(a_mat.reshape(3 * k, 6), items)
 
     l1 = np.zeros(3)
     use_pose = pose_uncertainty and np.any(p_cov != 0)

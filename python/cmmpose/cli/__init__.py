@@ -94,7 +94,8 @@ def command(name: str) -> click.Command | None:
 class _Commands(click.Group):
     """The command group: commands loaded on first use (``COMMANDS``), and
     click's own messages (a bad option value echoed back) with numbers of
-    more than 20 digits shortened (cmmpose.policy)."""
+    more than 20 digits shortened (cmmpose.policy), and cmmpose's warnings
+    said as one line each (cmmpose.cli.common.cli_warnings)."""
 
     def list_commands(self, ctx):
         return list(COMMANDS)  # the old spellings are hidden
@@ -108,8 +109,11 @@ class _Commands(click.Group):
         return self.commands[name]
 
     def invoke(self, ctx):
+        from .common import cli_warnings  # here: the shared options' imports once a command runs
+
         try:
-            return super().invoke(ctx)
+            with cli_warnings():  # cmmpose's warnings as `warning: <message>`, one line each, once
+                return super().invoke(ctx)
         except click.ClickException as exc:
             exc.message = shorten_numbers(exc.message)
             raise

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import click
 import numpy as np
 from rich.console import Console
@@ -10,15 +12,24 @@ from rich.table import Table
 from .._json import dumps as strict_json
 from ..atomicfile import check_not_input
 from ..errormap import ErrorMapSet
-from ..errors import CalibrationError, Error
+from ..errors import CalibrationError, Error, GeometryError
 from ..formats.pointclouds import read_point_cloud
 from ..formats.pointfiles import read_points
+from ..pose import Pose
 from .common import json_option, console, fail, load_maps, machine_option, map_specs, offset_mm, travel_notes, triple
+from .common import check_plot_path, plot_option
 
 
 @click.group("calibrate")
 def calibrate() -> None:
     """Calibration solvers: digitizer alignment, mount offset, error maps."""
+
+
+#: Largest angle (degrees) between the vernier's w and the w of --nominal-pose,
+#: and between the solved gamma and its gamma: a trunnion stop repeats its
+#: pose to hundredths of a degree; 10 degrees apart is another stop (or, for
+#: w, vernier points in the reverse order: 180).
+NOMINAL_W_TOLERANCE_DEG = 10.0
 
 
 @calibrate.command("alignment")
@@ -44,11 +55,21 @@ def calibrate() -> None:
 @click.option("--vernier-uncertainty", type=float, default=None,
               help="Standard uncertainty of one vernier position along the normal, um (Type B). Default: from the "
                    "fit's residuals (N - 3 degrees of freedom; three points need this option).")
+@click.option("--nominal-pose", default=None,
+              help="The trunnion index's nominal alpha,beta,gamma in degrees: gamma is searched within 90 degrees of "
+                   "its gamma, which catches an inward --plane-normal (the scan alone fits it at gamma + 180).")
+@click.option("--replace", is_flag=True, help="Replace the alignment already stored under --name (default: refuse).")
 @click.option("--json", "as_json", is_flag=True, help="Print the stored record as JSON instead of the table.")
 def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, offset, name, library_file, temperature,
-                            machine_file, maps, vernier_uncertainty, as_json) -> None:
+                            machine_file, maps, vernier_uncertainty, nominal_pose, replace, as_json) -> None:
     """Align the digitizer at one trunnion pose: alpha, beta from vernier points, gamma from plane
-    scans, D0 E0 F0 from a reference-sphere scan; store the result in the library."""
+    scans, D0 E0 F0 from a reference-sphere scan; store the result in the library (an existing
+    --name only with --replace).
+
+    With --plane-normal and sweeps along the face, the scan fits gamma + 180 degrees with the
+    opposite normal as well: the normal's sign picks the branch. It is checked against
+    --nominal-pose, else against two or more other alignments in the library (the mount offset
+    must fit them), else a note says it was not checked."""
     from ..calibration import (
         AlignmentLibrary,
         AlignmentRecord,
@@ -60,6 +81,7 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
     from ..machine import load_machine
 
     normal = triple(plane_normal, "--plane-normal") if plane_normal else None
+    nominal = triple(nominal_pose, "--nominal-pose") if nominal_pose else None
     if not plane_files:
         raise click.UsageError("--plane-scan is needed to store an alignment (gamma; with --plane-normal, or two "
                                "sweeps along different axes)")
@@ -75,6 +97,10 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
                 raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
             library_file = machine.alignments
         check_not_input(library_file, [vernier_file, *plane_files, ref_file, machine_file, *maps], "--library")
+        library = AlignmentLibrary(library_file)
+        if not replace and name in library:  # before the work: refuse to overwrite a stored calibration silently
+            raise click.UsageError(f"{library_file}: pose {name!r} is already aligned; give --replace to replace "
+                                   "it, or another --name")
         offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
         error_map = load_maps(maps, machine) if (maps or machine_file) else None
         if error_map is None:
@@ -90,28 +116,58 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
                                    "residuals to estimate their uncertainty from: give --vernier-uncertainty "
                                    "(um; the vernier's null, Type B)")
         vern = alpha_beta_from_vernier(vernier_points, point_uncertainty=point_u, **em)
+        if nominal is not None:
+            w_nominal = Pose(*nominal).matrix()[:, 2]
+            off = float(np.degrees(np.arccos(np.clip(float(np.dot(vern.normal, w_nominal)), -1.0, 1.0))))
+            if off > NOMINAL_W_TOLERANCE_DEG:
+                raise CalibrationError(
+                    f"{vernier_file}: the vernier's scan-plane normal w {np.round(vern.normal, 4).tolist()} is "
+                    f"{off:.1f} deg from the w of --nominal-pose {nominal_pose} ({np.round(w_nominal, 4).tolist()}): "
+                    "is --nominal-pose this stop's trunnion index, and are the vernier points counter-clockwise "
+                    "seen from +w?")
         scans = [read_points(f) for f in plane_files]
-        try:
-            gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
-                                        vern.alpha, vern.beta, normal=normal, offset=offset_t,
-                                        alpha_beta_covariance=vern.covariance, **em)
-        except CalibrationError as exc:  # name the files and flags the solver was given
-            given = "--plane-scan" + (" with --plane-normal" if normal is not None else "")
-            raise CalibrationError(f"{', '.join(map(str, plane_files))} ({given}): {exc.message}",
-                                   **exc.fields) from None
-        cp = calibrated_pose(vern, gam)
         uv, scales, _ = read_points(ref_file)
-        # The pose's covariance goes into the reading through its Jacobian; the
-        # record keeps both apart (reading_uncertainty is the reading's own).
-        ref = reference_centre_reading(uv, scales, cp.pose, offset_t, pose_covariance=cp.covariance, **em)
-        residuals = {"vernier_rms": float(vern.fit.rms), "plane_rms": float(gam.rms)}
-        record = AlignmentRecord.from_calibration(cp, ref, offset_t, temperature=temperature, residuals=residuals)
-        AlignmentLibrary(library_file).save(name, record)
+
+        def solve(plane_n):
+            try:
+                gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
+                                            vern.alpha, vern.beta, normal=plane_n, offset=offset_t,
+                                            gamma0=None if nominal is None else nominal[2],
+                                            alpha_beta_covariance=vern.covariance, **em)
+            except CalibrationError as exc:  # name the files and flags the solver was given
+                given = "--plane-scan" + (" with --plane-normal" if plane_n is not None else "") + (
+                    " and --nominal-pose" if nominal is not None else "")
+                raise CalibrationError(f"{', '.join(map(str, plane_files))} ({given}): {exc.message}",
+                                       **exc.fields) from None
+            cp = calibrated_pose(vern, gam)
+            # The pose's covariance goes into the reading through its Jacobian; the
+            # record keeps both apart (reading_uncertainty is the reading's own).
+            ref = reference_centre_reading(uv, scales, cp.pose, offset_t, pose_covariance=cp.covariance, **em)
+            residuals = {"vernier_rms": float(vern.fit.rms), "plane_rms": float(gam.rms)}
+            return gam, ref, AlignmentRecord.from_calibration(cp, ref, offset_t, temperature=temperature,
+                                                              residuals=residuals)
+
+        gam, ref, record = solve(normal)
+        if nominal is not None:
+            off = abs((gam.gamma - nominal[2] + 180.0) % 360.0 - 180.0)
+            if off > NOMINAL_W_TOLERANCE_DEG:
+                raise CalibrationError(
+                    f"{', '.join(map(str, plane_files))}: gamma {gam.gamma:.4f} deg is {off:.1f} deg from the gamma "
+                    f"of --nominal-pose {nominal_pose}: is --nominal-pose this stop's trunnion index, and "
+                    "--plane-normal the scanned face's outward normal?")
+        branch_note = None
+        if gam.branch_from_normal and nominal is None:
+            branch_note = _check_branch(library, name, record, lambda: solve(tuple(-c for c in normal))[2], normal,
+                                        plane_files)
+        library.save(name, record, overwrite=replace)
     except Error as exc:
         raise fail(exc) from None
-    if as_json:
-        click.echo(strict_json({"name": name, "library": str(library_file), **record.to_dict()}, indent=2))
+    if as_json:  # the note in the document (as `calibrate map --json` does), stdout stays one JSON document
+        click.echo(strict_json({"name": name, "library": str(library_file), **record.to_dict(),
+                                "notes": [branch_note] if branch_note else []}, indent=2))
         return
+    if branch_note:
+        console.print(f"note: {branch_note}")
     table = Table(title=f"alignment {name!r} -> {library_file}", show_header=False)
     table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in record.pose))
     table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in record.pose_uncertainty))
@@ -120,6 +176,49 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
     total = np.sqrt(np.diag(ref.covariance))
     table.add_row("u, with the pose's (mm)", ", ".join(f"{v:.4f}" for v in total))
     Console().print(table)
+
+
+def _check_branch(library, name, record, opposite, normal, plane_files) -> str | None:
+    """Check the gamma branch the sign of --plane-normal picked against the
+    library's other alignments: the mount offset must fit them with this
+    record. Raise CalibrationError when only the opposite normal's record
+    (``opposite()``) fits; return a note when the check cannot be made."""
+    from ..calibration import mount_offset
+
+    n_text = ",".join(f"{c:g}" for c in normal)
+    flipped = ",".join(f"{0.0 - c:g}" for c in normal)
+    unchecked = (f"the plane scan fits gamma {record.pose[2]:.4f} deg with --plane-normal {n_text} and gamma "
+                 f"{record.pose[2] - 180.0 if record.pose[2] > 0 else record.pose[2] + 180.0:.4f} deg with {flipped} "
+                 "equally well (its sweeps run along the face): the branch rests on --plane-normal being the "
+                 "face's outward normal, unchecked; give --nominal-pose to check it")
+    others = [n for n in library.names() if n != name]
+    if len(others) < 2:
+        return unchecked + " (or align two other poses in the library first)"
+    readings = [library.load(n).reference_reading() for n in others]
+
+    def fits(rec) -> bool | None:
+        try:
+            mount_offset([*readings, rec.reference_reading()])
+        except GeometryError:
+            return None
+        except CalibrationError:
+            return False
+        return True
+
+    this = fits(record)
+    if this is None:
+        return unchecked + f" (the library's {', '.join(others)} with it do not determine the mount offset)"
+    if this:
+        return None
+    if fits(opposite()):
+        raise CalibrationError(
+            f"{', '.join(map(str, plane_files))} (--plane-scan with --plane-normal {n_text}): the alignment "
+            f"disagrees with the library's {', '.join(others)} (the mount offset does not fit them), and agrees "
+            f"with --plane-normal {flipped} (gamma + 180 deg): the scanner would be looking at the back of the face "
+            f"with outward normal {n_text}. Is {flipped} the scanned face's outward normal (pointing towards the "
+            "scanner)?")
+    return (f"the alignment disagrees with the library's {', '.join(others)} (the mount offset does not fit them) "
+            f"with either sign of --plane-normal: one of them is wrong; `cmmpose calibrate offset` says by how much")
 
 
 @calibrate.command("offset")
@@ -174,6 +273,20 @@ def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) 
     Console().print(table)
 
 
+def _compare_map(spec: str):
+    """The one map of ``calibrate map --compare``: 'thesis@T' (the bundled set at T C), 'appendix-b' or a file."""
+    if spec.startswith("thesis@"):
+        try:
+            t = float(spec.split("@", 1)[1])
+        except ValueError:
+            raise click.BadParameter(f"expected thesis@<temperature C>, got {spec!r}", param_hint="--compare") from None
+        return ErrorMapSet.thesis().at(t)
+    other = load_maps((spec,))
+    if isinstance(other, ErrorMapSet):
+        raise click.BadParameter("give one map (e.g. thesis@20)", param_hint="--compare")
+    return other
+
+
 @calibrate.command("map")
 @click.argument("run_files", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
 @click.option("--squareness", required=True, help="S_xy,S_yz,S_zx in arc-seconds (thesis sign convention).")
@@ -181,32 +294,33 @@ def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) 
 @click.option("--no-air-correction", is_flag=True, help="Do not correct linear readings for the refractive index of air.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
 @click.option("--compare", "compare_to", default=None, help="A map ('thesis@20', 'appendix-b' or a file) to compare with.")
-@click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False), help="Difference plot (with --compare).")
+@plot_option("--plot", "plot_path", help="Difference plot (with --compare): PNG, PDF, SVG.")
 @machine_option
 @json_option
 def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out, compare_to, plot_path,
                       machine_file, as_json) -> None:
     """Build an error map from raw laser-interferometer RUN_FILES (docs/interferometer.md). With
     --machine, the map is checked against the machine's travel."""
-    from ..calibration.interferometer import build_map, compare_maps, plot_map_difference, read_run
+    from ..calibration.interferometer import (InterferometerWarning, build_map, compare_maps, plot_map_difference,
+                                              read_run)
     from ..machine import load_machine
 
     sq = triple(squareness, "--squareness")
+    if plot_path and not compare_to:
+        raise click.UsageError("--plot draws the difference from a --compare map: give --compare")
     try:
         for given, flag in ((out, "--output"), (plot_path, "--plot")):
             check_not_input(given, [*run_files, machine_file, compare_to], flag)
+        check_plot_path(plot_path, "--plot")
+        other = _compare_map(compare_to) if compare_to else None  # before the map is written
         runs = [read_run(f) for f in run_files]
-        built = build_map(runs, sq, temperature, air_correction=not no_air_correction)
+        with warnings.catch_warnings():  # its notes, printed below (and in --json), not twice
+            warnings.simplefilter("ignore", InterferometerWarning)
+            built = build_map(runs, sq, temperature, air_correction=not no_air_correction)
         notes = list(built.notes) + (travel_notes(load_machine(machine_file), built.map) if machine_file else [])
         built.map.write(out)
         comparison = None
-        if compare_to:
-            if compare_to.startswith("thesis@"):
-                other = ErrorMapSet.thesis().at(float(compare_to.split("@", 1)[1]))
-            else:
-                other = load_maps((compare_to,))
-                if isinstance(other, ErrorMapSet):
-                    raise click.BadParameter("give one map (e.g. thesis@20)", param_hint="--compare")
+        if other is not None:
             comparison = compare_maps(built.map, other)
             if not as_json:
                 Console().print(comparison.table())

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+import math
 import warnings
 from pathlib import Path
 
@@ -18,6 +20,170 @@ from ..pose import check_pose_angles
 from ..temperature import temperature_options
 
 console = Console(stderr=True)
+
+#: The seed of every command's random numbers (``--seed``): a non-negative integer, as NumPy takes it.
+SEED = click.IntRange(min=0)
+
+
+class Positive(click.ParamType):
+    """A finite number > 0 in ``unit`` (an option's size or noise level: ``--calibrated-length`` mm,
+    ``--sigma`` um): nan, inf, 0 and negative values are a usage error naming the option, as the same
+    values in a file are an error (``float`` and ``click.FloatRange`` let nan through)."""
+
+    name = "float"
+
+    def __init__(self, unit: str):
+        self.unit = unit
+
+    def convert(self, value, param, ctx):
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"expected a positive number of {self.unit}, got {value!r}", param, ctx)
+        if not (math.isfinite(v) and v > 0):
+            self.fail(f"expected a positive number of {self.unit}, got {value!r}", param, ctx)
+        return v
+
+    def __repr__(self) -> str:
+        return f"Positive({self.unit!r})"
+
+
+#: A finite length > 0, mm (a certified length or radius).
+POSITIVE_MM = Positive("mm")
+
+
+# -- warnings: cmmpose's own as one line each, once per command ------------------------------------------------------
+
+_said: set[str] = set()  # the warnings said while the current command runs (cli_warnings)
+
+
+def _line(text) -> str:
+    """``warning: <text>`` and a newline, or "" when the command has said it already (the library's warning,
+    its log line and a command's own report of it are one warning)."""
+    text = str(text).strip()
+    if text in _said:
+        return ""
+    _said.add(text)
+    return f"warning: {text}\n"
+
+
+def warn(text: str) -> None:
+    """``warning: <text>`` on stderr, one line, once per command (:func:`cli_warnings`)."""
+    click.echo(_line(text), err=True, nl=False)
+
+
+def say_caught(caught) -> None:
+    """The warnings a command caught (``warnings.catch_warnings(record=True)``) said: cmmpose's own each as one
+    line, once (:func:`warn`); any other passed on to Python's warnings as it was issued."""
+    for w in caught:
+        if _own(w.category, w.filename):
+            warn(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
+def _own(category, filename) -> bool:
+    """Whether a Python warning is cmmpose's own: a category of cmmpose's (ClampWarning, IllConditionedFit, ...)
+    or one the command line issues itself (``warnings.warn_explicit(..., "cmmpose", 0)``)."""
+    return category.__module__.split(".")[0] == "cmmpose" or filename == "cmmpose"
+
+
+class cli_warnings:  # noqa: N801 - used as a function: with cli_warnings(): ...
+    """While a command runs (cmmpose.cli.main): cmmpose's own Python warnings and the library's log lines of
+    level WARNING printed as ``warning: <message>``, one line each, once (:func:`warn`) - not Python's
+    ``file:line: Category: message`` and its source line. The library still warns as it does
+    (``warnings.warn``: a caller's filters and ``catch_warnings`` see the same); only how the command line
+    shows a warning changes (``warnings.formatwarning``), and other packages' warnings keep Python's form."""
+
+    def __enter__(self):
+        class Lines(logging.Handler):
+            def emit(self, record):
+                warn(record.getMessage())
+
+        def formatwarning(message, category, filename, lineno, line=None):
+            if _own(category, filename):
+                return _line(message)
+            return self.formatwarning(message, category, filename, lineno, line)
+
+        _said.clear()
+        self.formatwarning, warnings.formatwarning = warnings.formatwarning, formatwarning
+        self.logger, self.handler = logging.getLogger("cmmpose"), Lines(logging.WARNING)
+        self.logger.addHandler(self.handler)  # instead of logging's last resort: the bare message
+        return self
+
+    def __exit__(self, *exc):
+        warnings.formatwarning = self.formatwarning
+        self.logger.removeHandler(self.handler)
+        _said.clear()
+        return False
+
+
+def _plot_suffixes() -> tuple[str, ...] | None:
+    """The suffixes matplotlib can save a figure as ('png', 'pdf', 'svg', ...); None without matplotlib."""
+    try:
+        from matplotlib.backend_bases import FigureCanvasBase
+    except ImportError:
+        return None
+    return tuple(sorted(FigureCanvasBase.get_supported_filetypes()))
+
+
+def check_plot_path(path, flag: str) -> None:
+    """The one check of a plot file's name, which every command naming one (:func:`plot_option`) makes before
+    any work: a usage error naming ``flag`` when the suffix is not a format matplotlib can save (no suffix:
+    matplotlib's default, PNG). Without matplotlib nothing is checked (the command says it is missing)."""
+    if path is None:
+        return
+    suffix = Path(path).suffix.lower().removeprefix(".")
+    known = _plot_suffixes()
+    if suffix and known is not None and suffix not in known:
+        raise click.BadParameter(f"{path}: '.{suffix}' is not an image format a plot can be saved as; name the file "
+                                 f"with one of {', '.join('.' + k for k in known)}", param_hint=flag)
+
+
+def plot_option(*names: str, help: str, required: bool = False):  # noqa: A002 - click's name
+    """An option naming a plot file (``--plot FILE``, ``map plot -o FILE``); the command checks its suffix
+    (:func:`check_plot_path`) after its inputs-are-not-outputs check and before any work."""
+    return click.option(*names, type=click.Path(dir_okay=False), default=None, required=required, help=help)
+
+
+def expansion_ppm(ctx, param, value):
+    """The callback of every option taking an artefact's expansion coefficient (ppm/K): a usage error outside
+    the range a machine file accepts (cmmpose.machine.EXPANSION_RANGE_PPM)."""
+    if value is None:
+        return None
+    from ..machine import EXPANSION_RANGE_PPM  # here: the machine file's imports only when one is given
+
+    lo, hi = EXPANSION_RANGE_PPM
+    if not lo <= value <= hi:
+        raise click.BadParameter(f"{value:g} ppm/K is outside {lo:g}..{hi:g} ppm/K (a coefficient of expansion in "
+                                 "ppm/K, e.g. 11.5 for steel)", ctx=ctx, param=param)
+    return value
+
+
+def parse_effects(texts, flag: str = "--effect") -> list:
+    """The effects of a simulating command's ``--effect NAME:param=value,...`` (:func:`cmmpose.sim.parse_effect`):
+    a usage error naming the flag for one that would simulate nothing (every parameter at its no-op default,
+    :func:`cmmpose.sim.effects.inert`) or an expansion coefficient (ppm/K) outside the machine file's range."""
+    from ..sim.effects import inert, parse_effect
+
+    parsed = []
+    for text in texts:
+        try:
+            effect = parse_effect(text)
+        except Error as exc:
+            raise click.BadParameter(str(exc), param_hint=flag) from None
+        reason = inert(effect)
+        if reason:
+            raise click.BadParameter(f"{text!r}: {reason}", param_hint=flag)
+        for name, unit in effect.units().items():
+            if unit == "ppm/K":
+                try:
+                    expansion_ppm(None, None, getattr(effect, name))
+                except click.BadParameter as exc:
+                    raise click.BadParameter(f"{text!r}: {name} = {exc.message}", param_hint=flag) from None
+        parsed.append(effect)
+    return parsed
+
 
 def map_specs(ctx, param, value):
     """The ``--maps`` callback of every command : an empty value (``--maps ""``) is a usage error, not the
@@ -156,17 +322,17 @@ def scheduler_options(help_text: str):
 
 class console_log:  # noqa: N801 - used as a function: with console_log(): ...
     """Library log lines (logger ``cmmpose``, level INFO and above) printed as notes and warnings while a
-    command runs."""
+    command runs (a warning once, :func:`warn`)."""
 
     def __enter__(self):
-        import logging
-
         from rich.markup import escape
 
         class Handler(logging.Handler):
             def emit(self, record):
-                level = "warning" if record.levelno >= logging.WARNING else "note"
-                console.print(f"{level}: {escape(record.getMessage())}")
+                if record.levelno >= logging.WARNING:
+                    warn(record.getMessage())  # once, with the command's other warnings
+                else:
+                    console.print(f"note: {escape(record.getMessage())}")
 
         self.logger = logging.getLogger("cmmpose")
         self.handler = Handler(logging.INFO)
@@ -209,16 +375,34 @@ def show(table, as_json: bool, data=None, width: int | None = None) -> None:
 
 def report_folder_html(ctx, param, value):
     """--report of a command whose report is one HTML file: the folder it goes in (``DIR/<command>.html``);
-    a value ending in .html, or an existing file, is the older spelling: that file (a FutureWarning says so;
-    the command's checks then refuse it if it is one of its inputs)."""
+    a value ending in .html is the older spelling: that file (a FutureWarning says so; the command's checks
+    then refuse it if it is one of its inputs). Any other existing path that is not a folder is passed on as
+    it is, for the command to refuse after its inputs-are-not-outputs check (:func:`check_report_file`)."""
     if value is None:
         return None
-    if value.lower().endswith(".html") or Path(value).is_file():  # a file named: the older spelling
+    if _existing_non_folder(value) and not value.lower().endswith(".html"):
+        return value  # refused by check_report_file (after check_outputs: an input is named as such)
+    if value.lower().endswith(".html"):  # a file named: the older spelling
         warnings.warn_explicit(f"--report {value}: --report takes a folder now (the report is "
                                f"FOLDER/{ctx.info_name}.html); a file name still works for now", FutureWarning,
                                "cmmpose", 0)
         return value
     return str(Path(value) / f"{ctx.info_name}.html")
+
+
+def _existing_non_folder(path) -> bool:
+    return Path(path).exists() and not Path(path).is_dir()
+
+
+def check_report_file(path, flag: str = "--report") -> None:
+    """The check of a --report that :func:`report_folder_html` passed on, made after the command's
+    :func:`check_outputs` and before any work: a usage error naming ``flag`` for an existing path that is
+    neither a folder nor a FILE.html (the older spelling) - a user's file (notes.txt) is never replaced by the
+    report."""
+    if path is not None and _existing_non_folder(path) and not str(path).lower().endswith(".html"):
+        raise click.BadParameter(f"{path}: exists and is not a folder (--report names a folder, made if missing, "
+                                 "for the HTML report; a FILE.html is the older spelling); give another name",
+                                 param_hint=flag)
 
 
 def skip_incomplete_option(f):

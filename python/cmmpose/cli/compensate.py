@@ -7,7 +7,6 @@ import warnings
 from pathlib import Path
 
 import click
-from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -19,7 +18,7 @@ from ..formats.pointfiles import check_writable
 from ..formats.pointformats._common import check_file
 from .common import (aliased_choices_once, check_model_or_maps, console, fail, json_option, kernel_report_rows,
                      load_maps, load_model, machine_option, machine_row, map_specs, model_options, offset_mm,
-                     policy_options, pose_angles, scheduler_options, show)
+                     policy_options, pose_angles, say_caught, scheduler_options, show)
 
 
 @click.command("compensate")
@@ -96,11 +95,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                                    temperature_tolerance=temperature_tolerance,
                                    progress=lambda at, _: bar.update(task, completed=at))
             bar.update(task, completed=size)
-        for w in caught:
-            if issubclass(w.category, (MapTemperatureWarning, AliasedChoiceWarning)):
-                console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
-            else:
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        say_caught(caught)
     except Error as exc:
         raise fail(exc) from None
     report, elapsed, t_all = done.report, done.kernel_seconds, done.temperature
@@ -138,11 +133,7 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
                                         out_of_range=out_of_range, nan_policy=nan_policy,
                                         temperature_tolerance=temperature_tolerance, scheduler=scheduler,
                                         scheduler_timeout=scheduler_timeout, progress=lambda done, total: bar.update(task, completed=done, total=total))
-        for w in caught:  # the single map's temperature note (cmmpose.scale.compensate_dataset), printed
-            if issubclass(w.category, MapTemperatureWarning):
-                console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
-            else:
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        say_caught(caught)
     except Error as exc:
         raise fail(exc) from None
     report = result.report

@@ -16,8 +16,8 @@ from ..atomicfile import ensure_folder, write_text
 from ..errors import Error
 from ..temperature import log_notes
 from .artefact import diagnose_plate_fits_cli
-from .common import (check_outputs, console, fail, load_maps, machine_option, map_specs, policy_options,
-                     report_folder_html, scheduler_options)
+from .common import (check_outputs, check_report_file, console, fail, load_maps, machine_option, map_specs,
+                     policy_options, report_folder_html, scheduler_options)
 
 
 @click.command("diagnose")
@@ -92,6 +92,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
         check_outputs({"--save-model": model_out, "--report": report_file, "--user-effect-skeleton": skeleton_out,
                        "--corrected-maps": corrected_out},
                       run_dirs, [model_file, machine_file, *user_files])
+        check_report_file(report_file)
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
         from ..diagnosis.effects import load_user_effect  # here: the diagnosis's imports, only for this command
@@ -186,6 +187,7 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
     try:
         check_outputs({"--save-model": model_out, "--report": report_file, "--corrected-maps": corrected_out},
                       run_dirs, [model_file, machine_file, *user_files])
+        check_report_file(report_file)
         machine = load_machine(machine_file)
         runs = [Run.load(r) for r in run_dirs]
         from ..diagnosis.effects import load_user_effect  # here: the diagnosis's imports, only for this command
@@ -285,13 +287,23 @@ def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, artefa
                                  reference_length=reference_length, points=fits.get("points"),
                                  fit_rms=fits.get("fit_rms"))
     except Error as exc:
+        if exc.cli_option and ": " in exc.message:
+            # An implausible --reference-length or --nominal-radius (or radius column): named as the flag.
+            what, text = exc.message.split(": ", 1)
+            column = f" (column {exc.column} of {fits_file})" if exc.column else ""
+            raise click.BadParameter((text if what == exc.option else exc.message) + column,
+                                     param_hint=exc.cli_option) from None
         raise fail(exc) from None
     if as_json:
         click.echo(strict_json(d.to_dict(), indent=1))
         return
     table = Table(title=f"sphere fits of {fits_file}" + (f" ({state})" if state else ""), show_header=False)
     table.add_row("positions", str(len(d.lengths)))
-    table.add_row("rms accuracy error (um)", f"{d.rms_um:.2f}")
+    if d.reference_length is not None:
+        table.add_row("mean length (mm)", f"{d.mean_length:.4f} ({d.mean_deviation_um:+.2f} um from the reference "
+                      f"{d.reference_length:g})")
+    table.add_row("rms accuracy error (um)", f"{d.rms_um:.2f}" + (" (about the mean deviation)"
+                                                                  if d.reference_length is not None else ""))
     table.add_row("mean radius (mm)", f"{d.radius_mean:.4f}" + ("" if d.nominal_radius is None else
                   f" ({d.radius_excess_um:+.1f} ± {d.radius_excess_u_um:.1f} um over {d.nominal_radius:g})"))
     table.add_row("radius scatter between balls (um)", f"{d.radius_sd_um:.1f}")

@@ -13,12 +13,30 @@ from rich.table import Table
 
 from .._json import dumps as strict_json
 from ..atomicfile import ensure_folder, write_text
-from ..errors import AliasedChoiceWarning, Error, InputError, MapTemperatureWarning
+from ..errors import (AliasedChoiceWarning, ClampWarning, Error, ExtrapolationWarning, InputError,
+                      MapTemperatureWarning)
 from ..evaluation.files import write_evaluation_files
 from ..evaluation.metrics import STEEL_EXPANSION
 from .artefact import evaluate_artefact_run, write_artefact_report
-from .common import (aliased_choices_once, check_model_or_maps, console, console_log, fail, load_maps, load_model,
-                     machine_option, map_specs, model_options, policy_options, scheduler_options, skip_incomplete_option)
+from .common import (aliased_choices_once, check_model_or_maps, console, console_log, expansion_ppm, fail, load_maps,
+                     load_model, machine_option, map_specs, model_options, policy_options, scheduler_options,
+                     say_caught, skip_incomplete_option, warn)
+
+
+def report_folder_names(run_dirs, report_dir) -> list[str]:
+    """The folder of each run's report under ``--report`` (the run folder's name), the same with --model and on
+    the --scheduler: ``InputError`` naming both runs when two share a name (day1/run, day2/run), before any
+    work - one report would replace the other while the summary lists both."""
+    names = [Path(r).name or str(r) for r in run_dirs]
+    if report_dir:
+        first: dict[str, str] = {}
+        for r, name in zip(run_dirs, names):
+            if name in first:
+                raise InputError(f"--report: two runs share a folder name: {first[name]} and {r} would both write "
+                                 f"{Path(report_dir) / name}, one report overwriting the other; report them in "
+                                 "separate --report folders (or rename one run folder)")
+            first[name] = str(r)
+    return names
 
 
 def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
@@ -35,7 +53,7 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
               help="Compensation maps ('thesis', files, or 'none'); default: the machine's, or as run.json says.")
 @click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
 @policy_options()
-@click.option("--expansion", type=float, default=None,
+@click.option("--expansion", type=float, default=None, callback=expansion_ppm,
               help=f"Artefact expansion coefficient for lengths at 20 C, ppm/K (default: the machine's, "
                    f"{STEEL_EXPANSION * 1e6:g} for the thesis machine).")
 @click.option("--reject", type=float, default=None, help="Robust sphere fits: reject beyond this many robust sigmas.")
@@ -85,6 +103,7 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
                 if given:
                     raise click.UsageError(f"{flag} takes one run: the table across runs has no uncertainties "
                                            "(evaluate each run on its own for them)")
+            report_folder_names(run_dir, report_dir)  # before any work
             return _evaluate_fleet(run_dir, machine, maps, scheduler or "threads", report_dir, as_json,
                                    scheduler_timeout=scheduler_timeout,
                                    temperature=temperature, reject=reject, out_of_range=out_of_range,
@@ -103,8 +122,7 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
             ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
                           temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion_ppm_per_K=expansion,
                           skip_incomplete=skip_incomplete, temperature_policy=temperature_policy)
-        for w in caught:
-            console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
+        say_caught(caught)
         unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
                                       log_hold, u_temperature, u_map, u_model, temperature_policy)
         files = write_report(ev, Path(report_dir), getattr(model, "maps", model) if model_file else model) \
@@ -140,9 +158,7 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
         if expansion is None:
             expansion = machine.artefact_expansion * 1e6
         model = load_model(model_file, user_files)
-        names = [Path(r).name or str(r) for r in run_dirs]
-        if report_dir and len(set(names)) < len(names):
-            raise InputError("--report: two runs share a folder name; their reports would overwrite each other")
+        names = report_folder_names(run_dirs, report_dir)
         for r, name in zip(run_dirs, names):
             run = Run.load(r)
             if "definition" in run.artefact:
@@ -157,7 +173,7 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
             said = [str(w.message) for w in caught if not issubclass(w.category, (DeprecationWarning,
                                                                                    PendingDeprecationWarning))]
             for text in said:
-                console.print(f"[yellow]warning:[/] {escape(name)}: {escape(text)}")
+                warn(f"{name}: {text}")
             unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
                                           log_hold, u_temperature, u_map, u_model, temperature_policy)
             if report_dir:
@@ -185,10 +201,14 @@ def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, t
     """u (k = 2) and budgets of every figure of ``ev`` (cmmpose.evaluation.ballbar_uncertainty)."""
     from ..evaluation.ballbar_uncertainty import DEFAULT_U_TEMPERATURE_K, evaluation_uncertainty
 
-    return evaluation_uncertainty(
-        run, ev, model, temperature, reject=reject, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
-        log_hold=log_hold, u_temperature_K=DEFAULT_U_TEMPERATURE_K if u_temperature is None else u_temperature,
-        u_map_ppm=u_map, u_model_ppm=u_model, temperature_policy=temperature_policy)
+    with warnings.catch_warnings():  # the evaluation said what it clamped or extrapolated; not again at each
+        for category in (ClampWarning, ExtrapolationWarning):  # +-step of the temperature sensitivity
+            warnings.simplefilter("ignore", category)
+        return evaluation_uncertainty(
+            run, ev, model, temperature, reject=reject, out_of_range=out_of_range,
+            temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+            u_temperature_K=DEFAULT_U_TEMPERATURE_K if u_temperature is None else u_temperature,
+            u_map_ppm=u_map, u_model_ppm=u_model, temperature_policy=temperature_policy)
 
 
 def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, scheduler_timeout,
@@ -218,11 +238,11 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, 
         from ..evaluation.plots import plot_fleet_trend
 
         directory = ensure_folder(report_dir)
-        for r, ev in zip(run_dirs, evaluations):
+        for name, ev in zip(report_folder_names(run_dirs, report_dir), evaluations):
             if isinstance(ev, ArtefactEvaluation):  # a plate or step-gauge run of the fleet
-                files += write_artefact_report(ev, directory / Path(r).name)
+                files += write_artefact_report(ev, directory / name)
                 continue
-            files += write_report(ev, directory / Path(r).name, model if not isinstance(model, str) else None)
+            files += write_report(ev, directory / name, model if not isinstance(model, str) else None)
         summary = directory / "summary.csv"
         fields = list(rows[0].__dataclass_fields__)
         write_text(summary, "\n".join([",".join(fields)] + [",".join(str(getattr(row, f)) for f in fields)

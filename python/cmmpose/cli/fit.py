@@ -7,14 +7,24 @@ import warnings
 import click
 import numpy as np
 from rich.console import Console
-from rich.markup import escape
 from rich.table import Table
 
 from .._json import dumps as strict_json
 from ..errors import Error
 from ..formats.pointclouds import UNITS as POINT_UNITS
 from ..formats.pointclouds import read_point_cloud, unit_factor
-from .common import console, fail, triple
+from .common import fail, triple, warn
+
+
+def units_flag(exc: Error) -> Error:
+    """A fit error that names the points' likely unit (``what='units'``,
+    cmmpose.fitting) as the command line says it: give --units."""
+    from ..fitting import unit_remedy
+
+    unit = exc.value if getattr(exc, "what", None) == "units" else None
+    if not isinstance(unit, str) or unit_remedy(unit) not in exc.message:
+        return exc
+    return type(exc)(exc.message.replace(unit_remedy(unit), f" (give --units {unit})"), **exc.fields)
 
 
 @click.command("fit")
@@ -40,7 +50,7 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
     """Fit a sphere to the point cloud SCAN (CSV, NPY, Parquet, PLY, XYZ, PTS, E57): centre (mm), radius,
     points used and the centre's standard uncertainty. With --segment e3125 a raw scan is segmented in the
     manner of ASTM E3125 first (closest-point start, cone and cylinder about the line of sight, radius fixed)."""
-    from ..errors import IllConditionedFit
+    from ..errors import IllConditionedFit, ImplausibleFit
     from ..fitting import e3125, fit_sphere
 
     if radius is not None and not (np.isfinite(radius) and radius > 0):
@@ -64,6 +74,7 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
         cloud = read_point_cloud(scan, units=units)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", IllConditionedFit)
+            warnings.simplefilter("always", ImplausibleFit)
             if segment == "e3125":
                 res = e3125(cloud.xyz, radius, origin, start=start_value)
                 out = {"file": str(scan), "method": "e3125 segmentation, radius fixed", **res.to_dict()}
@@ -78,8 +89,8 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
                        "centre_radius_correlation": (None if radius is not None
                                                      else float(f.centre_radius_correlation))}
     except Error as exc:
-        raise fail(exc) from None
-    notes = [str(w.message) for w in caught if issubclass(w.category, IllConditionedFit)]
+        raise fail(units_flag(exc)) from None
+    notes = [str(w.message) for w in caught if issubclass(w.category, (IllConditionedFit, ImplausibleFit))]
     out["warnings"] = notes
     if as_json:
         click.echo(strict_json(out, indent=2))
@@ -94,4 +105,4 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
         table.add_row("points used / in file", f"{out['n_points']} / {out['n_raw']}")
         Console().print(table)
     for note in notes:
-        console.print(f"[yellow]warning:[/] {escape(note)}")
+        warn(note)  # once: the fit's log line said it too (cli.common.cli_warnings)

@@ -8,8 +8,9 @@ from rich.markup import escape
 from ..atomicfile import check_not_input, ensure_folder
 from ..errormap import ErrorMapSet
 from .._json import dumps as strict_json
-from ..errors import Error
-from .common import json_option, console, console_log, fail, load_maps, machine_option, travel_notes
+from ..errors import Error, InputError
+from .common import (check_plot_path, console, console_log, fail, json_option, load_maps, machine_option,
+                     plot_option, travel_notes, warn)
 
 
 def _units_option(f):
@@ -22,7 +23,7 @@ def _units_option(f):
 
 @click.command("plot-map")
 @click.argument("maps", nargs=-1)
-@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="PNG (or PDF, SVG) to write.")
+@plot_option("-o", "--output", "out", required=True, help="PNG (or PDF, SVG) to write.")
 @machine_option
 def plot_map_cmd(maps, out, machine_file) -> None:
     """Plot error-map components against position (like thesis Figures 3-7 to 3-18).
@@ -34,6 +35,7 @@ def plot_map_cmd(maps, out, machine_file) -> None:
         if not maps and machine_file is None:
             raise click.UsageError("give MAPS or --machine")
         check_not_input(out, [*maps, machine_file], "--output")
+        check_plot_path(out, "--output")
         plot_error_map(load_maps(tuple(maps), load_machine(machine_file) if machine_file else None), out)
     except Error as exc:
         raise fail(exc) from None
@@ -90,8 +92,13 @@ def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_js
     try:
         check_not_input(out, [map_spec], "--output")
         base = _map_spec(map_spec, "MAP")
-        converted = table_motion_to_map(base, carriage, triple(measured_at, "--measured-at"),
-                                        triple(part_point, "--part-point"))
+        try:
+            converted = table_motion_to_map(base, carriage, triple(measured_at, "--measured-at"),
+                                            triple(part_point, "--part-point"))
+        except InputError as exc:
+            if exc.cli_option not in ("--measured-at", "--part-point"):
+                raise
+            raise click.BadParameter(exc.message.removeprefix(f"{exc.option}: "), param_hint=exc.cli_option) from None
         converted.write(out)
     except Error as exc:
         raise fail(exc) from None
@@ -155,7 +162,7 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
     except Error as exc:
         raise fail(exc) from None
     for note in notes:
-        console.print(f"[yellow]warning:[/] {escape(note)}")
+        warn(note)
     if as_json:
         click.echo(strict_json({"output": str(out), "map": repr(built), "notes": notes}, indent=2))
         return

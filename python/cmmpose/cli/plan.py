@@ -12,8 +12,8 @@ from rich.console import Console
 from rich.markup import escape
 
 from .._json import dumps as strict_json
-from ..errors import Error
-from .common import check_outputs, console, fail, load_maps, machine_option, map_specs
+from ..errors import Error, InputError
+from .common import SEED, Positive, check_outputs, console, fail, load_maps, machine_option, map_specs, parse_effects
 
 
 @click.command("plan")
@@ -27,11 +27,12 @@ from .common import check_outputs, console, fail, load_maps, machine_option, map
 @click.option("--artefact", "artefact", default=None, metavar="FILE|NAME",
               help="What to place next (an artefact file or bundled example); default the runs' artefact, else "
                    "the thesis ballbar.")
-@click.option("--budget", type=int, default=3, show_default=True, help="How many placements to propose.")
+@click.option("--budget", type=click.IntRange(min=1), default=3, show_default=True,
+              help="How many placements to propose.")
 @click.option("--plan-for", "plan_for", multiple=True, metavar="EFFECT",
               help="An effect whose parameters the placements should determine (repeatable; default squareness, "
                    "scale, roll).")
-@click.option("--sigma", "sigma_um", type=float, default=None,
+@click.option("--sigma", "sigma_um", type=Positive("um"), default=None,
               help="Noise per ball-centre coordinate, um (default: from the runs' residuals).")
 @click.option("--simulate", "simulate", is_flag=True,
               help="Simulate the proposed placements on the machine (with --effect physics) into -o RUN_DIR.")
@@ -40,7 +41,7 @@ from .common import check_outputs, console, fail, load_maps, machine_option, map
 @click.option("--temperature", type=float, default=20.0, show_default=True, help="With --simulate: machine temperature, C.")
 @click.option("--jitter", type=float, default=0.0, show_default=True,
               help="With --simulate: per-scan reproducibility, um per axis.")
-@click.option("--seed", type=int, default=0, show_default=True, help="With --simulate: noise seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="With --simulate: noise seed.")
 @click.option("-o", "--output", "run_out", type=click.Path(file_okay=False), default=None,
               help="With --simulate: the run directory to write.")
 @click.option("--overwrite", is_flag=True, help="With --simulate: replace an existing run in -o.")
@@ -56,7 +57,6 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
     from ..diagnosis.plan import DEFAULT_EFFECTS, plan
     from ..machine import load_machine
     from ..run import Run
-    from ..sim import parse_effect
 
     if simulate and run_out is None:
         raise click.UsageError("--simulate needs -o RUN_DIR (where the simulated run goes)")
@@ -75,6 +75,7 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
     if simulate and Path(run_out).exists() and not overwrite and (not Path(run_out).is_dir()
                                                                   or any(Path(run_out).iterdir())):
         raise click.UsageError(f"{run_out}: exists and is not empty (use --overwrite to replace the run in it)")
+    parsed = parse_effects(effects)  # before any work
     try:
         if simulate:
             check_outputs({"-o": run_out}, run_dirs, [model_file])
@@ -82,9 +83,11 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
         runs = [Run.load(d) for d in run_dirs]
         model = Model.load(model_file) if model_file is not None else Model(load_maps(maps, machine))
         art = load_artefact(artefact) if artefact is not None else None
-        parsed = [parse_effect(e) for e in effects]
-        result = plan(runs, art, budget, machine=machine, model=model, effects=plan_for or DEFAULT_EFFECTS,
-                      sigma_um=sigma_um)
+        try:
+            result = plan(runs, art, budget, machine=machine, model=model, effects=plan_for or DEFAULT_EFFECTS,
+                          sigma_um=sigma_um)
+        except InputError as exc:
+            _usage(exc)
         written = None
         if simulate:
             written = _simulate(result, runs, art, machine, maps, parsed, temperature, jitter, seed, run_out,
@@ -97,6 +100,20 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
         Console(width=max(Console().width, 140)).print(result)
     if written:
         console.print(f"wrote {escape(written)}: the {len(result.proposals)} proposed placements, simulated")
+
+
+def _usage(exc: InputError) -> None:
+    """The library's error about an argument this command takes as an option (--sigma, --budget; the options'
+    types check their values first) as a usage error naming the option (exit 2), not the Python argument;
+    any other error raised on as it is."""
+    text = str(exc)
+    if text.endswith("give sigma_um"):  # runs without the degrees of freedom to estimate the noise from
+        raise click.UsageError(text.removesuffix("sigma_um")
+                               + "--sigma UM (noise per ball-centre coordinate, um)") from None
+    for name, flag in (("sigma_um", "--sigma"), ("budget", "--budget")):
+        if text.startswith(f"{name}: "):
+            raise click.BadParameter(text.removeprefix(f"{name}: "), param_hint=flag) from None
+    raise exc
 
 
 def _simulate(result, runs, art, machine, maps, effects, temperature, jitter_um, seed, run_out, overwrite) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import shlex
 import time
 
 import click
@@ -15,7 +16,8 @@ from .._json import dumps as strict_json
 from ..atomicfile import atomic_write, ensure_folder, write_text
 from ..errors import Error
 from .artefact import simulate_artefact
-from .common import json_option, show, console, fail, load_maps, machine_option, machine_row, map_specs, pose_angles
+from .common import (SEED, console, fail, json_option, load_maps, machine_option, machine_row, map_specs,
+                     parse_effects, pose_angles, show)
 
 
 @click.command("simulate")
@@ -41,7 +43,7 @@ from .common import json_option, show, console, fail, load_maps, machine_option,
 @click.option("--placement", "placements", multiple=True, metavar="PLACEMENT",
               help="With --artefact: where it sits, e.g. 'xy@z=-525,rot=45', 'planes', 'iso10360-2' (repeatable; "
                    "default the kind's layout).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random numbers (noise, jitter): the same seed, the same run.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the random numbers (noise, jitter): the same seed, the same run.")
 @json_option
 @click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing run in RUN_DIR.")
@@ -50,13 +52,13 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
     """Simulate a ballbar run (or, with --artefact, an artefact at its placements) on a virtual machine (default:
     the thesis's Iota 1102 + Hyscan 45C) and write it as a run directory."""
     from ..machine import load_machine
-    from ..sim import parse_effect, simulate_ballbar_run
+    from ..sim import simulate_ballbar_run
 
     if placements and artefact is None:
         raise click.UsageError("--placement needs --artefact")
     try:
         machine = load_machine(machine_file)
-        parsed = [parse_effect(e) for e in effects]
+        parsed = parse_effects(effects)
         machine_maps = load_maps(maps, machine)
         if artefact is not None:
             for flag, given in (("--calibrated", calibrated), ("--reference-pose", reference_poses)):
@@ -94,17 +96,24 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
                           "effects": list(effects), "seconds": elapsed})
 
 
+def _exact_text(value: float) -> str:
+    """``value`` in the shortest text that reads back to the same float (``21``, ``90.03``; -0 as 0)."""
+    value = float(value) + 0.0
+    short = f"{value:g}"
+    return short if float(short) == value else repr(value)
+
+
 @click.command("simulate-alignment")
 @machine_option
 @click.option("--pose", "pose_text", required=True, help="Nominal pose alpha,beta,gamma of the trunnion stop, degrees.")
 @click.option("--name", required=True, help="Name of the pose, e.g. A90B90: the files are NAME-vernier.csv, ...")
 @click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
-              help="What the calibration should find, e.g. alignment:alpha=0.03 or mount-offset:u=0.02 "
+              help="What the calibration should find, e.g. alignment:alpha=0.03 or mount-offset:u1=0.02 "
                    "(`cmmpose effects`); repeatable.")
 @click.option("--vernier-points", type=click.IntRange(3), default=3, show_default=True,
               help="Optical-vernier positions (the thesis uses 3).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random numbers: the same seed, the same measurements.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the random numbers: the same seed, the same measurements.")
 @json_option
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Folder for the measurement files.")
@@ -117,14 +126,13 @@ def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, 
     NAME-truth.json (the plane's normal, the true pose, reading and offset), and prints the command
     that calibrates from them."""
     from ..machine import load_machine
-    from ..sim import parse_effect
     from ..sim.calibration_data import VERNIER_NOISE, plane_scan, reference_sphere_scans
     from ..sim.calibration_data import vernier_points as vernier
 
     nominal = pose_angles(pose_text, "--pose")
     try:
         machine = load_machine(machine_file)
-        parsed = [parse_effect(e) for e in effects]
+        parsed = parse_effects(effects)
         maps = machine.maps()
         offset = tuple(machine.offset)
         rng = np.random.default_rng(seed)
@@ -150,12 +158,16 @@ def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, 
         write_text(folder / f"{name}-truth.json", strict_json(truth, indent=2))
     except Error as exc:
         raise fail(exc) from None
-    machine_arg = f" --machine {machine_file}" if machine_file else " --maps thesis"
+    q = lambda path: shlex.quote(str(path))  # noqa: E731 - a folder with a space stays one argument
+    machine_arg = f" --machine {q(machine_file)}" if machine_file else " --maps thesis"
+    # --nominal-pose: the pose simulated at, so the calibration checks the plane normal's branch (gamma within
+    # 90 deg of it) instead of noting it unchecked; each angle as it reads back to the same number.
+    pose_arg = ",".join(_exact_text(a) for a in nominal)
     command = ("cmmpose calibrate alignment" + machine_arg
-               + f" --temperature {temperature:g} --vernier {files['vernier']} --vernier-uncertainty "
-               f"{VERNIER_NOISE * 1e3:g} --plane-scan {files['plane']} --plane-normal "
-               + ",".join(f"{c + 0.0:.6g}" for c in normal) + f" --reference-scan {files['sphere']} --name {name} "
-               "--library LIBRARY")
+               + f" --temperature {_exact_text(temperature)} --vernier {q(files['vernier'])} --vernier-uncertainty "
+               f"{VERNIER_NOISE * 1e3:g} --plane-scan {q(files['plane'])} --plane-normal "
+               + ",".join(f"{c + 0.0:.6g}" for c in normal) + f" --nominal-pose {pose_arg}"
+               + f" --reference-scan {q(files['sphere'])} --name {q(name)} --library LIBRARY")
     if as_json:
         click.echo(strict_json({"files": {k: str(f) for k, f in files.items()}, "truth": truth,
                                 "calibrate_with": command}, indent=2))

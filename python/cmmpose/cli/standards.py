@@ -7,16 +7,19 @@ still work (cmmpose.cli)."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import click
 from rich.console import Console
+from rich.markup import escape
 
 from .._json import dumps as strict_json
 from ..atomicfile import check_not_input, ensure_folder, write_text
 from ..errors import Error
 from ..formats.pointclouds import UNITS
-from .common import skip_incomplete_option, console, map_specs, policy_options
+from .common import (POSITIVE_MM, check_plot_path, console, expansion_ppm, map_specs, plot_option, policy_options,
+                     skip_incomplete_option)
 from .common import fail as _fail
 
 __all__ = ["standards_group", "iso230_2_cmd", "acceptance_cmd", "acceptance_sphere_cmd", "interim_cmd", "e3125_distances_cmd"]
@@ -56,7 +59,7 @@ def _outputs(result, stem: str, plot, plot_path, report_dir, inputs=()) -> list[
 
 
 #: Exit status of a conformance decision (``acceptance``, ``acceptance-sphere``): only a proven pass is 0.
-DECISION_EXIT = {"pass": 0, "not proven": 1, "fail": 1}
+DECISION_EXIT = {"pass": 0, "not proven": 1, "no decision": 1, "fail": 1}
 
 
 def _exit_with_decision(result) -> None:
@@ -92,7 +95,7 @@ def _write_report(result, directory, stem: str, plot=None) -> list[Path]:
 @click.option("--test-uncertainty", type=float, default=None,
               help="Expanded uncertainty (k = 2) of a measured deviation, um, stated with the results "
                    "(default for interferometer runs: the air correction's over the travel).")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Plot to write (PNG, PDF, SVG).")
+@plot_option("--plot", "plot_path", help="Plot to write (PNG, PDF, SVG).")
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write iso230-2.json, iso230-2.md (a report section) and iso230-2.png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON (the axis figures at the top level, um).")
@@ -106,6 +109,7 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
     """
     from ..standards.iso230_2 import evaluate_iso230_2, load_positioning
 
+    check_plot_path(plot_path, "--plot")
     try:
         data, u, note = load_positioning(data_file, air_correction=not no_air_correction)
         if test_uncertainty is not None:
@@ -128,16 +132,18 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
               help="Compensation maps ('thesis', files, or 'none' to test the uncompensated points); default: the "
                    "machine's, or as run.json says.")
 @click.option("--temperature", type=float, default=None, help="Machine and part temperature, C (default: the run's log).")
-@click.option("--calibrated-length", type=float, default=None, help="Certified centre distance at 20 C, mm (default: the run's).")
-@click.option("--calibrated-radius", type=float, default=None, help="Certified ball radius, mm (default: the run's).")
-@click.option("--expansion", type=float, default=None,
+@click.option("--calibrated-length", type=POSITIVE_MM, default=None,
+              help="Certified centre distance at 20 C, mm (default: the run's).")
+@click.option("--calibrated-radius", type=POSITIVE_MM, default=None,
+              help="Certified ball radius, mm (default: the run's).")
+@click.option("--expansion", type=float, default=None, callback=expansion_ppm,
               help="Artefact expansion coefficient for lengths at 20 C, ppm/K (default: the machine's).")
 @click.option("--u-length-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the certified length, um.")
 @click.option("--u-diameter-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of a certified diameter, um.")
 @click.option("--u-form-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the spheres' form, um.")
 @click.option("--u-expansion", type=float, default=1.0, show_default=True, help="Standard uncertainty of the expansion coefficient, ppm/K.")
 @click.option("--u-part-temperature", type=float, default=0.2, show_default=True, help="Standard uncertainty of the part temperature, K.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Plot to write (PNG, PDF, SVG).")
+@plot_option("--plot", "plot_path", help="Plot to write (PNG, PDF, SVG).")
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write acceptance.json, acceptance.md (a report section) and acceptance.png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
@@ -156,6 +162,7 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
     from ..run import Run
     from ..standards.acceptance import acceptance_test
 
+    check_plot_path(plot_path, "--plot")
     try:
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
@@ -183,7 +190,7 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
               help="Compensation maps: the check is of what they leave ('none': of the raw machine); default: the "
                    "machine's, or as run.json says.")
 @click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's log).")
-@click.option("--calibrated-length", type=float, default=None,
+@click.option("--calibrated-length", type=POSITIVE_MM, default=None,
               help="Certified bar length at 20 C, mm (default: the run's); without one, scale mismatches.")
 @click.option("--u-length-cert", type=float, default=0.0, show_default=True, help="Standard uncertainty of the certified length, um.")
 @click.option("--u-temperature", type=float, default=0.2, show_default=True, help="Standard uncertainty of the temperature, K.")
@@ -218,7 +225,7 @@ def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_l
 
 @click.command("acceptance-sphere")
 @click.argument("scan", type=click.Path(exists=True, dir_okay=False))
-@click.option("--radius", type=float, required=True, help="Certified sphere radius, mm.")
+@click.option("--radius", type=POSITIVE_MM, required=True, help="Certified sphere radius, mm.")
 @click.option("--mpe-form", required=True, help="MPE of the probing form error, um.")
 @click.option("--mpe-size", required=True, help="MPE of the probing size error, um.")
 @click.option("--units", type=click.Choice(sorted(UNITS)), default=None,
@@ -235,8 +242,10 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
     """Probing form and size errors of one scan of a calibrated sphere (a point cloud: CSV, NPY, Parquet, PLY,
     XYZ, PTS, E57), each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven.
 
-    Exit status: 0 when the decision is pass; 1 when it is fail or not
-    proven (conformance not shown), or on an error; 2 on a usage error.
+    Exit status: 0 when the decision is pass; 1 when it is fail, not
+    proven or no decision (conformance not shown; no decision: the size is
+    not determined by a scan of too small a cap, the notes say why), or on an
+    error; 2 on a usage error.
     """
     from ..fitting import e3125
     from ..formats.pointclouds import read_point_cloud, unit_factor
@@ -253,7 +262,9 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
                               u_diameter_certificate_um=u_diameter_cert,
                               item=f"{Path(scan).name}" + (" (E3125 segment)" if segment == "e3125" else ""))
     except Error as exc:
-        raise _fail(exc) from None
+        from .fit import units_flag
+
+        raise _fail(units_flag(exc)) from None
     if as_json:
         click.echo(strict_json(result.to_dict(), indent=2))
     else:
@@ -270,7 +281,7 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
               help="Units of the scans' coordinates and of --scanner-origin (default: the format's).")
 @click.option("--scanner-origin", default="0,0,0", show_default=True, help="The scanner's origin, x,y,z in --units.")
 @click.option("--mpe", "mpe_text", default=None, help="MPE of the distance error, um: A or A+L/K, L in mm.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Plot to write (PNG, PDF, SVG).")
+@plot_option("--plot", "plot_path", help="Plot to write (PNG, PDF, SVG).")
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write e3125-distances.json, .md (a report section) and .png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
@@ -279,10 +290,13 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
     """Sphere-centre distance errors in the manner of ASTM E3125: each NAME=SCAN is a raw scan of one
     sphere target (any point-cloud format), segmented and fitted with the radius fixed; each pair of
     --pairs is compared with its reference distance (docs/standards.md)."""
+    from ..errors import ImplausibleFit
     from ..formats.pointclouds import read_point_cloud, unit_factor
     from ..standards.acceptance import parse_mpe
     from ..standards.e3125_distances import distance_errors, read_pairs, sphere_targets
+    from .fit import units_flag
 
+    check_plot_path(plot_path, "--plot")
     if not (radius > 0):
         raise click.BadParameter(f"expected a positive radius in mm, got {radius}", param_hint="--radius")
     try:
@@ -303,13 +317,17 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
         mpe = parse_mpe(mpe_text, "--mpe") if mpe_text else None
         clouds = {n: read_point_cloud(p, units=units).xyz for n, p in named.items()}
         scale = unit_factor(next(iter(named.values())), units)  # --scanner-origin is in the scans' units
-        targets = sphere_targets(clouds, radius, tuple(v * scale for v in origin))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ImplausibleFit)
+            targets = sphere_targets(clouds, radius, tuple(v * scale for v in origin))
         result = distance_errors(targets, read_pairs(pairs_file), mpe)
         files = _outputs(result, "e3125-distances", result.plot, plot_path, report_dir,
                          [*named.values(), pairs_file])
     except Error as exc:
-        raise _fail(exc) from None
+        raise _fail(units_flag(exc)) from None
     _show(result, files, as_json)
+    for w in caught:  # an implausible sphere fit (a wrong radius, an unsegmented scan): said, on stderr
+        console.print(f"[yellow]warning:[/] {escape(str(w.message))}")
 
 
 @click.group("standards")

@@ -36,6 +36,26 @@ __all__ = ["SphereFitDiagnosis", "diagnose_sphere_fits", "read_sphere_fits", "ap
 NOMINAL_RADIUS_MM = 38.125
 _UM = 1e3
 
+#: A reference length off the mean measured length by more than this fraction
+#: of it is refused: a CMM's length error over a ballbar, even uncompensated
+#: and a few kelvin off 20 C, is of order 1e-4 of the length (the thesis's
+#: Appendix C: tens of um on 404 mm), 1e-3 at worst; 1 % is ten times that,
+#: so only a wrong unit (0.4042 m), another bar's length or a typing error
+#: reaches it, and its deviations (everything off by the same millimetres)
+#: would swamp what the diagnosis looks for.
+REFERENCE_LENGTH_FRACTION = 0.01
+
+#: A mean fitted radius off the nominal by more than this fraction of it is
+#: refused: a coating is microns thick, and a line scanner's radius bias
+#: (incidence, scale, penetration) tens of microns, at most a few tenths of a
+#: millimetre on the thesis's 38 mm balls (Appendix C: +41 um, 0.1 %); 5 % of
+#: the radius is no physical offset but a diameter column, a nominal diameter,
+#: another unit or another ball.
+RADIUS_FRACTION = 0.05
+
+#: Length units, their size in mm (the unit hints of the refusals).
+_UNITS_MM = {"m": 1000.0, "in": 25.4, "cm": 10.0}
+
 
 @dataclass(frozen=True)
 class SphereFitDiagnosis:
@@ -73,6 +93,18 @@ class SphereFitDiagnosis:
     radius_sd_um: float
     patterns: Patterns = field(repr=False)
     nominal_radius: float | None = None
+    reference_length: float | None = None
+
+    @property
+    def mean_length(self) -> float:
+        """Mean ball-centre distance, mm."""
+        return float(np.mean(self.lengths))
+
+    @property
+    def mean_deviation_um(self) -> float:
+        """Mean of ``length_deviation_um``: the mean length minus the
+        reference length, um (0 without a reference: the mean is the reference)."""
+        return float(np.mean(self.length_deviation_um))
 
     @property
     def significant(self) -> list:
@@ -81,7 +113,8 @@ class SphereFitDiagnosis:
 
     def to_dict(self) -> dict:
         return {"lengths_mm": self.lengths.tolist(), "length_deviation_um": self.length_deviation_um.tolist(),
-                "rms_um": self.rms_um, "radius_mean_mm": self.radius_mean, "radius_excess_um": self.radius_excess_um,
+                "reference_length_mm": self.reference_length, "mean_length_mm": self.mean_length,
+                "mean_length_deviation_um": self.mean_deviation_um, "rms_um": self.rms_um, "radius_mean_mm": self.radius_mean, "radius_excess_um": self.radius_excess_um,
                 "radius_excess_u_um": self.radius_excess_u_um, "radius_sd_um": self.radius_sd_um,
                 "nominal_radius_mm": self.nominal_radius, "patterns": self.patterns.to_dict()}
 
@@ -99,10 +132,14 @@ def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
     radii : array_like, shape (P, 2)
         Fitted radii, mm.
     nominal_radius : float, optional
-        Calibrated radius, mm: tests a constant radius offset.
+        Calibrated radius, mm: tests a constant radius offset. Refused when
+        the mean fitted radius is off it by more than :data:`RADIUS_FRACTION`
+        (5 %) of it (radii holding diameters, a nominal diameter, another unit).
     reference_length : float, optional
         Calibrated bar length, mm; default the mean length (only the
-        differences between positions are then tested).
+        differences between positions are then tested). Refused when off the
+        mean measured length by more than :data:`REFERENCE_LENGTH_FRACTION`
+        (1 %) of it (a length in metres, another bar's).
     points : array_like, shape (P, 2), optional
         Points per ball (a proxy for the cap covered).
     fit_rms : array_like, shape (P, 2), optional
@@ -117,7 +154,9 @@ def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
     Raises
     ------
     InputError
-        Wrong shapes, fewer than 3 positions, NaN or inf, a non-positive radius.
+        Wrong shapes, fewer than 3 positions, NaN or inf, a non-positive radius;
+        an implausible reference length or nominal radius (``option`` names
+        the argument, ``cli_option`` the flag).
     """
     c = np.asarray(centres, dtype=float)
     r = np.asarray(radii, dtype=float)
@@ -138,6 +177,8 @@ def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
             extra[name] = a
     bar = c[:, 1] - c[:, 0]
     length = np.linalg.norm(bar, axis=1)
+    if reference_length is not None:
+        _check_reference_length(float(reference_length), float(np.mean(length)))
     ref = float(np.mean(length)) if reference_length is None else float(reference_length)
     dev = (length - ref) * _UM
     rms = float(np.std(dev, ddof=1))
@@ -146,6 +187,8 @@ def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
     found = length_shape_patterns(d, mid, dev)
     rr = r.ravel()
     calibrated = nominal_radius is not None
+    if calibrated:
+        _check_radii(float(nominal_radius), float(rr.mean()))
     ref_r = float(nominal_radius) if calibrated else float(rr.mean())
     rdev = (rr - ref_r) * _UM
     robs = "sphere radius deviation" + (" from nominal" if calibrated else " from mean")
@@ -167,7 +210,55 @@ def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
     excess = float(rr.mean() - nominal_radius) * _UM if calibrated else float("nan")
     return SphereFitDiagnosis(length, dev, rms, float(rr.mean()), excess,
                               float(np.std(rr, ddof=1) / math.sqrt(len(rr))) * _UM, float(np.std(rr, ddof=1)) * _UM,
-                              Patterns(ranked, alpha, threshold), None if not calibrated else float(nominal_radius))
+                              Patterns(ranked, alpha, threshold), None if not calibrated else float(nominal_radius),
+                              None if reference_length is None else float(reference_length))
+
+
+def _unit_of(ratio: float) -> str | None:
+    """The unit a length is in when the millimetres it should be are
+    ``ratio`` times it (within 5 %), or None."""
+    for unit, size in _UNITS_MM.items():
+        if abs(math.log(ratio / size)) < math.log(1.05):
+            return unit
+    return None
+
+
+def _check_reference_length(reference: float, mean: float) -> None:
+    if not (math.isfinite(reference) and reference > 0):
+        raise InputError(f"reference_length: must be a positive length in mm, got {reference}",
+                         option="reference_length", cli_option="--reference-length", value=reference, unit="mm")
+    if abs(reference - mean) <= REFERENCE_LENGTH_FRACTION * mean:
+        return
+    unit = _unit_of(mean / reference)
+    why = (f": the reference looks like a length in {unit}, not mm" if unit else
+           ": another bar's length, a typing error or another unit")
+    raise InputError(f"reference_length: {reference:g} mm is {100 * abs(reference - mean) / mean:.3g} % off the mean "
+                     f"measured bar length {mean:.4f} mm (over {100 * REFERENCE_LENGTH_FRACTION:g} %: no machine "
+                     f"errs by that much){why}; give the calibrated length in mm, or none to test only the "
+                     f"differences between positions", option="reference_length", cli_option="--reference-length",
+                     value=reference, unit="mm")
+
+
+def _check_radii(nominal: float, mean: float) -> None:
+    if not (math.isfinite(nominal) and nominal > 0):
+        raise InputError(f"nominal_radius: must be a positive length in mm, got {nominal}",
+                         option="nominal_radius", cli_option="--nominal-radius", value=nominal, unit="mm")
+    if abs(mean - nominal) <= RADIUS_FRACTION * nominal:
+        return
+    ratio = mean / nominal
+    if abs(ratio - 2) < 0.1:
+        why = ": the radii are twice the nominal: does the radius column hold diameters?"
+    elif abs(ratio - 0.5) < 0.025:
+        why = ": the radii are half the nominal: is the nominal radius a diameter?"
+    else:
+        radii_unit, nominal_unit = _unit_of(1 / ratio), _unit_of(ratio)
+        why = (f": the radii look like lengths in {radii_unit}, not mm" if radii_unit else
+               f": the nominal radius looks like a length in {nominal_unit}, not mm" if nominal_unit else
+               ": another ball's nominal, or radii from failed fits")
+    raise InputError(f"radii: the mean fitted radius {mean:.4f} mm is {100 * abs(ratio - 1):.3g} % off the nominal "
+                     f"radius {nominal:g} mm (over {100 * RADIUS_FRACTION:g} %: no coating or scanner bias is that "
+                     f"large){why}", option="nominal_radius", cli_option="--nominal-radius", column="radius_mm",
+                     value=mean, unit="mm")
 
 
 def read_sphere_fits(path, state: str | None = None) -> dict[str, np.ndarray]:

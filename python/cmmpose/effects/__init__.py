@@ -36,6 +36,8 @@ def parse(text: str) -> Effect:
         key, eq, value = item.partition("=")
         if not eq or key.strip() not in units:
             raise InputError(f"effect {cls.name}: parameter {item!r} is not one of {sorted(units)} (write key=value)")
+        if key.strip() in kwargs:  # not the last one silently
+            raise InputError(f"effect {cls.name}: {key.strip()} is given twice in {text!r}")
         if key.strip() in cls.text_fields():
             kwargs[key.strip()] = value.strip()
             continue

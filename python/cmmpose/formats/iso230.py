@@ -37,6 +37,21 @@ HEADER = ("axis", "target_mm", "mean_deviation_up_um", "mean_deviation_down_um")
 #: Decimals of the deviations written, um (0.001 um = 1 nm).
 DECIMALS = 3
 
+#: The largest mean deviation (um) a file may give, as a fraction of its axis's span of targets, with a floor and
+#: a cap: beyond it the number is not a positioning error but a unit mix-up (mm or nm written as um) or a typo. A
+#: machine's positioning error is a scale error - a screw's pitch or a scale's calibration, or its expansion
+#: (11.5 ppm/K x 10 K = 0.012 %) - plus a reversal of tens of um: 1 % of the span is ~100 times the largest scale
+#: error, the 500 um floor keeps a short axis's backlash in, and no machine worth a map is 5 mm off anywhere.
+DEVIATION_LIMIT_FRACTION = 0.01
+DEVIATION_LIMIT_FLOOR_UM = 500.0
+DEVIATION_LIMIT_CAP_UM = 5000.0
+
+
+def deviation_limit_um(span_mm: float) -> float:
+    """The largest mean deviation (um) accepted on an axis whose targets span ``span_mm`` (mm):
+    1 % of the span, at least 500 um and at most 5 mm (``DEVIATION_LIMIT_*``)."""
+    return min(DEVIATION_LIMIT_CAP_UM, max(DEVIATION_LIMIT_FLOOR_UM, DEVIATION_LIMIT_FRACTION * span_mm * 1e3))
+
 
 def _fields(line: str) -> list[str]:
     """Comma-separated fields, white space and enclosing double quotes removed."""
@@ -86,7 +101,8 @@ def read_results(path: str | PathLike) -> dict[str, AxisResult]:
         columns, a row with another number of fields, an axis other than X, Y,
         Z, a malformed or non-finite number, targets of an axis that do not
         strictly increase (duplicates named as such), an axis with one row, no
-        data rows.
+        data rows, a deviation that cannot be a positioning error (beyond
+        :func:`deviation_limit_um` of the axis's span of targets).
     """
     path = Path(path)
     lines = read_lines(path)
@@ -125,6 +141,14 @@ def read_results(path: str | PathLike) -> dict[str, AxisResult]:
         if len(r) < 2:
             raise MapError(f"{path}:{r[0][0]}: the {axis} axis has 1 target; at least 2 are needed to interpolate")
         a = np.array([x[1:] for x in r])
+        limit = deviation_limit_um(float(a[-1, 0] - a[0, 0]))
+        for lineno, target, up, down in r:
+            for column, v in (("mean_deviation_up_um", up), ("mean_deviation_down_um", down)):
+                if abs(v) > limit:
+                    raise MapError(f"{path}:{lineno}: {axis} {column} {v:g} um at {target:g} mm is not a machine's "
+                                   f"positioning error (more than {limit:g} um: 1 % of the {axis} targets' span "
+                                   f"{a[-1, 0] - a[0, 0]:g} mm, at least {DEVIATION_LIMIT_FLOOR_UM:g} um, at most "
+                                   f"{DEVIATION_LIMIT_CAP_UM:g} um); deviations are in um (is the file in mm or nm?)")
         results[axis] = AxisResult(axis, a[:, 0], a[:, 1], a[:, 2], str(path), tuple(x[0] for x in r))
     return {a: results[a] for a in CARRIAGES if a in results}
 

@@ -50,6 +50,18 @@ DECIMALS = 6
 
 _COLUMNS = {0: ("nominal", "forward position", "reverse position"), 1: ("nominal", "forward trim", "reverse trim")}
 
+#: A deviation (actual - nominal) larger than the larger of these is refused
+#: as not a machine's error: DEVIATION_LIMIT_MM, or DEVIATION_LIMIT_FRACTION
+#: of the table's span. A machine's linear errors are micrometres to a few
+#: hundred micrometres (an uncompensated ball screw ~0.1 mm per 300 mm; steel
+#: 10 K off 20 C is 115 um per m, 1.2 mm over a 10 m gantry axis), so 2 mm and
+#: 1 % leave a wide margin. A file read with the other COMP_FILE_TYPE gives
+#: deviations of minus the nominal position itself (type 1 read as 0: trim -
+#: nominal; type 0 read as 1: -position), at least half the span at one end:
+#: 50 times the 1 % limit, caught whenever the span exceeds 4 mm.
+DEVIATION_LIMIT_MM = 2.0
+DEVIATION_LIMIT_FRACTION = 0.01
+
 
 def _check_options(comp_file_type, units) -> float:
     """The size of the machine unit in mm; ``InputError`` on a bad type or unit."""
@@ -93,7 +105,10 @@ def read_comp_file(path: str | PathLike, axis: str, *, comp_file_type: int = 0, 
         numbers (a blank line or comment before more data, where LinuxCNC
         would stop reading), a malformed or non-finite number, nominal
         positions that do not strictly increase, fewer than 2 or more than
-        ``MAX_ENTRIES`` lines.
+        ``MAX_ENTRIES`` lines; a deviation larger than 2 mm and 1 % of the
+        table's span (``DEVIATION_LIMIT_MM``, ``DEVIATION_LIMIT_FRACTION``),
+        which a file of the other ``comp_file_type`` gives (the message says
+        when the other type reads as plausible deviations).
     """
     scale = _check_options(comp_file_type, units)
     axis = _axis_key(axis)
@@ -131,7 +146,36 @@ def read_comp_file(path: str | PathLike, axis: str, *, comp_file_type: int = 0, 
         up_um, down_um = ((a[:, j] - a[:, 0]) * scale * 1e3 for j in (1, 2))
     else:
         up_um, down_um = (0.0 - a[:, j] * scale * 1e3 for j in (1, 2))  # 0.0 - x: no -0.0 in the map
+    _check_deviations(path, a, scale, comp_file_type, np.column_stack([up_um, down_um]) * 1e-3)
     return AxisResult(axis, nominal_mm, up_um, down_um, str(path), tuple(range(1, len(rows) + 1)))
+
+
+def _check_deviations(path: Path, a: np.ndarray, scale: float, comp_file_type: int, dev_mm: np.ndarray) -> None:
+    """Raise ``MapError`` if a deviation (mm, rows x directions) is of the size
+    of the positions rather than of a machine's error (``DEVIATION_LIMIT_MM``)."""
+    span_mm = float(a[-1, 0] - a[0, 0]) * scale
+    limit = max(DEVIATION_LIMIT_MM, DEVIATION_LIMIT_FRACTION * span_mm)
+    big = np.abs(dev_mm) > limit
+    if not big.any():
+        return
+    row, col = (int(i) for i in np.argwhere(big)[0])
+    names = _COLUMNS[comp_file_type]
+    other = 1 - comp_file_type
+    # The same values read as the other type: deviation = -trim (as type 1) or position - nominal (as type 0).
+    other_mm = (-a[:, 1:] if other == 1 else a[:, 1:] - a[:, :1]) * scale
+    kind = {0: "positions", 1: "trims"}
+    what = kind[other]
+    hint = (f"the values read as COMP_FILE_TYPE {other} ({what}) give deviations within "
+            f"{np.abs(other_mm).max() * 1e3:.4g} um: read the file with comp_file_type={other} "
+            f"(--comp-file-type {other})"
+            if np.abs(other_mm).max() <= limit else
+            f"read as COMP_FILE_TYPE {other} ({what}) they are too large as well (up to "
+            f"{np.abs(other_mm).max():.4g} mm): check the file's units and columns")
+    raise MapError(
+        f"{path}:{row + 1}: {names[col + 1]} {a[row, col + 1]:g} at nominal {a[row, 0]:g} is a deviation "
+        f"(actual - nominal) of {dev_mm[row, col]:.6g} mm as COMP_FILE_TYPE {comp_file_type} "
+        f"({kind[comp_file_type]}), more than {limit:.3g} mm (the larger of {DEVIATION_LIMIT_MM:g} mm and "
+        f"{DEVIATION_LIMIT_FRACTION:.0%} of the table's {span_mm:g} mm span), far beyond a machine's error; {hint}")
 
 
 def read_comp_files(files: Mapping[str, str | PathLike], *, comp_file_type: int = 0, units: str = "mm",

@@ -30,6 +30,22 @@ __all__ = ["table_motion_to_map"]
 _ARCSEC = np.pi / 648000.0  # rad per arc-second
 
 
+def _check_near_travel(error_map: ErrorMap, what: str, flag: str, point: np.ndarray) -> None:
+    """``InputError`` when ``point`` (mm) lies farther beyond the map's travel (its X, Y, Z ranges) than the
+    travel's largest size: a point on a table rides within the travel (the table's frame may sit anywhere in
+    it, and the part overhang the table), so one a whole travel beyond is a typo or a unit mix-up, whose
+    lever would swing the map by the angles times kilometres."""
+    ranges = np.asarray(error_map.ranges, dtype=float)  # (3, 2): lo, hi per axis, mm
+    margin = float(np.max(ranges[:, 1] - ranges[:, 0]))
+    for axis, v, (lo, hi) in zip(CARRIAGES, point, ranges):
+        if not lo - margin <= v <= hi + margin:
+            raise InputError(f"{what}: {axis} {v:g} mm is far outside the map's travel {axis} {lo:g}..{hi:g} mm "
+                             f"(more than its largest size, {margin:g} mm, beyond it): a point on the table is "
+                             "within the travel; is it in mm, in the table's frame?",
+                             what=what, value=float(v), allowed=(lo - margin, hi + margin), unit="mm", option=what,
+                             cli_option=flag)
+
+
 def table_motion_to_map(error_map: ErrorMap, carriage: str, measured_at, part_point) -> ErrorMap:
     """The map of a machine whose ``carriage`` table holds a moving table's
     own measured motion, converted into map components.
@@ -56,6 +72,12 @@ def table_motion_to_map(error_map: ErrorMap, carriage: str, measured_at, part_po
     ErrorMap
         A new map (the input is not modified): for ``carriage``,
         d = -(d_T + eps_T x (p - r_T)) and eps = -eps_T.
+
+    Raises
+    ------
+    InputError
+        A point farther beyond the map's travel than the travel's largest
+        size (``option`` and ``cli_option`` name it).
     """
     if not isinstance(error_map, ErrorMap):
         raise InputTypeError(f"error_map: expected an ErrorMap, got {type(error_map).__name__}", option="error_map")
@@ -65,6 +87,8 @@ def table_motion_to_map(error_map: ErrorMap, carriage: str, measured_at, part_po
                          cli_option="--carriage")
     r_t = np.array(as_triple("measured_at", measured_at))
     p = np.array(as_triple("part_point", part_point))
+    for what, flag, point in (("measured_at", "--measured-at", r_t), ("part_point", "--part-point", p)):
+        _check_near_travel(error_map, what, flag, point)
     lever = p - r_t  # mm
     tables = {c: error_map.table(c).copy() for c in CARRIAGES}
     t = tables[name]

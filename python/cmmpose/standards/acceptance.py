@@ -25,6 +25,10 @@ test uncertainty counted against whoever states conformance, here the user):
 - ``pass`` (conformance proven): |error| + U <= MPE;
 - ``fail`` (nonconformance proven): |error| - U > MPE;
 - ``not proven``: otherwise;
+- ``no decision``: the error itself is not determined (a probing size from a
+  free-radius fit over so small a cap that the radius moves with the centre,
+  ``cmmpose.errors.IllConditionedFit``): the error is shown, but the points
+  do not determine it, whatever U the certificates give;
 
 with U the expanded (k = 2) uncertainty of the test: the uncertainty of the
 test itself (the artefact's certificate, its expansion coefficient and
@@ -36,7 +40,7 @@ from __future__ import annotations
 import logging
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -46,7 +50,7 @@ from .._renamed import per_kelvin_to_ppm, renamed
 from .._validate import finite, nonnegative
 from ..errors import InputError, InputTypeError
 from ..evaluation.ballbar import machine_coordinates, evaluate, machine_temperature, skipped_note
-from ..fitting import fit_sphere
+from ..fitting import ILL_CONDITIONED_CORRELATION, fit_sphere
 from ..evaluation.metrics import STEEL_EXPANSION_PPM_PER_K
 from ..evaluation.plots import new_figure, save_plot
 from ..run import Run
@@ -58,6 +62,7 @@ __all__ = [
     "MPE",
     "parse_mpe",
     "decide",
+    "NO_DECISION",
     "Check",
     "AcceptanceResult",
     "acceptance_test",
@@ -67,7 +72,8 @@ __all__ = [
 _log = logging.getLogger("cmmpose.standards")
 
 DECISION_RULE = ("ISO 14253-1 style, the test uncertainty U (k = 2) counted against the user who states conformance: "
-                 "pass when |error| + U <= MPE, fail when |error| - U > MPE, otherwise not proven")
+                 "pass when |error| + U <= MPE, fail when |error| - U > MPE, otherwise not proven; no decision when the "
+                 "error itself is not determined (an ill-conditioned fit)")
 ACCEPTANCE_CLAUSE = ("in the manner of ISO 10360-8:2013 (optical distance sensors): probing form and size errors on a "
                      "calibrated sphere (single view and all points), length measurement error between sphere "
                      "centres of a calibrated artefact; decision per ISO 14253-1")
@@ -150,11 +156,38 @@ def decide(error_um: float, mpe_um: float, expanded_uncertainty_um: float) -> st
     return "not proven"
 
 
-_ORDER = {"pass": 0, "not proven": 1, "fail": 2}
+#: What the command line and reports say of an error that cannot be decided (``Check.decision``).
+NO_DECISION = "no decision"
+
+_ORDER = {"pass": 0, "not proven": 1, NO_DECISION: 2, "fail": 3}
 
 
 def _worst(decisions) -> str:
     return max(decisions, key=_ORDER.__getitem__)
+
+
+def _undetermined_size(fit, what: str) -> str | None:
+    """Why a free-radius ``fit`` (cmmpose.fitting.SphereFit) does not determine a probing size error, or None:
+    over so small a cap that the radius moves with the centre (the ``IllConditionedFit`` condition), the size
+    error is not determined, whatever U the certificates give."""
+    rho = fit.centre_radius_correlation
+    if not rho > ILL_CONDITIONED_CORRELATION:
+        return None
+    return (f"{what}: no decision: the free-radius fit is ill-conditioned over a {fit.polar_coverage:.1f} deg cap "
+            f"(centre-radius correlation {rho:.4f} > {ILL_CONDITIONED_CORRELATION:g}: the radius moves with the "
+            f"centre, u(radius) {fit.radius_uncertainty * 1e3:.2g} um from the points' scatter alone), so the size "
+            "error is not determined; scan more of the sphere")
+
+
+def _size_check(test: str, item: str, fit, calibrated_radius: float, mpe_um: float, U_um: float, notes: list) -> Check:
+    """The probing size check of ``fit`` against ``calibrated_radius`` (mm): decided, or ``no decision`` with
+    the reason appended to ``notes`` when the fit does not determine the radius (:func:`_undetermined_size`)."""
+    check = Check.judged(test, item, 2 * (fit.radius - calibrated_radius) * 1e3, mpe_um, U_um)
+    reason = _undetermined_size(fit, f"{test} of {item}")
+    if reason:
+        notes.append(reason)
+        return replace(check, decision=NO_DECISION)
+    return check
 
 
 @dataclass(frozen=True)
@@ -175,7 +208,8 @@ class Check:
     U_um : float
         Expanded uncertainty (k = 2) of the test, um.
     decision : str
-        ``'pass'``, ``'fail'`` or ``'not proven'``.
+        ``'pass'``, ``'fail'``, ``'not proven'`` or ``'no decision'`` (the
+        error not determined; the result's notes say why).
     length_mm : float
         Length tests: the measured length at 20 C, mm (NaN otherwise).
     """
@@ -257,7 +291,8 @@ class AcceptanceResult:
 
     @property
     def decision(self) -> str:
-        """The overall decision: fail if any value fails, pass if all pass, otherwise not proven."""
+        """The overall decision: fail if any value fails, pass if all pass, no decision if a value could not be
+        decided, otherwise not proven."""
         return _worst(c.decision for c in self.checks)
 
     def to_dict(self) -> dict:
@@ -291,7 +326,7 @@ class AcceptanceResult:
     def __rich__(self):
         from rich.table import Table
 
-        colour = {"pass": "green", "fail": "red", "not proven": "yellow"}
+        colour = {"pass": "green", "fail": "red", "not proven": "yellow", NO_DECISION: "magenta"}
         t = Table(title=f"Acceptance ({self.label} points): {self.decision.upper()}")
         for name in ("test", "values", "largest error (um)", "at", "MPE (um)", "U, k=2 (um)", "decision"):
             t.add_column(name, justify="left" if name in ("test", "at", "decision") else "right")
@@ -468,7 +503,7 @@ def acceptance_test(
     ref_ids = run.scans["scan_id"][run.scans["feature"] == "reference"] if len(run.scans["scan_id"]) else []
     if len(ref_ids) and reference_radius is not None:
         checks += _reference_checks(run, maps, temperature, policy, np.asarray(ref_ids), float(reference_radius),
-                                    mpes, U_form, U_size)
+                                    mpes, U_form, U_size, notes)
     elif len(ref_ids):
         notes.append("reference scans without a calibrated radius (artefact reference_sphere.radius_mm): "
                      "no all-points tests")
@@ -503,8 +538,9 @@ def acceptance_test(
 
 
 def _reference_checks(run: Run, maps, temperature, policy, ref_ids: np.ndarray, radius: float, mpes,
-                      U_form: float, U_size: float) -> list[Check]:
-    """Probing tests on the reference sphere: every scan alone and all together."""
+                      U_form: float, U_size: float, notes: list) -> list[Check]:
+    """Probing tests on the reference sphere: every scan alone and all together (a size the fit does not
+    determine: no decision, the reason appended to ``notes``)."""
     if maps is None or isinstance(maps, ErrorMap):
         xyz = machine_coordinates(run, maps, None, policy.out_of_range, policy.temperature_tolerance)
     else:
@@ -524,14 +560,12 @@ def _reference_checks(run: Run, maps, temperature, policy, ref_ids: np.ndarray, 
         views.append(f)
         out.append(Check.judged("probing form, single view", f"reference scan {i}", f.form * 1e3,
                                 mpes["mpe_form"].at(), U_form))
-        e = 2 * (f.radius - radius) * 1e3
-        out.append(Check.judged("probing size, single view", f"reference scan {i}", e, mpes["mpe_size"].at(),
-                                U_size))
+        out.append(_size_check("probing size, single view", f"reference scan {i}", f, radius, mpes["mpe_size"].at(),
+                               U_size, notes))
     f = fit_sphere(xyz[np.isin(sid, ref_ids)])
     item = f"reference sphere, {len(ref_ids)} views together"
     out.append(Check.judged("probing form, all points", item, f.form * 1e3, mpes["mpe_form"].at(), U_form))
-    e = 2 * (f.radius - radius) * 1e3
-    out.append(Check.judged("probing size, all points", item, e, mpes["mpe_size"].at(), U_size))
+    out.append(_size_check("probing size, all points", item, f, radius, mpes["mpe_size"].at(), U_size, notes))
     return out
 
 
@@ -561,7 +595,12 @@ def probing_test(points, calibrated_radius: float, *, mpe_form, mpe_size, u_form
     Returns
     -------
     AcceptanceResult
-        Two checks: probing form and probing size, single view.
+        Two checks: probing form and probing size, single view. When the
+        free-radius fit is ill-conditioned (centre-radius correlation above
+        ``cmmpose.fitting.ILL_CONDITIONED_CORRELATION``: a small cap, where
+        the radius moves with the centre) the size is not determined: its
+        decision is ``'no decision'`` and the notes say why (the form, the
+        residuals' range over the points given, is still decided).
     """
     mpes = {n: (v if isinstance(v, MPE) else parse_mpe(v, n)) for n, v in (("mpe_form", mpe_form), ("mpe_size", mpe_size))}
     r_cal = float(calibrated_radius)
@@ -570,10 +609,9 @@ def probing_test(points, calibrated_radius: float, *, mpe_form, mpe_size, u_form
     U_form = 2 * nonnegative("u_form_certificate_um", u_form_certificate_um)
     U_size = 2 * nonnegative("u_diameter_certificate_um", u_diameter_certificate_um)
     f = fit_sphere(points)
-    form, size = f.form * 1e3, 2 * (f.radius - r_cal) * 1e3
-    checks = (Check.judged("probing form, single view", item, form, mpes["mpe_form"].at(), U_form),
-              Check.judged("probing size, single view", item, size, mpes["mpe_size"].at(), U_size))
-    notes = (f"{f.n_points} points, least-squares sphere with a free radius over a {f.polar_coverage:.0f} deg cap",)
+    notes = [f"{f.n_points} points, least-squares sphere with a free radius over a {f.polar_coverage:.0f} deg cap"]
+    checks = (Check.judged("probing form, single view", item, f.form * 1e3, mpes["mpe_form"].at(), U_form),
+              _size_check("probing size, single view", item, f, r_cal, mpes["mpe_size"].at(), U_size, notes))
     unotes = (f"probing U: form 2 x {U_form / 2:g} um (sphere form certificate), size 2 x {U_size / 2:g} um "
               "(diameter certificate); U leaves out the tested instrument's own scatter",)
-    return AcceptanceResult(checks, "given", mpes["mpe_form"], mpes["mpe_size"], None, unotes, notes)
+    return AcceptanceResult(checks, "given", mpes["mpe_form"], mpes["mpe_size"], None, unotes, tuple(notes))

@@ -18,17 +18,22 @@ treating the two scans' centres as independent (separate scans). Lengths in
 mm. Errors may be judged against an MPE (A or A + L/K) with the same ISO
 14253-1 style rule as :mod:`.acceptance` (the test uncertainty counted against
 the user): pass when |E| + U <= MPE, fail when |E| - U > MPE, else not proven.
+
+A pair whose measured distance is off its reference by more than
+:data:`GROSS_ERROR_FRACTION` (10 %) of it is refused, not judged: no scanner
+errs by that much, a unit mix-up, a swapped target or a wrong reference does.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._csvtable import read_csv_table
-from ..errors import InputError
+from ..errors import GeometryError, ImplausibleFit, InputError
 from ..fitting import e3125
 from ..evaluation.plots import new_figure, save_plot
 from .acceptance import DECISION_RULE, MPE, decide
@@ -36,7 +41,20 @@ from .acceptance import DECISION_RULE, MPE, decide
 #: The decision rule, with what the test uncertainty holds here.
 RULE = f"{DECISION_RULE}; U = 2 u, u from the two centres' covariances along the line and the reference's"
 
-__all__ = ["SphereTarget", "DistanceError", "E3125Distances", "sphere_targets", "distance_errors", "read_pairs"]
+#: A measured distance off its reference by more than this fraction of it is
+#: refused. E3125 MPEs for terrestrial laser scanners are about a millimetre
+#: plus tens of ppm (1e-4 of the distance and less), and even an uncompensated
+#: scanner's range and angle errors stay well under 1 %: 10 % is 100 times the
+#: largest plausible instrument error, so no real measurement is refused, while
+#: a scan in another unit (x10, x25.4, x1000), a swapped or mislabelled target
+#: or a mistyped reference is.
+GROSS_ERROR_FRACTION = 0.10
+
+#: Unit factors a gross error is checked against (the hint in the refusal).
+_UNIT_FACTORS = {"metres read as mm": 1000.0, "inches read as mm": 25.4, "centimetres read as mm": 10.0,
+                 "the reference in metres": 1e-3}
+
+__all__ = ["GROSS_ERROR_FRACTION", "SphereTarget", "DistanceError", "E3125Distances", "sphere_targets", "distance_errors", "read_pairs"]
 
 
 @dataclass(frozen=True)
@@ -201,9 +219,16 @@ def sphere_targets(scans: dict, radius: float, scanner_origin=(0.0, 0.0, 0.0)) -
     out = {}
     for name, points in scans.items():
         try:
-            r = e3125(points, radius, scanner_origin)
-        except InputError as exc:
-            raise InputError(f"target {name!r}: {exc}") from None
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", ImplausibleFit)
+                r = e3125(points, radius, scanner_origin)
+        except (InputError, GeometryError) as exc:
+            raise type(exc)(f"target {name!r}: {exc.message}", **exc.fields) from None
+        for w in caught:  # each implausible fit again, naming its target
+            if issubclass(w.category, ImplausibleFit):
+                warnings.warn(f"target {name!r}: {w.message}", ImplausibleFit, stacklevel=2)
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         out[name] = SphereTarget(name, np.asarray(r.centre, float), np.asarray(r.covariance, float), int(r.n_points))
     return out
 
@@ -224,7 +249,10 @@ def distance_errors(targets: dict[str, SphereTarget], pairs, mpe: MPE | None = N
     ------
     InputError
         A pair naming an unknown target, a target paired with itself, a
-        non-positive or non-finite reference, a negative uncertainty.
+        non-positive or non-finite reference, a negative uncertainty; a
+        measured distance off the reference by more than
+        :data:`GROSS_ERROR_FRACTION` of it (no decision is made on a blunder:
+        the message names the likely unit mix-up).
     """
     errors = []
     for k, pair in enumerate(pairs):
@@ -245,6 +273,8 @@ def distance_errors(targets: dict[str, SphereTarget], pairs, mpe: MPE | None = N
         n = d / dist
         var = float(n @ (targets[a].covariance + targets[b].covariance) @ n) * 1e6 + u_ref**2  # um^2
         err = (dist - ref) * 1e3
+        if not abs(dist - ref) <= GROSS_ERROR_FRACTION * ref:
+            raise InputError(_gross(k, a, b, dist, ref), what="distance", value=dist, unit="mm")
         u = math.sqrt(var)
         limit = decision = None
         if mpe is not None:
@@ -252,6 +282,19 @@ def distance_errors(targets: dict[str, SphereTarget], pairs, mpe: MPE | None = N
             decision = decide(err, limit, 2 * u)
         errors.append(DistanceError(a, b, dist, ref, err, u, limit, decision))
     return E3125Distances(dict(targets), errors, RULE)
+
+
+def _gross(k: int, a: str, b: str, dist: float, ref: float) -> str:
+    """The refusal of a pair off its reference by more than GROSS_ERROR_FRACTION."""
+    ratio = ref / dist if dist > 0 else math.inf
+    cause = min(_UNIT_FACTORS, key=lambda c: abs(math.log(ratio / _UNIT_FACTORS[c])) if math.isfinite(ratio) else 0)
+    fix = "the reference must be in mm" if _UNIT_FACTORS[cause] < 1 else "check the scans' units"
+    likely = (f": the reference is {ratio:.4g} times the distance, as with {cause} ({fix})"
+              if math.isfinite(ratio) and abs(math.log(ratio / _UNIT_FACTORS[cause])) < math.log(1.1) else
+              ": a unit mix-up, a swapped or mislabelled target or a wrong reference")
+    return (f"pairs[{k}] ({a} - {b}): the measured distance {dist:.6g} mm is {100 * abs(dist - ref) / ref:.3g} % off "
+            f"the reference {ref:.6g} mm (over {100 * GROSS_ERROR_FRACTION:g} %: no instrument errs by that much, "
+            f"so no decision is made){likely}")
 
 
 def read_pairs(path) -> list[tuple[str, str, float, float]]:
