@@ -13,7 +13,8 @@ from ._lazy import lazy_attributes
 from .compensation import compensate, uncompensated
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import (AcquisitionError, AliasedChoiceWarning, CalibrationError, ClampWarning, Error,
-                     ExtrapolationWarning, GeometryError, IllConditionedFit, InputError, InputTypeError, MapError,
+                     ExtrapolationWarning, GeometryError, IllConditionedFit, ImplausibleFit, InputError, InputTypeError,
+                     MapError,
                      MapTemperatureWarning, OutOfRangeError, OutputError, RunError, SchedulerError)
 from .pose import MountOffset, Pose
 from .kernel_report import KernelReport
@@ -157,4 +158,5 @@ __all__ = [
     "MapTemperatureWarning",
     "AliasedChoiceWarning",
     "IllConditionedFit",
+    "ImplausibleFit",
 ]
