@@ -528,7 +528,14 @@ class Run:
         for name in ("temperature_channels", "artefact", "maps", "metadata", "created"):
             object.__setattr__(run, name, doc[name])
         run._validate(_Labels(where, f"{run_dir / 'run.json'}: "), copy=False)
+        object.__setattr__(run, "_source", str(run_dir))  # for messages (Run.source); not part of the run's data
         return run
+
+    @property
+    def source(self) -> str | None:
+        """The directory the run was loaded from, for messages (None: a run
+        made in memory, or passed to another process)."""
+        return self.__dict__.get("_source")
 
     def save(self, run_dir, truth=None, *, overwrite: bool = False) -> None:
         """Write the run as a directory (run.json and Parquet tables).

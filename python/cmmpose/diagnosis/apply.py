@@ -32,17 +32,20 @@ Units: mm, s, degrees C, degrees.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
 
-from ..errors import InputError, InputTypeError
+from .. import compensation
+from ..errormap import ErrorMap
+from ..errors import InputError, InputTypeError, MapTemperatureWarning
 from .aliases import check_alternatives
 from .inputs import RunInputs
-from .model import Model
+from .model import Model, check_kinematics
 
 __all__ = ["POINT_COLUMNS", "check_run", "compensate_points", "needs_scans", "point_inputs", "policy_model",
-           "whole_scans"]
+           "single_map_warning", "whole_scans"]
 
 #: Point-file columns each kernel input is read from (module docstring).
 POINT_COLUMNS = {"axis_temperature": ("T_x_scale", "T_y_scale", "T_z_scale"),
@@ -76,17 +79,43 @@ def _input_text(need: str) -> str:
     return need
 
 
+def single_map_warning(model: Model, temperature, name: str | None = None) -> str | None:
+    """A model holding one map (not a set) used at temperatures (C) other
+    than the map's own: the ``MapTemperatureWarning`` that evaluating with
+    the map alone gives (:func:`cmmpose.compensation.warn_single_map`), its
+    text prefixed by ``name`` when given; returns the text (None: no warning)."""
+    if not isinstance(model.maps, ErrorMap):
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MapTemperatureWarning)
+        note = compensation.warn_single_map(model.maps, temperature, model.temperature_tolerance)
+    if note:
+        note = f"{name}: {note}" if name else note
+        warnings.warn(note, MapTemperatureWarning, stacklevel=3)
+    return note
+
+
 def check_run(model: Model, inputs: RunInputs, where: str = "run") -> None:
     """Refuse a model whose effects need an input ``inputs`` lacks, naming
     the effect and the input (the incidence is computed from the run's
-    sphere fits, so it is never lacking); warn where an aliased choice of
-    the model matters on this run (:mod:`cmmpose.diagnosis.aliases`)."""
+    sphere fits, so it is never lacking), or whose maps are stacked for
+    another machine configuration than the run's (:func:`check_kinematics`,
+    when the model's cache holds the run); warn where an aliased choice of
+    the model matters on this run (:mod:`cmmpose.diagnosis.aliases`), and
+    where a single map is used away from its temperature (once per run)."""
     _check_inputs(model, inputs, where)
+    run = next((r for r, i in model._inputs_cache.values() if i is inputs), None)
+    if run is not None:
+        check_kinematics(model, run)
+        # Once per run: the models an uncertainty budget perturbs share the cache.
+        key = ("single map checked", id(run))
+        if key not in model._inputs_cache:
+            single_map_warning(model, inputs.temperature)
+            model._inputs_cache[key] = (None, None)
     # An aliased choice that matters here warns (cmmpose.diagnosis.aliases); the run, when the model's own
     # cache holds it with these inputs, lets the comparison be on its lengths rather than its points.
     # Once per run: the models an uncertainty budget perturbs share the cache, and need no check of their own.
     if model.alternatives:
-        run = next((r for r, i in model._inputs_cache.values() if i is inputs), None)
         key = ("aliased choice checked", id(run))
         if run is None or key not in model._inputs_cache:
             check_alternatives(model, inputs, where, run=run)

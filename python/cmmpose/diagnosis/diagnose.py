@@ -20,7 +20,8 @@ from ..run import Run
 from .identify import (ALPHA, Candidate, Problem, value_text, check_effect_names, fit_model, model_uncertainties,
                        rank_candidates)
 from .effects import EffectSpec, effect_spec, run_library
-from .model import Model
+from .apply import single_map_warning
+from .model import Model, check_kinematics, run_kinematics
 from .observables import ModelFigures, figures
 from .unexplained import periodic_errors, unexplained_findings
 
@@ -387,11 +388,12 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def as_model(model) -> Model:
+def as_model(model, kinematics: str | None = None) -> Model:
     """The starting model of a diagnosis: a Model as given, maps as the thesis
-    model, None as the thesis maps."""
+    model, None as the thesis maps (stacked as ``kinematics``, the
+    configuration the runs name; None: the thesis machine's)."""
     if model is None:
-        return Model(ErrorMapSet.thesis())
+        return Model(ErrorMapSet.thesis().with_kinematics(kinematics or "thesis"))
     if isinstance(model, (ErrorMap, ErrorMapSet)):
         return Model(model)
     if not isinstance(model, Model):
@@ -429,7 +431,10 @@ def diagnose(
         What compensates at the start (``maps`` as everywhere in the API,
         docs/conventions.md "Names"): a saved Model, or maps alone, which
         make the thesis model. Default: the run's bundled maps
-        (``run.maps``) or the thesis set. (``model=`` is its older name.)
+        (``run.maps``, on the configuration it names) or the thesis set.
+        Maps stacked for another machine configuration than run.json names
+        are refused (an InputError naming both). (``model=`` is its older
+        name.)
     add : sequence of str or EffectSpec
         Effects to add first, in order, whether significant or not.
     auto : bool
@@ -486,7 +491,8 @@ def diagnose(
     t0 = time.perf_counter()
     if not isinstance(run, Run):
         raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
-    model = as_model(maps)
+    model = as_model(maps, run_kinematics(run))
+    check_kinematics(model, run)  # a model for another machine configuration: refused, naming both
     policy = {k: v for k, v in (("out_of_range", out_of_range), ("temperature_tolerance", temperature_tolerance),
                                 ("log_hold", log_hold)) if v is not None}
     if temperature_policy is not None:  # the whole policy, then the keywords given
@@ -508,6 +514,7 @@ def diagnose(
                       extra=user_specs([a for a in add if not isinstance(a, str)] + list(user_effects)))
     if reproducibility_um is not None:  # the lengths' noise level never below the floor it implies
         problem.state_reproducibility(reproducibility_um)
+    single_map_warning(model, problem.inputs.temperature)  # as evaluating with the map alone warns
     if map_corrections and candidates is None:  # a restricted list of candidates is the whole list
         add_map_candidates(problem, model)
     add_names = [a if isinstance(a, str) else a.name for a in add]

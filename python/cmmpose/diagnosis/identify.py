@@ -37,7 +37,7 @@ from ._blas import one_blas_thread
 from .artefact import artefact_columns, linearised_columns
 from .effects import EffectSpec, run_library
 from .inputs import RunInputs
-from .observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, observe
+from .observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, check_calibrated_length, observe
 
 __all__ = ["Problem", "Candidate", "rank_candidates", "fit_model", "model_uncertainties", "ALPHA", "OBSERVABLE_AT"]
 
@@ -61,6 +61,12 @@ INDISTINGUISHABLE_LR = 10.0
 #: are not trustworthy, so residuals that small are not evidence.
 SIGMA_FLOOR = 1e-4
 _RSS_FLOOR = SIGMA_FLOOR ** 2
+#: Largest stated per-scan centre reproducibility, mm per axis: a sphere
+#: scan's centre repeats to micrometres, and a whole uncompensated machine
+#: errs by ~0.1 mm (the thesis machine: 71 um rms on a 404 mm bar). A
+#: floor of more than 1 mm would call every effect insignificant; such a
+#: value is a unit slip (nm, or mm written as um x 1000), not a measurement.
+MAX_REPRODUCIBILITY_MM = 1.0
 #: Weight of the prior on effect parameters, per prior magnitude: a total
 #: value of a few typical magnitudes costs little, hundreds cost more than
 #: any data can gain. Without it a linearised column that happens to carry
@@ -142,6 +148,7 @@ class Problem:
                 del self.candidates[name]
         self.base = model
         self.base_obs = self.observe(model)
+        check_calibrated_length(self.layout, self.base_obs.lengths, getattr(run, "source", None) or "run")
         self.columns = self._sensitivities(model, self.base_obs)
 
     def state_reproducibility(self, reproducibility_um: float) -> None:
@@ -158,6 +165,11 @@ class Problem:
         sc = float(reproducibility_um) * 1e-3
         if not math.isfinite(sc) or sc <= 0:
             raise InputError(f"reproducibility_um: expected a positive number of um, got {reproducibility_um!r}")
+        if sc > MAX_REPRODUCIBILITY_MM:
+            raise InputError(f"reproducibility_um: {reproducibility_um:g} um per axis is implausible for a sphere "
+                             f"centre (more than {MAX_REPRODUCIBILITY_MM * 1e3:g} um, ten times a whole uncompensated "
+                             f"machine's errors): a unit slip? (um expected)", what="reproducibility_um",
+                             option="reproducibility_um", cli_option="--reproducibility")
         f = headline_floors(self.layout, sc)
         if len(f):
             self.class_floor[0] = max(SIGMA_FLOOR, float(np.sqrt(np.mean(f ** 2))))

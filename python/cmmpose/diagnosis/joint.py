@@ -14,8 +14,10 @@ can) or kept per run. Selection, decisions and uncertainties are those of
 
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -28,10 +30,11 @@ from .aliases import find_alternatives
 from .diagnose import (Diagnosis, Step, unobservable_candidates, add_map_candidates, as_model, attach_floor,
                        select_effects, user_specs)
 from .identify import Problem, check_effect_names, model_uncertainties, rank_candidates
-from .model import Model
+from .apply import single_map_warning
+from .model import Model, check_kinematics, run_kinematics
 from .observables import CLASSES, ModelFigures, figures
 
-__all__ = ["JointProblem", "JointDiagnosis", "diagnose_jointly"]
+__all__ = ["JointProblem", "JointDiagnosis", "check_distinct", "check_same_kinematics", "diagnose_jointly"]
 
 
 @dataclass(frozen=True)
@@ -183,11 +186,20 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
         radius for all (lengths at different temperatures then pin the
         artefact's expansion).
     run_names : sequence of str, optional
-        Names of the runs in tables (default run 1, run 2, ...).
+        Names of the runs in tables and messages (default run 1, run 2,
+        ...; messages name a loaded run by its directory).
 
     Returns
     -------
     JointDiagnosis
+
+    Raises
+    ------
+    InputError
+        A run given twice (:func:`check_distinct`), runs on different
+        machine configurations (:func:`check_same_kinematics`), or a
+        starting model stacked for another configuration than the runs',
+        each naming the runs.
     """
     t0 = time.perf_counter()
     runs = list(runs)
@@ -196,12 +208,19 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     for i, r in enumerate(runs):
         if not isinstance(r, Run):
             raise InputTypeError(f"runs[{i}]: expected a cmmpose.Run, got {type(r).__name__}")
-    model = as_model(maps)
+    names = list(run_names) if run_names is not None else [f"run {i + 1}" for i in range(len(runs))]
+    labels = [n if run_names is not None else (r.source or n) for r, n in zip(runs, names)]
+    check_distinct(runs, labels)
+    kinematics = check_same_kinematics(runs, labels)
+    model = as_model(maps, kinematics)
+    for r, label in zip(runs, labels):
+        check_kinematics(model, r, label)
     problem = JointProblem(model, runs, same_artefact=same_artefact, extra=user_specs(list(user_effects)))
+    for p, label in zip(problem.parts, labels):  # as evaluating each run with the map alone warns
+        single_map_warning(model, p.inputs.temperature, label)
     if map_corrections:
         add_map_candidates(problem, model)
     check_effect_names(list(add), problem)
-    names = list(run_names) if run_names is not None else [f"run {i + 1}" for i in range(len(runs))]
     per_run = []
 
     def step(label, m, forced):
@@ -223,3 +242,67 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
         diag.components = component_report(problem, model)
     diag.elapsed = time.perf_counter() - t0
     return diag
+
+
+def _fingerprint(run: Run) -> tuple:
+    """What tells two runs' data apart cheaply: the point count and a hash of
+    run.json's records (artefact, maps, metadata, thermocouples; not the
+    time it was written) and of the tables' numeric columns (points, scans,
+    poses, thermocouple log). Two measurements never repeat bit for bit; a copied
+    run directory does."""
+    h = hashlib.blake2b(digest_size=16)
+    h.update(repr((run.artefact, run.maps, run.metadata, run.temperature_channels)).encode())
+    for table in (run.points, run.scans, run.poses, run.temperatures or {}):
+        for name in sorted(table):
+            col = np.asarray(table[name])
+            if col.dtype.kind in "biuf":
+                h.update(name.encode())
+                h.update(np.ascontiguousarray(col).tobytes())
+    return run.n_points, h.hexdigest()
+
+
+def check_distinct(runs, labels) -> None:
+    """Refuse a run given more than once to a joint diagnosis: the same
+    object, the same directory (resolved), or the same data (identical
+    run.json records and tables, e.g. a copied folder). Counted twice, its observations
+    would divide every uncertainty by sqrt 2 and weigh it double.
+
+    Raises
+    ------
+    InputError
+        Naming both runs.
+    """
+    seen: dict = {}
+    for i, r in enumerate(runs):
+        keys = [("object", id(r))]
+        if r.source is not None:
+            keys.append(("directory", str(Path(r.source).resolve())))
+        keys.append(("data", _fingerprint(r)))
+        for key in keys:
+            j = seen.get(key)
+            if j is not None:
+                what = {"object": "the same run", "directory": "the same run directory",
+                        "data": "the same measurement (identical run.json and tables: a copy of one run)"}[key[0]]
+                raise InputError(f"runs: {labels[j]} and {labels[i]} are {what}: a joint diagnosis would count its "
+                                 f"observations twice and shrink every uncertainty by sqrt 2; give each run once")
+            seen[key] = i
+
+
+def check_same_kinematics(runs, labels) -> str | None:
+    """The machine configuration the runs' run.json files name (None when
+    none names one); runs naming different ones are refused: one model's
+    maps are stacked one way (:func:`cmmpose.diagnosis.model.check_kinematics`).
+
+    Raises
+    ------
+    InputError
+        Naming two runs that differ and their configurations.
+    """
+    named = [(label, run_kinematics(r)) for r, label in zip(runs, labels)]
+    named = [(label, k) for label, k in named if k is not None]
+    for label, k in named[1:]:
+        if k != named[0][1]:
+            raise InputError(f"runs: {named[0][0]} was measured on a machine configured as {named[0][1]!r}, "
+                             f"{label} on one configured as {k!r}: one model cannot hold both (its maps are "
+                             f"stacked one way); diagnose them separately")
+    return named[0][1] if named else None

@@ -16,7 +16,7 @@ from .. import _core
 from .._json import dumps as strict_json
 from ..atomicfile import write_text
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputError, InputTypeError, MapError
+from ..errors import Error, InputError, InputTypeError, MapError
 from ..policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy
 from ..pose import digitizer
 from ..run import Run
@@ -24,7 +24,7 @@ from ..temperature import TemperaturePolicy
 from .effects import LIBRARY, EffectSpec, UserEffect, effect_spec, resolve
 from .inputs import RunInputs
 
-__all__ = ["Model", "MODEL_SCHEMA"]
+__all__ = ["Model", "MODEL_SCHEMA", "check_kinematics", "run_kinematics"]
 
 #: ``schema`` of a saved model file.
 MODEL_SCHEMA = "cmmpose-model"
@@ -256,12 +256,19 @@ class Model:
         return (xyz, clamped) if return_clamped else xyz
 
     def evaluate(self, run: Run):
-        """Ballbar figures of ``run`` under this model (see ``ModelFigures``)."""
-        from .observables import ObservationLayout, figures
+        """Ballbar figures of ``run`` under this model (see ``ModelFigures``);
+        a run on another machine configuration (:func:`check_kinematics`) or
+        whose calibrated bar length is far from the lengths it measures
+        (:func:`cmmpose.diagnosis.observables.check_calibrated_length`) is
+        refused."""
+        from .observables import ObservationLayout, check_calibrated_length, figures
 
+        check_kinematics(self, run)
         inputs = self.inputs(run)
         layout = ObservationLayout.from_run(run, inputs)
-        return figures(layout, self.compensate(inputs), self, sid=inputs.scan_id)
+        out = figures(layout, self.compensate(inputs), self, sid=inputs.scan_id)
+        check_calibrated_length(layout, out.lengths, run_label(run))
+        return out
 
     # -- pickling (sent to a worker process: cmmpose.scale) -----------------
 
@@ -378,14 +385,15 @@ class Model:
                                      f"is not a number")
                 effects.append((spec, np.array([float(v) for v in values])))
                 if "uncertainty" in e:  # optional: null is a parameter the data did not determine
-                    unc[name] = np.array([np.inf if e["uncertainty"].get(p) is None else float(e["uncertainty"][p])
-                                          for p in spec.params])
+                    unc[name] = _saved_uncertainty(e["uncertainty"], spec, path)
             alternatives = _saved_alternatives(doc.get("alternatives") or [], users, [s.name for s, _ in effects],
                                                path)
             return cls(model_maps, tuple(effects), doc.get("temperature"), doc.get("out_of_range", "raise"),
                        doc.get("temperature_tolerance_K", TEMPERATURE_TOLERANCE), doc.get("log_hold_s", LOG_HOLD),
                        unc, _saved_policy(doc.get("temperature_policy"), path), doc.get("temperature_log") or {},
                        alternatives)
+        except Error:  # already names the file and what is wrong in it
+            raise
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{path}: malformed model file ({type(e).__name__}: {e})") from None
 
@@ -442,7 +450,9 @@ def _saved_alternatives(entries, users: dict, names, path) -> tuple:
         if chosen not in names:
             raise InputError(f"{path}: alternatives[{i}] ({name}) is an alternative to {chosen!r}, "
                              f"which the model does not hold")
-        if e.get("kind") == "python" and name not in users:
+        # A map correction (kind "python", name "map:...") is a library shape rebuilt from its name
+        # (_saved_spec): only a user-defined effect needs its spec passed again.
+        if e.get("kind") == "python" and not name.startswith("map:") and name not in users:
             import logging
 
             logging.getLogger("cmmpose.diagnosis.aliases").warning(
@@ -456,6 +466,66 @@ def _saved_alternatives(entries, users: dict, names, path) -> tuple:
         out.append(Alternative(chosen, spec, np.array(values, float), float(e.get("in_sample_difference_um") or 0.0),
                                str(e.get("reason", ""))))
     return tuple(out)
+
+
+def _saved_uncertainty(entry, spec: EffectSpec, path) -> np.ndarray:
+    """The standard uncertainty of a saved effect's parameters, in its units:
+    null (or absent) is a parameter the data did not determine (inf); a NaN,
+    a negative value or one that is not a number is refused, naming the file,
+    the effect and the parameter (an evaluation's budget would otherwise drop
+    its row without a word)."""
+    if not isinstance(entry, dict):
+        raise InputError(f"{path}: effect {spec.name!r}: uncertainty must map each parameter to a number, "
+                         f"got {entry!r}")
+    out = []
+    for p in spec.params:
+        v = entry.get(p)
+        if v is None:
+            out.append(np.inf)
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0:
+            raise InputError(f"{path}: effect {spec.name!r}: the uncertainty of parameter {p!r} is {v!r}; expected "
+                             f"a standard uncertainty >= 0 in {spec.units[spec.params.index(p)]}, or null for a "
+                             f"parameter the data did not determine")
+        out.append(float(v))
+    return np.array(out)
+
+
+def run_kinematics(run: Run) -> str | None:
+    """The machine configuration ``run.json`` says the run was measured on
+    (its ``maps.kinematics``; a run naming the bundled thesis maps without
+    one: ``'thesis'``); None when the run does not say (maps given apart)."""
+    maps = run.maps or {}
+    kin = maps.get("kinematics")
+    if kin is None and maps.get("kind") == "bundled":
+        return "thesis"
+    return kin if isinstance(kin, str) else None
+
+
+def run_label(run: Run, name: str | None = None) -> str:
+    """How a message names ``run``: ``name`` if given, else the directory it
+    was loaded from, else 'the run'."""
+    return name or getattr(run, "source", None) or "the run"
+
+
+def check_kinematics(model: Model, run: Run, name: str | None = None) -> None:
+    """Refuse to apply ``model`` to ``run`` (or diagnose the run from it) when
+    the model's maps are stacked for another machine configuration than the
+    one run.json names: every map error would act through the wrong lever
+    arms (a moving-table model on a moving-bridge run: 1.1 um against 0.3 um).
+    A run that names no configuration is not checked.
+
+    Raises
+    ------
+    InputError
+        Naming the run and both configurations.
+    """
+    kin = run_kinematics(run)
+    if kin is None or kin == model.maps.kinematics:
+        return
+    raise InputError(f"{run_label(run, name)}: run.json says the machine is configured as {kin!r}, but the model's "
+                     f"maps are stacked as {model.maps.kinematics!r}: the model was found on (or made for) another "
+                     f"machine; diagnose this run from its own maps (a machine file with kinematics = {kin!r})")
 
 
 def _saved_policy(doc, path) -> TemperaturePolicy | None:

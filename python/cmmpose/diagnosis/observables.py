@@ -20,6 +20,7 @@ cannot pin (an uncalibrated bar length or ball radius), is in
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,12 +33,20 @@ from ..evaluation.artefact import is_artefact_run
 from .artefact import ArtefactLayout, artefact_deviations
 from .inputs import RunInputs
 
-__all__ = ["ObservationLayout", "Observed", "observe", "figures", "ModelFigures", "CLASSES"]
+__all__ = ["ObservationLayout", "Observed", "observe", "figures", "ModelFigures", "CLASSES",
+           "check_calibrated_length"]
 
 #: Observable classes, in vector order.
 CLASSES = ("length", "centre", "radius", "point")
 #: Point residuals kept per scan: enough to see a pattern, few enough to be fast.
 POINTS_PER_SCAN = 400
+#: Largest relative difference between run.json's calibrated bar length and
+#: the mean length the run measures before it is refused as a slip. A CMM's
+#: uncompensated errors are ~1e-4 of a length (the thesis machine: 71 um rms
+#: on a 404 mm bar, 2e-4), a bar's expansion over 20 K at 25 ppm/K is 5e-4:
+#: 1 % is 20 times both, while any unit or decimal slip (10, 25.4, 1000 x)
+#: lies far beyond it.
+CALIBRATED_LENGTH_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -191,6 +200,44 @@ class ObservationLayout:
         col = np.zeros(sum(self.sizes.values()))
         col[: len(self.positions)] = -reference_length * 1e-6 * (self.position_temperature - 20.0)
         return col
+
+
+def _slip(ratio: float) -> str:
+    """The likely cause of a calibrated length ``ratio`` times the measured one."""
+    for factor, what in ((25.4, "inches for millimetres"), (1000.0, "metres or micrometres for millimetres")):
+        if abs(ratio / factor - 1) < CALIBRATED_LENGTH_TOLERANCE or abs(ratio * factor - 1) < CALIBRATED_LENGTH_TOLERANCE:
+            return f"likely {what}"
+    k = round(math.log10(ratio))
+    if k != 0 and abs(ratio / 10.0 ** k - 1) < CALIBRATED_LENGTH_TOLERANCE:
+        return f"likely a decimal-point slip (a factor 1e{k:+d})"
+    return "another bar's length, or a typing slip"
+
+
+def check_calibrated_length(layout: ObservationLayout, lengths: np.ndarray, where: str = "run") -> None:
+    """Refuse run.json's ``artefact.calibrated_length_mm`` when it differs
+    from the mean ballbar length the run measures (``lengths``, mm) by more
+    than CALIBRATED_LENGTH_TOLERANCE: the diagnosis would subtract it from
+    every length (a 10x slip: a cross-validated rms of metres beside an rms
+    accuracy error of micrometres) without a word.
+
+    Raises
+    ------
+    InputError
+        Naming run.json's key, both lengths and the likely slip.
+    """
+    cal = layout.calibrated_length
+    lengths = np.asarray(lengths, dtype=float)
+    if cal is None or layout.artefact is not None or not len(lengths) or not np.all(np.isfinite(lengths)):
+        return
+    measured = float(np.mean(lengths))
+    if measured <= 0:
+        return
+    ratio = float(cal) / measured
+    if abs(ratio - 1) <= CALIBRATED_LENGTH_TOLERANCE:
+        return
+    raise InputError(f"{where}: run.json's artefact.calibrated_length_mm is {cal:g} mm, but the run's {len(lengths)} "
+                     f"ballbar lengths measure {measured:.4f} mm on average ({ratio:.4g} times): "
+                     f"{_slip(ratio)}; correct the key (or remove it: the diagnosis then fits the bar length)")
 
 
 @dataclass(frozen=True)

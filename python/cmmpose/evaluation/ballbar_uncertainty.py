@@ -433,6 +433,9 @@ def _model_terms(run, model, model_t, res, reject, out_of_range, temperature_tol
     for spec, values in model.effects:
         u = np.ravel(model.uncertainty.get(spec.name, np.full(spec.size, np.nan)))
         for j, param in enumerate(spec.params):
+            if u[j] < 0:  # a row dropped without a word would understate the budget
+                raise InputError(f"model: effect {spec.name!r}: the standard uncertainty of parameter {param!r} is "
+                                 f"{u[j]:g} {spec.units[j]}; expected >= 0 (inf: undetermined, NaN: not given)")
             if not (np.isfinite(u[j]) and u[j] > 0):
                 continue
             v = np.array(values, dtype=float)
