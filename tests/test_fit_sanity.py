@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+import cmmpose
 from cmmpose.cli import main
 from cmmpose.diagnosis.spheres import (
     RADIUS_FRACTION,
@@ -206,3 +207,18 @@ def test_cli_diagnose_fits_summary_and_json_agree():
     assert f"{d['mean_length_deviation_um']:+.2f} um" in table.stdout
     bad = run.invoke(main, ["diagnose-fits", "appendix-c", "--reference-length", "0.4042", "--json"])
     assert bad.exit_code != 0 and "--reference-length" in bad.output
+
+
+def test_fit_spheres_refuses_labels_that_are_not_finite():
+    # NaN != NaN: every NaN-labelled point became a "sphere" of its own (300 groups of one point).
+    rng = np.random.default_rng(1)
+    u = rng.normal(size=(600, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    u[:, 2] = abs(u[:, 2])
+    pts = 12.7 * u + np.repeat([[0.0, 0, 0], [100.0, 0, 0]], 300, axis=0)
+    labels = np.r_[np.full(300, np.nan), np.ones(300)]
+    for on_error in ("raise", "return"):
+        with pytest.raises(cmmpose.InputError, match=r"labels: row 0 is nan; every point needs a finite label "
+                                                     r"\(300 of 600 are not\)"):
+            cmmpose.fit_spheres(pts, labels, on_error=on_error)
+    assert len(cmmpose.fit_spheres(pts, np.r_[np.zeros(300), np.ones(300)]).labels) == 2

@@ -110,7 +110,7 @@ def test_dataset_errors_name_the_file_and_column(tmp_path, dataset):
     with pytest.raises(cmmpose.InputError, match=r"a\.parquet: not a readable Parquet file"):
         scale.compensate_dataset(bad, tmp_path / "o", MAPS, POSE, OFFSET, temperature=22.0)
     (tmp_path / "o2").mkdir()
-    with pytest.raises(cmmpose.InputError, match=r"o2: no \.parquet files"):
+    with pytest.raises(cmmpose.InputError, match=r"o2: no Parquet files \(\.parquet, \.pq\)"):
         scale.compensate_dataset(tmp_path / "o2", tmp_path / "o", MAPS, POSE, OFFSET)
     with pytest.raises(cmmpose.InputError, match="the output folder is the input folder"):
         scale.compensate_dataset(src, src, MAPS, POSE, OFFSET)
@@ -272,3 +272,22 @@ def test_a_single_map_on_a_dataset_is_said_by_the_library(dataset, tmp_path):
     with pytest.warns(cmmpose.MapTemperatureWarning, match="a single map at 22 C was used for points at"):
         scale.compensate_dataset(src, tmp_path / "out", cmmpose.ErrorMap.appendix_b(), (90.0, 90.0, 0.0),
                                  cmmpose.MountOffset.thesis(), scheduler="threads")
+
+
+def test_dataset_files_take_every_parquet_suffix_in_any_case_and_name_the_rest(tmp_path, caplog):
+    # B.PARQUET and c.pq were skipped in silence (only "*.parquet" was taken): their points never compensated.
+    folder = tmp_path / "in"
+    folder.mkdir()
+    t = pa.table({"u": [0.0], "v": [0.0], "D": [400.0], "E": [300.0], "F": [-200.0]})
+    for name in ("a.parquet", "B.PARQUET", "c.pq"):
+        pq.write_table(t, folder / name)
+    for name in ("notes.txt", "_SUCCESS", ".hidden"):
+        (folder / name).write_text("x")
+    with caplog.at_level("WARNING", logger="cmmpose"):
+        files = scale.dataset_files(folder)
+    assert [p.name for p in files] == ["B.PARQUET", "a.parquet", "c.pq"]
+    said = " ".join(r.getMessage() for r in caplog.records)
+    assert "notes.txt" in said and "not compensated" in said and "_SUCCESS" not in said and ".hidden" not in said
+    res = CliRunner().invoke(main, ["compensate", str(folder), str(tmp_path / "out"), "--temperature", "22"])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["B.PARQUET", "a.parquet", "c.pq"]

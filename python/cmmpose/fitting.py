@@ -599,6 +599,11 @@ def fit_spheres(points, labels, radius: float | None = None, *, reject: float | 
     labels = np.asarray(labels)
     if labels.shape != (len(pts),):
         raise InputError(f"labels: expected shape ({len(pts)},), got {labels.shape}")
+    if labels.dtype.kind in "fc" and not np.all(np.isfinite(labels)):
+        # NaN != NaN: each NaN-labelled point would be a sphere of its own.
+        bad = int(np.flatnonzero(~np.isfinite(labels))[0])
+        raise InputError(f"labels: row {bad} is {labels[bad].item()}; every point needs a finite label "
+                         f"({int(np.count_nonzero(~np.isfinite(labels)))} of {len(labels)} are not)")
     if len(labels) < 2 or bool(np.all(labels[1:] >= labels[:-1])):
         # Runs store points scan by scan: already in order, no sort or copy.
         order, sorted_labels, sorted_pts = None, labels, pts

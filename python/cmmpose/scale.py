@@ -374,8 +374,15 @@ class DatasetResult:
     elapsed: float
 
 
+#: Suffixes of a dataset's Parquet files, any case (those of the Parquet point format).
+PARQUET_SUFFIXES = (".parquet", ".pq")
+
+
 def dataset_files(dataset_dir) -> list[Path]:
-    """The Parquet files of a dataset folder (``*.parquet``, sorted by name).
+    """The Parquet files of a dataset folder (``*.parquet`` or ``*.pq``, any
+    case; sorted by name). Any other file is named in a warning (logged) as
+    not compensated, except the metadata other tools leave in a dataset
+    (names starting with ``.`` or ``_``, such as ``_SUCCESS``).
 
     Raises
     ------
@@ -385,9 +392,15 @@ def dataset_files(dataset_dir) -> list[Path]:
     folder = Path(dataset_dir)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder")
-    files = sorted(p for p in folder.iterdir() if p.suffix == ".parquet" and p.is_file())
+    entries = sorted(folder.iterdir())
+    files = [p for p in entries if p.suffix.lower() in PARQUET_SUFFIXES and p.is_file()]
     if not files:
-        raise InputError(f"{folder}: no .parquet files in the folder")
+        raise InputError(f"{folder}: no Parquet files (.parquet, .pq) in the folder")
+    others = [p.name for p in entries if p not in files and not p.name.startswith((".", "_"))]
+    if others:
+        shown = ", ".join(others[:5]) + (f" and {len(others) - 5} more" if len(others) > 5 else "")
+        _log.warning("%s: %d entr%s not Parquet, not compensated: %s", folder, len(others),
+                     "y is" if len(others) == 1 else "ies are", shown)
     return files
 
 
