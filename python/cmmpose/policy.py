@@ -75,6 +75,7 @@ _HINTS = (
     ("pass overwrite=True to replace", "--overwrite", "use --overwrite to replace", "remove it first to replace"),
     (SCHEDULER_TIMEOUT_HINT, "--scheduler-timeout", "--scheduler-timeout SECONDS sets the limit",
      "no option of this command sets the limit"),
+    (re.compile(r"^reproducibility_um:"), "--reproducibility", "--reproducibility:", "reproducibility:"),
 )
 # A number of more digits than a float holds (echoed back from a hostile input): printed as a float.
 _LONG_NUMBER = re.compile(r"(?<![\w.])[-+]?\d{21,}(?:\.\d*)?(?![\w.])")
