@@ -10,7 +10,7 @@ import numpy as np
 from . import _core
 from ._arrays import as_rows, as_triple, as_vector
 from ._renamed import renamed
-from .errormap import ErrorMap, ErrorMapSet
+from .errormap import ErrorMap, ErrorMapSet, scalar_temperature
 from .errors import InputError, InputTypeError, MapTemperatureWarning, warn_clamped
 from .policy import TEMPERATURE_TOLERANCE, check_policy
 from .pose import digitizer
@@ -115,10 +115,7 @@ def compensate(
     if temperature is not None and np.ndim(temperature) > 0:
         temperature = as_vector("temperature", temperature, scales.shape[0])
     elif temperature is not None:
-        try:
-            temperature = float(temperature)
-        except (TypeError, ValueError):
-            raise InputError(f"temperature: expected a number or an (N,) array, got {temperature!r}") from None
+        temperature = scalar_temperature(temperature, finite=False)  # NaN: left to nan_policy
     check_policy(out_of_range, temperature_tolerance)
     xyz, report = _core.compensate(
         uv,
@@ -155,7 +152,7 @@ def _compensate_model(uv, scales, model, pose, offset, temperature, out_of_range
         temps, temperature = as_vector("temperature", temperature, scales.shape[0]), None
     else:
         temps = None
-        temperature = None if temperature is None else float(temperature)
+        temperature = None if temperature is None else scalar_temperature(temperature, finite=False)
     model = policy_model(model, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
     inputs = point_inputs(model, uv, scales, pose_t, offset_t, temperature, temps, dict(columns or {}), "points")
     xyz, raw = compensate_points(model, inputs)

@@ -10,19 +10,39 @@ from __future__ import annotations
 from importlib import resources
 from os import PathLike
 
+import math
+from numbers import Real
+
 import numpy as np
 
 from . import _core
 from .formats import mapformats
 from ._arrays import as_rows, as_triple
 from .policy import TEMPERATURE_TOLERANCE, check_policy
-from .errors import InputError, warn_clamped
+from .errors import InputError, InputTypeError, warn_clamped
 from .kernel_report import KernelReport
 
 #: Carriages in kinematic order.
 CARRIAGES = ("X", "Y", "Z")
 #: Columns of a carriage table.
 TABLE_COLUMNS = ("position_mm", "dx_um", "dy_um", "dz_um", "ex_arcsec", "ey_arcsec", "ez_arcsec")
+
+
+def scalar_temperature(value, name: str = "temperature", *, finite: bool = True) -> float:
+    """``value`` as one temperature (degrees C, float).
+
+    Raises ``InputTypeError`` naming ``name`` for anything but a real number
+    (text, booleans, None: ``True`` is not 1 C) and, with ``finite``,
+    ``InputError`` for NaN or infinity (without, they are returned for the
+    caller's NaN policy).
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (Real, np.floating, np.integer)):
+        raise InputTypeError(f"{name}: expected a temperature in degrees C (a number), "
+                             f"got {type(value).__name__} {value!r}")
+    t = float(value)
+    if finite and not math.isfinite(t):
+        raise InputError(f"{name}: {t} C is not finite; give the temperature in degrees C")
+    return t
 
 
 def data_path(*parts: str):
@@ -206,6 +226,13 @@ class ErrorMapSet:
         maps = list(maps)
         if not all(isinstance(m, ErrorMap) for m in maps):
             raise InputError("maps: expected a sequence of ErrorMap")
+        kinds = list(dict.fromkeys(m.kinematics for m in maps))
+        if len(kinds) > 1:
+            which = "; ".join(f"{k!r}: " + ", ".join("no temperature" if m.temperature is None
+                                                    else f"{m.temperature:g} C" for m in maps if m.kinematics == k)
+                              for k in kinds)
+            raise InputError(f"maps: the maps are for differently configured machines ({which}); give maps of one "
+                             "configuration (ErrorMap.with_kinematics)")
         self._core = _core.ErrorMapSet([m._core for m in maps])
         by_t = {m.temperature: m.source for m in maps}
         self._sources = [by_t[t] for t in self._core.temperatures]
@@ -252,9 +279,10 @@ class ErrorMapSet:
         ``out_of_range='clamp'``, or the end maps' slope carried on with
         ``'extrapolate'`` (cmmpose.policy).
         """
+        t = scalar_temperature(temperature)
         check_policy(out_of_range, temperature_tolerance)
-        return ErrorMap._wrap(self._core.at(float(temperature), out_of_range, float(temperature_tolerance)),
-                              source=f"blend at {temperature:g} C")
+        return ErrorMap._wrap(self._core.at(t, out_of_range, float(temperature_tolerance)),
+                              source=f"blend at {t:g} C")
 
     def __len__(self) -> int:
         return len(self.temperatures)

@@ -220,8 +220,11 @@ def write_iso230(error_map: ErrorMap, path: str | PathLike, *, decimals: int = D
     """
     if not isinstance(decimals, int) or isinstance(decimals, bool) or not 0 <= decimals <= 9:
         raise InputError(f"decimals: expected an integer 0..9, got {decimals!r}")
+    # A source of several lines: each its own '#' line, so that the file reads back.
+    source = [t.strip() for t in str(error_map.source or "").splitlines() if t.strip()] or ["a cmmpose error map"]
     lines = [
-        f"# ISO 230-2 style linear positioning results, from {error_map.source or 'a cmmpose error map'}",
+        f"# ISO 230-2 style linear positioning results, from {source[0]}",
+        *(f"# {t}" for t in source[1:]),
         "# deviation = actual - target position; up / down = positive / negative approach;"
         " both directions carry the map's single value",
         ",".join(HEADER),

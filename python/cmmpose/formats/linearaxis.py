@@ -173,7 +173,10 @@ def build_map(results: Mapping[str, AxisResult], *, source: str, base: ErrorMap 
         label += f"; no results for {', '.join(missing)}"
     if summaries:
         label += "; " + ", ".join(summaries)
-    return ErrorMap(*tables, squareness, temperature, source=label)
+    error_map = ErrorMap(*tables, squareness, temperature, source=label)
+    if base is not None and base.kinematics not in ("thesis", "custom"):
+        error_map = error_map.with_kinematics(base.kinematics)  # the base's machine configuration is kept
+    return error_map
 
 
 def _onto_grid(result: AxisResult, grid: np.ndarray, hold_ends: bool) -> np.ndarray:

@@ -16,14 +16,16 @@ from . import mapformats
 from ..atomicfile import write_text
 from .._validate import parse_number
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
-from ..errors import MapError, read_lines
+from ..errors import Error, InputError, MapError, read_lines
 
 MAGIC = "cmmpose-error-map"
 VERSION = "1"
 HEADER = ("carriage",) + TABLE_COLUMNS
 SQUARENESS_KEYS = ("squareness_xy_arcsec", "squareness_yz_arcsec", "squareness_zx_arcsec")
 # Header keys the reader uses; each may be given once (a repeated one would silently win).
-KEYS = ("temperature_C", *SQUARENESS_KEYS, "source", "rows", "sha256")
+KEYS = ("temperature_C", *SQUARENESS_KEYS, "kinematics", "source", "rows", "sha256")
+#: The machine configuration of a map without a ``kinematics`` line (every file before the line existed).
+DEFAULT_KINEMATICS = "thesis"
 
 logger = logging.getLogger(__name__)
 
@@ -155,7 +157,14 @@ def read_map(path: str | PathLike) -> ErrorMap:
     t_text, t_line = meta["temperature_C"]
     temperature = None if t_text.lower() == "none" else parse_number(t_text, f"{path}:{t_line}", "temperature_C")
     source = meta.get("source", (str(path), 0))[0]
-    return ErrorMap(*(np.array(rows[c]) for c in CARRIAGES), squareness, temperature, source=source)
+    error_map = ErrorMap(*(np.array(rows[c]) for c in CARRIAGES), squareness, temperature, source=source)
+    if "kinematics" in meta:
+        name, lineno = meta["kinematics"]
+        try:
+            error_map = error_map.with_kinematics(name)
+        except Error as exc:
+            raise MapError(f"{path}:{lineno}: kinematics: {exc}") from None
+    return error_map
 
 
 def _fmt(v: float) -> str:
@@ -171,6 +180,13 @@ def write_map(error_map: ErrorMap, path: str | PathLike) -> None:
         f"# temperature_C: {'none' if t is None else _fmt(t)}",
         *(f"# {k}: {_fmt(v)}" for k, v in zip(SQUARENESS_KEYS, error_map.squareness)),
     ]
+    kinematics = error_map.kinematics
+    if kinematics == "custom":
+        raise InputError(f"{path}: the map is for a machine configuration without a name, which the canonical map "
+                         "file cannot hold (its '# kinematics:' line names a configuration); give it a named one "
+                         "(ErrorMap.with_kinematics)")
+    if kinematics != DEFAULT_KINEMATICS:
+        lines.append(f"# kinematics: {kinematics}")
     if error_map.source:
         source = str(error_map.source).replace("\r", " ").replace("\n", " ")  # one header line
         lines.append(f"# source: {source}")

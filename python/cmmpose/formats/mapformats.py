@@ -13,6 +13,7 @@ This module imports nothing else from cmmpose but the exceptions.
 from __future__ import annotations
 
 import importlib
+import inspect
 import threading
 from dataclasses import dataclass
 from os import PathLike
@@ -113,7 +114,28 @@ def read(path: str | PathLike, format: str = "csv", **options):
         if found is None:
             raise MapError(f"{path}: not an error-map file of a known format ({', '.join(_formats())})")
         format = found
-    return get(format).read(path, **options)
+    fmt = get(format)
+    _check_options(fmt, options, path)
+    return fmt.read(path, **options)
+
+
+def _check_options(fmt: MapFormat, options: dict, path) -> None:
+    """``InputError`` naming an option that the reader of ``fmt`` does not take
+    (an option of another format: with ``format='auto'``, the file may be of a
+    format other than the caller expected)."""
+    try:
+        params = inspect.signature(fmt.read).parameters
+    except (TypeError, ValueError):
+        return  # a reader whose signature cannot be inspected checks its own options
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    takes = [n for n, p in params.items()
+             if p.kind in (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)][1:]
+    unknown = [n for n in options if n not in takes]
+    if unknown:
+        took = ", ".join(takes) if takes else "none"
+        raise InputError(f"{', '.join(unknown)}: not an option of the map file format {fmt.name!r}, which {path} "
+                         f"is read as (its options: {took})")
 
 
 def write(error_map, path: str | PathLike, format: str = "csv") -> None:

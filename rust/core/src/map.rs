@@ -40,7 +40,12 @@ pub struct Located {
 }
 
 /// One carriage's table on a strictly increasing position grid.
-#[derive(Debug, Clone, PartialEq)]
+///
+/// Two tables are equal when their rows as given (positions mm, table
+/// units) are equal: the kernel-unit values, slopes and 1/pitch are derived
+/// from them and may differ in the last bit between a blended table and the
+/// same rows read back from a file.
+#[derive(Debug, Clone)]
 pub struct CarriageTable {
     positions: Vec<f64>,
     values: Vec<Components>,
@@ -52,6 +57,12 @@ pub struct CarriageTable {
     /// returns the digits the user supplied (unit conversion is not exact
     /// in binary floating point).
     table_rows: Vec<[f64; 7]>,
+}
+
+impl PartialEq for CarriageTable {
+    fn eq(&self, other: &Self) -> bool {
+        self.table_rows == other.table_rows
+    }
 }
 
 impl CarriageTable {
@@ -309,7 +320,12 @@ impl CarriageTable {
 }
 
 /// The 21 geometric component errors of a CMM at one temperature.
-#[derive(Debug, Clone, PartialEq)]
+///
+/// Two maps are equal when what they are is equal: the tables' rows as given
+/// (see [`CarriageTable`]), the squareness in arc-seconds as given, the
+/// temperature and the stacking; not the caches derived from them (radians,
+/// slopes), which may differ in the last bit.
+#[derive(Debug, Clone)]
 pub struct ErrorMap {
     tables: [CarriageTable; 3],
     /// S_xy, S_yz, S_zx in radians.
@@ -319,6 +335,15 @@ pub struct ErrorMap {
     temperature: Option<f64>,
     /// How the carriages are stacked: over which arms the angles act.
     kinematics: Kinematics,
+}
+
+impl PartialEq for ErrorMap {
+    fn eq(&self, other: &Self) -> bool {
+        self.tables == other.tables
+            && self.squareness_arcsec == other.squareness_arcsec
+            && self.temperature == other.temperature
+            && self.kinematics == other.kinematics
+    }
 }
 
 impl ErrorMap {
@@ -500,6 +525,9 @@ mod tests {
         )
         .unwrap();
         assert_eq!(back, t);
+        assert_eq!(back.values(), t.values());
+        assert_eq!(back.slopes(), t.slopes());
+        assert_eq!(back.inv_pitch(), t.inv_pitch());
         let short = CarriageTable::from_saved(
             Carriage::Y,
             t.positions().to_vec(),
@@ -522,6 +550,52 @@ mod tests {
         )
         .unwrap();
         assert_eq!(back, map);
+        assert_eq!(back.squareness(), map.squareness());
+    }
+
+    #[test]
+    fn equality_is_the_rows_as_given_not_the_derived_caches() {
+        let t = table(&[0.0, 10.0, 35.0, 75.0]).unwrap();
+        // The same rows with a slope off by one ulp (as blending can leave it).
+        let mut slopes = t.slopes().to_vec();
+        slopes[1][0] = f64::from_bits(slopes[1][0].to_bits() + 1);
+        let nudged = CarriageTable::from_saved(
+            Carriage::Y,
+            t.positions().to_vec(),
+            t.values().to_vec(),
+            slopes,
+            t.inv_pitch(),
+            t.to_table_units(),
+        )
+        .unwrap();
+        assert_eq!(nudged, t);
+        let mut rows = t.to_table_units();
+        rows[2][3] += 0.5;
+        assert_ne!(
+            CarriageTable::from_table_units(Carriage::Y, &rows).unwrap(),
+            t
+        );
+        let tables = || [0.0, 1.0, 2.0].map(|_| table(&[0.0, 25.0, 50.0]).unwrap());
+        let map = ErrorMap::new(tables(), [1.5, -2.0, 0.25], Some(21.0)).unwrap();
+        let mut rad = map.squareness();
+        rad[0] = f64::from_bits(rad[0].to_bits() + 1);
+        let same = ErrorMap::from_saved(
+            tables(),
+            rad,
+            map.squareness_arcsec(),
+            map.temperature(),
+            map.kinematics(),
+        )
+        .unwrap();
+        assert_eq!(same, map);
+        assert_ne!(map.clone().with_temperature(Some(21.5)).unwrap(), map);
+        assert_ne!(
+            map.clone()
+                .with_kinematics(Kinematics::named("gantry").unwrap()),
+            map
+        );
+        let other = ErrorMap::new(tables(), [1.5, -2.0, 0.5], Some(21.0)).unwrap();
+        assert_ne!(other, map);
     }
 
     #[test]
