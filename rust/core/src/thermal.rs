@@ -166,12 +166,18 @@ impl ErrorMapSet {
             .iter()
             .position(|m| m.kinematics() != maps[0].kinematics())
         {
+            // A named configuration by its name; a custom stacking by its carriages.
+            let said = |k: &crate::kinematics::Kinematics| {
+                k.name()
+                    .map(|n| format!("'{n}'"))
+                    .unwrap_or_else(|| format!("a custom stacking {:?}", k.stack()))
+            };
             return Err(CoreError::invalid_map(
                 "error map set",
                 format!(
-                    "the maps are for differently stacked machines ({:?} and {:?})",
-                    maps[0].kinematics(),
-                    maps[i].kinematics()
+                    "the maps are for differently stacked machines: map 0 {}, map {i} {}",
+                    said(&maps[0].kinematics()),
+                    said(&maps[i].kinematics())
                 ),
             ));
         }
