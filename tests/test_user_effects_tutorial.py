@@ -53,4 +53,4 @@ def test_user_effect_tutorial_runs(tmp_path):
     assert doc["steps"][0]["effects"][0]["name"] == "x-scale-ripple" and doc["unexplained"] == []
     res = subprocess.run(["cmmpose", "diagnose", "rippled-run", "--model", "rippled-model.json"], cwd=tmp_path,
                          capture_output=True, text=True, timeout=300)
-    assert res.returncode != 0 and "user_effects" in res.stderr + res.stdout and "Traceback" not in res.stderr
+    assert res.returncode != 0 and "--user-effect" in res.stderr + res.stdout and "Traceback" not in res.stderr

@@ -15,7 +15,7 @@ from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import (AcquisitionError, AliasedChoiceWarning, CalibrationError, ClampWarning, Error,
                      ExtrapolationWarning, GeometryError, IllConditionedFit, ImplausibleFit, InputError, InputTypeError,
                      MapError,
-                     MapTemperatureWarning, OutOfRangeError, OutputError, RunError, SchedulerError)
+                     MapTemperatureWarning, OutOfRangeError, OutputError, RunError, SchedulerError, UserEffectError)
 from .pose import MountOffset, Pose
 from .kernel_report import KernelReport
 
@@ -147,6 +147,7 @@ __all__ = [
     "OutOfRangeError",
     "InputError",
     "InputTypeError",
+    "UserEffectError",
     "GeometryError",
     "RunError",
     "OutputError",

@@ -5,7 +5,8 @@ argument at fault, and every error carries the same facts as fields.
 - ``MapError``: a malformed error map or map file.
 - ``OutOfRangeError``: a scale reading or temperature the maps do not cover.
 - ``InputError``: wrong shape, dtype, length, NaN, or a bad option value;
-  ``InputTypeError`` when the value is of the wrong type.
+  ``InputTypeError`` when the value is of the wrong type; ``UserEffectError``
+  when a user effect's own code fails (docs/user-effects.md).
 - ``GeometryError``: degenerate geometry (zero normal, coplanar points, ...).
 - ``RunError``: a malformed measurement run directory.
 - ``CalibrationError``: data that cannot give a trustworthy calibration.
@@ -37,7 +38,7 @@ import logging
 import warnings
 from dataclasses import dataclass
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "InputTypeError", "GeometryError", "RunError",
+__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "InputTypeError", "UserEffectError", "GeometryError", "RunError",
            "CalibrationError", "AcquisitionError", "SchedulerError", "OutputError", "ClampWarning",
            "ExtrapolationWarning", "IllConditionedFit", "ImplausibleFit", "MapTemperatureWarning", "Remedy", "REMEDIES", "warn_clamped",
            "read_lines"]
@@ -86,6 +87,10 @@ REMEDIES = {
         " (pass nan_policy='propagate' to get NaN rows instead)",
         " (use --nan-policy propagate to get NaN rows instead)",
         "--nan-policy", " (this command has no option to let NaN rows through)"),
+    "user_effects": Remedy(
+        ": pass its UserEffect in user_effects=",
+        ": give its file with --user-effect FILE.py", "--user-effect",
+        ": this command takes no user effects (docs/user-effects.md)"),
 }
 
 _FIELDS = ("what", "value", "allowed", "unit", "file", "row", "column", "option", "cli_option", "remedy")
@@ -167,6 +172,15 @@ class InputError(Error, ValueError):
 
 class InputTypeError(InputError, TypeError):
     """An input of the wrong type (a string where a number belongs, ...)."""
+
+
+class UserEffectError(InputError):
+    """A user effect (docs/user-effects.md) whose own code failed: its
+    function raised, or returned something other than a finite (N, 3) array
+    in mm. An error in the user's code, not a verdict on the data, so a
+    diagnosis stops on it instead of filing the effect as not observable.
+    The message names the effect, its file (``file``), the line of the file
+    where it failed (``row``, when known) and the user's exception."""
 
 
 class GeometryError(Error, ValueError):

@@ -453,6 +453,6 @@ class aliased_choices_once:  # noqa: N801 - used as a function: with aliased_cho
 def load_model(model_file, user_files=()):
     """The diagnosis model saved in ``model_file`` (``--model``), with the user effects it names."""
     from ..diagnosis import Model
-    from ..diagnosis.effects import load_user_effect
+    from ..diagnosis.effects import load_user_effects
 
-    return Model.load(model_file, [load_user_effect(f) for f in user_files])
+    return Model.load(model_file, load_user_effects(user_files))

@@ -95,9 +95,9 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
         check_report_file(report_file)
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
-        from ..diagnosis.effects import load_user_effect  # here: the diagnosis's imports, only for this command
+        from ..diagnosis.effects import load_user_effects  # here: the diagnosis's imports, only for this command
 
-        user = [load_user_effect(f) for f in user_files]
+        user = load_user_effects(user_files)
         model = _starting_model(run, machine, maps, model_file, user, temperature=temperature,
                                 out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
                                 log_hold=log_hold, temperature_policy=temperature_policy)
@@ -190,9 +190,9 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
         check_report_file(report_file)
         machine = load_machine(machine_file)
         runs = [Run.load(r) for r in run_dirs]
-        from ..diagnosis.effects import load_user_effect  # here: the diagnosis's imports, only for this command
+        from ..diagnosis.effects import load_user_effects  # here: the diagnosis's imports, only for this command
 
-        user = [load_user_effect(f) for f in user_files]
+        user = load_user_effects(user_files)
         model = _starting_model(runs[0], machine, maps, model_file, user, temperature=temperature,
                                 out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
                                 log_hold=log_hold, temperature_policy=temperature_policy)

@@ -18,6 +18,7 @@ cannot.
 from __future__ import annotations
 
 import importlib.util
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -26,9 +27,9 @@ import numpy as np
 
 from .. import effects as effects_registry
 from ..effects import Effect
-from ..errors import Error, InputError
+from ..errors import Error, InputError, UserEffectError
 
-__all__ = ["EffectSpec", "UserEffect", "load_user_effect", "LIBRARY", "library", "run_library", "effect_spec", "resolve", "USER_INPUTS"]
+__all__ = ["EffectSpec", "UserEffect", "load_user_effect", "load_user_effects", "LIBRARY", "library", "run_library", "effect_spec", "resolve", "USER_INPUTS"]
 
 
 @dataclass(frozen=True)
@@ -119,6 +120,8 @@ class EffectSpec:
                 v[j] += sign * self.steps[j]
                 try:
                     moved = change(v)
+                except UserEffectError:  # the user's code failed: no other step can mend it
+                    raise
                 except Error:
                     if sign < 0:
                         raise
@@ -156,9 +159,17 @@ class UserEffect(EffectSpec):
         What the effect is.
     reveal : str
         What measurement shows it.
+
+    A function that raises (other than a :class:`cmmpose.Error`, which
+    passes as is: the effect cannot be evaluated on these inputs), or returns
+    anything but a finite (N, 3) array, is a :class:`UserEffectError` naming
+    the effect, its file and line and the exception: an error in the user's
+    code stops a diagnosis, it is not filed as 'not observable'.
     """
 
     function: Callable | None = field(default=None, compare=False)
+    #: The file that defines it (set by :func:`load_user_effect`); None: the function's own file.
+    source: str | None = field(default=None, compare=False)
 
     @classmethod
     def create(cls, name: str, function: Callable, params: dict, physics: str = "user-defined",
@@ -185,13 +196,54 @@ class UserEffect(EffectSpec):
                    key="user", physics=physics, reveal=reveal or "a measurement that exercises its inputs",
                    function=function)
 
+    @property
+    def file(self) -> str | None:
+        """The file of the user's code: ``source``, or the file its function was defined in."""
+        if self.source is not None:
+            return str(self.source)
+        code = getattr(self.function, "__code__", None)
+        return None if code is None else code.co_filename
+
+    def _failed(self, what: str, values, exc: BaseException | None = None) -> UserEffectError:
+        """The error of a failed call: the effect, its file (and the line of it the exception left), ``what``."""
+        file, line = self.file, None
+        if exc is not None and file is not None:
+            try:
+                here = Path(file).resolve()
+                lines = [f.lineno for f in traceback.extract_tb(exc.__traceback__) if Path(f.filename).resolve() == here]
+            except (OSError, ValueError):
+                lines = []
+            line = lines[-1] if lines else None
+        where = "" if file is None else f" ({file}" + ("" if line is None else f", line {line}") + ")"
+        return UserEffectError(f"user effect {self.name!r}{where}: {what} (at {self.describe(values)})",
+                               what=self.name, file=file, row=line)
+
     def correction(self, inputs: dict, values) -> np.ndarray:
-        out = np.asarray(self.function(dict(inputs), **dict(zip(self.params, (float(v) for v in values)))),
-                         dtype=float)
+        """The (N, 3) correction in mm at parameter ``values``; the user's
+        function failing is a :class:`UserEffectError` (a cmmpose error it
+        raises passes as is)."""
+        values = [float(v) for v in values]
+        try:
+            out = self.function(dict(inputs), **dict(zip(self.params, values)))
+        except Error:
+            raise
+        except Exception as exc:  # the user's code: say where and how it failed
+            raise self._failed(f"its function raised {type(exc).__name__}: {exc}", values, exc) from exc
+        try:
+            out = np.asarray(out, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise self._failed(f"its function must return an (N, 3) array in mm, returned "
+                               f"{type(out).__name__} ({exc})", values) from None
         n = len(inputs["u"])
-        if out.shape != (n, 3) or not np.all(np.isfinite(out)):
-            raise InputError(f"user effect {self.name!r}: function must return a finite ({n}, 3) array in mm, "
-                             f"got shape {out.shape}")
+        if out.shape != (n, 3):
+            raise self._failed(f"its function must return an array of shape ({n}, 3) in mm (a row per point), returned "
+                               f"shape {out.shape}", values)
+        bad = ~np.isfinite(out)
+        if bad.any():
+            rows = np.flatnonzero(bad.any(axis=1))
+            row, col = rows[0], int(np.argmax(bad[rows[0]]))
+            raise self._failed(f"its function returned a non-finite value ({out[row, col]}) at row {row}, "
+                               f"column {'xyz'[col]}; {len(rows)} of {n} rows are not finite", values)
         return out
 
 
@@ -284,4 +336,24 @@ def load_user_effect(path) -> UserEffect:
     effect = getattr(module, "EFFECT", None)
     if not isinstance(effect, UserEffect):
         raise InputError(f"{path}: must define EFFECT = UserEffect.create(...) (see docs/user-effects.md)")
-    return effect
+    return replace(effect, source=str(path))
+
+
+def load_user_effects(paths) -> list[UserEffect]:
+    """The effects of several user-effect files (:func:`load_user_effect`);
+    two files defining effects of the same name are an ``InputError`` naming
+    both (which one to fit would otherwise depend on their order); a file
+    given twice counts once."""
+    out: dict[str, UserEffect] = {}
+    seen = set()
+    for path in paths:
+        if Path(path).resolve() in seen:  # the same file given twice: the same effect, nothing to choose
+            continue
+        seen.add(Path(path).resolve())
+        effect = load_user_effect(path)
+        first = out.get(effect.name)
+        if first is not None:
+            raise InputError(f"{path}: defines the user effect {effect.name!r}, as {first.source} does: give each "
+                             f"effect once, under its own name", what=effect.name, file=str(path))
+        out[effect.name] = effect
+    return list(out.values())

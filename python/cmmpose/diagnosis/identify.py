@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import Error, InputError
+from ..errors import Error, InputError, UserEffectError
 from ..run import Run
 from ._blas import one_blas_thread
 from .artefact import artefact_columns, linearised_columns
@@ -188,6 +188,8 @@ class Problem:
             current = model.values(name) if name in model.names else np.zeros(spec.size)
             try:
                 out[name] = self._columns(model, spec, current, obs)
+            except UserEffectError:  # an error in the user's code, not a verdict on the data
+                raise
             except Error as e:
                 if name in model.names:
                     raise
@@ -712,6 +714,8 @@ def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = No
         """Profile -2 log L of model m, or None if it cannot be evaluated."""
         try:
             o = prob.observe(m)
+        except UserEffectError:  # an error in the user's code, not a model the data rule out
+            raise
         except Error:
             return None, None
         return prob.wls(o.residual, prob.nuisance).neg2loglik, o

@@ -371,7 +371,7 @@ class Model:
                     spec = parse_map(name)
                 elif e.get("kind") == "python":
                     if name not in users:
-                        raise InputError(f"{path}: effect {name!r} is user-defined; pass it in user_effects")
+                        raise InputError(f"{path}: effect {name!r} is user-defined", remedy="user_effects")
                     spec = users[name]
                 else:
                     spec = resolve(name)
@@ -432,7 +432,7 @@ def _saved_spec(name: str, kind, users: dict, path) -> EffectSpec:
         return parse_map(name)
     if kind == "python":
         if name not in users:
-            raise InputError(f"{path}: effect {name!r} is user-defined; pass it in user_effects")
+            raise InputError(f"{path}: effect {name!r} is user-defined", remedy="user_effects")
         return users[name]
     return resolve(name)
 
