@@ -198,3 +198,23 @@ def test_compensate_model_with_a_raising_user_effect_says_it_in_one_line(tmp_pat
     res = CliRunner().invoke(main, [*args, "--user-effect", str(bad)])
     assert res.exit_code == 1 and "Traceback" not in res.output and not isinstance(res.exception, RuntimeError)
     assert "bad.py, line 5" in res.output and "RuntimeError: boom" in res.output and "'shift'" in res.output
+
+
+def test_two_user_effects_of_one_name_are_refused_in_python_too(tmp_path):
+    import cmmpose
+    from cmmpose.diagnosis.diagnose import user_specs
+    from cmmpose.diagnosis.effects import UserEffect
+    from cmmpose.diagnosis.model import Model
+
+    def ripple(ctx, a_um):
+        return np.zeros((len(ctx.scales), 3))
+
+    a = UserEffect.create("my-ripple", ripple, params={"a_um": ("um", 1.0)})
+    b = UserEffect.create("my-ripple", ripple, params={"a_um": ("um", 1.0)})
+    assert user_specs([a, a]) == (a,)  # the same object twice: one effect
+    with pytest.raises(cmmpose.InputError, match="two effects are named 'my-ripple'"):
+        user_specs([a, b])
+    path = tmp_path / "m.json"
+    Model(cmmpose.ErrorMapSet.thesis()).save(path)
+    with pytest.raises(cmmpose.InputError, match="two effects are named 'my-ripple'"):
+        Model.load(path, user_effects=[a, b])

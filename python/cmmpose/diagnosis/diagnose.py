@@ -13,7 +13,7 @@ import numpy as np
 
 from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputTypeError
+from ..errors import InputError, InputTypeError
 from ..fitting import fit_spheres
 from .._renamed import renamed
 from ..run import Run
@@ -636,10 +636,16 @@ def _subset(run: Run, keep: np.ndarray) -> Run:
 
 def user_specs(user_effects) -> tuple[EffectSpec, ...]:
     """``user_effects`` checked: extra candidates for a :class:`Problem`."""
+    named: dict[str, EffectSpec] = {}
     for u in user_effects:
         if not isinstance(u, EffectSpec):
             raise InputTypeError(f"user_effects: expected UserEffect objects, got {type(u).__name__}")
-    return tuple(user_effects)
+        if u.name in named and named[u.name] is not u:
+            # Which of two effects of one name is fitted would depend on their order.
+            raise InputError(f"user_effects: two effects are named {u.name!r}: give each effect once, under its "
+                             "own name", what=u.name)
+        named[u.name] = u
+    return tuple(named.values())
 
 
 def select_effects(problem, model: Model, add_names, auto: bool, max_effects: int, step):

@@ -361,7 +361,12 @@ class Model:
             if not isinstance(kinematics, str):
                 raise InputError(f"{path}: maps.kinematics must be a configuration name, got {kinematics!r}")
             model_maps = model_maps.with_kinematics(kinematics)
-            users = {u.name: u for u in user_effects}
+            users = {}
+            for u in user_effects:
+                if users.get(u.name, u) is not u:  # which one the file means would depend on their order
+                    raise InputError(f"user_effects: two effects are named {u.name!r}: give each effect once",
+                                     what=u.name)
+                users[u.name] = u
             effects, unc = [], {}
             for e in doc["effects"]:
                 name = e["name"]
