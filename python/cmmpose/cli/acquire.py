@@ -2,29 +2,12 @@
 
 from __future__ import annotations
 
-import math
-
 import click
 from rich.console import Console
 
 from ..acquire.scpi import TC_TYPES
 from ..errors import Error
-from .common import console, fail, machine_option, offset_mm, pose_angles
-
-
-class PositiveSeconds(click.ParamType):
-    """A finite number of seconds > 0 (click's FloatRange lets nan through)."""
-
-    name = "seconds"
-
-    def convert(self, value, param, ctx):
-        try:
-            x = float(value)
-        except (TypeError, ValueError):
-            self.fail(f"{value!r} is not a number of seconds", param, ctx)
-        if not (math.isfinite(x) and x > 0):
-            self.fail(f"{value!r} is not a finite number of seconds > 0", param, ctx)
-        return x
+from .common import Positive, console, fail, machine_option, offset_mm, pose_angles
 
 
 class ThermocoupleType(click.ParamType):
@@ -38,7 +21,7 @@ class ThermocoupleType(click.ParamType):
         return value.upper()
 
 
-SECONDS = PositiveSeconds()
+SECONDS = Positive("seconds")
 BAUD = click.IntRange(min=1)
 
 

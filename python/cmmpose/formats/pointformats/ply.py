@@ -39,18 +39,6 @@ def _plyfile():
     return plyfile
 
 
-def _header_lines(path: Path) -> int:
-    """Lines of the header up to and including ``end_header`` (0 if none):
-    to turn an ASCII element row into a line of the file."""
-    with path.open("rb") as f:
-        for k, line in enumerate(f, start=1):
-            if line.strip() == b"end_header":
-                return k
-            if k > 10_000:
-                break
-    return 0
-
-
 #: bytes: a body this much (beyond twice its size) shorter than its header declares is refused before reading.
 _SHORT_BODY = 1 << 20
 #: Bytes of each PLY scalar type (binary); list properties need at least their count's.
@@ -98,18 +86,16 @@ def _check_counts(path: Path) -> None:
 
 
 def read_ply(path: Path):
-    """The ``PlyData`` of ``path`` (binary data memory-mapped), or
+    """The ``PlyData`` of a binary PLY ``path`` (memory-mapped), or
     ``InputError`` naming the file, the header line or the element row at
-    fault."""
+    fault. (An ASCII file is read by :func:`_ascii_chunks`.)"""
     plyfile = _plyfile()
     _check_counts(path)
-    text = _format_line(path) == "ascii"
     try:
-        # Opened here (text mode for ASCII, as plyfile would) so that where the
-        # declared elements end can be compared with where the file ends.
-        with path.open("r", encoding="ascii") if text else path.open("rb") as f:
+        # Opened here so that where the declared elements end can be compared with where the file ends.
+        with path.open("rb") as f:
             data = plyfile.PlyData.read(f, mmap=True)
-            _check_no_more_rows(path, f, data, text)
+            _check_no_more_rows(path, f, data)
         return data
     except plyfile.PlyHeaderParseError as exc:
         raise InputError(f"{path}:{exc.line}: malformed PLY header: {exc.message}") from None
@@ -117,9 +103,6 @@ def read_ply(path: Path):
         where = f"element {exc.element.name!r}, row {exc.row}" if exc.element is not None else "data"
         if exc.prop is not None:
             where += f", property {exc.prop.name!r}"
-        ply_format = _format_line(path)
-        if ply_format == "ascii" and exc.row is not None:
-            where += f" (line {_header_lines(path) + _rows_before(path, exc.element) + exc.row + 1})"
         message = exc.message
         if message == "early end-of-file" and exc.element is not None and exc.row is not None:
             message += (f": the header declares {exc.element.count} {exc.element.name!r} rows, the file holds "
@@ -129,25 +112,13 @@ def read_ply(path: Path):
         raise InputError(f"{path}: not a readable PLY file ({type(exc).__name__}: {exc})") from None
 
 
-def _check_no_more_rows(path: Path, f, data, text: bool) -> None:
-    """``InputError`` when the file ``f`` (just read by plyfile, positioned
-    after the declared elements) holds more data than its header declares:
-    plyfile reads the declared count and ignores the rest, which would
-    silently drop points (fewer rows than declared is plyfile's own
+def _check_no_more_rows(path: Path, f, data) -> None:
+    """``InputError`` when the binary file ``f`` (just read by plyfile,
+    positioned after the declared elements) holds more data than its header
+    declares: plyfile reads the declared count and ignores the rest, which
+    would silently drop points (fewer rows than declared is plyfile's own
     "early end-of-file")."""
     declared = ", ".join(f"{e.count} {e.name!r}" for e in data.elements) or "no elements"
-    if text:
-        lineno = _header_lines(path) + sum(e.count for e in data.elements)
-        first, extra = 0, 0
-        for line in f:
-            lineno += 1
-            if line.strip():
-                extra += 1
-                first = first or lineno
-        if extra:
-            raise InputError(f"{path}:{first}: PLY body has {extra} rows beyond the header's count "
-                             f"(it declares {declared} rows); the header disagrees with the body")
-        return
     end = f.tell()
     size = f.seek(0, 2)
     if size > end:
@@ -169,21 +140,6 @@ def _format_line(path: Path) -> str | None:
             if line.strip() == b"end_header":
                 break
     return None
-
-
-def _rows_before(path: Path, element) -> int:
-    """Rows of the elements before ``element`` (an ASCII file lists them first)."""
-    rows = 0
-    with path.open("rb") as f:
-        for line in f:
-            words = line.split()
-            if words[:1] == [b"element"] and len(words) >= 3:
-                if words[1].decode("ascii", "replace") == element.name:
-                    return rows
-                rows += int(words[2])
-            if line.strip() == b"end_header":
-                break
-    return rows
 
 
 def chunks(path: Path, chunk: int, need):
