@@ -23,7 +23,13 @@ _NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?
 #: Spelled-out non-finite values: numbers, but refused as not finite.
 _NON_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE)
 
-__all__ = ["finite", "nonnegative", "positive", "triple", "vector3", "parse_number", "parse_toml"]
+__all__ = ["finite", "nonnegative", "positive", "triple", "vector3", "parse_number", "parse_toml",
+           "LENGTH_UNITS_MM", "LENGTH_UNIT_NAMES", "length_unit_slip"]
+
+#: Length units a value is most often typed or read in by mistake for mm, by their size in mm (the unit hints
+#: of the refusals of an implausible length: :func:`length_unit_slip`).
+LENGTH_UNITS_MM = {"m": 1000.0, "in": 25.4, "cm": 10.0}
+LENGTH_UNIT_NAMES = {"m": "metres", "in": "inches", "cm": "centimetres"}
 
 
 def finite(name: str, value, *, error: type[Exception] = InputError) -> float:
@@ -269,3 +275,15 @@ def parse_toml(text: str, where: str, *, error: type[Exception] = InputError) ->
     except ValueError as exc:  # an integer of more digits than int() converts
         why = "an integer of more than 4,300 digits" if "digits" in str(exc) else str(exc)
         raise error(f"{where}: not a usable TOML file ({why})") from None
+
+
+def length_unit_slip(ratio: float, tolerance: float, units=tuple(LENGTH_UNITS_MM)) -> tuple[str, float] | None:
+    """The length unit (name, size in mm) among ``units`` whose size is
+    ``ratio`` within the factor ``1 + tolerance``, or None: a value that
+    should be ``ratio`` times larger in mm looks like one given in that unit.
+    The nearest unit on a log scale is taken."""
+    if not (math.isfinite(ratio) and ratio > 0) or not units:
+        return None
+    unit = min(units, key=lambda u: abs(math.log(ratio / LENGTH_UNITS_MM[u])))
+    size = LENGTH_UNITS_MM[unit]
+    return (unit, size) if abs(math.log(ratio / size)) < math.log1p(tolerance) else None

@@ -16,7 +16,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_rows
-from ._validate import vector3
+from ._validate import LENGTH_UNIT_NAMES, length_unit_slip, vector3
 from .errors import GeometryError, IllConditionedFit, ImplausibleFit, InputError
 
 _log = logging.getLogger(__name__)
@@ -55,10 +55,6 @@ RADIUS_MISFIT_RMS_RATIO = 1.5
 #: sphere's, another unit) or points not on the sphere do.
 RADIUS_MISFIT_FRACTION = 0.02
 
-#: Length units a point cloud is often written in, with their size in mm (the
-#: unit hint of :func:`_unit_hint`).
-_UNITS_MM = {"m": 1000.0, "in": 25.4, "cm": 10.0}
-_UNIT_NAMES = {"m": "metres", "in": "inches", "cm": "centimetres"}
 
 
 def unit_remedy(unit: str) -> str:
@@ -411,13 +407,13 @@ def _unit_hint(rows: np.ndarray, radius: float) -> tuple[str, str | None]:
     if not (span > 0) or span >= 0.5 * radius:
         return "", None
     need = 2.0 * radius / span  # the factor that makes the points span the sphere's diameter
-    unit, size = min(_UNITS_MM.items(), key=lambda kv: abs(np.log(need / kv[1])))
-    if abs(np.log(need / size)) > np.log(4.0):
+    slip = length_unit_slip(need, 3.0)  # within a factor 4: a scan need not span the whole diameter
+    if slip is None:
         return (f"; the points span only {span:.3g} mm against the sphere's {2 * radius:g} mm diameter: are the "
                 f"points and the radius in the same unit (mm)?"), None
     return (f"; the points span only {span:.3g} mm against the sphere's {2 * radius:g} mm diameter: the "
-            f"coordinates look like {_UNIT_NAMES[unit]} ({span * size:.4g} mm if they are): convert them to mm"
-            + unit_remedy(unit)), unit
+            f"coordinates look like {LENGTH_UNIT_NAMES[slip[0]]} ({span * slip[1]:.4g} mm if they are): convert "
+            f"them to mm" + unit_remedy(slip[0])), slip[0]
 
 
 def _coverage_error(rows: np.ndarray, radius: float, coverage: float, min_coverage: float, what: str) -> GeometryError:

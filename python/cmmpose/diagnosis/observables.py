@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import length_unit_slip
 from ..errors import InputError
 from ..fitting import fit_spheres
 from ..evaluation.metrics import b89_value, rms_accuracy_error
@@ -204,9 +205,12 @@ class ObservationLayout:
 
 def _slip(ratio: float) -> str:
     """The likely cause of a calibrated length ``ratio`` times the measured one."""
-    for factor, what in ((25.4, "inches for millimetres"), (1000.0, "metres or micrometres for millimetres")):
-        if abs(ratio / factor - 1) < CALIBRATED_LENGTH_TOLERANCE or abs(ratio * factor - 1) < CALIBRATED_LENGTH_TOLERANCE:
-            return f"likely {what}"
+    # Centimetres are left to the decimal-point slip below (a factor 10 either way).
+    what = {"in": "inches for millimetres", "m": "metres or micrometres for millimetres"}
+    for r in (ratio, 1 / ratio):
+        slip = length_unit_slip(r, CALIBRATED_LENGTH_TOLERANCE, units=tuple(what))
+        if slip is not None:
+            return f"likely {what[slip[0]]}"
     k = round(math.log10(ratio))
     if k != 0 and abs(ratio / 10.0 ** k - 1) < CALIBRATED_LENGTH_TOLERANCE:
         return f"likely a decimal-point slip (a factor 1e{k:+d})"

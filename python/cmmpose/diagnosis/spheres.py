@@ -25,6 +25,7 @@ from importlib import resources
 import numpy as np
 
 from .._csvtable import read_csv_table
+from .._validate import length_unit_slip
 from ..errors import InputError
 from .patterns import Patterns, categorical_pattern, continuous_pattern, mean_offset_pattern, length_shape_patterns, ranked_patterns
 
@@ -52,9 +53,6 @@ REFERENCE_LENGTH_FRACTION = 0.01
 #: the radius is no physical offset but a diameter column, a nominal diameter,
 #: another unit or another ball.
 RADIUS_FRACTION = 0.05
-
-#: Length units, their size in mm (the unit hints of the refusals).
-_UNITS_MM = {"m": 1000.0, "in": 25.4, "cm": 10.0}
 
 
 @dataclass(frozen=True)
@@ -217,10 +215,8 @@ def diagnose_sphere_fits(centres, radii, *, nominal_radius: float | None = None,
 def _unit_of(ratio: float) -> str | None:
     """The unit a length is in when the millimetres it should be are
     ``ratio`` times it (within 5 %), or None."""
-    for unit, size in _UNITS_MM.items():
-        if abs(math.log(ratio / size)) < math.log(1.05):
-            return unit
-    return None
+    slip = length_unit_slip(ratio, 0.05)
+    return None if slip is None else slip[0]
 
 
 def _check_reference_length(reference: float, mean: float) -> None:

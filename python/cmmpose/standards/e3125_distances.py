@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._csvtable import read_csv_table
+from .._validate import LENGTH_UNIT_NAMES, length_unit_slip
 from ..errors import GeometryError, ImplausibleFit, InputError
 from ..fitting import e3125
 from ..evaluation.plots import new_figure, save_plot
@@ -49,10 +50,6 @@ RULE = f"{DECISION_RULE}; U = 2 u, u from the two centres' covariances along the
 #: a scan in another unit (x10, x25.4, x1000), a swapped or mislabelled target
 #: or a mistyped reference is.
 GROSS_ERROR_FRACTION = 0.10
-
-#: Unit factors a gross error is checked against (the hint in the refusal).
-_UNIT_FACTORS = {"metres read as mm": 1000.0, "inches read as mm": 25.4, "centimetres read as mm": 10.0,
-                 "the reference in metres": 1e-3}
 
 __all__ = ["GROSS_ERROR_FRACTION", "SphereTarget", "DistanceError", "E3125Distances", "sphere_targets", "distance_errors", "read_pairs"]
 
@@ -287,11 +284,15 @@ def distance_errors(targets: dict[str, SphereTarget], pairs, mpe: MPE | None = N
 def _gross(k: int, a: str, b: str, dist: float, ref: float) -> str:
     """The refusal of a pair off its reference by more than GROSS_ERROR_FRACTION."""
     ratio = ref / dist if dist > 0 else math.inf
-    cause = min(_UNIT_FACTORS, key=lambda c: abs(math.log(ratio / _UNIT_FACTORS[c])) if math.isfinite(ratio) else 0)
-    fix = "the reference must be in mm" if _UNIT_FACTORS[cause] < 1 else "check the scans' units"
-    likely = (f": the reference is {ratio:.4g} times the distance, as with {cause} ({fix})"
-              if math.isfinite(ratio) and abs(math.log(ratio / _UNIT_FACTORS[cause])) < math.log(1.1) else
-              ": a unit mix-up, a swapped or mislabelled target or a wrong reference")
+    scans, reference = length_unit_slip(ratio, 0.1), length_unit_slip(1 / ratio, 0.1, units=("m",))
+    if scans is not None:
+        likely = (f": the reference is {ratio:.4g} times the distance, as with {LENGTH_UNIT_NAMES[scans[0]]} read "
+                  "as mm (check the scans' units)")
+    elif reference is not None:
+        likely = (f": the reference is {ratio:.4g} times the distance, as with the reference in metres (the "
+                  "reference must be in mm)")
+    else:
+        likely = ": a unit mix-up, a swapped or mislabelled target or a wrong reference"
     return (f"pairs[{k}] ({a} - {b}): the measured distance {dist:.6g} mm is {100 * abs(dist - ref) / ref:.3g} % off "
             f"the reference {ref:.6g} mm (over {100 * GROSS_ERROR_FRACTION:g} %: no instrument errs by that much, "
             f"so no decision is made){likely}")
