@@ -125,6 +125,24 @@ def rigid_dof(centres: np.ndarray, radius: float) -> int:
     return min(dof, 3 * n)
 
 
+def check_placements(layout: ArtefactLayout, mean_centres: np.ndarray) -> None:
+    """``InputError`` when a ball of a placement lies further from its
+    calibrated place than any machine error could take it (mislabelled or
+    mismeasured), as the evaluation checks it
+    (:func:`cmmpose.evaluation.artefact.check_ball_positions`).
+
+    Parameters
+    ----------
+    layout : ArtefactLayout
+    mean_centres : ndarray (S, 3)
+        Mean centre of each physical sphere of a run's first observation, mm.
+    """
+    a = layout.artefact
+    for pos, balls, idx, temp in zip(layout.positions, layout.balls, layout.spheres, layout.temperature):
+        check_ball_positions(a, f"scans: position {pos} of the run of {a.name!r}", balls, mean_centres[idx],
+                             a.centres * float(a.scale_to(temp)))
+
+
 def artefact_deviations(layout: ArtefactLayout, mean_centres: np.ndarray,
                         expansion_ppm_per_kelvin: float = 0.0) -> np.ndarray:
     """Each ball's deviation per placement, (n_balls, 3) mm, placements in order.
@@ -138,27 +156,14 @@ def artefact_deviations(layout: ArtefactLayout, mean_centres: np.ndarray,
         The model's artefact expansion on top of the certificate's
         coefficient, ppm/K.
 
-    Raises
-    ------
-    InputError
-        On the layout's first centres (the run as first observed): a ball
-        further from its calibrated place than any machine error could take
-        it, mislabelled or mismeasured (as the evaluation,
-        :func:`cmmpose.evaluation.artefact.check_ball_positions`).
     """
     a = layout.artefact
-    check = not layout.__dict__.get("_balls_checked")
     out = []
-    for pos, balls, idx, cal, temp in zip(layout.positions, layout.balls, layout.spheres, layout.calibrated,
-                                          layout.temperature):
+    for idx, cal, temp in zip(layout.spheres, layout.calibrated, layout.temperature):
         m = mean_centres[idx]
-        scale = float(a.scale_to(temp)) * (1.0 + expansion_ppm_per_kelvin * 1e-6 * (temp - 20.0))
-        c = cal * scale
-        if check:
-            check_ball_positions(a, f"scans: position {pos} of the run of {a.name!r}", balls, m, a.centres * scale)
+        c = cal * (float(a.scale_to(temp)) * (1.0 + expansion_ppm_per_kelvin * 1e-6 * (temp - 20.0)))
         r, t = rigid_fit(c, m)
         out.append(m - (c @ r.T + t))
-    layout.__dict__["_balls_checked"] = True  # later calls are the diagnosis's steps on the same balls
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 

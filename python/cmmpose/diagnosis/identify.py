@@ -37,7 +37,7 @@ from ._blas import one_blas_thread
 from .artefact import artefact_columns, linearised_columns
 from .effects import EffectSpec, run_library
 from .inputs import RunInputs
-from .observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, check_calibrated_length, observe
+from .observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, check_first_observation, observe
 
 __all__ = ["Problem", "Candidate", "rank_candidates", "fit_model", "model_uncertainties", "ALPHA", "OBSERVABLE_AT"]
 
@@ -148,7 +148,7 @@ class Problem:
                 del self.candidates[name]
         self.base = model
         self.base_obs = self.observe(model)
-        check_calibrated_length(self.layout, self.base_obs.lengths, getattr(run, "source", None) or "run")
+        check_first_observation(self.layout, self.base_obs, getattr(run, "source", None) or "run")
         self.columns = self._sensitivities(model, self.base_obs)
 
     def state_reproducibility(self, reproducibility_um: float) -> None:

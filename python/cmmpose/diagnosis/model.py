@@ -258,17 +258,18 @@ class Model:
     def evaluate(self, run: Run):
         """Ballbar figures of ``run`` under this model (see ``ModelFigures``);
         a run on another machine configuration (:func:`check_kinematics`) or
-        whose calibrated bar length is far from the lengths it measures
-        (:func:`cmmpose.diagnosis.observables.check_calibrated_length`) is
+        whose calibrated bar length is far from the lengths it measures, or
+        an artefact's ball far from its calibrated place
+        (:func:`cmmpose.diagnosis.observables.check_first_observation`) is
         refused."""
-        from .observables import ObservationLayout, check_calibrated_length, figures
+        from .observables import ObservationLayout, check_first_observation, figures, observe
 
         check_kinematics(self, run)
         inputs = self.inputs(run)
         layout = ObservationLayout.from_run(run, inputs)
-        out = figures(layout, self.compensate(inputs), self, sid=inputs.scan_id)
-        check_calibrated_length(layout, out.lengths, run_label(run))
-        return out
+        observed = observe(layout, self.compensate(inputs), self.expansion_ppm_per_kelvin, inputs.scan_id)
+        check_first_observation(layout, observed, run_label(run))
+        return figures(layout, None, self, observed=observed)
 
     # -- pickling (sent to a worker process: cmmpose.scale) -----------------
 

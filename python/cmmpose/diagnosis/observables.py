@@ -31,11 +31,11 @@ from ..fitting import fit_spheres
 from ..evaluation.metrics import b89_value, rms_accuracy_error
 from ..run import Run
 from ..evaluation.artefact import is_artefact_run
-from .artefact import ArtefactLayout, artefact_deviations
+from .artefact import ArtefactLayout, artefact_deviations, check_placements
 from .inputs import RunInputs
 
 __all__ = ["ObservationLayout", "Observed", "observe", "figures", "ModelFigures", "CLASSES",
-           "check_calibrated_length"]
+           "check_calibrated_length", "check_first_observation"]
 
 #: Observable classes, in vector order.
 CLASSES = ("length", "centre", "radius", "point")
@@ -279,6 +279,25 @@ class Observed:
     deviations: np.ndarray | None = None
 
 
+def _mean_centres(layout: ObservationLayout, centres: np.ndarray) -> np.ndarray:
+    """Mean centre of each physical sphere over its scans, mm."""
+    n_sph = len(layout.sphere_kind)
+    counts = np.bincount(layout.sphere_of_scan, minlength=n_sph)
+    mean_c = np.zeros((n_sph, 3))
+    np.add.at(mean_c, layout.sphere_of_scan, centres)
+    return mean_c / np.maximum(counts, 1)[:, None]
+
+
+def check_first_observation(layout: ObservationLayout, observed: Observed, where: str = "run") -> None:
+    """The slips a run's first observation shows, refused: a calibrated bar
+    length off the measured (:func:`check_calibrated_length`) and an
+    artefact's ball far from its calibrated place
+    (:func:`cmmpose.diagnosis.artefact.check_placements`)."""
+    check_calibrated_length(layout, observed.lengths, where)
+    if layout.artefact is not None:
+        check_placements(layout.artefact, _mean_centres(layout, observed.centres))
+
+
 def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin: float = 0.0,
             sid: np.ndarray | None = None) -> Observed:
     """The observables of compensated points ``xyz`` (N, 3, mm).
@@ -302,11 +321,7 @@ def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin
         fits = fit_spheres(xyz, sid) if keep.all() else fit_spheres(xyz[keep], sid[keep])
     at = fits.positions(layout.labels)
     centres, radii, rms, form = fits.centre[at], fits.radius[at], fits.rms[at], fits.form[at]
-    n_sph = len(layout.sphere_kind)
-    counts = np.bincount(layout.sphere_of_scan, minlength=n_sph)
-    mean_c = np.zeros((n_sph, 3))
-    np.add.at(mean_c, layout.sphere_of_scan, centres)
-    mean_c /= np.maximum(counts, 1)[:, None]
+    mean_c = _mean_centres(layout, centres)
     lengths = np.linalg.norm(mean_c[layout.ends[:, 1]] - mean_c[layout.ends[:, 0]], axis=1)
     deviations = None
     if layout.artefact is not None:  # ball deviations after each placement's rigid fit, in place of lengths
