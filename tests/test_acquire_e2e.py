@@ -17,6 +17,7 @@ from cmmpose import sim
 from cmmpose.acquire import plan_from_run, read_journal, recover
 from cmmpose.evaluation.ballbar_uncertainty import evaluation_uncertainty
 from cmmpose.run import Run
+from child_processes import default_signals
 from cmmpose.sim.instruments import SimClock, SimLogger, SimScanner, synthetic_profiles
 
 CLI = [sys.executable, "-c", "from cmmpose.cli import main; main()"]
@@ -58,7 +59,7 @@ def test_simulated_ballbar_acquired_then_evaluated(tmp_path):
     out = tmp_path / "acquired"
     proc = subprocess.Popen(CLI + ["acquire", "--scanner", scanner.port, "--thermo", logger.port, "-o", str(out),
                                    "--plan", str(plan), "--thermo-interval", "0.05", "--flush-interval", "0.1"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=default_signals)
     with scanner, logger:
         try:
             wait_for(scanner.finished.is_set, what="the scanner to play the run")
@@ -107,7 +108,7 @@ def test_kill_9_recovers_everything_flushed(tmp_path):
     out = tmp_path / "crashed"
     proc = subprocess.Popen(CLI + ["acquire", "--scanner", scanner.port, "--thermo", logger.port, "-o", str(out),
                                    "--thermo-interval", "0.1", "--flush-interval", "0.1", "--no-display"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=default_signals)
     journal = out / "journal.cmmj"
     with scanner, logger:
         try:

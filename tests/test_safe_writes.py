@@ -30,6 +30,7 @@ from cmmpose import atomicfile
 from cmmpose.cli import main
 from cmmpose.errors import InputError, OutputError, RunError
 from cmmpose.run import Run
+from child_processes import default_signals
 
 POSE, OFFSET = (90.0, 90.0, 0.0), (1.001, 264.505, 129.575)
 
@@ -441,7 +442,7 @@ def test_a_signal_mid_write_leaves_no_temporary_file(tmp_path, sig, what):
         before = run_digest(target)
         args = ["simulate", "-o", str(target), "--overwrite", "--seed", "5"]
     proc = subprocess.Popen([sys.executable, "-c", _SLOW, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True, preexec_fn=default_signals)
     try:
         assert proc.stdout.readline().strip() == "writing"
         assert scratch(tmp_path), "nothing is being written"
