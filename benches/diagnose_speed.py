@@ -32,7 +32,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import cmmpose  # noqa: E402
-from cmmpose.diagnosis import Model  # noqa: E402
+from cmmpose.model import Model  # noqa: E402
 from cmmpose.diagnosis.identify import Problem  # noqa: E402
 from cmmpose.sim import effects as E  # noqa: E402
 from cmmpose.sim.runs import simulate_ballbar_run  # noqa: E402

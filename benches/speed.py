@@ -38,7 +38,7 @@ import numpy as np  # noqa: E402
 
 import cmmpose  # noqa: E402
 from cmmpose import _core  # noqa: E402
-from cmmpose.diagnosis import Model  # noqa: E402
+from cmmpose.model import Model  # noqa: E402
 from cmmpose.pose import digitizer  # noqa: E402
 from cmmpose.sim import effects as E  # noqa: E402
 from cmmpose.sim.runs import simulate_ballbar_run  # noqa: E402

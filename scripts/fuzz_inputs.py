@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 import cmmpose
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
 from cmmpose.formats.pointfiles import read_points
 from cmmpose.run import Run
 

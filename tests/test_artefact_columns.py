@@ -2,7 +2,7 @@
 (issue 24, "Speed"): for the kernel effects of the machine (squareness,
 scale, roll, thermal, latency, the artefact's expansion) the diagnosis takes them from linearised
 sphere fits of a sample of each scan's points through the kernel
-(``cmmpose.diagnosis.artefact.artefact_columns``), not from refitting every
+(``cmmpose.evaluation.artefact_layout.artefact_columns``), not from refitting every
 point of the run once per parameter. They must be the finite differences'
 columns: on the balls' deviations, which these effects move by micrometres,
 to a fraction of a per cent; on the radii and point residuals, which they
@@ -16,7 +16,8 @@ import dataclasses
 import numpy as np
 import pytest
 from cmmpose import artefacts
-from cmmpose.diagnosis import Model, diagnose, identify
+from cmmpose.model import Model
+from cmmpose.diagnosis import diagnose, identify
 from cmmpose.diagnosis.artefact import artefact_columns, linearised_columns
 from cmmpose.errormap import ErrorMapSet
 from cmmpose.sim import ScaleError, SquarenessOffset

@@ -1,7 +1,7 @@
 """Diagnosis of artefact runs (issue 24): ball plates and step gauges, alone
 and jointly, with the effect library of the ballbar diagnosis. The
 observables of an artefact run are each ball's centre per placement after the
-placement's best-fit rigid transform (cmmpose.diagnosis.artefact)."""
+placement's best-fit rigid transform (cmmpose.evaluation.artefact_layout)."""
 
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ def test_hidden_squareness_and_scale_are_found_within_their_uncertainty(hidden):
 
 def test_a_plate_run_has_no_ballbar_lengths_and_counts_the_rigid_fits(hidden, plate):
     run, _ = hidden
-    from cmmpose.diagnosis import Model
+    from cmmpose.model import Model
     from cmmpose.errormap import ErrorMapSet
 
     problem = Problem(Model(ErrorMapSet.thesis()), run, {})
@@ -97,7 +97,7 @@ def test_a_step_gauge_counts_five_degrees_of_freedom_per_placement():
     run, _ = simulate_artefact_run(gauge, ["xy@z=-400,rot=45"], None, 20.0, [SquarenessOffset(8.0, 0.0, 0.0)],
                                    seed=3)
     d = diagnose(run, patterns=False, auto=False)
-    from cmmpose.diagnosis import Model
+    from cmmpose.model import Model
     from cmmpose.errormap import ErrorMapSet
 
     problem = Problem(Model(ErrorMapSet.thesis()), run, {})

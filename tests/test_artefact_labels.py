@@ -13,7 +13,8 @@ import pytest
 from cmmpose import artefacts
 from cmmpose.diagnosis import diagnose
 from cmmpose.errors import InputError
-from cmmpose.evaluation.artefact import check_ball_positions, evaluate_artefact, gross_tolerance
+from cmmpose.evaluation.artefact import evaluate_artefact
+from cmmpose.evaluation.artefact_balls import check_ball_positions, gross_tolerance
 from cmmpose.machine import Machine
 from cmmpose.run import Run
 from cmmpose.sim.artefact_runs import simulate_artefact_run

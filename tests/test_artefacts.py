@@ -11,7 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 from cmmpose import artefacts, placement
-from cmmpose.evaluation.artefact import evaluate_artefact, is_artefact_run, rigid_fit
+from cmmpose.evaluation.artefact import evaluate_artefact
+from cmmpose.evaluation.artefact_balls import is_artefact_run, rigid_fit
 from cmmpose.cli import main
 from cmmpose.errormap import ErrorMap
 from cmmpose.errors import InputError

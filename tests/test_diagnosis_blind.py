@@ -22,7 +22,8 @@ import pytest
 
 import cmmpose
 from cmmpose.calibration import STANDARD_POSES
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
+from cmmpose.evaluation.observables import model_figures
 from cmmpose.sim import effects as E
 from cmmpose.sim.runs import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
@@ -86,7 +87,7 @@ def check_found(name, effect, truth, seed, options):
     fitted = d.steps[1].model.values(name)
     want = np.asarray(truth, dtype=float)
     assert np.linalg.norm(fitted - want) <= 0.25 * np.linalg.norm(want), f"{effect}: fitted {fitted}"
-    rms_clean = Model(cmmpose.ErrorMapSet.thesis()).evaluate(clean).rms_accuracy_error
+    rms_clean = model_figures(Model(cmmpose.ErrorMapSet.thesis()), clean).rms_accuracy_error
     rms_after = d.steps[1].figures.rms_accuracy_error
     assert rms_after <= 1.25 * rms_clean, f"{effect}: rms {rms_after * 1e3:.2f} um vs {rms_clean * 1e3:.2f} um without it"
     return d

@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 import threadpoolctl
 from cmmpose.diagnosis import aliases
-from cmmpose.diagnosis.aliases import _first_rows, linear_swap, observables_difference_um
+from cmmpose.diagnosis.aliases import _first_rows, linear_swap
+from cmmpose.model.alternatives import observables_difference_um
 from cmmpose.diagnosis.identify import fit_model
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -15,7 +15,7 @@ import pytest
 
 import cmmpose
 from cmmpose.diagnosis.identify import INDISTINGUISHABLE, NOT_OBSERVABLE_BELOW, Candidate
-from cmmpose.diagnosis.effects import LIBRARY
+from cmmpose.model.spec import LIBRARY
 from cmmpose.sim import effects as E
 from cmmpose.sim.runs import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner

@@ -16,8 +16,10 @@ from cmmpose.pose import digitizer
 from cmmpose import _core
 from cmmpose.calibration import STANDARD_POSES
 from cmmpose.cli import main
-from cmmpose.diagnosis import LIBRARY, Model, UserEffect
-from cmmpose.diagnosis.effects import library
+from cmmpose.model import LIBRARY, Model, UserEffect
+from cmmpose.diagnosis import fit_effect
+from cmmpose.evaluation.observables import model_figures
+from cmmpose.model.spec import library
 from cmmpose.evaluation.ballbar import machine_coordinates, machine_temperature
 from cmmpose.run import load_truth
 from cmmpose.sim import effects as E
@@ -97,8 +99,8 @@ def test_model_with_the_true_values_inverts_the_truth_machine(effect, name, valu
 
 def test_artefact_expansion_acts_on_the_predicted_length():
     run, _ = run_with([E.ArtefactExpansion(11.5)], seed=4, calibrated=("length",))
-    base = Model(MAPS).evaluate(run)
-    fixed = Model(MAPS).with_values("artefact-expansion", [11.5]).evaluate(run)
+    base = model_figures(Model(MAPS), run)
+    fixed = model_figures(Model(MAPS).with_values("artefact-expansion", [11.5]), run)
     assert abs(base.length_error * 1e3 - 11.5e-6 * 2.5 * 404.2 * 1e3) < 0.5  # um: L a (T - 20)
     assert abs(fixed.length_error) < 0.5e-3
 
@@ -138,13 +140,13 @@ def test_bad_input_is_named():
     run, _ = run_with(seed=7)
     m = Model(MAPS)
     with pytest.raises(cmmpose.InputError, match="unknown"):
-        m.add("no-such-effect", run)
+        fit_effect(m, "no-such-effect", run)
     with pytest.raises(cmmpose.InputError, match="squareness.*3 finite"):
         m.with_values("squareness", [1.0, 2.0])
     with pytest.raises(cmmpose.InputError, match="squareness.*3 finite"):
         m.with_values("squareness", [1.0, np.nan, 2.0])
-    with pytest.raises(cmmpose.InputError, match="give a run"):
-        m.add("squareness")
+    with pytest.raises(cmmpose.InputTypeError, match="a cmmpose.Run to fit"):
+        fit_effect(m, "squareness", None)
     with pytest.raises(cmmpose.InputError, match="maps"):
         Model("thesis")
     with pytest.raises(cmmpose.InputError, match="prior"):

@@ -23,7 +23,7 @@ import cmmpose
 import numpy as np
 import pytest
 from cmmpose.artefacts import load_artefact
-from cmmpose.diagnosis import Model, UserEffect
+from cmmpose.model import Model, UserEffect
 from cmmpose.diagnosis import cv as cvmod
 from cmmpose.diagnosis import mapfamily as mf
 from cmmpose.diagnosis.diagnose import _step
@@ -146,7 +146,7 @@ def test_a_noise_only_ballbar_adds_nothing_and_its_residuals_look_like_noise():
 def test_leave_one_group_out_matches_an_explicit_refit():
     run = b89("noise", 2)
     model = Model(cmmpose.ErrorMapSet.thesis())
-    problem = Problem(model, run, {n: s for n, s in cmmpose.diagnosis.LIBRARY.items() if n in ("squareness",)})
+    problem = Problem(model, run, {n: s for n, s in cmmpose.model.LIBRARY.items() if n in ("squareness",)})
     step = _step("base", model, problem)
     r0 = step.residual
     J = problem.columns["squareness"]

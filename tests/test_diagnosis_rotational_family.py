@@ -23,7 +23,7 @@ import pytest
 from click.testing import CliRunner
 from cmmpose.artefacts import load_artefact
 from cmmpose.cli import main
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
 from cmmpose.diagnosis import cv as cvmod
 from cmmpose.diagnosis import mapfamily as mf
 from cmmpose.diagnosis.identify import Problem

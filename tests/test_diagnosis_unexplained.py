@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 import cmmpose
 from cmmpose.cli import main
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
 from cmmpose.diagnosis.patterns import Pattern, Patterns
 from cmmpose.diagnosis.unexplained import Finding, periodic_errors, unexplained_findings, user_effect_skeleton
 from cmmpose.fitting import fit_spheres
@@ -82,7 +82,7 @@ def test_patterns_become_findings_that_say_what_the_model_holds():
 
 
 def test_drafts_are_valid_user_effects(tmp_path):
-    from cmmpose.diagnosis.effects import load_user_effect as _load_user_effect
+    from cmmpose.model.spec import load_user_effect as _load_user_effect
 
     periodic = Finding("periodic", "E", "a ripple", 1.0, 1e-9, 1e-6, period_mm=7.5, phase=(1.0, 0.0), axis="y")
     pattern = Finding("pattern", "incidence", "point fit residual vs incidence", 0.5, 1e-9, 1e-6)

@@ -15,7 +15,7 @@ import pytest
 import cmmpose
 import cmmpose.sim
 from cmmpose import _core, effects
-from cmmpose.diagnosis import LIBRARY
+from cmmpose.model import LIBRARY
 from cmmpose.errors import InputError
 
 
@@ -99,7 +99,7 @@ for m in [m for m in sys.modules if m.startswith("cmmpose")]:
 sys.path.insert(0, str(dst.parent.parent))
 import cmmpose.effects as fx2
 assert fx2.__file__.startswith(str(dst)), fx2.__file__
-from cmmpose.diagnosis import LIBRARY
+from cmmpose.model import LIBRARY
 assert "probe" in fx2.available() and "probe" in LIBRARY
 print("ok")
 """

@@ -16,7 +16,7 @@ from click.testing import CliRunner
 import cmmpose
 from cmmpose.acquire.plan import Plan, plan_from_run
 from cmmpose.cli import main
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
 from cmmpose.formats.pointfiles import read_points, write_points
 from cmmpose.run import Run
 from cmmpose.sim.runs import simulate_ballbar_run

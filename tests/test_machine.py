@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 import cmmpose
 from cmmpose.cli import main
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
 from cmmpose.errors import InputError
 from cmmpose.machine import Machine, configurations, example_names, example_text, load_machine
 

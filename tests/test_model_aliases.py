@@ -24,11 +24,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from cmmpose import Model
-from cmmpose.diagnosis.aliases import ALIAS_FLOOR_UM, Alternative, check_alternatives, points_difference_um
-from cmmpose.diagnosis.effects import resolve
+from cmmpose.model.alternatives import ALIAS_FLOOR_UM, Alternative, check_alternatives, points_difference_um
+from cmmpose.model.names import resolve
 from cmmpose.diagnosis.identify import design_variances
 from cmmpose.errors import AliasedChoiceWarning
 from cmmpose.evaluation.ballbar import machine_coordinates
+from cmmpose.evaluation.observables import figures_difference
 from cmmpose.evaluation_uncertainty import evaluation_uncertainty
 from cmmpose.run import Run
 from cmmpose.sim import parse_effect, simulate_ballbar_run
@@ -169,14 +170,14 @@ def test_applying_an_aliased_choice_warns_where_the_alternatives_differ(sensor_m
     with warnings.catch_warnings():
         warnings.simplefilter("error", AliasedChoiceWarning)  # its own run: the alternatives agree, no warning
         cmmpose.evaluate(run, model)
-    with caplog.at_level(logging.WARNING, logger="cmmpose.diagnosis.aliases"), \
+    with caplog.at_level(logging.WARNING, logger="cmmpose.model.alternatives"), \
             pytest.warns(AliasedChoiceWarning, match="aliased choice") as caught:
         cmmpose.evaluate(other, model)
-    text = str(caught[0].message)
+    text = str(next(w.message for w in caught if issubclass(w.category, AliasedChoiceWarning)))
     assert model.names[-1] in text or any(n in text for n in model.names)
     assert any("aliased choice" in r.getMessage() for r in caplog.records)
     # The comparison it warned on, by an independent route: each alternative in the choice's place.
-    found = check_alternatives(model, model.inputs(other), "run", run=other)
+    found = check_alternatives(model, model.inputs(other), "run", compare=figures_difference(other))
     big = [f for f in found if f["warned"]]
     assert big and all(f["difference_um"] > f["threshold_um"] for f in big)
     # The command line prints it, once per message, and still evaluates.

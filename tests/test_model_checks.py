@@ -19,12 +19,13 @@ import numpy as np
 import pytest
 
 import cmmpose
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
+from cmmpose.evaluation.observables import model_figures
 from cmmpose.diagnosis import mapfamily as mf
-from cmmpose.diagnosis.aliases import Alternative
+from cmmpose.model.alternatives import Alternative
 from cmmpose.diagnosis.identify import Problem
 from cmmpose.diagnosis.joint import check_distinct, diagnose_jointly
-from cmmpose.diagnosis.observables import CALIBRATED_LENGTH_TOLERANCE, check_calibrated_length
+from cmmpose.evaluation.observables import CALIBRATED_LENGTH_TOLERANCE, check_calibrated_length
 from cmmpose.errors import InputError, MapTemperatureWarning
 from cmmpose.evaluation.ballbar import evaluate
 from cmmpose.evaluation.ballbar_uncertainty import evaluation_uncertainty
@@ -51,7 +52,7 @@ def test_a_model_for_another_configuration_is_refused_naming_the_run_and_both(tm
     replace(run, maps=BRIDGE).save(tmp_path / "mb_run")
     mb = Run.load(tmp_path / "mb_run")
     thesis_model = Model(MAPS)
-    for apply in (lambda: evaluate(mb, thesis_model), lambda: thesis_model.evaluate(mb),
+    for apply in (lambda: evaluate(mb, thesis_model), lambda: model_figures(thesis_model, mb),
                   lambda: cmmpose.diagnose(mb, thesis_model, **QUICK)):
         with pytest.raises(InputError, match=r"mb_run.*'moving-bridge'.*'thesis'"):
             apply()
@@ -197,11 +198,11 @@ def test_a_calibrated_length_within_the_tolerance_passes():
 
 def test_a_diagnosis_refuses_a_calibrated_length_ten_times_the_bar(tmp_path):
     run = run_with(seed=5, calibrated=("length",))
-    Model(MAPS).evaluate(run)  # the true calibrated length passes
+    model_figures(Model(MAPS), run)  # the true calibrated length passes
     bad = replace(run, artefact={**run.artefact, "calibrated_length_mm": 10 * run.artefact["calibrated_length_mm"]})
     bad.save(tmp_path / "cal")
     bad = Run.load(tmp_path / "cal")
-    for call in (lambda: cmmpose.diagnose(bad, **QUICK), lambda: Model(MAPS).evaluate(bad)):
+    for call in (lambda: cmmpose.diagnose(bad, **QUICK), lambda: model_figures(Model(MAPS), bad)):
         with pytest.raises(InputError, match=r"cal: run.json's artefact.calibrated_length_mm .* decimal-point slip"):
             call()
 

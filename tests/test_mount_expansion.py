@@ -12,7 +12,7 @@ import pytest
 import cmmpose
 from cmmpose import effects
 from cmmpose.calibration import STANDARD_POSES
-from cmmpose.diagnosis import LIBRARY, Model
+from cmmpose.model import LIBRARY, Model
 from cmmpose.run import CHANNEL_ROLES, Run
 from cmmpose.sim.runs import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner

@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 from cmmpose import Model, artefacts
 from cmmpose.diagnosis import plan as plan_module
-from cmmpose.diagnosis.observables import ObservationLayout, observe
+from cmmpose.evaluation.observables import ObservationLayout, observe
 from cmmpose.diagnosis.plan import plan
 from cmmpose.errors import InputError
 from cmmpose.machine import Machine

@@ -121,7 +121,7 @@ def test_runs_load_back_what_was_saved(tmp_path_factory, case):
 @given(st.lists(floats(-30, 30), min_size=3, max_size=3), floats(-1e-3, 1e-3), st.sampled_from(["raise", "clamp"]),
        floats(0, 2))
 def test_models_load_back_what_was_saved(tmp_path_factory, sq, lat, out_of_range, tol):
-    from cmmpose.diagnosis import Model
+    from cmmpose.model import Model
 
     m = Model(MAPS, out_of_range=out_of_range, temperature_tolerance=tol).with_values("squareness", sq) \
         .with_values("latency", [lat])

@@ -308,7 +308,7 @@ def _writers(tmp_path):
     """(name, target, write) for every library writer: each writes ``target``."""
     from cmmpose.acquire.plan import Plan
     from cmmpose.calibration.library import AlignmentLibrary, AlignmentRecord
-    from cmmpose.diagnosis import Model
+    from cmmpose.model import Model
     from cmmpose.diagnosis.html import write_html_report
     from cmmpose.formats.linuxcnc import write_comp_files
     from cmmpose.evaluation.plots import plot_error_map

@@ -24,9 +24,10 @@ import numpy as np
 import pytest
 
 import cmmpose
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
 from cmmpose.diagnosis.diagnose import Step, select_effects
-from cmmpose.diagnosis.effects import LIBRARY, resolve
+from cmmpose.model.names import resolve
+from cmmpose.model.spec import LIBRARY
 from cmmpose.diagnosis.identify import INDISTINGUISHABLE_LR, Candidate
 from cmmpose.diagnosis.joint import diagnose_jointly
 from cmmpose.effects import parse
@@ -227,7 +228,7 @@ def test_a_step_beyond_the_maps_is_taken_backwards_and_an_unevaluable_candidate_
     # their 0.5 K tolerance; the backward step reads it at 28.7 C.
     run = simulate_ballbar_run(MAPS, 29.7, [E.GraniteGradient(kelvin=8.0, xy=0.0, yz=0.0, zx=0.0)], jitter=0.0015,
                                seed=5, scanner=Scanner(points_per_profile=256))[0]
-    from cmmpose.diagnosis.effects import UserEffect
+    from cmmpose.model.spec import UserEffect
     from cmmpose.diagnosis.identify import Problem
 
     def refuses(inputs, k):

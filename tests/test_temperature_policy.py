@@ -18,7 +18,7 @@ from click.testing import CliRunner
 
 import cmmpose
 from cmmpose.cli import main
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
 from cmmpose.errors import MapTemperatureWarning
 from cmmpose.run import Run
 from cmmpose.sim.runs import simulate_ballbar_run
@@ -202,7 +202,7 @@ def test_the_policy_is_frozen_hashable_picklable_and_checked():
 def test_every_function_has_the_same_default_policy():
     import inspect
 
-    from cmmpose.diagnosis.inputs import RunInputs
+    from cmmpose.model.inputs import RunInputs
     from cmmpose.filecompensation import compensate_file
     from cmmpose.scale import Compensator, compensate_array, compensate_dataframe, compensate_dataset
     from cmmpose.standards.acceptance import acceptance_test
@@ -218,7 +218,7 @@ def test_every_function_has_the_same_default_policy():
 
 
 def test_every_function_gives_the_old_keyword_paths_results():
-    from cmmpose.diagnosis.inputs import RunInputs
+    from cmmpose.model.inputs import RunInputs
     from cmmpose.standards.acceptance import acceptance_test
     from cmmpose.standards.interim import interim_check
 

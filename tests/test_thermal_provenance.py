@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 import cmmpose
 from cmmpose.cli import main
-from cmmpose.diagnosis import Model
+from cmmpose.model import Model
 from cmmpose.sim.runs import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
 from cmmpose.standards.acceptance import acceptance_test

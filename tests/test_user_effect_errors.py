@@ -18,8 +18,8 @@ from click.testing import CliRunner
 
 import cmmpose
 from cmmpose.cli import main
-from cmmpose.diagnosis import Model, UserEffect
-from cmmpose.diagnosis.effects import load_user_effect, load_user_effects
+from cmmpose.model import Model, UserEffect
+from cmmpose.model.spec import load_user_effect, load_user_effects
 from cmmpose.diagnosis.identify import Problem
 from cmmpose.errors import InputError, UserEffectError
 from cmmpose.sim.runs import simulate_ballbar_run
@@ -30,7 +30,7 @@ MAPS = cmmpose.ErrorMapSet.thesis()
 #: A user-effect file; BODY is the function's body (its first line is line 5 of the file).
 EFFECT_FILE = """\
 import numpy as np
-from cmmpose.diagnosis import UserEffect
+from cmmpose.model import UserEffect
 
 def correction(inputs, a_um):
 {body}
@@ -203,8 +203,8 @@ def test_compensate_model_with_a_raising_user_effect_says_it_in_one_line(tmp_pat
 def test_two_user_effects_of_one_name_are_refused_in_python_too(tmp_path):
     import cmmpose
     from cmmpose.diagnosis.diagnose import user_specs
-    from cmmpose.diagnosis.effects import UserEffect
-    from cmmpose.diagnosis.model import Model
+    from cmmpose.model.spec import UserEffect
+    from cmmpose.model.model import Model
 
     def ripple(ctx, a_um):
         return np.zeros((len(ctx.scales), 3))

@@ -14,7 +14,7 @@ from .compensation import compensate, uncompensated
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import (AcquisitionError, AliasedChoiceWarning, CalibrationError, ClampWarning, Error,
                      ExtrapolationWarning, GeometryError, IllConditionedFit, ImplausibleFit, InputError, InputTypeError,
-                     MapError,
+                     MapError, ModelDomainWarning,
                      MapTemperatureWarning, OutOfRangeError, OutputError, RunError, SchedulerError, UserEffectError)
 from .pose import MountOffset, Pose
 from .kernel_report import KernelReport
@@ -52,8 +52,9 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "standards": ("standards", None),
     "evaluate_iso230_2": ("standards", "evaluate_iso230_2"),
     "Diagnosis": ("diagnosis", "Diagnosis"),
-    "Model": ("diagnosis", "Model"),
-    "UserEffect": ("diagnosis", "UserEffect"),
+    "Model": ("model", "Model"),
+    "MachineModel": ("model", "MachineModel"),
+    "UserEffect": ("model", "UserEffect"),
     "diagnose": ("diagnosis", "diagnose"),
     "TemperaturePolicy": ("temperature", "TemperaturePolicy"),
 }, globals())
@@ -81,7 +82,8 @@ if TYPE_CHECKING:
     from .run import Run, load_truth
     from .standards import evaluate_iso230_2
     from .acquire import Recorder
-    from .diagnosis import Diagnosis, Model, UserEffect, diagnose
+    from .diagnosis import Diagnosis, diagnose
+    from .model import MachineModel, Model, UserEffect
     from .temperature import TemperaturePolicy
 
 del TYPE_CHECKING, lazy_attributes, _moved  # not part of the package's face (dir(cmmpose))
@@ -100,6 +102,7 @@ __all__ = [
     "TemperaturePolicy",
     "Diagnosis",
     "Model",
+    "MachineModel",
     "UserEffect",
     "Evaluation",
     "BallbarResult",

@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-import sys
-import warnings
-
 import numpy as np
 
 from . import _core
 from ._arrays import as_rows, as_triple, as_vector
 from ._renamed import renamed
-from .errormap import ErrorMap, ErrorMapSet, scalar_temperature
-from .errors import InputError, InputTypeError, MapTemperatureWarning, warn_clamped
-from .policy import TEMPERATURE_TOLERANCE, check_policy
-from .pose import digitizer
+from .errormap import scalar_temperature
+from .errors import InputTypeError, warn_clamped
 from .kernel_report import KernelReport
+from .model.protocol import MachineModel
+from .policy import check_policy
+from .pose import MountOffset, Pose, digitizer
 from .temperature import TemperaturePolicy, as_policy
 
 
@@ -22,7 +20,7 @@ from .temperature import TemperaturePolicy, as_policy
 def compensate(
     uv,
     scales,
-    maps: ErrorMap | ErrorMapSet,
+    maps: MachineModel,
     pose,
     offset,
     temperature=None,
@@ -49,7 +47,7 @@ def compensate(
         The machine's component errors; a set needs ``temperature``. Or a
         model a diagnosis found (``cmmpose.Model.load('m.json')``): its maps
         and effects, with the inputs its effects read from ``columns``
-        (``cmmpose.diagnosis.apply``; one missing is an ``InputError``
+        (``cmmpose.model.point_inputs``; one missing is an ``InputError``
         naming it); ``out=`` and ``nan_policy='propagate'`` are not taken then.
     pose : Pose or sequence of 3 float
         Euler 3-1-3 angles alpha, beta, gamma in degrees.
@@ -107,56 +105,19 @@ def compensate(
     out_of_range, temperature_tolerance = policy.out_of_range, policy.temperature_tolerance
     uv = as_rows("uv", uv, 2)
     scales = as_rows("scales", scales, 3)
-    if is_model(maps):
-        return _compensate_model(uv, scales, maps, pose, offset, temperature, out_of_range, nan_policy,
-                                 temperature_tolerance, return_report, out, columns)
-    if not isinstance(maps, (ErrorMap, ErrorMapSet)):
-        raise InputTypeError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(maps).__name__}")
+    if not isinstance(maps, MachineModel):
+        raise InputTypeError(f"maps: expected an ErrorMap, ErrorMapSet or Model, got {type(maps).__name__}")
     if temperature is not None and np.ndim(temperature) > 0:
         temperature = as_vector("temperature", temperature, scales.shape[0])
     elif temperature is not None:
         temperature = scalar_temperature(temperature, finite=False)  # NaN: left to nan_policy
     check_policy(out_of_range, temperature_tolerance)
-    xyz, report = _core.compensate(
-        uv,
-        scales,
-        maps._core,
-        digitizer(pose, offset),
-        temperature,
-        out_of_range,
-        nan_policy,
-        float(temperature_tolerance),
-        out,
-    )
+    pose = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
+    offset = tuple(offset) if isinstance(offset, MountOffset) else as_triple("offset", offset)
+    xyz, report = maps.compensate_points(uv, scales, pose, offset, temperature, out_of_range=out_of_range,
+                                         temperature_tolerance=float(temperature_tolerance), nan_policy=nan_policy,
+                                         out=out, columns=dict(columns or {}))
     return _finish(xyz, report, return_report)
-
-
-def is_model(obj) -> bool:
-    """Whether ``obj`` is a diagnosis model (``cmmpose.Model``), without importing the diagnosis."""
-    mod = sys.modules.get("cmmpose.diagnosis.model")
-    return mod is not None and isinstance(obj, mod.Model)
-
-
-def _compensate_model(uv, scales, model, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance,
-                      return_report, out, columns):
-    """:func:`compensate` with a diagnosis model (its maps and effects)."""
-    from .diagnosis.apply import compensate_points, point_inputs, policy_model
-    from .pose import MountOffset, Pose
-
-    if out is not None or nan_policy != "raise":
-        raise InputError("compensate with a model: out= and nan_policy='propagate' are for maps only")
-    pose_t = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
-    offset_t = tuple(offset) if isinstance(offset, MountOffset) else as_triple("offset", offset)
-    check_policy(out_of_range, temperature_tolerance)
-    if temperature is not None and np.ndim(temperature) > 0:
-        temps, temperature = as_vector("temperature", temperature, scales.shape[0]), None
-    else:
-        temps = None
-        temperature = None if temperature is None else scalar_temperature(temperature, finite=False)
-    model = policy_model(model, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
-    inputs = point_inputs(model, uv, scales, pose_t, offset_t, temperature, temps, dict(columns or {}), "points")
-    xyz, raw = compensate_points(model, inputs)
-    return _finish(xyz, raw, return_report)
 
 
 def _finish(xyz: np.ndarray, raw: dict, return_report: bool):
@@ -197,24 +158,3 @@ def uncompensated(uv, scales, pose, offset, *, nan_policy: str = "raise", out: n
     xyz, _ = _core.uncompensated(as_rows("uv", uv, 2), as_rows("scales", scales, 3), digitizer(pose, offset), nan_policy,
                                  out)
     return xyz
-
-
-def warn_single_map(error_map: ErrorMap, temperature, tolerance: float = TEMPERATURE_TOLERANCE) -> str | None:
-    """One map holds at one temperature: say so (a ``MapTemperatureWarning``,
-    whose text is also returned) when the given temperatures (C) are not its
-    own within ``tolerance`` (K), instead of ignoring them silently."""
-    t = np.asarray(temperature, dtype=float)
-    if t.size == 0 or not np.all(np.isfinite(t)):
-        return None
-    lo, hi = float(t.min()), float(t.max())
-    span = f"{lo:.2f} C" if hi - lo < 0.005 else f"{lo:.2f}..{hi:.2f} C"
-    own = error_map.temperature
-    if own is None:
-        msg = f"a single map of unstated temperature was used for points at {span}: its errors are taken as they are"
-    elif max(abs(lo - own), abs(hi - own)) > tolerance:
-        msg = (f"a single map at {own:g} C was used for points at {span}: its errors are taken at {own:g} C "
-               f"(give maps at several temperatures to follow the machine)")
-    else:
-        return None
-    warnings.warn(msg, MapTemperatureWarning, stacklevel=3)
-    return msg

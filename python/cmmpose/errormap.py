@@ -15,12 +15,15 @@ from numbers import Real
 
 import numpy as np
 
+import warnings
+
 from . import _core
 from .formats import mapformats
 from ._arrays import as_rows, as_triple
 from .policy import TEMPERATURE_TOLERANCE, check_policy
-from .errors import InputError, InputTypeError, warn_clamped
+from .errors import InputError, InputTypeError, MapTemperatureWarning, warn_clamped
 from .kernel_report import KernelReport
+from .pose import digitizer
 
 #: Carriages in kinematic order.
 CARRIAGES = ("X", "Y", "Z")
@@ -50,7 +53,92 @@ def data_path(*parts: str):
     return resources.files("cmmpose").joinpath("data", *parts)
 
 
-class ErrorMap:
+class AppliedMaps:
+    """Maps alone as a machine model (:class:`cmmpose.model.MachineModel`):
+    what compensation and evaluation call on an :class:`ErrorMap`, an
+    :class:`ErrorMapSet` or a found :class:`cmmpose.Model` alike. Maps hold
+    no effects, no parameter uncertainties, no temperature policy of their
+    own and no training domain."""
+
+    __slots__ = ()
+    #: Effects beyond the maps (a found model's), with their values: none.
+    effects: tuple = ()
+    #: Alternatives a diagnosis could not tell from a held effect: none.
+    alternatives: tuple = ()
+    #: Where the model was fitted (:class:`cmmpose.model.Domain`): maps are measured, not fitted.
+    domain = None
+    #: Whether the model reads a run's own inputs (its thermocouple log) itself: maps are given a temperature.
+    reads_run = False
+    #: Whether the model reads each sweep's velocity (latency): then a point file is compensated sweep by sweep.
+    reads_sweeps = False
+
+    @property
+    def error_maps(self):
+        """The maps under the model: these maps."""
+        return self
+
+    @property
+    def uncertainty(self) -> dict:
+        """Standard uncertainty of each effect's parameters: none."""
+        return {}
+
+    @property
+    def expansion_ppm_per_kelvin(self) -> float:
+        """The artefact expansion the model holds, ppm/K: none."""
+        return 0.0
+
+    def with_policy(self, **policy):
+        """Maps hold no temperature policy: the caller's is passed to each call."""
+        return self
+
+    def without_effects(self):
+        """The plain maps: these maps."""
+        return self
+
+    def compensate_points(self, uv, scales, pose, offset, temperature=None, *, out_of_range: str = "raise",
+                          temperature_tolerance: float = TEMPERATURE_TOLERANCE, nan_policy: str = "raise", out=None,
+                          columns=None, where: str = "points", once: set | None = None):
+        """Compensated X, Y, Z (mm) of points taken at one pose, and the
+        kernel's report (a dict); arguments as :func:`cmmpose.compensate`
+        takes them once checked (float64 rows; ``temperature`` C, one value,
+        one per point, or None for a single map). ``columns``, ``where`` and
+        ``once`` are a model's (its effects' inputs, the data's name, the
+        warnings already given): maps read none of them."""
+        return _core.compensate(uv, scales, self._core, digitizer(pose, offset), temperature, out_of_range, nan_policy,
+                                float(temperature_tolerance), out)
+
+    def compensate_run(self, run, temperature=None, *, out_of_range: str = "raise",
+                       temperature_tolerance: float = TEMPERATURE_TOLERANCE, reports: list | None = None,
+                       compare=None, once: set | None = None):
+        """All points of ``run`` in machine coordinates (N, 3 mm), pose by
+        pose, at ``temperature`` (C: one value, one per point, or None for a
+        single map); each pose's kernel report (:class:`KernelReport`) is
+        appended to ``reports``, and what it says is warned
+        (``ClampWarning``). ``compare`` and ``once`` are a model's."""
+        ids = run.scans["scan_id"]
+        order = np.argsort(ids)
+        sid = run.points["scan_id"]
+        # Run validation guarantees every point's scan exists.
+        pose_of_point = run.scans["pose_id"][order][np.searchsorted(ids[order], sid)] if len(sid) else sid
+        out = np.empty((run.n_points, 3))
+        for pose_id in np.unique(pose_of_point):
+            rows = np.flatnonzero(pose_of_point == pose_id)
+            pose, offset = run.pose(int(pose_id))
+            t = temperature if temperature is None or np.ndim(temperature) == 0 else \
+                np.ascontiguousarray(temperature[rows], dtype=float)
+            out[rows], raw = self.compensate_points(np.ascontiguousarray(run.uv[rows]),
+                                                    np.ascontiguousarray(run.scales[rows]), pose, offset, t,
+                                                    out_of_range=out_of_range,
+                                                    temperature_tolerance=temperature_tolerance)
+            report = KernelReport(**raw)
+            warn_clamped(report)
+            if reports is not None:
+                reports.append(report)
+        return out
+
+
+
+class ErrorMap(AppliedMaps):
     """The component errors of a CMM at one temperature.
 
     Parameters
@@ -195,6 +283,10 @@ class ErrorMap:
         warn_clamped(KernelReport(**report))
         return out
 
+    def provenance(self) -> dict:
+        """What compensated, for an evaluation's JSON."""
+        return {"kind": "map", "temperature_C": self.temperature}
+
     def __eq__(self, other: object) -> bool:
         return isinstance(other, ErrorMap) and self._core == other._core
 
@@ -209,7 +301,7 @@ class ErrorMap:
         return f"ErrorMap({t}; {rng} mm; squareness {sq} a-s{kin}{src})"
 
 
-class ErrorMapSet:
+class ErrorMapSet(AppliedMaps):
     """Error maps at several temperatures, blended linearly in temperature for
     all 21 components (thesis section 6.4).
 
@@ -287,6 +379,10 @@ class ErrorMapSet:
     def __len__(self) -> int:
         return len(self.temperatures)
 
+    def provenance(self) -> dict:
+        """What compensated, for an evaluation's JSON."""
+        return {"kind": "set", "temperatures_C": [float(x) for x in self.temperatures]}
+
     def __eq__(self, other: object) -> bool:
         # Equal maps at equal temperatures, the same machine configuration.
         return (isinstance(other, ErrorMapSet) and self.kinematics == other.kinematics
@@ -298,3 +394,24 @@ class ErrorMapSet:
     def __repr__(self) -> str:
         kin = "" if self.kinematics == "thesis" else f", kinematics={self.kinematics!r}"
         return f"ErrorMapSet(temperatures={[float(t) for t in self.temperatures]}{kin})"
+
+
+def warn_single_map(error_map: ErrorMap, temperature, tolerance: float = TEMPERATURE_TOLERANCE) -> str | None:
+    """One map holds at one temperature: say so (a ``MapTemperatureWarning``,
+    whose text is also returned) when the given temperatures (C) are not its
+    own within ``tolerance`` (K), instead of ignoring them silently."""
+    t = np.asarray(temperature, dtype=float)
+    if t.size == 0 or not np.all(np.isfinite(t)):
+        return None
+    lo, hi = float(t.min()), float(t.max())
+    span = f"{lo:.2f} C" if hi - lo < 0.005 else f"{lo:.2f}..{hi:.2f} C"
+    own = error_map.temperature
+    if own is None:
+        msg = f"a single map of unstated temperature was used for points at {span}: its errors are taken as they are"
+    elif max(abs(lo - own), abs(hi - own)) > tolerance:
+        msg = (f"a single map at {own:g} C was used for points at {span}: its errors are taken at {own:g} C "
+               f"(give maps at several temperatures to follow the machine)")
+    else:
+        return None
+    warnings.warn(msg, MapTemperatureWarning, stacklevel=3)
+    return msg

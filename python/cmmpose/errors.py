@@ -224,10 +224,16 @@ class MapTemperatureWarning(UserWarning):
     """A single map was used at temperatures other than its own."""
 
 
+class ModelDomainWarning(UserWarning):
+    """A found model applied outside the domain it was fitted on, or where
+    its correction is not determined by that data (:mod:`cmmpose.model.domain`):
+    the message names what is outside and by how much."""
+
+
 class AliasedChoiceWarning(UserWarning):
     """A diagnosis model applied where an aliased choice matters: the effect
     its diagnosis chose and an alternative the data could not rule out
-    predict these data differently (:mod:`cmmpose.diagnosis.aliases`)."""
+    predict these data differently (:mod:`cmmpose.model.alternatives`)."""
 
 
 def warn_clamped(report) -> None:

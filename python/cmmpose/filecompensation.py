@@ -21,13 +21,17 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .compensation import compensate, is_model, warn_single_map
+import numpy as np
+
+from ._arrays import as_triple
 from ._renamed import renamed
-from .errormap import ErrorMap, ErrorMapSet
-from .errors import Error, InputError
+from .errormap import ErrorMap, ErrorMapSet, warn_single_map
+from .errors import Error, InputError, InputTypeError, warn_clamped
 from .formats.pointfiles import PointWriter, RereadPoints, check_writable, point_chunks
 from .atomicfile import check_not_input
 from .kernel_report import KernelReport
+from .model import MachineModel
+from .pose import MountOffset, Pose
 from .temperature import TemperaturePolicy, as_policy
 
 __all__ = ["compensate_file", "FileCompensation", "QUEUE_CHUNKS"]
@@ -100,7 +104,7 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     maps : ErrorMap, ErrorMapSet or Model
         The machine's component errors; a set needs ``temperature`` or a T column.
         Or a model a diagnosis found (``cmmpose.Model.load``): its effects
-        read their inputs from the file's columns (``cmmpose.diagnosis.apply``;
+        read their inputs from the file's columns (``cmmpose.model.point_inputs``;
         a missing one is an ``InputError`` naming the effect and the column);
         a model with latency is compensated sweep by sweep (``scan_id``).
     pose, offset
@@ -137,14 +141,13 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     check_not_input(points_out, [points_in], "OUT")
     size, chunks = point_chunks(points_in, chunk, extras=True)
     state = {"temperature": None, "warned": False, "kernel": 0.0, "rows": 0}
-    model = maps if is_model(maps) else None
-    if model is not None:
-        from .diagnosis.apply import needs_scans, whole_scans
-
-        if nan_policy != "raise":
-            raise InputError("compensate with a model: nan_policy='propagate' is for maps only")
-        if needs_scans(model):
-            chunks = whole_scans(chunks)
+    if not isinstance(maps, MachineModel):
+        raise InputTypeError(f"maps: expected an ErrorMap, ErrorMapSet or Model, got {type(maps).__name__}")
+    if maps.reads_sweeps:  # a model with latency: each sweep whole in one chunk
+        chunks = whole_scans(chunks)
+    pose = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
+    offset = tuple(offset) if isinstance(offset, MountOffset) else as_triple("offset", offset)
+    once: set = set()  # a model's checks of this file: each warning once, not once per chunk
 
     def kernel(uv, scales, temps, extras=None):
         """One chunk through the kernel: its coordinates and report; an
@@ -157,34 +160,27 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
             raise _in_file(exc, points_in, first) from None
 
     def chunk_kernel(uv, scales, temps, extras):
-        if model is not None:
-            from .diagnosis.apply import compensate_points, point_inputs, policy_model
-
-            m = policy_model(model, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
-            inputs = point_inputs(m, uv, scales, pose, offset, temperature, temps, extras, points_in)
-            state["temperature"] = (f"{temperature:g} C" if temperature is not None else
-                                    "per point (T column)" if temps is not None else None)
-            t0 = time.perf_counter()
-            xyz, raw = compensate_points(m, inputs, points_in)
-            state["kernel"] += time.perf_counter() - t0
-            return xyz, KernelReport(**raw)
-        if isinstance(maps, ErrorMapSet):
-            if temperature is None and temps is None:
-                raise InputError(f"{points_in}: a map set needs a temperature (--temperature, temperature=) "
-                                 f"or a T column in the input")
-            t = temperature if temperature is not None else temps
-            state["temperature"] = "per point (T column)" if temperature is None else f"{temperature:g} C"
-        else:
-            t = None
-            given = temperature if temperature is not None else temps
-            if given is not None and not state["warned"]:
-                warn_single_map(maps, given, temperature_tolerance)
+        t = temperature if temperature is not None else temps
+        if isinstance(maps, ErrorMapSet) and t is None:
+            raise InputError(f"{points_in}: a map set needs a temperature (--temperature, temperature=) "
+                             f"or a T column in the input")
+        if isinstance(maps, ErrorMap):  # one map holds at its own temperature
+            if t is not None and not state["warned"]:
+                warn_single_map(maps, t, temperature_tolerance)
                 state["warned"] = True
+            t = None
+        elif t is not None:
+            state["temperature"] = "per point (T column)" if temperature is None else f"{temperature:g} C"
+            if temperature is None:
+                t = np.ascontiguousarray(t, dtype=float)
         t0 = time.perf_counter()
-        out = compensate(uv, scales, maps, pose, offset, t, out_of_range=out_of_range, nan_policy=nan_policy,
-                         temperature_tolerance=temperature_tolerance, return_report=True)
+        xyz, raw = maps.compensate_points(uv, scales, pose, offset, t, out_of_range=out_of_range,
+                                          temperature_tolerance=temperature_tolerance, nan_policy=nan_policy,
+                                          columns=extras, where=str(points_in), once=once)
         state["kernel"] += time.perf_counter() - t0
-        return out
+        report = KernelReport(**raw)
+        warn_clamped(report)
+        return xyz, report
 
     reports: list[KernelReport] = []
     writer = PointWriter(points_out, inputs=[points_in])
@@ -204,6 +200,35 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     report = KernelReport.total(reports)
     _log.info("compensated %d points of %s into %s", report.points, points_in, points_out)
     return FileCompensation(points_in, points_out, report.points, report, state["kernel"], state["temperature"])
+
+
+def whole_scans(chunks):
+    """Re-chunk a point file's chunks ``(uv, scales, temps, extras, done)``
+    so that no sweep is split between two chunks (the rows of the last
+    ``scan_id`` of a chunk wait for the next one); memory grows by one
+    sweep at most."""
+    held = None
+    for uv, scales, temps, extras, done in chunks:
+        if held is not None:
+            huv, hsc, hte, hex_ = held
+            uv, scales = np.concatenate([huv, uv]), np.concatenate([hsc, scales])
+            temps = None if temps is None else np.concatenate([hte, temps])
+            extras = {k: np.concatenate([hex_[k], v]) for k, v in extras.items()}
+            held = None
+        sid = extras.get("scan_id")
+        if sid is not None and len(sid):
+            last = sid[-1]
+            start = len(sid) - int(np.argmax(sid[::-1] != last)) if np.any(sid != last) else 0
+            if start > 0:
+                held = (uv[start:], scales[start:], None if temps is None else temps[start:],
+                        {k: v[start:] for k, v in extras.items()})
+                uv, scales = uv[:start], scales[:start]
+                temps = None if temps is None else temps[:start]
+                extras = {k: v[:start] for k, v in extras.items()}
+        if len(uv):
+            yield uv, scales, temps, extras, done
+    if held is not None:
+        yield (*held, done)
 
 
 #: The kernel's argument names and the columns of a point file they are read from.

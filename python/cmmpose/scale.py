@@ -48,9 +48,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .compensation import compensate, warn_single_map
+from .compensation import compensate
 from .atomicfile import AtomicFile, ensure_folder
-from .errormap import ErrorMap, ErrorMapSet
+from .errormap import ErrorMap, ErrorMapSet, warn_single_map
 from .errors import Error, InputError, InputTypeError, SchedulerError, warn_clamped
 from .policy import SCHEDULER_TIMEOUT_HINT, TEMPERATURE_TOLERANCE
 from .temperature import TemperaturePolicy, as_policy
@@ -799,7 +799,8 @@ def _maps_named_by(run):
 
 
 def _evaluate_run(run, maps, **kwargs):
-    from .evaluation.artefact import evaluate_artefact, is_artefact_run
+    from .evaluation.artefact import evaluate_artefact
+    from .evaluation.artefact_balls import is_artefact_run
     from .evaluation.ballbar import evaluate
 
     if isinstance(maps, str) and maps == "run":
@@ -847,13 +848,14 @@ def evaluate_runs(run_dirs, maps="run", *, scheduler="threads", progress=None,
 def _diagnose_run(run, model, temperature=None, **kwargs):
     import dataclasses
 
-    from .diagnosis import Model, diagnose
+    from .diagnosis import diagnose
+    from .model import Model
 
     if model is None or (isinstance(model, str) and model == "run"):
         model = Model(_maps_named_by(run), temperature=temperature)
     elif temperature is not None:
         model = dataclasses.replace(Model(model) if not isinstance(model, Model) else model,
-                                    temperature=float(temperature), _inputs_cache={})
+                                    temperature=float(temperature))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return diagnose(run, model, **kwargs)

@@ -15,7 +15,7 @@ a. ``demo``: the run ``cmmpose demo`` simulates (thesis maps, 22.5 C, seed 0,
 b. ``scan``: ``data/examples/sphere_scan.csv`` compensated as the CI line
    ``cmmpose compensate ... --maps thesis --pose 90,90,0 --offset 1.001,264.505,129.575``
    (per-point temperatures from its T column): all rows.
-c. ``model``: ``cmmpose.diagnosis.Model`` on a small simulated run that has
+c. ``model``: ``cmmpose.Model`` on a small simulated run that has
    every input the library effects need (axis-temperature offsets, a changing
    granite gradient, bidirectional sweeps, reference sphere at three poses):
    every 50th compensated row for the thesis model and for each library
@@ -39,7 +39,8 @@ import numpy as np
 import cmmpose
 from cmmpose import sim
 from cmmpose.calibration import STANDARD_POSES
-from cmmpose.diagnosis import LIBRARY, Model
+from cmmpose.model import LIBRARY, Model
+from cmmpose.evaluation.observables import model_figures
 from cmmpose.formats.pointfiles import read_points
 from cmmpose.sim import effects as E
 from cmmpose.sim.scanner import Scanner
@@ -134,7 +135,7 @@ def case_model_effects() -> dict[str, np.ndarray]:
         models[spec.name] = Model(maps).with_values(spec.name, spec.prior)
     for name, m in models.items():
         out[f"model__{name}__xyz"] = np.asarray(m.compensate(run)[::50], dtype=float)
-        out[f"model__{name}__lengths_20c"] = np.asarray(m.evaluate(run).lengths_20c, dtype=float)
+        out[f"model__{name}__lengths_20c"] = np.asarray(model_figures(m, run).lengths_20c, dtype=float)
     return out
 
 

@@ -5,7 +5,9 @@ calls :func:`simulate_artefact` and :func:`evaluate_artefact_run`."""
 
 from __future__ import annotations
 
+import json
 import time
+import warnings
 from pathlib import Path
 
 import click
@@ -16,8 +18,10 @@ from rich.table import Table
 
 from .. import artefacts
 from ..atomicfile import ensure_folder, write_text
-from ..errors import Error, InputError
-from .common import json_option, table_data, console, show, machine_option
+from .._json import dumps as strict_json
+from ..errors import Error, InputError, ModelDomainWarning
+from .common import (json_option, table_data, console, show, machine_option, model_doubts, print_model_check,
+                     say_caught, strict_model_exit)
 from .common import fail as _fail
 
 __all__ = ["artefact_group", "simulate_artefact", "evaluate_artefact_run", "diagnose_plate_fits_cli"]
@@ -178,25 +182,40 @@ def simulate_artefact(artefact_spec, placements, machine, maps, temperature, eff
     show(table, as_json)
 
 
-def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json, policy) -> None:
-    """``cmmpose evaluate RUN_DIR`` on an artefact run: the table or JSON, and the report."""
+def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json, policy,
+                          strict_model: bool | None = None) -> None:
+    """``cmmpose evaluate RUN_DIR`` on an artefact run: the table or JSON, and the report; with a --model
+    (``strict_model`` not None) its check against the plain maps (cmmpose.evaluation.model_check), and with
+    --strict-model exit status 1 where the model was doubted."""
     from ..evaluation.artefact import evaluate_artefact
     from ..evaluation.ballbar_uncertainty import DEFAULT_U_TEMPERATURE_K
+    from ..evaluation.model_check import check_model
 
+    check = None
     try:
-        ev = evaluate_artefact(run, model, temperature, reject=reject,
-                               u_temperature=DEFAULT_U_TEMPERATURE_K if u_temperature is None else u_temperature,
-                               **policy)
+        options = dict(temperature=temperature, reject=reject,
+                       u_temperature=DEFAULT_U_TEMPERATURE_K if u_temperature is None else u_temperature, **policy)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ModelDomainWarning)
+            ev = evaluate_artefact(run, model, **options)
+            if strict_model is not None:
+                check = check_model(run, model, evaluation=ev, **options)
+        say_caught(caught)
         poses = dict(zip(run.scans["scan_id"].tolist(), run.scans["pose_id"].tolist()))
         files = write_artefact_report(ev, Path(report_dir), poses) if report_dir else []
     except Error as exc:
         raise _fail(exc) from None
     if as_json:
-        click.echo(ev.to_json(indent=2))
+        doc = json.loads(ev.to_json())
+        click.echo(strict_json({**doc, **({"model_check": check.to_dict()} if check is not None else {})}, indent=2))
     else:
         Console(width=max(Console().width, 140)).print(ev)
+        if check is not None:
+            print_model_check(check)
     for f in files:
         console.print(f"wrote {escape(str(f))}")
+    if check is not None:
+        strict_model_exit(model_doubts(caught) + ([check.verdict] if check.worse else []), strict_model)
 
 
 def diagnose_plate_fits_cli(fits_file, artefact_spec, state, temperature, nominal_radius, reference_length,

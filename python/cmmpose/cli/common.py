@@ -9,12 +9,13 @@ from pathlib import Path
 
 import click
 from rich.console import Console
+from rich.markup import escape
 
 from .._arrays import as_triple
 from .._json import dumps as strict_json
 from ..atomicfile import check_not_input
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import Error
+from ..errors import Error, ModelDomainWarning
 from ..policy import cli_wording
 from ..pose import check_pose_angles
 from ..temperature import temperature_options
@@ -325,8 +326,6 @@ class console_log:  # noqa: N801 - used as a function: with console_log(): ...
     command runs (a warning once, :func:`warn`)."""
 
     def __enter__(self):
-        from rich.markup import escape
-
         class Handler(logging.Handler):
             def emit(self, record):
                 if record.levelno >= logging.WARNING:
@@ -415,6 +414,11 @@ def skip_incomplete_option(f):
 def model_options(help_text: str):
     """--model and --user-effect: a model a diagnosis saved, used where maps would be (compensate, evaluate)."""
     def wrap(f):
+        f = click.option("--strict-model", is_flag=True,
+                         help="With --model: exit with status 1 when the model is applied outside the domain it was "
+                              "fitted on, where its correction is not determined, or (evaluate) where it makes a run "
+                              "worse than its plain maps beyond the uncertainties: a production line can gate on "
+                              "it.")(f)
         f = click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
                          help="With --model: a Python file defining a user effect the model holds (repeatable).")(f)
         return click.option("--model", "model_file", type=click.Path(dir_okay=False), default=None,
@@ -423,10 +427,12 @@ def model_options(help_text: str):
     return wrap
 
 
-def check_model_or_maps(model_file, user_files, maps) -> None:
-    """--model replaces --maps; --user-effect only makes sense with --model."""
+def check_model_or_maps(model_file, user_files, maps, strict_model: bool = False) -> None:
+    """--model replaces --maps; --user-effect and --strict-model only make sense with --model."""
     if model_file is None and user_files:
         raise click.UsageError("--user-effect is for the effects of a --model")
+    if model_file is None and strict_model:
+        raise click.UsageError("--strict-model checks a --model: give one")
     if model_file is not None and maps:
         raise click.UsageError("give --maps or --model (whose maps it holds), not both")
 
@@ -438,7 +444,7 @@ class aliased_choices_once:  # noqa: N801 - used as a function: with aliased_cho
     def __enter__(self):
         import logging
 
-        self.logger = logging.getLogger("cmmpose.diagnosis.aliases")
+        self.logger = logging.getLogger("cmmpose.model.alternatives")
         self.propagate, self.handler = self.logger.propagate, logging.NullHandler()
         self.logger.addHandler(self.handler)
         self.logger.propagate = False
@@ -451,8 +457,27 @@ class aliased_choices_once:  # noqa: N801 - used as a function: with aliased_cho
 
 
 def load_model(model_file, user_files=()):
-    """The diagnosis model saved in ``model_file`` (``--model``), with the user effects it names."""
-    from ..diagnosis import Model
-    from ..diagnosis.effects import load_user_effects
+    """The model saved in ``model_file`` (``--model``), with the user effects it names."""
+    from ..model import Model, load_user_effects
 
     return Model.load(model_file, load_user_effects(user_files))
+
+
+def model_doubts(caught) -> list[str]:
+    """What a --model's application said that --strict-model gates on: its ``ModelDomainWarning`` texts."""
+    return [str(w.message) for w in caught if issubclass(w.category, ModelDomainWarning)]
+
+
+def strict_model_exit(doubts, strict_model: bool) -> None:
+    """With --strict-model, exit with status 1 when the model's application was doubted (``doubts``: the
+    sentences, already printed); the results are printed and written all the same."""
+    if strict_model and doubts:
+        console.print(f"[bold red]--strict-model:[/] the model's application was doubted {len(doubts)} time(s) "
+                      f"(above): exit status 1")
+        raise click.exceptions.Exit(1)
+
+
+def print_model_check(check) -> None:
+    """The model as saved against its plain maps on a run (cmmpose.evaluation.model_check), in words."""
+    colour = "red" if check.worse else "green" if check.change_um < -check.change_u_um else "yellow"
+    console.print(f"[bold {colour}]model check:[/] {escape(check.verdict)}")

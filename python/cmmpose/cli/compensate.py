@@ -12,13 +12,13 @@ from rich.table import Table
 
 from ..atomicfile import check_not_input
 from ..errormap import ErrorMapSet
-from ..errors import AliasedChoiceWarning, Error, MapTemperatureWarning
+from ..errors import AliasedChoiceWarning, Error, MapTemperatureWarning, ModelDomainWarning
 from ..filecompensation import compensate_file
 from ..formats.pointfiles import check_writable
 from ..formats.pointformats._common import check_file
 from .common import (aliased_choices_once, check_model_or_maps, console, fail, json_option, kernel_report_rows,
-                     load_maps, load_model, machine_option, machine_row, map_specs, model_options, offset_mm,
-                     policy_options, pose_angles, say_caught, scheduler_options, show)
+                     load_maps, load_model, machine_option, machine_row, map_specs, model_doubts, model_options,
+                     offset_mm, policy_options, pose_angles, say_caught, scheduler_options, show, strict_model_exit)
 
 
 @click.command("compensate")
@@ -46,7 +46,7 @@ from .common import (aliased_choices_once, check_model_or_maps, console, fail, j
                "thermocouple role; docs/diagnosis.md).")
 def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
                    out_of_range, temperature_tolerance, nan_policy, scheduler, scheduler_timeout, model_file,
-                   user_files, as_json) -> None:
+                   user_files, as_json, strict_model=False) -> None:
     """Compensate scanner points IN (CSV, NPY, Parquet, PLY or XYZ: u, v, D, E, F[, T])
     into machine coordinates OUT (by suffix: CSV, NPY, Parquet, PLY, XYZ, PTS or E57;
     X, Y, Z in mm, E57 in metres). Any other column of IN (scan_id, intensity, ...)
@@ -67,7 +67,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         raise fail(exc) from None
     pose_t = pose_angles(pose, "--pose") if pose is not None else machine.pose.as_tuple()
     offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
-    check_model_or_maps(model_file, user_files, maps)
+    check_model_or_maps(model_file, user_files, maps, strict_model)
     if Path(points_in).is_dir():
         if model_file is not None:
             raise click.UsageError(f"{points_in} is a folder: --model compensates a point file")
@@ -89,6 +89,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                 warnings.catch_warnings(record=True) as caught, aliased_choices_once():
             warnings.simplefilter("always", MapTemperatureWarning)
             warnings.simplefilter("always", AliasedChoiceWarning)
+            warnings.simplefilter("always", ModelDomainWarning)
             task = bar.add_task("", total=size)
             done = compensate_file(points_in, points_out, error_map, pose_t, offset_t, temperature,
                                    out_of_range=out_of_range, nan_policy=nan_policy,
@@ -96,6 +97,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                                    progress=lambda at, _: bar.update(task, completed=at))
             bar.update(task, completed=size)
         say_caught(caught)
+        doubts = model_doubts(caught)
     except Error as exc:
         raise fail(exc) from None
     report, elapsed, t_all = done.report, done.kernel_seconds, done.temperature
@@ -112,7 +114,8 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
     show(table, as_json, {"input": str(points_in), "output": str(points_out), "machine": machine.name,
                           "points": n, "maps": repr(error_map), "temperature": t_all, "pose_deg": list(pose_t),
                           "offset_mm": list(offset_t), "kernel_report": dataclasses.asdict(report),
-                          "kernel_seconds": elapsed})
+                          "kernel_seconds": elapsed, **({"model_doubts": doubts} if model_file else {})})
+    strict_model_exit(doubts, strict_model)
 
 
 def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,

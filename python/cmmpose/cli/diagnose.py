@@ -37,7 +37,7 @@ from .common import (check_outputs, check_report_file, console, fail, load_maps,
                    "older spelling (that file).")
 @click.option("--save-model", "model_out", type=click.Path(dir_okay=False), default=None, help="Write the final model (JSON) here.")
 @click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
-              help="A Python file defining EFFECT (a cmmpose.diagnosis.UserEffect), added to the candidates "
+              help="A Python file defining EFFECT (a cmmpose.UserEffect), added to the candidates "
                    "(repeatable; docs/user-effects.md).")
 @click.option("--user-effect-skeleton", "skeleton_out", type=click.Path(dir_okay=False), default=None,
               help="Write a user-effect draft (Python) built on the first unexplained finding here.")
@@ -95,7 +95,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
         check_report_file(report_file)
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
-        from ..diagnosis.effects import load_user_effects  # here: the diagnosis's imports, only for this command
+        from ..model import load_user_effects
 
         user = load_user_effects(user_files)
         model = _starting_model(run, machine, maps, model_file, user, temperature=temperature,
@@ -134,7 +134,7 @@ def _write_corrected_maps(model, path) -> list:
     """The model's maps with its map corrections in them (cmmpose.diagnosis.mapfamily.corrected_maps):
     one CSV at ``path``, or for a set one per temperature beside it (``NAME_<T>C.csv``)."""
     from ..errormap import ErrorMapSet
-    from ..diagnosis.mapfamily import corrected_maps
+    from ..model.mapshape import corrected_maps
 
     maps = corrected_maps(model)
     path = Path(path)
@@ -163,7 +163,7 @@ def _print_diagnosis(diag, files, as_json: bool) -> None:
 def _starting_model(run, machine, maps, model_file, user, **policy):
     """The model a diagnosis starts from: a saved one (with its user effects),
     or the maps (--maps, the machine's, or the run's) with the temperature policy."""
-    from ..diagnosis import Model
+    from ..model import Model
 
     if model_file:
         return Model.load(model_file, user_effects=user)
@@ -190,7 +190,7 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
         check_report_file(report_file)
         machine = load_machine(machine_file)
         runs = [Run.load(r) for r in run_dirs]
-        from ..diagnosis.effects import load_user_effects  # here: the diagnosis's imports, only for this command
+        from ..model import load_user_effects
 
         user = load_user_effects(user_files)
         model = _starting_model(runs[0], machine, maps, model_file, user, temperature=temperature,
@@ -216,7 +216,7 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
 def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json, *, scheduler_timeout, temperature,
                     out_of_range, temperature_tolerance, log_hold, **options) -> None:
     """`diagnose RUN_DIR...`: each run's diagnosis on a Dask scheduler (cmmpose.scale), one table across them."""
-    from ..diagnosis import Model
+    from ..model import Model
     from ..machine import load_machine
     from ..scale import diagnose_runs
 

@@ -14,13 +14,14 @@ from rich.table import Table
 from .._json import dumps as strict_json
 from ..atomicfile import ensure_folder, write_text
 from ..errors import (AliasedChoiceWarning, ClampWarning, Error, ExtrapolationWarning, InputError,
-                      MapTemperatureWarning)
+                      MapTemperatureWarning, ModelDomainWarning)
+from ..evaluation.model_check import check_model
 from ..evaluation.files import write_evaluation_files
 from ..evaluation.metrics import STEEL_EXPANSION
 from .artefact import evaluate_artefact_run, write_artefact_report
 from .common import (aliased_choices_once, check_model_or_maps, console, console_log, expansion_ppm, fail, load_maps,
-                     load_model, machine_option, map_specs, model_options, policy_options, scheduler_options,
-                     say_caught, skip_incomplete_option, warn)
+                     load_model, machine_option, map_specs, model_doubts, model_options, policy_options,
+                     print_model_check, scheduler_options, say_caught, skip_incomplete_option, strict_model_exit, warn)
 
 
 def report_folder_names(run_dirs, report_dir) -> list[str]:
@@ -73,7 +74,7 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
                "list, --report a folder per run.")
 def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
                  reject, u_temperature, u_map, u_model, report_dir, as_json, skip_incomplete, scheduler,
-                 scheduler_timeout, temperature_policy, model_file, user_files) -> None:
+                 scheduler_timeout, temperature_policy, model_file, user_files, strict_model=False) -> None:
     """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated.
 
     With several runs (a fleet, or a day's runs), each is evaluated on the
@@ -84,14 +85,14 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
     from ..machine import load_machine
     from ..run import Run
 
-    check_model_or_maps(model_file, user_files, maps)
+    check_model_or_maps(model_file, user_files, maps, strict_model)
     if model_file is not None and scheduler is not None:
         raise click.UsageError("--model evaluates its runs one after another in this process, each with its "
                                "budgets: --scheduler is for maps")
     if model_file is not None and len(run_dir) > 1:
         return _evaluate_with_model(run_dir, machine_file, model_file, user_files, temperature, out_of_range,
                                     temperature_tolerance, log_hold, expansion, reject, u_temperature, u_map, u_model,
-                                    report_dir, as_json, skip_incomplete, temperature_policy)
+                                    report_dir, as_json, skip_incomplete, temperature_policy, strict_model)
     try:
         machine = load_machine(machine_file)
         if expansion is None:
@@ -115,13 +116,18 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         model = load_model(model_file, user_files) if model_file is not None else machine.maps_for_run(run, maps)
         if "definition" in run.artefact:  # an artefact run (cmmpose simulate --artefact): cli/artefact.py
             return evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json,
-                                         {"temperature_policy": temperature_policy})
+                                         {"temperature_policy": temperature_policy},
+                                         strict_model=strict_model if model_file is not None else None)
         with warnings.catch_warnings(record=True) as caught, aliased_choices_once():
             warnings.simplefilter("always", MapTemperatureWarning)
             warnings.simplefilter("always", AliasedChoiceWarning)
-            ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
-                          temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion_ppm_per_K=expansion,
-                          skip_incomplete=skip_incomplete, temperature_policy=temperature_policy)
+            warnings.simplefilter("always", ModelDomainWarning)
+            options = dict(temperature=temperature, reject=reject, out_of_range=out_of_range,
+                           temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+                           expansion_ppm_per_K=expansion, skip_incomplete=skip_incomplete,
+                           temperature_policy=temperature_policy)
+            ev = evaluate(run, model, **options)
+            check = check_model(run, model, evaluation=ev, **options) if model_file is not None else None
         say_caught(caught)
         unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
                                       log_hold, u_temperature, u_map, u_model, temperature_policy)
@@ -134,17 +140,22 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
     except Error as exc:
         raise fail(exc) from None
     if as_json:
-        click.echo(strict_json({**ev.to_dict(), "uncertainty": unc.to_dict()}, indent=2))
+        click.echo(strict_json({**ev.to_dict(), "uncertainty": unc.to_dict(),
+                                **({"model_check": check.to_dict()} if check is not None else {})}, indent=2))
     else:
         Console().print(ev)
         Console(width=max(Console().width, 130)).print(unc)
+        if check is not None:
+            print_model_check(check)
     for f in files:
         console.print(f"wrote {f}")
+    if check is not None:
+        strict_model_exit(model_doubts(caught) + ([check.verdict] if check.worse else []), strict_model)
 
 
 def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, temperature, out_of_range,
                          temperature_tolerance, log_hold, expansion, reject, u_temperature, u_map, u_model, report_dir,
-                         as_json, skip_incomplete, temperature_policy) -> None:
+                         as_json, skip_incomplete, temperature_policy, strict_model=False) -> None:
     """`evaluate RUN_DIR... --model m.json`: each run evaluated with the found model in turn (the model loaded
     once), each with its figures, budgets and warnings (an aliased choice that matters on that run); --json a
     list of the single-run documents, each with its ``run``; --report a folder per run."""
@@ -152,7 +163,7 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
     from ..machine import load_machine
     from ..run import Run
 
-    docs, files = [], []
+    docs, files, doubts = [], [], []
     try:
         machine = load_machine(machine_file)
         if expansion is None:
@@ -166,12 +177,16 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
             with warnings.catch_warnings(record=True) as caught, aliased_choices_once():
                 warnings.simplefilter("always", MapTemperatureWarning)
                 warnings.simplefilter("always", AliasedChoiceWarning)
-                ev = evaluate(run, model, temperature, reject=reject, out_of_range=out_of_range,
-                              temperature_tolerance=temperature_tolerance, log_hold=log_hold,
-                              expansion_ppm_per_K=expansion, skip_incomplete=skip_incomplete,
-                              temperature_policy=temperature_policy)
+                warnings.simplefilter("always", ModelDomainWarning)
+                options = dict(temperature=temperature, reject=reject, out_of_range=out_of_range,
+                               temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+                               expansion_ppm_per_K=expansion, skip_incomplete=skip_incomplete,
+                               temperature_policy=temperature_policy)
+                ev = evaluate(run, model, **options)
+                check = check_model(run, model, evaluation=ev, **options)
             said = [str(w.message) for w in caught if not issubclass(w.category, (DeprecationWarning,
                                                                                    PendingDeprecationWarning))]
+            doubts += [f"{name}: {t}" for t in model_doubts(caught) + ([check.verdict] if check.worse else [])]
             for text in said:
                 warn(f"{name}: {text}")
             unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
@@ -183,17 +198,20 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
                 write_text(files[-2], unc.to_json(indent=2))
                 write_text(files[-1], unc.to_markdown())
             if as_json:
-                docs.append({"run": str(r), **ev.to_dict(), "uncertainty": unc.to_dict(), "warnings": said})
+                docs.append({"run": str(r), **ev.to_dict(), "uncertainty": unc.to_dict(), "warnings": said,
+                             "model_check": check.to_dict()})
             else:
                 console.print(f"[bold]{escape(str(r))}[/]")
                 Console().print(ev)
                 Console(width=max(Console().width, 130)).print(unc)
+                print_model_check(check)
     except Error as exc:
         raise fail(exc) from None
     if as_json:
         click.echo(strict_json(docs, indent=2))
     for f in files:
         console.print(f"wrote {f}")
+    strict_model_exit(doubts, strict_model)
 
 
 def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance, log_hold,

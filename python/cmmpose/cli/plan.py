@@ -53,7 +53,7 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
     greedy over the placements the machine reaches), with the parameters' predicted uncertainties before and
     after each; --simulate measures them on a virtual machine."""
     from ..artefacts import load_artefact
-    from ..diagnosis.model import Model
+    from ..model.model import Model
     from ..diagnosis.plan import DEFAULT_EFFECTS, plan
     from ..machine import load_machine
     from ..run import Run
@@ -121,7 +121,7 @@ def _simulate(result, runs, art, machine, maps, effects, temperature, jitter_um,
     import dataclasses
 
     from .. import artefacts
-    from ..evaluation.artefact import is_artefact_run
+    from ..evaluation.artefact_balls import is_artefact_run
     from ..sim.artefact_runs import simulate_artefact_run
 
     if art is None:

@@ -1,8 +1,9 @@
 """Diagnosis: compare the model with measurements, see where it fails, find
-the missing physical effect, add it and watch the error fall (issue 6).
+the missing physical effect, add it and watch the error fall (issue 6). It
+produces models (:class:`cmmpose.model.Model`: error maps plus physical
+effects, ``cmmpose.model.LIBRARY`` or a :class:`cmmpose.model.UserEffect`);
+what applies them never imports it.
 
-- :class:`Model`: error maps plus physical effects (``LIBRARY``, or a
-  :class:`UserEffect`), evaluated in the Rust kernel;
 - :func:`diagnose`: ranks the candidate effects, adds the significant ones
   one by one and keeps the history;
 - :func:`find_patterns`: residuals at every level against what could
@@ -16,14 +17,9 @@ the missing physical effect, add it and watch the error fall (issue 6).
 
 from .cv import verify
 from .diagnose import Diagnosis, Step, diagnose
-from .effects import LIBRARY, EffectSpec, UserEffect, library
-from .identify import Candidate, Problem, fit_model, rank_candidates
-from .inputs import RunInputs
-from .model import Model
-from .observables import ModelFigures, ObservationLayout
+from .identify import Candidate, Problem, fit_effect, fit_model, rank_candidates
 from .sensitivity import jacobian
 from .spheres import SphereFitDiagnosis, diagnose_sphere_fits
 
-__all__ = ["diagnose", "Diagnosis", "Step", "LIBRARY", "EffectSpec", "UserEffect", "library", "Candidate", "Problem", "fit_model",
-           "rank_candidates", "RunInputs", "Model", "ModelFigures", "ObservationLayout", "SphereFitDiagnosis",
-           "diagnose_sphere_fits", "verify", "jacobian"]
+__all__ = ["diagnose", "Diagnosis", "Step", "Candidate", "Problem", "fit_effect", "fit_model", "rank_candidates",
+           "SphereFitDiagnosis", "diagnose_sphere_fits", "verify", "jacobian"]

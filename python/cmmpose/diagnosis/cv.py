@@ -58,7 +58,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import csr_matrix
 
-from .observables import CLASSES
+from ..evaluation.model_check import check_model
+from ..evaluation.observables import CLASSES
+from .statistics import PRIOR_WEIGHT
 
 #: A candidate whose headline CV rms rises by more than this many standard
 #: uncertainties of the (paired) change ...
@@ -478,26 +480,15 @@ def judge_candidate(problem, step, candidate, groups: np.ndarray, split: str) ->
 
 
 def _pw() -> float:
-    from .identify import PRIOR_WEIGHT
 
     return PRIOR_WEIGHT
 
 
-def verify(model, run, plain=None) -> dict:
-    """Does ``model`` hold on ``run``, which it was not fitted to? Its
-    headline error (ballbar lengths brought to 20 C about their mean, or the
-    artefact's ball deviations) against the plain maps' on the same run,
-    with standard uncertainties from the spread over positions (balls), and
-    the paired difference.
-
-    Parameters
-    ----------
-    model : Model
-        A found model (effects, map corrections).
-    run : Run
-        A run the model never saw.
-    plain : Model, optional
-        What to compare with; default ``model``'s maps without its effects.
+def verify(model, run) -> dict:
+    """Does ``model`` hold on ``run``, which it was not fitted to? The model
+    applied as saved, through the evaluation ``cmmpose evaluate --model``
+    uses, beside its plain maps (:func:`cmmpose.evaluation.model_check.check_model`);
+    nothing is refitted on ``run``.
 
     Returns
     -------
@@ -505,50 +496,7 @@ def verify(model, run, plain=None) -> dict:
         ``model_rms_um``, ``model_rms_u_um``, ``plain_rms_um``,
         ``plain_rms_u_um``, ``change_um`` and ``change_u_um`` (model minus
         plain), ``holds`` (bool: the model does not raise the error by more
-        than its uncertainty) and ``verdict`` (words).
+        than its uncertainty), ``worse``, ``notes`` (where the run is
+        outside the model's domain) and ``verdict`` (words).
     """
-    from dataclasses import replace
-
-    plain = replace(model, effects=(), _inputs_cache={}) if plain is None else plain
-
-    def per_item(m):
-        f = m.evaluate(run)
-        if f.deviation_rms is not None:
-            from .observables import ObservationLayout, observe
-
-            inputs = m.inputs(run)
-            layout = ObservationLayout.from_run(run, inputs)
-            dev = observe(layout, m.compensate(inputs), m.expansion_ppm_per_kelvin, inputs.scan_id).deviations
-            return np.sum(dev ** 2, axis=1), "rms deviation"
-        d = f.lengths_20c - np.mean(f.lengths_20c)
-        return d ** 2 * len(d) / max(len(d) - 1, 1), "rms accuracy error"
-
-    e_m, what = per_item(model)
-    e_p, _ = per_item(plain)
-    n = len(e_m)
-
-    def rms_u(e):
-        m = float(np.mean(e))
-        u = float(np.std(e, ddof=1) / math.sqrt(n)) if n > 1 else float("inf")
-        r = math.sqrt(m)
-        return r * 1e3, (u / (2 * r) * 1e3 if r > 0 else float("inf"))
-
-    rm, um_ = rms_u(e_m)
-    rp, up = rms_u(e_p)
-    d = e_m - e_p
-    ud = float(np.std(d, ddof=1) / math.sqrt(n)) if n > 1 else float("inf")
-    change = rm - rp
-    u_change = ud / ((rm + rp) * 1e-3) * 1e3 if rm + rp > 0 else float("inf")
-    holds = change <= u_change
-    if change < -u_change:
-        words = (f"the model holds on this run: {what} {rm:.2f} ± {um_:.2f} um against {rp:.2f} ± {up:.2f} um "
-                 f"with the plain maps (a fall of {-change:.2f} ± {u_change:.2f} um)")
-    elif holds:
-        words = (f"the model neither helps nor harms on this run: {what} {rm:.2f} ± {um_:.2f} um against "
-                 f"{rp:.2f} ± {up:.2f} um with the plain maps (change {change:+.2f} ± {u_change:.2f} um)")
-    else:
-        words = (f"the model does NOT hold on this run: {what} {rm:.2f} ± {um_:.2f} um against {rp:.2f} ± "
-                 f"{up:.2f} um with the plain maps (a rise of {change:.2f} ± {u_change:.2f} um)")
-    return _clean({"figure": what, "model_rms_um": rm, "model_rms_u_um": um_, "plain_rms_um": rp,
-                   "plain_rms_u_um": up, "change_um": change, "change_u_um": u_change, "holds": bool(holds),
-                   "items": int(n), "effects": list(model.names), "verdict": words})
+    return check_model(run, model).to_dict()

@@ -17,12 +17,14 @@ from ..errors import InputError, InputTypeError
 from ..fitting import fit_spheres
 from .._renamed import renamed
 from ..run import Run
-from .identify import (ALPHA, Candidate, Problem, value_text, check_effect_names, fit_model, model_uncertainties,
+from .identify import (ALPHA, Candidate, Problem, value_text, check_effect_names, determined_values, fit_model,
+                       model_covariance,
                        rank_candidates)
-from .effects import EffectSpec, effect_spec, run_library
-from .apply import single_map_warning
-from .model import Model, check_kinematics, run_kinematics
-from .observables import ModelFigures, figures
+from ..model.spec import EffectSpec, effect_spec, run_library
+from ..model.point_inputs import single_map_warning
+from ..model.domain import Domain
+from ..model.model import Model, check_kinematics, run_kinematics
+from ..evaluation.observables import ModelFigures, figures
 from .unexplained import periodic_errors, unexplained_findings
 
 __all__ = ["diagnose", "Diagnosis", "Step", "POLISH_POINTS_PER_SCAN"]
@@ -119,6 +121,13 @@ class Diagnosis:
     advice: dict[str, str] = field(default_factory=dict)
     final_uncertainty: dict = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
+    #: The covariance of the final model's determined parameters (:func:`cmmpose.diagnosis.identify.model_covariance`).
+    final_covariance: dict = field(default_factory=dict)
+    #: Where the final model was fitted (:class:`cmmpose.model.domain.Domain`), saved with it.
+    domain: Domain | None = None
+    #: The final model's values with what the data did not determine taken out
+    #: (:func:`cmmpose.diagnosis.identify.determined_values`): what the saved model applies.
+    final_values: dict = field(default_factory=dict)
     unexplained: list = field(default_factory=list)
     #: How the run's temperatures were read (cmmpose.temperature.log_provenance), None if given.
     thermal: dict | None = None
@@ -207,15 +216,18 @@ class Diagnosis:
 
     @property
     def model(self) -> Model:
-        """The final model, holding its parameters' uncertainties (saved with it)."""
+        """The final model as it is saved: its parameters' uncertainties and
+        covariance, how the run's temperatures were read, its aliased
+        alternatives and the domain it was fitted on. A combination of its
+        parameters the data did not determine is taken out
+        (:func:`cmmpose.diagnosis.identify.determined_values`): it is never
+        applied."""
         final = self.steps[-1].model
-        if self.final_uncertainty and not final.uncertainty:  # this model's own figures, attached once
-            object.__setattr__(final, "uncertainty", {k: np.array(v, float) for k, v in self.final_uncertainty.items()})
-        if self.thermal and not final.thermal:  # how the run's temperatures were read, saved with the model
-            object.__setattr__(final, "thermal", self.thermal)
-        if self.alternatives and not final.alternatives:  # aliased choices stay aliased in the file
-            object.__setattr__(final, "alternatives", tuple(self.alternatives))
-        return final
+        unc = {k: np.array(v, float) for k, v in self.final_uncertainty.items()}
+        effects = tuple((s, np.asarray(self.final_values.get(s.name, v), float)) for s, v in final.effects)
+        return replace(final, effects=effects, uncertainty=unc or final.uncertainty, thermal=self.thermal or final.thermal,
+                       alternatives=tuple(self.alternatives) or final.alternatives, domain=self.domain or final.domain,
+                       covariance=self.final_covariance or final.covariance)
 
     @property
     def added(self) -> list[str]:
@@ -498,9 +510,9 @@ def diagnose(
     if temperature_policy is not None:  # the whole policy, then the keywords given
         model = replace(model, temperature_policy=temperature_policy, out_of_range=temperature_policy.out_of_range,
                         temperature_tolerance=temperature_policy.temperature_tolerance,
-                        log_hold=temperature_policy.log_hold, _inputs_cache={})
+                        log_hold=temperature_policy.log_hold)
     if policy:
-        model = replace(model, **policy, _inputs_cache={})
+        model = replace(model, **policy)
     cand = None
     if candidates is not None:
         cand = {}
@@ -525,8 +537,10 @@ def diagnose(
     # Only the effects that shape the points within a scan (on the scanner,
     # or user-defined) gain from more point residuals; the others are fixed
     # by lengths and centres, which do not grow with the points.
+    # A model given to start from is applied as saved: what it holds is never refitted here.
+    given = set(steps[0].model.names)
     shaping = {spec.name for spec, _ in model.effects
-               if spec.kind == "python" or getattr(spec.effect, "on_scanner", False)}
+               if (spec.kind == "python" or getattr(spec.effect, "on_scanner", False)) and spec.name not in given}
     if polish and shaping:
         # The selection fits the effects to POINTS_PER_SCAN points of each scan;
         # the residual patterns and the findings look at every point. Refit the
@@ -543,8 +557,11 @@ def diagnose(
         step_cv(problem, steps[-1], (folds, items), split)
         uncertainty_problem = fine
     unobservable, advice, ambiguous = unobservable_candidates(problem, steps)
+    final_unc, final_cov = model_covariance(uncertainty_problem, model)
     diag = Diagnosis(steps, unobservable, ambiguous, n_points=run.n_points, advice=advice,
-                     final_uncertainty=model_uncertainties(uncertainty_problem, model),
+                     final_uncertainty=final_unc, final_covariance=final_cov,
+                     final_values=determined_values(uncertainty_problem, model),
+                     domain=Domain.of_runs([run], [problem.inputs], model.maps.kinematics),
                      skipped=dict(problem.skipped), thermal=problem.inputs.thermal)
     from .aliases import find_alternatives
 

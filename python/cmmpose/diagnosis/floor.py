@@ -34,8 +34,10 @@ import math
 
 import numpy as np
 
-from .identify import ALPHA, chi2_sf
-from .observables import CLASSES
+from ..evaluation.observables import CLASSES
+from .cv import model_design
+from .mapfamily import observable_change, reading_subset, travel_range, whitened_gain
+from .statistics import ALPHA, chi2_sf
 
 __all__ = ["FLOOR_ALPHA", "headline_floors", "noise_floor", "two_axis_findings"]
 
@@ -71,8 +73,6 @@ def noise_floor(problem, step, reproducibility_um: float | None = None) -> dict:
         ``chi2``, ``dof``, ``p_value``, ``noise`` (bool or None),
         ``unexplained_um`` and ``verdict`` (words).
     """
-    from .cv import model_design
-
     r0 = step.residual if step.residual is not None else problem.observe(step.model).residual
     X0, ridge, target = model_design(problem, step.model)
     fit = problem.wls(r0, X0, ridge=ridge, target=target)
@@ -131,8 +131,6 @@ def two_axis_findings(problem, step, alpha: float = ALPHA) -> list[dict]:
         coefficient times the half-ranges' product), ``p_value``,
         ``threshold``, ``description``.
     """
-    from .cv import model_design
-    from .mapfamily import _subset, _travel, _whitened_gain, observable_change
 
     r0 = step.residual if step.residual is not None else problem.observe(step.model).residual
     X0, ridge, target = model_design(problem, step.model)
@@ -142,7 +140,7 @@ def two_axis_findings(problem, step, alpha: float = ALPHA) -> list[dict]:
     W0q = np.linalg.qr(W0)[0] if W0.shape[1] else np.zeros((len(r0), 0))
     rw = fit.residual / s
     rows = np.flatnonzero(np.isin(problem.classes % len(CLASSES), (0, 1, 2)))
-    travel = _travel(problem)
+    travel = travel_range(problem)
     mid = [(a + b) / 2 for a, b in travel]
     half = [max((b - a) / 2, 1e-9) for a, b in travel]
     tests = [(d, i, j) for d in range(3) for i, j in ((0, 1), (1, 2), (0, 2))]
@@ -153,12 +151,12 @@ def two_axis_findings(problem, step, alpha: float = ALPHA) -> list[dict]:
             continue
         cols = []
         for p in _parts(problem):
-            q = _subset(p)["q"]
+            q = reading_subset(p)["q"]
             field = np.zeros((len(q), 3, 1))
             field[:, d, 0] = (q[:, i] - mid[i]) / half[i] * (q[:, j] - mid[j]) / half[j]
             cols.append(observable_change(p, p.base_obs, field))
         J = np.concatenate(cols) * 1e-3  # per um at the corners
-        gain = _whitened_gain(W0q, rw, J / s[:, None], rows)
+        gain = whitened_gain(W0q, rw, J / s[:, None], rows)
         pv = chi2_sf(gain, 1)
         if pv < threshold:
             Jw = J / s[:, None]
@@ -178,8 +176,6 @@ def explained_beyond(problem, step, finding: dict, columns: np.ndarray) -> float
     """p-value of ``columns`` (a candidate's sensitivities) beyond ``step``'s
     model *and* the two-axis ``finding``: small when the candidate explains
     something the two-axis error does not."""
-    from .cv import model_design
-    from .mapfamily import _whitened_gain
 
     r0 = step.residual if step.residual is not None else problem.observe(step.model).residual
     X0, ridge, target = model_design(problem, step.model)
@@ -189,5 +185,5 @@ def explained_beyond(problem, step, finding: dict, columns: np.ndarray) -> float
     Wq = np.linalg.qr(W)[0]
     rw = r0 / s
     rw = rw - Wq @ (Wq.T @ rw)
-    gain = _whitened_gain(Wq, rw, columns / s[:, None])
+    gain = whitened_gain(Wq, rw, columns / s[:, None])
     return chi2_sf(gain, columns.shape[1])

@@ -140,7 +140,7 @@ def _verdict(d, model_file, run_dir) -> str:
     if added:
         target = model_file or "MODEL.json (save it with diagnose --save-model)"
         nxt.append(f"check the model on a new run: cmmpose diagnose NEW_RUN --model {target} --no-auto; "
-                   f"compensate with it in Python: cmmpose.diagnosis.Model.load('{target}').compensate(...)")
+                   f"compensate with it in Python: cmmpose.Model.load('{target}').compensate(...)")
     needs = [x for x in decisions if x["decision"] == "not observable" and not x["name"].startswith("map:")]
     if d.ambiguous:
         for group in d.ambiguous:

@@ -31,55 +31,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import Error, InputError, UserEffectError
+from ..errors import Error, InputError, InputTypeError, UserEffectError
 from ..run import Run
 from ._blas import one_blas_thread
+from .statistics import (RSS_FLOOR, ALPHA, INDISTINGUISHABLE, INDISTINGUISHABLE_LR, MAX_REPRODUCIBILITY_MM,
+                         NOT_OBSERVABLE_BELOW, OBSERVABLE_AT, PRIOR_WEIGHT, SIGMA_FLOOR, chi2_sf)
 from .artefact import artefact_columns, linearised_columns
-from .effects import EffectSpec, run_library
-from .inputs import RunInputs
-from .observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, check_first_observation, observe
+from .floor import headline_floors
+from .mapfamily import centre_columns, compressed_view
+from ..model.names import resolve
+from ..model.spec import EffectSpec, run_library
+from ..model.inputs import RunInputs
+from ..evaluation.observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, check_first_observation, observe
 
-__all__ = ["Problem", "Candidate", "rank_candidates", "fit_model", "model_uncertainties", "ALPHA", "OBSERVABLE_AT"]
+__all__ = ["Problem", "Candidate", "rank_candidates", "determined_values", "fit_effect", "fit_model", "model_uncertainties", "ALPHA", "OBSERVABLE_AT"]
 
-#: Family-wise false-alarm rate of a proposal.
-ALPHA = 1e-3
-#: Squared signal-to-noise, at the prior magnitude, below which an effect
-#: counts as unobservable in the run (5 sigma).
-OBSERVABLE_AT = 25.0
-#: Squared signal-to-noise at the prior magnitude below which the run cannot
-#: determine an effect at a typical size (2 sigma): "not observable". Between
-#: this and OBSERVABLE_AT an effect is determined, if weakly: "not significant".
-NOT_OBSERVABLE_BELOW = 4.0
-#: Two candidates whose fitted contributions correlate above this cannot be
-#: told apart.
-INDISTINGUISHABLE = 0.95
-#: ... and whose likelihood-ratio gains differ by less than this (a
-#: likelihood ratio under e^5, about 150:1, between them).
-INDISTINGUISHABLE_LR = 10.0
-#: Smallest noise level credited to a class, mm: below 0.1 um the model's
-#: own approximations (second-order kinematics, linearised sensitivities)
-#: are not trustworthy, so residuals that small are not evidence.
-SIGMA_FLOOR = 1e-4
-_RSS_FLOOR = SIGMA_FLOOR ** 2
-#: Largest stated per-scan centre reproducibility, mm per axis: a sphere
-#: scan's centre repeats to micrometres, and a whole uncompensated machine
-#: errs by ~0.1 mm (the thesis machine: 71 um rms on a 404 mm bar). A
-#: floor of more than 1 mm would call every effect insignificant; such a
-#: value is a unit slip (nm, or mm written as um x 1000), not a measurement.
-MAX_REPRODUCIBILITY_MM = 1.0
-#: Weight of the prior on effect parameters, per prior magnitude: a total
-#: value of a few typical magnitudes costs little, hundreds cost more than
-#: any data can gain. Without it a linearised column that happens to carry
-#: the noise (a depth scale scales the depth noise too) could "explain" the
-#: noise by an absurd value.
-PRIOR_WEIGHT = 0.3
-
-
-def chi2_sf(x: float, k: int) -> float:
-    """Upper tail of chi-square with k dof (scipy.special: no scipy.stats import)."""
-    from scipy.special import chdtrc
-
-    return float(chdtrc(k, x))
 
 
 @dataclass
@@ -160,8 +126,6 @@ class Problem:
         would otherwise credit any fit to them with a large likelihood gain
         (a crossed layout's 8 lengths at 1.9 um rms against a 4.24 um
         floor: a 3-parameter map correction at p = 2e-6 on noise alone)."""
-        from .floor import headline_floors
-
         sc = float(reproducibility_um) * 1e-3
         if not math.isfinite(sc) or sc <= 0:
             raise InputError(f"reproducibility_um: expected a positive number of um, got {reproducibility_um!r}")
@@ -204,7 +168,7 @@ class Problem:
         kernel and the sphere fits: forward, or backward where the forward
         step cannot be evaluated (it leaves the maps' range)."""
         if getattr(spec, "family", None) == "map":  # map corrections: analytic, at the centre level
-            return spec.centre_columns(self, obs)
+            return centre_columns(self, obs, spec)
         if spec.kind == "length" and self.layout.artefact is None:
             ref = self.layout.calibrated_length or (float(np.mean(obs.lengths)) if len(obs.lengths) else 0.0)
             return self.layout.expansion_column(ref)[:, None] * np.asarray(spec.prior)
@@ -233,7 +197,7 @@ class Problem:
         cls, n_eff = self.classes, self.n_eff
         present = self.n_class > 0
         floor = getattr(self, "class_floor", None)  # mm per class (state_reproducibility), else SIGMA_FLOOR
-        rss_floor = (_RSS_FLOOR if floor is None else np.maximum(floor, SIGMA_FLOOR) ** 2) * np.maximum(n_eff, 1)
+        rss_floor = (RSS_FLOOR if floor is None else np.maximum(floor, SIGMA_FLOOR) ** 2) * np.maximum(n_eff, 1)
         k = X.shape[1]
         blocks = []  # (class, R_c, Q_c^T r0_c)
         if k:
@@ -518,8 +482,6 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
             # A map correction moves centres and radii only: it is ranked on a view of the problem whose
             # point residuals are compressed to their R factor (the same fits, at a fraction of the cost).
             if map_rows is None:
-                from .mapfamily import compressed_view
-
                 view, r0v, X0v = compressed_view(problem, r0, X0)
                 bv = view.wls(r0v, X0v, ridge=ridge0, target=target0)
                 W0v = view.whitened(X0v, bv.sigma)
@@ -684,6 +646,26 @@ def _flag_indistinguishable(problem: Problem, ranked: list[Candidate], r0, X0, b
 
 
 @one_blas_thread
+def fit_effect(model, effect, run: Run):
+    """A new model with ``effect`` added to ``model`` and fitted to ``run``,
+    jointly with the effects already in it (:func:`fit_model`).
+
+    Parameters
+    ----------
+    model : Model
+        The model to add to.
+    effect : str or EffectSpec
+        A library name (``cmmpose.model.LIBRARY``, variants such as
+        'alignment@2' included) or a spec (e.g. a :class:`UserEffect`).
+    run : Run
+        The run to fit it to.
+    """
+    if not isinstance(run, Run):
+        raise InputTypeError(f"run: expected a cmmpose.Run to fit {effect!r} to, got {type(run).__name__}")
+    spec = resolve(effect) if isinstance(effect, str) else effect
+    return fit_model(model.add(spec, np.zeros(spec.size)), run)
+
+
 def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = None, only=None):
     """Fit the parameters of every effect in ``model`` to ``run`` (Gauss-Newton
     through the kernel, nuisances and class noise levels estimated alongside).
@@ -774,20 +756,83 @@ def model_uncertainties(problem: Problem, model) -> dict[str, np.ndarray]:
     weighted least-squares covariance of the linearised problem at ``model``,
     without the weak prior (the data's own uncertainty). inf where the run
     does not determine a parameter."""
+    return model_covariance(problem, model)[0]
+
+
+def model_covariance(problem: Problem, model) -> tuple[dict[str, np.ndarray], dict]:
+    """:func:`model_uncertainties`, and the covariance of the determined
+    parameters (``{"parameters": ["effect.param", ...], "matrix": (k, k)}``
+    in their units; empty without effects): what a saved model keeps to
+    predict the uncertainty of its correction elsewhere
+    (:mod:`cmmpose.model.domain`)."""
     obs = problem.observe(model)
     X0, index = problem.model_design(model)
     k0 = problem.nuisance.shape[1]
     if not index:
-        return {}
+        return {}, {}
     fit = problem.wls(obs.residual, X0)
-    var, free = design_variances(fit.whitened_r)
-    out, pos = {}, k0
+    cov, free = design_covariance(fit.whitened_r)
+    var = np.diag(cov)
+    out, pos, names, at, scale = {}, k0, [], [], []
     for name, k in index:
-        prior = np.asarray(problem.candidates[name].prior, float)
+        spec = problem.candidates[name]
+        prior = np.asarray(spec.prior, float)
         sd = np.sqrt(np.clip(var[pos:pos + k], 0.0, None)) * prior
         # A parameter the data alone cannot tell from zero at UNDETERMINED_PRIORS typical magnitudes is not
         # determined by them: its fitted value is the prior's (an XY-plane run's squareness yz and zx).
         out[name] = np.where(free[pos:pos + k] | (sd > UNDETERMINED_PRIORS * np.abs(prior)), np.inf, sd)
+        for j, param in enumerate(spec.params):
+            if np.isfinite(out[name][j]):
+                names.append(f"{name}.{param}")
+                at.append(pos + j)
+                scale.append(prior[j])
+        pos += k
+    scale = np.asarray(scale, float)
+    matrix = cov[np.ix_(at, at)] * np.outer(scale, scale)
+    return out, ({"parameters": names, "matrix": (matrix + matrix.T) / 2} if names else {})
+
+
+def determined_values(problem: Problem, model) -> dict[str, np.ndarray]:
+    """The effects' values of ``model`` with every combination the data do
+    not determine taken out: what a saved model applies.
+
+    The whitened design of the effects, with the nuisances (each placement's
+    rigid fit, a run's offsets) projected out, has singular directions the
+    data cannot see (below ``UNDETERMINED_RCOND`` of the largest: an
+    alignment change on a single-pose plate, which each placement's rigid
+    fit absorbs; a knot no ball came near). The fit's values along them are
+    the prior's, not the data's, and act elsewhere in the volume: they are
+    removed (the values projected onto the determined subspace, in
+    column-normalised coordinates). The training observables do not change
+    (to first order); the values elsewhere do only by what the data never
+    tested. Effects with no determined direction keep no value. Returns
+    effect -> values in its units (every effect of ``model``)."""
+    X0, index = problem.model_design(model)
+    k0 = problem.nuisance.shape[1]
+    if not index:
+        return {}
+    obs = problem.observe(model)
+    R = problem.wls(obs.residual, X0).whitened_r
+    Rn, Re = R[:, :k0], R[:, k0:]
+    if k0:
+        q, _ = np.linalg.qr(Rn)
+        Re = Re - q @ (q.T @ Re)
+    norm = np.linalg.norm(Re, axis=0)
+    top = norm.max() if len(norm) else 0.0
+    zero = norm <= UNDETERMINED_RCOND * max(top, 1e-300)
+    prior = np.concatenate([np.asarray(problem.candidates[n].prior, float) for n, _ in index])
+    b = np.concatenate([np.asarray(model.values(n), float) for n, _ in index]) / prior
+    c = np.where(zero, 0.0, b * norm)
+    live = ~zero
+    if live.any():
+        _, s, vt = np.linalg.svd(Re[:, live] / norm[live], full_matrices=True)
+        s = np.r_[s, np.zeros(int(live.sum()) - len(s))]
+        null = vt.T[:, s <= UNDETERMINED_RCOND * (s[0] if len(s) and s[0] > 0 else 1.0)]
+        c[live] -= null @ (null.T @ c[live])
+    values = np.where(zero, 0.0, c / np.where(zero, 1.0, norm)) * prior
+    out, pos = {}, 0
+    for name, k in index:
+        out[name] = values[pos:pos + k]
         pos += k
     return out
 
@@ -802,8 +847,14 @@ UNDETERMINED_PRIORS = 5.0
 
 
 def design_variances(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Variances of the least-squares parameters of the whitened design ``R``
-    (columns in their own units), and which parameters the design leaves
+    """The diagonal of :func:`design_covariance`, and which parameters the design leaves free."""
+    cov, free = design_covariance(R)
+    return np.diag(cov).copy(), free
+
+
+def design_covariance(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The covariance of the least-squares parameters of the whitened design
+    ``R`` (columns in their own units), and which parameters the design leaves
     free (a share of ``UNDETERMINED_SHARE`` or more on a direction whose
     singular value is below ``UNDETERMINED_RCOND`` of the largest): their
     variance is infinite. The SVD acts on ``R`` with its columns normalised,
@@ -813,7 +864,7 @@ def design_variances(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     and zx at 1e-5 arc-seconds instead of tens)."""
     k = R.shape[1]
     if k == 0:
-        return np.zeros(0), np.zeros(0, bool)
+        return np.zeros((0, 0)), np.zeros(0, bool)
     norm = np.linalg.norm(R, axis=0)
     zero = norm <= 0
     A = R / np.where(zero, 1.0, norm)
@@ -821,9 +872,12 @@ def design_variances(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     s = np.r_[s, np.zeros(k - len(s))]
     keep = s > UNDETERMINED_RCOND * (s[0] if len(s) and s[0] > 0 else 1.0)
     v = vt.T
-    var = np.sum((v[:, keep] / s[keep]) ** 2, axis=1) / np.where(zero, 1.0, norm) ** 2
+    w = v[:, keep] / s[keep]
+    n = np.where(zero, 1.0, norm)
+    cov = (w @ w.T) / np.outer(n, n)
+    np.fill_diagonal(cov, np.sum(w ** 2, axis=1) / n ** 2)  # the variances summed as such, not through a product
     free = zero | (np.sum(v[:, ~keep] ** 2, axis=1) > UNDETERMINED_SHARE)
-    return var, free
+    return cov, free
 
 
 def check_effect_names(names, problem: Problem) -> None:

@@ -29,10 +29,11 @@ from ._blas import one_blas_thread
 from .aliases import find_alternatives
 from .diagnose import (Diagnosis, Step, unobservable_candidates, add_map_candidates, as_model, attach_floor,
                        select_effects, user_specs)
-from .identify import Problem, check_effect_names, model_uncertainties, rank_candidates
-from .apply import single_map_warning
-from .model import Model, check_kinematics, run_kinematics
-from .observables import CLASSES, ModelFigures, figures
+from .identify import Problem, check_effect_names, determined_values, model_covariance, rank_candidates
+from ..model.point_inputs import single_map_warning
+from ..model.domain import Domain
+from ..model.model import Model, check_kinematics, run_kinematics
+from ..evaluation.observables import CLASSES, ModelFigures, figures
 
 __all__ = ["JointProblem", "JointDiagnosis", "check_distinct", "check_same_kinematics", "diagnose_jointly"]
 
@@ -230,9 +231,12 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
 
     steps, model = select_effects(problem, model, list(add), auto, max_effects, step)
     unobservable, advice, ambiguous = unobservable_candidates(problem, steps)
+    final_unc, final_cov = model_covariance(problem, model)
     diag = JointDiagnosis(steps, unobservable, ambiguous, n_points=sum(r.n_points for r in runs),
-                          advice=advice,
-                          final_uncertainty=model_uncertainties(problem, model), skipped=dict(problem.skipped),
+                          advice=advice, final_uncertainty=final_unc, final_covariance=final_cov,
+                          final_values=determined_values(problem, model),
+                          domain=Domain.of_runs(runs, [p.inputs for p in problem.parts], model.maps.kinematics),
+                          skipped=dict(problem.skipped),
                           run_figures=per_run, run_names=names)
     diag.alternatives = find_alternatives(problem, steps, model)
     attach_floor(diag, problem, steps[-1])
@@ -291,7 +295,7 @@ def check_distinct(runs, labels) -> None:
 def check_same_kinematics(runs, labels) -> str | None:
     """The machine configuration the runs' run.json files name (None when
     none names one); runs naming different ones are refused: one model's
-    maps are stacked one way (:func:`cmmpose.diagnosis.model.check_kinematics`).
+    maps are stacked one way (:func:`cmmpose.model.model.check_kinematics`).
 
     Raises
     ------

@@ -10,7 +10,7 @@ parameter through the compensation kernel at one virtual point per ball
 (a forward difference of each parameter's step: the centre level, never the
 point clouds), so the same function serves the runs measured and the
 placements proposed. A placement sees the centres' moves less its rigid
-motion (the rigid fit of :mod:`cmmpose.diagnosis.artefact`; a ballbar run's
+motion (the rigid fit of :mod:`cmmpose.evaluation.artefact_layout`; a ballbar run's
 lengths less their mean when the bar is not calibrated). With a noise of
 sigma per centre coordinate, a measurement adds the Fisher information
 ``J^T P J / sigma^2`` (P the projector onto what its rigid fit leaves).
@@ -45,18 +45,19 @@ import numpy as np
 
 from .. import artefacts
 from .._json import dumps as strict_json, finite_or_none
-from ..evaluation.artefact import is_artefact_run
+from ..evaluation.artefact_balls import is_artefact_run
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import Error, InputError, InputTypeError
 from ..layouts import sweep_readings
 from ..placement import PLANES, Placement, parse
 from ..placement import plan as place
 from ..run import Run
-from .artefact import rigid_dof
-from .effects import EffectSpec, resolve
-from .inputs import RunInputs
-from .model import Model
-from .observables import ObservationLayout, observe
+from ..evaluation.artefact_layout import rigid_dof
+from ..model.names import resolve
+from ..model.spec import EffectSpec
+from ..model.inputs import RunInputs
+from ..model.model import Model
+from ..evaluation.observables import ObservationLayout, observe
 
 __all__ = [
     "ALIASED_ABOVE",
@@ -543,8 +544,7 @@ def plan(
     # The sensitivities at the centre level: through the effects a ball's centre feels alone (the others, held at
     # their values, act on the points or need inputs no virtual point has).
     names = {s.name for s in specs}
-    centre_model = replace(model, effects=tuple((s, v) for s, v in model.effects if s.name in names),
-                           _inputs_cache={})
+    centre_model = replace(model, effects=tuple((s, v) for s, v in model.effects if s.name in names))
     measured = [_measured(r, model, specs, centre_model) for r in runs]
     dof = sum(m.dof for m in measured)
     if sigma_um is not None:

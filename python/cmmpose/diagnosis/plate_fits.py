@@ -32,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..evaluation.artefact import rigid_projection, rigid_fit
+from ..evaluation.artefact_balls import rigid_fit, rigid_projection
 from ..artefacts import Artefact
 from .._csvtable import read_csv_table
 from ..errors import InputError
-from .artefact import rigid_dof
+from ..evaluation.artefact_layout import rigid_dof
 from .patterns import Patterns, categorical_pattern, mean_offset_pattern, ranked_patterns
 
 __all__ = ["PlateFitDiagnosis", "diagnose_plate_fits", "read_plate_fits", "LINEAR_ERRORS"]

@@ -9,7 +9,7 @@ parameter, named: the interface a measurement planner
   ``"squareness.xy"``, ``"map:dx(X):sine170.3[169,729].sin_um"``);
 - ``J`` (n, p): change of each observable per *prior magnitude* of each
   parameter, mm (rows in the problem's order: ``classes`` gives each row's
-  class, index into :data:`cmmpose.diagnosis.observables.CLASSES`, plus
+  class, index into :data:`cmmpose.evaluation.observables.CLASSES`, plus
   4 x run index in a joint problem);
 - ``prior`` and ``units`` of each parameter (multiply a column by
   1 / prior to get mm per unit);

@@ -277,7 +277,7 @@ def unexplained_findings(patterns, periodic: list[Finding], model_names) -> list
 def user_effect_skeleton(finding: Finding, name: str = "my-effect") -> str:
     """The text of a Python file that defines a user effect on ``finding``'s input.
 
-    The file defines ``EFFECT`` (a :class:`cmmpose.diagnosis.UserEffect`),
+    The file defines ``EFFECT`` (a :class:`cmmpose.UserEffect`),
     which ``cmmpose diagnose RUN --user-effect FILE`` adds to the candidates.
     A periodic finding gets a sine and a cosine at its period along its axis;
     any other a correction linear in its input along x, y and z, to be edited
@@ -287,7 +287,7 @@ def user_effect_skeleton(finding: Finding, name: str = "my-effect") -> str:
             'Edit the correction into the physics you suspect: it returns an (N, 3) correction in mm, added to\n'
             'the compensated coordinates, and must be zero when every parameter is zero. Then:\n\n'
             '    cmmpose diagnose RUN --user-effect THIS_FILE.py\n"""\n\n'
-            "import numpy as np\n\nfrom cmmpose.diagnosis import UserEffect\n\n")
+            "import numpy as np\n\nfrom cmmpose import UserEffect\n\n")
     if finding.kind == "periodic":
         j = "xyz".index(finding.axis)
         return head + (

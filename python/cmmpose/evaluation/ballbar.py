@@ -13,13 +13,14 @@ import numpy as np
 
 from .._json import dumps as strict_json
 from .._renamed import per_kelvin_to_ppm, renamed
-from ..compensation import compensate, is_model, uncompensated, warn_single_map
-from ..errormap import ErrorMap, ErrorMapSet
+from ..compensation import uncompensated
+from ..errormap import ErrorMap, ErrorMapSet, warn_single_map
 from ..errors import InputError, InputTypeError, MapTemperatureWarning, RunError
 from ..fitting import fit_spheres
 from .metrics import STEEL_EXPANSION, STEEL_EXPANSION_PPM_PER_K, b89_value, improvement, length_at_20c, rms_accuracy_error
 from ..policy import SKIP_INCOMPLETE_HINT
 from ..run import Run
+from .observables import figures_difference
 from ..temperature import (LOG_HOLD, TEMPERATURE_TOLERANCE, TemperaturePolicy, as_policy, log_notes,  # noqa: F401
                           log_provenance, run_temperatures)
 
@@ -231,11 +232,21 @@ def machine_temperature_and_log(run: Run, t, log_hold: float | None = None, *,
 
 
 def machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise",
-                         temperature_tolerance: float = TEMPERATURE_TOLERANCE, reports: list | None = None) -> np.ndarray:
-    """All points in machine coordinates, compensated with ``maps`` (or a
-    diagnosis model) or not (None); the kernel reports are appended to ``reports``."""
-    if is_model(maps):
-        return _model_coordinates(run, maps, temperature, out_of_range, temperature_tolerance, reports)
+                         temperature_tolerance: float = TEMPERATURE_TOLERANCE, reports: list | None = None,
+                         once: set | None = None) -> np.ndarray:
+    """All points in machine coordinates, compensated with ``maps`` (any
+    :class:`cmmpose.model.MachineModel`: maps, or a found model, which reads
+    the run's inputs itself) or not (None); the kernel reports are appended
+    to ``reports``. ``temperature``: C, one or per point (None: a single
+    map's own, or a model's reading of the run's log)."""
+    if maps is None:
+        return uncompensated_coordinates(run)
+    return maps.compensate_run(run, temperature, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+                               reports=reports, compare=figures_difference(run), once=once)
+
+
+def uncompensated_coordinates(run: Run) -> np.ndarray:
+    """All points as the digitizer software reports them (no map), mm."""
     ids = run.scans["scan_id"]
     order = np.argsort(ids)
     sid = run.points["scan_id"]
@@ -245,38 +256,8 @@ def machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise"
     for pose_id in np.unique(pose_of_point):
         rows = np.flatnonzero(pose_of_point == pose_id)
         pose, offset = run.pose(int(pose_id))
-        if maps is None:
-            out[rows] = uncompensated(run.uv[rows], run.scales[rows], pose, offset)
-        else:
-            t = temperature if np.ndim(temperature) == 0 else temperature[rows]
-            out[rows], rep = compensate(run.uv[rows], run.scales[rows], maps, pose, offset, t, out_of_range=out_of_range,
-                                        temperature_tolerance=temperature_tolerance, return_report=True)
-            if reports is not None:
-                reports.append(rep)
+        out[rows] = uncompensated(run.uv[rows], run.scales[rows], pose, offset)
     return out
-
-
-def _model_coordinates(run: Run, model, temperature, out_of_range, temperature_tolerance, reports) -> np.ndarray:
-    """All points compensated by a diagnosis model: its maps and effects, the
-    inputs its effects read from the run (a lacking one is an InputError
-    naming it); ``temperature`` (C, one or per point) in place of the log's."""
-    from dataclasses import replace
-
-    from ..diagnosis.apply import check_run, policy_model
-
-    model = policy_model(model, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
-                         temperature=float(temperature) if temperature is not None and np.ndim(temperature) == 0
-                         else None)
-    inputs = model.inputs(run)
-    check_run(model, inputs)
-    if temperature is not None and np.ndim(temperature) > 0:
-        inputs = replace(inputs, temperature=np.ascontiguousarray(temperature, dtype=float))
-    xyz, raw = model.compensate(inputs, return_report=True)
-    if reports is not None:
-        from ..kernel_report import KernelReport
-
-        reports.append(KernelReport(**raw))
-    return xyz
 
 
 def ballbar_scans(run: Run, skip_incomplete: bool = False) -> tuple[dict[int, dict[int, int]], list[dict]]:
@@ -476,10 +457,8 @@ def evaluate(
     expansion = expansion_ppm_per_K * 1e-6  # 1/K from here on (BallbarResult.expansion)
     if nominal_radius is None:
         nominal_radius = run.artefact.get("ball_radius_mm")
-    if is_model(maps):  # its own log policy gives way to the caller's
-        from ..diagnosis.apply import policy_model
-
-        maps = policy_model(maps, log_hold=log_hold)
+    if maps is not None:  # a model's own log policy gives way to the caller's
+        maps = maps.with_policy(log_hold=log_hold)
     temps, log = None, None
     if temperature is not None:
         temps = np.full(run.n_points, float(temperature))
@@ -493,7 +472,7 @@ def evaluate(
         prov["temperature"]["log"] = log
         prov["notes"].extend(log_notes(log))
     prov["skipped"] = skipped
-    if is_model(maps) and maps.expansion_ppm_per_kelvin:
+    if maps is not None and maps.expansion_ppm_per_kelvin:
         prov["notes"].append(f"the model's artefact-expansion ({maps.expansion_ppm_per_kelvin:+.3g} ppm/K) describes "
                              f"the artefact it was found on: the lengths at 20 C use the expansion given here")
     if skipped:
@@ -502,10 +481,9 @@ def evaluate(
                    positions)
     if maps is None:
         return Evaluation(raw, provenance=prov)
-    model_maps = maps.maps if is_model(maps) else maps
-    if temps is None and isinstance(model_maps, ErrorMapSet):
+    if temps is None and isinstance(maps.error_maps, ErrorMapSet):
         raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
-    if is_model(maps):
+    if maps.reads_run:  # a found model reads the run's log itself, with the caller's policy
         model_t = temperature
     elif isinstance(maps, ErrorMap):
         model_t = None
@@ -544,17 +522,7 @@ def evaluation_provenance(run: Run, maps, temperature, temps, expansion, out_of_
     """What produced an evaluation, for its JSON."""
     from .. import __version__
 
-    if is_model(maps):
-        inner = maps.maps
-        m = {"kind": "model", "maps": "set" if isinstance(inner, ErrorMapSet) else "map",
-             "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
-                          "units": dict(zip(s.params, s.units))} for s, v in maps.effects]}
-    elif maps is None:
-        m = {"kind": "none"}
-    elif isinstance(maps, ErrorMapSet):
-        m = {"kind": "set", "temperatures_C": [float(x) for x in maps.temperatures]}
-    else:
-        m = {"kind": "map", "temperature_C": maps.temperature}
+    m = {"kind": "none"} if maps is None else maps.provenance()
     if run.maps:
         m["run_says"] = run.maps
     if temperature is not None:

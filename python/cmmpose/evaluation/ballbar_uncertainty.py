@@ -52,7 +52,6 @@ from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
 from .._validate import nonnegative
 from ..errors import Error, InputError, InputTypeError
-from ..compensation import is_model
 from .ballbar import BallbarResult, Evaluation, machine_coordinates, machine_temperature
 from ..fitting import fit_spheres
 from ..policy import LOG_HOLD, TEMPERATURE_TOLERANCE
@@ -257,9 +256,9 @@ class EvaluationUncertainty:
 
 def _model_temperature(run: Run, maps, temperature, log_hold, temperature_policy=None):
     """The temperature the maps are evaluated at (as :func:`cmmpose.evaluate`)."""
-    if is_model(maps):  # the model's own reading of the log (its inputs), or the one given
-        if isinstance(maps.maps, ErrorMap):
-            return None
+    if maps is None or isinstance(maps.error_maps, ErrorMap):
+        return None
+    if maps.reads_run:  # the model's own reading of the log (its inputs), or the one given
         return float(temperature) if temperature is not None else maps.inputs(run).temperature
     if maps is None or isinstance(maps, ErrorMap):
         return None
@@ -349,23 +348,24 @@ def evaluation_uncertainty(
     log_hold = LOG_HOLD if log_hold is None else log_hold
     out = []
     no_sensitivity = False
+    once: set = set()  # the checks of the model on this run: said once, not again for each perturbation
     for res in evaluation.results:
         compensated = res.label == "compensated"
         model = maps if compensated else None
         model_t = _model_temperature(run, model, temperature, log_hold, temperature_policy) if compensated else None
-        xyz = machine_coordinates(run, model, model_t, out_of_range, temperature_tolerance)
+        xyz = machine_coordinates(run, model, model_t, out_of_range, temperature_tolerance, once=once)
         lengths, bar, var_fit = _lengths_from(xyz, run, res, reject)
         if not np.allclose(lengths, res.lengths, rtol=0, atol=1e-9):
             raise InputError("evaluation: its lengths are not those of run with these maps and temperature; pass the "
                              "same run, maps, temperature and reject as to evaluate")
         c_t = np.zeros(len(lengths))
         if model_t is not None:
-            c_t = _temperature_sensitivity(run, model, model_t, res, reject, out_of_range, lengths)
+            c_t = _temperature_sensitivity(run, model, model_t, res, reject, out_of_range, lengths, once)
             if c_t is None:
                 c_t = np.zeros(len(lengths))
                 no_sensitivity = True
-        terms = _model_terms(run, maps, model_t, res, reject, out_of_range, temperature_tolerance, lengths) \
-            if compensated and is_model(maps) else ()
+        terms = _model_terms(run, maps, model_t, res, reject, out_of_range, temperature_tolerance, lengths, once) \
+            if compensated and maps.effects else ()
         out.append(_result_uncertainty(res, lengths, bar, var_fit, c_t, compensated, u_t, u_map, u_model, u_alpha,
                                        terms))
     left_out = [
@@ -378,9 +378,9 @@ def evaluation_uncertainty(
     ]
     if u_model == 0:
         left_out.append("the residual model error (no u_model_ppm given)")
-    if isinstance(maps.maps if is_model(maps) else maps, ErrorMap):
+    if maps is not None and isinstance(maps.error_maps, ErrorMap):
         left_out.append("a single map's temperature mismatch (no temperature sensitivity without a map set)")
-    if is_model(maps):
+    if maps is not None and maps.effects:
         pairs = [(f"{s.name}.{p}", u) for s, _ in maps.effects for p, u in
                  zip(s.params, np.ravel(maps.uncertainty.get(s.name, np.full(s.size, np.nan))))]
         undetermined = [n for n, u in pairs if np.isinf(u)]
@@ -402,7 +402,8 @@ def evaluation_uncertainty(
     return EvaluationUncertainty(tuple(out), inputs, tuple(left_out))
 
 
-def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, lengths) -> np.ndarray | None:
+def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, lengths,
+                             once: set | None = None) -> np.ndarray | None:
     """d(length)/d(machine temperature), um/K, by a central difference, or a
     one-sided one where a step leaves the maps; None where both do. A step
     is never held or clamped at the maps' edge (that would halve the slope):
@@ -411,7 +412,7 @@ def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, leng
     got = {}
     for step in (_STEP_K, -_STEP_K):
         try:
-            xyz = machine_coordinates(run, maps, np.asarray(model_t) + step, policy, 0.0)
+            xyz = machine_coordinates(run, maps, np.asarray(model_t) + step, policy, 0.0, once=once)
         except Error:
             continue
         got[step] = _lengths_from(xyz, run, res, reject)[0]
@@ -423,7 +424,8 @@ def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, leng
     return None
 
 
-def _model_terms(run, model, model_t, res, reject, out_of_range, temperature_tolerance, lengths) -> list[tuple]:
+def _model_terms(run, model, model_t, res, reject, out_of_range, temperature_tolerance, lengths,
+                 once: set | None = None) -> list[tuple]:
     """One term per parameter of the model whose standard uncertainty it holds:
     (label, unit, u, dL/dp per length um/unit, d rms/dp um/unit, d B89/dp um/unit),
     by a forward difference of the effect's step through the kernel and the fits."""
@@ -441,7 +443,8 @@ def _model_terms(run, model, model_t, res, reject, out_of_range, temperature_tol
             v = np.array(values, dtype=float)
             step = float(spec.steps[j])
             v[j] += step
-            xyz = machine_coordinates(run, model.with_values(spec, v), model_t, out_of_range, temperature_tolerance)
+            xyz = machine_coordinates(run, model.with_values(spec, v), model_t, out_of_range, temperature_tolerance,
+                                      once=once)
             moved = _lengths_from(xyz, run, res, reject)[0]
             c_len = (moved - lengths) / step * 1e3
             c_rms = (rms_accuracy_error(moved) - rms_accuracy_error(lengths)) / step * 1e3

@@ -1,8 +1,9 @@
-"""A found model applied where it was not found: ``cmmpose compensate IN OUT
---model m.json`` and ``cmmpose evaluate RUN --model m.json`` (docs/plan.md,
-"A found model compensates").
+"""What a model reads from a point file (``cmmpose compensate IN OUT --model
+m.json``, ``cmmpose.compensate(..., maps=model, columns=...)``), and the
+checks of those inputs before a model is applied (docs/plan.md, "A found
+model compensates").
 
-A diagnosis model (:class:`~cmmpose.diagnosis.Model`: maps plus named
+A model (:class:`~cmmpose.Model`: maps plus named
 effects with fitted values) needs, beyond a point's u, v and scale readings,
 whatever its effects read. A run has them (its thermocouple log, time
 stamps, sweeps, poses); a point file has only the columns it holds:
@@ -26,26 +27,21 @@ a per-pose alignment         ``pose_id`` (which rows are that pose)
 A model needing an input the data lack is refused, naming the effect and the
 input (never applied without it). A model holding aliased choices (effects
 its run could not tell apart, saved as ``alternatives``) warns where they
-predict the data at hand differently (:mod:`cmmpose.diagnosis.aliases`).
+predict the data at hand differently (:mod:`cmmpose.model.alternatives`).
 Units: mm, s, degrees C, degrees.
 """
 
 from __future__ import annotations
 
 import warnings
-from dataclasses import replace
 
 import numpy as np
 
-from .. import compensation
-from ..errormap import ErrorMap
-from ..errors import InputError, InputTypeError, MapTemperatureWarning
-from .aliases import check_alternatives
+from ..errormap import ErrorMap, warn_single_map
+from ..errors import InputError, MapTemperatureWarning
 from .inputs import RunInputs
-from .model import Model, check_kinematics
 
-__all__ = ["POINT_COLUMNS", "check_run", "compensate_points", "needs_scans", "point_inputs", "policy_model",
-           "single_map_warning", "whole_scans"]
+__all__ = ["POINT_COLUMNS", "check_inputs", "point_inputs", "single_map_warning"]
 
 #: Point-file columns each kernel input is read from (module docstring).
 POINT_COLUMNS = {"axis_temperature": ("T_x_scale", "T_y_scale", "T_z_scale"),
@@ -54,17 +50,6 @@ POINT_COLUMNS = {"axis_temperature": ("T_x_scale", "T_y_scale", "T_z_scale"),
                  "incidence": ("incidence",)}
 #: Kernel terms that read the machine mean temperature besides the maps.
 _READS_MEAN = ("axis-temperature", "squareness-temperature")
-
-
-def policy_model(model: Model, *, out_of_range=None, temperature_tolerance=None, log_hold=None,
-                 temperature=None) -> Model:
-    """``model`` with the caller's policy (each None: the model's own) and
-    machine temperature (C; None: the model's, else the data's)."""
-    if not isinstance(model, Model):
-        raise InputTypeError(f"model: expected a cmmpose.Model (cmmpose.Model.load(path)), got {type(model).__name__}")
-    changes = {k: v for k, v in (("out_of_range", out_of_range), ("temperature_tolerance", temperature_tolerance),
-                                 ("log_hold", log_hold), ("temperature", temperature)) if v is not None}
-    return replace(model, **changes) if changes else model
 
 
 def _input_text(need: str) -> str:
@@ -79,51 +64,26 @@ def _input_text(need: str) -> str:
     return need
 
 
-def single_map_warning(model: Model, temperature, name: str | None = None) -> str | None:
+def single_map_warning(model, temperature, name: str | None = None) -> str | None:
     """A model holding one map (not a set) used at temperatures (C) other
     than the map's own: the ``MapTemperatureWarning`` that evaluating with
-    the map alone gives (:func:`cmmpose.compensation.warn_single_map`), its
+    the map alone gives (:func:`cmmpose.errormap.warn_single_map`), its
     text prefixed by ``name`` when given; returns the text (None: no warning)."""
     if not isinstance(model.maps, ErrorMap):
         return None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", MapTemperatureWarning)
-        note = compensation.warn_single_map(model.maps, temperature, model.temperature_tolerance)
+        note = warn_single_map(model.maps, temperature, model.temperature_tolerance)
     if note:
         note = f"{name}: {note}" if name else note
         warnings.warn(note, MapTemperatureWarning, stacklevel=3)
     return note
 
 
-def check_run(model: Model, inputs: RunInputs, where: str = "run") -> None:
+def check_inputs(model, inputs: RunInputs, where: str) -> None:
     """Refuse a model whose effects need an input ``inputs`` lacks, naming
     the effect and the input (the incidence is computed from the run's
-    sphere fits, so it is never lacking), or whose maps are stacked for
-    another machine configuration than the run's (:func:`check_kinematics`,
-    when the model's cache holds the run); warn where an aliased choice of
-    the model matters on this run (:mod:`cmmpose.diagnosis.aliases`), and
-    where a single map is used away from its temperature (once per run)."""
-    _check_inputs(model, inputs, where)
-    run = next((r for r, i in model._inputs_cache.values() if i is inputs), None)
-    if run is not None:
-        check_kinematics(model, run)
-        # Once per run: the models an uncertainty budget perturbs share the cache.
-        key = ("single map checked", id(run))
-        if key not in model._inputs_cache:
-            single_map_warning(model, inputs.temperature)
-            model._inputs_cache[key] = (None, None)
-    # An aliased choice that matters here warns (cmmpose.diagnosis.aliases); the run, when the model's own
-    # cache holds it with these inputs, lets the comparison be on its lengths rather than its points.
-    # Once per run: the models an uncertainty budget perturbs share the cache, and need no check of their own.
-    if model.alternatives:
-        key = ("aliased choice checked", id(run))
-        if run is None or key not in model._inputs_cache:
-            check_alternatives(model, inputs, where, run=run)
-            if run is not None:
-                model._inputs_cache[key] = (None, None)
-
-
-def _check_inputs(model: Model, inputs: RunInputs, where: str) -> None:
+    sphere fits, so it is never lacking)."""
     for spec, _ in model.effects:
         for need in spec.needs:
             if need in ("poses>1", "incidence") or inputs.available(need):
@@ -134,12 +94,6 @@ def _check_inputs(model: Model, inputs: RunInputs, where: str) -> None:
             have = ", ".join(inputs.sensors) or "none"
             raise InputError(f"{where}: the model's effect {spec.name!r} follows the thermocouples of role "
                              f"{spec.sensor!r}; the {where} has none (its roles: {have})")
-
-
-def needs_scans(model: Model) -> bool:
-    """Whether the model reads each sweep's velocity (latency): then a point
-    file is compensated scan by scan (:func:`whole_scans`)."""
-    return any("velocity" in s.needs for s, _ in model.effects)
 
 
 def _column(path, extras: dict, name: str, spec_name: str, why: str) -> np.ndarray:
@@ -174,36 +128,7 @@ def _velocity(path, t: np.ndarray, scans: np.ndarray, scan_id: np.ndarray) -> np
     return np.ascontiguousarray(v[inv])
 
 
-def whole_scans(chunks):
-    """Re-chunk a point file's chunks ``(uv, scales, temps, extras, done)``
-    so that no sweep is split between two chunks (the rows of the last
-    ``scan_id`` of a chunk wait for the next one); memory grows by one
-    sweep at most."""
-    held = None
-    for uv, scales, temps, extras, done in chunks:
-        if held is not None:
-            huv, hsc, hte, hex_ = held
-            uv, scales = np.concatenate([huv, uv]), np.concatenate([hsc, scales])
-            temps = None if temps is None else np.concatenate([hte, temps])
-            extras = {k: np.concatenate([hex_[k], v]) for k, v in extras.items()}
-            held = None
-        sid = extras.get("scan_id")
-        if sid is not None and len(sid):
-            last = sid[-1]
-            start = len(sid) - int(np.argmax(sid[::-1] != last)) if np.any(sid != last) else 0
-            if start > 0:
-                held = (uv[start:], scales[start:], None if temps is None else temps[start:],
-                        {k: v[start:] for k, v in extras.items()})
-                uv, scales = uv[:start], scales[:start]
-                temps = None if temps is None else temps[:start]
-                extras = {k: v[:start] for k, v in extras.items()}
-        if len(uv):
-            yield uv, scales, temps, extras, done
-    if held is not None:
-        yield (*held, done)
-
-
-def point_inputs(model: Model, uv: np.ndarray, scales: np.ndarray, pose, offset, temperature=None, temps=None,
+def point_inputs(model, uv: np.ndarray, scales: np.ndarray, pose, offset, temperature=None, temps=None,
                  extras: dict | None = None, path="points") -> RunInputs:
     """The inputs the model's kernel reads for points of a point file.
 
@@ -295,19 +220,3 @@ def point_inputs(model: Model, uv: np.ndarray, scales: np.ndarray, pose, offset,
                        velocity=np.ascontiguousarray(velocity), incidence=incidence, role_temperatures=role_t,
                        sensors=sensors)
     return inputs
-
-
-def compensate_points(model: Model, inputs: RunInputs, path="points") -> tuple[np.ndarray, dict]:
-    """The model's compensation of a point file's inputs (:func:`point_inputs`):
-    ``(xyz, raw report)``; where the model keeps aliased alternatives, they
-    are compared on these points against the same ``xyz`` (compensated once)
-    and warn where they matter (:mod:`cmmpose.diagnosis.aliases`)."""
-    xyz, raw = model.compensate(inputs, return_report=True)
-    if model.alternatives:
-        # A file's chunks: once it has warned, the rest of the file is not compared again.
-        key = ("aliased choice warned", str(path))
-        if str(path) == "points" or key not in model._inputs_cache:
-            found = check_alternatives(model, inputs, str(path), xyz=xyz)
-            if any(f["warned"] for f in found) and str(path) != "points":
-                model._inputs_cache[key] = (None, None)
-    return xyz, raw

@@ -29,7 +29,7 @@ from .. import effects as effects_registry
 from ..effects import Effect
 from ..errors import Error, InputError, UserEffectError
 
-__all__ = ["EffectSpec", "UserEffect", "load_user_effect", "load_user_effects", "LIBRARY", "library", "run_library", "effect_spec", "resolve", "USER_INPUTS"]
+__all__ = ["EffectSpec", "UserEffect", "load_user_effect", "load_user_effects", "LIBRARY", "library", "run_library", "effect_spec", "USER_INPUTS"]
 
 
 @dataclass(frozen=True)
@@ -281,26 +281,6 @@ def run_library(inputs) -> dict[str, EffectSpec]:
     """The candidate library for a run's inputs (:class:`RunInputs`): its
     poses and thermocouple roles."""
     return library(inputs.pose_ids, inputs.sensor_roles)
-
-
-def resolve(name: str) -> EffectSpec:
-    """The spec of a library name, variants included: 'alignment@3' (pose 3)
-    or 'squareness-temperature@z_scale' (following the z-scale thermocouples)."""
-    if isinstance(name, str) and name.startswith("map:"):  # a map correction (cmmpose.diagnosis.mapfamily)
-        from .mapfamily import parse
-
-        return parse(name)
-    base, at, suffix = name.partition("@")
-    if at and base in LIBRARY:
-        try:
-            pose = int(suffix)
-        except ValueError:
-            return effect_spec(name, library(sensors=[suffix]) if LIBRARY[base].sensor_input else LIBRARY)
-        return effect_spec(name, library([pose, pose + 1]))  # two poses: library() adds the per-pose specs
-    if base in LIBRARY and LIBRARY[base].sensor_input:
-        raise InputError(f"effect {name!r} follows a thermocouple group: name it, e.g. '{name}@z_scale' "
-                         f"(one of the run's thermocouple roles)")
-    return effect_spec(name)
 
 
 def effect_spec(name, candidates: dict[str, EffectSpec] | None = None) -> EffectSpec:

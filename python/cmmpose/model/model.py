@@ -1,12 +1,19 @@
-"""A compensation model with physical effects: the thesis model (error maps,
-pose, machine-mean temperature) plus named effects with fitted parameters.
-Immutable: :meth:`Model.add` returns a new model."""
+"""A machine model with physical effects: the thesis model (error maps,
+pose, machine-mean temperature) plus named effects with their values, as a
+diagnosis found them or a user set them. Immutable: :meth:`Model.with_values`
+returns a new model; fitting an effect to a run is the diagnosis's
+(:func:`cmmpose.diagnosis.fit_effect`). Applying a model to a run or to
+points is :meth:`Model.compensate_run` and :meth:`Model.compensate_points`,
+the same calls :class:`cmmpose.ErrorMap` and :class:`cmmpose.ErrorMapSet`
+answer (:class:`cmmpose.model.MachineModel`)."""
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import tempfile
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -16,15 +23,24 @@ from .. import _core
 from .._json import dumps as strict_json
 from ..atomicfile import write_text
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import Error, InputError, InputTypeError, MapError
+from ..errors import Error, InputError, InputTypeError, MapError, ModelDomainWarning, warn_clamped
+from ..fitting import fit_spheres
 from ..policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy
 from ..pose import digitizer
 from ..run import Run
 from ..temperature import TemperaturePolicy
-from .effects import LIBRARY, EffectSpec, UserEffect, effect_spec, resolve
-from .inputs import RunInputs
+from ..kernel_report import KernelReport
+from .alternatives import Alternative, check_alternatives
+from .domain import Domain, correction_uncertainty, domain_notes, uncertainty_notes
+from .inputs import RunInputs, incidence_angles
+from .mapshape import parse as parse_map
+from .names import resolve
+from .point_inputs import check_inputs, point_inputs, single_map_warning
+from .spec import LIBRARY, EffectSpec, effect_spec
 
 __all__ = ["Model", "MODEL_SCHEMA", "check_kinematics", "run_kinematics"]
+
+_log = logging.getLogger(__name__)
 
 #: ``schema`` of a saved model file.
 MODEL_SCHEMA = "cmmpose-model"
@@ -76,10 +92,15 @@ class Model:
     temperature_policy: TemperaturePolicy | None = field(default=None, compare=False, repr=False)
     thermal: dict = field(default_factory=dict, compare=False, repr=False)
     #: Effects the data the model was found on could not tell from one it
-    #: holds (:class:`cmmpose.diagnosis.aliases.Alternative`): saved, and
+    #: holds (:class:`cmmpose.model.alternatives.Alternative`): saved, and
     #: applying the model warns where they predict differently.
     alternatives: tuple = field(default=(), compare=False, repr=False)
-    _inputs_cache: dict = field(default_factory=dict, compare=False, repr=False)
+    #: Where the model was fitted (:class:`cmmpose.model.domain.Domain`): saved, and applying the model
+    #: says where data leave it. None: not recorded (a model made by hand).
+    domain: Domain | None = field(default=None, compare=False, repr=False)
+    #: The covariance of the effects' parameters as the diagnosis found it: ``{"parameters": ["effect.param",
+    #: ...], "matrix": (k, k) in the parameters' units}``; empty: the standard uncertainties, independent.
+    covariance: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):
         if not isinstance(self.maps, (ErrorMap, ErrorMapSet)):
@@ -136,51 +157,36 @@ class Model:
         effects.insert(at, (spec, values))
         # Alternatives were fitted in place of the effect's values: a changed value leaves them behind.
         alternatives = tuple(a for a in self.alternatives if a.chosen != spec.name)
-        return replace(self, effects=tuple(effects), alternatives=alternatives, _inputs_cache=self._inputs_cache)
+        return replace(self, effects=tuple(effects), alternatives=alternatives)
 
     def without(self, name: str) -> Model:
         """A model without effect ``name``."""
         self.values(name)
-        return replace(self, effects=tuple((s, v) for s, v in self.effects if s.name != name),
-                       _inputs_cache=self._inputs_cache)
+        return replace(self, effects=tuple((s, v) for s, v in self.effects if s.name != name))
 
-    def add(self, effect, run: Run | None = None, *, values=None) -> Model:
-        """A new model with ``effect`` added: its parameters given as
-        ``values``, or fitted to ``run`` (jointly with the effects already in
-        the model, by Gauss-Newton through the Rust kernel).
+    def add(self, effect, values) -> Model:
+        """A new model with ``effect`` added at ``values`` (its units); to
+        fit it to a run, :func:`cmmpose.diagnosis.fit_effect`.
 
         Parameters
         ----------
         effect : str or EffectSpec
-            A library name (see ``cmmpose.diagnosis.LIBRARY``) or a spec
+            A library name (see ``cmmpose.model.LIBRARY``) or a spec
             (e.g. a :class:`UserEffect`).
-        run : Run, optional
-            The run to fit the parameters to.
-        values : array_like, optional
-            Parameter values in the effect's units, instead of fitting.
+        values : array_like
+            Parameter values in the effect's units.
         """
         spec = effect_spec(effect, _known(self, effect))
         if spec.name in self.names:
             raise InputError(f"effect {spec.name!r} is already in the model; use with_values to change it")
-        if values is not None:
-            return self.with_values(spec, values)
-        if run is None:
-            raise InputError(f"add({spec.name!r}): give a run to fit it to, or values=")
-        from .identify import fit_model
-
-        return fit_model(self.with_values(spec, np.zeros(spec.size)), run)
+        return self.with_values(spec, values)
 
     # -- compensation -------------------------------------------------------
 
     def inputs(self, run: Run) -> RunInputs:
-        """Per-point inputs of ``run`` (cached per run object)."""
-        key = id(run)
-        cached = self._inputs_cache.get(key)
-        if cached is None or cached[0] is not run:
-            self._inputs_cache.clear()
-            cached = (run, inputs_with_incidence(self, RunInputs.from_run(run, self.temperature, temperature_policy=self.policy)))
-            self._inputs_cache[key] = cached
-        return cached[1]
+        """Per-point inputs of ``run`` its effects read (computed afresh: a
+        caller that applies the model to one run several times keeps them)."""
+        return inputs_with_incidence(self, RunInputs.from_run(run, self.temperature, temperature_policy=self.policy))
 
     @property
     def policy(self) -> TemperaturePolicy:
@@ -255,27 +261,171 @@ class Model:
             return xyz, report
         return (xyz, clamped) if return_clamped else xyz
 
-    def evaluate(self, run: Run):
-        """Ballbar figures of ``run`` under this model (see ``ModelFigures``);
-        a run on another machine configuration (:func:`check_kinematics`) or
-        whose calibrated bar length is far from the lengths it measures, or
-        an artefact's ball far from its calibrated place
-        (:func:`cmmpose.diagnosis.observables.check_first_observation`) is
-        refused."""
-        from .observables import ObservationLayout, check_first_observation, figures, observe
+    # -- the machine-model calls (cmmpose.model.MachineModel) ---------------
 
-        check_kinematics(self, run)
-        inputs = self.inputs(run)
-        layout = ObservationLayout.from_run(run, inputs)
-        observed = observe(layout, self.compensate(inputs), self.expansion_ppm_per_kelvin, inputs.scan_id)
-        check_first_observation(layout, observed, run_label(run))
-        return figures(layout, None, self, observed=observed)
+    #: A model reads a run's own inputs (thermocouple log, time stamps, sweeps) itself.
+    reads_run = True
 
-    # -- pickling (sent to a worker process: cmmpose.scale) -----------------
+    @property
+    def reads_sweeps(self) -> bool:
+        """Whether the model reads each sweep's velocity (latency): then a
+        point file is compensated sweep by sweep."""
+        return any("velocity" in s.needs for s, _ in self.effects)
 
-    def __getstate__(self) -> dict:
-        """The model without its per-run inputs cache (which holds a run)."""
-        return {**self.__dict__, "_inputs_cache": {}}
+    @property
+    def error_maps(self) -> ErrorMap | ErrorMapSet:
+        """The maps under the model."""
+        return self.maps
+
+    def provenance(self) -> dict:
+        """What compensated, for an evaluation's JSON."""
+        return {"kind": "model", "maps": "set" if isinstance(self.maps, ErrorMapSet) else "map",
+                "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
+                             "units": dict(zip(s.params, s.units))} for s, v in self.effects]}
+
+    def without_effects(self) -> Model:
+        """The plain maps as a model: the same maps, policy and reading of a
+        run's log, without the effects (what a found model is judged against)."""
+        return replace(self, effects=(), alternatives=(), uncertainty={}, domain=None, covariance={})
+
+    def with_policy(self, *, out_of_range=None, temperature_tolerance=None, log_hold=None,
+                    temperature=None) -> Model:
+        """The model with the caller's policy (each None: the model's own)
+        and machine temperature (C; None: the model's, else the data's)."""
+        changes = {k: v for k, v in (("out_of_range", out_of_range), ("temperature_tolerance", temperature_tolerance),
+                                     ("log_hold", log_hold), ("temperature", temperature)) if v is not None}
+        return replace(self, **changes) if changes else self
+
+    def compensate_points(self, uv, scales, pose, offset, temperature=None, *, out_of_range=None,
+                          temperature_tolerance=None, nan_policy: str = "raise", out=None, columns=None,
+                          where: str = "points", once: set | None = None) -> tuple[np.ndarray, dict]:
+        """Compensated X, Y, Z (mm) of points taken at one pose, and the
+        kernel's report (a dict).
+
+        Parameters
+        ----------
+        uv, scales : ndarray (N, 2), (N, 3)
+            Scan-plane u, v and scale readings D, E, F, mm (checked float64 rows).
+        pose, offset : sequence of 3 float
+            Euler 3-1-3 angles (degrees) and mount offset (mm).
+        temperature : float or ndarray (N,), optional
+            Machine temperature, C, for every point or per point (the T column).
+        out_of_range, temperature_tolerance
+            The caller's policy (None: the model's).
+        nan_policy, out
+            For maps only: a model refuses anything but the defaults.
+        columns : dict of str -> ndarray, optional
+            The points' other columns its effects read (:mod:`cmmpose.model.point_inputs`).
+        where : str
+            The data's name, for messages (a file's path).
+        once : set, optional
+            The checks already said for these data (a file's earlier chunks):
+            each warning is given once.
+        """
+        if out is not None or nan_policy != "raise":
+            raise InputError("compensate with a model: out= and nan_policy='propagate' are for maps only")
+        temps = None
+        if temperature is not None and np.ndim(temperature) > 0:
+            temps, temperature = temperature, None
+        model = self.with_policy(out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
+        inputs = point_inputs(model, uv, scales, pose, offset, temperature, temps, dict(columns or {}), where)
+        xyz, raw = model.compensate(inputs, return_report=True)
+        model._check_application(inputs, xyz, str(where), once, compare=None, every_call=False)
+        return xyz, raw
+
+    def compensate_run(self, run: Run, temperature=None, *, out_of_range=None, temperature_tolerance=None,
+                       reports: list | None = None, compare=None, once: set | None = None) -> np.ndarray:
+        """All points of ``run`` in machine coordinates (N, 3 mm): its maps
+        and effects, with the inputs its effects read from the run (a
+        lacking one is an ``InputError`` naming it).
+
+        Parameters
+        ----------
+        run : Run
+            The run (a run of another machine configuration is refused).
+        temperature : float or ndarray (N,), optional
+            C, one or per point, in place of the run's thermocouple log.
+        out_of_range, temperature_tolerance
+            The caller's policy (None: the model's).
+        reports : list, optional
+            The kernel's report (:class:`cmmpose.KernelReport`) is appended.
+        compare : callable, optional
+            ``compare(model, other, inputs, xyz) -> um``: how the run's
+            figures differ under an alternative (the evaluation's lengths or
+            deviations; default: the points, less a rigid motion).
+        once : set, optional
+            The checks already said for this run (an uncertainty budget
+            applies perturbed models to one run): each is said once.
+        """
+        scalar = temperature is not None and np.ndim(temperature) == 0
+        model = self.with_policy(out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
+                                 temperature=float(temperature) if scalar else None)
+        inputs = RunInputs.from_run(run, model.temperature, temperature_policy=model.policy)
+        check_inputs(model, inputs, "run")
+        check_kinematics(model, run)
+        where = "run"  # a command names the run before the message
+        if once is None or ("single map", where) not in once:
+            single_map_warning(model, inputs.temperature)
+        if temperature is not None and not scalar:
+            inputs = replace(inputs, temperature=np.ascontiguousarray(temperature, dtype=float))
+        xyz, raw = model.compensate(inputs, return_report=True)
+        model._check_application(inputs, xyz, where, once, compare=compare, every_call=True)
+        report = KernelReport(**raw)
+        warn_clamped(report)
+        if reports is not None:
+            reports.append(report)
+        return xyz
+
+    def domain_notes(self, data, xyz: np.ndarray | None = None) -> list[str]:
+        """Where ``data`` (a Run, or the inputs of a run or point file) lie
+        outside the domain the model was fitted on, and where its correction
+        is not determined there, one sentence each
+        (:mod:`cmmpose.model.domain`); empty for a model without effects.
+        ``xyz``: the model's compensation of the data when the caller has it (mm)."""
+        if not self.effects:
+            return []
+        inputs = RunInputs.from_run(data, self.temperature, temperature_policy=self.policy) \
+            if isinstance(data, Run) else data
+        return domain_notes(self.domain, inputs) + uncertainty_notes(correction_uncertainty(self, inputs, xyz))
+
+    def parameter_covariance(self, names) -> np.ndarray:
+        """The covariance of the parameters ``names`` ('effect.param'), in
+        their units: the diagnosis's where it kept it, else the standard
+        uncertainties as independent (NaN: none stated, taken as 0)."""
+        index = {n: i for i, n in enumerate(self.covariance.get("parameters", ()))}
+        if names and all(n in index for n in names):
+            at = [index[n] for n in names]
+            return np.asarray(self.covariance["matrix"], float)[np.ix_(at, at)]
+        sd = []
+        for n in names:
+            effect, _, param = n.rpartition(".")
+            spec = next(s for s, _ in self.effects if s.name == effect)
+            u = np.ravel(self.uncertainty.get(effect, np.full(spec.size, np.nan)))[spec.params.index(param)]
+            sd.append(0.0 if not np.isfinite(u) else float(u))
+        return np.diag(np.square(sd))
+
+    def _check_application(self, inputs: RunInputs, xyz: np.ndarray, where: str, once: set | None, *, compare,
+                           every_call: bool) -> None:
+        """The checks of a model applied to data: where they leave its domain
+        or its correction is not determined (:mod:`cmmpose.model.domain`:
+        ``ModelDomainWarning``), where an aliased choice matters
+        (:mod:`cmmpose.model.alternatives`). With ``once``, each is
+        made once for ``where``: after its first check (``every_call``: a
+        run) or its first warning (a file's chunks)."""
+        if once is not None:
+            once.add(("single map", where))
+        if self.effects and (once is None or ("domain", where) not in once):
+            notes = self.domain_notes(inputs, xyz)
+            for note in notes:
+                _log.warning("%s: %s", where, note)
+                warnings.warn(f"{where}: {note}", ModelDomainWarning, stacklevel=4)
+            if once is not None and (every_call or notes):
+                once.add(("domain", where))
+        if not self.alternatives or (once is not None and ("alternatives", where) in once):
+            return
+        found = check_alternatives(self, inputs, where, xyz=xyz, compare=compare)
+        if once is not None and (every_call or any(f["warned"] for f in found)):
+            once.add(("alternatives", where))
 
     # -- files --------------------------------------------------------------
 
@@ -302,6 +452,10 @@ class Model:
                          "units": dict(zip(s.params, s.units))} | _uncertainty_entry(self, s) for s, v in self.effects],
             **({"alternatives": [a.to_dict() for a in self.alternatives if a.chosen in self.names]}
                if self.alternatives else {}),
+            **({"domain": self.domain.to_dict()} if self.domain is not None else {}),
+            **({"covariance": {"parameters": list(self.covariance["parameters"]),
+                               "matrix": np.asarray(self.covariance["matrix"], float).tolist()}}
+               if self.covariance else {}),
         }
 
     def save(self, path) -> Path:
@@ -371,16 +525,7 @@ class Model:
             effects, unc = [], {}
             for e in doc["effects"]:
                 name = e["name"]
-                if name.startswith("map:"):  # a map correction: rebuilt from its name
-                    from .mapfamily import parse as parse_map
-
-                    spec = parse_map(name)
-                elif e.get("kind") == "python":
-                    if name not in users:
-                        raise InputError(f"{path}: effect {name!r} is user-defined", remedy="user_effects")
-                    spec = users[name]
-                else:
-                    spec = resolve(name)
+                spec = _saved_spec(name, e.get("kind"), users, path)
                 if set(e["params"]) != set(spec.params):
                     raise InputError(f"{path}: effect {name!r} has parameters {sorted(e['params'])}, "
                                      f"expected {list(spec.params)}")
@@ -394,10 +539,12 @@ class Model:
                     unc[name] = _saved_uncertainty(e["uncertainty"], spec, path)
             alternatives = _saved_alternatives(doc.get("alternatives") or [], users, [s.name for s, _ in effects],
                                                path)
+            domain = Domain.from_dict(doc["domain"], str(path)) if doc.get("domain") is not None else None
+            covariance = _saved_covariance(doc.get("covariance"), effects, path)
             return cls(model_maps, tuple(effects), doc.get("temperature"), doc.get("out_of_range", "raise"),
                        doc.get("temperature_tolerance_K", TEMPERATURE_TOLERANCE), doc.get("log_hold_s", LOG_HOLD),
                        unc, _saved_policy(doc.get("temperature_policy"), path), doc.get("temperature_log") or {},
-                       alternatives)
+                       alternatives, domain, covariance)
         except Error:  # already names the file and what is wrong in it
             raise
         except (KeyError, TypeError, ValueError) as e:
@@ -433,8 +580,6 @@ def _keep_policy(model: Model) -> None:
 def _saved_spec(name: str, kind, users: dict, path) -> EffectSpec:
     """The spec of a saved effect named ``name`` (a map correction is rebuilt from its name)."""
     if name.startswith("map:"):
-        from .mapfamily import parse as parse_map
-
         return parse_map(name)
     if kind == "python":
         if name not in users:
@@ -448,8 +593,6 @@ def _saved_alternatives(entries, users: dict, names, path) -> tuple:
     alternative to an effect the model lacks is refused; a user-defined one
     whose spec was not passed is left out, with a log line (the model still
     applies; only the check of that alternative is lost)."""
-    from .aliases import Alternative
-
     out = []
     for i, e in enumerate(entries):
         name, chosen = e["name"], e["chosen"]
@@ -459,9 +602,7 @@ def _saved_alternatives(entries, users: dict, names, path) -> tuple:
         # A map correction (kind "python", name "map:...") is a library shape rebuilt from its name
         # (_saved_spec): only a user-defined effect needs its spec passed again.
         if e.get("kind") == "python" and not name.startswith("map:") and name not in users:
-            import logging
-
-            logging.getLogger("cmmpose.diagnosis.aliases").warning(
+            logging.getLogger("cmmpose.model.alternatives").warning(
                 "%s: the alternative %s to %s is user-defined and was not passed: it is not checked", path, name,
                 chosen)
             continue
@@ -472,6 +613,34 @@ def _saved_alternatives(entries, users: dict, names, path) -> tuple:
         out.append(Alternative(chosen, spec, np.array(values, float), float(e.get("in_sample_difference_um") or 0.0),
                                str(e.get("reason", ""))))
     return tuple(out)
+
+
+def _saved_covariance(doc, effects, path) -> dict:
+    """The ``covariance`` of a model file: its parameters must be the model's
+    ('effect.param'), its matrix square, finite, symmetric and positive
+    semi-definite (a negative variance or a correlation above 1 would make a
+    predicted uncertainty imaginary or too small), in the parameters' units."""
+    if doc is None:
+        return {}
+    known = {f"{s.name}.{p}" for s, _ in effects for p in s.params}
+    try:
+        names, m = list(doc["parameters"]), np.array(doc["matrix"], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{path}: covariance: expected parameters (a list of 'effect.param') and a matrix "
+                         f"(a list of rows of numbers)", file=str(path), what="covariance") from None
+    unknown = [n for n in names if n not in known]
+    if unknown or len(set(names)) != len(names):
+        raise InputError(f"{path}: covariance.parameters: {unknown or names} are not each one parameter of the "
+                         f"model's effects", file=str(path), what="covariance.parameters")
+    k = len(names)
+    if m.shape != (k, k) or not np.all(np.isfinite(m)):
+        raise InputError(f"{path}: covariance.matrix: expected {k} x {k} finite numbers, got shape {m.shape}",
+                         file=str(path), what="covariance.matrix")
+    scale = max(float(np.max(np.abs(m))), 1e-300) if k else 1.0
+    if k and (np.max(np.abs(m - m.T)) > 1e-9 * scale or np.linalg.eigvalsh((m + m.T) / 2).min() < -1e-9 * scale):
+        raise InputError(f"{path}: covariance.matrix is not symmetric positive semi-definite", file=str(path),
+                         what="covariance.matrix")
+    return {"parameters": names, "matrix": m}
 
 
 def _saved_uncertainty(entry, spec: EffectSpec, path) -> np.ndarray:
@@ -583,10 +752,7 @@ def inputs_with_incidence(model: Model, inputs: RunInputs) -> RunInputs:
     """Incidence angles from sphere fits of the points compensated by the
     thesis model (the angle barely depends on the effects); points of scans
     that cannot be fitted get 0."""
-    from ..fitting import fit_spheres
-    from .inputs import incidence_angles
-
-    base = replace(model, effects=(), _inputs_cache={})
+    base = replace(model, effects=())
     xyz = base.compensate(inputs)
     fits = fit_spheres(xyz, inputs.scan_id, on_error="return")
     centres = {k: c for k, c, e in zip(fits.labels.tolist(), fits.centre, fits.error) if e is None}

@@ -9,7 +9,7 @@ their provenance (``RunInputs.thermal``)."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -146,6 +146,18 @@ class RunInputs:
                    axis_temperature=None if axis_t is None else np.ascontiguousarray(axis_t, dtype=float),
                    gradient=None if gradient is None else np.ascontiguousarray(gradient, dtype=float),
                    velocity=velocity, role_temperatures=role_t, sensors=sensors, thermal=thermal)
+
+    def take(self, rows: np.ndarray) -> RunInputs:
+        """The inputs of the points ``rows`` only (every per-point array taken; the poses kept)."""
+        def take(a):
+            return None if a is None else np.ascontiguousarray(a[rows])
+
+        return replace(self, uv=take(self.uv), scales=take(self.scales), t=take(self.t), scan_id=take(self.scan_id),
+                       pose_index=take(self.pose_index), temperature=take(self.temperature),
+                       axis_temperature=take(self.axis_temperature), gradient=take(self.gradient),
+                       velocity=take(self.velocity), incidence=take(self.incidence),
+                       role_temperatures={k: take(v) for k, v in self.role_temperatures.items()},
+                       sensors={k: take(v) for k, v in self.sensors.items()})
 
     def with_incidence(self, incidence: np.ndarray) -> RunInputs:
         """A copy holding incidence angles (degrees, (N,))."""

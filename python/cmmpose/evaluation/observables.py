@@ -28,14 +28,16 @@ import numpy as np
 from .._validate import length_unit_slip
 from ..errors import InputError
 from ..fitting import fit_spheres
-from ..evaluation.metrics import b89_value, rms_accuracy_error
+from .metrics import b89_value, rms_accuracy_error
 from ..run import Run
-from ..evaluation.artefact import is_artefact_run
-from .artefact import ArtefactLayout, artefact_deviations, check_placements
-from .inputs import RunInputs
+from .artefact_balls import is_artefact_run
+from .artefact_layout import ArtefactLayout, artefact_deviations, check_placements
+from ..model.alternatives import observables_difference_um
+from ..model.inputs import RunInputs
+from ..model.model import check_kinematics, run_label
 
 __all__ = ["ObservationLayout", "Observed", "observe", "figures", "ModelFigures", "CLASSES",
-           "check_calibrated_length", "check_first_observation"]
+           "check_calibrated_length", "check_first_observation", "figures_difference", "model_figures"]
 
 #: Observable classes, in vector order.
 CLASSES = ("length", "centre", "radius", "point")
@@ -81,7 +83,7 @@ class ObservationLayout:
         embeds its definition): which spheres are which balls of which
         placement. Then the first block holds each ball's deviation after its
         placement's best-fit rigid transform (3 per ball) instead of ballbar
-        lengths (:mod:`cmmpose.diagnosis.artefact`).
+        lengths (:mod:`cmmpose.evaluation.artefact_layout`).
     """
 
     labels: np.ndarray
@@ -292,7 +294,7 @@ def check_first_observation(layout: ObservationLayout, observed: Observed, where
     """The slips a run's first observation shows, refused: a calibrated bar
     length off the measured (:func:`check_calibrated_length`) and an
     artefact's ball far from its calibrated place
-    (:func:`cmmpose.diagnosis.artefact.check_placements`)."""
+    (:func:`cmmpose.evaluation.artefact_layout.check_placements`)."""
     check_calibrated_length(layout, observed.lengths, where)
     if layout.artefact is not None:
         check_placements(layout.artefact, _mean_centres(layout, observed.centres))
@@ -433,3 +435,36 @@ def figures(layout: ObservationLayout, xyz: np.ndarray, model, sid=None, observe
         d_rms, d_max = float(np.sqrt(np.mean(size ** 2))), float(size.max())
     return ModelFigures(observed.lengths, l20, rms, b89, err, float(np.mean(observed.form)),
                         float(np.mean(observed.rms)), spread, d_rms, d_max)
+
+
+def model_figures(model, run: Run) -> ModelFigures:
+    """The diagnosis's figures of ``run`` under ``model`` (its lengths brought
+    to 20 C with the model's own expansion, or an artefact's deviations): the
+    scale a diagnosis step is judged on. A run of another machine
+    configuration, a calibrated length far from the lengths measured, or an
+    artefact's ball far from its calibrated place is refused. To judge a
+    model on a run it was not fitted to, use
+    :func:`cmmpose.evaluation.model_check.check_model` (the figures
+    ``cmmpose evaluate --model`` prints)."""
+    check_kinematics(model, run)
+    inputs = model.inputs(run)
+    layout = ObservationLayout.from_run(run, inputs)
+    observed = observe(layout, model.compensate(inputs), model.expansion_ppm_per_kelvin, inputs.scan_id)
+    check_first_observation(layout, observed, run_label(run))
+    return figures(layout, None, model, observed=observed)
+
+
+def figures_difference(run: Run):
+    """How a run's figures differ under an alternative to a model's choice
+    (:mod:`cmmpose.model.alternatives`): ``compare(model, other, inputs, xyz)``
+    gives the largest difference of the run's lengths (an artefact run: its
+    balls' deviations after each placement's rigid fit), less their common
+    change, um."""
+    def compare(model, other, inputs, xyz) -> float:
+        layout = ObservationLayout.from_run(run, inputs)
+        groups = [np.arange(layout.sizes["length"])]
+        a = observe(layout, xyz, model.expansion_ppm_per_kelvin, inputs.scan_id)
+        b = observe(layout, other.compensate(inputs), other.expansion_ppm_per_kelvin, inputs.scan_id)
+        return observables_difference_um(b.residual, a.residual, groups)
+
+    return compare

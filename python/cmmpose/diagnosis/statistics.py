@@ -1,0 +1,48 @@
+"""The diagnosis's statistical constants and the chi-square tail they use,
+shared by the selection (:mod:`.identify`), its cross-validation (:mod:`.cv`)
+and the noise floor (:mod:`.floor`)."""
+
+from __future__ import annotations
+
+from scipy.special import chdtrc
+
+__all__ = ["ALPHA", "INDISTINGUISHABLE", "INDISTINGUISHABLE_LR", "MAX_REPRODUCIBILITY_MM", "NOT_OBSERVABLE_BELOW",
+           "OBSERVABLE_AT", "PRIOR_WEIGHT", "RSS_FLOOR", "SIGMA_FLOOR", "chi2_sf"]
+
+#: Family-wise false-alarm rate of a proposal.
+ALPHA = 1e-3
+#: Squared signal-to-noise, at the prior magnitude, below which an effect
+#: counts as unobservable in the run (5 sigma).
+OBSERVABLE_AT = 25.0
+#: Squared signal-to-noise at the prior magnitude below which the run cannot
+#: determine an effect at a typical size (2 sigma): "not observable". Between
+#: this and OBSERVABLE_AT an effect is determined, if weakly: "not significant".
+NOT_OBSERVABLE_BELOW = 4.0
+#: Two candidates whose fitted contributions correlate above this cannot be
+#: told apart.
+INDISTINGUISHABLE = 0.95
+#: ... and whose likelihood-ratio gains differ by less than this (a
+#: likelihood ratio under e^5, about 150:1, between them).
+INDISTINGUISHABLE_LR = 10.0
+#: Smallest noise level credited to a class, mm: below 0.1 um the model's
+#: own approximations (second-order kinematics, linearised sensitivities)
+#: are not trustworthy, so residuals that small are not evidence.
+SIGMA_FLOOR = 1e-4
+RSS_FLOOR = SIGMA_FLOOR ** 2
+#: Largest stated per-scan centre reproducibility, mm per axis: a sphere
+#: scan's centre repeats to micrometres, and a whole uncompensated machine
+#: errs by ~0.1 mm (the thesis machine: 71 um rms on a 404 mm bar). A
+#: floor of more than 1 mm would call every effect insignificant; such a
+#: value is a unit slip (nm, or mm written as um x 1000), not a measurement.
+MAX_REPRODUCIBILITY_MM = 1.0
+#: Weight of the prior on effect parameters, per prior magnitude: a total
+#: value of a few typical magnitudes costs little, hundreds cost more than
+#: any data can gain. Without it a linearised column that happens to carry
+#: the noise (a depth scale scales the depth noise too) could "explain" the
+#: noise by an absurd value.
+PRIOR_WEIGHT = 0.3
+
+
+def chi2_sf(x: float, k: int) -> float:
+    """Upper tail of chi-square with k dof (scipy.special: no scipy.stats import)."""
+    return float(chdtrc(k, x))
