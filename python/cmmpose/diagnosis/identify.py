@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import MAX_REPRODUCIBILITY_MM as _MAX_REPRODUCIBILITY_MM, check_reproducibility
 from ..errors import Error, InputError, UserEffectError
 from ..run import Run
 from ._blas import one_blas_thread
@@ -61,12 +62,9 @@ INDISTINGUISHABLE_LR = 10.0
 #: are not trustworthy, so residuals that small are not evidence.
 SIGMA_FLOOR = 1e-4
 _RSS_FLOOR = SIGMA_FLOOR ** 2
-#: Largest stated per-scan centre reproducibility, mm per axis: a sphere
-#: scan's centre repeats to micrometres, and a whole uncompensated machine
-#: errs by ~0.1 mm (the thesis machine: 71 um rms on a 404 mm bar). A
-#: floor of more than 1 mm would call every effect insignificant; such a
-#: value is a unit slip (nm, or mm written as um x 1000), not a measurement.
-MAX_REPRODUCIBILITY_MM = 1.0
+#: Largest stated per-scan centre reproducibility, mm per axis (its one home
+#: and the reason for it: :data:`cmmpose._validate.MAX_REPRODUCIBILITY_MM`).
+MAX_REPRODUCIBILITY_MM = _MAX_REPRODUCIBILITY_MM
 #: Weight of the prior on effect parameters, per prior magnitude: a total
 #: value of a few typical magnitudes costs little, hundreds cost more than
 #: any data can gain. Without it a linearised column that happens to carry
@@ -162,14 +160,8 @@ class Problem:
         floor: a 3-parameter map correction at p = 2e-6 on noise alone)."""
         from .floor import headline_floors
 
-        sc = float(reproducibility_um) * 1e-3
-        if not math.isfinite(sc) or sc <= 0:
-            raise InputError(f"reproducibility_um: expected a positive number of um, got {reproducibility_um!r}")
-        if sc > MAX_REPRODUCIBILITY_MM:
-            raise InputError(f"reproducibility_um: {reproducibility_um:g} um per axis is implausible for a sphere "
-                             f"centre (more than {MAX_REPRODUCIBILITY_MM * 1e3:g} um, ten times a whole uncompensated "
-                             f"machine's errors): a unit slip? (um expected)", what="reproducibility_um",
-                             option="reproducibility_um", cli_option="--reproducibility")
+        sc = check_reproducibility("reproducibility_um", reproducibility_um, what="reproducibility_um",
+                                   option="reproducibility_um", cli_option="--reproducibility") * 1e-3
         f = headline_floors(self.layout, sc)
         if len(f):
             self.class_floor[0] = max(SIGMA_FLOOR, float(np.sqrt(np.mean(f ** 2))))
