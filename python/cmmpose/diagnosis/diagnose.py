@@ -419,6 +419,7 @@ def diagnose(
     map_corrections: bool = True,
     reproducibility_um: float | None = None,
     temperature_policy=None,
+    reproducibility_source: str = "stated",
 ) -> Diagnosis:
     """Find which physical effects the model misses on ``run``, add them, and
     keep the history of the error falling.
@@ -475,12 +476,17 @@ def diagnose(
     reproducibility_um : float, optional
         um per axis: the per-scan centre reproducibility, for the noise
         floor of a run that repeats no scan (one that does measures it;
-        :mod:`cmmpose.diagnosis.floor`).
+        :mod:`cmmpose.diagnosis.floor`). Without either, the floor is the
+        spheres' fit scatter (a lower bound; the verdict says first that
+        there is no floor), in the selection as in the noise test.
     temperature_policy : TemperaturePolicy, optional
         The whole temperature policy (cmmpose.temperature: also gaps, broken
         channels, which sensor each role reads); the three keywords above
         override its fields. None: the model's (``TemperaturePolicy()`` for
         one made from maps), the same default as every other function.
+    reproducibility_source : str
+        Where a stated ``reproducibility_um`` comes from, in the noise
+        floor's words (``cmmpose diagnose --machine FILE``: the file).
 
     Returns
     -------
@@ -512,8 +518,7 @@ def diagnose(
                 cand[spec.name] = spec
     problem = Problem(model, run, cand,
                       extra=user_specs([a for a in add if not isinstance(a, str)] + list(user_effects)))
-    if reproducibility_um is not None:  # the lengths' noise level never below the floor it implies
-        problem.state_reproducibility(reproducibility_um)
+    state_floor(problem, reproducibility_um)
     single_map_warning(model, problem.inputs.temperature)  # as evaluating with the map alone warns
     if map_corrections and candidates is None:  # a restricted list of candidates is the whole list
         add_map_candidates(problem, model)
@@ -549,7 +554,7 @@ def diagnose(
     from .aliases import find_alternatives
 
     diag.alternatives = find_alternatives(problem, steps, model)
-    attach_floor(diag, problem, steps[-1], reproducibility_um)
+    attach_floor(diag, problem, steps[-1], reproducibility_um, reproducibility_source)
     if map_corrections and candidates is None:
         from .mapfamily import component_report
 
@@ -602,13 +607,38 @@ def _two_axis_first(problem, step, candidate) -> bool:
     return True
 
 
-def attach_floor(diag, problem, step, reproducibility_um=None) -> None:
+def state_floor(problem, reproducibility_um=None) -> None:
+    """The headline's noise level never below the floor each run of
+    ``problem`` (a Problem, or a JointProblem's parts) has: a stated
+    ``reproducibility_um`` (one, or one per run); for a run that repeats no
+    scan and states none, its spheres' fit scatter
+    (:func:`cmmpose.diagnosis.floor.fit_scatter_um`), so that the selection
+    adds only what that conservative floor supports. A run that repeats
+    scans estimates its own noise level."""
+    from .floor import _per_run, fit_scatter_um, repeats_scans
+
+    parts = getattr(problem, "parts", None) or [problem]
+    stated = _per_run(reproducibility_um, len(parts))
+    repeated = repeats_scans(problem)
+    scatter = None
+    for i, p in enumerate(parts):  # one per run
+        if stated[i] is not None:
+            p.state_reproducibility(stated[i])
+        elif not repeated[i]:
+            scatter = fit_scatter_um(problem) if scatter is None else scatter
+            if scatter[i] > 0:
+                p.state_reproducibility(float(scatter[i]))
+    if len(parts) > 1 or parts[0] is not problem:
+        problem.class_floor = np.concatenate([p.class_floor for p in parts])
+
+
+def attach_floor(diag, problem, step, reproducibility_um=None, reproducibility_source: str = "stated") -> None:
     """Set ``diag.noise`` and ``diag.two_axis`` from ``step``'s model; then
     let the steps drop their working arrays (residuals, the cross-validation's
     designs), which a diagnosis sent between processes need not carry."""
     from .floor import noise_floor, two_axis_findings
 
-    diag.noise = noise_floor(problem, step, reproducibility_um)
+    diag.noise = noise_floor(problem, step, reproducibility_um, reproducibility_source)
     diag.two_axis = [{k: v for k, v in f.items() if not k.startswith("_")} for f in two_axis_findings(problem, step)]
     for s in diag.steps:
         s.residual = None

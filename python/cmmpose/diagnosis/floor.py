@@ -7,7 +7,11 @@ made of. The per-scan centre reproducibility comes from the data where the
 run repeats scans of a sphere (Type A: the centre-disagreement class's
 standard deviation per axis, with its (k - 1) degrees of freedom per sphere
 of k scans); else from a stated ``reproducibility_um`` (per scan, per
-axis); else there is no floor and the diagnosis says so. The floor of a
+axis; one per run of a joint diagnosis); else there is no floor, the verdict
+says so first, and the floor taken is the spheres' fit scatter
+(:func:`fit_scatter_um`: the centre sd the sphere fits imply, a lower bound
+on the reproducibility), so that "noise" is said only where even that floor
+supports it and everything above it is reported, never called noise. The floor of a
 length is ``sqrt(1/n1 + 1/n2) * sigma_c`` (two ball centres, each the mean of
 its n scans); of a deviation component ``sigma_c / sqrt(n)``.
 
@@ -37,7 +41,8 @@ import numpy as np
 from .identify import ALPHA, chi2_sf
 from .observables import CLASSES
 
-__all__ = ["FLOOR_ALPHA", "headline_floors", "noise_floor", "two_axis_findings"]
+__all__ = ["FLOOR_ALPHA", "FIT_SCATTER", "NO_FLOOR", "fit_scatter_um", "headline_floors", "noise_floor",
+           "repeats_scans", "two_axis_findings"]
 
 #: Upper-tail probability below which the residual scatter is not noise at the floor.
 FLOOR_ALPHA = 0.01
@@ -58,18 +63,82 @@ def headline_floors(layout, centre_sigma: float) -> np.ndarray:
     return np.repeat(centre_sigma / np.sqrt(counts[np.concatenate(layout.artefact.spheres)]), 3)
 
 
-def noise_floor(problem, step, reproducibility_um: float | None = None) -> dict:
+def fit_scatter_um(problem) -> np.ndarray:
+    """The per-scan centre scatter each run's sphere fits alone imply, um per
+    axis, one per run of ``problem`` (a Problem or a JointProblem): the rms
+    over the run's sphere scans of the fits' centre standard deviations
+    (the square root of the mean of the covariance's x, y, z variances,
+    from the fits' point residuals). A lower bound on the per-scan
+    reproducibility: a real fixture and machine move the centre by more
+    (docs/appendix-c.md: about 0.2 um from the fits where the thesis's
+    lengths scatter by 12.8 um)."""
+    out = []
+    for p in _parts(problem):
+        fits = p.base_obs.fits
+        cov = fits.covariance[fits.positions(p.layout.labels)]
+        var = np.trace(cov[:, :3, :3], axis1=1, axis2=2) / 3.0
+        out.append(math.sqrt(float(np.mean(var[np.isfinite(var)]))) * 1e3 if np.isfinite(var).any() else 0.0)
+    return np.asarray(out)
+
+
+def repeats_scans(problem) -> np.ndarray:
+    """Whether each run of ``problem`` repeats scans of a sphere enough for a
+    Type A floor (at least 3 degrees of freedom of centre disagreement)."""
+    return np.array([bool(np.any(p.classes == 1)) and float(p.n_eff[1]) >= 3 for p in _parts(problem)])
+
+
+#: The source of a floor taken from the spheres' fit scatter, when no run repeats a scan and none is stated.
+FIT_SCATTER = "the spheres' fit scatter (a lower bound: no floor stated or measured)"
+
+#: What the verdict says first when there is no floor (a stated or a measured one).
+NO_FLOOR = ("no noise floor: the run repeats no scan of a sphere and no per-scan reproducibility was stated "
+            "(--reproducibility UM, or [reproducibility] in the machine file)")
+
+
+def _per_run(value, n: int, name: str = "reproducibility_um") -> list:
+    """``value`` (None, a number, or one per run) as a list of n."""
+    if value is None or np.ndim(value) == 0:
+        return [value] * n
+    values = list(value)
+    if len(values) != n:
+        from ..errors import InputError
+
+        raise InputError(f"{name}: one value, or one per run ({n}), got {len(values)}", what=name, option=name,
+                         cli_option="--reproducibility")
+    return values
+
+
+def noise_floor(problem, step, reproducibility_um=None, stated_as: str = "stated") -> dict:
     """The noise floor of the headline figure and whether ``step``'s model
     reaches it (see the module docstring).
+
+    Parameters
+    ----------
+    problem : Problem or JointProblem
+    step : Step
+        The model whose residuals are tested.
+    reproducibility_um : float or sequence of float, optional
+        Stated per-scan centre reproducibility, um per axis: one, or one per
+        run of a joint problem (None entries: not stated for that run). A
+        run that repeats scans measures its own (Type A) instead; a run
+        with neither takes its spheres' fit scatter (:func:`fit_scatter_um`),
+        a lower bound, and the verdict says first that there is no floor.
+    stated_as : str
+        The source's words for a stated value (e.g. 'stated in the machine
+        file m.toml').
 
     Returns
     -------
     dict
-        ``source`` ('repeated scans (Type A)', 'stated', or None),
-        ``centre_reproducibility_um``, ``floor_um`` (rms of the headline at
-        the floor), ``rms_um`` (the model's in-sample headline rms),
-        ``chi2``, ``dof``, ``p_value``, ``noise`` (bool or None),
-        ``unexplained_um`` and ``verdict`` (words).
+        ``source`` ('repeated scans (Type A)', ``stated_as``,
+        :data:`FIT_SCATTER`, or several joined by '; ' for runs that differ),
+        ``floor_stated_or_measured`` (False when every run's floor is the
+        fit scatter), ``centre_reproducibility_um`` (rms over the runs),
+        ``runs`` (each run's ``source`` and ``centre_reproducibility_um``),
+        ``floor_um`` (rms of the headline at the floor), ``rms_um`` (the
+        model's in-sample headline rms), ``chi2``, ``dof``, ``p_value``,
+        ``noise`` (bool), ``unexplained_um`` and ``verdict`` (words; they
+        begin with :data:`NO_FLOOR` when there is no floor).
     """
     from .cv import model_design
 
@@ -78,28 +147,40 @@ def noise_floor(problem, step, reproducibility_um: float | None = None) -> dict:
     fit = problem.wls(r0, X0, ridge=ridge, target=target)
     res = fit.residual
     head = problem.classes % len(CLASSES) == 0
-    centre_cls = problem.classes % len(CLASSES) == 1
-    n_rep = float(np.sum(problem.n_eff[1::len(CLASSES)])) if hasattr(problem, "n_eff") else 0.0
-    source, sc = None, None
-    if centre_cls.any() and n_rep >= 3:
-        sc = math.sqrt(float(np.sum(res[centre_cls] ** 2)) / n_rep)
-        source = "repeated scans (Type A)"
-    elif reproducibility_um is not None:
-        sc = reproducibility_um * 1e-3
-        source = "stated"
+    parts = _parts(problem)
+    stated = _per_run(reproducibility_um, len(parts))
+    repeated = repeats_scans(problem)
+    scatter = fit_scatter_um(problem) if not all(repeated[i] or stated[i] is not None for i in range(len(parts))) \
+        else None
+    offsets = np.r_[0, np.cumsum([len(p.classes) for p in parts])]
+    sc, sources = np.zeros(len(parts)), []
+    for i, p in enumerate(parts):  # one per run
+        if repeated[i]:
+            centre = res[offsets[i]:offsets[i + 1]][p.classes == 1]
+            sc[i] = math.sqrt(float(np.sum(centre ** 2)) / float(p.n_eff[1]))
+            sources.append("repeated scans (Type A)")
+        elif stated[i] is not None:
+            sc[i] = float(stated[i]) * 1e-3
+            sources.append(stated_as)
+        else:
+            sc[i] = float(scatter[i]) * 1e-3
+            sources.append(FIT_SCATTER)
+    source = "; ".join(dict.fromkeys(sources))
+    measured = any(s != FIT_SCATTER for s in sources)
+    runs = [{"source": s, "centre_reproducibility_um": float(c * 1e3)} for s, c in zip(sources, sc)]
     what = "ballbar length" if problem.layout.artefact is None else "ball deviation"
-    if sc is None or not head.any():
-        return {"source": None, "centre_reproducibility_um": None, "floor_um": None,
+    if not head.any() or not np.all(sc > 0):
+        return {"source": None, "floor_stated_or_measured": measured, "centre_reproducibility_um": None,
+                "runs": runs, "floor_um": None,
                 "rms_um": float(np.sqrt(np.mean(res[head] ** 2)) * 1e3) if head.any() else None, "chi2": None,
                 "dof": None, "p_value": None, "noise": None, "unexplained_um": None,
-                "verdict": ("no noise floor: the run repeats no scan of a sphere and no per-scan reproducibility "
-                            "was stated (repeat a few scans, or give one), so whether the residuals are noise "
-                            "cannot be said")}
-    f = np.concatenate([headline_floors(p.layout, sc) for p in _parts(problem)])
+                "verdict": (NO_FLOOR if not measured else "no headline figure to test") +
+                           ": whether the residuals are noise cannot be said"}
+    f = np.concatenate([headline_floors(p.layout, c) for p, c in zip(parts, sc)])
     r = res[head]
     k_head = int(np.linalg.matrix_rank(X0[head])) if X0.shape[1] else 0
     if problem.layout.artefact is not None:
-        k_head += 6 * sum(len(p.layout.artefact.positions) for p in _parts(problem))  # each placement's rigid fit
+        k_head += 6 * sum(len(p.layout.artefact.positions) for p in parts)  # each placement's rigid fit
     dof = max(len(r) - k_head, 1)
     chi2 = float(np.sum((r / f) ** 2))
     p = chi2_sf(chi2, dof)
@@ -107,14 +188,27 @@ def noise_floor(problem, step, reproducibility_um: float | None = None) -> dict:
     floor = float(np.sqrt(np.mean(f ** 2))) * 1e3
     noise = p >= FLOOR_ALPHA
     extra = math.sqrt(max(rms ** 2 - floor ** 2, 0.0))
-    if noise:
+    stats = f"chi2 {chi2:.1f} on {dof} dof, p = {p:.2g}"
+    if not measured:  # the fit scatter: a lower bound, so only "noise" is a firm statement
+        lead = (f"{NO_FLOOR}; against the spheres' fit scatter alone ({float(np.sqrt(np.mean(sc ** 2))) * 1e3:.2f} "
+                f"um per axis per scan, a lower bound) the {what}s' floor is {floor:.2f} um")
+        if noise:
+            words = (f"{lead}, and the residuals look like noise even at it: {what} rms {rms:.2f} um "
+                     f"({stats} >= {FLOOR_ALPHA:g})")
+        else:
+            words = (f"{lead}: {extra:.2f} um of the {what}s (rms {rms:.2f} um; {stats} < {FLOOR_ALPHA:g}) is "
+                     f"either machine error the model lacks or the per-scan reproducibility, which this run "
+                     f"cannot tell apart; repeat a few scans (cmmpose simulate --repeat-scans N shows how) or "
+                     f"state the machine's reproducibility")
+    elif noise:
         words = (f"the residuals look like noise: {what} rms {rms:.2f} um against a floor of {floor:.2f} um "
-                 f"({source}; chi2 {chi2:.1f} on {dof} dof, p = {p:.2g} >= {FLOOR_ALPHA:g})")
+                 f"({source}; {stats} >= {FLOOR_ALPHA:g})")
     else:
         words = (f"{extra:.2f} um is unexplained above a floor of {floor:.2f} um in the {what}s "
-                 f"(rms {rms:.2f} um; {source}; chi2 {chi2:.1f} on {dof} dof, p = {p:.2g} < {FLOOR_ALPHA:g})")
-    return {"source": source, "centre_reproducibility_um": sc * 1e3, "floor_um": floor, "rms_um": rms,
-            "chi2": chi2, "dof": int(dof), "p_value": p, "noise": bool(noise),
+                 f"(rms {rms:.2f} um; {source}; {stats} < {FLOOR_ALPHA:g})")
+    return {"source": source, "floor_stated_or_measured": measured,
+            "centre_reproducibility_um": float(np.sqrt(np.mean(sc ** 2))) * 1e3, "runs": runs, "floor_um": floor,
+            "rms_um": rms, "chi2": chi2, "dof": int(dof), "p_value": p, "noise": bool(noise),
             "unexplained_um": extra, "verdict": words}
 
 

@@ -28,7 +28,7 @@ from ..run import Run
 from ._blas import one_blas_thread
 from .aliases import find_alternatives
 from .diagnose import (Diagnosis, Step, unobservable_candidates, add_map_candidates, as_model, attach_floor,
-                       select_effects, user_specs)
+                       select_effects, state_floor, user_specs)
 from .identify import Problem, check_effect_names, model_uncertainties, rank_candidates
 from .apply import single_map_warning
 from .model import Model, check_kinematics, run_kinematics
@@ -162,7 +162,8 @@ class JointDiagnosis(Diagnosis):
 @renamed(model="maps")
 def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *, add=(), auto: bool = True,
                      max_effects: int = 4, user_effects=(), same_artefact: bool = True,
-                     run_names=None, map_corrections: bool = True) -> JointDiagnosis:
+                     run_names=None, map_corrections: bool = True, reproducibility_um=None,
+                     reproducibility_source: str = "stated") -> JointDiagnosis:
     """One model for several runs: the effects' parameters shared, each run
     with its own noise levels (and its own nuisances unless ``same_artefact``).
 
@@ -188,6 +189,14 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     run_names : sequence of str, optional
         Names of the runs in tables and messages (default run 1, run 2,
         ...; messages name a loaded run by its directory).
+    reproducibility_um : float or sequence of float, optional
+        Stated per-scan centre reproducibility, um per axis: one for every
+        run, or one per run (None entries: not stated for that run). A run
+        that repeats scans measures its own (Type A); a run with neither
+        takes its spheres' fit scatter, a lower bound
+        (:mod:`cmmpose.diagnosis.floor`).
+    reproducibility_source : str
+        Where a stated value comes from, in the noise floor's words.
 
     Returns
     -------
@@ -216,6 +225,7 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     for r, label in zip(runs, labels):
         check_kinematics(model, r, label)
     problem = JointProblem(model, runs, same_artefact=same_artefact, extra=user_specs(list(user_effects)))
+    state_floor(problem, reproducibility_um)  # each run's headline noise never below its floor
     for p, label in zip(problem.parts, labels):  # as evaluating each run with the map alone warns
         single_map_warning(model, p.inputs.temperature, label)
     if map_corrections:
@@ -235,7 +245,7 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
                           final_uncertainty=model_uncertainties(problem, model), skipped=dict(problem.skipped),
                           run_figures=per_run, run_names=names)
     diag.alternatives = find_alternatives(problem, steps, model)
-    attach_floor(diag, problem, steps[-1])
+    attach_floor(diag, problem, steps[-1], reproducibility_um, reproducibility_source)
     if map_corrections:  # what the runs together determine of each map component (mapfamily)
         from .mapfamily import component_report
 
