@@ -420,6 +420,7 @@ def diagnose(
     reproducibility_um: float | None = None,
     temperature_policy=None,
     reproducibility_source: str = "stated",
+    default_reproducibility_um: float | None = None,
 ) -> Diagnosis:
     """Find which physical effects the model misses on ``run``, add them, and
     keep the history of the error falling.
@@ -487,6 +488,11 @@ def diagnose(
     reproducibility_source : str
         Where a stated ``reproducibility_um`` comes from, in the noise
         floor's words (``cmmpose diagnose --machine FILE``: the file).
+    default_reproducibility_um : float, optional
+        um per axis: the machine's stated per-scan reproducibility
+        (:attr:`cmmpose.machine.Machine.reproducibility_um`), the floor when
+        ``reproducibility_um`` is not given and the run repeats no scan (a
+        run that does measures its own). Checked as ``reproducibility_um``.
 
     Returns
     -------
@@ -518,6 +524,8 @@ def diagnose(
                 cand[spec.name] = spec
     problem = Problem(model, run, cand,
                       extra=user_specs([a for a in add if not isinstance(a, str)] + list(user_effects)))
+    if reproducibility_um is None and default_reproducibility_um is not None:
+        reproducibility_um = default_floor(problem, default_reproducibility_um)
     state_floor(problem, reproducibility_um)
     single_map_warning(model, problem.inputs.temperature)  # as evaluating with the map alone warns
     if map_corrections and candidates is None:  # a restricted list of candidates is the whole list
@@ -605,6 +613,19 @@ def _two_axis_first(problem, step, candidate) -> bool:
                                              f"(p = {f['p_value']:.2g}); beyond it this correction has p = "
                                              f"{beyond:.2g}")}
     return True
+
+
+def default_floor(problem, default_reproducibility_um: float):
+    """The stated reproducibility of ``problem`` when only a default (the
+    machine's) is given: the default for a run that repeats no scan, None for
+    one that does (it measures its own, Type A); one per run of a joint
+    problem, a single value (or None) for one run."""
+    from .._validate import check_reproducibility
+    from .floor import repeats_scans
+
+    um = check_reproducibility("default_reproducibility_um", default_reproducibility_um)
+    values = [None if r else um for r in repeats_scans(problem)]
+    return values if getattr(problem, "parts", None) else values[0]
 
 
 def state_floor(problem, reproducibility_um=None) -> None:

@@ -28,7 +28,7 @@ from ..run import Run
 from ._blas import one_blas_thread
 from .aliases import find_alternatives
 from .diagnose import (Diagnosis, Step, unobservable_candidates, add_map_candidates, as_model, attach_floor,
-                       select_effects, state_floor, user_specs)
+                       default_floor, select_effects, state_floor, user_specs)
 from .identify import Problem, check_effect_names, model_uncertainties, rank_candidates
 from .apply import single_map_warning
 from .model import Model, check_kinematics, run_kinematics
@@ -163,7 +163,8 @@ class JointDiagnosis(Diagnosis):
 def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *, add=(), auto: bool = True,
                      max_effects: int = 4, user_effects=(), same_artefact: bool = True,
                      run_names=None, map_corrections: bool = True, reproducibility_um=None,
-                     reproducibility_source: str = "stated") -> JointDiagnosis:
+                     reproducibility_source: str = "stated",
+                     default_reproducibility_um: float | None = None) -> JointDiagnosis:
     """One model for several runs: the effects' parameters shared, each run
     with its own noise levels (and its own nuisances unless ``same_artefact``).
 
@@ -197,6 +198,9 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
         (:mod:`cmmpose.diagnosis.floor`).
     reproducibility_source : str
         Where a stated value comes from, in the noise floor's words.
+    default_reproducibility_um : float, optional
+        The machine's stated reproducibility, um per axis: the floor of each
+        run that repeats no scan when ``reproducibility_um`` is not given.
 
     Returns
     -------
@@ -225,6 +229,8 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     for r, label in zip(runs, labels):
         check_kinematics(model, r, label)
     problem = JointProblem(model, runs, same_artefact=same_artefact, extra=user_specs(list(user_effects)))
+    if reproducibility_um is None and default_reproducibility_um is not None:
+        reproducibility_um = default_floor(problem, default_reproducibility_um)
     state_floor(problem, reproducibility_um)  # each run's headline noise never below its floor
     for p, label in zip(problem.parts, labels):  # as evaluating each run with the map alone warns
         single_map_warning(model, p.inputs.temperature, label)
