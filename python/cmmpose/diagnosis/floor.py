@@ -18,7 +18,13 @@ its n scans); of a deviation component ``sigma_c / sqrt(n)``.
 The test: the final model's headline residuals r (after its fit: dof = rows
 - fitted parameters acting on them) against the floor f; chi2 = sum (r/f)^2
 is chi-square with dof degrees of freedom if the residuals are noise at the
-floor. "The residuals look like noise" is said only when its upper-tail p
+floor (a stated floor, or the fit scatter, taken as exact). When every
+run's floor is Type A the floor is itself an estimate on dof_A degrees of
+freedom (3 per repeated scan beyond the first of each sphere), and
+(chi2 / dof) is F(dof, dof_A) distributed instead: a few repeated scans give
+a floor known to some 20 %, which the chi-square test would take as exact
+and call noise at the true floor "unexplained" far more often than
+FLOOR_ALPHA. "The residuals look like noise" is said only when its upper-tail p
 is above FLOOR_ALPHA; otherwise "N um is unexplained above a floor of M um"
 with N = sqrt(rms^2 - floor^2), naming the observable.
 
@@ -42,7 +48,7 @@ from .identify import ALPHA, chi2_sf
 from .observables import CLASSES
 
 __all__ = ["FLOOR_ALPHA", "FIT_SCATTER", "NO_FLOOR", "fit_scatter_um", "headline_floors", "noise_floor",
-           "repeats_scans", "two_axis_findings"]
+           "repeats_scans", "reproducibility_from_runs", "two_axis_findings"]
 
 #: Upper-tail probability below which the residual scatter is not noise at the floor.
 FLOOR_ALPHA = 0.01
@@ -183,12 +189,19 @@ def noise_floor(problem, step, reproducibility_um=None, stated_as: str = "stated
         k_head += 6 * sum(len(p.layout.artefact.positions) for p in parts)  # each placement's rigid fit
     dof = max(len(r) - k_head, 1)
     chi2 = float(np.sum((r / f) ** 2))
-    p = chi2_sf(chi2, dof)
+    if all(repeated):  # the floor is itself estimated: F(dof, dof_A), not chi-square with an exact floor
+        from scipy.special import fdtrc
+
+        dof_a = float(sum(p.n_eff[1] for p in parts))
+        p = float(fdtrc(dof, dof_a, chi2 / dof))
+        stats = f"F {chi2 / dof:.2f} on {dof} and {dof_a:.0f} dof, p = {p:.2g}"
+    else:
+        p = chi2_sf(chi2, dof)
+        stats = f"chi2 {chi2:.1f} on {dof} dof, p = {p:.2g}"
     rms = float(np.sqrt(np.sum(r ** 2) / dof)) * 1e3
     floor = float(np.sqrt(np.mean(f ** 2))) * 1e3
     noise = p >= FLOOR_ALPHA
     extra = math.sqrt(max(rms ** 2 - floor ** 2, 0.0))
-    stats = f"chi2 {chi2:.1f} on {dof} dof, p = {p:.2g}"
     if not measured:  # the fit scatter: a lower bound, so only "noise" is a firm statement
         lead = (f"{NO_FLOOR}; against the spheres' fit scatter alone ({float(np.sqrt(np.mean(sc ** 2))) * 1e3:.2f} "
                 f"um per axis per scan, a lower bound) the {what}s' floor is {floor:.2f} um")
@@ -285,3 +298,76 @@ def explained_beyond(problem, step, finding: dict, columns: np.ndarray) -> float
     rw = rw - Wq @ (Wq.T @ rw)
     gain = _whitened_gain(Wq, rw, columns / s[:, None])
     return chi2_sf(gain, columns.shape[1])
+
+
+def reproducibility_from_runs(runs, maps=None, run_names=None) -> dict:
+    """The per-scan centre reproducibility of a machine from runs that repeat
+    scans of a sphere (Type A, pooled over the runs): the centre of each
+    scan of a sphere scanned more than once, less the mean of that sphere's
+    scans, with (k - 1) degrees of freedom per axis for a sphere of k scans;
+    as :func:`noise_floor` measures a run's own floor.
+
+    Parameters
+    ----------
+    runs : sequence of Run
+        Runs that each repeat scans of at least one sphere (a ball of a
+        position, or the reference sphere, scanned more than once).
+    maps : Model, ErrorMap or ErrorMapSet, optional
+        What compensates the points before the spheres are fitted (the
+        disagreement of repeated scans hardly depends on it); default each
+        run's bundled maps, as :func:`cmmpose.diagnose`.
+    run_names : sequence of str, optional
+        Names of the runs in messages (default: each run's folder).
+
+    Returns
+    -------
+    dict
+        ``per_scan_um`` (the pooled value, um per axis: the rms of the three
+        axes'), ``per_axis_um`` (x, y, z), ``u_um`` (its standard
+        uncertainty, ``per_scan_um / sqrt(2 dof)``), ``dof``, ``scans``
+        (repeated scans used), ``spheres`` (spheres scanned more than once),
+        ``runs`` (each run's ``name``, ``per_scan_um``, ``dof``).
+
+    Raises
+    ------
+    InputError
+        No runs, or a run that repeats no scan (naming it: it carries no
+        reproducibility, and pooling it would hide that).
+    """
+    from ..errors import InputError
+    from .diagnose import as_model
+    from .model import run_kinematics
+    from .observables import ObservationLayout, _mean_centres, observe
+
+    runs = list(runs)
+    if not runs:
+        raise InputError("runs: none given; give runs that repeat scans of a sphere")
+    names = list(run_names) if run_names is not None else [str(r.source or f"run {i + 1}") for i, r in enumerate(runs)]
+    layouts = []
+    for run, name in zip(runs, names):
+        model = as_model(maps, run_kinematics(run))
+        inputs = model.inputs(run)
+        layout = ObservationLayout.from_run(run, inputs)
+        groups = len(np.unique(layout.sphere_of_scan[layout.repeated]))
+        if len(layout.repeated) - groups < 1:
+            layouts.append((name, None, None, 0))
+            continue
+        obs = observe(layout, model.compensate(inputs), model.expansion_ppm_per_kelvin, inputs.scan_id)
+        mean_c = _mean_centres(layout, obs.centres)
+        dev = (obs.centres - mean_c[layout.sphere_of_scan])[layout.repeated]
+        layouts.append((name, dev, groups, len(layout.repeated) - groups))
+    lacking = [name for name, dev, _, _ in layouts if dev is None]
+    if lacking:
+        raise InputError(f"runs: {', '.join(lacking)} repeat{'s' if len(lacking) == 1 else ''} no scan of a sphere, "
+                         "so carr" + ("ies" if len(lacking) == 1 else "y") + " no per-scan reproducibility; give "
+                         "runs that scan a sphere several times without moving it (cmmpose simulate "
+                         "--repeat-scans N)")
+    dev = np.concatenate([d for _, d, _, _ in layouts])
+    dof = sum(k for *_, k in layouts)  # per axis
+    per_axis = np.sqrt(np.sum(dev ** 2, axis=0) / dof) * 1e3
+    per_scan = float(np.sqrt(np.mean(per_axis ** 2)))
+    return {"per_scan_um": per_scan, "per_axis_um": [float(v) for v in per_axis],
+            "u_um": per_scan / math.sqrt(2 * 3 * dof), "dof": int(3 * dof), "scans": int(len(dev)),
+            "spheres": int(sum(g for _, _, g, _ in layouts)),
+            "runs": [{"name": n, "per_scan_um": float(np.sqrt(np.sum(d ** 2) / (3 * k))) * 1e3, "dof": int(3 * k)}
+                     for n, d, _, k in layouts]}
