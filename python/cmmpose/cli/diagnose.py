@@ -117,7 +117,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
             diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects,
                             user_effects=[u for u in user if u.name not in known],
                             map_corrections=not no_map_corrections, reproducibility_um=reproducibility_um,
-                            **machine_floor(machine, machine_file))
+                            **machine_floor(machine, machine_file, reproducibility_um))
         files = []
         if skeleton_out:
             from ..diagnosis.unexplained import user_effect_skeleton
@@ -157,10 +157,13 @@ def _reproducibility_values(text) -> tuple[float, ...] | None:
     return tuple(values)
 
 
-def machine_floor(machine, machine_file) -> dict:
-    """The keywords that give the diagnosis the machine file's stated per-scan reproducibility as the floor
-    of a run that repeats no scan (none for the default machine: without --machine the runs' maps are as
-    run.json says, and a machine the run may not come from states nothing of its noise)."""
+def machine_floor(machine, machine_file, reproducibility_um=None) -> dict:
+    """The keywords that give the diagnosis its floor's source: --reproducibility when given (it wins);
+    else the --machine file's stated per-scan reproducibility, the floor of each run that repeats no scan (a
+    run that repeats scans measures its own); none for the default machine (without --machine the runs' maps
+    are as run.json says, and a machine the run may not come from states nothing of its noise)."""
+    if reproducibility_um is not None:
+        return {"reproducibility_source": "stated (--reproducibility)"}
     if machine_file is None or machine.reproducibility_um is None:
         return {}
     return {"default_reproducibility_um": machine.reproducibility_um,
@@ -239,7 +242,7 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
                 options["reproducibility_um"] = repro[0] if len(repro) == 1 else list(repro)
             diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
                                     run_names=[str(r) for r in run_dirs], **options,
-                                    **machine_floor(machine, machine_file))
+                                    **machine_floor(machine, machine_file, repro))
         files = [diag.model.save(model_out)] if model_out else []
         if corrected_out:
             files += _write_corrected_maps(diag.model, corrected_out)
@@ -263,7 +266,7 @@ def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json
 
     try:
         machine = load_machine(machine_file)
-        options.update(machine_floor(machine, machine_file))
+        options.update(machine_floor(machine, machine_file, options.get("reproducibility_um")))
         model = "run"  # each run's bundled maps, on its worker
         if model_file:
             model = Model.load(model_file)
