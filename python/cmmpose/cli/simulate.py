@@ -36,7 +36,8 @@ from .common import (SEED, console, fail, json_option, load_maps, machine_option
 @click.option("--jitter", type=float, default=0.0, show_default=True,
               help="Per-scan reproducibility: sd of where the artefact really sits at each sweep, um per axis.")
 @click.option("--repeat-scans", "repeat_scans", type=click.IntRange(0), default=0, show_default=True, metavar="N",
-              help="Scan N balls again at the end (ball 1 and 2 of position 1, then 2, ...), the bar not moved: the "
+              help="Scan N balls again at the end (ball 1 and 2 of position 1, then 2, ...; of an --artefact its first "
+                   "N balls), the artefact not moved: the "
                    "run then measures its own per-scan reproducibility, the diagnosis's noise floor "
                    "(docs/diagnosis.md). 6 or more gives a floor to about 20 %.")
 @click.option("--calibrated", is_flag=True, help="Record the bar length at 20 C and the ball radius as calibrated values.")
@@ -65,15 +66,15 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
         parsed = parse_effects(effects)
         machine_maps = load_maps(maps, machine)
         if artefact is not None:
-            for flag, given in (("--calibrated", calibrated), ("--reference-pose", reference_poses),
-                                ("--repeat-scans", repeat_scans)):
+            for flag, given in (("--calibrated", calibrated), ("--reference-pose", reference_poses)):
                 if given:
                     raise click.UsageError(f"{flag} is for ballbar runs, not with --artefact")
             return simulate_artefact(artefact, placements, machine, machine_maps, temperature, parsed, speed,
                                      bidirectional, jitter, seed, run_dir, overwrite,
                                      (TextColumn("simulating"), BarColumn(),
                                       TextColumn("{task.completed}/{task.total} sweeps")),
-                                     lambda r: dataclasses.replace(r, maps=machine.maps_record(maps)), as_json=as_json)
+                                     lambda r: dataclasses.replace(r, maps=machine.maps_record(maps)), as_json=as_json,
+                                     repeat_scans=repeat_scans)
         start = time.perf_counter()
         with Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.completed}/{task.total} sweeps"),
                       console=console) as bar:

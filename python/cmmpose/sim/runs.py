@@ -12,6 +12,7 @@ import numpy as np
 from .. import layouts
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
+from ..placement import check_repeat_scans
 from ..pose import MountOffset
 from ..run import Run
 from .artefacts import BALL_RADIUS, Sphere, reference_sphere
@@ -223,11 +224,7 @@ def simulate_ballbar_run(
     if not (jitter >= 0 and np.isfinite(jitter)):
         raise InputError(f"jitter: must be >= 0 mm, got {jitter!r}")
     reference_poses = [tuple(float(x) for x in p) for p in reference_poses]
-    if isinstance(repeat_scans, bool) or not isinstance(repeat_scans, (int, np.integer)) or \
-            not 0 <= repeat_scans <= 2 * len(plan):
-        raise InputError(f"repeat_scans: expected a whole number of sweeps from 0 to {2 * len(plan)} (each ball of "
-                         f"the {len(plan)} positions once), got {repeat_scans!r}")
-    repeat_scans = int(repeat_scans)
+    repeat_scans = check_repeat_scans(repeat_scans, 2 * len(plan))
     total = 2 * len(plan) + len(reference_poses) + repeat_scans
 
     # Jitter has its own stream, drawn up front: the same seed gives the
