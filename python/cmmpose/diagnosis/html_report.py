@@ -91,8 +91,11 @@ def _nothing_added(d) -> str:
     if noise.get("noise"):
         return "No candidate effect is significant, and the residuals look like noise even at the spheres' fit " \
                "scatter; without a stated or measured floor that is all the run can say."
-    return "No candidate effect is significant, but the model is not shown to miss nothing: what is left is not " \
-           "explained (see the noise floor)."
+    if noise.get("unexplained_um") is not None:
+        return (f"No candidate effect is significant, but {noise['unexplained_um']:.2f} um is left above the floor "
+                "and not explained (see the noise floor).")
+    return "No candidate effect is significant; without a noise floor whether the model misses anything cannot be " \
+           "said."
 
 
 def _verdict(d, model_file, run_dir) -> str:
