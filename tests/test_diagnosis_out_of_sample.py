@@ -20,6 +20,7 @@ import functools
 import json
 
 import cmmpose
+from cmmpose.diagnosis.floor import FIT_SCATTER, NO_FLOOR
 import numpy as np
 import pytest
 from cmmpose.artefacts import load_artefact
@@ -136,8 +137,11 @@ def test_a_noise_only_ballbar_adds_nothing_and_its_residuals_look_like_noise():
     d = cmmpose.diagnose(b89("noise"), patterns=False, reproducibility_um=1.5)
     assert d.added == [] and d.two_axis == []
     assert d.noise["noise"] and d.noise["verdict"].startswith("the residuals look like noise")
-    # Without repeated scans or a stated reproducibility there is no floor, and the diagnosis says so.
-    assert cmmpose.diagnose(b89("noise"), patterns=False).noise["source"] is None
+    # Without repeated scans or a stated reproducibility there is no floor, and the diagnosis says so first;
+    # the floor tested against is the spheres' fit scatter (issue 33, section 4).
+    bare = cmmpose.diagnose(b89("noise"), patterns=False).noise
+    assert bare["source"] == FIT_SCATTER and not bare["floor_stated_or_measured"]
+    assert bare["verdict"].startswith(NO_FLOOR)
 
 
 # -- the cross-validation arithmetic against a brute-force refit ----------------------

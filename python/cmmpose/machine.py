@@ -22,7 +22,7 @@ from pathlib import Path
 
 from . import _core
 from ._arrays import as_triple
-from ._validate import finite, nonnegative, parse_toml, positive
+from ._validate import check_reproducibility, finite, nonnegative, parse_toml, positive
 from .effects import channel_roles
 from .errormap import ErrorMap, ErrorMapSet, data_path
 from .errors import InputError
@@ -38,7 +38,7 @@ CHANNELS = (
 )  # fmt: skip
 
 __all__ = ["Machine", "configurations", "example_names", "example_text", "load_machine", "read_maps",
-           "check_map_specs"]
+           "check_map_specs", "with_reproducibility"]
 
 _log = logging.getLogger(__name__)
 
@@ -47,12 +47,14 @@ _DEFAULT_SOURCE = "the thesis machine (default)"
 
 #: Keys a machine file may hold, per table ('' is the top level).
 _KEYS = {
-    "": {"name", "kinematics", "travel", "maps", "scanner", "mount", "thermocouples", "expansion"},
+    "": {"name", "kinematics", "travel", "maps", "scanner", "mount", "thermocouples", "expansion",
+         "reproducibility"},
     "travel": {"x", "y", "z"},
     "maps": {"bundled", "files"},
     "scanner": {"field_of_view_mm", "depth_of_view_mm", "points_per_profile", "profile_rate_hz", "noise_um"},
     "mount": {"offset_mm", "pose_deg", "alignments"},
     "expansion": {"artefact"},
+    "reproducibility": {"per_scan_um", "source"},
 }
 
 #: Tables a machine file must have: without them a machine would silently be
@@ -128,6 +130,14 @@ class Machine:
         ``[scanner]`` keys, ``expansion.artefact``), one ``"key = value"``
         each; ``machine show`` and ``machine check`` state them. The
         configuration, travel, maps, mount and thermocouples have none.
+    reproducibility_um : float or None
+        The machine's per-scan centre reproducibility, um per axis (the sd
+        of a sphere's fitted centre from one scan to the next, from a repeat
+        test: ``[reproducibility] per_scan_um``); None when the file states
+        none. ``cmmpose diagnose --machine FILE`` takes it as the noise
+        floor of a run that repeats no scan (docs/diagnosis.md).
+    reproducibility_source : str or None
+        Where that figure comes from (``[reproducibility] source``).
     """
 
     # No defaults here: a machine is built from a file (the thesis's is a
@@ -146,6 +156,9 @@ class Machine:
     source: str
     #: The defaults taken for keys the file does not give, one "key = value" each.
     defaults: tuple[str, ...] = ()
+    #: Per-scan centre reproducibility, um per axis, and where it comes from (None: not stated).
+    reproducibility_um: float | None = None
+    reproducibility_source: str | None = None
 
     @classmethod
     def thesis(cls) -> Machine:
@@ -245,6 +258,9 @@ class Machine:
             ("alignments", str(self.alignments) if self.alignments else "-"),
             ("thermocouples", ", ".join(f"{c}={r}" for c, r in self.thermocouples.items())),
             ("artefact expansion", f"{self.artefact_expansion * 1e6:g} ppm/K"),
+            ("per-scan reproducibility", "not stated" if self.reproducibility_um is None else
+             f"{self.reproducibility_um:g} um per axis" + (f" ({self.reproducibility_source})"
+                                                            if self.reproducibility_source else "")),
             ("defaults taken", "; ".join(self.defaults) if self.defaults else "none: the file gives every key"),
         ]
 
@@ -364,13 +380,74 @@ def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
     if not lo <= expansion_ppm <= hi:
         raise InputError(f"{where}: expansion.artefact = {expansion_ppm:g} ppm/K is outside {lo:g}..{hi:g} ppm/K "
                          "(a coefficient of expansion in ppm/K, e.g. 11.5 for steel)")
+    repro_um, repro_source = _reproducibility(doc, where)
     machine = Machine(name=name, kinematics=kinematics, travel=travel, map_files=files, bundled_maps=bundled,
                       scanner=scanner, offset=offset, pose=pose, alignments=alignments, thermocouples=dict(tc),
-                      artefact_expansion=expansion_ppm * 1e-6, source=where, defaults=tuple(defaults))
+                      artefact_expansion=expansion_ppm * 1e-6, source=where, defaults=tuple(defaults),
+                      reproducibility_um=repro_um, reproducibility_source=repro_source)
     for d in defaults:
         _log.info("machine %s: %s (the default; the file does not give it)", where, d)
     _log.info("machine %s: %s, %s", where, name, kinematics)
     return machine
+
+
+def with_reproducibility(text: str, per_scan_um: float, source: str, where: str = "machine file") -> str:
+    """The machine file ``text`` with its ``[reproducibility]`` table set to
+    ``per_scan_um`` (um per axis) and ``source``: the table's two keys
+    replaced where it has one (its comments and the rest of the file kept),
+    else the table added at the end. The result is parsed back and checked.
+
+    Raises
+    ------
+    InputError
+        ``text`` is not TOML, states its reproducibility other than as a
+        ``[reproducibility]`` table, or the value is not plausible
+        (:func:`cmmpose._validate.check_reproducibility`), naming ``where``.
+    """
+    import json
+    import re
+
+    um = check_reproducibility(f"{where}: reproducibility.per_scan_um", per_scan_um)
+    doc = parse_toml(text, where)
+    new = [f"per_scan_um = {um:.4g}", f"source = {json.dumps(str(source))}"]
+    lines = text.splitlines()
+    head = [i for i, line in enumerate(lines) if re.match(r"\s*\[reproducibility\]", line)]
+    if head:
+        start = head[0] + 1
+        end = next((i for i in range(start, len(lines)) if re.match(r"\s*\[", lines[i])), len(lines))
+        body = [line for line in lines[start:end] if not re.match(r"\s*(per_scan_um|source)\s*=", line)]
+        while body and not body[-1].strip():  # the new keys go after the table's comments, blank lines after
+            body.pop()
+        tail = [""] if end < len(lines) else []
+        lines = lines[:start] + body + new + tail + lines[end:]
+    elif "reproducibility" in doc:
+        raise InputError(f"{where}: states its reproducibility other than as a [reproducibility] table; "
+                         "write it as one (per_scan_um = ..., source = ...)")
+    else:
+        while lines and not lines[-1].strip():
+            lines.pop()
+        lines += ["", "[reproducibility]  # per-scan centre reproducibility, um per axis (cmmpose machine "
+                      "reproducibility)", *new]
+    out = "\n".join(lines) + "\n"
+    _reproducibility(parse_toml(out, where), where)  # reads back as written
+    return out
+
+
+def _reproducibility(doc: dict, where: str) -> tuple[float | None, str | None]:
+    """``[reproducibility]``: ``per_scan_um`` (required in the table) checked
+    as :func:`cmmpose._validate.check_reproducibility` does, and the optional
+    ``source`` text; (None, None) without the table."""
+    if "reproducibility" not in doc:
+        return None, None
+    table = doc["reproducibility"]
+    if "per_scan_um" not in table:
+        raise InputError(f"{where}: reproducibility.per_scan_um is missing (the per-scan centre reproducibility, "
+                         "um per axis, from a repeat test: cmmpose machine reproducibility)")
+    um = check_reproducibility(f"{where}: reproducibility.per_scan_um", table["per_scan_um"])
+    source = table.get("source")
+    if source is not None and (not isinstance(source, str) or not source.strip()):
+        raise InputError(f"{where}: reproducibility.source must be a non-empty text, got {source!r}")
+    return um, source
 
 
 def check_map_specs(specs) -> tuple[str, ...]:

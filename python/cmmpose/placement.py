@@ -44,6 +44,7 @@ __all__ = [
     "Placement",
     "Sweep",
     "ball_speed",
+    "check_repeat_scans",
     "parse",
     "plan",
     "pose_library",
@@ -348,3 +349,23 @@ def plan(placements, artefact, machine) -> tuple[list[Placement], list[BallScan]
         resolved.append(pl)
         scans += mine
     return resolved, scans
+
+
+def check_repeat_scans(repeat_scans, n_scans: int) -> int:
+    """``repeat_scans`` (sweeps repeated at the end of a run or plan: the
+    first ones again, the artefact not moved) checked: a whole number from 0
+    to ``n_scans`` (each scan at most once more).
+
+    Raises
+    ------
+    InputError
+        Naming ``repeat_scans`` and the range.
+    """
+    import numbers
+
+    if isinstance(repeat_scans, bool) or not isinstance(repeat_scans, numbers.Integral) or \
+            not 0 <= repeat_scans <= n_scans:
+        raise InputError(f"repeat_scans: expected a whole number of sweeps from 0 to {n_scans} (each scan once more "
+                         f"at most), got {repeat_scans!r}", what="repeat_scans", option="repeat_scans",
+                         cli_option="--repeat-scans")
+    return int(repeat_scans)

@@ -76,6 +76,7 @@ _HINTS = (
     (SCHEDULER_TIMEOUT_HINT, "--scheduler-timeout", "--scheduler-timeout SECONDS sets the limit",
      "no option of this command sets the limit"),
     (re.compile(r"^reproducibility_um:"), "--reproducibility", "--reproducibility:", "reproducibility:"),
+    (re.compile(r"^repeat_scans:"), "--repeat-scans", "--repeat-scans:", "repeat_scans:"),
 )
 # A number of more digits than a float holds (echoed back from a hostile input): printed as a float.
 _LONG_NUMBER = re.compile(r"(?<![\w.])[-+]?\d{21,}(?:\.\d*)?(?![\w.])")

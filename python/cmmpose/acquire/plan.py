@@ -279,7 +279,7 @@ def plan_from_run(run: Run) -> Plan:
 
 
 def artefact_plan(artefact, placements, machine=None, *, speed: float = 35.0, bidirectional: bool = False,
-                  maps: dict | None = None, metadata: dict | None = None) -> Plan:
+                  maps: dict | None = None, metadata: dict | None = None, repeat_scans: int = 0) -> Plan:
     """The plan of an artefact run: every ball of every placement, the pose
     that scans it and its sweep, as ``cmmpose.sim.artefact_runs`` scans it.
 
@@ -301,6 +301,11 @@ def artefact_plan(artefact, placements, machine=None, *, speed: float = 35.0, bi
         says (its bundled maps, so that the recorded run evaluates with them).
     metadata : dict, optional
         Copied into run.json.
+    repeat_scans : int
+        Scans repeated at the end, the artefact not moved: the first
+        ``repeat_scans`` balls' scans again (same pose and sweep), so the
+        recorded run measures its own per-scan reproducibility, the
+        diagnosis's noise floor (docs/diagnosis.md). 0: each ball once.
 
     Returns
     -------
@@ -324,6 +329,7 @@ def artefact_plan(artefact, placements, machine=None, *, speed: float = 35.0, bi
     for p in placements:
         parsed += placement.parse(p, machine.travel) if isinstance(p, str) else [p]
     resolved, balls = placement.plan(parsed, artefact, machine)
+    balls = list(balls) + list(balls)[:placement.check_repeat_scans(repeat_scans, len(balls))]
     offset = tuple(float(x) for x in machine.offset)
     pose_ids: dict[tuple, int] = {}
     scans = []
@@ -339,5 +345,6 @@ def artefact_plan(artefact, placements, machine=None, *, speed: float = 35.0, bi
               "W1": offset[2]} for p, i in pose_ids.items()]
     return Plan(artefact=placement.run_record(artefact, resolved),
                 maps=machine.maps_record() if maps is None else dict(maps),
-                metadata={"plan_from": "artefact", "machine": machine.name, **(metadata or {})},
+                metadata={"plan_from": "artefact", "machine": machine.name,
+                          **({"repeat_scans": int(repeat_scans)} if repeat_scans else {}), **(metadata or {})},
                 poses=poses, scans=scans)

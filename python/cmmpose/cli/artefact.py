@@ -115,9 +115,12 @@ def artefact_check_cmd(path, as_json) -> None:
 @machine_option
 @click.option("--speed", type=float, default=35.0, show_default=True, help="Sweep speed, mm/s.")
 @click.option("--bidirectional", is_flag=True, help="Alternate the sweep direction from ball to ball.")
+@click.option("--repeat-scans", "repeat_scans", type=click.IntRange(0), default=0, show_default=True, metavar="N",
+              help="Scan the first N balls again at the end, the artefact not moved: the run then measures its own "
+                   "per-scan reproducibility, the diagnosis's noise floor (docs/diagnosis.md).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
               help="Plan file (JSON) for `cmmpose acquire --plan`.")
-def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out) -> None:
+def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out, repeat_scans=0) -> None:
     """Write the acquisition plan of an artefact run: the pose and sweep of every ball of every placement
     (docs/artefacts.md, 'Recording a plate'), for `cmmpose acquire --plan`."""
     from ..acquire.plan import artefact_plan
@@ -127,7 +130,7 @@ def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out)
         machine = load_machine(machine_file)
         artefact = artefacts.load_artefact(path)
         plan = artefact_plan(artefact, list(placements) or [artefacts.get(artefact.kind).layout], machine,
-                             speed=speed, bidirectional=bidirectional)
+                             speed=speed, bidirectional=bidirectional, repeat_scans=repeat_scans)
         plan.write(out)
     except Error as exc:
         raise _fail(exc) from None
@@ -147,7 +150,8 @@ def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out)
 
 
 def simulate_artefact(artefact_spec, placements, machine, maps, temperature, effects, speed, bidirectional,
-                      jitter_um, seed, run_dir, overwrite, progress_columns, record_maps, as_json=False) -> None:
+                      jitter_um, seed, run_dir, overwrite, progress_columns, record_maps, as_json=False,
+                      repeat_scans: int = 0) -> None:
     """``cmmpose simulate --artefact A --placement P ...``: simulate, save, print a summary;
     ``record_maps(run)`` gives the run with its record of the maps (as a ballbar run's)."""
     from rich.progress import Progress
@@ -162,7 +166,7 @@ def simulate_artefact(artefact_spec, placements, machine, maps, temperature, eff
             run, truth = simulate_artefact_run(
                 artefact, list(placements) or [artefacts.get(artefact.kind).layout], maps, temperature, effects,
                 machine=machine, speed=speed, bidirectional=bidirectional, jitter=jitter_um * 1e-3, seed=seed,
-                progress=lambda done, total: bar.update(task, completed=done, total=total))
+                progress=lambda done, total: bar.update(task, completed=done, total=total), repeat_scans=repeat_scans)
         run = record_maps(run)
         elapsed = time.perf_counter() - start
         run.save(run_dir, truth=truth, overwrite=overwrite)

@@ -48,8 +48,11 @@ from .common import (check_outputs, check_report_file, console, fail, load_maps,
 @scheduler_options("With several runs: where each run's diagnosis runs (threads, processes or tcp://host:port; "
                    "the [dask] extra; docs/scale-out.md).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
-@click.option("--reproducibility", "reproducibility_um", type=float, default=None, metavar="UM",
-              help="Per-scan centre reproducibility, um per axis: the noise floor of a run that repeats no scan.")
+@click.option("--reproducibility", "reproducibility_um", default=None, metavar="UM[,UM...]",
+              callback=lambda ctx, param, value: _reproducibility_values(value),
+              help="Per-scan centre reproducibility, um per axis: the noise floor of a run that repeats no scan "
+                   "(default: the --machine file's [reproducibility]; a run that repeats scans measures its own). "
+                   "With --joint: one value, or one per run, comma-separated.")
 @click.option("--no-map-corrections", is_flag=True,
               help="Offer only the library's named effects (no corrections of the map components).")
 @click.option("--corrected-maps", "corrected_out", type=click.Path(dir_okay=False), default=None,
@@ -69,14 +72,21 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
             raise click.UsageError("--joint takes two or more runs and runs in this process (no --scheduler)")
         if skeleton_out:
             raise click.UsageError("--user-effect-skeleton takes one run: diagnose the run of interest on its own")
-        if reproducibility_um is not None:  # the joint floor comes from the runs themselves (each its own noise)
-            raise click.UsageError("--reproducibility takes one run: with --joint each run's noise is estimated")
+        if reproducibility_um is not None and len(reproducibility_um) not in (1, len(run_dirs)):
+            raise click.BadParameter(f"{len(reproducibility_um)} values for {len(run_dirs)} runs: give one value, "
+                                     "or one per run (comma-separated, in the runs' order)",
+                                     param_hint="--reproducibility")
         return _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file,
                                temperature=temperature, out_of_range=out_of_range,
                                temperature_tolerance=temperature_tolerance, log_hold=log_hold,
                                temperature_policy=temperature_policy, add=add, auto=not no_auto,
                                max_effects=max_effects, same_artefact=not separate_artefacts,
-                               map_corrections=not no_map_corrections, corrected_out=corrected_out)
+                               map_corrections=not no_map_corrections, corrected_out=corrected_out,
+                               reproducibility_um=reproducibility_um)
+    if reproducibility_um is not None and len(reproducibility_um) > 1:
+        raise click.BadParameter("one value per run is for --joint; without it every run takes the one value",
+                                 param_hint="--reproducibility")
+    reproducibility_um = None if reproducibility_um is None else reproducibility_um[0]
     if len(run_dirs) > 1 or scheduler:
         for flag, given in (("--report", report_file), ("--save-model", model_out), ("--user-effect", user_files),
                             ("--user-effect-skeleton", skeleton_out)):
@@ -86,7 +96,8 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
                                scheduler_timeout=scheduler_timeout,
                                temperature=temperature, out_of_range=out_of_range,
                                temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
-                               auto=not no_auto, max_effects=max_effects, temperature_policy=temperature_policy)
+                               auto=not no_auto, max_effects=max_effects, temperature_policy=temperature_policy,
+                               reproducibility_um=reproducibility_um)
     run_dir = run_dirs[0]
     try:
         check_outputs({"--save-model": model_out, "--report": report_file, "--user-effect-skeleton": skeleton_out,
@@ -105,7 +116,8 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
             known = set(model.names)
             diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects,
                             user_effects=[u for u in user if u.name not in known],
-                            map_corrections=not no_map_corrections, reproducibility_um=reproducibility_um)
+                            map_corrections=not no_map_corrections, reproducibility_um=reproducibility_um,
+                            **machine_floor(machine, machine_file, reproducibility_um))
         files = []
         if skeleton_out:
             from ..diagnosis.unexplained import user_effect_skeleton
@@ -128,6 +140,34 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
     except Error as exc:
         raise fail(exc) from None
     _print_diagnosis(diag, files, as_json)
+
+
+def _reproducibility_values(text) -> tuple[float, ...] | None:
+    """--reproducibility: one number of um, or several comma-separated (one per run of --joint); the
+    diagnosis checks each (finite, > 0, plausible) and names this option."""
+    if text is None:
+        return None
+    values = []
+    for item in str(text).split(","):
+        try:
+            values.append(float(item))
+        except ValueError:
+            raise click.BadParameter(f"{item.strip()!r} is not a number of um", param_hint="--reproducibility") \
+                from None
+    return tuple(values)
+
+
+def machine_floor(machine, machine_file, reproducibility_um=None) -> dict:
+    """The keywords that give the diagnosis its floor's source: --reproducibility when given (it wins);
+    else the --machine file's stated per-scan reproducibility, the floor of each run that repeats no scan (a
+    run that repeats scans measures its own); none for the default machine (without --machine the runs' maps
+    are as run.json says, and a machine the run may not come from states nothing of its noise)."""
+    if reproducibility_um is not None:
+        return {"reproducibility_source": "stated (--reproducibility)"}
+    if machine_file is None or machine.reproducibility_um is None:
+        return {}
+    return {"default_reproducibility_um": machine.reproducibility_um,
+            "reproducibility_source": f"stated in the machine file {machine.source}"}
 
 
 def _write_corrected_maps(model, path) -> list:
@@ -197,8 +237,12 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
                                 out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
                                 log_hold=log_hold, temperature_policy=temperature_policy)
         with console.status(f"diagnosing {len(runs)} runs together ..."):
+            repro = options.pop("reproducibility_um", None)
+            if repro is not None:
+                options["reproducibility_um"] = repro[0] if len(repro) == 1 else list(repro)
             diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
-                                    run_names=[str(r) for r in run_dirs], **options)
+                                    run_names=[str(r) for r in run_dirs], **options,
+                                    **machine_floor(machine, machine_file, repro))
         files = [diag.model.save(model_out)] if model_out else []
         if corrected_out:
             files += _write_corrected_maps(diag.model, corrected_out)
@@ -222,6 +266,7 @@ def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json
 
     try:
         machine = load_machine(machine_file)
+        options.update(machine_floor(machine, machine_file, options.get("reproducibility_um")))
         model = "run"  # each run's bundled maps, on its worker
         if model_file:
             model = Model.load(model_file)

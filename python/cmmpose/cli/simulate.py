@@ -35,6 +35,11 @@ from .common import (SEED, console, fail, json_option, load_maps, machine_option
 @click.option("--bidirectional", is_flag=True, help="Alternate forward and reverse sweeps.")
 @click.option("--jitter", type=float, default=0.0, show_default=True,
               help="Per-scan reproducibility: sd of where the artefact really sits at each sweep, um per axis.")
+@click.option("--repeat-scans", "repeat_scans", type=click.IntRange(0), default=0, show_default=True, metavar="N",
+              help="Scan N balls again at the end (ball 1 and 2 of position 1, then 2, ...; of an --artefact its first "
+                   "N balls), the artefact not moved: the "
+                   "run then measures its own per-scan reproducibility, the diagnosis's noise floor "
+                   "(docs/diagnosis.md). 6 or more gives a floor to about 20 %.")
 @click.option("--calibrated", is_flag=True, help="Record the bar length at 20 C and the ball radius as calibrated values.")
 @click.option("--reference-pose", "reference_poses", multiple=True, metavar="A,B,G",
               help="After the ballbar, scan the reference sphere at this pose (degrees; repeatable).")
@@ -48,7 +53,7 @@ from .common import (SEED, console, fail, json_option, load_maps, machine_option
 @click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing run in RUN_DIR.")
 def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidirectional, jitter, calibrated,
-                 reference_poses, artefact, placements, seed, as_json, run_dir, overwrite) -> None:
+                 reference_poses, artefact, placements, seed, as_json, run_dir, overwrite, repeat_scans=0) -> None:
     """Simulate a ballbar run (or, with --artefact, an artefact at its placements) on a virtual machine (default:
     the thesis's Iota 1102 + Hyscan 45C) and write it as a run directory."""
     from ..machine import load_machine
@@ -68,7 +73,8 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
                                      bidirectional, jitter, seed, run_dir, overwrite,
                                      (TextColumn("simulating"), BarColumn(),
                                       TextColumn("{task.completed}/{task.total} sweeps")),
-                                     lambda r: dataclasses.replace(r, maps=machine.maps_record(maps)), as_json=as_json)
+                                     lambda r: dataclasses.replace(r, maps=machine.maps_record(maps)), as_json=as_json,
+                                     repeat_scans=repeat_scans)
         start = time.perf_counter()
         with Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.completed}/{task.total} sweeps"),
                       console=console) as bar:
@@ -78,7 +84,7 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
                 scanner=machine.scanner, offset=tuple(machine.offset), jitter=jitter * 1e-3,
                 calibrated=("length", "radius") if calibrated else (),
                 reference_poses=[pose_angles(p, "--reference-pose") for p in reference_poses],
-                progress=lambda done, total: bar.update(task, completed=done, total=total))
+                progress=lambda done, total: bar.update(task, completed=done, total=total), repeat_scans=repeat_scans)
         run = dataclasses.replace(run, maps=machine.maps_record(maps))
         elapsed = time.perf_counter() - start
         run.save(run_dir, truth=truth, overwrite=overwrite)
@@ -86,14 +92,15 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
         raise fail(exc) from None
     table = Table(title=f"cmmpose simulate -> {run_dir}", show_header=False)
     machine_row(table, machine)
-    table.add_row("layout", f"{layout} ({len(run.scans['scan_id'])} sweeps)")
+    table.add_row("layout", f"{layout} ({len(run.scans['scan_id'])} sweeps"
+                  + (f", {repeat_scans} of them repeats)" if repeat_scans else ")"))
     table.add_row("points", f"{run.n_points:,} ({run.n_points / len(run.scans['scan_id']):,.0f} per sphere)")
     table.add_row("temperature", f"{temperature:g} C")
     table.add_row("effects", ", ".join(effects) or "none")
     table.add_row("time", f"{elapsed:.2f} s")
     show(table, as_json, {"run": str(run_dir), "machine": machine.name, "layout": layout,
-                          "sweeps": len(run.scans["scan_id"]), "points": run.n_points, "temperature_C": temperature,
-                          "effects": list(effects), "seconds": elapsed})
+                          "sweeps": len(run.scans["scan_id"]), "repeat_scans": repeat_scans, "points": run.n_points,
+                          "temperature_C": temperature, "effects": list(effects), "seconds": elapsed})
 
 
 def _exact_text(value: float) -> str:

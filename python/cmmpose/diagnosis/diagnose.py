@@ -23,7 +23,7 @@ from .identify import (ALPHA, Candidate, Problem, value_text, check_effect_names
 from ..model.spec import EffectSpec, effect_spec, run_library
 from ..model.point_inputs import single_map_warning
 from ..model.domain import Domain
-from ..model.model import Model, check_kinematics, run_kinematics
+from ..model.model import Model, as_model, check_kinematics, run_kinematics
 from ..evaluation.observables import ModelFigures, figures
 from .unexplained import periodic_errors, unexplained_findings
 
@@ -400,19 +400,6 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def as_model(model, kinematics: str | None = None) -> Model:
-    """The starting model of a diagnosis: a Model as given, maps as the thesis
-    model, None as the thesis maps (stacked as ``kinematics``, the
-    configuration the runs name; None: the thesis machine's)."""
-    if model is None:
-        return Model(ErrorMapSet.thesis().with_kinematics(kinematics or "thesis"))
-    if isinstance(model, (ErrorMap, ErrorMapSet)):
-        return Model(model)
-    if not isinstance(model, Model):
-        raise InputTypeError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
-    return model
-
-
 @renamed(model="maps")
 def diagnose(
     run: Run,
@@ -431,6 +418,8 @@ def diagnose(
     map_corrections: bool = True,
     reproducibility_um: float | None = None,
     temperature_policy=None,
+    reproducibility_source: str = "stated",
+    default_reproducibility_um: float | None = None,
 ) -> Diagnosis:
     """Find which physical effects the model misses on ``run``, add them, and
     keep the history of the error falling.
@@ -487,12 +476,22 @@ def diagnose(
     reproducibility_um : float, optional
         um per axis: the per-scan centre reproducibility, for the noise
         floor of a run that repeats no scan (one that does measures it;
-        :mod:`cmmpose.diagnosis.floor`).
+        :mod:`cmmpose.diagnosis.floor`). Without either, the floor is the
+        spheres' fit scatter (a lower bound; the verdict says first that
+        there is no floor), in the selection as in the noise test.
     temperature_policy : TemperaturePolicy, optional
         The whole temperature policy (cmmpose.temperature: also gaps, broken
         channels, which sensor each role reads); the three keywords above
         override its fields. None: the model's (``TemperaturePolicy()`` for
         one made from maps), the same default as every other function.
+    reproducibility_source : str
+        Where a stated ``reproducibility_um`` comes from, in the noise
+        floor's words (``cmmpose diagnose --machine FILE``: the file).
+    default_reproducibility_um : float, optional
+        um per axis: the machine's stated per-scan reproducibility
+        (:attr:`cmmpose.machine.Machine.reproducibility_um`), the floor when
+        ``reproducibility_um`` is not given and the run repeats no scan (a
+        run that does measures its own). Checked as ``reproducibility_um``.
 
     Returns
     -------
@@ -524,8 +523,9 @@ def diagnose(
                 cand[spec.name] = spec
     problem = Problem(model, run, cand,
                       extra=user_specs([a for a in add if not isinstance(a, str)] + list(user_effects)))
-    if reproducibility_um is not None:  # the lengths' noise level never below the floor it implies
-        problem.state_reproducibility(reproducibility_um)
+    if reproducibility_um is None and default_reproducibility_um is not None:
+        reproducibility_um = default_floor(problem, default_reproducibility_um)
+    state_floor(problem, reproducibility_um)
     single_map_warning(model, problem.inputs.temperature)  # as evaluating with the map alone warns
     if map_corrections and candidates is None:  # a restricted list of candidates is the whole list
         add_map_candidates(problem, model)
@@ -566,7 +566,7 @@ def diagnose(
     from .aliases import find_alternatives
 
     diag.alternatives = find_alternatives(problem, steps, model)
-    attach_floor(diag, problem, steps[-1], reproducibility_um)
+    attach_floor(diag, problem, steps[-1], reproducibility_um, reproducibility_source)
     if map_corrections and candidates is None:
         from .mapfamily import component_report
 
@@ -619,13 +619,51 @@ def _two_axis_first(problem, step, candidate) -> bool:
     return True
 
 
-def attach_floor(diag, problem, step, reproducibility_um=None) -> None:
+def default_floor(problem, default_reproducibility_um: float):
+    """The stated reproducibility of ``problem`` when only a default (the
+    machine's) is given: the default for a run that repeats no scan, None for
+    one that does (it measures its own, Type A); one per run of a joint
+    problem, a single value (or None) for one run."""
+    from .._validate import check_reproducibility
+    from .floor import repeats_scans
+
+    um = check_reproducibility("default_reproducibility_um", default_reproducibility_um)
+    values = [None if r else um for r in repeats_scans(problem)]
+    return values if getattr(problem, "parts", None) else values[0]
+
+
+def state_floor(problem, reproducibility_um=None) -> None:
+    """The headline's noise level never below the floor each run of
+    ``problem`` (a Problem, or a JointProblem's parts) has: a stated
+    ``reproducibility_um`` (one, or one per run); for a run that repeats no
+    scan and states none, its spheres' fit scatter
+    (:func:`cmmpose.diagnosis.floor.fit_scatter_um`), so that the selection
+    adds only what that conservative floor supports. A run that repeats
+    scans estimates its own noise level."""
+    from .floor import fit_scatter_um, per_run, repeats_scans
+
+    parts = getattr(problem, "parts", None) or [problem]
+    stated = per_run(reproducibility_um, len(parts))
+    repeated = repeats_scans(problem)
+    scatter = None
+    for i, p in enumerate(parts):  # one per run
+        if stated[i] is not None:
+            p.state_reproducibility(stated[i])
+        elif not repeated[i]:
+            scatter = fit_scatter_um(problem) if scatter is None else scatter
+            if scatter[i] > 0:
+                p.state_reproducibility(float(scatter[i]))
+    if len(parts) > 1 or parts[0] is not problem:
+        problem.class_floor = np.concatenate([p.class_floor for p in parts])
+
+
+def attach_floor(diag, problem, step, reproducibility_um=None, reproducibility_source: str = "stated") -> None:
     """Set ``diag.noise`` and ``diag.two_axis`` from ``step``'s model; then
     let the steps drop their working arrays (residuals, the cross-validation's
     designs), which a diagnosis sent between processes need not carry."""
     from .floor import noise_floor, two_axis_findings
 
-    diag.noise = noise_floor(problem, step, reproducibility_um)
+    diag.noise = noise_floor(problem, step, reproducibility_um, reproducibility_source)
     diag.two_axis = [{k: v for k, v in f.items() if not k.startswith("_")} for f in two_axis_findings(problem, step)]
     for s in diag.steps:
         s.residual = None

@@ -80,6 +80,24 @@ def _cv_text(cv) -> str:
     return f"{cv['cv_rms_um']:.2f} ± {cv.get('cv_rms_u_um') or 0:.2f} (in sample {cv['in_sample_rms_um']:.2f})"
 
 
+def _nothing_added(d) -> str:
+    """What a diagnosis that added nothing may say: "missing nothing the run
+    can show" only when the residuals were tested against a stated or
+    measured floor and look like noise; else what is left is not explained."""
+    noise = getattr(d, "noise", None) or {}
+    if noise.get("noise") and noise.get("floor_stated_or_measured"):
+        return "The model was missing nothing the run can show: no candidate effect is significant and the " \
+               "residuals look like noise at the floor."
+    if noise.get("noise"):
+        return "No candidate effect is significant, and the residuals look like noise even at the spheres' fit " \
+               "scatter; without a stated or measured floor that is all the run can say."
+    if noise.get("unexplained_um") is not None:
+        return (f"No candidate effect is significant, but {noise['unexplained_um']:.2f} um is left above the floor "
+                "and not explained (see the noise floor).")
+    return "No candidate effect is significant; without a noise floor whether the model misses anything cannot be " \
+           "said."
+
+
 def _verdict(d, model_file, run_dir) -> str:
     """The top of the report: what was missing, the final values, how far the error fell, what next."""
     steps = d.steps
@@ -99,14 +117,12 @@ def _verdict(d, model_file, run_dir) -> str:
             lines.append(f"With them the rms accuracy error fell from {first.rms_accuracy_error * 1e3:.2f} um to "
                          f"{last.rms_accuracy_error * 1e3:.2f} um, the B89 value from {first.b89 * 1e3:.2f} um to "
                          f"{last.b89 * 1e3:.2f} um.")
-    elif first.deviation_rms is not None:
-        lines.append(f"The model was missing nothing the run can show: no candidate effect is significant. The rms "
-                     f"deviation is {first.deviation_rms * 1e3:.2f} um, the largest "
-                     f"{first.deviation_largest * 1e3:.2f} um.")
     else:
-        lines.append(f"The model was missing nothing the run can show: no candidate effect is significant. The rms "
-                     f"accuracy error is {first.rms_accuracy_error * 1e3:.2f} um, the B89 value "
-                     f"{first.b89 * 1e3:.2f} um.")
+        figure = (f"The rms deviation is {first.deviation_rms * 1e3:.2f} um, the largest "
+                  f"{first.deviation_largest * 1e3:.2f} um." if first.deviation_rms is not None else
+                  f"The rms accuracy error is {first.rms_accuracy_error * 1e3:.2f} um, the B89 value "
+                  f"{first.b89 * 1e3:.2f} um.")
+        lines.append(f"{_nothing_added(d)} {figure}")
     cv0, cv1 = steps[0].cv, steps[-1].cv
     if cv0 and cv1 and cv0.get("cv_rms_um") is not None and cv1.get("cv_rms_um") is not None:
         lines.append(f"Out of sample ({cv1.get('split', 'cross-validation')}): {cv0['cv_rms_um']:.2f} ± "
@@ -115,8 +131,11 @@ def _verdict(d, model_file, run_dir) -> str:
                      f"{cv0['in_sample_rms_um']:.2f} and {cv1['in_sample_rms_um']:.2f} um).")
     if getattr(d, "verification", None):
         lines.append("The given model on this run: " + d.verification["verdict"] + ".")
-    if getattr(d, "noise", None):
-        lines.append("Noise floor: " + d.noise["verdict"] + ".")
+    noise = getattr(d, "noise", None)
+    if noise and noise.get("floor_stated_or_measured") is False:  # said first: every word below stands on it
+        lines.insert(0, "Noise floor: " + noise["verdict"] + ".")
+    elif noise:
+        lines.append("Noise floor: " + noise["verdict"] + ".")
     for f in getattr(d, "two_axis", [])[:2]:
         lines.append(f"Unexplained: {f['description']} (p {f['p_value']:.1e}).")
     for x in decisions:

@@ -31,11 +31,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import MAX_REPRODUCIBILITY_MM, check_reproducibility
 from ..errors import Error, InputError, InputTypeError, UserEffectError
 from ..run import Run
 from ._blas import one_blas_thread
-from .statistics import (RSS_FLOOR, ALPHA, INDISTINGUISHABLE, INDISTINGUISHABLE_LR, MAX_REPRODUCIBILITY_MM,
-                         NOT_OBSERVABLE_BELOW, OBSERVABLE_AT, PRIOR_WEIGHT, SIGMA_FLOOR, chi2_sf)
+from .statistics import (RSS_FLOOR, ALPHA, INDISTINGUISHABLE, INDISTINGUISHABLE_LR, NOT_OBSERVABLE_BELOW,
+                         OBSERVABLE_AT, PRIOR_WEIGHT, SIGMA_FLOOR, chi2_sf)
 from .artefact import artefact_columns, linearised_columns
 from .floor import headline_floors
 from .mapfamily import centre_columns, compressed_view
@@ -126,14 +127,8 @@ class Problem:
         would otherwise credit any fit to them with a large likelihood gain
         (a crossed layout's 8 lengths at 1.9 um rms against a 4.24 um
         floor: a 3-parameter map correction at p = 2e-6 on noise alone)."""
-        sc = float(reproducibility_um) * 1e-3
-        if not math.isfinite(sc) or sc <= 0:
-            raise InputError(f"reproducibility_um: expected a positive number of um, got {reproducibility_um!r}")
-        if sc > MAX_REPRODUCIBILITY_MM:
-            raise InputError(f"reproducibility_um: {reproducibility_um:g} um per axis is implausible for a sphere "
-                             f"centre (more than {MAX_REPRODUCIBILITY_MM * 1e3:g} um, ten times a whole uncompensated "
-                             f"machine's errors): a unit slip? (um expected)", what="reproducibility_um",
-                             option="reproducibility_um", cli_option="--reproducibility")
+        sc = check_reproducibility("reproducibility_um", reproducibility_um, what="reproducibility_um",
+                                   option="reproducibility_um", cli_option="--reproducibility") * 1e-3
         f = headline_floors(self.layout, sc)
         if len(f):
             self.class_floor[0] = max(SIGMA_FLOOR, float(np.sqrt(np.mean(f ** 2))))

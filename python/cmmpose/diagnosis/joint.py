@@ -27,12 +27,12 @@ from ..errors import InputError, InputTypeError
 from ..run import Run
 from ._blas import one_blas_thread
 from .aliases import find_alternatives
-from .diagnose import (Diagnosis, Step, unobservable_candidates, add_map_candidates, as_model, attach_floor,
-                       select_effects, user_specs)
+from .diagnose import (Diagnosis, Step, unobservable_candidates, add_map_candidates, attach_floor,
+                       default_floor, select_effects, state_floor, user_specs)
 from .identify import Problem, check_effect_names, determined_values, model_covariance, rank_candidates
 from ..model.point_inputs import single_map_warning
 from ..model.domain import Domain
-from ..model.model import Model, check_kinematics, run_kinematics
+from ..model.model import Model, as_model, check_kinematics, run_kinematics
 from ..evaluation.observables import CLASSES, ModelFigures, figures
 
 __all__ = ["JointProblem", "JointDiagnosis", "check_distinct", "check_same_kinematics", "diagnose_jointly"]
@@ -163,7 +163,9 @@ class JointDiagnosis(Diagnosis):
 @renamed(model="maps")
 def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *, add=(), auto: bool = True,
                      max_effects: int = 4, user_effects=(), same_artefact: bool = True,
-                     run_names=None, map_corrections: bool = True) -> JointDiagnosis:
+                     run_names=None, map_corrections: bool = True, reproducibility_um=None,
+                     reproducibility_source: str = "stated",
+                     default_reproducibility_um: float | None = None) -> JointDiagnosis:
     """One model for several runs: the effects' parameters shared, each run
     with its own noise levels (and its own nuisances unless ``same_artefact``).
 
@@ -189,6 +191,17 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     run_names : sequence of str, optional
         Names of the runs in tables and messages (default run 1, run 2,
         ...; messages name a loaded run by its directory).
+    reproducibility_um : float or sequence of float, optional
+        Stated per-scan centre reproducibility, um per axis: one for every
+        run, or one per run (None entries: not stated for that run). A run
+        that repeats scans measures its own (Type A); a run with neither
+        takes its spheres' fit scatter, a lower bound
+        (:mod:`cmmpose.diagnosis.floor`).
+    reproducibility_source : str
+        Where a stated value comes from, in the noise floor's words.
+    default_reproducibility_um : float, optional
+        The machine's stated reproducibility, um per axis: the floor of each
+        run that repeats no scan when ``reproducibility_um`` is not given.
 
     Returns
     -------
@@ -217,6 +230,9 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     for r, label in zip(runs, labels):
         check_kinematics(model, r, label)
     problem = JointProblem(model, runs, same_artefact=same_artefact, extra=user_specs(list(user_effects)))
+    if reproducibility_um is None and default_reproducibility_um is not None:
+        reproducibility_um = default_floor(problem, default_reproducibility_um)
+    state_floor(problem, reproducibility_um)  # each run's headline noise never below its floor
     for p, label in zip(problem.parts, labels):  # as evaluating each run with the map alone warns
         single_map_warning(model, p.inputs.temperature, label)
     if map_corrections:
@@ -239,7 +255,7 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
                           skipped=dict(problem.skipped),
                           run_figures=per_run, run_names=names)
     diag.alternatives = find_alternatives(problem, steps, model)
-    attach_floor(diag, problem, steps[-1])
+    attach_floor(diag, problem, steps[-1], reproducibility_um, reproducibility_source)
     if map_corrections:  # what the runs together determine of each map component (mapfamily)
         from .mapfamily import component_report
 

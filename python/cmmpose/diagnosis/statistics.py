@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from scipy.special import chdtrc
 
-__all__ = ["ALPHA", "INDISTINGUISHABLE", "INDISTINGUISHABLE_LR", "MAX_REPRODUCIBILITY_MM", "NOT_OBSERVABLE_BELOW",
+__all__ = ["ALPHA", "INDISTINGUISHABLE", "INDISTINGUISHABLE_LR", "NOT_OBSERVABLE_BELOW",
            "OBSERVABLE_AT", "PRIOR_WEIGHT", "RSS_FLOOR", "SIGMA_FLOOR", "chi2_sf"]
 
 #: Family-wise false-alarm rate of a proposal.
@@ -29,12 +29,6 @@ INDISTINGUISHABLE_LR = 10.0
 #: are not trustworthy, so residuals that small are not evidence.
 SIGMA_FLOOR = 1e-4
 RSS_FLOOR = SIGMA_FLOOR ** 2
-#: Largest stated per-scan centre reproducibility, mm per axis: a sphere
-#: scan's centre repeats to micrometres, and a whole uncompensated machine
-#: errs by ~0.1 mm (the thesis machine: 71 um rms on a 404 mm bar). A
-#: floor of more than 1 mm would call every effect insignificant; such a
-#: value is a unit slip (nm, or mm written as um x 1000), not a measurement.
-MAX_REPRODUCIBILITY_MM = 1.0
 #: Weight of the prior on effect parameters, per prior magnitude: a total
 #: value of a few typical magnitudes costs little, hundreds cost more than
 #: any data can gain. Without it a linearised column that happens to carry

@@ -37,7 +37,7 @@ from ..model.inputs import RunInputs
 from ..model.model import check_kinematics, run_label
 
 __all__ = ["ObservationLayout", "Observed", "observe", "figures", "ModelFigures", "CLASSES",
-           "check_calibrated_length", "check_first_observation", "figures_difference", "model_figures"]
+           "check_calibrated_length", "check_first_observation", "figures_difference", "mean_centres", "model_figures"]
 
 #: Observable classes, in vector order.
 CLASSES = ("length", "centre", "radius", "point")
@@ -281,7 +281,7 @@ class Observed:
     deviations: np.ndarray | None = None
 
 
-def _mean_centres(layout: ObservationLayout, centres: np.ndarray) -> np.ndarray:
+def mean_centres(layout: ObservationLayout, centres: np.ndarray) -> np.ndarray:
     """Mean centre of each physical sphere over its scans, mm."""
     n_sph = len(layout.sphere_kind)
     counts = np.bincount(layout.sphere_of_scan, minlength=n_sph)
@@ -297,7 +297,7 @@ def check_first_observation(layout: ObservationLayout, observed: Observed, where
     (:func:`cmmpose.evaluation.artefact_layout.check_placements`)."""
     check_calibrated_length(layout, observed.lengths, where)
     if layout.artefact is not None:
-        check_placements(layout.artefact, _mean_centres(layout, observed.centres))
+        check_placements(layout.artefact, mean_centres(layout, observed.centres))
 
 
 def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin: float = 0.0,
@@ -323,7 +323,7 @@ def observe(layout: ObservationLayout, xyz: np.ndarray, expansion_ppm_per_kelvin
         fits = fit_spheres(xyz, sid) if keep.all() else fit_spheres(xyz[keep], sid[keep])
     at = fits.positions(layout.labels)
     centres, radii, rms, form = fits.centre[at], fits.radius[at], fits.rms[at], fits.form[at]
-    mean_c = _mean_centres(layout, centres)
+    mean_c = mean_centres(layout, centres)
     lengths = np.linalg.norm(mean_c[layout.ends[:, 1]] - mean_c[layout.ends[:, 0]], axis=1)
     deviations = None
     if layout.artefact is not None:  # ball deviations after each placement's rigid fit, in place of lengths

@@ -38,7 +38,7 @@ from .names import resolve
 from .point_inputs import check_inputs, point_inputs, single_map_warning
 from .spec import LIBRARY, EffectSpec, effect_spec
 
-__all__ = ["Model", "MODEL_SCHEMA", "check_kinematics", "run_kinematics"]
+__all__ = ["Model", "MODEL_SCHEMA", "as_model", "check_kinematics", "run_kinematics"]
 
 _log = logging.getLogger(__name__)
 
@@ -761,3 +761,16 @@ def inputs_with_incidence(model: Model, inputs: RunInputs) -> RunInputs:
     if ok.any():
         theta[ok] = incidence_angles(xyz[ok], inputs.scan_id[ok], centres, replace(inputs, pose_index=inputs.pose_index[ok]))
     return inputs.with_incidence(theta)
+
+
+def as_model(model, kinematics: str | None = None) -> Model:
+    """The starting model of a diagnosis: a Model as given, maps as the thesis
+    model, None as the thesis maps (stacked as ``kinematics``, the
+    configuration the runs name; None: the thesis machine's)."""
+    if model is None:
+        return Model(ErrorMapSet.thesis().with_kinematics(kinematics or "thesis"))
+    if isinstance(model, (ErrorMap, ErrorMapSet)):
+        return Model(model)
+    if not isinstance(model, Model):
+        raise InputTypeError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
+    return model

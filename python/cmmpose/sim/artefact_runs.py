@@ -15,7 +15,7 @@ from ..artefacts import Artefact
 from ..effects import Effect, channels as effect_channels
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
-from ..placement import PROFILES_PER_BALL, Placement, ball_speed, parse, plan, run_record
+from ..placement import PROFILES_PER_BALL, Placement, ball_speed, check_repeat_scans, parse, plan, run_record
 from ..run import Run
 from .machine import Temperature, TruthMachine
 from .runs import SCAN_INTERVAL, SweepRecorder
@@ -39,6 +39,7 @@ def simulate_artefact_run(
     scan_interval: float = SCAN_INTERVAL,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
+    repeat_scans: int = 0,
 ) -> tuple[Run, tuple[dict[str, np.ndarray], dict]]:
     """Simulate an artefact measured at one or more placements.
 
@@ -76,6 +77,11 @@ def simulate_artefact_run(
         Noise seed.
     progress : callable, optional
         ``progress(done, total)`` after each sweep.
+    repeat_scans : int
+        Sweeps repeated at the end, the artefact not moved: the first
+        ``repeat_scans`` balls' scans again (their own jitter, new noise), so
+        the run measures its own per-scan reproducibility, the diagnosis's
+        noise floor. 0 (the default) leaves the run as it was.
 
     Returns
     -------
@@ -110,6 +116,7 @@ def simulate_artefact_run(
     for p in placements:
         parsed += parse(p, machine.travel) if isinstance(p, str) else [p]
     resolved, ball_scans = plan(parsed, artefact, machine)
+    ball_scans = list(ball_scans) + list(ball_scans)[:check_repeat_scans(repeat_scans, len(ball_scans))]
     truth_machine = TruthMachine(maps, effects)
     rng = np.random.default_rng(seed)
     total = len(ball_scans)
@@ -143,6 +150,7 @@ def simulate_artefact_run(
         temperature_channels=[{"name": c, "role": r} for c, r in (*CHANNELS, *extra)],
         artefact=record, maps={},
         metadata={"simulated": True, "seed": seed, "speed_mm_s": speed, "jitter_mm": jitter,
+                  **({"repeat_scans": int(repeat_scans)} if repeat_scans else {}),
                   "temperature_C": temperature if not callable(temperature) else "time series"},
     )
     truth = ({"true_xyz": true_xyz, "ball_centres": np.array(centres)},

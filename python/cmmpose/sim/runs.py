@@ -12,6 +12,7 @@ import numpy as np
 from .. import layouts
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError
+from ..placement import check_repeat_scans
 from ..pose import MountOffset
 from ..run import Run
 from .artefacts import BALL_RADIUS, Sphere, reference_sphere
@@ -148,6 +149,7 @@ def simulate_ballbar_run(
     reference_poses: Sequence = (),
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
+    repeat_scans: int = 0,
 ) -> tuple[Run, tuple[dict[str, np.ndarray], dict]]:
     """Simulate a ballbar test: every ball of every position scanned by one sweep.
 
@@ -189,6 +191,15 @@ def simulate_ballbar_run(
         Noise seed; the same seed gives the same run.
     progress : callable, optional
         Called as ``progress(done, total)`` after each sweep.
+    repeat_scans : int
+        Sweeps to repeat at the end of the run (after the reference
+        scans), each the same ball at the same pose again, the artefact not
+        moved (its placement redrawn with ``jitter``, the scanner's noise
+        new): ball 1 then ball 2 of position 1, then of position 2, ... So
+        the run carries its own noise floor: the disagreement of a ball's
+        repeated centres is the per-scan reproducibility (Type A;
+        :mod:`cmmpose.diagnosis.floor`). 0 (the default) leaves the run as
+        it was; the earlier sweeps are the same whatever the number.
 
     Returns
     -------
@@ -213,7 +224,8 @@ def simulate_ballbar_run(
     if not (jitter >= 0 and np.isfinite(jitter)):
         raise InputError(f"jitter: must be >= 0 mm, got {jitter!r}")
     reference_poses = [tuple(float(x) for x in p) for p in reference_poses]
-    total = 2 * len(plan) + len(reference_poses)
+    repeat_scans = check_repeat_scans(repeat_scans, 2 * len(plan))
+    total = 2 * len(plan) + len(reference_poses) + repeat_scans
 
     # Jitter has its own stream, drawn up front: the same seed gives the
     # same artefact placements whatever effects change the point counts.
@@ -238,6 +250,15 @@ def simulate_ballbar_run(
     ref = reference_sphere()
     for j, rpose in enumerate(reference_poses):
         sweep_over(2 * len(plan) + j, rpose, ref.centre, ref.radius, 1, "reference", -1, -1)
+    for j in range(repeat_scans):  # the same ball again, where it was (its own jitter, new noise)
+        k, b = divmod(j, 2)
+        position, w_axis = plan[k]
+        c1, c2 = np.asarray(position.ball1, float), np.asarray(position.ball2, float)
+        c2 = c1 + (c2 - c1) * artefact_scale((2 * k) * scan_interval)
+        scan_id = 2 * len(plan) + len(reference_poses) + j
+        direction = -1 if bidirectional and (2 * k + b) % 2 else 1
+        sweep_over(scan_id, _pose(position, w_axis, layout), (c1, c2)[b], BALL_RADIUS, direction, "ball", k + 1,
+                   b + 1)
     points, scans, pose_table, true_xyz = rec.tables()
     duration = total * scan_interval
     # Each effect says how far each thermocouple role reads above the mean;
@@ -261,6 +282,7 @@ def simulate_ballbar_run(
         artefact=artefact,
         maps={"kind": "bundled", "name": "thesis"} if maps is not None else {},
         metadata={"simulated": True, "seed": seed, "speed_mm_s": speed, "jitter_mm": jitter,
+                  **({"repeat_scans": repeat_scans} if repeat_scans else {}),
                   "temperature_C": temperature if not callable(temperature) else "time series"},
     )
     truth = (
