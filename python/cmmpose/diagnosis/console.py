@@ -25,12 +25,14 @@ from .identify import value_text
 from .wording import change_text, change_u_um, rms_u_um, without_held_needs
 
 __all__ = ["DiagnosisView", "verdict", "final_model_table", "history_table", "candidate_table", "WIDE",
-           "MOST_LISTED", "as_text"]
+           "MOST_LISTED", "as_text", "sphere_table"]
 
 #: Console width (columns) from which the candidate table shows every column.
 WIDE = 140
 #: Most items of a list (unexplained findings, aliased groups, needs) the verdict names; the rest: --verbose.
 MOST_LISTED = 2
+#: Longest run name a joint table's headers use (longer: 'run i', named below the table).
+SHORT_NAME = 16
 #: Parameters of an effect from which the final model's table lists values without their names.
 COMPACT_FROM = 5
 
@@ -77,6 +79,11 @@ def _run_labels(d) -> list[str]:
     return [f"run {i + 1}" for i in range(len(getattr(d, "run_names", ()) or ()))]
 
 
+def _short_names(d) -> list[str]:
+    """Each run of a joint diagnosis by its name when short, else as 'run i'."""
+    return [str(name) if len(str(name)) <= SHORT_NAME else label for name, label in zip(d.run_names, _run_labels(d))]
+
+
 def verdict(d) -> list[tuple[str, str]]:
     """The verdict of a diagnosis in words: (heading, text) pairs, plain text.
 
@@ -108,7 +115,7 @@ def verdict(d) -> list[tuple[str, str]]:
     steps = d.steps
     per_run = getattr(d, "run_figures", None)
     if per_run:
-        changes = [f"{label}: {_change_words(a, b)}" for label, a, b in zip(_run_labels(d), per_run[0], per_run[-1])]
+        changes = [f"{label}: {_change_words(a, b)}" for label, a, b in zip(_short_names(d), per_run[0], per_run[-1])]
         found += "; " + "; ".join(changes)
     elif len(steps) > 1:
         found += "; " + _change_words(steps[0].figures, steps[-1].figures)
@@ -224,22 +231,30 @@ def final_model_table(d) -> Table | Text:
 def history_table(d, compact: bool = True, width: int = WIDE) -> Table:
     """How the error went as effects were added. ``compact``: the headline
     figure, its cross-validated value and the B89 value (or largest ball
-    deviation); otherwise also the sphere figures and (from ``WIDE``
-    columns of ``width``) each step's values.
+    deviation); otherwise, from ``WIDE`` columns of ``width``, also the
+    sphere figures and each step's values (narrower: :func:`sphere_table`).
     A joint diagnosis: each run's headline figure (runs named 'run i')."""
     per_run = getattr(d, "run_figures", None)
     if per_run:
-        what = " / ".join(dict.fromkeys(f.headline[0] for f in per_run[0]))
-        t = Table(title=f"{what} (um) of each run by model", title_justify="left")
+        labels = _run_labels(d)
+        names = _short_names(d)
+        heads = [f"{name}: {f.headline[0]} (um)" for name, f in zip(names, per_run[0])]
+        title = "The error falling as effects are added (one model for every run)"
+        if sum(len(h) + 3 for h in heads) + 40 > width:  # the headers whole where they fit; else the figure above
+            what = " / ".join(dict.fromkeys(f.headline[0] for f in per_run[0]))
+            heads, title = names, f"The error falling: {what} (um) of each run"
+        t = Table(title=title, title_justify="left")
         t.add_column("model", overflow="fold")
-        for label in _run_labels(d):
-            t.add_column(label, justify="right")
+        for head in heads:
+            t.add_column(head, justify="right", overflow="fold", min_width=len(head))
         t.add_column("CV rms (um)", justify="right")
         for s, figs in zip(d.steps, per_run):
             t.add_row(escape(s.label) + (" (forced)" if s.forced else ""),
                       *(_um(None if f.headline[1] is None else f.headline[1] * 1e3) for f in figs), _cv_text(s.cv))
-        if list(d.run_names) != _run_labels(d):  # the runs' own names (their folders) below
-            t.caption = "; ".join(f"{label}: {name}" for label, name in zip(_run_labels(d), d.run_names))
+        long = [(label, name) for label, name, short in zip(labels, d.run_names, names) if short == label
+                and name != label]
+        if long:  # the runs' own names (their folders) below
+            t.caption = "; ".join(f"{label}: {escape(str(name))}" for label, name in long)
             t.caption_justify = "left"
         return t
     t = Table(title="The error falling as effects are added", title_justify="left")
@@ -247,11 +262,15 @@ def history_table(d, compact: bool = True, width: int = WIDE) -> Table:
     first = (("rms deviation (um)", "rms_deviation_um"), ("largest deviation (um)", "largest_deviation_um")) \
         if plate else (("rms accuracy error (um)", "rms_accuracy_error_um"), ("B89 (um)", "b89_um"))
     cols = ["model", first[0][0], "CV rms (um)", first[1][0]]
+    if not compact and width < WIDE:  # the sphere figures in a table of their own (sphere_table)
+        compact = True
     if not compact:
         cols += ["sphere form (um)", "fit rms (um)", "centre spread (um)"] + (["effect values"] if width >= WIDE
                                                                               else [])
     for col in cols:
-        t.add_column(col, justify="left" if col in ("model", "effect values") else "right", overflow="fold")
+        # The headline's name whole (tests and readers look for it); the others may wrap.
+        t.add_column(col, justify="left" if col in ("model", "effect values") else "right", overflow="fold",
+                     min_width=len(col) if col == first[0][0] else None)
     for s in d.steps:
         f = s.figures.to_dict()
         row = [escape(s.label) + (" (forced)" if s.forced else ""), _um(f[first[0][1]]), _cv_text(s.cv),
@@ -262,6 +281,19 @@ def history_table(d, compact: bool = True, width: int = WIDE) -> Table:
             row += [f"{f['form_um']:.1f}", f"{f['fit_rms_um']:.2f}", _um(f["centre_spread_um"])] + \
                 ([escape(eff)] if width >= WIDE else [])
         t.add_row(*row)
+    return t
+
+
+def sphere_table(d) -> Table:
+    """The sphere figures of each step (form, fit rms, centre spread, um): beside the history on a console
+    narrower than ``WIDE``."""
+    t = Table(title="Sphere figures as effects are added", title_justify="left")
+    for col in ("model", "sphere form (um)", "fit rms (um)", "centre spread (um)"):
+        t.add_column(col, justify="left" if col == "model" else "right", overflow="fold")
+    for s in d.steps:
+        f = s.figures.to_dict()
+        t.add_row(escape(s.label) + (" (forced)" if s.forced else ""), f"{f['form_um']:.1f}", f"{f['fit_rms_um']:.2f}",
+                  _um(f["centre_spread_um"]))
     return t
 
 
@@ -276,8 +308,10 @@ def candidate_table(d, step: int = 0, width: int = WIDE) -> Table:
     cols = ("effect", "fitted value ± u", "explains", of, "LR (dof)", "p", "corr", "cond", "decision") if wide \
         else ("effect", "fitted value ± u", "p", "decision")
     for col in cols:
-        t.add_column(col, justify="left" if col in ("effect", "fitted value ± u", "decision") else "right",
-                     overflow="fold", ratio=2 if col in ("effect", "fitted value ± u", "decision") else None)
+        words = col in ("effect", "fitted value ± u", "decision")
+        # The figures' headers whole (short; tests and readers look for them); the words' columns fold.
+        t.add_column(col, justify="left" if words else "right", overflow="fold", ratio=2 if words else None,
+                     min_width=None if words else len(col))
     for c in s.ranking:
         vals = ", ".join(value_text(p, v, u, unit) for p, v, u, unit in zip(c.spec.params, c.values, c.uncertainty,
                                                                           c.spec.units))
@@ -336,6 +370,8 @@ class DiagnosisView:
 
     def _details(self, width):
         d = self.d
+        if width < WIDE and not getattr(d, "run_figures", None):
+            yield sphere_table(d)
         if d.verification is not None:
             yield f"[bold]Verification of the given model:[/] {escape(d.verification['verdict'])}"
         yield candidate_table(d, 0, width)
@@ -362,7 +398,7 @@ class DiagnosisView:
         yield f"{d.n_points} points, {d.elapsed:.1f} s"
 
 
-def as_text(d, verbose: bool = True, width: int = 100) -> str:
+def as_text(d, verbose: bool = True, width: int = WIDE) -> str:
     """The console view as plain text at ``width`` columns."""
     import io
 

@@ -314,10 +314,10 @@ class Diagnosis:
         yield self.view()
 
     def __str__(self) -> str:
-        """The verbose view as text, 100 columns wide."""
+        """The verbose view as text, as wide as its wide layout (:data:`cmmpose.diagnosis.console.WIDE`)."""
         from .console import as_text
 
-        return as_text(self, verbose=True, width=100)
+        return as_text(self, verbose=True)
 
     def write_report(self, path, run: Run | None = None, *, run_dir=None, model_file=None,
                      title: str = "cmmpose diagnosis") -> Path:
