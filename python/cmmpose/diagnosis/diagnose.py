@@ -80,7 +80,7 @@ class Step:
         return self.label.partition(_INSTEAD)[2].rstrip(")")
 
     def to_dict(self, run_has: dict | None = None) -> dict:
-        """The step as plain data; ``run_has`` (what the run holds, :func:`_run_has`): the candidates' reasons
+        """The step as plain data; ``run_has`` (what the run holds, :func:`run_holds`): the candidates' reasons
         never ask for it."""
         ranking = []
         for c in self.ranking:
@@ -154,7 +154,7 @@ class Diagnosis:
     #: Effects the data could not tell from one in the final model, fitted in
     #: its place (:mod:`cmmpose.diagnosis.aliases`): saved with the model.
     alternatives: tuple = ()
-    #: Which revealing measurements the run holds (:func:`_run_has`): advice never asks for them.
+    #: Which revealing measurements the run holds (:func:`run_holds`): advice never asks for them.
     run_has: dict = field(default_factory=dict)
 
     def decisions(self) -> list[dict]:
@@ -499,7 +499,7 @@ def diagnose(
     unobservable, advice, ambiguous = unobservable_candidates(problem, steps)
     diag = Diagnosis(steps, unobservable, ambiguous, n_points=run.n_points, advice=advice,
                      final_uncertainty=model_uncertainties(uncertainty_problem, model),
-                     skipped=dict(problem.skipped), thermal=problem.inputs.thermal, run_has=_run_has(problem))
+                     skipped=dict(problem.skipped), thermal=problem.inputs.thermal, run_has=run_holds(problem))
     from .aliases import find_alternatives
 
     diag.alternatives = find_alternatives(problem, steps, model)
@@ -692,14 +692,14 @@ def unobservable_candidates(problem: Problem, steps: list[Step]):
                 group = tuple([c.name, *c.indistinguishable_from])
                 if group not in ambiguous:
                     ambiguous.append(group)
-                    has = _run_has(problem) if hasattr(problem, "layout") else {}
+                    has = run_holds(problem) if hasattr(problem, "layout") else {}
                     advice[group[0]] = "; ".join(
                         f"{n}: {without_held_needs(problem.candidates[n].reveal, problem.candidates[n].reveal, has)}"
                         for n in group)
     return out, advice, ambiguous
 
 
-def _run_has(problem) -> dict[str, bool]:
+def run_holds(problem) -> dict[str, bool]:
     """Which revealing measurements the run (every run of a joint problem) already holds."""
     parts = getattr(problem, "parts", None) or [problem]
     has = {"calibrated bar length": all(getattr(p.layout, "calibrated_length", None) is not None for p in parts),
@@ -717,7 +717,7 @@ def _agrees_with_run(reason: str, reveal: str, problem) -> str:
     then the run has it, and it still does not pin the effect (a typical
     size stands too little above the noise, or other effects take it up)."""
     try:
-        has = _run_has(problem)
+        has = run_holds(problem)
     except AttributeError:  # a scripted problem
         return reason
     held = [k for k, v in has.items() if v and k in reveal]

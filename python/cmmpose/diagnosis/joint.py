@@ -27,7 +27,7 @@ from ..errors import InputError, InputTypeError
 from ..run import Run
 from ._blas import one_blas_thread
 from .aliases import find_alternatives
-from .diagnose import (Diagnosis, Step, _run_has, unobservable_candidates, add_map_candidates, as_model, attach_floor,
+from .diagnose import (Diagnosis, Step, add_map_candidates, as_model, attach_floor, run_holds, unobservable_candidates,
                        select_effects, user_specs)
 from .identify import Problem, check_effect_names, model_uncertainties, rank_candidates
 from .apply import single_map_warning
@@ -221,7 +221,7 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     diag = JointDiagnosis(steps, unobservable, ambiguous, n_points=sum(r.n_points for r in runs),
                           advice=advice,
                           final_uncertainty=model_uncertainties(problem, model), skipped=dict(problem.skipped),
-                          run_figures=per_run, run_names=names, run_has=_run_has(problem))
+                          run_figures=per_run, run_names=names, run_has=run_holds(problem))
     diag.alternatives = find_alternatives(problem, steps, model)
     attach_floor(diag, problem, steps[-1])
     if map_corrections:  # what the runs together determine of each map component (mapfamily)

@@ -81,7 +81,7 @@ def change_text(what: str, before_um: float, after_um: float, u_um: float | None
 
 def held_measurements(has: dict | None, reveal: str) -> list[str]:
     """The measurements named in ``reveal`` that the run already holds
-    (``has``: measurement -> bool, :func:`cmmpose.diagnosis.diagnose._run_has`)."""
+    (``has``: measurement -> bool, :func:`cmmpose.diagnosis.diagnose.run_holds`)."""
     return [k for k, v in (has or {}).items() if v and k in reveal]
 
 
