@@ -102,3 +102,18 @@ def test_tables_fold_at_any_width_and_the_wide_layout_keeps_every_column(squaren
     # the verdict view fits 40 lines at 100 columns from the Python side too
     short = as_text(d, verbose=False, width=100)
     assert len(short.rstrip("\n").splitlines()) <= 40
+
+
+def test_evaluate_prints_a_summary_within_40_lines_and_the_budgets_behind_verbose(squareness_run):
+    res = CliRunner().invoke(main, ["evaluate", str(squareness_run)], env={"COLUMNS": "100"})
+    assert res.exit_code == 0, res.output
+    lines = res.stdout.rstrip("\n").splitlines()
+    assert len(lines) <= 40 and max(len(line) for line in lines) <= 100, res.stdout
+    flat = _flat(res.stdout)
+    assert re.search(r"rms accuracy error \(um\) [0-9.]+ ± [0-9.]+ [0-9.]+ ± [0-9.]+", flat), flat
+    assert "improvement: rms" in flat and "Uncertainty budget" not in flat
+    assert re.search(r"the rms accuracy error (fell|rose) from [0-9.]+ um to [0-9.]+ um|unchanged", flat), flat
+    res = CliRunner().invoke(main, ["evaluate", str(squareness_run), "--verbose"], env={"COLUMNS": "100"})
+    assert res.exit_code == 0, res.output
+    flat = _flat(res.stdout)
+    assert "Uncertainty budget: mean length" in flat and "left out:" in flat and "Ballbar evaluation" in flat
