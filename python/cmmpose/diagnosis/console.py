@@ -110,8 +110,11 @@ def verdict(d) -> list[tuple[str, str]]:
                 f"p = {x['p_value']:.1g}" if x.get("p_value") is not None else "in place of its alternative"
             parts.append(f"{x['name']} ({how})")
         found = "the model was missing " + "; ".join(parts)
+    elif d.proposals:  # significant, but not added (--no-auto, --max-effects 0, or refused out of sample)
+        found = (f"none added; significant against the model: {_names(c.name for c in d.proposals)} "
+                 f"(diagnose --add NAME fits one)")
     else:
-        found = "no candidate effect is significant against the base model: none added"
+        found = "no candidate effect is significant against the model: none added"
     steps = d.steps
     per_run = getattr(d, "run_figures", None)
     if per_run:
@@ -138,7 +141,7 @@ def verdict(d) -> list[tuple[str, str]]:
         ambiguous.append(f"{chosen} is an aliased choice: the run cannot tell it from {_names(names)} (kept as "
                          f"alternatives in the saved model)")
     still = [x["name"] for x in decisions if x["decision"].startswith("significant")]
-    if still:
+    if still and added:
         ambiguous.append(f"still significant against the final model: {_names(still)}")
     preferred = [x["name"] for x in decisions if x["decision"] == "preferred"]
     if preferred:
@@ -203,28 +206,36 @@ def _group_advice(advice: str, group, has, most: int = 2) -> str:
 
 
 def final_model_table(d) -> Table | Text:
-    """The final model's effects: each with its parameters' values ± u in their units, and how sure."""
-    added = [x for x in d.decisions() if x["decision"].startswith("added")]
-    if not added:
-        return Text("Final model: the maps alone (no effect added).")
+    """The final model's effects (those it started with and those added): each with its parameters' values
+    ± u in their units, and how sure (p when added, added on request, or from the starting model)."""
+    model = d.steps[-1].model
+    if not model.effects:
+        return Text("Final model: the maps alone (no effect).")
+    how = {x["name"]: x for x in d.decisions() if x["decision"].startswith("added")}
     t = Table(title="Final model", title_justify="left", expand=False)
     t.add_column("effect", overflow="fold")
     t.add_column("values ± u", overflow="fold")
     t.add_column("how sure", overflow="fold")
-    for x in added:
-        params = list(x["values"])
+    for spec, values in model.effects:
+        params = list(spec.params)
+        u = [float(x) for x in d.final_uncertainty.get(spec.name, [math.inf] * len(params))]
+        v = [float(x) for x in values]
         if len(params) >= COMPACT_FROM:
-            units = set(x["units"].values())
+            units = set(spec.units)
             unit = units.pop() if len(units) == 1 else ""
             unit = "" if unit in ("1", "") else f" ({unit})"
             vals = f"{params[0]}..{params[-1]}{unit}: " + ", ".join(
-                f"{x['values'][p]:+.3g}" + (f"±{x['uncertainty'][p]:.2g}" if math.isfinite(x['uncertainty'][p])
-                                           else " (undetermined)") for p in params)
+                f"{a:+.3g}" + (f"±{b:.2g}" if math.isfinite(b) else " (undetermined)") for a, b in zip(v, u))
         else:
-            vals = ", ".join(value_text(p, x["values"][p], x["uncertainty"][p], x["units"][p]) for p in params)
-        sure = "added on request" if x["decision"] == "added on request" else \
-            f"p = {x['p_value']:.2g} when added" if x.get("p_value") is not None else "replaced an alternative"
-        t.add_row(escape(x["name"]), escape(vals), sure)
+            vals = ", ".join(value_text(p, a, b, unit) for p, a, b, unit in zip(params, v, u, spec.units))
+        x = how.get(spec.name)
+        if x is None:
+            sure = "from the starting model"
+        elif x["decision"] == "added on request":
+            sure = "added on request"
+        else:
+            sure = f"p = {x['p_value']:.2g} when added" if x.get("p_value") is not None else "replaced an alternative"
+        t.add_row(escape(spec.name), escape(vals), sure)
     return t
 
 

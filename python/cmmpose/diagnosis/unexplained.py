@@ -256,23 +256,25 @@ def periodic_errors(run: Run, xyz, fits, *, alpha: float = 1e-3, floor_um: float
 
 #: Segments of the swept travel a periodic finding is checked in (at most), and the fewest points in one.
 SEGMENTS, SEGMENT_POINTS = 8, 200
-#: A periodic finding whose per-segment amplitudes disagree with one amplitude at this p-value is local.
-LOCAL_ALPHA = 1e-3
-#: ... and so is one the travel outside its strongest segment does not show at this many sigma.
-SHOWN_ELSEWHERE = 3.0
+#: A stretch of the travel that a local finding may hold at most: this share of the sine's weight.
+LOCAL_SHARE = 0.5
 
 
 def local_extent(s, nj, r, period, phase, sigma):
     """Whether the sine a periodic search found holds over the swept travel,
-    or only where a local error sits.
+    or only on a stretch of it: a local error, which a sine fits there.
 
     The travel [min s, max s] is cut into up to :data:`SEGMENTS` segments
-    (each at least three periods and 40 mm long) and the found sine's scale
-    factor fitted in each (1 where it holds as found). When these factors
-    disagree with a common 1 (chi-square, p below :data:`LOCAL_ALPHA`), or
-    the travel outside the segment where the sine explains the most does not
-    show it (its factor there under :data:`SHOWN_ELSEWHERE` sigma), the
-    error is not shown to repeat: it is local, in that segment.
+    (each at least three periods and 40 mm long; those with fewer than
+    :data:`SEGMENT_POINTS` points left out). The sine at the found period
+    and phase is fitted with a free amplitude over the whole travel and over
+    each stretch of consecutive segments holding at most :data:`LOCAL_SHARE`
+    of its weight. The error is local when the best stretch explains more
+    of the residuals than the whole travel does, by more than the choice of
+    the stretch buys by chance (2 ln of the number of stretches tried, plus
+    2, in units of the residuals' variance): a local defect fitted over the
+    whole travel is diluted, a periodic error confined to a stretch loses
+    the rest of it.
 
     Parameters
     ----------
@@ -289,10 +291,9 @@ def local_extent(s, nj, r, period, phase, sigma):
     Returns
     -------
     tuple of float or None
-        (from, to) reading in mm of the segments where it sits (the
-        strongest and the neighbours that show it) and its amplitude in the
-        strongest (um); None when the sine holds over the travel (or
-        fewer than three segments hold enough points to say).
+        (from, to) reading in mm of the stretch where it sits and its
+        amplitude there (um); None when it holds over the travel (or fewer
+        than three segments hold enough points to say).
     """
     lo, hi = float(np.min(s)), float(np.max(s))
     k = int(min(SEGMENTS, (hi - lo) // max(3 * period, 40.0)))
@@ -304,31 +305,26 @@ def local_extent(s, nj, r, period, phase, sigma):
     gg = np.bincount(seg, g * g, minlength=k)
     rg = np.bincount(seg, r * g, minlength=k)
     count = np.bincount(seg, minlength=k)
-    use = (count >= SEGMENT_POINTS) & (gg > 0)
-    if use.sum() < 3:
+    use = np.flatnonzero((count >= SEGMENT_POINTS) & (gg > 0))
+    if len(use) < 3:
         return None
-    factor = rg[use] / gg[use]
-    u = sigma / np.sqrt(gg[use])
-    chi2 = float(np.sum(((factor - 1.0) / u) ** 2))
-    from scipy.special import chdtrc  # chi-square's upper tail
-
-    best = int(np.argmax(rg[use] ** 2 / gg[use]))
-    j = int(np.flatnonzero(use)[best])
-    rest = use.copy()
-    rest[j] = False
-    shown_elsewhere = float(np.sum(rg[rest])) / (sigma * math.sqrt(float(np.sum(gg[rest]))))
-    if float(chdtrc(int(use.sum()), chi2)) >= LOCAL_ALPHA and shown_elsewhere >= SHOWN_ELSEWHERE:
+    total_gg = float(gg[use].sum())
+    whole = float(rg[use].sum()) ** 2 / total_gg
+    best, tried = None, 0
+    for i in range(len(use)):
+        for j in range(i, len(use)):
+            w = use[i:j + 1]
+            wgg = float(gg[w].sum())
+            if wgg > LOCAL_SHARE * total_gg:
+                break
+            tried += 1
+            explained = float(rg[w].sum()) ** 2 / wgg
+            if best is None or explained > best[0]:
+                best = (explained, int(w[0]), int(w[-1]), float(rg[w].sum()) / wgg)
+    if best is None or (best[0] - whole) / sigma ** 2 <= 2 * math.log(max(tried, 1)) + 2:
         return None
-    # It reaches over the neighbouring segments that show it too (its factor 3 sigma above nothing).
-    full = np.zeros(k)
-    full[use] = factor / u
-    a = b = j
-    while a > 0 and full[a - 1] >= SHOWN_ELSEWHERE:
-        a -= 1
-    while b < k - 1 and full[b + 1] >= SHOWN_ELSEWHERE:
-        b += 1
-    amplitude = abs(float(factor[best])) * math.hypot(*phase)
-    return float(edges[a]), float(edges[b + 1]), amplitude
+    _, a, b, factor = best
+    return float(edges[a]), float(edges[b + 1]), abs(factor) * math.hypot(*phase)
 
 
 def unexplained_findings(patterns, periodic: list[Finding], model_names) -> list[Finding]:
