@@ -58,7 +58,8 @@ def test_a_diagnosis_whose_error_rose_says_it_rose(squareness_diagnosis, tmp_pat
     the HTML report's says it fell."""
     d = squareness_diagnosis
     first, last = d.steps[0], d.steps[-1]
-    worse = replace(d, steps=[replace(first, figures=last.figures), *d.steps[1:-1], replace(last, figures=first.figures)])
+    worse = replace(d, steps=[replace(first, figures=last.figures), *d.steps[1:-1],
+                              replace(last, figures=first.figures)])
     found = dict(verdict(worse))["found"]
     assert "rms accuracy error rose from" in found and "error fell" not in found, found
     from cmmpose.diagnosis.html_report import _verdict

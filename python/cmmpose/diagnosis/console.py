@@ -173,7 +173,7 @@ def _next(d, decisions, added) -> str:
     for a in d.alternatives[:1]:
         reveal = getattr(a.spec, "reveal", "")
         if reveal:
-            return f"to tell {a.chosen} from {a.name}: {reveal}"
+            return f"to tell {a.chosen} from {a.name}: {without_held_needs(reveal, reveal, has)}"
     needs = [x for x in decisions if x["decision"] == "not observable" and not x["name"].startswith("map:")
              and "needs: " in x["reason"]]
     if needs:
