@@ -75,6 +75,18 @@ def _change_words(first, last) -> str:
     return change_text(f"the {what}", before, after, change_u_um(rms_u_um(before, n), rms_u_um(after, n)))
 
 
+def _p_text(p: float, digits: int = 1) -> str:
+    """'p = 3e-30', or 'p < 1e-300' where it underflows to 0."""
+    return "p < 1e-300" if p <= 0 else f"p = {p:.{digits}g}"
+
+
+def _finding_head(description: str) -> str:
+    """A finding's description up to its explanation (what it is, where and how large; the rest: --verbose)."""
+    for cut in (": outside", "; ", " (a "):
+        description = description.split(cut)[0]
+    return description
+
+
 def _run_labels(d) -> list[str]:
     return [f"run {i + 1}" for i in range(len(getattr(d, "run_names", ()) or ()))]
 
@@ -107,7 +119,7 @@ def verdict(d) -> list[tuple[str, str]]:
         parts = []
         for x in added:
             how = "added on request" if x["decision"] == "added on request" else \
-                f"p = {x['p_value']:.1g}" if x.get("p_value") is not None else "in place of its alternative"
+                _p_text(x["p_value"]) if x.get("p_value") is not None else "in place of its alternative"
             parts.append(f"{x['name']} ({how})")
         found = "the model was missing " + "; ".join(parts)
     elif d.proposals:  # significant, but not added (--no-auto, --max-effects 0, or refused out of sample)
@@ -149,8 +161,8 @@ def verdict(d) -> list[tuple[str, str]]:
     rest = max(0, len(d.ambiguous) - MOST_LISTED)
     if ambiguous:
         out.append(("ambiguous", "; ".join(ambiguous) + (f"; {rest} more groups: --verbose" if rest else "")))
-    unexplained = [f"{f.description} (p {f.p_value:.1e})" for f in d.unexplained] + \
-        [f"{f['description']} (p {f['p_value']:.1e})" for f in d.two_axis]
+    unexplained = [f"{_finding_head(f.description)} (p {f.p_value:.1e})" for f in d.unexplained] + \
+        [f"{_finding_head(f['description'])} (p {f['p_value']:.1e})" for f in d.two_axis]
     if unexplained:
         more = len(unexplained) - MOST_LISTED
         out.append(("unexplained", "; ".join(unexplained[:MOST_LISTED]) + (f"; {more} more: --verbose" if more > 0
@@ -164,8 +176,8 @@ def verdict(d) -> list[tuple[str, str]]:
 
 
 def _next(d, decisions, added) -> str:
-    """The measurement to make next: what tells an ambiguous group apart, else what reveals an effect the run
-    cannot show, else a check of the model on a new run."""
+    """The measurement to make next: what tells an ambiguous group apart, else a user effect on what is
+    unexplained, else what reveals an effect the run cannot show, else a check of the model on a new run."""
     has = getattr(d, "run_has", None)
     if d.ambiguous:
         group = d.ambiguous[0]
@@ -174,6 +186,12 @@ def _next(d, decisions, added) -> str:
         reveal = getattr(a.spec, "reveal", "")
         if reveal:
             return f"to tell {a.chosen} from {a.name}: {without_held_needs(reveal, reveal, has)}"
+    if d.unexplained:
+        return ("model what is unexplained: diagnose RUN --user-effect-skeleton FILE.py drafts a user effect on the "
+                "first finding (docs/user-effects.md), then diagnose RUN --user-effect FILE.py")
+    if d.two_axis:
+        return (f"model the {_finding_head(d.two_axis[0]['description'])} as a user effect (docs/user-effects.md), "
+                "then diagnose RUN --user-effect FILE.py")
     needs = [x for x in decisions if x["decision"] == "not observable" and not x["name"].startswith("map:")
              and "needs: " in x["reason"]]
     if needs:
@@ -234,7 +252,8 @@ def final_model_table(d) -> Table | Text:
         elif x["decision"] == "added on request":
             sure = "added on request"
         else:
-            sure = f"p = {x['p_value']:.2g} when added" if x.get("p_value") is not None else "replaced an alternative"
+            sure = f"{_p_text(x['p_value'], 2)} when added" if x.get("p_value") is not None else \
+                "replaced an alternative"
         t.add_row(escape(spec.name), escape(vals), sure)
     return t
 
