@@ -190,7 +190,7 @@ def _next(d, decisions, added) -> str:
         return ("model what is unexplained: diagnose RUN --user-effect-skeleton FILE.py drafts a user effect on the "
                 "first finding (docs/user-effects.md), then diagnose RUN --user-effect FILE.py")
     if d.two_axis:
-        return (f"model the {_finding_head(d.two_axis[0]['description'])} as a user effect (docs/user-effects.md), "
+        return (f"write a user effect for {_finding_head(d.two_axis[0]['description'])} (docs/user-effects.md), "
                 "then diagnose RUN --user-effect FILE.py")
     needs = [x for x in decisions if x["decision"] == "not observable" and not x["name"].startswith("map:")
              and "needs: " in x["reason"]]
