@@ -151,7 +151,7 @@ def test_cli_diagnose_plate_runs_alone_and_jointly(tmp_path):
     doc = _strict_json(r.stdout)
     added = {x["name"]: x for x in doc["decisions"] if x["decision"] == "added"}
     assert abs(added["squareness"]["values"]["xy"] - 6.0) < 3 * added["squareness"]["uncertainty"]["xy"]
-    r = cli.invoke(main, ["diagnose", str(a), str(b), "--joint", "--separate-artefacts"])
+    r = cli.invoke(main, ["diagnose", str(a), str(b), "--joint", "--separate-artefacts"], env={"COLUMNS": "100"})
     assert r.exit_code == 0, r.output
     assert "rms deviation (um)" in r.output and "squareness" in r.output
 

@@ -195,7 +195,7 @@ def test_cli_diagnose_writes_tables_report_json_and_a_reusable_model(tmp_path):
     run, truth = run_with([E.SquarenessOffset(xy=25.0)], seed=8, jitter=0.0015, scanner=Scanner(points_per_profile=256))
     run.save(tmp_path / "run", truth=truth)
     r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), "--report", str(tmp_path / "r.html"),
-                                  "--save-model", str(tmp_path / "m.json")])
+                                  "--save-model", str(tmp_path / "m.json")], env={"COLUMNS": "100"})
     assert r.exit_code == 0, r.output
     assert "squareness" in r.output and "The error falling" in r.output
     html = (tmp_path / "r.html").read_text()

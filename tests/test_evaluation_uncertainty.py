@@ -130,7 +130,7 @@ def test_cli_evaluate_prints_u_and_budget(tmp_path):
     assert [f["name"] for f in comp["figures"]] == ["mean length", "mean length at 20 C", "rms accuracy error", "B89"]
     assert "left_out" in u and doc["results"][1]["label"] == "compensated"
     table = CliRunner().invoke(main, ["evaluate", str(tmp_path / "run"), "--temperature", "22.5", "--report",
-                                      str(tmp_path / "rep")])
+                                      str(tmp_path / "rep"), "--verbose"])  # the budgets: behind --verbose
     assert table.exit_code == 0
     assert "Uncertainty budget: mean length" in table.stdout and "left out:" in table.stdout
     assert json.loads((tmp_path / "rep" / "uncertainty.json").read_text())["coverage_factor"] == 2

@@ -48,6 +48,9 @@ from .common import (check_outputs, check_report_file, console, fail, load_maps,
 @scheduler_options("With several runs: where each run's diagnosis runs (threads, processes or tcp://host:port; "
                    "the [dask] extra; docs/scale-out.md).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
+@click.option("--verbose", "-v", is_flag=True,
+              help="After the verdict, the final model and the error's history, also print the candidate tables, "
+                   "every finding and what each candidate would need (by default only the verdict: about 40 lines).")
 @click.option("--reproducibility", "reproducibility_um", default=None, metavar="UM[,UM...]",
               callback=lambda ctx, param, value: _reproducibility_values(value),
               help="Per-scan centre reproducibility, um per axis: the noise floor of a run that repeats no scan "
@@ -60,7 +63,7 @@ from .common import (check_outputs, check_report_file, console, fail, load_maps,
 def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
                  add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, joint, separate_artefacts,
                  scheduler, scheduler_timeout, as_json, temperature_policy, reproducibility_um=None,
-                 no_map_corrections=False, corrected_out=None) -> None:
+                 no_map_corrections=False, corrected_out=None, verbose=False) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall.
     Several RUN_DIRs are diagnosed one by one on a Dask scheduler, with one table across them."""
     from ..diagnosis import diagnose
@@ -82,7 +85,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
                                temperature_policy=temperature_policy, add=add, auto=not no_auto,
                                max_effects=max_effects, same_artefact=not separate_artefacts,
                                map_corrections=not no_map_corrections, corrected_out=corrected_out,
-                               reproducibility_um=reproducibility_um)
+                               reproducibility_um=reproducibility_um, verbose=verbose)
     if reproducibility_um is not None and len(reproducibility_um) > 1:
         raise click.BadParameter("one value per run is for --joint; without it every run takes the one value",
                                  param_hint="--reproducibility")
@@ -97,7 +100,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
                                temperature=temperature, out_of_range=out_of_range,
                                temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
                                auto=not no_auto, max_effects=max_effects, temperature_policy=temperature_policy,
-                               reproducibility_um=reproducibility_um)
+                               reproducibility_um=reproducibility_um, verbose=verbose)
     run_dir = run_dirs[0]
     try:
         check_outputs({"--save-model": model_out, "--report": report_file, "--user-effect-skeleton": skeleton_out,
@@ -139,7 +142,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
         raise fail(exc) from None
-    _print_diagnosis(diag, files, as_json)
+    _print_diagnosis(diag, files, as_json, verbose)
 
 
 def _reproducibility_values(text) -> tuple[float, ...] | None:
@@ -189,11 +192,13 @@ def _write_corrected_maps(model, path) -> list:
     return out
 
 
-def _print_diagnosis(diag, files, as_json: bool) -> None:
+def _print_diagnosis(diag, files, as_json: bool, verbose: bool = False) -> None:
+    """A diagnosis (or a joint one) on stdout: JSON, or its view at the terminal's width (the verdict first;
+    ``verbose``: every table), then the thermocouple notes and the files written."""
     if as_json:
         click.echo(diag.to_json(indent=1))
     else:
-        Console(width=150).print(diag)
+        Console().print(diag.view(verbose))
         for note in log_notes(diag.thermal or {}):  # the thermocouples dropped, held, read
             console.print(f"note: {escape(note)}")
     for f in files:
@@ -217,7 +222,7 @@ def _starting_model(run, machine, maps, model_file, user, **policy):
 
 def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file, *,
                     temperature, out_of_range, temperature_tolerance, log_hold, temperature_policy=None,
-                    corrected_out=None, **options) -> None:
+                    corrected_out=None, verbose=False, **options) -> None:
     """`diagnose RUN_DIR... --joint`: one model for several runs (cmmpose.diagnosis.joint); the
     report shows the first run's plots and every run's error at each step."""
     from ..diagnosis.joint import diagnose_jointly
@@ -254,11 +259,11 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
         raise fail(exc) from None
-    _print_diagnosis(diag, files, as_json)
+    _print_diagnosis(diag, files, as_json, verbose)
 
 
 def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json, *, scheduler_timeout, temperature,
-                    out_of_range, temperature_tolerance, log_hold, **options) -> None:
+                    out_of_range, temperature_tolerance, log_hold, verbose=False, **options) -> None:
     """`diagnose RUN_DIR...`: each run's diagnosis on a Dask scheduler (cmmpose.scale), one table across them."""
     from ..model import Model
     from ..machine import load_machine
@@ -287,16 +292,28 @@ def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json
     if as_json:
         click.echo(strict_json({str(r): json.loads(d.to_json()) for r, d in zip(run_dirs, diags)}, indent=1))
         return
+    Console().print(fleet_table(run_dirs, diags, scheduler))
+    if verbose:  # each run's own view after the table
+        for r, d in zip(run_dirs, diags):
+            Console().print(f"[bold]{escape(str(r))}[/]")
+            Console().print(d.view(verbose=True))
+
+
+def fleet_table(run_dirs, diags, scheduler: str) -> Table:
+    """One row per run of a fleet's diagnoses: what was added (final values ± u), the headline before and after
+    and what stays unexplained; every cell folds at the console's width."""
     table = Table(title=f"diagnosis of {len(run_dirs)} runs ({scheduler})")
     for col in ("run", "added (final values ± u)", "rms before (um)", "rms after (um)", "unexplained"):
-        table.add_column(col, justify="left" if col in ("run", "added (final values ± u)", "unexplained") else "right")
+        table.add_column(col, justify="left" if col in ("run", "added (final values ± u)", "unexplained") else "right",
+                         overflow="fold")
     for r, d in zip(run_dirs, diags):
         added = "; ".join(f"{x['name']}: {x['reason'].split(' (final model)')[0]}" for x in d.decisions()
                           if x["decision"].startswith("added")) or "-"
-        table.add_row(str(r), added, f"{d.steps[0].figures.rms_accuracy_error * 1e3:.2f}",
-                      f"{d.steps[-1].figures.rms_accuracy_error * 1e3:.2f}",
-                      "; ".join(f.input + ": " + f.description.split(":")[0] for f in d.unexplained) or "-")
-    Console(width=160).print(table)
+        before, after = d.steps[0].figures, d.steps[-1].figures
+        table.add_row(escape(str(r)), escape(added), f"{before.headline[1] * 1e3:.2f}",
+                      f"{after.headline[1] * 1e3:.2f}",
+                      escape("; ".join(f.input + ": " + f.description.split(":")[0] for f in d.unexplained) or "-"))
+    return table
 
 
 @click.command("diagnose-fits")
@@ -353,4 +370,4 @@ def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, artefa
                   f" ({d.radius_excess_um:+.1f} ± {d.radius_excess_u_um:.1f} um over {d.nominal_radius:g})"))
     table.add_row("radius scatter between balls (um)", f"{d.radius_sd_um:.1f}")
     Console().print(table)
-    Console(width=150).print(d.patterns)
+    Console().print(d.patterns)

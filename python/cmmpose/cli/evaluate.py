@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
 import click
-from rich.console import Console
+from rich.console import Console, Group
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn
 from rich.table import Table
+from rich.text import Text
 
 from .._json import dumps as strict_json
 from ..atomicfile import ensure_folder, write_text
@@ -66,6 +68,9 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @click.option("--u-model", type=float, default=0.0, show_default=True,
               help="Standard uncertainty of the residual model error, ppm of the length (0: left out of the budget).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+@click.option("--verbose", "-v", is_flag=True,
+              help="After the summary (each figure with U, k = 2, and what the compensation did), also print every "
+                   "length and the uncertainty budgets.")
 @skip_incomplete_option
 @scheduler_options("Evaluate the runs on Dask: 'threads', 'processes' or a scheduler address tcp://host:port "
                    "(default with several runs: threads; needs the dask extra).")
@@ -74,7 +79,8 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
                "list, --report a folder per run.")
 def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
                  reject, u_temperature, u_map, u_model, report_dir, as_json, skip_incomplete, scheduler,
-                 scheduler_timeout, temperature_policy, model_file, user_files, strict_model=False) -> None:
+                 scheduler_timeout, temperature_policy, model_file, user_files, strict_model=False,
+                 verbose=False) -> None:
     """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated.
 
     With several runs (a fleet, or a day's runs), each is evaluated on the
@@ -92,7 +98,7 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
     if model_file is not None and len(run_dir) > 1:
         return _evaluate_with_model(run_dir, machine_file, model_file, user_files, temperature, out_of_range,
                                     temperature_tolerance, log_hold, expansion, reject, u_temperature, u_map, u_model,
-                                    report_dir, as_json, skip_incomplete, temperature_policy, strict_model)
+                                    report_dir, as_json, skip_incomplete, temperature_policy, strict_model, verbose)
     try:
         machine = load_machine(machine_file)
         if expansion is None:
@@ -143,8 +149,7 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
         click.echo(strict_json({**ev.to_dict(), "uncertainty": unc.to_dict(),
                                 **({"model_check": check.to_dict()} if check is not None else {})}, indent=2))
     else:
-        Console().print(ev)
-        Console(width=max(Console().width, 130)).print(unc)
+        print_evaluation(ev, unc, verbose)
         if check is not None:
             print_model_check(check)
     for f in files:
@@ -155,7 +160,7 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
 
 def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, temperature, out_of_range,
                          temperature_tolerance, log_hold, expansion, reject, u_temperature, u_map, u_model, report_dir,
-                         as_json, skip_incomplete, temperature_policy, strict_model=False) -> None:
+                         as_json, skip_incomplete, temperature_policy, strict_model=False, verbose=False) -> None:
     """`evaluate RUN_DIR... --model m.json`: each run evaluated with the found model in turn (the model loaded
     once), each with its figures, budgets and warnings (an aliased choice that matters on that run); --json a
     list of the single-run documents, each with its ``run``; --report a folder per run."""
@@ -201,9 +206,7 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
                 docs.append({"run": str(r), **ev.to_dict(), "uncertainty": unc.to_dict(), "warnings": said,
                              "model_check": check.to_dict()})
             else:
-                console.print(f"[bold]{escape(str(r))}[/]")
-                Console().print(ev)
-                Console(width=max(Console().width, 130)).print(unc)
+                print_evaluation(ev, unc, verbose, name=str(r))
                 print_model_check(check)
     except Error as exc:
         raise fail(exc) from None
@@ -212,6 +215,69 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
     for f in files:
         console.print(f"wrote {f}")
     strict_model_exit(doubts, strict_model)
+
+
+def evaluation_summary(ev, unc, name: str | None = None) -> Group:
+    """The top of a ballbar evaluation on the console: each summary figure with its expanded uncertainty
+    (k = 2) uncompensated and compensated, what the compensation did in words (each change's verb following
+    its sign, unchanged within its uncertainty), the largest term of a length's budget, and the library's
+    notes.
+
+    Parameters
+    ----------
+    ev : Evaluation
+        :func:`cmmpose.evaluate`'s result.
+    unc : EvaluationUncertainty
+        Its uncertainties (:func:`cmmpose.evaluation.ballbar_uncertainty.evaluation_uncertainty`).
+    name : str, optional
+        The run's name (its folder), in the title.
+    """
+    from ..diagnosis.wording import change_text
+
+    results = {r.label: r for r in unc.results}
+    labels = [r.label for r in ev.results]
+    first = ev.results[0]
+    t = Table(title=(f"{escape(name)}: " if name else "") + f"ballbar evaluation, {len(first.positions)} positions "
+              f"(value ± U, k = {results[labels[0]].mean.k:g})", title_justify="left")
+    t.add_column("figure", overflow="fold")
+    for label in labels:
+        t.add_column(label, justify="right", overflow="fold")
+    for i, figure in enumerate(("mean length (mm)", "mean length at 20 C (mm)", "rms accuracy error (um)",
+                                "B89 (um)")):
+        cells = []
+        for label in labels:
+            f = results[label].figures[i]
+            cells.append(f"{f.value:.4f} ± {f.U * 1e-3:.4f}" if f.unit == "mm" else f"{f.value:.2f} ± {f.U:.2f}")
+        t.add_row(figure, *cells)
+    lines = []
+    if ev.compensated is not None and "uncompensated" in results and "compensated" in results:
+        before, after = results["uncompensated"], results["compensated"]
+        said = []
+        for what, a, b in (("the rms accuracy error", before.rms_accuracy_error, after.rms_accuracy_error),
+                           ("the B89 value", before.b89, after.b89)):
+            said.append(change_text(what, a.value, b.value, math.hypot(a.u, b.u)))
+        lines.append("compensated: " + "; ".join(said) + f" (improvement: rms {ev.improvement_rms:.1%}, "
+                     f"B89 {ev.improvement_b89:.1%})")
+    last = results[labels[-1]]
+    budget = last.budgets.get("length")
+    if budget is not None and budget.inputs:
+        shares = budget.shares()
+        k = max(range(len(shares)), key=shares.__getitem__)
+        lines.append(f"a length's uncertainty ({last.label}): u = {budget.combined_standard_uncertainty:.2f} um, "
+                     f"{shares[k]:.0%} of its variance from {budget.inputs[k].name}")
+    lines += list(ev.provenance.get("notes", []))
+    lines.append("every length, the budgets and what they leave out: --verbose (or --json, --report)")
+    return Group(t, *(Text(line) for line in lines))
+
+
+def print_evaluation(ev, unc, verbose: bool = False, name: str | None = None) -> None:
+    """A ballbar evaluation on stdout at the terminal's width: the summary (:func:`evaluation_summary`);
+    ``verbose``: then every length and the uncertainty budgets."""
+    out = Console()
+    out.print(evaluation_summary(ev, unc, name))
+    if verbose:
+        out.print(ev)
+        out.print(unc)
 
 
 def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance, log_hold,
@@ -277,8 +343,8 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, 
                                indent=2))  # NaN (no value) as null: strict JSON
     else:
         table = Table(title=f"cmmpose evaluate: {len(rows)} runs on {scheduler}")
-        table.add_column("run")
-        table.add_column("created")
+        table.add_column("run", overflow="fold")
+        table.add_column("created", overflow="fold")
         table.add_column("temperature (C)", justify="right")
         artefact_runs = any(row.kind != "ballbar" for row in rows)
         for what in ("uncompensated", "compensated"):
@@ -292,7 +358,7 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, 
             table.add_row(escape(row.run) + ("" if row.kind == "ballbar" else f" ({row.kind})"), row.created, "-" if row.temperature != row.temperature else f"{row.temperature:.2f}",
                           um(row.rms_uncompensated), um(row.b89_uncompensated), um(row.rms_compensated),
                           um(row.b89_compensated))
-        Console(width=max(120, Console().width)).print(table)
+        Console().print(table)
         for row, ev in zip(rows, evaluations):
             if ev.skipped:
                 console.print(f"[yellow]{escape(row.run)}:[/] {escape(skipped_note(ev.skipped))}")

@@ -26,6 +26,7 @@ from ..model.domain import Domain
 from ..model.model import Model, as_model, check_kinematics, run_kinematics
 from ..evaluation.observables import ModelFigures, figures
 from .unexplained import periodic_errors, unexplained_findings
+from .wording import without_held_needs
 
 __all__ = ["diagnose", "Diagnosis", "Step", "POLISH_POINTS_PER_SCAN"]
 
@@ -64,6 +65,9 @@ class Step:
     #: Cross-validated figures of this model (:class:`cmmpose.diagnosis.cv.CVScore` ``to_dict``):
     #: ``cv_rms_um`` ± ``cv_rms_u_um`` beside ``in_sample_rms_um``, and the split.
     cv: dict | None = None
+    #: Of a joint diagnosis: every run's figures under this step's model, in the runs' order
+    #: (``figures`` is the first run's); None for one run.
+    run_figures: list | None = None
 
     @property
     def effect(self) -> str:
@@ -77,12 +81,21 @@ class Step:
         physics following another sensor, which the data prefer."""
         return self.label.partition(_INSTEAD)[2].rstrip(")")
 
-    def to_dict(self) -> dict:
+    def to_dict(self, run_has: dict | None = None) -> dict:
+        """The step as plain data; ``run_has`` (what the run holds, :func:`run_holds`): the candidates' reasons
+        never ask for it."""
+        ranking = []
+        for c in self.ranking:
+            r = c.to_dict()
+            if "reason" in r:
+                r["reason"] = without_held_needs(r["reason"], c.spec.reveal, run_has)
+            ranking.append(r)
+        runs = {} if self.run_figures is None else {"runs": [f.to_dict() for f in self.run_figures]}
         return {"label": self.label, "forced": self.forced, "replaces": self.replaces or None,
-                **self.figures.to_dict(), "cross_validation": self.cv,
+                **self.figures.to_dict(), **runs, "cross_validation": self.cv,
                 "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
                              "units": dict(zip(s.params, s.units))} for s, v in self.model.effects],
-                "ranking": [c.to_dict() for c in self.ranking]}
+                "ranking": ranking}
 
 
 @dataclass
@@ -150,6 +163,8 @@ class Diagnosis:
     #: Effects the data could not tell from one in the final model, fitted in
     #: its place (:mod:`cmmpose.diagnosis.aliases`): saved with the model.
     alternatives: tuple = ()
+    #: Which revealing measurements the run holds (:func:`run_holds`): advice never asks for them.
+    run_has: dict = field(default_factory=dict)
 
     def decisions(self) -> list[dict]:
         """The decision on every candidate, with its reason, in one list:
@@ -190,8 +205,8 @@ class Diagnosis:
                 why += " (final model); added on request, whether significant or not"
             if when is not None and when.indistinguishable_from:
                 # One of a group the run cannot tell apart stands for the group.
-                why += (f"; the run cannot tell it from {', '.join(when.indistinguishable_from)} "
-                        f"(needs: {when.spec.reveal})")
+                why += without_held_needs(f"; the run cannot tell it from {', '.join(when.indistinguishable_from)} "
+                                          f"(needs: {when.spec.reveal})", when.spec.reveal, self.run_has)
             out.append({"name": name, "decision": "added on request" if s.forced else "added", "reason": why,
                         "values": dict(zip(spec.params, map(float, vals))),
                         "uncertainty": dict(zip(spec.params, map(float, unc))),
@@ -205,7 +220,8 @@ class Diagnosis:
                                         uncertainty=dict(zip(c.spec.params, map(float, c.uncertainty))),
                                         units=dict(zip(c.spec.params, c.spec.units)))
                 continue
-            out.append({"name": c.name, "decision": c.decision, "reason": c.reason(),
+            out.append({"name": c.name, "decision": c.decision,
+                        "reason": without_held_needs(c.reason(), c.spec.reveal, self.run_has),
                         "values": dict(zip(c.spec.params, map(float, c.values))),
                         "uncertainty": dict(zip(c.spec.params, map(float, c.uncertainty))),
                         "units": dict(zip(c.spec.params, c.spec.units)), "p_value": float(c.p_value)})
@@ -250,7 +266,7 @@ class Diagnosis:
         decisions = [{**d, "uncertainty": {k: finite(v) for k, v in d["uncertainty"].items()}}
                      for d in self.decisions()]
         threshold = self.steps[-1].ranking[0].threshold if self.steps[-1].ranking else ALPHA
-        return {"steps": [s.to_dict() for s in self.steps], "decisions": decisions,
+        return {"steps": [s.to_dict(self.run_has) for s in self.steps], "decisions": decisions,
                 "significance": {"family_wise_alpha": ALPHA, "per_candidate_threshold": threshold},
                 "unexplained": [f.to_dict() for f in self.unexplained],
                 "unobservable": self.unobservable, "verification": self.verification,
@@ -286,91 +302,34 @@ class Diagnosis:
     def to_json(self, **kw) -> str:
         return strict_json(self.to_dict(), default=_json_default, **kw)
 
-    def table(self, step: int = 0):
-        """A rich table of the candidates ranked at ``step``."""
-        from rich.table import Table
+    def table(self, step: int = 0, width: int = 150):
+        """A rich table of the candidates ranked at ``step`` (:func:`cmmpose.diagnosis.console.candidate_table`;
+        below 140 columns of ``width`` its narrow layout)."""
+        from .console import candidate_table
 
-        s = self.steps[step]
-        t = Table(title=f"Candidate effects against the model '{s.label}'")
-        of = "of lengths" if s.figures.deviation_rms is None else "of deviations"  # an artefact run's balls
-        for col in ("effect", "fitted value ± u", "explains", of, "LR (dof)", "p", "corr", "cond",
-                    "decision"):
-            # Whole names: 'squareness-temperature@granite_top' and '@granite_bottom' differ only at their ends.
-            width = max((len(c.name) for c in s.ranking), default=0) if col == "effect" else None
-            t.add_column(col, justify="left" if col in ("effect", "fitted value ± u", "decision") else "right",
-                         min_width=width, max_width=26 if col == "fitted value ± u" else None)
-        for c in s.ranking:
-            vals = ", ".join(value_text(p, v, u, unit) for p, v, u, unit in zip(c.spec.params, c.values, c.uncertainty,
-                                                                              c.spec.units))
-            decision = c.decision
-            if c.significant and c is s.ranking[0]:
-                decision = "[bold green]proposed[/]" + (", aliased" if c.aliases else "")
-            elif decision == "not observable":
-                decision = "[dim]not observable[/]"
-            if c.aliases:
-                decision += f" [yellow](same as {', '.join(c.aliases)})[/]"
-            t.add_row(f"{c.name}\n[dim]{c.spec.physics}[/]", vals, f"{c.explained:.1%}", f"{c.explained_length:.1%}", f"{c.lr:.1f} ({c.dof})",
-                      f"{c.p_value:.1e}", f"{c.correlation:.2f}", f"{c.condition:.0f}", decision)
-        return t
+        return candidate_table(self, step, width)
 
-    def history_table(self):
-        from rich.table import Table
+    def history_table(self, compact: bool = False, width: int = 150):
+        """A rich table of the error as effects were added (:func:`cmmpose.diagnosis.console.history_table`)."""
+        from .console import history_table
 
-        t = Table(title="The error falling as effects are added")
-        # An artefact run (ball plate, step gauge) has ball deviations where a ballbar run has lengths.
-        plate = self.steps[0].figures.deviation_rms is not None
-        first = (("rms deviation (um)", "rms_deviation_um"), ("largest deviation (um)", "largest_deviation_um")) \
-            if plate else (("rms accuracy error (um)", "rms_accuracy_error_um"), ("B89 (um)", "b89_um"))
-        for col in ("model", first[0][0], "CV rms (um)", first[1][0], "sphere form (um)", "fit rms (um)",
-                    "centre spread (um)", "effect values"):
-            # The headline's name whole (tests and readers look for it); the others may wrap.
-            t.add_column(col, justify="left" if col in ("model", "effect values") else "right",
-                         min_width=len(col) if col == first[0][0] else None)
-        for s in self.steps:
-            f = s.figures.to_dict()
-            eff = "; ".join(f"{sp.name}: {sp.describe(v)}" for sp, v in s.model.effects[-1:]) if s.model.effects \
-                and s.label != "base" else ""
-            cv = s.cv or {}
-            cv_text = "-" if cv.get("cv_rms_um") is None else \
-                f"{cv['cv_rms_um']:.2f}±{cv['cv_rms_u_um']:.2f}" if cv.get("cv_rms_u_um") is not None else \
-                f"{cv['cv_rms_um']:.2f}"
-            t.add_row(s.label + (" (forced)" if s.forced else ""), _um_text(f[first[0][1]]), cv_text,
-                      _um_text(f[first[1][1]]),
-                      f"{f['form_um']:.1f}", f"{f['fit_rms_um']:.2f}", _um_text(f["centre_spread_um"]), eff)
-        return t
+        return history_table(self, compact, width)
+
+    def view(self, verbose: bool = False):
+        """The console's view (:class:`cmmpose.diagnosis.console.DiagnosisView`): the verdict, the final
+        model's values and the error's history; ``verbose`` adds the candidate tables and every finding."""
+        from .console import DiagnosisView
+
+        return DiagnosisView(self, verbose)
 
     def __rich_console__(self, console, options):
-        if self.verification is not None:
-            yield f"[bold]Verification of the given model:[/] {self.verification['verdict']}"
-        yield self.history_table()
-        yield self.table(0)
-        if len(self.steps) > 1:
-            yield self.table(len(self.steps) - 1)
-        if self.ambiguous:
-            for group in self.ambiguous:
-                yield f"[yellow]cannot tell apart:[/] {', '.join(group)}: {self.advice.get(group[0], '')}"
-        if self.unexplained:
-            yield "[bold]Structure the final model does not explain[/] (diagnose --user-effect-skeleton FILE drafts an effect):"
-            for f in self.unexplained:
-                yield f"  {f.input}: {f.description} (p {f.p_value:.1e})"
-        if self.noise is not None:
-            yield f"[bold]Noise floor:[/] {self.noise['verdict']}"
-        for f in self.two_axis:
-            yield f"[bold]Unexplained:[/] {f['description']} (p {f['p_value']:.1e})"
-        if self.unobservable:
-            yield "[bold]Not observable in this run[/] (what would reveal each):"
-            for name, why in self.unobservable.items():
-                yield f"  {name}: {why}"
-        if self.patterns is not None and hasattr(self.patterns, "__rich__"):
-            yield self.patterns.__rich__()
-        yield f"{self.n_points} points, {self.elapsed:.1f} s"
+        yield self.view()
 
     def __str__(self) -> str:
-        from rich.console import Console
+        """The verbose view as text, as wide as its wide layout (:data:`cmmpose.diagnosis.console.WIDE`)."""
+        from .console import as_text
 
-        console = Console(width=140, record=True, file=open("/dev/null", "w"))  # noqa: SIM115 - text only
-        console.print(self)
-        return console.export_text()
+        return as_text(self, verbose=True)
 
     def write_report(self, path, run: Run | None = None, *, run_dir=None, model_file=None,
                      title: str = "cmmpose diagnosis") -> Path:
@@ -385,11 +344,6 @@ class Diagnosis:
         from .html_report import write_report
 
         return write_report(self, path, run=run, run_dir=run_dir, model_file=model_file, title=title)
-
-
-def _um_text(x) -> str:
-    """A figure in um for a table, '-' when there is none."""
-    return "-" if x is None else f"{x:.2f}"
 
 
 def _json_default(o):
@@ -562,7 +516,7 @@ def diagnose(
                      final_uncertainty=final_unc, final_covariance=final_cov,
                      final_values=determined_values(uncertainty_problem, model),
                      domain=Domain.of_runs([run], [problem.inputs], model.maps.kinematics),
-                     skipped=dict(problem.skipped), thermal=problem.inputs.thermal)
+                     skipped=dict(problem.skipped), thermal=problem.inputs.thermal, run_has=run_holds(problem))
     from .aliases import find_alternatives
 
     diag.alternatives = find_alternatives(problem, steps, model)
@@ -793,11 +747,14 @@ def unobservable_candidates(problem: Problem, steps: list[Step]):
                 group = tuple([c.name, *c.indistinguishable_from])
                 if group not in ambiguous:
                     ambiguous.append(group)
-                    advice[group[0]] = "; ".join(f"{n}: {problem.candidates[n].reveal}" for n in group)
+                    has = run_holds(problem) if hasattr(problem, "layout") else {}
+                    advice[group[0]] = "; ".join(
+                        f"{n}: {without_held_needs(problem.candidates[n].reveal, problem.candidates[n].reveal, has)}"
+                        for n in group)
     return out, advice, ambiguous
 
 
-def _run_has(problem) -> dict[str, bool]:
+def run_holds(problem) -> dict[str, bool]:
     """Which revealing measurements the run (every run of a joint problem) already holds."""
     parts = getattr(problem, "parts", None) or [problem]
     has = {"calibrated bar length": all(getattr(p.layout, "calibrated_length", None) is not None for p in parts),
@@ -815,7 +772,7 @@ def _agrees_with_run(reason: str, reveal: str, problem) -> str:
     then the run has it, and it still does not pin the effect (a typical
     size stands too little above the noise, or other effects take it up)."""
     try:
-        has = _run_has(problem)
+        has = run_holds(problem)
     except AttributeError:  # a scripted problem
         return reason
     held = [k for k, v in has.items() if v and k in reveal]

@@ -98,6 +98,20 @@ def _nothing_added(d) -> str:
            "said."
 
 
+def _changes(first, last) -> str:
+    """The headline figures going from ``first`` to ``last`` (ModelFigures), each verb following its sign
+    (:func:`cmmpose.diagnosis.wording.change_text`): the rms with its uncertainty, the largest or B89 value."""
+    from .wording import change_text, change_u_um, rms_u_um
+
+    if first.deviation_rms is not None:  # an artefact run: ball deviations, no ballbar lengths
+        return (change_text("the rms deviation", first.deviation_rms * 1e3, last.deviation_rms * 1e3) + ", "
+                + change_text("the largest", first.deviation_largest * 1e3, last.deviation_largest * 1e3))
+    n = len(first.lengths)
+    a, b = first.rms_accuracy_error * 1e3, last.rms_accuracy_error * 1e3
+    return (change_text("the rms accuracy error", a, b, change_u_um(rms_u_um(a, n), rms_u_um(b, n))) + ", "
+            + change_text("the B89 value", first.b89 * 1e3, last.b89 * 1e3))
+
+
 def _verdict(d, model_file, run_dir) -> str:
     """The top of the report: what was missing, the final values, how far the error fell, what next."""
     steps = d.steps
@@ -109,14 +123,7 @@ def _verdict(d, model_file, run_dir) -> str:
         parts = [f"{x['name']} ({_values_text(list(x['values']), list(x['values'].values()), list(x['uncertainty'].values()), list(x['units'].values()))})"
                  for x in added]
         lines.append("The model was missing: " + "; ".join(parts) + ".")
-        if first.deviation_rms is not None:  # an artefact run: ball deviations, no ballbar lengths
-            lines.append(f"With them the rms deviation fell from {first.deviation_rms * 1e3:.2f} um to "
-                         f"{last.deviation_rms * 1e3:.2f} um, the largest from {first.deviation_largest * 1e3:.2f} um "
-                         f"to {last.deviation_largest * 1e3:.2f} um.")
-        else:
-            lines.append(f"With them the rms accuracy error fell from {first.rms_accuracy_error * 1e3:.2f} um to "
-                         f"{last.rms_accuracy_error * 1e3:.2f} um, the B89 value from {first.b89 * 1e3:.2f} um to "
-                         f"{last.b89 * 1e3:.2f} um.")
+        lines.append("With them " + _changes(first, last) + ".")
     else:
         figure = (f"The rms deviation is {first.deviation_rms * 1e3:.2f} um, the largest "
                   f"{first.deviation_largest * 1e3:.2f} um." if first.deviation_rms is not None else
@@ -166,7 +173,7 @@ def _verdict(d, model_file, run_dir) -> str:
             nxt.append(f"to tell {', '.join(group)} apart: {d.advice.get(group[0], '')}")
     if needs:
         nxt.append("to see what this run cannot: " + "; ".join(f"{x['name']}: {x['reason'].split('needs: ')[-1]}"
-                                                              for x in needs[:3]))
+                                                              for x in needs[:3] if "needs: " in x["reason"]))
     if nxt:
         lines.append("Next: " + "\n".join(nxt))
     return "\n\n".join(lines)

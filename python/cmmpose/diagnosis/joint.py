@@ -27,8 +27,8 @@ from ..errors import InputError, InputTypeError
 from ..run import Run
 from ._blas import one_blas_thread
 from .aliases import find_alternatives
-from .diagnose import (Diagnosis, Step, unobservable_candidates, add_map_candidates, attach_floor,
-                       default_floor, select_effects, state_floor, user_specs)
+from .diagnose import (Diagnosis, Step, add_map_candidates, attach_floor, default_floor, run_holds,
+                       select_effects, state_floor, unobservable_candidates, user_specs)
 from .identify import Problem, check_effect_names, determined_values, model_covariance, rank_candidates
 from ..model.point_inputs import single_map_warning
 from ..model.domain import Domain
@@ -122,7 +122,8 @@ class JointProblem(Problem):
 @dataclass
 class JointDiagnosis(Diagnosis):
     """:class:`Diagnosis` of several runs together. ``steps[i].figures`` are
-    the first run's; ``run_figures[i]`` holds every run's at step i."""
+    the first run's; ``steps[i].run_figures`` and ``run_figures[i]`` hold
+    every run's at step i (``to_dict``: each step's ``runs``, named)."""
 
     run_figures: list = field(default_factory=list)
     run_names: list = field(default_factory=list)
@@ -139,25 +140,11 @@ class JointDiagnosis(Diagnosis):
 
     def to_dict(self) -> dict:
         d = super().to_dict()
+        for step, per_run in zip(d["steps"], self.run_figures):  # every run's figures at each step, named
+            step["runs"] = [{"run": name, **f.to_dict()} for name, f in zip(self.run_names, per_run)]
         d["runs"] = list(self.run_names)
         d["run_figures"] = [[f.to_dict() for f in per_run] for per_run in self.run_figures]
         return d
-
-    def history_table(self):
-        from rich.table import Table
-
-        t = Table(title=f"The error falling as effects are added ({len(self.run_names)} runs, one model)")
-        t.add_column("model")
-        for name, f in zip(self.run_names, self.run_figures[0] if self.run_figures else []):
-            t.add_column(f"{name}: {f.headline[0]} (um)", justify="right")
-        t.add_column("CV rms (um)", justify="right")
-        for s, per_run in zip(self.steps, self.run_figures):
-            cv = s.cv or {}
-            t.add_row(s.label + (" (forced)" if s.forced else ""),
-                      *(f"{f.headline[1] * 1e3:.2f}" for f in per_run),
-                      "-" if cv.get("cv_rms_um") is None else f"{cv['cv_rms_um']:.2f} ± {cv.get('cv_rms_u_um') or 0:.2f}")
-        return t
-
 
 @one_blas_thread
 @renamed(model="maps")
@@ -243,7 +230,8 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     def step(label, m, forced):
         obs = problem.base_obs if m is problem.base else problem.observe(m)
         per_run.append(problem.figures(m, obs))
-        return Step(label, m, per_run[-1][0], rank_candidates(problem, m, obs), forced, residual=obs.residual)
+        return Step(label, m, per_run[-1][0], rank_candidates(problem, m, obs), forced, residual=obs.residual,
+                    run_figures=per_run[-1])
 
     steps, model = select_effects(problem, model, list(add), auto, max_effects, step)
     unobservable, advice, ambiguous = unobservable_candidates(problem, steps)
@@ -253,7 +241,7 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
                           final_values=determined_values(problem, model),
                           domain=Domain.of_runs(runs, [p.inputs for p in problem.parts], model.maps.kinematics),
                           skipped=dict(problem.skipped),
-                          run_figures=per_run, run_names=names)
+                          run_figures=per_run, run_names=names, run_has=run_holds(problem))
     diag.alternatives = find_alternatives(problem, steps, model)
     attach_floor(diag, problem, steps[-1], reproducibility_um, reproducibility_source)
     if map_corrections:  # what the runs together determine of each map component (mapfamily)

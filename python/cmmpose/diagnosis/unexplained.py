@@ -10,7 +10,9 @@ Two kinds of finding:
   the library effects that could make it and which of them the model already
   holds;
 - **periodic errors along an axis** (a lead screw, a scale's graduation or
-  interpolation error): the point residuals regressed on
+  interpolation error), or **local** ones where the sine found holds only on
+  a stretch of the travel (:func:`local_extent`: a local defect is never
+  called periodic): the point residuals regressed on
   n_axis (a sin(2 pi s / P) + b cos(2 pi s / P)), s the axis's scale reading
   and n_axis the outward sphere normal's component along it, for every period
   P from 2 mm to 40 mm at once (the sums are binned by s and taken with one
@@ -77,8 +79,9 @@ class Finding:
 
     Attributes
     ----------
-    kind : {'periodic', 'pattern'}
-        A periodic error along an axis, or a residual pattern.
+    kind : {'periodic', 'local', 'pattern'}
+        A periodic error along an axis, a local one (a sine fits it only
+        where it sits, :func:`local_extent`), or a residual pattern.
     input : str
         The run input it follows ('D', 'E', 'F' scale readings in mm, 'u', 'v'
         in mm, 'incidence' in degrees, 't' in s, 'temperature' in C, 'x', 'y',
@@ -116,6 +119,8 @@ class Finding:
     axis: str | None = None
     library: tuple = ()
     in_model: tuple = ()
+    #: Of a local finding: the reading range (from, to) where it sits, mm.
+    where_mm: tuple | None = None
 
     def to_dict(self) -> dict:
         def num(v):
@@ -124,7 +129,8 @@ class Finding:
         return {"kind": self.kind, "input": self.input, "description": self.description, "size_um": num(self.size_um),
                 "p_value": num(self.p_value), "threshold": num(self.threshold), "period_mm": num(self.period_mm),
                 "phase_um": None if self.phase is None else [num(v) for v in self.phase], "axis": self.axis,
-                "library": list(self.library), "in_model": list(self.in_model)}
+                "library": list(self.library), "in_model": list(self.in_model),
+                "where_mm": None if self.where_mm is None else [num(v) for v in self.where_mm]}
 
 
 def periodic_errors(run: Run, xyz, fits, *, alpha: float = 1e-3, floor_um: float = FLOOR_UM) -> list[Finding]:
@@ -226,16 +232,99 @@ def periodic_errors(run: Run, xyz, fits, *, alpha: float = 1e-3, floor_um: float
         period = 1.0 / float(freqs[i])
         # phases are taken from a reading of 0 mm (bin centres are absolute readings)
         sin_amp, cos_amp = float(af[i]), float(bf[i])
-        results.append((axis, reading, period, amp, f_test_p_value(float(f), 2, n - 2), (sin_amp, cos_amp)))
+        sigma = math.sqrt(max((rss0 - gf[i]) / (n - 2), 1e-300))
+        where = local_extent(s, nj, r, period, (sin_amp, cos_amp), sigma)
+        results.append((axis, reading, period, amp, f_test_p_value(float(f), 2, n - 2), (sin_amp, cos_amp), where))
     threshold = alpha / max(tested, 1)
     out = []
-    for axis, reading, period, amp, p, phase in sorted(results, key=lambda t: -t[3]):
+    for axis, reading, period, amp, p, phase, where in sorted(results, key=lambda t: -t[3]):
         if p < threshold and amp >= floor_um:
-            out.append(Finding("periodic", reading, f"a periodic error along {axis} following the {reading} scale "
-                               f"reading: {amp:.2f} um amplitude, period {period:.2f} mm (a lead screw, a scale's "
-                               f"graduation or interpolation error); no library effect is periodic", amp, p,
-                               threshold, period_mm=period, phase=phase, axis=axis))
+            if where is None:
+                out.append(Finding("periodic", reading, f"a periodic error along {axis} following the {reading} "
+                                   f"scale reading: {amp:.2f} um amplitude, period {period:.2f} mm (a lead screw, a "
+                                   f"scale's graduation or interpolation error); no library effect is periodic", amp,
+                                   p, threshold, period_mm=period, phase=phase, axis=axis))
+                continue
+            a, b, size = where
+            out.append(Finding("local", reading, f"a local error along {axis} following the {reading} scale reading "
+                               f"near {reading} = {a:.0f}-{b:.0f} mm: {size:.2f} um there (a sine of period "
+                               f"{period:.2f} mm fits it there but not over the swept travel, so it is not periodic: "
+                               f"a local scale or guideway defect); no library effect is local", size, p, threshold,
+                               period_mm=period, phase=phase, axis=axis, where_mm=(a, b)))
     return out
+
+
+#: Segments of the swept travel a periodic finding is checked in (at most), and the fewest points in one.
+SEGMENTS, SEGMENT_POINTS = 8, 200
+#: A stretch of the travel that a local finding may hold at most: this share of the sine's weight.
+LOCAL_SHARE = 0.5
+
+
+def local_extent(s, nj, r, period, phase, sigma):
+    """Whether the sine a periodic search found holds over the swept travel,
+    or only on a stretch of it: a local error, which a sine fits there.
+
+    The travel [min s, max s] is cut into up to :data:`SEGMENTS` segments
+    (each at least three periods and 40 mm long; those with fewer than
+    :data:`SEGMENT_POINTS` points left out). The sine at the found period
+    and phase is fitted with a free amplitude over the whole travel and over
+    each stretch of consecutive segments holding at most :data:`LOCAL_SHARE`
+    of its weight. The error is local when the best stretch explains more
+    of the residuals than the whole travel does, by more than the choice of
+    the stretch buys by chance (2 ln of the number of stretches tried, plus
+    2, in units of the residuals' variance): a local defect fitted over the
+    whole travel is diluted, a periodic error confined to a stretch loses
+    the rest of it.
+
+    Parameters
+    ----------
+    s, nj, r : ndarray (N,)
+        The scale reading (mm), the outward normal's component along its
+        axis, and the point residuals (um).
+    period : float
+        mm.
+    phase : tuple of float
+        (sin, cos) amplitudes, um.
+    sigma : float
+        The residuals' scatter about the sine, um.
+
+    Returns
+    -------
+    tuple of float or None
+        (from, to) reading in mm of the stretch where it sits and its
+        amplitude there (um); None when it holds over the travel (or fewer
+        than three segments hold enough points to say).
+    """
+    lo, hi = float(np.min(s)), float(np.max(s))
+    k = int(min(SEGMENTS, (hi - lo) // max(3 * period, 40.0)))
+    if k < 3:
+        return None
+    g = nj * (phase[0] * np.sin(2 * np.pi * s / period) + phase[1] * np.cos(2 * np.pi * s / period))
+    edges = np.linspace(lo, hi, k + 1)
+    seg = np.clip(np.searchsorted(edges, s, side="right") - 1, 0, k - 1)
+    gg = np.bincount(seg, g * g, minlength=k)
+    rg = np.bincount(seg, r * g, minlength=k)
+    count = np.bincount(seg, minlength=k)
+    use = np.flatnonzero((count >= SEGMENT_POINTS) & (gg > 0))
+    if len(use) < 3:
+        return None
+    total_gg = float(gg[use].sum())
+    whole = float(rg[use].sum()) ** 2 / total_gg
+    best, tried = None, 0
+    for i in range(len(use)):
+        for j in range(i, len(use)):
+            w = use[i:j + 1]
+            wgg = float(gg[w].sum())
+            if wgg > LOCAL_SHARE * total_gg:
+                break
+            tried += 1
+            explained = float(rg[w].sum()) ** 2 / wgg
+            if best is None or explained > best[0]:
+                best = (explained, int(w[0]), int(w[-1]), float(rg[w].sum()) / wgg)
+    if best is None or (best[0] - whole) / sigma ** 2 <= 2 * math.log(max(tried, 1)) + 2:
+        return None
+    _, a, b, factor = best
+    return float(edges[a]), float(edges[b + 1]), abs(factor) * math.hypot(*phase)
 
 
 def unexplained_findings(patterns, periodic: list[Finding], model_names) -> list[Finding]:
@@ -280,7 +369,7 @@ def user_effect_skeleton(finding: Finding, name: str = "my-effect") -> str:
     The file defines ``EFFECT`` (a :class:`cmmpose.UserEffect`),
     which ``cmmpose diagnose RUN --user-effect FILE`` adds to the candidates.
     A periodic finding gets a sine and a cosine at its period along its axis;
-    any other a correction linear in its input along x, y and z, to be edited
+    a local one a bump where it sits; any other a correction linear in its input along x, y and z, to be edited
     into the physics suspected.
     """
     head = (f'"""User effect drafted by cmmpose diagnose from the finding:\n\n    {finding.description}\n\n'
@@ -301,6 +390,20 @@ def user_effect_skeleton(finding: Finding, name: str = "my-effect") -> str:
             f"    {name!r}, correction, {{'sin_um': ('um', 1.0), 'cos_um': ('um', 1.0)}},\n"
             f"    physics='a periodic error along {finding.axis} with the {finding.input} reading',\n"
             f"    reveal='scans spread along {finding.axis} over several periods')\n")
+    if finding.kind == "local" and finding.where_mm is not None:
+        j = "xyz".index(finding.axis)
+        a, b = finding.where_mm
+        return head + (
+            f"CENTRE_MM, HALF_WIDTH_MM = {(a + b) / 2:.4g}, {(b - a) / 2:.4g}  # where the finding sits\n\n\n"
+            f"def correction(inputs, bump_um):\n"
+            f"    s = (np.asarray(inputs[{finding.input!r}], dtype=float) - CENTRE_MM) / HALF_WIDTH_MM\n"
+            f"    out = np.zeros((len(s), 3))\n"
+            f"    out[:, {j}] = -bump_um * np.exp(-s * s) * 1e-3  # um -> mm; edit the shape to the physics\n"
+            f"    return out\n\n\n"
+            f"EFFECT = UserEffect.create(\n"
+            f"    {name!r}, correction, {{'bump_um': ('um', 1.0)}},\n"
+            f"    physics='a local error along {finding.axis} near {finding.input} = {a:.0f}-{b:.0f} mm',\n"
+            f"    reveal='scans spread along {finding.axis} over and beside that stretch')\n")
     code, unit = _quantity_code(finding.input)
     return head + (
         f"def correction(inputs, gx, gy, gz):\n"

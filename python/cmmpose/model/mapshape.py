@@ -246,7 +246,9 @@ def make(component: str, shape: str, lo: float, hi: float, scale_mm: float = 0.0
     axis = reading_axis(component)
     deg = "1-3" if kind == "rotational" else "2-3"
     what = {"poly": f"a smooth bow (Legendre degrees {deg})", "hat": f"local bumps (knots every {scale_mm:.4g} mm)",
-            "sine": f"a periodic error of period {scale_mm:.4g} mm", "const": "a constant"}[shape]
+            "sine": f"a periodic error of period {scale_mm:.4g} mm" if hi - lo >= 2 * scale_mm else  # issue 33 s. 7
+            f"a sinusoidal error of period {scale_mm:.4g} mm (too few cycles over the travel to call it periodic)",
+            "const": "a constant"}[shape]
     if kind == "squareness":
         physics = f"the map's squareness {component[3:5].upper()} is off by {what}"
         reveal = "ballbar positions or plate placements on the face diagonals of that plane"
