@@ -160,7 +160,7 @@ def model_kernel(repeats: int) -> None:
             "incidence": [1e-4, 1e-5]}),
     ):
         t = best(lambda: _core.compensate_model(
-            inputs_.uv, inputs_.scales, model.maps._core, digs, pose_index=inputs_.pose_index, inputs=named,
+            inputs_.uv, inputs_.scales, model.maps._core, digs, model.policy, pose_index=inputs_.pose_index, inputs=named,
             effects=effects), repeats)
         print(f"{label:44} {t / n * 1e9:8.1f} {t / plain:8.2f}")
 

@@ -158,7 +158,8 @@ def test_bad_input_is_named():
     digitizers = [digitizer(p[:3], p[3:]) for p in m.poses(inp)]
 
     def call(uv=inp.uv, pose_index=inp.pose_index, temperature=inp.temperature, effects=None):
-        return _core.compensate_model(uv, inp.scales, MAPS._core, digitizers, pose_index=pose_index,
+        return _core.compensate_model(uv, inp.scales, MAPS._core, digitizers, cmmpose.TemperaturePolicy(),
+                                      pose_index=pose_index,
                                       inputs={"temperature": temperature}, effects=effects)
 
     with pytest.raises(cmmpose.InputError, match="unknown term"):
@@ -176,7 +177,8 @@ def test_bad_input_is_named():
     with pytest.raises(cmmpose.InputError, match="uv.*10|10.*uv"):
         call(uv=nan)
     with pytest.raises(cmmpose.InputError, match="inputs.*float64"):
-        _core.compensate_model(inp.uv, inp.scales, MAPS._core, digitizers, inputs={"temperature": [20.0]})
+        _core.compensate_model(inp.uv, inp.scales, MAPS._core, digitizers, cmmpose.TemperaturePolicy(),
+                               inputs={"temperature": [20.0]})
 
 
 def test_library_lists_per_pose_alignment_only_with_several_poses():

@@ -87,4 +87,5 @@ def test_the_binding_refuses_fortran_ordered_rows(points):
     from cmmpose.pose import digitizer
 
     with pytest.raises(InputError, match="scales: array must be C-contiguous"):
-        _core.compensate(uv, np.asfortranarray(scales), maps._core, digitizer(POSE, OFFSET), 22.5)
+        _core.compensate(uv, np.asfortranarray(scales), maps._core, digitizer(POSE, OFFSET), cmmpose.TemperaturePolicy(),
+                         22.5)

@@ -309,3 +309,23 @@ def test_the_cli_builds_the_policy_from_its_flags(tmp_path):
     assert r.exit_code == 1 and "NOPE" in r.output
     r = cli("evaluate", tmp_path / "r", "--sensor", "nowhere=X1")
     assert r.exit_code == 2 and "--sensor" in r.output
+
+
+def test_the_kernel_takes_the_policy_whole_and_holds_no_default_of_its_own():
+    """Issue 34, item 2: the binding reads the policy object's map side (out_of_range, temperature_tolerance)
+    and has no default of its own (it once had 0.0 K against Python's 0.5 K): the one default is Python's."""
+    from cmmpose import _core
+    from cmmpose.pose import digitizer
+
+    maps = cmmpose.ErrorMapSet.thesis()
+    uv, scales = np.array([[0.0, 140.0]]), np.array([[450.0, 275.0, -250.0]])
+    d = digitizer((90.0, 90.0, 0.0), (1.001, 264.505, 129.575))
+    with pytest.raises(TypeError):
+        _core.compensate(uv, scales, maps._core, d, temperature=30.3)  # no policy: no silent default
+    # 30.3 C is 0.3 K beyond the set: held at the edge under the default policy (0.5 K), refused at 0.1 K
+    xyz, report = _core.compensate(uv, scales, maps._core, d, cmmpose.TemperaturePolicy(), 30.3)
+    assert report["held_temperature"] == 1
+    with pytest.raises(cmmpose.OutOfRangeError):
+        _core.compensate(uv, scales, maps._core, d, cmmpose.TemperaturePolicy(temperature_tolerance=0.1), 30.3)
+    assert np.array_equal(xyz, cmmpose.compensate(uv, scales, maps, (90.0, 90.0, 0.0), (1.001, 264.505, 129.575),
+                                                  30.3))

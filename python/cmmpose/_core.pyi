@@ -1,6 +1,6 @@
 """Type stubs of the Rust extension ``cmmpose._core`` (rust/py/src/*.rs)."""
 
-from typing import Any, Literal, TypedDict, final
+from typing import Any, Literal, Protocol, TypedDict, final
 
 import numpy as np
 import numpy.typing as npt
@@ -21,6 +21,14 @@ class Report(TypedDict):
 
 _F64_2D = npt.NDArray[np.float64]
 _OutOfRange = Literal["raise", "clamp", "extrapolate"]
+
+
+class _MapPolicy(Protocol):
+    """The map side of a cmmpose.TemperaturePolicy, read by attribute."""
+
+    out_of_range: _OutOfRange
+    temperature_tolerance: float
+
 _NanPolicy = Literal["raise", "propagate"]
 
 @final
@@ -62,7 +70,7 @@ class ErrorMapSet:
     @property
     def kinematics(self) -> str: ...
     def with_kinematics(self, kinematics: str) -> ErrorMapSet: ...
-    def at(self, temperature: float, out_of_range: _OutOfRange = "raise", temperature_tolerance: float = 0.0) -> ErrorMap: ...
+    def at(self, temperature: float, policy: _MapPolicy) -> ErrorMap: ...
     def __eq__(self, other: object) -> bool: ...
 
 def _error_map_from_state(state: Any) -> ErrorMap: ...
@@ -112,10 +120,9 @@ def compensate(
     scales: _F64_2D,
     error_map: ErrorMap | ErrorMapSet,
     digitizer: Digitizer,
+    policy: _MapPolicy,
     temperature: float | npt.NDArray[np.float64] | None = None,
-    out_of_range: _OutOfRange = "raise",
     nan_policy: _NanPolicy = "raise",
-    temperature_tolerance: float = 0.0,
     out: _F64_2D | None = None,
 ) -> tuple[_F64_2D, Report]: ...
 def uncompensated(
@@ -136,13 +143,12 @@ def compensate_model(
     scales: _F64_2D,
     maps: ErrorMap | ErrorMapSet,
     digitizers: list[Digitizer],
+    policy: _MapPolicy,
     *,
     pose_index: npt.NDArray[np.uint32] | None = None,
     inputs: _Inputs | None = None,
     effects: _Effects | None = None,
-    out_of_range: _OutOfRange = "raise",
     nan_policy: _NanPolicy = "raise",
-    temperature_tolerance: float = 0.0,
 ) -> tuple[_F64_2D, Report]: ...
 def effect_terms() -> list[EffectTerm]: ...
 def euler313(alpha: float, beta: float, gamma: float) -> _F64_2D: ...

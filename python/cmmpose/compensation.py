@@ -114,8 +114,7 @@ def compensate(
     check_policy(out_of_range, temperature_tolerance)
     pose = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
     offset = tuple(offset) if isinstance(offset, MountOffset) else as_triple("offset", offset)
-    xyz, report = maps.compensate_points(uv, scales, pose, offset, temperature, out_of_range=out_of_range,
-                                         temperature_tolerance=float(temperature_tolerance), nan_policy=nan_policy,
+    xyz, report = maps.compensate_points(uv, scales, pose, offset, temperature, policy=policy, nan_policy=nan_policy,
                                          out=out, columns=dict(columns or {}))
     return _finish(xyz, report, return_report)
 

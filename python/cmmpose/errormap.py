@@ -20,10 +20,11 @@ import warnings
 from . import _core
 from .formats import mapformats
 from ._arrays import as_rows, as_triple
-from .policy import TEMPERATURE_TOLERANCE, check_policy
+from .temperature import TEMPERATURE_TOLERANCE, TemperaturePolicy
 from .errors import InputError, InputTypeError, MapTemperatureWarning, warn_clamped
 from .kernel_report import KernelReport
 from .pose import digitizer
+
 
 #: Carriages in kinematic order.
 CARRIAGES = ("X", "Y", "Z")
@@ -95,21 +96,22 @@ class AppliedMaps:
         """The plain maps: these maps."""
         return self
 
-    def compensate_points(self, uv, scales, pose, offset, temperature=None, *, out_of_range: str = "raise",
-                          temperature_tolerance: float = TEMPERATURE_TOLERANCE, nan_policy: str = "raise", out=None,
-                          columns=None, where: str = "points", once: set | None = None):
+    def compensate_points(self, uv, scales, pose, offset, temperature=None, *, policy: TemperaturePolicy | None = None,
+                          nan_policy: str = "raise", out=None, columns=None, where: str = "points",
+                          once: set | None = None):
         """Compensated X, Y, Z (mm) of points taken at one pose, and the
         kernel's report (a dict); arguments as :func:`cmmpose.compensate`
         takes them once checked (float64 rows; ``temperature`` C, one value,
-        one per point, or None for a single map). ``columns``, ``where`` and
-        ``once`` are a model's (its effects' inputs, the data's name, the
-        warnings already given): maps read none of them."""
-        return _core.compensate(uv, scales, self._core, digitizer(pose, offset), temperature, out_of_range, nan_policy,
-                                float(temperature_tolerance), out)
+        one per point, or None for a single map; ``policy`` the
+        :class:`cmmpose.TemperaturePolicy`, None its defaults, handed to the
+        kernel whole). ``columns``, ``where`` and ``once`` are a model's (its
+        effects' inputs, the data's name, the warnings already given): maps
+        read none of them."""
+        return _core.compensate(uv, scales, self._core, digitizer(pose, offset), policy or TemperaturePolicy(),
+                                temperature, nan_policy, out)
 
-    def compensate_run(self, run, temperature=None, *, out_of_range: str = "raise",
-                       temperature_tolerance: float = TEMPERATURE_TOLERANCE, reports: list | None = None,
-                       compare=None, once: set | None = None):
+    def compensate_run(self, run, temperature=None, *, policy: TemperaturePolicy | None = None,
+                       reports: list | None = None, compare=None, once: set | None = None):
         """All points of ``run`` in machine coordinates (N, 3 mm), pose by
         pose, at ``temperature`` (C: one value, one per point, or None for a
         single map); each pose's kernel report (:class:`KernelReport`) is
@@ -128,8 +130,7 @@ class AppliedMaps:
                 np.ascontiguousarray(temperature[rows], dtype=float)
             out[rows], raw = self.compensate_points(np.ascontiguousarray(run.uv[rows]),
                                                     np.ascontiguousarray(run.scales[rows]), pose, offset, t,
-                                                    out_of_range=out_of_range,
-                                                    temperature_tolerance=temperature_tolerance)
+                                                    policy=policy)
             report = KernelReport(**raw)
             warn_clamped(report)
             if reports is not None:
@@ -372,9 +373,8 @@ class ErrorMapSet(AppliedMaps):
         ``'extrapolate'`` (cmmpose.policy).
         """
         t = scalar_temperature(temperature)
-        check_policy(out_of_range, temperature_tolerance)
-        return ErrorMap._wrap(self._core.at(t, out_of_range, float(temperature_tolerance)),
-                              source=f"blend at {t:g} C")
+        policy = TemperaturePolicy(out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
+        return ErrorMap._wrap(self._core.at(t, policy), source=f"blend at {t:g} C")
 
     def __len__(self) -> int:
         return len(self.temperatures)

@@ -174,8 +174,7 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
             if temperature is None:
                 t = np.ascontiguousarray(t, dtype=float)
         t0 = time.perf_counter()
-        xyz, raw = maps.compensate_points(uv, scales, pose, offset, t, out_of_range=out_of_range,
-                                          temperature_tolerance=temperature_tolerance, nan_policy=nan_policy,
+        xyz, raw = maps.compensate_points(uv, scales, pose, offset, t, policy=policy, nan_policy=nan_policy,
                                           columns=extras, where=str(points_in), once=once)
         state["kernel"] += time.perf_counter() - t0
         report = KernelReport(**raw)

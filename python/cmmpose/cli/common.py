@@ -481,3 +481,6 @@ def print_model_check(check) -> None:
     """The model as saved against its plain maps on a run (cmmpose.evaluation.model_check), in words."""
     colour = "red" if check.worse else "green" if check.change_um < -check.change_u_um else "yellow"
     console.print(f"[bold {colour}]model check:[/] {escape(check.verdict)}")
+    if check.correction_um > 0:
+        console.print(f"model correction here: {check.correction_um:.2f} um rms beyond the plain maps, predicted "
+                      f"standard uncertainty {check.correction_u_um:.2f} um (from its parameters' covariance)")

@@ -457,7 +457,7 @@ def judge_candidate(problem, step, candidate, groups: np.ndarray, split: str) ->
         state = step._cv_state
     r0, X0, ridge0, target0, sigma, old = state
     by_run = False
-    if getattr(candidate.spec, "family", None) == "map" and getattr(problem, "parts", None):
+    if getattr(candidate.spec, "family", None) in ("map", "cross") and getattr(problem, "parts", None):
         # A map shape is a function of position: it must carry from one
         # set-up to the next, so with several runs it is judged holding out
         # whole runs (a periodic shape that fits the balls between others

@@ -627,10 +627,11 @@ def attach_floor(diag, problem, step, reproducibility_um=None, reproducibility_s
 
 def add_map_candidates(problem, model) -> None:
     """Offer ``problem`` the map corrections (:func:`mapfamily.map_candidates`)
-    with their centre-level sensitivities."""
-    from .mapfamily import map_candidates
+    and the cross-axis corrections (:func:`mapfamily.cross_candidates`) with
+    their centre-level sensitivities."""
+    from .mapfamily import cross_candidates, map_candidates
 
-    for name, spec in map_candidates(problem, model).items():
+    for name, spec in {**map_candidates(problem, model), **cross_candidates(problem)}.items():
         if name in problem.candidates:
             continue
         problem.candidates[name] = spec
@@ -734,7 +735,7 @@ def unobservable_candidates(problem: Problem, steps: list[Step]):
     advice = {}
     for c in steps[0].ranking:
         advice[c.name] = c.spec.reveal
-        if c.name in [s.effect for s in steps[1:]] or getattr(c.spec, "family", None) == "map":
+        if c.name in [s.effect for s in steps[1:]] or getattr(c.spec, "family", None) in ("map", "cross"):
             continue  # map corrections: cmmpose.diagnosis.mapfamily.component_report says what the run determines
         # "Not observable" only where the design cannot determine the effect;
         # a determined but weak one is "not significant" (Candidate.reason says how weak).

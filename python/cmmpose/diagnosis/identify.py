@@ -162,7 +162,7 @@ class Problem:
         predicted length only), else finite differences of size ``spec.steps`` through the
         kernel and the sphere fits: forward, or backward where the forward
         step cannot be evaluated (it leaves the maps' range)."""
-        if getattr(spec, "family", None) == "map":  # map corrections: analytic, at the centre level
+        if getattr(spec, "family", None) in ("map", "cross"):  # map and cross-axis corrections: at the centre level
             return centre_columns(self, obs, spec)
         if spec.kind == "length" and self.layout.artefact is None:
             ref = self.layout.calibrated_length or (float(np.mean(obs.lengths)) if len(obs.lengths) else 0.0)
@@ -473,8 +473,8 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
                                              base))
             continue
         P, r0_, X0_, base_, _, q0_ = every_row
-        if getattr(spec, "family", None) == "map":
-            # A map correction moves centres and radii only: it is ranked on a view of the problem whose
+        if getattr(spec, "family", None) in ("map", "cross"):
+            # A map (or cross-axis) correction moves centres and radii only: it is ranked on a view of the problem whose
             # point residuals are compressed to their R factor (the same fits, at a fraction of the cost).
             if map_rows is None:
                 view, r0v, X0v = compressed_view(problem, r0, X0)
@@ -546,16 +546,31 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
     # The map corrections (cmmpose.diagnosis.mapfamily) are a family of
     # their own, with their own Bonferroni threshold; the library's named
     # effects rank before them (the better physics where they explain it).
+    # The cross-axis corrections (cmmpose.model.crossaxis) likewise; they rank with the named effects (a
+    # twisted table is physics in words), each family paying Bonferroni over its own members.
     n_map = sum(1 for c in out if getattr(c.spec, "family", None) == "map")
-    threshold = ALPHA / max(len(todo) - len(alternatives) - n_map, 1)
+    n_cross = sum(1 for c in out if getattr(c.spec, "family", None) == "cross")
+    threshold = ALPHA / max(len(todo) - len(alternatives) - n_map - n_cross, 1)
     map_threshold = ALPHA / max(n_map, 1)
+    cross_threshold = ALPHA / max(n_cross, 1)
     for c in out:
-        c.threshold = map_threshold if getattr(c.spec, "family", None) == "map" else threshold
+        family = getattr(c.spec, "family", None)
+        c.threshold = map_threshold if family == "map" else cross_threshold if family == "cross" else threshold
         c.significant = c.dof > 0 and c.p_value < c.threshold
         c.model_effects = tuple(model.names)
     # Significant first; then by p-value, which weighs the likelihood gain
     # against the parameters spent on it.
-    out.sort(key=lambda c: (not c.significant, getattr(c.spec, "family", None) == "map", c.p_value, -c.lr))
+    # A cross-axis term ranks with the named effects only where it explains clearly more than the best of
+    # them (-2 log L beyond INDISTINGUISHABLE_LR): the named physics is preferred where the two say the same.
+    named_lr = max((c.lr for c in out if c.significant and getattr(c.spec, "family", None) is None), default=0.0)
+
+    def tier(c) -> int:
+        family = getattr(c.spec, "family", None)
+        if family == "cross":
+            return 0 if c.lr > named_lr + INDISTINGUISHABLE_LR else 1
+        return 2 if family == "map" else 0
+
+    out.sort(key=lambda c: (not c.significant, tier(c), c.p_value, -c.lr))
     _flag_indistinguishable(problem, out, r0, X0, base, ridge0, target0, betas)
     for c in alternatives:
         c.threshold = threshold

@@ -101,6 +101,7 @@ from scipy.sparse import csr_matrix
 
 from .cv import CVDesign, cv_groups, model_design
 
+from ..model.crossaxis import CrossAxisCorrection, is_cross, make_cross
 from ..model.mapshape import (ARCSEC, COMPONENTS, PERIOD_MIN, PRIOR_AS, PRIOR_UM, ROTATIONAL, SQUARENESS, TRANSLATIONAL,
                                MapCorrection, arms, corrected_maps, is_map, kind_of, make, parse, reading_axis)
 
@@ -371,11 +372,46 @@ def _centre_level(layout, obs, dc: np.ndarray, dr: np.ndarray | None = None, cac
     return out
 
 
-def centre_columns(problem, obs, spec: MapCorrection) -> np.ndarray:
+def centre_columns(problem, obs, spec) -> np.ndarray:
     """Change of ``problem``'s observables per prior magnitude of each
-    parameter of the map correction ``spec`` (centre level: see the module
-    docstring), mm."""
+    parameter of the map correction or cross-axis correction ``spec``
+    (centre level: see the module docstring), mm."""
+    if is_cross(spec):
+        return cross_columns(problem, obs, spec)
     return component_columns(problem, obs, spec.component, spec.basis, spec.kinematics) * np.asarray(spec.prior)
+
+
+def cross_columns(problem, obs, spec: CrossAxisCorrection) -> np.ndarray:
+    """:func:`centre_columns` of a cross-axis correction: the sample's points
+    moved along its direction by its shape functions of their readings (a
+    joint problem stacks its runs')."""
+    parts = getattr(problem, "parts", None)
+    if parts:
+        return np.concatenate([cross_columns(p, o, spec) for p, o in zip(parts, obs.parts)])
+    q = reading_subset(problem)["q"]
+    field = spec.basis(q) * (1e-3 * np.asarray(spec.prior, float))  # mm per prior magnitude
+    return observable_change(problem, obs, field, direction=spec.direction)
+
+
+#: Half the travel, mm, both axes of a cross-axis candidate must span (the run moves along both).
+CROSS_HALF_SPAN_MM = 15.0
+
+
+def cross_candidates(problem) -> dict[str, CrossAxisCorrection]:
+    """The cross-axis candidates for ``problem``: for each direction and each
+    pair of axes the runs move along together (:data:`CROSS_HALF_SPAN_MM`),
+    a twist and a sag (:mod:`cmmpose.model.crossaxis`), over the travel used."""
+    travel = travel_range(problem)
+    out = {}
+    for d in range(3):
+        for axes in ((0, 1), (1, 2), (0, 2)):
+            span = [travel[a] for a in axes]
+            if any((hi - lo) / 2 < CROSS_HALF_SPAN_MM for lo, hi in span):
+                continue
+            for shape in ("twist", "sag"):
+                spec = make_cross(d, axes, shape, span)
+                out[spec.name] = spec
+    return out
 
 
 # -- candidates for a run -------------------------------------------------

@@ -237,8 +237,7 @@ class ArtefactEvaluation:
         return console.export_text()
 
 
-def _model_moves(run, model, model_t, groups, reject, out_of_range, temperature_tolerance, base_xyz,
-                 once: set | None = None) -> list[dict]:
+def _model_moves(run, model, model_t, groups, reject, policy, base_xyz, once: set | None = None) -> list[dict]:
     """Per parameter of a diagnosis model that states its standard uncertainty u: each scan's fitted centre
     move for a change of u (mm), by a difference of one step of the effect through the kernel and the fits
     (``once``: the checks the evaluation already made of this run, not made again for each step)."""
@@ -253,8 +252,7 @@ def _model_moves(run, model, model_t, groups, reject, out_of_range, temperature_
                 continue
             v = np.array(values, dtype=float)
             v[j] += spec.steps[j]
-            xyz = machine_coordinates(run, model.with_values(spec, v), model_t, out_of_range, temperature_tolerance,
-                                      once=once)
+            xyz = machine_coordinates(run, model.with_values(spec, v), model_t, policy, once=once)
             moved = fit_spheres(xyz[keep], sid[keep], reject=reject)
             d = (moved.centre - base.centre) * (u[j] / spec.steps[j])
             out.append({int(k): d[i] for i, k in enumerate(base.labels.tolist())})
@@ -423,8 +421,8 @@ def evaluate_artefact(
         model_t = None
     reports: list = []
     once: set = set()  # the checks of the model on this run: said once, not again for each parameter's step
-    xyz = machine_coordinates(run, maps, model_t, out_of_range, temperature_tolerance, reports, once=once)
-    moves = _model_moves(run, maps, model_t, groups, reject, out_of_range, temperature_tolerance, xyz, once) \
+    xyz = machine_coordinates(run, maps, model_t, policy, reports, once=once)
+    moves = _model_moves(run, maps, model_t, groups, reject, policy, xyz, once) \
         if maps.effects else []
     if moves:
         prov["notes"].append(f"the u of the compensated deviations and lengths include the model's {len(moves)} "

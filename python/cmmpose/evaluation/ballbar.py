@@ -231,18 +231,19 @@ def machine_temperature_and_log(run: Run, t, log_hold: float | None = None, *,
     return run_temperatures(run, t, temperature_policy, log_hold=log_hold)
 
 
-def machine_coordinates(run: Run, maps, temperature, out_of_range: str = "raise",
-                         temperature_tolerance: float = TEMPERATURE_TOLERANCE, reports: list | None = None,
-                         once: set | None = None) -> np.ndarray:
+def machine_coordinates(run: Run, maps, temperature, policy: TemperaturePolicy | None = None,
+                        reports: list | None = None, once: set | None = None) -> np.ndarray:
     """All points in machine coordinates, compensated with ``maps`` (any
     :class:`cmmpose.model.MachineModel`: maps, or a found model, which reads
-    the run's inputs itself) or not (None); the kernel reports are appended
-    to ``reports``. ``temperature``: C, one or per point (None: a single
-    map's own, or a model's reading of the run's log)."""
+    the run's inputs itself) or not (None), under ``policy`` (the
+    :class:`cmmpose.TemperaturePolicy`, handed to the kernel whole; None: the
+    model's own); the kernel reports are appended to ``reports``.
+    ``temperature``: C, one or per point (None: a single map's own, or a
+    model's reading of the run's log)."""
     if maps is None:
         return uncompensated_coordinates(run)
-    return maps.compensate_run(run, temperature, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
-                               reports=reports, compare=figures_difference(run), once=once)
+    return maps.compensate_run(run, temperature, policy=policy, reports=reports, compare=figures_difference(run),
+                               once=once)
 
 
 def uncompensated_coordinates(run: Run) -> np.ndarray:
@@ -497,7 +498,7 @@ def evaluate(
     else:
         model_t = temperature if temperature is not None else temps
     reports: list = []
-    xyz = machine_coordinates(run, maps, model_t, out_of_range, temperature_tolerance, reports)
+    xyz = machine_coordinates(run, maps, model_t, policy, reports)
     comp = _ballbar(run, xyz, "compensated", temps, nominal_radius, reject, expansion, positions)
     held = sum(r.held_temperature for r in reports)
     clamped = sum(r.clamped_points for r in reports)

@@ -54,7 +54,7 @@ from .._validate import nonnegative
 from ..errors import Error, InputError, InputTypeError
 from .ballbar import BallbarResult, Evaluation, machine_coordinates, machine_temperature
 from ..fitting import fit_spheres
-from ..policy import LOG_HOLD, TEMPERATURE_TOLERANCE
+from ..temperature import LOG_HOLD, TEMPERATURE_TOLERANCE, TemperaturePolicy, as_policy
 from ..run import Run
 from .uncertainty import Budget, Input
 
@@ -349,11 +349,12 @@ def evaluation_uncertainty(
     out = []
     no_sensitivity = False
     once: set = set()  # the checks of the model on this run: said once, not again for each perturbation
+    map_side = as_policy(temperature_policy, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
     for res in evaluation.results:
         compensated = res.label == "compensated"
         model = maps if compensated else None
         model_t = _model_temperature(run, model, temperature, log_hold, temperature_policy) if compensated else None
-        xyz = machine_coordinates(run, model, model_t, out_of_range, temperature_tolerance, once=once)
+        xyz = machine_coordinates(run, model, model_t, map_side, once=once)
         lengths, bar, var_fit = _lengths_from(xyz, run, res, reject)
         if not np.allclose(lengths, res.lengths, rtol=0, atol=1e-9):
             raise InputError("evaluation: its lengths are not those of run with these maps and temperature; pass the "
@@ -364,7 +365,7 @@ def evaluation_uncertainty(
             if c_t is None:
                 c_t = np.zeros(len(lengths))
                 no_sensitivity = True
-        terms = _model_terms(run, maps, model_t, res, reject, out_of_range, temperature_tolerance, lengths, once) \
+        terms = _model_terms(run, maps, model_t, res, reject, map_side, lengths, once) \
             if compensated and maps.effects else ()
         out.append(_result_uncertainty(res, lengths, bar, var_fit, c_t, compensated, u_t, u_map, u_model, u_alpha,
                                        terms))
@@ -412,7 +413,8 @@ def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, leng
     got = {}
     for step in (_STEP_K, -_STEP_K):
         try:
-            xyz = machine_coordinates(run, maps, np.asarray(model_t) + step, policy, 0.0, once=once)
+            xyz = machine_coordinates(run, maps, np.asarray(model_t) + step,
+                                      TemperaturePolicy(out_of_range=policy, temperature_tolerance=0.0), once=once)
         except Error:
             continue
         got[step] = _lengths_from(xyz, run, res, reject)[0]
@@ -424,8 +426,7 @@ def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, leng
     return None
 
 
-def _model_terms(run, model, model_t, res, reject, out_of_range, temperature_tolerance, lengths,
-                 once: set | None = None) -> list[tuple]:
+def _model_terms(run, model, model_t, res, reject, policy, lengths, once: set | None = None) -> list[tuple]:
     """One term per parameter of the model whose standard uncertainty it holds:
     (label, unit, u, dL/dp per length um/unit, d rms/dp um/unit, d B89/dp um/unit),
     by a forward difference of the effect's step through the kernel and the fits."""
@@ -443,8 +444,7 @@ def _model_terms(run, model, model_t, res, reject, out_of_range, temperature_tol
             v = np.array(values, dtype=float)
             step = float(spec.steps[j])
             v[j] += step
-            xyz = machine_coordinates(run, model.with_values(spec, v), model_t, out_of_range, temperature_tolerance,
-                                      once=once)
+            xyz = machine_coordinates(run, model.with_values(spec, v), model_t, policy, once=once)
             moved = _lengths_from(xyz, run, res, reject)[0]
             c_len = (moved - lengths) / step * 1e3
             c_rms = (rms_accuracy_error(moved) - rms_accuracy_error(lengths)) / step * 1e3

@@ -56,6 +56,10 @@ class ModelCheck:
     notes : tuple of str
         Where the run lies outside the model's domain, or its correction is
         not determined (:meth:`cmmpose.Model.domain_notes`).
+    correction_um, correction_u_um : float
+        The model's correction beyond its plain maps at the run's points
+        (rms over a sample) and its predicted standard uncertainty (k = 1,
+        from the parameters' covariance), um.
     evaluation : Evaluation or ArtefactEvaluation
         The run evaluated with the model, as ``cmmpose evaluate`` gives it.
     """
@@ -70,6 +74,8 @@ class ModelCheck:
     items: int
     effects: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    correction_um: float = 0.0
+    correction_u_um: float = 0.0
     evaluation: object = field(default=None, repr=False, compare=False)
 
     @property
@@ -110,7 +116,8 @@ class ModelCheck:
                              "plain_rms_um": self.plain_um, "plain_rms_u_um": self.plain_u_um,
                              "change_um": self.change_um, "change_u_um": self.change_u_um, "holds": self.holds,
                              "worse": self.worse, "items": self.items, "effects": list(self.effects),
-                             "notes": list(self.notes), "verdict": self.verdict})
+                             "notes": list(self.notes), "correction_um": self.correction_um,
+                             "correction_u_um": self.correction_u_um, "verdict": self.verdict})
 
 
 def _finite_or_none(d: dict) -> dict:
@@ -172,6 +179,8 @@ def check_model(run: Run, model, *, evaluation=None, **options) -> ModelCheck:
     change = model_um - plain_um
     u_change = ud / ((model_um + plain_um) * 1e-3) * 1e3 if model_um + plain_um > 0 else math.inf
     figure = "rms deviation" if hasattr(evaluation.compensated, "placements") else "rms accuracy error"
-    notes = tuple(model.domain_notes(run)) if hasattr(model, "domain_notes") else ()
+    held = model.where_it_holds(run) if model.reads_run else {"notes": [], "correction_um": 0.0,
+                                                              "correction_u_um": 0.0}
     return ModelCheck(figure, model_um, model_u, plain_um, plain_u, change, u_change, n,
-                      tuple(s.name for s, _ in model.effects), notes, evaluation)
+                      tuple(s.name for s, _ in model.effects), tuple(held["notes"]), held["correction_um"],
+                      held["correction_u_um"], evaluation)

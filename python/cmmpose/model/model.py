@@ -33,7 +33,6 @@ from ..kernel_report import KernelReport
 from .alternatives import Alternative, check_alternatives
 from .domain import Domain, correction_uncertainty, domain_notes, uncertainty_notes
 from .inputs import RunInputs, incidence_angles
-from .mapshape import parse as parse_map
 from .names import resolve
 from .point_inputs import check_inputs, point_inputs, single_map_warning
 from .spec import LIBRARY, EffectSpec, effect_spec
@@ -248,9 +247,8 @@ class Model:
         # An effect following a chosen thermocouple group reads that group's temperature.
         named |= {s.sensor_input: inputs.sensor(s.sensor) for s, _ in self.effects if s.sensor_input}
         xyz, report = _core.compensate_model(
-            inputs.uv, inputs.scales, self.maps._core, digitizers, pose_index=inputs.pose_index,
-            inputs=named, effects=self.kernel_terms(), out_of_range=self.out_of_range,
-            temperature_tolerance=float(self.temperature_tolerance))
+            inputs.uv, inputs.scales, self.maps._core, digitizers, self.policy, pose_index=inputs.pose_index,
+            inputs=named, effects=self.kernel_terms())
         clamped = report["clamped_points"]
         users = [(s, v) for s, v in self.effects if s.kind == "python"]
         if users:
@@ -296,9 +294,9 @@ class Model:
                                      ("log_hold", log_hold), ("temperature", temperature)) if v is not None}
         return replace(self, **changes) if changes else self
 
-    def compensate_points(self, uv, scales, pose, offset, temperature=None, *, out_of_range=None,
-                          temperature_tolerance=None, nan_policy: str = "raise", out=None, columns=None,
-                          where: str = "points", once: set | None = None) -> tuple[np.ndarray, dict]:
+    def compensate_points(self, uv, scales, pose, offset, temperature=None, *, policy: TemperaturePolicy | None = None,
+                          nan_policy: str = "raise", out=None, columns=None, where: str = "points",
+                          once: set | None = None) -> tuple[np.ndarray, dict]:
         """Compensated X, Y, Z (mm) of points taken at one pose, and the
         kernel's report (a dict).
 
@@ -310,8 +308,9 @@ class Model:
             Euler 3-1-3 angles (degrees) and mount offset (mm).
         temperature : float or ndarray (N,), optional
             Machine temperature, C, for every point or per point (the T column).
-        out_of_range, temperature_tolerance
-            The caller's policy (None: the model's).
+        policy : TemperaturePolicy, optional
+            The caller's map side of the policy (``out_of_range``,
+            ``temperature_tolerance``); None: the model's.
         nan_policy, out
             For maps only: a model refuses anything but the defaults.
         columns : dict of str -> ndarray, optional
@@ -327,13 +326,13 @@ class Model:
         temps = None
         if temperature is not None and np.ndim(temperature) > 0:
             temps, temperature = temperature, None
-        model = self.with_policy(out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
+        model = self._map_policy(policy)
         inputs = point_inputs(model, uv, scales, pose, offset, temperature, temps, dict(columns or {}), where)
         xyz, raw = model.compensate(inputs, return_report=True)
         model._check_application(inputs, xyz, str(where), once, compare=None, every_call=False)
         return xyz, raw
 
-    def compensate_run(self, run: Run, temperature=None, *, out_of_range=None, temperature_tolerance=None,
+    def compensate_run(self, run: Run, temperature=None, *, policy: TemperaturePolicy | None = None,
                        reports: list | None = None, compare=None, once: set | None = None) -> np.ndarray:
         """All points of ``run`` in machine coordinates (N, 3 mm): its maps
         and effects, with the inputs its effects read from the run (a
@@ -345,8 +344,8 @@ class Model:
             The run (a run of another machine configuration is refused).
         temperature : float or ndarray (N,), optional
             C, one or per point, in place of the run's thermocouple log.
-        out_of_range, temperature_tolerance
-            The caller's policy (None: the model's).
+        policy : TemperaturePolicy, optional
+            The caller's map side of the policy (None: the model's).
         reports : list, optional
             The kernel's report (:class:`cmmpose.KernelReport`) is appended.
         compare : callable, optional
@@ -358,8 +357,7 @@ class Model:
             applies perturbed models to one run): each is said once.
         """
         scalar = temperature is not None and np.ndim(temperature) == 0
-        model = self.with_policy(out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
-                                 temperature=float(temperature) if scalar else None)
+        model = self._map_policy(policy).with_policy(temperature=float(temperature) if scalar else None)
         inputs = RunInputs.from_run(run, model.temperature, temperature_policy=model.policy)
         check_inputs(model, inputs, "run")
         check_kinematics(model, run)
@@ -382,11 +380,21 @@ class Model:
         is not determined there, one sentence each
         (:mod:`cmmpose.model.domain`); empty for a model without effects.
         ``xyz``: the model's compensation of the data when the caller has it (mm)."""
+        return self.where_it_holds(data, xyz)["notes"]
+
+    def where_it_holds(self, data, xyz: np.ndarray | None = None) -> dict:
+        """The model applied to ``data`` (a Run, or the inputs of a run or
+        point file): ``notes`` (:meth:`domain_notes`), and its correction
+        beyond the plain maps there with the correction's predicted standard
+        uncertainty (``correction_um``, ``correction_u_um``: rms over a
+        sample of the points, k = 1; :func:`cmmpose.model.domain.correction_uncertainty`)."""
         if not self.effects:
-            return []
+            return {"notes": [], "correction_um": 0.0, "correction_u_um": 0.0}
         inputs = RunInputs.from_run(data, self.temperature, temperature_policy=self.policy) \
             if isinstance(data, Run) else data
-        return domain_notes(self.domain, inputs) + uncertainty_notes(correction_uncertainty(self, inputs, xyz))
+        found = correction_uncertainty(self, inputs, xyz)
+        return {"notes": domain_notes(self.domain, inputs) + uncertainty_notes(found),
+                "correction_um": found["correction_um"], "correction_u_um": found["uncertainty_um"]}
 
     def parameter_covariance(self, names) -> np.ndarray:
         """The covariance of the parameters ``names`` ('effect.param'), in
@@ -403,6 +411,12 @@ class Model:
             u = np.ravel(self.uncertainty.get(effect, np.full(spec.size, np.nan)))[spec.params.index(param)]
             sd.append(0.0 if not np.isfinite(u) else float(u))
         return np.diag(np.square(sd))
+
+    def _map_policy(self, policy: TemperaturePolicy | None) -> Model:
+        """The model under the caller's map side of ``policy`` (None: its own)."""
+        if policy is None:
+            return self
+        return self.with_policy(out_of_range=policy.out_of_range, temperature_tolerance=policy.temperature_tolerance)
 
     def _check_application(self, inputs: RunInputs, xyz: np.ndarray, where: str, once: set | None, *, compare,
                            every_call: bool) -> None:
@@ -579,8 +593,8 @@ def _keep_policy(model: Model) -> None:
 
 def _saved_spec(name: str, kind, users: dict, path) -> EffectSpec:
     """The spec of a saved effect named ``name`` (a map correction is rebuilt from its name)."""
-    if name.startswith("map:"):
-        return parse_map(name)
+    if name.startswith(("map:", "cross:")):  # a map or cross-axis correction: rebuilt from its name
+        return resolve(name)
     if kind == "python":
         if name not in users:
             raise InputError(f"{path}: effect {name!r} is user-defined", remedy="user_effects")
@@ -599,9 +613,9 @@ def _saved_alternatives(entries, users: dict, names, path) -> tuple:
         if chosen not in names:
             raise InputError(f"{path}: alternatives[{i}] ({name}) is an alternative to {chosen!r}, "
                              f"which the model does not hold")
-        # A map correction (kind "python", name "map:...") is a library shape rebuilt from its name
-        # (_saved_spec): only a user-defined effect needs its spec passed again.
-        if e.get("kind") == "python" and not name.startswith("map:") and name not in users:
+        # A map or cross-axis correction (kind "python", name "map:..." or "cross:...") is a library shape rebuilt
+        # from its name (_saved_spec): only a user-defined effect needs its spec passed again.
+        if e.get("kind") == "python" and not name.startswith(("map:", "cross:")) and name not in users:
             logging.getLogger("cmmpose.model.alternatives").warning(
                 "%s: the alternative %s to %s is user-defined and was not passed: it is not checked", path, name,
                 chosen)

@@ -1,10 +1,12 @@
 """The spec of any effect name a model file or a command line holds: a
-library effect, its variants ('alignment@3', 'squareness-temperature@z_scale')
-and a map correction ('map:dx(X):sine170.2[-120,780]')."""
+library effect, its variants ('alignment@3', 'squareness-temperature@z_scale'),
+a map correction ('map:dx(X):sine170.2[-120,780]') and a cross-axis
+correction ('cross:z(XY):twist[170,730][40,515]')."""
 
 from __future__ import annotations
 
 from ..errors import InputError
+from .crossaxis import parse_cross
 from .mapshape import parse
 from .spec import LIBRARY, EffectSpec, effect_spec, library
 
@@ -16,6 +18,8 @@ def resolve(name: str) -> EffectSpec:
     or 'squareness-temperature@z_scale' (following the z-scale thermocouples)."""
     if isinstance(name, str) and name.startswith("map:"):  # a map correction (cmmpose.model.mapshape)
         return parse(name)
+    if isinstance(name, str) and name.startswith("cross:"):  # a cross-axis correction (cmmpose.model.crossaxis)
+        return parse_cross(name)
     base, at, suffix = name.partition("@")
     if at and base in LIBRARY:
         try:

@@ -65,11 +65,12 @@ class MachineModel(Protocol):
         None: the model's own)."""
 
     def compensate_points(self, uv: np.ndarray, scales: np.ndarray, pose, offset, temperature=None, *,
-                          out_of_range: str, temperature_tolerance: float, nan_policy: str = "raise", out=None,
-                          columns=None, where: str = "points", once: set | None = None) -> tuple[np.ndarray, dict]:
+                          policy=None, nan_policy: str = "raise", out=None, columns=None, where: str = "points",
+                          once: set | None = None) -> tuple[np.ndarray, dict]:
         """Compensated X, Y, Z (mm) of points at one pose and the kernel's
-        report (a dict of :class:`cmmpose.KernelReport` fields)."""
+        report (a dict of :class:`cmmpose.KernelReport` fields), under the
+        caller's :class:`cmmpose.TemperaturePolicy` (None: the model's own)."""
 
-    def compensate_run(self, run, temperature=None, *, out_of_range: str, temperature_tolerance: float,
-                       reports: list | None = None, compare=None, once: set | None = None) -> np.ndarray:
+    def compensate_run(self, run, temperature=None, *, policy=None, reports: list | None = None, compare=None,
+                       once: set | None = None) -> np.ndarray:
         """All points of ``run`` in machine coordinates, mm (N, 3)."""

@@ -542,7 +542,7 @@ def _reference_checks(run: Run, maps, temperature, policy, ref_ids: np.ndarray, 
     """Probing tests on the reference sphere: every scan alone and all together (a size the fit does not
     determine: no decision, the reason appended to ``notes``)."""
     if maps is None or isinstance(maps, ErrorMap):
-        xyz = machine_coordinates(run, maps, None, policy.out_of_range, policy.temperature_tolerance)
+        xyz = machine_coordinates(run, maps, None, policy)
     else:
         if temperature is not None:
             model_t = float(temperature)
@@ -550,7 +550,7 @@ def _reference_checks(run: Run, maps, temperature, policy, ref_ids: np.ndarray, 
             model_t = machine_temperature(run, run.points["t"], temperature_policy=policy)
         else:
             raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
-        xyz = machine_coordinates(run, maps, model_t, policy.out_of_range, policy.temperature_tolerance)
+        xyz = machine_coordinates(run, maps, model_t, policy)
     sid = run.points["scan_id"]
     out = []
     views = []

@@ -44,12 +44,27 @@ pub fn options(out_of_range: &str, nan_policy: &str) -> Res<Options> {
     options_with(out_of_range, nan_policy, 0.0)
 }
 
+/// The map side of a `cmmpose.TemperaturePolicy`: what the kernel does with
+/// a reading or temperature outside the maps. Read from the policy object's
+/// attributes, so the one policy crosses the boundary whole and the binding
+/// holds no default of its own (Python's is the only one).
+#[derive(FromPyObject)]
+pub struct MapPolicy {
+    #[pyo3(attribute("out_of_range"))]
+    pub out_of_range: String,
+    #[pyo3(attribute("temperature_tolerance"))]
+    pub temperature_tolerance: f64,
+}
+
+impl MapPolicy {
+    /// The kernel's options under this policy and `nan_policy`.
+    pub fn options(&self, nan_policy: &str) -> Res<Options> {
+        options_with(&self.out_of_range, nan_policy, self.temperature_tolerance)
+    }
+}
+
 /// Options with a temperature tolerance (K; finite, >= 0).
-pub fn options_with(
-    out_of_range: &str,
-    nan_policy: &str,
-    temperature_tolerance: f64,
-) -> Res<Options> {
+fn options_with(out_of_range: &str, nan_policy: &str, temperature_tolerance: f64) -> Res<Options> {
     let out_of_range = match out_of_range {
         "raise" => OutOfRange::Raise,
         "clamp" => OutOfRange::Clamp,

@@ -7,7 +7,7 @@ use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{options, options_with, rows, run_kernel_into, vector};
+use crate::arrays::{options, rows, run_kernel_into, vector, MapPolicy};
 use crate::errors::{input, Res};
 use crate::maps::{PyErrorMap, PyErrorMapSet};
 use crate::pose::PyDigitizer;
@@ -16,8 +16,10 @@ type Output<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>);
 
 /// Compensated machine coordinates (mm). `error_map` is an ErrorMap or an
 /// ErrorMapSet; with a set, `temperature` is a float or an (N,) array (C).
+/// `policy` is a `cmmpose.TemperaturePolicy` (its map side: `out_of_range`,
+/// `temperature_tolerance` K).
 #[pyfunction]
-#[pyo3(signature = (uv, scales, error_map, digitizer, temperature=None, out_of_range="raise", nan_policy="raise", temperature_tolerance=0.0, out=None))]
+#[pyo3(signature = (uv, scales, error_map, digitizer, policy, temperature=None, nan_policy="raise", out=None))]
 #[allow(clippy::too_many_arguments)]
 fn compensate<'py>(
     py: Python<'py>,
@@ -25,13 +27,12 @@ fn compensate<'py>(
     scales: PyReadonlyArray2<'py, f64>,
     error_map: &Bound<'py, PyAny>,
     digitizer: PyRef<'py, PyDigitizer>,
+    policy: MapPolicy,
     temperature: Option<&Bound<'py, PyAny>>,
-    out_of_range: &str,
     nan_policy: &str,
-    temperature_tolerance: f64,
     out: Option<&Bound<'py, PyAny>>,
 ) -> Res<Output<'py>> {
-    let opts = options_with(out_of_range, nan_policy, temperature_tolerance)?;
+    let opts = policy.options(nan_policy)?;
     let uv_s = rows("uv", &uv, 2)?;
     let s = rows("scales", &scales, 3)?;
     let d = digitizer.inner;

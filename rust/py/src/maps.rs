@@ -7,7 +7,7 @@ use numpy::{PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{options, options_with, rows, run_kernel};
+use crate::arrays::{options, rows, run_kernel, MapPolicy};
 use crate::errors::{input, Res};
 
 /// The maps a compensation reads: an ErrorMap, or an ErrorMapSet (one map
@@ -353,17 +353,11 @@ impl PyErrorMapSet {
         })
     }
 
-    /// The map blended at `temperature` (C), held within
+    /// The map blended at `temperature` (C), held within the policy's
     /// `temperature_tolerance` (K) outside the maps, clamped or extrapolated
-    /// beyond as `out_of_range` says.
-    #[pyo3(signature = (temperature, out_of_range="raise", temperature_tolerance=0.0))]
-    fn at(
-        &self,
-        temperature: f64,
-        out_of_range: &str,
-        temperature_tolerance: f64,
-    ) -> Res<PyErrorMap> {
-        let opts = options_with(out_of_range, "raise", temperature_tolerance)?;
+    /// beyond as its `out_of_range` says (`policy`: a `cmmpose.TemperaturePolicy`).
+    fn at(&self, temperature: f64, policy: MapPolicy) -> Res<PyErrorMap> {
+        let opts = policy.options("raise")?;
         let (inner, _) = self.inner.at_with(temperature, &opts)?;
         Ok(PyErrorMap { inner })
     }

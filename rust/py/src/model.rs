@@ -10,7 +10,7 @@ use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{effects, options_with, rows, run_kernel, vector, NamedArrays};
+use crate::arrays::{effects, rows, run_kernel, vector, MapPolicy, NamedArrays};
 use crate::errors::Res;
 use crate::maps::map_source;
 use crate::pose::PyDigitizer;
@@ -22,7 +22,7 @@ use crate::pose::PyDigitizer;
 /// (N, k) float64 arrays: `temperature` (C) and what the effects read.
 /// Returns the coordinates and the kernel's report (a dict).
 #[pyfunction]
-#[pyo3(signature = (uv, scales, maps, digitizers, *, pose_index=None, inputs=None, effects=None, out_of_range="raise", nan_policy="raise", temperature_tolerance=0.0))]
+#[pyo3(signature = (uv, scales, maps, digitizers, policy, *, pose_index=None, inputs=None, effects=None, nan_policy="raise"))]
 #[allow(clippy::too_many_arguments)]
 fn compensate_model<'py>(
     py: Python<'py>,
@@ -30,14 +30,13 @@ fn compensate_model<'py>(
     scales: PyReadonlyArray2<'py, f64>,
     maps: &Bound<'py, PyAny>,
     digitizers: Vec<PyRef<'py, PyDigitizer>>,
+    policy: MapPolicy,
     pose_index: Option<PyReadonlyArray1<'py, u32>>,
     inputs: Option<&Bound<'py, PyDict>>,
     effects: Option<&Bound<'py, PyDict>>,
-    out_of_range: &str,
     nan_policy: &str,
-    temperature_tolerance: f64,
 ) -> Res<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
-    let opts = options_with(out_of_range, nan_policy, temperature_tolerance)?;
+    let opts = policy.options(nan_policy)?;
     let source = map_source(maps)?;
     let digitizers: Vec<Digitizer> = digitizers.iter().map(|d| d.inner).collect();
     let fx = self::effects(effects)?;
