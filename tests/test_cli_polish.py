@@ -118,10 +118,10 @@ def test_cli_warnings_format_cmmposes_own_once_and_leave_the_rest():
     with cli_warnings():
         first = warnings.formatwarning("clamped into the maps: 1 X", ClampWarning, "/x/compensation.py", 134)
         again = warnings.formatwarning("clamped into the maps: 1 X", ClampWarning, "/y/other.py", 9)
-        old_spelling = warnings.formatwarning("`cmmpose a` is now `cmmpose b`", FutureWarning, "cmmpose", 0)
+        cli_own = warnings.formatwarning("--x ignored with --y", UserWarning, "cmmpose", 0)  # the command line's own
         theirs = warnings.formatwarning("divide by zero", RuntimeWarning, "/numpy/x.py", 5)
     assert first == "warning: clamped into the maps: 1 X\n" and again == ""
-    assert old_spelling == "warning: `cmmpose a` is now `cmmpose b`\n"
+    assert cli_own == "warning: --x ignored with --y\n"
     assert "RuntimeWarning" in theirs and "x.py:5" in theirs  # another package's: Python's form
     assert warnings.formatwarning("m", ClampWarning, "f.py", 1).startswith("f.py:1: ClampWarning")  # restored
 

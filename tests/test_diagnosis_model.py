@@ -194,11 +194,11 @@ def test_library_lists_per_pose_alignment_only_with_several_poses():
 def test_cli_diagnose_writes_tables_report_json_and_a_reusable_model(tmp_path):
     run, truth = run_with([E.SquarenessOffset(xy=25.0)], seed=8, jitter=0.0015, scanner=Scanner(points_per_profile=256))
     run.save(tmp_path / "run", truth=truth)
-    r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), "--report", str(tmp_path / "r.html"),
+    r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), "--report", str(tmp_path / "r"),
                                   "--save-model", str(tmp_path / "m.json")], env={"COLUMNS": "100"})
     assert r.exit_code == 0, r.output
     assert "squareness" in r.output and "The error falling" in r.output
-    html = (tmp_path / "r.html").read_text()
+    html = (tmp_path / "r" / "diagnose.html").read_text()
     assert html.count("data:image/png;base64,") >= 3 and "squareness" in html
     model = Model.load(tmp_path / "m.json")
     assert model.names == ("squareness",) and abs(model.values("squareness")[0] - 25.0) < 5.0
