@@ -20,7 +20,7 @@ import warnings
 from . import _core
 from .formats import mapformats
 from ._arrays import as_rows, as_triple
-from .policy import TEMPERATURE_TOLERANCE, check_policy
+from .temperature import TEMPERATURE_TOLERANCE, check_policy
 from .errors import InputError, InputTypeError, MapTemperatureWarning, warn_clamped
 from .kernel_report import KernelReport
 from .pose import digitizer
