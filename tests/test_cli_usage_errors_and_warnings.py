@@ -1,7 +1,7 @@
-"""The command line's polish: a usage error, not a traceback, for a plot name matplotlib cannot save or a negative
-seed; cmmpose's warnings as one clean line each, once; no pass/fail from an ill-conditioned probing fit; an effect
-that would simulate nothing or names a parameter twice refused; an expansion coefficient in the machine file's range
-on every command that takes one (red-team reproducers 07, 11, 13, 15)."""
+"""Usage errors and warnings on the command line: a usage error, not a traceback, for a plot name matplotlib cannot
+save or a negative seed; cmmpose's warnings as one clean line each, once; no pass/fail from an ill-conditioned probing
+fit; an effect that would simulate nothing or names a parameter twice refused; an expansion coefficient in the machine
+file's range on every command that takes one."""
 
 import re
 import subprocess

@@ -1,4 +1,4 @@
-"""Command-line checks made before any work (red-team round 2): each test fails on the code before its fix.
+"""Command-line checks made before any work: bad options and outputs refused before a run is read or a file written.
 
 The fleet report's folder names, an existing file given as --report, non-positive or NaN calibrated sizes,
 plan's usage errors naming the flags, the printed alignment command's --nominal-pose, implausible ISO 230-2
