@@ -22,14 +22,6 @@ from cmmpose.sim.artefact_runs import simulate_artefact_run
 PLACEMENTS = ["xy@z=-525", "xy@z=-525,rot=90"]
 
 
-@pytest.fixture(scope="module")
-def plate_run():
-    """A KOBA 0320 at two placements on the thesis machine with its maps (uncompensated errors of
-    ~0.1 mm), scanner noise on, 24 C."""
-    run, _ = simulate_artefact_run(artefacts.load_artefact("koba-0320"), PLACEMENTS, None, 24.0, seed=5)
-    return run
-
-
 def scan_of(run: Run, position: int, ball: int) -> int:
     sc = run.scans
     return int(sc["scan_id"][(sc["position"] == position) & (sc["ball"] == ball)][0])
