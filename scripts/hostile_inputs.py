@@ -470,18 +470,19 @@ def relabelled_scan(work: Path, how: str) -> None:
         t["position"][5], t["ball"][5] = t["position"][4], t["ball"][4]
     schema = pq.read_schema(run / "scans.parquet")
     pq.write_table(pa.table(t, schema=schema.remove_metadata()), run / "scans.parquet")
-    for command in (("evaluate", "run"), ("acceptance", "run", "--mpe-form", 60, "--mpe-size", 10,
+    for command in (("evaluate", "run"), ("standards", "acceptance", "run", "--mpe-form", 60, "--mpe-size", 10,
                                           "--mpe-length", "8+L/300")):
+        name = " ".join(command[:2]) if command[0] == "standards" else command[0]
         r = cli(*command, cwd=work)
         if r.code == 0 and "skip" not in r.text.lower():
-            raise Failed("silent", f"{command[0]} with a scan labelled {how}: exit 0 and no word of it")
+            raise Failed("silent", f"{name} with a scan labelled {how}: exit 0 and no word of it")
         if r.code != 0:
-            refused(r, what=f"{command[0]} with a scan labelled {how}")
+            refused(r, what=f"{name} with a scan labelled {how}")
 
 
 def failed_acceptance_exit(work: Path) -> None:
     small_run(work, "run", "--jitter", 3, "--calibrated")
-    r = cli("acceptance", "run", "--mpe-form", 0.01, "--mpe-size", 0.01, "--mpe-length", "0.01", cwd=work)
+    r = cli("standards", "acceptance", "run", "--mpe-form", 0.01, "--mpe-size", 0.01, "--mpe-length", "0.01", cwd=work)
     if "FAIL" not in r.text:
         raise Failed("silent", "acceptance against a 0.01 um MPE did not fail")
     if r.code != 1:
@@ -535,7 +536,7 @@ def positioning(work: Path, kind: str) -> None:
         rows = [r + (r[3],) for r in rows]
     with open(work / "pos.csv", "w", newline="") as f:
         csv.writer(f).writerows(rows)
-    r = cli("iso230-2", "pos.csv", "--json", cwd=work)
+    r = cli("standards", "iso230-2", "pos.csv", "--json", cwd=work)
     if kind == "1e300" and r.code == 0:
         def bad(x):
             raise ValueError(x)
@@ -652,7 +653,7 @@ def machine_attack(work: Path, kind: str) -> None:
 def alignment_units(work: Path) -> None:
     lib = work / "align.json"
     for name, pose, normal in (("A", "90,90,0", "0,0,1"), ("B", "90,90,90", "0,-1,0"), ("C", "180,90,0", "0,0,1")):
-        cli("simulate-alignment", "--pose", pose, "--name", name, "-o", "al", cwd=work)
+        cli("calibrate", "simulate-alignment", "--pose", pose, "--name", name, "-o", "al", cwd=work)
         cli("calibrate", "alignment", "--vernier", f"al/{name}-vernier.csv", "--plane-scan", f"al/{name}-plane.csv",
             "--plane-normal", normal, "--vernier-uncertainty", 9, "--reference-scan", f"al/{name}-sphere.csv", "--name", name, "--library", lib,
             "--maps", "thesis", "--temperature", 20, cwd=work)

@@ -1,7 +1,7 @@
 """Generate data/examples/interferometer/: the 15 raw laser-interferometer runs
 (linear, straightness and the pitch and yaw angles of each carriage; the rolls
 are not measured, as in the thesis) that ``cmmpose calibrate map`` builds a map
-from and ``cmmpose iso230-2`` evaluates, simulated on the thesis's 20 C map
+from and ``cmmpose standards iso230-2`` evaluates, simulated on the thesis's 20 C map
 (cmmpose.sim.interferometer: air at 23 C / 750 mmHg / 40 %RH, seed 2). The
 README's examples read them, so they run from a fresh clone.
 

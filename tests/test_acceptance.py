@@ -130,7 +130,7 @@ def test_no_calibrated_values_is_a_clear_error(sim):
 
 def test_cli_acceptance(sim, tmp_path):
     _, path = sim
-    out = CliRunner().invoke(main, ["acceptance", str(path), "--mpe-form", "200", "--mpe-size", "10", "--mpe-length",
+    out = CliRunner().invoke(main, ["standards", "acceptance", str(path), "--mpe-form", "200", "--mpe-size", "10", "--mpe-length",
                                     "8+L/300", "--u-length-cert", "1", "--json", "--plot", str(tmp_path / "a.png")])
     doc = json.loads(out.stdout)
     assert doc["decision"] in ("pass", "fail", "not proven")
@@ -140,13 +140,13 @@ def test_cli_acceptance(sim, tmp_path):
     assert set(doc["tests"]) == {"probing form, single view", "probing size, single view", "probing form, all points",
                                  "probing size, all points", "length"}
     assert doc["mpe"]["length"] == "8 + L/300 um (L in mm)"
-    rep = CliRunner().invoke(main, ["acceptance", str(path), "--mpe-form", "200", "--mpe-size", "10", "--mpe-length",
+    rep = CliRunner().invoke(main, ["standards", "acceptance", str(path), "--mpe-form", "200", "--mpe-size", "10", "--mpe-length",
                                     "8+L/300", "--report", str(tmp_path / "rep")])
     assert rep.exit_code == out.exit_code, rep.output
     md = (tmp_path / "rep" / "acceptance.md").read_text()
     assert md.startswith(f"## Acceptance (compensated points): {doc['decision']}") and "Decision rule:" in md
     assert (tmp_path / "rep" / "acceptance.png").is_file()
-    bad = CliRunner().invoke(main, ["acceptance", str(path), "--mpe-form", "x", "--mpe-size", "1", "--mpe-length", "1"])
+    bad = CliRunner().invoke(main, ["standards", "acceptance", str(path), "--mpe-form", "x", "--mpe-size", "1", "--mpe-length", "1"])
     assert bad.exit_code != 0 and "mpe_form" in bad.output
 
 
@@ -181,7 +181,7 @@ def test_probing_errors_of_nists_scans(name, tmp_path):
         pytest.fail(f"NIST reference scans missing: expected {NIST} (a broken checkout)")
     with open(NIST / "reference_centres.csv", newline="") as f:
         row = {r["file"]: r for r in csv.DictReader(f)}[name]
-    out = CliRunner().invoke(main, ["acceptance-sphere", str(NIST / f"{name}.xyz"), "--units", "m", "--radius", "50",
+    out = CliRunner().invoke(main, ["standards", "acceptance-sphere", str(NIST / f"{name}.xyz"), "--units", "m", "--radius", "50",
                                     "--segment", "e3125", "--mpe-form", "3000", "--mpe-size", "1000", "--json"])
     assert out.exit_code == 0, out.output
     doc = json.loads(out.stdout)

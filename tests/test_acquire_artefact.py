@@ -17,7 +17,6 @@ from cmmpose.evaluation.artefact import evaluate_artefact
 from cmmpose.cli import main
 from cmmpose.errormap import ErrorMapSet
 from cmmpose.errors import AcquisitionError, InputError
-from cmmpose.machine import Machine
 from cmmpose.run import Run
 from cmmpose.sim import Scanner
 from cmmpose.sim.artefact_runs import simulate_artefact_run
@@ -34,8 +33,7 @@ TOL = 0.2e-3
 
 
 @pytest.fixture(scope="module")
-def plate():
-    machine = Machine.thesis()
+def plate(machine):
     run, _ = simulate_artefact_run(artefacts.load_artefact("koba-0320"), PLACEMENTS, None, 22.5, machine=machine,
                                    scanner=Scanner(points_per_profile=256), speed=20.0, scan_interval=4.0, seed=5)
     return run, machine

@@ -19,7 +19,6 @@ import cmmpose.acquire.recorder as recorder_module
 import pytest
 import serial
 from click.testing import CliRunner
-from cmmpose import ErrorMapSet, sim
 from cmmpose.acquire import (
     JOURNAL_NAME,
     Plan,
@@ -154,9 +153,8 @@ def test_the_backoff_starts_over_after_a_connection_that_delivered_records(tmp_p
 # -- 2. the plan ------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def plan_doc():
-    run, _ = sim.simulate_ballbar_run(ErrorMapSet.thesis(), 22.5, layout="crossed", scanner=sim.Scanner(points_per_profile=32), seed=1)
-    return plan_from_run(run).to_dict()
+def plan_doc(simulated_run):
+    return plan_from_run(simulated_run).to_dict()
 
 
 def write_plan(tmp_path, doc, name="plan.json"):

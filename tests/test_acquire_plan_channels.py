@@ -9,23 +9,20 @@ import json
 import pytest
 from cmmpose.acquire.plan import Plan
 from cmmpose.errors import AcquisitionError
-from cmmpose.machine import load_machine
-
-MACHINE = load_machine(None)
 
 
-def test_a_plan_without_channels_takes_the_machines_in_order():
-    plan = Plan().with_machine_channels(MACHINE)
+def test_a_plan_without_channels_takes_the_machines_in_order(machine):
+    plan = Plan().with_machine_channels(machine)
     assert [(c["name"], c["role"], c["channel"]) for c in plan.temperature_channels] == [
-        (name, role, 101 + k) for k, (name, role) in enumerate(MACHINE.thermocouples.items())]
+        (name, role, 101 + k) for k, (name, role) in enumerate(machine.thermocouples.items())]
 
 
-def test_a_plan_that_lists_channels_keeps_them(tmp_path):
+def test_a_plan_that_lists_channels_keeps_them(tmp_path, machine):
     listed = [{"name": "T1", "role": "x_scale", "channel": 105}]
     path = tmp_path / "plan.json"
     path.write_text(json.dumps({"temperature_channels": listed}))
     plan = Plan.read(path)
-    assert plan.with_machine_channels(MACHINE) is plan
+    assert plan.with_machine_channels(machine) is plan
     assert plan.temperature_channels == listed
 
 

@@ -20,7 +20,7 @@ from cmmpose.model import Model
 from cmmpose.diagnosis import diagnose, identify
 from cmmpose.diagnosis.artefact import artefact_columns, linearised_columns
 from cmmpose.errormap import ErrorMapSet
-from cmmpose.sim import ScaleError, SquarenessOffset
+from cmmpose.sim import Scale, Squareness
 from cmmpose.sim.artefact_runs import simulate_artefact_run
 
 #: Finite differences with steps ten times the library's: the effects are
@@ -32,7 +32,7 @@ STEP = 10.0
 @pytest.fixture(scope="module")
 def problem():
     run, _ = simulate_artefact_run(artefacts.load_artefact("koba-0320"), ["planes"], None, 20.0,
-                                   [SquarenessOffset(6.0, -4.0, 3.0), ScaleError(8.0, -6.0, 5.0)], seed=4)
+                                   [Squareness(6.0, -4.0, 3.0), Scale(8.0, -6.0, 5.0)], seed=4)
     model = Model(ErrorMapSet.thesis(), temperature=20.0)
     return identify.Problem(model, run), model, run
 

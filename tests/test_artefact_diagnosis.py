@@ -18,7 +18,7 @@ from cmmpose.diagnosis.identify import Problem
 from cmmpose.diagnosis.joint import diagnose_jointly
 from cmmpose.errors import InputError
 from cmmpose.run import Run
-from cmmpose.sim import ScaleError, SquarenessOffset
+from cmmpose.sim import Scale, Squareness
 from cmmpose.sim.artefact_runs import simulate_artefact_run
 
 SQUARENESS = (6.0, -4.0, 3.0)  # arc-seconds
@@ -42,7 +42,7 @@ def hidden(plate):
     """KOBA 0420 in the three coordinate planes of the thesis machine with a
     squareness and a scale error the maps do not hold."""
     run, _ = simulate_artefact_run(plate, ["planes"], None, 20.0,
-                                   [SquarenessOffset(*SQUARENESS), ScaleError(*SCALE)], seed=1)
+                                   [Squareness(*SQUARENESS), Scale(*SCALE)], seed=1)
     return run, diagnose(run, patterns=False)
 
 
@@ -94,7 +94,7 @@ def test_a_noise_only_plate_run_adds_nothing(plate):
 
 def test_a_step_gauge_counts_five_degrees_of_freedom_per_placement():
     gauge = artefacts.load_artefact("step-gauge-31x20")
-    run, _ = simulate_artefact_run(gauge, ["xy@z=-400,rot=45"], None, 20.0, [SquarenessOffset(8.0, 0.0, 0.0)],
+    run, _ = simulate_artefact_run(gauge, ["xy@z=-400,rot=45"], None, 20.0, [Squareness(8.0, 0.0, 0.0)],
                                    seed=3)
     d = diagnose(run, patterns=False, auto=False)
     from cmmpose.model import Model
@@ -114,7 +114,7 @@ def test_plate_and_step_gauge_jointly(hidden):
     plate_run, _ = hidden
     gauge = artefacts.load_artefact("step-gauge-31x20")
     gauge_run, _ = simulate_artefact_run(gauge, ["xy@z=-400,rot=45", "xz@y=500,rot=30"], None, 20.0,
-                                         [SquarenessOffset(*SQUARENESS), ScaleError(*SCALE)], seed=4)
+                                         [Squareness(*SQUARENESS), Scale(*SCALE)], seed=4)
     d = diagnose_jointly([plate_run, gauge_run], same_artefact=False, run_names=["plate", "gauge"])
     assert sorted(d.added) == ["scale", "squareness"]
     sq = d.model.values("squareness")

@@ -16,7 +16,7 @@ from cmmpose.cli import main
 from cmmpose.diagnosis.plate_fits import diagnose_plate_fits, read_plate_fits
 from cmmpose.errormap import ErrorMap
 from cmmpose.errors import InputError
-from cmmpose.sim import ScaleError, SquarenessOffset
+from cmmpose.sim import Scale, Squareness
 from cmmpose.sim.artefact_runs import simulate_artefact_run
 
 TRUTH = (6.0, -4.0, 3.0, 8.0, -6.0, 5.0)  # squareness xy, yz, zx (arc-seconds), scale x, y, z (ppm)
@@ -40,7 +40,7 @@ def plate():
 @pytest.fixture(scope="module")
 def rows(plate):
     run, _ = simulate_artefact_run(plate, ["planes"], ErrorMap.zero(temperature=20.0), 20.0,
-                                   [SquarenessOffset(*TRUTH[:3]), ScaleError(*TRUTH[3:])], seed=1)
+                                   [Squareness(*TRUTH[:3]), Scale(*TRUTH[3:])], seed=1)
     return _table(run, plate)
 
 

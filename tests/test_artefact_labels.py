@@ -15,19 +15,10 @@ from cmmpose.diagnosis import diagnose
 from cmmpose.errors import InputError
 from cmmpose.evaluation.artefact import evaluate_artefact
 from cmmpose.evaluation.artefact_balls import check_ball_positions, gross_tolerance
-from cmmpose.machine import Machine
 from cmmpose.run import Run
 from cmmpose.sim.artefact_runs import simulate_artefact_run
 
 PLACEMENTS = ["xy@z=-525", "xy@z=-525,rot=90"]
-
-
-@pytest.fixture(scope="module")
-def plate_run():
-    """A KOBA 0320 at two placements on the thesis machine with its maps (uncompensated errors of
-    ~0.1 mm), scanner noise on, 24 C."""
-    run, _ = simulate_artefact_run(artefacts.load_artefact("koba-0320"), PLACEMENTS, None, 24.0, seed=5)
-    return run
 
 
 def scan_of(run: Run, position: int, ball: int) -> int:
@@ -79,11 +70,11 @@ def test_the_clean_run_passes(plate_run):
 @pytest.mark.parametrize("name, placements", [
     ("koba-0620", ["xy@z=-525", "xy@z=-525,rot=90"]), ("koba-0420", ["planes"]), ("apmp-plate", ["planes"]),
     ("step-gauge-31x20", ["xy", "xz"])])
-def test_uncompensated_thesis_machine_passes_with_the_margin_the_docs_state(name, placements):
+def test_uncompensated_thesis_machine_passes_with_the_margin_the_docs_state(name, placements, machine):
     # the worst realistic case: the thesis maps uncompensated at the warm end of their range (29.5 C)
     a = artefacts.load_artefact(name)
     run, _ = simulate_artefact_run(a, placements, None, 29.5, seed=3)
-    ev = evaluate_artefact(run, Machine.thesis().maps())
+    ev = evaluate_artefact(run, machine.maps())
     worst = ev.uncompensated.largest.magnitude
     assert worst < gross_tolerance(a) / 6.9  # the margin GROSS_RESIDUAL's comment states
     assert ev.compensated.largest.magnitude < worst

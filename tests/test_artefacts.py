@@ -17,7 +17,6 @@ from cmmpose.cli import main
 from cmmpose.errormap import ErrorMap
 from cmmpose.errors import InputError
 from cmmpose.evaluation.ballbar import evaluate
-from cmmpose.machine import Machine
 from cmmpose.run import Run
 from cmmpose.sim import Scanner, simulate_ballbar_run
 from cmmpose.sim.artefact_runs import simulate_artefact_run
@@ -149,33 +148,33 @@ def test_bad_placements(text, message):
     assert message in str(err.value)
 
 
-def test_a_placement_out_of_travel_names_the_ball_and_axis():
+def test_a_placement_out_of_travel_names_the_ball_and_axis(machine):
     a = artefacts.load_artefact("koba-0420")
     with pytest.raises(InputError, match=r"placement 1 \(xy@x=1000,z=-525\): ball 5 .* X \d+\.\d\.\.\d+\.\d mm .*"
                                          r"X travel 0\.\.900 mm"):
-        placement.plan(placement.parse("xy@x=1000,z=-525"), a, Machine.thesis())
+        placement.plan(placement.parse("xy@x=1000,z=-525"), a, machine)
     # at x = 800 the far balls are reached with other poses (W along -X, ...) rather than W along +X
-    _, scans = placement.plan(placement.parse("xy@x=800,z=-525"), a, Machine.thesis())
+    _, scans = placement.plan(placement.parse("xy@x=800,z=-525"), a, machine)
     assert (90.0, 90.0, 0.0) in {s.pose for s in scans} and (-90.0, 90.0, 0.0) in {s.pose for s in scans}
     # the KOBA 0620 does not fit the 500 mm Z travel standing up
     with pytest.raises(InputError, match=r"ball \d+ .* Z travel -500\.\.0 mm.*span 532 mm of Z .* more than the "
                                          r"500 mm travel: it cannot stand so"):
-        placement.plan(placement.parse("xz"), artefacts.load_artefact("koba-0620"), Machine.thesis())
+        placement.plan(placement.parse("xz"), artefacts.load_artefact("koba-0620"), machine)
 
 
-def test_the_planes_layout_refuses_a_plate_too_big_naming_the_planes_that_fit():
+def test_the_planes_layout_refuses_a_plate_too_big_naming_the_planes_that_fit(machine):
     with pytest.raises(InputError, match=r"layout 'planes': KOBA 0620 .* cannot stand in the XZ plane .* it fits in "
                                          r"XY: .* --placement xy --placement xy@rot=90 .*ball \d+"):
-        placement.plan(placement.parse("planes"), artefacts.load_artefact("koba-0620"), Machine.thesis())
-    resolved, scans = placement.plan(placement.parse("planes"), artefacts.load_artefact("koba-0420"), Machine.thesis())
+        placement.plan(placement.parse("planes"), artefacts.load_artefact("koba-0620"), machine)
+    resolved, scans = placement.plan(placement.parse("planes"), artefacts.load_artefact("koba-0420"), machine)
     assert [p.label for p in resolved] == ["planes/xy", "planes/xz", "planes/yz"] and len(scans) == 75
 
 
 @pytest.mark.parametrize("name, fits", [("koba-0620", "xy"), ("koba-0420", "xy xz yz"), ("koba-0320", "xy xz yz"),
                                         ("apmp-plate", "xy xz yz"), ("step-gauge-31x20", "xy xz")])
-def test_which_placements_fit_as_the_docs_say(name, fits):
+def test_which_placements_fit_as_the_docs_say(name, fits, machine):
     """docs/artefacts.md, 'Which placements fit' (the thesis machine's 900 x 550 x 500 mm travel)."""
-    a, m = artefacts.load_artefact(name), Machine.thesis()
+    a, m = artefacts.load_artefact(name), machine
     got = []
     for plane in placement.PLANES:
         try:

@@ -30,7 +30,7 @@ from cmmpose import _core, artefacts
 from cmmpose.evaluation.artefact import evaluate_artefact
 from cmmpose.errormap import ErrorMap, data_path
 from cmmpose.machine import load_machine
-from cmmpose.sim import Scanner, SquarenessOffset
+from cmmpose.sim import Scanner, Squareness
 from cmmpose.sim.artefact_runs import simulate_artefact_run
 
 ARCSEC = np.pi / 648000
@@ -65,7 +65,7 @@ CASES = [  # (artefact, placements, squareness xy, yz, zx in arc-seconds)
 @pytest.mark.parametrize("name, where, squareness", CASES)
 def test_first_order_model_agrees_with_the_simulated_plate(name, where, squareness):
     artefact = artefacts.load_artefact(name)
-    effect = SquarenessOffset(*squareness)
+    effect = Squareness(*squareness)
     run, truth = simulate_artefact_run(artefact, where, ErrorMap.zero(temperature=20.0), 20.0, [effect],
                                        scanner=Scanner(noise=0.0), seed=0)
     ev = evaluate_artefact(run, None, 20.0)
@@ -113,7 +113,7 @@ def test_a_plate_in_the_xz_plane_does_not_see_s_yz():
     about X, which the rigid fit takes away; in the YZ plane it is a shear."""
     artefact = artefacts.load_artefact("koba-0420")
     run, _ = simulate_artefact_run(artefact, ["xz@y=560", "yz@x=150"], ErrorMap.zero(temperature=20.0), 20.0,
-                                   [SquarenessOffset(0.0, 4.0, 0.0)], scanner=Scanner(noise=0.0))
+                                   [Squareness(0.0, 4.0, 0.0)], scanner=Scanner(noise=0.0))
     xz, yz = evaluate_artefact(run, None, 20.0).uncompensated.placements
     assert xz.rms < 2e-6 and yz.rms > 0.5e-3
 

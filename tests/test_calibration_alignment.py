@@ -34,8 +34,8 @@ from cmmpose.sim.calibration_data import (
 MAPS = cmmpose.ErrorMapSet.thesis()
 T = 21.0  # between the 20 and 25 C maps
 OFFSET = np.array(cmmpose.MountOffset.thesis())
-ALIGN_ERR = sim.AlignmentError(0.03, -0.02, 0.04)  # deg: the pose to recover
-OFFSET_ERR = sim.MountOffsetError(0.03, -0.02, 0.04)  # mm: the offset to recover
+ALIGN_ERR = sim.Alignment(0.03, -0.02, 0.04)  # deg: the pose to recover
+OFFSET_ERR = sim.MountOffset(0.03, -0.02, 0.04)  # mm: the offset to recover
 FAST = sim.Scanner(points_per_profile=256)  # 8 um noise, fewer points: quick Monte Carlo
 SMALL = sim.Scanner(points_per_profile=64)
 

@@ -9,13 +9,13 @@ import pytest
 
 import cmmpose
 from cmmpose import sim
-from cmmpose.calibration.thermal import (
+from cmmpose.calibration.thermal import select_map_temperature
+from cmmpose.temperature import (
     LogReport,
     ScanTemperatures,
     ThermalSummary,
     check_log,
     per_scan_temperature,
-    select_map_temperature,
     temperatures_at,
 )
 from cmmpose.evaluation.ballbar import machine_temperature

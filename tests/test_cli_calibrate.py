@@ -32,7 +32,7 @@ def test_calibrate_map_from_simulated_runs(tmp_path):
 
 
 def test_plot_map_and_bad_inputs(tmp_path):
-    res = CliRunner().invoke(main, ["plot-map", "thesis", "-o", str(tmp_path / "m.png")])
+    res = CliRunner().invoke(main, ["map", "plot", "thesis", "-o", str(tmp_path / "m.png")])
     assert res.exit_code == 0 and (tmp_path / "m.png").is_file()
     bad = tmp_path / "bad.csv"
     bad.write_text("not a run\n")
@@ -128,7 +128,7 @@ def test_calibrate_alignment_with_the_maps_and_a_stated_vernier_uncertainty(tmp_
 
 
 def test_simulate_alignment_writes_what_calibrate_alignment_reads(tmp_path):
-    res = CliRunner().invoke(main, ["simulate-alignment", "--pose", "90,90,0", "--name", "A90B90", "--temperature", "21",
+    res = CliRunner().invoke(main, ["calibrate", "simulate-alignment", "--pose", "90,90,0", "--name", "A90B90", "--temperature", "21",
                                     "--effect", "alignment:alpha=0.03", "-o", str(tmp_path / "m")],
                              catch_exceptions=False)
     assert res.exit_code == 0, res.output
@@ -160,5 +160,5 @@ def test_simulate_alignment_writes_what_calibrate_alignment_reads(tmp_path):
     for args, message in ((["--pose", "90,90"], "--pose"), (["--pose", "90,90,0", "--effect", "nonsense:x=1"],
                                                             "nonsense"),
                           (["--pose", "90,90,0", "--vernier-points", "2"], "--vernier-points")):
-        res = CliRunner().invoke(main, ["simulate-alignment", "--name", "X", "-o", str(tmp_path / "bad"), *args])
+        res = CliRunner().invoke(main, ["calibrate", "simulate-alignment", "--name", "X", "-o", str(tmp_path / "bad"), *args])
         assert res.exit_code != 0 and message in res.output and "Traceback" not in res.output, res.output

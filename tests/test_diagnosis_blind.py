@@ -39,9 +39,9 @@ def sign(r):
 
 # name -> (draw(rng) -> effect, truth(effect) -> values in the model's parameters, run options)
 REVEALED = {
-    "squareness": (lambda r: E.SquarenessOffset(**{["xy", "yz", "zx"][r.integers(3)]: sign(r) * r.uniform(15, 30)}),
+    "squareness": (lambda r: E.Squareness(**{["xy", "yz", "zx"][r.integers(3)]: sign(r) * r.uniform(15, 30)}),
                    lambda e: [e.xy, e.yz, e.zx], {}),
-    "roll": (lambda r: E.UnmeasuredRoll(**{"xyz"[r.integers(3)]: sign(r) * r.uniform(40, 60)}),
+    "roll": (lambda r: E.Roll(**{"xyz"[r.integers(3)]: sign(r) * r.uniform(40, 60)}),
              lambda e: [e.x, e.y, e.z], {}),
     # The thesis maps change with temperature mostly in X and Y, so a Z-only
     # offset of a few kelvin moves the lengths by little more than the floor.
@@ -50,20 +50,20 @@ REVEALED = {
     "scanner-scale": (lambda r: E.ScannerScale(lateral=sign(r) * r.uniform(3e-4, 1e-3),
                                                depth=sign(r) * r.uniform(3e-4, 1e-3)),
                       lambda e: [e.lateral, e.depth], {}),
-    "incidence": (lambda r: E.IncidenceError(per_degree=r.uniform(1e-4, 3e-4)), lambda e: [e.per_degree, 0.0], {}),
-    "alignment": (lambda r: E.AlignmentError(alpha=sign(r) * r.uniform(0.01, 0.03), beta=sign(r) * r.uniform(0.01, 0.03)),
+    "incidence": (lambda r: E.Incidence(per_degree=r.uniform(1e-4, 3e-4)), lambda e: [e.per_degree, 0.0], {}),
+    "alignment": (lambda r: E.Alignment(alpha=sign(r) * r.uniform(0.01, 0.03), beta=sign(r) * r.uniform(0.01, 0.03)),
                   lambda e: [e.alpha, e.beta, e.gamma], {}),
 }
 
 # name -> (draw, truth, what the plain run lacks, words the advice must contain, options that add the measurement)
 NEEDS_MEASUREMENT = {
-    "latency": (lambda r: E.ScannerLatency(r.uniform(0.003, 0.015)), lambda e: [e.seconds],
+    "latency": (lambda r: E.Latency(r.uniform(0.003, 0.015)), lambda e: [e.seconds],
                 "both directions", {"bidirectional": True}),
     "artefact-expansion": (lambda r: E.ArtefactExpansion(r.uniform(8.0, 15.0)), lambda e: [e.ppm_per_kelvin],
                            "calibrated bar length", {"calibrated": ("length",)}),
-    "mount-offset": (lambda r: E.MountOffsetError(*(r.uniform(0.02, 0.05, 3) * r.choice([-1.0, 1.0], 3))),
+    "mount-offset": (lambda r: E.MountOffset(*(r.uniform(0.02, 0.05, 3) * r.choice([-1.0, 1.0], 3))),
                      lambda e: [e.u1, e.v1, e.w1], "two or more poses", {"reference_poses": STANDARD_POSES}),
-    "scale": (lambda r: E.ScaleError(**{"xy"[r.integers(2)]: sign(r) * r.uniform(20, 35)}),
+    "scale": (lambda r: E.Scale(**{"xy"[r.integers(2)]: sign(r) * r.uniform(20, 35)}),
               lambda e: [e.x, e.y, e.z], "calibrated bar length", {"calibrated": ("length",)}),
 }
 
@@ -142,7 +142,7 @@ def test_noise_only_run_proposes_nothing(seed):
 
 
 def test_two_hidden_effects_are_found_in_turn():
-    hidden = [E.SquarenessOffset(yz=25.0), E.ScannerScale(lateral=6e-4, depth=-5e-4)]
+    hidden = [E.Squareness(yz=25.0), E.ScannerScale(lateral=6e-4, depth=-5e-4)]
     d = cmmpose.diagnose(simulate(hidden, 21), patterns=False, max_effects=3)
     assert set(d.added[:2]) == {"squareness", "scanner-scale"}, d.added
     assert d.added[2:] == []

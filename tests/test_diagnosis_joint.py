@@ -19,7 +19,7 @@ from cmmpose.sim import effects as E
 from cmmpose.sim.runs import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
 
-TRUTH = [E.ArtefactExpansion(ppm_per_kelvin=11.5), E.SquarenessOffset(yz=12.0)]
+TRUTH = [E.ArtefactExpansion(ppm_per_kelvin=11.5), E.Squareness(yz=12.0)]
 
 
 @functools.lru_cache(maxsize=None)

@@ -26,7 +26,7 @@ DECISIONS = {"added", "added on request", "significant", "significant, aliased",
 
 @pytest.fixture(scope="module")
 def two_effects():
-    run, _ = simulate_ballbar_run(temperature=22.5, effects=[E.SquarenessOffset(yz=20.0), E.ScannerScale(lateral=6e-4)],
+    run, _ = simulate_ballbar_run(temperature=22.5, effects=[E.Squareness(yz=20.0), E.ScannerScale(lateral=6e-4)],
                                   jitter=0.002, seed=0, scanner=Scanner(points_per_profile=256))
     return cmmpose.diagnose(run, max_effects=3, patterns=False)
 

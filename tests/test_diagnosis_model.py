@@ -69,18 +69,18 @@ def test_machine_terms_equal_maps_edited_by_hand():
 # is 0.13 um, so those take the log's temperatures and a looser tolerance;
 # the others take the exact machine temperature.
 INVERSIONS = [
-    (E.SquarenessOffset(xy=12.0, yz=-8.0, zx=5.0), "squareness", [12.0, -8.0, 5.0], {}, 2e-5),
-    (E.ScaleError(x=9.0, y=-6.0, z=12.0), "scale", [9.0, -6.0, 12.0], {}, 2e-5),
-    (E.UnmeasuredRoll(x=30.0, y=-20.0, z=40.0), "roll", [30.0, -20.0, 40.0], {}, 2e-5),
+    (E.Squareness(xy=12.0, yz=-8.0, zx=5.0), "squareness", [12.0, -8.0, 5.0], {}, 2e-5),
+    (E.Scale(x=9.0, y=-6.0, z=12.0), "scale", [9.0, -6.0, 12.0], {}, 2e-5),
+    (E.Roll(x=30.0, y=-20.0, z=40.0), "roll", [30.0, -20.0, 40.0], {}, 2e-5),
     (E.AxisTemperature(x=2.0, y=-1.5, z=1.0), "axis-temperature", [1.0], {"temperature": 25.0, "log": True}, 5e-4),
     (E.GraniteGradient(kelvin=1.0, xy=5.0, yz=12.0, zx=-9.0), "granite-gradient", [5.0, 12.0, -9.0],
      {"log": True}, 5e-4),
-    (E.ScannerLatency(0.01), "latency", [0.01], {"bidirectional": True}, 2e-5),
+    (E.Latency(0.01), "latency", [0.01], {"bidirectional": True}, 2e-5),
     (E.ScannerScale(lateral=8e-4, depth=-6e-4), "scanner-scale", [8e-4, -6e-4], {}, 2e-5),
     # Incidence angles come from sphere fits, not the truth.
-    (E.IncidenceError(per_degree=2e-4, per_degree_mm=3e-6), "incidence", [2e-4, 3e-6], {}, 1e-4),
-    (E.AlignmentError(alpha=0.02, beta=-0.015, gamma=0.01), "alignment", [0.02, -0.015, 0.01], {}, 2e-5),
-    (E.MountOffsetError(0.03, -0.02, 0.04), "mount-offset", [0.03, -0.02, 0.04],
+    (E.Incidence(per_degree=2e-4, per_degree_mm=3e-6), "incidence", [2e-4, 3e-6], {}, 1e-4),
+    (E.Alignment(alpha=0.02, beta=-0.015, gamma=0.01), "alignment", [0.02, -0.015, 0.01], {}, 2e-5),
+    (E.MountOffset(0.03, -0.02, 0.04), "mount-offset", [0.03, -0.02, 0.04],
      {"reference_poses": STANDARD_POSES}, 2e-5),
 ]
 
@@ -112,7 +112,7 @@ def test_user_effect_is_fitted_like_a_library_one():
         return out
 
     user = UserEffect.create("my-y-scale", y_scale, {"ppm": ("ppm", 5.0)}, physics="Y scale by hand")
-    run, _ = run_with([E.ScaleError(y=25.0)], seed=5, jitter=0.0015, scanner=Scanner(points_per_profile=256),
+    run, _ = run_with([E.Scale(y=25.0)], seed=5, jitter=0.0015, scanner=Scanner(points_per_profile=256),
                       calibrated=("length",))
     d = cmmpose.diagnose(run, candidates=["squareness", user], patterns=False)
     assert d.added == ["my-y-scale"]
@@ -194,13 +194,13 @@ def test_library_lists_per_pose_alignment_only_with_several_poses():
 
 
 def test_cli_diagnose_writes_tables_report_json_and_a_reusable_model(tmp_path):
-    run, truth = run_with([E.SquarenessOffset(xy=25.0)], seed=8, jitter=0.0015, scanner=Scanner(points_per_profile=256))
+    run, truth = run_with([E.Squareness(xy=25.0)], seed=8, jitter=0.0015, scanner=Scanner(points_per_profile=256))
     run.save(tmp_path / "run", truth=truth)
-    r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), "--report", str(tmp_path / "r.html"),
+    r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), "--report", str(tmp_path / "r"),
                                   "--save-model", str(tmp_path / "m.json")], env={"COLUMNS": "100"})
     assert r.exit_code == 0, r.output
     assert "squareness" in r.output and "The error falling" in r.output
-    html = (tmp_path / "r.html").read_text()
+    html = (tmp_path / "r" / "diagnose.html").read_text()
     assert html.count("data:image/png;base64,") >= 3 and "squareness" in html
     model = Model.load(tmp_path / "m.json")
     assert model.names == ("squareness",) and abs(model.values("squareness")[0] - 25.0) < 5.0

@@ -15,7 +15,7 @@ import cmmpose
 from cmmpose.diagnosis.patterns import Patterns, f_test_p_value, find_patterns
 from cmmpose.evaluation.ballbar import machine_coordinates, machine_temperature
 from cmmpose.fitting import fit_spheres
-from cmmpose.sim.effects import IncidenceError, ScaleError, ScannerLatency, ScannerScale, SquarenessOffset
+from cmmpose.sim.effects import Incidence, Latency, Scale, ScannerScale, Squareness
 from cmmpose.sim.runs import simulate_ballbar_run
 
 MAPS = cmmpose.ErrorMapSet.thesis()
@@ -43,9 +43,9 @@ def _patterns(effects: tuple = (), seed: int = 1, bidirectional: bool = False, c
 
 # -- hidden effects -------------------------------------------------------------------------
 @pytest.mark.parametrize(("effect", "quantity", "hint"), [
-    (SquarenessOffset(xy=15.0), "dx*dy", "squareness xy"),
-    (SquarenessOffset(yz=15.0), "dy*dz", "squareness yz"),
-    (SquarenessOffset(zx=-15.0), "dz*dx", "squareness zx"),
+    (Squareness(xy=15.0), "dx*dy", "squareness xy"),
+    (Squareness(yz=15.0), "dy*dz", "squareness yz"),
+    (Squareness(zx=-15.0), "dz*dx", "squareness zx"),
 ])
 def test_hidden_squareness_is_the_strongest_pattern_against_its_direction_product(effect, quantity, hint):
     pats = _patterns((effect,))
@@ -64,7 +64,7 @@ def test_hidden_squareness_is_the_strongest_pattern_against_its_direction_produc
 
 
 def test_hidden_axis_scale_error_shows_against_the_squared_direction_cosine():
-    pats = _patterns((ScaleError(x=10.0),))
+    pats = _patterns((Scale(x=10.0),))
     s = pats.strongest
     assert (s.level, s.quantity) == ("length", "dx^2")
     assert "scale error x" in s.hint
@@ -75,7 +75,7 @@ def test_hidden_axis_scale_error_shows_against_the_squared_direction_cosine():
 @pytest.mark.parametrize(("effect", "expected"), [
     (ScannerScale(depth=2e-3), {"v", "incidence"}),
     (ScannerScale(lateral=2e-3), {"u"}),
-    (IncidenceError(per_degree=3e-4), {"incidence", "v"}),
+    (Incidence(per_degree=3e-4), {"incidence", "v"}),
 ])
 def test_scanner_effects_make_the_matching_point_pattern_strongest(effect, expected):
     pats = _patterns((effect,))
@@ -110,7 +110,7 @@ def test_without_a_calibrated_radius_no_radius_offset_is_tested():
 
 def test_latency_with_alternating_sweeps_shows_in_lengths_along_the_sweep_axis():
     seconds = 0.002
-    pats = _patterns((ScannerLatency(seconds=seconds),), bidirectional=True)
+    pats = _patterns((Latency(seconds=seconds),), bidirectional=True)
     s = pats.strongest
     assert (s.level, s.quantity) == ("length", "dx")
     assert "latency" in s.hint
@@ -122,7 +122,7 @@ def test_latency_with_alternating_sweeps_shows_in_lengths_along_the_sweep_axis()
 def test_latency_with_sweeps_in_one_direction_cancels_in_lengths():
     # the same shift for both balls: nothing at the length level to see (the
     # measurement that would reveal it is a reversed sweep, tested below)
-    pats = _patterns((ScannerLatency(seconds=0.002),))
+    pats = _patterns((Latency(seconds=0.002),))
     assert not [p for p in pats.level("length") if p.significant]
 
 
@@ -139,7 +139,7 @@ def _merged_run(first, second):
 
 
 def test_repeated_scans_in_both_directions_reveal_latency_in_the_sphere_centres():
-    effect = (ScannerLatency(seconds=0.002),)
+    effect = (Latency(seconds=0.002),)
     run, xyz = _merged_run(_measured(effect, 1, False), _measured(effect, 2, True))
     pats = find_patterns(run, xyz, fit_spheres(xyz, run.points["scan_id"]))
     centre = [p for p in pats if p.observable.startswith("sphere centre")]
@@ -210,7 +210,7 @@ def test_strength_does_not_depend_on_units_or_offsets(scale, offset, seed):
 
 # -- the result object ----------------------------------------------------------------------
 def test_ranking_json_and_summary_table():
-    pats = _patterns((SquarenessOffset(xy=15.0),))
+    pats = _patterns((Squareness(xy=15.0),))
     keys = [(not p.significant, -p.score) for p in pats]
     assert keys == sorted(keys)
     assert {p.level for p in pats} == {"length", "scan", "point"}

@@ -123,7 +123,7 @@ def test_two_hidden_effects_both_found_and_no_invented_structure():
     from cmmpose.sim import effects as E
 
     # `cmmpose simulate --effect squareness:yz=20 --effect scanner-scale:lateral=0.0006`: the CLI's defaults
-    run, _ = simulate_ballbar_run(MAPS, 20.0, [E.SquarenessOffset(yz=20.0), E.ScannerScale(lateral=6e-4)], seed=0)
+    run, _ = simulate_ballbar_run(MAPS, 20.0, [E.Squareness(yz=20.0), E.ScannerScale(lateral=6e-4)], seed=0)
     unpolished = cmmpose.diagnose(run, max_effects=3, polish=False)
     assert {f.input for f in unpolished.unexplained} == {"v", "incidence"}  # what the issue saw
     d = cmmpose.diagnose(run, max_effects=3)

@@ -93,7 +93,7 @@ def test_held_needs_are_rewritten_and_others_kept():
     assert without_held_needs(text, reveal, None) == text
 
 
-TRUTH = [E.ArtefactExpansion(ppm_per_kelvin=11.5), E.SquarenessOffset(yz=12.0)]
+TRUTH = [E.ArtefactExpansion(ppm_per_kelvin=11.5), E.Squareness(yz=12.0)]
 
 
 @functools.lru_cache(maxsize=None)

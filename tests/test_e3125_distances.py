@@ -32,7 +32,7 @@ def test_nist_distances_from_the_command_line(tmp_path, nist_centres):
         w.writerow(["a", "b", "reference_mm", "u_um"])
         for a, b in pairs:  # NIST's E3125 centres stand in for the reference instrument
             w.writerow([a, b, repr(float(np.linalg.norm(nist_centres[b] - nist_centres[a]))), 0.0])
-    res = CliRunner().invoke(main, ["e3125-distances", *(f"{n}={NIST / (n + '.xyz')}" for n in NAMES), "--pairs",
+    res = CliRunner().invoke(main, ["standards", "e3125-distances", *(f"{n}={NIST / (n + '.xyz')}" for n in NAMES), "--pairs",
                                     str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m", "--mpe", "1+L/10000",
                                     "--report", str(tmp_path / "rep"), "--json"], catch_exceptions=False)
     assert res.exit_code == 0, res.output
@@ -46,7 +46,7 @@ def test_nist_distances_from_the_command_line(tmp_path, nist_centres):
     assert (tmp_path / "rep" / "e3125-distances.png").stat().st_size > 10_000
     md = (tmp_path / "rep" / "e3125-distances.md").read_text()
     assert md.count("| SPH10") == 15 and "Decision rule" in md  # 10 pairs and 5 targets
-    res = CliRunner().invoke(main, ["e3125-distances", f"SPH101={NIST / 'SPH101.xyz'}", "--pairs",
+    res = CliRunner().invoke(main, ["standards", "e3125-distances", f"SPH101={NIST / 'SPH101.xyz'}", "--pairs",
                                     str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m"])
     assert res.exit_code != 0 and "no target named" in res.output and "Traceback" not in res.output
 
@@ -94,7 +94,7 @@ def test_simulated_scans_from_the_command_line(tmp_path):
         w.writerow(["a", "b", "reference_mm", "u_um"])
         for a, b in itertools.combinations(centres, 2):
             w.writerow([a, b, repr(float(np.linalg.norm(centres[b] - centres[a]))), 1.0])
-    res = CliRunner().invoke(main, ["e3125-distances", *(f"{n}={p}" for n, p in files.items()), "--pairs",
+    res = CliRunner().invoke(main, ["standards", "e3125-distances", *(f"{n}={p}" for n, p in files.items()), "--pairs",
                                     str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m", "--json"],
                              catch_exceptions=False)
     assert res.exit_code == 0, res.output
@@ -108,7 +108,7 @@ def test_simulated_scans_from_the_command_line(tmp_path):
 def test_an_unwritable_plot_is_named(tmp_path):
     with open(tmp_path / "pairs.csv", "w") as f:
         f.write("a,b,reference_mm\nSPH101,SPH102,10479.32\n")
-    res = CliRunner().invoke(main, ["e3125-distances", f"SPH101={NIST / 'SPH101.xyz'}", f"SPH102={NIST / 'SPH102.xyz'}",
+    res = CliRunner().invoke(main, ["standards", "e3125-distances", f"SPH101={NIST / 'SPH101.xyz'}", f"SPH102={NIST / 'SPH102.xyz'}",
                                     "--pairs", str(tmp_path / "pairs.csv"), "--radius", "50", "--units", "m", "--plot",
                                     str(tmp_path / "no-such-folder" / "p.png")])
     assert res.exit_code != 0 and "no-such-folder" in res.output and "Traceback" not in res.output, res.output

@@ -218,7 +218,7 @@ def test_a_far_outlier_is_named_not_called_collinear(tmp_path):
     assert "row 17:" in str(fits.error[1]) and "collinear" not in str(fits.error[1])
 
 
-def test_hints_name_the_command_lines_flags_or_say_there_is_none(tmp_path, monkeypatch):
+def test_hints_name_the_command_lines_flags_or_say_there_is_none(tmp_path, monkeypatch, simulated_run):
     rows = SCAN.read_text().splitlines()
     rows[5] = "nan,0,450,275,-250,22"
     (tmp_path / "nan.csv").write_text("\n".join(rows) + "\n")
@@ -227,11 +227,7 @@ def test_hints_name_the_command_lines_flags_or_say_there_is_none(tmp_path, monke
     msg = one_line_error(r)
     assert "row 4" in msg and "use --nan-policy propagate" in msg and "nan_policy=" not in msg
     # a thermocouple log with a gap: evaluate names its option to interpolate across it (the temperature policy)
-    from cmmpose.sim.runs import simulate_ballbar_run
-    from cmmpose.sim.scanner import Scanner
-
-    run, _ = simulate_ballbar_run(cmmpose.ErrorMapSet.thesis(), 22.5, layout="crossed",
-                                  scanner=Scanner(points_per_profile=32), seed=1)
+    run = simulated_run
     keep = (run.temperatures["t"] < 100) | (run.temperatures["t"] > 200)
     dataclasses.replace(run, temperatures={k: v[keep] for k, v in run.temperatures.items()}).save(tmp_path / "gap")
     r = cli("evaluate", tmp_path / "gap")

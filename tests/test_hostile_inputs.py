@@ -19,8 +19,6 @@ from cmmpose.cli import main
 from cmmpose.model import Model
 from cmmpose.formats.pointfiles import read_points, write_points
 from cmmpose.run import Run
-from cmmpose.sim.runs import simulate_ballbar_run
-from cmmpose.sim.scanner import Scanner
 
 MAPS = cmmpose.ErrorMapSet.thesis()
 POSE, OFFSET = (90.0, 90.0, 0.0), (1.001, 264.505, 129.575)
@@ -29,12 +27,6 @@ HEADER = "u,v,D,E,F\n"
 
 def cli(*args):
     return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
-
-
-@pytest.fixture(scope="module")
-def run():
-    r, _ = simulate_ballbar_run(MAPS, 22.5, layout="crossed", scanner=Scanner(points_per_profile=64), seed=1)
-    return r
 
 
 # -- point files ---------------------------------------------------------------------------
@@ -154,9 +146,9 @@ def test_model_files_with_a_bad_kind_no_maps_or_a_bad_map_name_the_file(tmp_path
         assert "/tmp" not in str(exc.value).replace(str(tmp_path), "")
 
 
-def test_deeply_nested_json_is_a_clear_error(tmp_path, run):
+def test_deeply_nested_json_is_a_clear_error(tmp_path, simulated_run):
     deep = "[" * 100_000 + "]" * 100_000
-    run.save(tmp_path / "r")
+    simulated_run.save(tmp_path / "r")
     (tmp_path / "r" / "run.json").write_text(deep)
     with pytest.raises(cmmpose.RunError, match="run.json"):
         Run.load(tmp_path / "r")
@@ -168,8 +160,8 @@ def test_deeply_nested_json_is_a_clear_error(tmp_path, run):
         Plan.read(tmp_path / "plan.json")
 
 
-def test_string_numbers_in_run_json_are_refused(tmp_path, run):
-    run.save(tmp_path / "r")
+def test_string_numbers_in_run_json_are_refused(tmp_path, simulated_run):
+    simulated_run.save(tmp_path / "r")
     doc = json.loads((tmp_path / "r" / "run.json").read_text())
     doc["artefact"]["ball_radius_mm"] = "12.7"
     (tmp_path / "r" / "run.json").write_text(json.dumps(doc))
@@ -177,14 +169,14 @@ def test_string_numbers_in_run_json_are_refused(tmp_path, run):
         Run.load(tmp_path / "r")
 
 
-def test_a_plan_with_bad_types_fails_at_the_start(tmp_path, run):
-    doc = plan_from_run(run).to_dict()
+def test_a_plan_with_bad_types_fails_at_the_start(tmp_path, simulated_run):
+    doc = plan_from_run(simulated_run).to_dict()
     doc["poses"][0]["alpha"] = True
     p = tmp_path / "plan.json"
     p.write_text(json.dumps(doc))
     with pytest.raises(cmmpose.AcquisitionError, match=r"plan.json: plan: poses\[0\]: alpha = True"):
         Plan.read(p)
-    doc = plan_from_run(run).to_dict()
+    doc = plan_from_run(simulated_run).to_dict()
     doc["scans"][1]["position"] = "3"
     p.write_text(json.dumps(doc))
     with pytest.raises(cmmpose.AcquisitionError, match=r"scans\[1\]: position = '3' is not an integer"):
@@ -193,8 +185,8 @@ def test_a_plan_with_bad_types_fails_at_the_start(tmp_path, run):
 
 # -- damaged runs ---------------------------------------------------------------------------
 
-def test_a_flipped_bit_in_a_run_table_names_the_file_or_changes_nothing(tmp_path, run):
-    run.save(tmp_path / "r")
+def test_a_flipped_bit_in_a_run_table_names_the_file_or_changes_nothing(tmp_path, simulated_run):
+    simulated_run.save(tmp_path / "r")
     path = tmp_path / "r" / "points.parquet"
     clean = path.read_bytes()
     rng = np.random.default_rng(0)
@@ -209,20 +201,21 @@ def test_a_flipped_bit_in_a_run_table_names_the_file_or_changes_nothing(tmp_path
         except cmmpose.RunError as exc:
             assert "points.parquet" in str(exc)
             continue
-        silent += not all(np.array_equal(got.points[c], run.points[c]) for c in run.points)
+        silent += not all(np.array_equal(got.points[c], simulated_run.points[c])
+                          for c in simulated_run.points)
     path.write_bytes(clean)
     assert silent == 0
 
 
 # -- optional dependencies ------------------------------------------------------------------
 
-def test_diagnose_report_without_matplotlib_still_saves_the_result(tmp_path, run):
-    run.save(tmp_path / "r")
+def test_diagnose_report_without_matplotlib_still_saves_the_result(tmp_path, simulated_run):
+    simulated_run.save(tmp_path / "r")
     code = ("import sys; sys.modules['matplotlib'] = None; from cmmpose.cli import main; "
             f"main(['diagnose', {str(tmp_path / 'r')!r}, '--max-effects', '0', '--report', "
-            f"{str(tmp_path / 'd.html')!r}, '--save-model', {str(tmp_path / 'm.json')!r}])")
+            f"{str(tmp_path / 'd')!r}, '--save-model', {str(tmp_path / 'm.json')!r}])")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
                          env={"COLUMNS": "200", **__import__("os").environ})
     assert res.returncode == 0, res.stderr[-2000:]
-    assert (tmp_path / "m.json").is_file() and not (tmp_path / "d.html").exists()
+    assert (tmp_path / "m.json").is_file() and not (tmp_path / "d" / "diagnose.html").exists()
     assert "pip install 'cmmpose[plot]'" in res.stderr + res.stdout

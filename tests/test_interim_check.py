@@ -75,12 +75,12 @@ def test_directions_that_do_not_determine_every_value():
 
 def test_cli(run, tmp_path):
     run.save(tmp_path / "run")
-    out = CliRunner().invoke(main, ["interim-check", str(tmp_path / "run"), "--temperature", "20", "--json"])
+    out = CliRunner().invoke(main, ["standards", "interim-check", str(tmp_path / "run"), "--temperature", "20", "--json"])
     assert out.exit_code == 0, out.output
     doc = json.loads(out.stdout)
     assert [v["name"] for v in doc["values"]] == list(SCALE) + list(SQUARENESS)
     assert doc["values"][3]["words"] == "squareness XY" and doc["values"][0]["words"] == "scaling error X"
-    rep = CliRunner().invoke(main, ["interim-check", str(tmp_path / "run"), "--temperature", "20", "--report",
+    rep = CliRunner().invoke(main, ["standards", "interim-check", str(tmp_path / "run"), "--temperature", "20", "--report",
                                     str(tmp_path / "rep")])
     assert rep.exit_code == 0, rep.output
     md = (tmp_path / "rep" / "interim-check.md").read_text()

@@ -132,15 +132,15 @@ def test_csv_round_trip_and_cli_json(tmp_path):
     write_csv(path, hand_data())
     d = read_positioning_csv(path)
     assert d.rows[0] == 3  # after a comment and the header
-    out = CliRunner().invoke(main, ["iso230-2", str(path), "--json", "--plot", str(tmp_path / "p.png")])
+    out = CliRunner().invoke(main, ["standards", "iso230-2", str(path), "--json", "--plot", str(tmp_path / "p.png")])
     assert out.exit_code == 0, out.output
     doc = json.loads(out.stdout)
     assert {k: doc[k] for k in AXIS_KEYS} == pytest.approx(evaluate_iso230_2(hand_data()).axis_values)
     assert doc["unit"] == "um" and "ISO 230-2:2014" in doc["standard"]
     assert (tmp_path / "p.png").stat().st_size > 0
-    table = CliRunner().invoke(main, ["iso230-2", str(path)])
+    table = CliRunner().invoke(main, ["standards", "iso230-2", str(path)])
     assert table.exit_code == 0 and "ISO 230-2" in table.stdout
-    rep = CliRunner().invoke(main, ["iso230-2", str(path), "--report", str(tmp_path / "rep")])
+    rep = CliRunner().invoke(main, ["standards", "iso230-2", str(path), "--report", str(tmp_path / "rep")])
     assert rep.exit_code == 0, rep.output
     md = (tmp_path / "rep" / "iso230-2.md").read_text()
     assert "| A | A_up |" in md and "| 9.00 | 4.00 | 9.00 |" in md  # the hand-worked A, A_up, A_down
@@ -166,7 +166,7 @@ def test_interferometer_run_agrees_with_process_run(tmp_path):
     # The simulated reversal (0.8 um) and noise (0.1 um) show in B and R_up.
     assert 0.4 < r.B_mean < 1.2
     assert 0.1 < r.R_up < 1.5
-    out = CliRunner().invoke(main, ["iso230-2", str(path), "--json"])
+    out = CliRunner().invoke(main, ["standards", "iso230-2", str(path), "--json"])
     assert out.exit_code == 0, out.output
     assert json.loads(out.stdout)["E"] == pytest.approx(r.E, abs=1e-4)
 
@@ -204,7 +204,7 @@ def test_missing_direction_names_the_file_and_target(tmp_path):
     write_csv(path, PositioningData(d.target_mm[keep], d.direction[keep], d.cycle[keep], d.deviation_um[keep]))
     with pytest.raises(PositioningError, match=r"pos.csv: target 200 mm has no approach in direction -1"):
         evaluate_iso230_2(read_positioning_csv(path))
-    out = CliRunner().invoke(main, ["iso230-2", str(path)])
+    out = CliRunner().invoke(main, ["standards", "iso230-2", str(path)])
     assert out.exit_code != 0 and "target 200 mm" in out.output
 
 

@@ -217,10 +217,10 @@ def test_every_machine_dependent_command_takes_the_machine_file(tmp_path):
     assert _plan_for(own, machine, path).channels == [("A", 7)]
     assert _plan_for(own, machine, None) == own
     # plot-map: the machine's maps
-    r = cli("plot-map", "-o", tmp_path / "maps.png", "--machine", path)
+    r = cli("map", "plot", "-o", tmp_path / "maps.png", "--machine", path)
     assert r.exit_code == 0, r.output
     assert (tmp_path / "maps.png").stat().st_size > 10_000
-    r = cli("plot-map", "-o", tmp_path / "x.png")
+    r = cli("map", "plot", "-o", tmp_path / "x.png")
     assert r.exit_code != 0 and "--machine" in r.output
     # map export: the machine's set at a temperature
     r = cli("map", "export", "--format", "iso230-2", "-o", tmp_path / "x.csv", "--machine", path)

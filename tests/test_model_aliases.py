@@ -30,7 +30,7 @@ from cmmpose.diagnosis.identify import design_variances
 from cmmpose.errors import AliasedChoiceWarning
 from cmmpose.evaluation.ballbar import machine_coordinates
 from cmmpose.evaluation.observables import figures_difference
-from cmmpose.evaluation_uncertainty import evaluation_uncertainty
+from cmmpose.evaluation.ballbar_uncertainty import evaluation_uncertainty
 from cmmpose.run import Run
 from cmmpose.sim import parse_effect, simulate_ballbar_run
 

@@ -1,8 +1,7 @@
 """The package's shape (docs/architecture.md): no import circles among the
 modules' imports (top-level ones, and those inside functions too), no module importing another's private names, a
 curated public face (``dir(cmmpose)``), and a command line whose every
-option has help, whose result-printing commands all take --json, and whose
-moved commands still answer to their old spellings."""
+option has help and whose result-printing commands all take --json."""
 
 import ast
 import json
@@ -15,7 +14,7 @@ import pytest
 from click.testing import CliRunner
 
 import cmmpose
-from cmmpose.cli import OLD_SPELLINGS, main
+from cmmpose.cli import main
 
 PACKAGE = Path(cmmpose.__file__).parent
 
@@ -148,10 +147,7 @@ def test_the_public_face_is_curated():
 def _commands(command=main, path=("cmmpose",)):
     if isinstance(command, click.Group):
         ctx = click.Context(command)
-        names = command.list_commands(ctx)
-        if command is main:
-            names = [*names, *OLD_SPELLINGS]  # hidden, but each still a command with its options
-        for name in names:
+        for name in command.list_commands(ctx):
             yield from _commands(command.get_command(ctx, name), (*path, name))
     else:
         yield " ".join(path), command
@@ -165,7 +161,7 @@ def test_every_option_of_every_command_has_help():
 
 #: Commands that only write a file (and say "wrote ...") or record live: no result to print as JSON.
 WRITERS = {"cmmpose acquire", "cmmpose machine example", "cmmpose artefact example", "cmmpose map plot",
-           "cmmpose plot-map", "cmmpose artefact plan"}
+           "cmmpose artefact plan"}
 
 
 def test_every_command_that_prints_results_takes_json():
@@ -187,31 +183,6 @@ def test_the_run_argument_has_one_name():
     assert names == {"RUN_DIR"}
 
 
-@pytest.mark.parametrize("old, new", [(["iso230-2"], ["standards", "iso230-2"]),
-                                      (["acceptance"], ["standards", "acceptance"]),
-                                      (["interim-check"], ["standards", "interim-check"]),
-                                      (["e3125-distances"], ["standards", "e3125-distances"]),
-                                      (["acceptance-sphere"], ["standards", "acceptance-sphere"]),
-                                      (["simulate-alignment"], ["calibrate", "simulate-alignment"]),
-                                      (["plot-map"], ["map", "plot"])])
-def test_moved_commands_answer_to_both_spellings(old, new):
-    runner = CliRunner()
-    assert runner.invoke(main, [*new, "--help"]).exit_code == 0
-    with pytest.warns(FutureWarning, match=" ".join(new)):
-        r = runner.invoke(main, [*old, "--no-such-option-to-stop-early"])
-    assert r.exit_code == 2  # the old spelling parses the same options (then click stops on the unknown one)
-    assert old[0] not in main.list_commands(click.Context(main)) or main.get_command(None, old[0]).hidden
-
-
-def test_old_spelling_runs_the_same_command(tmp_path):
-    out_old, out_new = tmp_path / "old.png", tmp_path / "new.png"
-    pytest.importorskip("matplotlib")
-    with pytest.warns(FutureWarning, match="map plot"):
-        assert CliRunner().invoke(main, ["plot-map", "thesis", "-o", str(out_old)]).exit_code == 0
-    assert CliRunner().invoke(main, ["map", "plot", "thesis", "-o", str(out_new)]).exit_code == 0
-    assert out_old.stat().st_size > 0 and out_new.stat().st_size > 0
-
-
 @pytest.mark.parametrize("args", [["effects"], ["machine", "configurations"], ["machine", "show"]])
 def test_json_output_is_standard_json(args):
     r = CliRunner().invoke(main, [*args, "--json"])
@@ -226,42 +197,12 @@ def test_simulate_and_compensate_print_json(tmp_path):
     assert out["points"] > 0 and out["layout"] == "b89"
 
 
-def test_diagnose_report_old_file_spelling_warns(tmp_path):
-    from cmmpose.cli.common import report_folder_html
-
-    ctx = click.Context(main.get_command(None, "diagnose"), info_name="diagnose")
-    assert report_folder_html(ctx, None, str(tmp_path / "r")) == str(tmp_path / "r" / "diagnose.html")
-    with pytest.warns(FutureWarning, match="folder"):
-        assert report_folder_html(ctx, None, "x.html") == "x.html"
-
-
 def test_the_machine_description_does_not_load_the_simulator():
     import subprocess
 
     code = "import sys, cmmpose.machine as m; m.load_machine(None); print('cmmpose.sim' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
-
-
-@pytest.mark.parametrize("old, new", [("cmmpose.mapfiles", "cmmpose.formats.mapfiles"),
-                                      ("cmmpose.pointformats.csv", "cmmpose.formats.pointformats.csv"),
-                                      ("cmmpose.artefact_evaluation", "cmmpose.evaluation.artefact"),
-                                      ("cmmpose.report", "cmmpose.kernel_report"),
-                                      ("cmmpose.diagnosis.report", "cmmpose.diagnosis.html_report")])
-def test_old_module_paths_forward_with_a_deprecation(old, new):
-    # Issue 26: the root modules moved into folders; code written against the old paths keeps working, warned,
-    # and sees the same objects (one class identity, so isinstance and pickling hold).
-    code = ("import importlib, warnings, sys\n"
-            "with warnings.catch_warnings(record=True) as w:\n"
-            "    warnings.simplefilter('always')\n"
-            f"    old = importlib.import_module({old!r})\n"
-            f"new = importlib.import_module({new!r})\n"
-            "names = list(getattr(new, '__all__', [n for n in vars(new) if not n.startswith('_')]))\n"
-            "assert names and all(getattr(old, n) is getattr(new, n) for n in names), names\n"
-            f"assert any(issubclass(x.category, FutureWarning) and {new!r} in str(x.message) for x in w), w\n"
-            "print('ok')\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
 
 
 # The layers of docs/architecture.md, top to bottom; a module may import its own layer or any below it.
@@ -273,7 +214,7 @@ LAYERS = [
     ("model",),
     ("fitting", "run", "machine", "errormap", "pose", "scanner", "temperature", "layouts", "placement",
      "kernel_report", "policy", "effects", "artefacts", "formats"),
-    ("atomicfile", "errors", "_json", "_csvtable", "_registry", "_validate", "_arrays", "_lazy", "_moved", "_renamed", "_core"),
+    ("atomicfile", "errors", "_json", "_csvtable", "_registry", "_validate", "_arrays", "_lazy", "_core"),
 ]
 # Known upward imports, each with its reason; the test fails on any other, and on one of these that is gone (so the
 # list and docs/architecture.md stay true).

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import cmmpose
-from cmmpose import _core, sim
+from cmmpose import _core
 from cmmpose.model import Model
 
 MAPS = cmmpose.ErrorMapSet.thesis()
@@ -80,36 +80,30 @@ def test_pose_offset_and_digitizer_pickle():
     assert (back.alpha, back.beta, back.gamma, back.offset) == (d.alpha, d.beta, d.gamma, d.offset)
 
 
-@pytest.fixture(scope="module")
-def run():
-    run, _ = sim.simulate_ballbar_run(MAPS, 22.5, layout="crossed", scanner=sim.Scanner(points_per_profile=48), seed=5)
-    return run
-
-
-def test_run_round_trip_is_equal_and_read_only(run):
-    run.uv, run.scales  # cached stacks are not sent  # noqa: B018
-    data = pickle.dumps(run)
+def test_run_round_trip_is_equal_and_read_only(simulated_run):
+    simulated_run.uv, simulated_run.scales  # cached stacks are not sent  # noqa: B018
+    data = pickle.dumps(simulated_run)
     back = pickle.loads(data)
-    assert back == run and back.created == run.created
+    assert back == simulated_run and back.created == simulated_run.created
     assert "uv" not in back.__dict__ and "scales" not in back.__dict__
     for table in ("points", "scans", "poses", "temperatures"):
         for name, col in getattr(back, table).items():
             assert not col.flags.writeable, f"{table}.{name}"
-    assert _same_bits(back.uv, run.uv) and _same_bits(back.scales, run.scales)
-    assert back.scan_points(int(run.scans["scan_id"][3]))["t"].tolist() == \
-        run.scan_points(int(run.scans["scan_id"][3]))["t"].tolist()
-    a, b = cmmpose.evaluate(back, MAPS), cmmpose.evaluate(run, MAPS)
+    assert _same_bits(back.uv, simulated_run.uv) and _same_bits(back.scales, simulated_run.scales)
+    assert back.scan_points(int(simulated_run.scans["scan_id"][3]))["t"].tolist() == \
+        simulated_run.scan_points(int(simulated_run.scans["scan_id"][3]))["t"].tolist()
+    a, b = cmmpose.evaluate(back, MAPS), cmmpose.evaluate(simulated_run, MAPS)
     assert _same_bits(a.compensated.lengths, b.compensated.lengths)
 
 
-def test_model_round_trip_compensates_the_same_and_holds_no_run(run):
+def test_model_round_trip_compensates_the_same_and_holds_no_run(simulated_run):
     model = Model(MAPS).with_values("squareness", [3.0, -2.0, 1.5]).with_values("scanner-scale", [2e-4, -1e-4])
-    xyz = model.compensate(run)
+    xyz = model.compensate(simulated_run)
     back = _again(model)
     assert back.maps._core == model.maps._core and back.names == model.names
     for name in model.names:
         assert _same_bits(back.values(name), model.values(name))
     assert (back.temperature, back.out_of_range, back.temperature_tolerance, back.log_hold) == \
         (model.temperature, model.out_of_range, model.temperature_tolerance, model.log_hold)
-    assert _same_bits(back.compensate(run), xyz)
-    assert len(pickle.dumps(model)) < len(pickle.dumps(run)) / 2  # the run is not sent along
+    assert _same_bits(back.compensate(simulated_run), xyz)
+    assert len(pickle.dumps(model)) < len(pickle.dumps(simulated_run)) / 2  # the run is not sent along

@@ -28,12 +28,12 @@ webdriver = pytest.importorskip("selenium.webdriver")
 
 @pytest.mark.slow
 def test_report_renders_in_chromium(tmp_path):
-    run_dir, report, model = tmp_path / "run", tmp_path / "report.html", tmp_path / "model.json"
+    run_dir, report, model = tmp_path / "run", tmp_path / "report" / "diagnose.html", tmp_path / "model.json"
     res = CliRunner().invoke(main, ["simulate", "--effect", "squareness:yz=20", "--effect",
                                     "scanner-scale:lateral=0.0006", "--seed", "2", "-o", str(run_dir)],
                              catch_exceptions=False)
     assert res.exit_code == 0, res.output
-    res = CliRunner().invoke(main, ["diagnose", str(run_dir), "--report", str(report), "--save-model", str(model),
+    res = CliRunner().invoke(main, ["diagnose", str(run_dir), "--report", str(report.parent), "--save-model", str(model),
                                     "--max-effects", "3"], catch_exceptions=False)
     assert res.exit_code == 0, res.output
 

@@ -122,7 +122,7 @@ def test_map_commands_refuse_an_input_as_output(tmp_path):
     before = m.read_bytes()
     r = cli("map", "export", str(m), "--format", "iso230-2", "-o", str(tmp_path / "." / "m.csv"))
     one_line_failure(r, "same file as the input")
-    r = cli("plot-map", str(m), "-o", str(m))
+    r = cli("map", "plot", str(m), "-o", str(m))
     one_line_failure(r, "same file as the input")
     iso = tmp_path / "x.csv"
     assert cli("map", "export", "appendix-b", "--format", "iso230-2", "-o", str(iso)).exit_code == 0

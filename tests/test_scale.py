@@ -254,7 +254,7 @@ def test_cli_diagnose_fleet(client, runs, tmp_path):
         one.steps[0].figures.rms_accuracy_error * 1e3, rel=1e-12)
     res = runner.invoke(main, ["diagnose", *map(str, runs[:2]), "--max-effects", "1"])
     assert res.exit_code == 0 and "diagnosis of 2 runs" in res.output, res.output
-    res = runner.invoke(main, ["diagnose", *map(str, runs[:2]), "--report", str(tmp_path / "r.html")])
+    res = runner.invoke(main, ["diagnose", *map(str, runs[:2]), "--report", str(tmp_path / "r")])
     assert res.exit_code != 0 and "--report takes one run" in res.output
 
 

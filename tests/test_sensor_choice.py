@@ -264,18 +264,18 @@ def test_from_the_command_line_with_the_truth_in_the_report(tmp_path):
         assert res.exit_code == 0, res.output
         dirs.append(str(d))
     res = CliRunner().invoke(main, ["diagnose", *dirs, "--joint", "--json", "--max-effects", "3", "--report",
-                                    str(tmp_path / "joint.html")])
+                                    str(tmp_path / "joint")])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
-    joint = (tmp_path / "joint.html").read_text()
+    joint = (tmp_path / "joint" / "diagnose.html").read_text()
     assert "Every run under the one model" in joint and all(d in joint for d in dirs)
     found = {x["name"]: x["decision"] for x in doc["decisions"]}
     assert found["squareness-temperature@y_scale"] == "added" and found["axis-temperature"] == "added"
     assert found["squareness-temperature@z_scale"] == "not chosen"
     # One run alone: the truth's sensor is named in the report's truth table.
-    res = CliRunner().invoke(main, ["diagnose", dirs[0], "--report", str(tmp_path / "r.html"), "--json"])
+    res = CliRunner().invoke(main, ["diagnose", dirs[0], "--report", str(tmp_path / "r"), "--json"])
     assert res.exit_code == 0, res.output
-    page = (tmp_path / "r.html").read_text()
+    page = (tmp_path / "r" / "diagnose.html").read_text()
     row = page[page.index("the simulator&#x27;s truth") if "the simulator&#x27;s truth" in page
                 else page.index("the simulator's truth"):]
     assert "squareness-temperature@y_scale" in row and "not a candidate" not in row

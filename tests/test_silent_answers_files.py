@@ -265,7 +265,7 @@ def test_an_empty_or_absurd_pose_or_offset_is_a_usage_error(tmp_path, option, va
 
 
 def test_calibrate_alignment_and_simulate_refuse_absurd_poses(tmp_path):
-    r = cli("simulate-alignment", "--pose", "90,1e9,0", "--name", "A", "-o", tmp_path / "align")
+    r = cli("calibrate", "simulate-alignment", "--pose", "90,1e9,0", "--name", "A", "-o", tmp_path / "align")
     assert r.exit_code == 2 and "--pose" in r.output and "beyond" in r.output
     r = cli("simulate", "--reference-pose", "0,1e9,0", "-o", tmp_path / "run")
     assert r.exit_code == 2 and "--reference-pose" in r.output and "beyond" in r.output

@@ -110,8 +110,8 @@ def test_cli_refuses_an_incomplete_position_unless_told(sim, tmp_path):
     _relabelled(run, "position -1").save(path)
     common = ["--maps", "thesis", "--temperature", "20"]
     acc = ["--mpe-form", "1000", "--mpe-size", "1000", "--mpe-length", "1000"]
-    for cmd in (["evaluate", str(path), *common], ["acceptance", str(path), *common, *acc],
-                ["interim-check", str(path), *common]):
+    for cmd in (["evaluate", str(path), *common], ["standards", "acceptance", str(path), *common, *acc],
+                ["standards", "interim-check", str(path), *common]):
         res = CliRunner().invoke(main, cmd)
         assert res.exit_code == 1, (cmd, res.output)
         assert "position 3 ball 2: no scan" in res.output and "--skip-incomplete" in res.output
@@ -131,7 +131,7 @@ def test_cli_refuses_an_incomplete_position_unless_told(sim, tmp_path):
 
 def test_acceptance_exit_status_follows_the_decision(sim):
     _, path = sim
-    common = ["acceptance", str(path), "--maps", "thesis", "--temperature", "20"]
+    common = ["standards", "acceptance", str(path), "--maps", "thesis", "--temperature", "20"]
     fail = CliRunner().invoke(main, [*common, "--mpe-form", "0.01", "--mpe-size", "0.01", "--mpe-length", "0.01",
                                      "--json"])
     assert _strict(fail.stdout)["decision"] == "fail"
@@ -139,7 +139,7 @@ def test_acceptance_exit_status_follows_the_decision(sim):
     ok = CliRunner().invoke(main, [*common, "--mpe-form", "1000", "--mpe-size", "1000", "--mpe-length", "1000"])
     assert ok.exit_code == 0, ok.output
     assert "PASS" in ok.output
-    assert "Exit status: 0 when the decision is pass; 1 when it is fail" in CliRunner().invoke(main, ["acceptance", "--help"]).output
+    assert "Exit status: 0 when the decision is pass; 1 when it is fail" in CliRunner().invoke(main, ["standards", "acceptance", "--help"]).output
 
 
 # -- diagnose-fits and iso230-2 inputs ------------------------------------------------------------------
@@ -197,10 +197,10 @@ def _positioning_rows():
 def test_iso230_2_refuses_a_repeated_column_and_names_repeated_rows(tmp_path):
     rows = _positioning_rows()
     (tmp_path / "col.csv").write_text("\n".join([rows[0] + ",deviation_um", *(r + ",9" for r in rows[1:])]) + "\n")
-    res = CliRunner().invoke(main, ["iso230-2", str(tmp_path / "col.csv")])
+    res = CliRunner().invoke(main, ["standards", "iso230-2", str(tmp_path / "col.csv")])
     assert res.exit_code == 1 and "deviation_um repeated (columns deviation_um at 4, 5)" in res.output, res.output
     (tmp_path / "dup.csv").write_text("\n".join([*rows, rows[4]]) + "\n")
-    res = CliRunner().invoke(main, ["iso230-2", str(tmp_path / "dup.csv")])
+    res = CliRunner().invoke(main, ["standards", "iso230-2", str(tmp_path / "dup.csv")])
     assert res.exit_code == 1 and "given twice (lines 5 and 20)" in res.output, res.output
 
 
@@ -208,11 +208,11 @@ def test_iso230_2_json_is_standard_json_at_1e300(tmp_path):
     rows = _positioning_rows()
     rows[1] = rows[1].rsplit(",", 1)[0] + ",1e300"
     (tmp_path / "big.csv").write_text("\n".join(rows) + "\n")
-    res = CliRunner().invoke(main, ["iso230-2", str(tmp_path / "big.csv"), "--json"])
+    res = CliRunner().invoke(main, ["standards", "iso230-2", str(tmp_path / "big.csv"), "--json"])
     assert res.exit_code == 0, res.output
     doc = _strict(res.stdout)
     assert doc["R"] is None and {"key": "R", "value": "inf"} in doc["non_finite"]
-    res = CliRunner().invoke(main, ["iso230-2", str(tmp_path / "big.csv"), "--report", str(tmp_path / "rep")])
+    res = CliRunner().invoke(main, ["standards", "iso230-2", str(tmp_path / "big.csv"), "--report", str(tmp_path / "rep")])
     assert res.exit_code == 0, res.output
     assert _strict((tmp_path / "rep" / "iso230-2.json").read_text())["non_finite"]
 

@@ -89,14 +89,14 @@ def residual(effect, temperature=22.5, **kw):
 
 
 def test_no_effect_no_residual():
-    _, res = residual(sim.ScaleError())
+    _, res = residual(sim.Scale())
     assert np.abs(res).max() < 5e-5
 
 
 def test_latency_shifts_along_the_sweep_and_flips_with_direction():
     tau, speed = 0.01, 10.0
-    d, fwd = residual(sim.ScannerLatency(seconds=tau), direction=1, speed=speed)
-    _, rev = residual(sim.ScannerLatency(seconds=tau), direction=-1, speed=speed)
+    d, fwd = residual(sim.Latency(seconds=tau), direction=1, speed=speed)
+    _, rev = residual(sim.Latency(seconds=tau), direction=-1, speed=speed)
     # The recorded reading lags the profile by speed*tau along X: points shift by
     # -dir*speed*tau. The map is also read 0.1 mm off, which changes its errors by
     # about 1e-5 mm (slope of the map times 0.1 mm): hence 2e-5.
@@ -106,20 +106,20 @@ def test_latency_shifts_along_the_sweep_and_flips_with_direction():
 
 
 def test_scale_error_grows_with_the_reading_on_its_axis_only():
-    d, res = residual(sim.ScaleError(y=10.0))
+    d, res = residual(sim.Scale(y=10.0))
     np.testing.assert_allclose(res[:, 1], -10e-6 * d.scales[:, 1], atol=1e-6)
     assert np.abs(res[:, [0, 2]]).max() < 1e-6
 
 
 def test_squareness_offset_is_a_shear():
-    d, res = residual(sim.SquarenessOffset(xy=5.0))
+    d, res = residual(sim.Squareness(xy=5.0))
     s = 5.0 * np.pi / 648000
     np.testing.assert_allclose(res[:, 0], s * d.scales[:, 1], atol=1e-6)  # model lacks -E dS: comp - true = +E dS
     assert np.abs(res[:, 1:]).max() < 1e-6
 
 
 def test_unmeasured_z_roll_turns_the_digitizer_lever():
-    d, res = residual(sim.UnmeasuredRoll(z=20.0))
+    d, res = residual(sim.Roll(z=20.0))
     angle = 20.0 * np.pi / 648000 * d.scales[:, 2] / 1000
     lever = (np.column_stack([d.uv, np.zeros(len(d.uv))]) - OFFSET) @ cmmpose.Pose(*POSE_X).matrix().T
     # true point rotated by +angle about Z; the model misses it: comp - true = -(Rz - I) lever
@@ -155,7 +155,7 @@ def test_scanner_scale_scales_u_and_v():
 
 
 def test_incidence_error_grows_with_angle():
-    d, res = residual(sim.IncidenceError(per_degree=0.0005))
+    d, res = residual(sim.Incidence(per_degree=0.0005))
     centre = np.array([400, 275, -350.0])
     n = (d.true_xyz - centre) / np.linalg.norm(d.true_xyz - centre, axis=1, keepdims=True)
     theta = np.degrees(np.arccos(np.clip(n[:, 2], -1, 1)))
@@ -164,16 +164,16 @@ def test_incidence_error_grows_with_angle():
 
 
 def test_alignment_and_mount_offset_errors():
-    _, res = residual(sim.MountOffsetError(v1=0.04))
+    _, res = residual(sim.MountOffset(v1=0.04))
     # v1 is along +Z here; the model uses the old l1. (R - I) dl adds ~5e-5 x 0.04 mm.
     np.testing.assert_allclose(res[:, 2], 0.04, atol=5e-6)
     assert np.abs(res[:, :2]).max() < 5e-6
-    d, res = residual(sim.AlignmentError(gamma=0.05))
+    d, res = residual(sim.Alignment(gamma=0.05))
     assert np.abs(res).max() > 1e-3  # a rotation about w = X of the lever
 
 
-@pytest.mark.parametrize("text, cls", [("latency:seconds=0.01", sim.ScannerLatency), ("scale:x=3,y=4", sim.ScaleError),
-                                       ("roll", sim.UnmeasuredRoll)])
+@pytest.mark.parametrize("text, cls", [("latency:seconds=0.01", sim.Latency), ("scale:x=3,y=4", sim.Scale),
+                                       ("roll", sim.Roll)])
 def test_parse_effect(text, cls):
     assert isinstance(sim.parse_effect(text), cls)
 
@@ -192,7 +192,7 @@ def test_bad_sim_inputs():
     with pytest.raises(cmmpose.InputError, match="radius"):
         sim.Sphere((0, 0, 0), radius=-1)
     with pytest.raises(cmmpose.InputError, match="finite"):
-        sim.ScaleError(x=float("nan"))
+        sim.Scale(x=float("nan"))
     with pytest.raises(cmmpose.InputError, match="max_incidence_deg"):
         scan(sim.TruthMachine(MAPS), scanner=sim.Scanner(max_incidence=95))
     with pytest.raises(cmmpose.InputError, match="outside the maps"):

@@ -68,8 +68,8 @@ def test_run_round_trips_and_truth_stays_apart(b89_20c, tmp_path):
 
 
 def test_runs_are_reproducible_and_effects_recorded():
-    a, _ = sim.simulate_ballbar_run(MAPS, 22.5, [sim.ScannerLatency(seconds=0.005)], layout="crossed", seed=3)
-    b, tb = sim.simulate_ballbar_run(MAPS, 22.5, [sim.ScannerLatency(seconds=0.005)], layout="crossed", seed=3)
+    a, _ = sim.simulate_ballbar_run(MAPS, 22.5, [sim.Latency(seconds=0.005)], layout="crossed", seed=3)
+    b, tb = sim.simulate_ballbar_run(MAPS, 22.5, [sim.Latency(seconds=0.005)], layout="crossed", seed=3)
     # The same seed, the same measurements; `created` is when each was simulated (the two calls can straddle a
     # second), so it is set equal before the bitwise comparison.
     assert a == dataclasses.replace(b, created=a.created)

@@ -7,7 +7,6 @@ map tables, degrees for pose angles, degrees C for temperatures.
 
 from typing import TYPE_CHECKING
 
-from . import _moved
 from ._core import __version__, thread_count
 from ._lazy import lazy_attributes
 from .compensation import compensate, uncompensated
@@ -58,15 +57,6 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "diagnose": ("diagnosis", "diagnose"),
     "TemperaturePolicy": ("temperature", "TemperaturePolicy"),
 }, globals())
-_moved.install()  # old module paths (cmmpose.mapfiles, ...) forward to the folders they moved to, with a FutureWarning
-
-
-def __getattr__(name: str, _lazy=__getattr__, _old=_moved.attribute):
-    try:
-        return _lazy(name)
-    except AttributeError:
-        return _old(name)
-
 
 if TYPE_CHECKING:
     from . import layouts
@@ -86,7 +76,7 @@ if TYPE_CHECKING:
     from .model import MachineModel, Model, UserEffect
     from .temperature import TemperaturePolicy
 
-del TYPE_CHECKING, lazy_attributes, _moved  # not part of the package's face (dir(cmmpose))
+del TYPE_CHECKING, lazy_attributes  # not part of the package's face (dir(cmmpose))
 
 __all__ = [
     "__version__",

@@ -6,17 +6,14 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_rows, as_triple, as_vector
-from ._renamed import renamed
 from .errormap import scalar_temperature
 from .errors import InputTypeError, warn_clamped
 from .kernel_report import KernelReport
 from .model.protocol import MachineModel
-from .policy import check_policy
 from .pose import MountOffset, Pose, digitizer
-from .temperature import TemperaturePolicy, as_policy
+from .temperature import TemperaturePolicy, as_policy, check_policy
 
 
-@renamed(error_map="maps")
 def compensate(
     uv,
     scales,

@@ -24,7 +24,6 @@ from pathlib import Path
 import numpy as np
 
 from ._arrays import as_triple
-from ._renamed import renamed
 from .errormap import ErrorMap, ErrorMapSet, warn_single_map
 from .errors import Error, InputError, InputTypeError, warn_clamped
 from .formats.pointfiles import PointWriter, RereadPoints, check_writable, point_chunks
@@ -82,7 +81,6 @@ class _Failed:
         self.exc = exc
 
 
-@renamed(error_map="maps")
 def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
                     out_of_range: str | None = None, nan_policy: str = "raise",
                     temperature_tolerance: float | None = None, progress=None,

@@ -1,23 +1,12 @@
-"""One temperature policy for every command and the API (docs/conventions.md,
-"Temperatures outside the maps and the log"), and how the command line words
-the library's errors.
+"""How the command line words the library's errors: a message that names a
+Python argument (``log_hold=``, ``skip_incomplete=True``, ...) said with the
+CLI flag that does the same (:func:`cli_wording`), and numbers of more than
+20 digits shortened (:func:`shorten_numbers`).
 
-The policy's home is :mod:`cmmpose.temperature` (:class:`TemperaturePolicy`);
-its names are re-exported here for the older import path.
-
-- A temperature within ``TEMPERATURE_TOLERANCE`` (K) outside the maps' range
-  is held at the edge and counted: a machine at its 20 C reference reads a
-  hair under 20 C with ordinary thermocouple noise.
-- Beyond it, ``out_of_range`` chooses: ``'raise'`` (stop, the default),
-  ``'clamp'`` (hold at the edge) or ``'extrapolate'`` (extend the maps
-  linearly in temperature; the largest distance is reported).
-- A point up to ``LOG_HOLD`` s before the first or after the last reading of
-  the thermocouple log (a run recovered after the recorder stopped) takes
-  the nearest reading; farther, an error.
-
-The same names are the Python arguments (``out_of_range``,
-``temperature_tolerance``, ``log_hold``) and the CLI flags
-(``--out-of-range``, ``--temperature-tolerance``, ``--log-hold``).
+The temperature policy itself (:class:`~cmmpose.temperature.TemperaturePolicy`,
+``TEMPERATURE_TOLERANCE``, ``LOG_HOLD``, ``OUT_OF_RANGE``, ``check_policy``)
+lives in :mod:`cmmpose.temperature` (docs/conventions.md, "Temperatures
+outside the maps and the log").
 """
 
 from __future__ import annotations
@@ -25,19 +14,9 @@ from __future__ import annotations
 import re
 
 from .errors import REMEDIES, Error
-from .temperature import (  # re-exported: the policy's home is cmmpose.temperature
-    BROKEN_HINT,
-    LOG_HOLD,
-    LOG_HOLD_HINT,
-    OUT_OF_RANGE,
-    TEMPERATURE_TOLERANCE,
-    TemperaturePolicy,
-    check_log_coverage,
-    check_policy,
-)
+from .temperature import BROKEN_HINT, LOG_HOLD_HINT
 
-__all__ = ["TEMPERATURE_TOLERANCE", "LOG_HOLD", "OUT_OF_RANGE", "TemperaturePolicy", "check_policy",
-           "check_log_coverage", "cli_wording", "shorten_numbers", "SCHEDULER_TIMEOUT_HINT"]
+__all__ = ["cli_wording", "shorten_numbers", "SCHEDULER_TIMEOUT_HINT"]
 
 # The errors of the kernel carry their remedy as a field (cmmpose.errors.REMEDIES) and are worded for the
 # command line from it (Error.render). The hints below are for messages that still carry a Python argument in

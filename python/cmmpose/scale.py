@@ -52,8 +52,8 @@ from .compensation import compensate
 from .atomicfile import AtomicFile, ensure_folder
 from .errormap import ErrorMap, ErrorMapSet, warn_single_map
 from .errors import Error, InputError, InputTypeError, SchedulerError, warn_clamped
-from .policy import SCHEDULER_TIMEOUT_HINT, TEMPERATURE_TOLERANCE
-from .temperature import TemperaturePolicy, as_policy
+from .policy import SCHEDULER_TIMEOUT_HINT
+from .temperature import TEMPERATURE_TOLERANCE, TemperaturePolicy, as_policy
 from .pose import pose_tuple
 from ._arrays import as_triple
 from .kernel_report import KernelReport

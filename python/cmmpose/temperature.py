@@ -23,9 +23,7 @@ Why a module of its own at the package root: the policy is read by the map
 code (``errormap``, ``compensation``, ``scale``) as much as by calibration,
 evaluation, diagnosis and the standards, so it sits below all of them. It
 imports only ``errors`` (``run`` and ``click`` load on first use), so any
-layer imports it without a circle and ``import cmmpose`` stays light;
-``cmmpose.policy`` and ``cmmpose.calibration.thermal`` re-export its names
-for the older import paths.
+layer imports it without a circle and ``import cmmpose`` stays light.
 
 The log functions:
 

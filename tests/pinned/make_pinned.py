@@ -65,16 +65,16 @@ MODEL_RUN_EFFECTS = (E.AxisTemperature(x=1.0, y=-0.5, z=0.3),
 
 #: Every simulator effect at a typical value (case d).
 ALL_SIM_EFFECTS = (
-    E.SquarenessOffset(xy=8.0, yz=-5.0, zx=6.0),
-    E.ScaleError(x=5.0, y=-3.0, z=4.0),
-    E.UnmeasuredRoll(x=3.0, y=-2.0, z=4.0),
+    E.Squareness(xy=8.0, yz=-5.0, zx=6.0),
+    E.Scale(x=5.0, y=-3.0, z=4.0),
+    E.Roll(x=3.0, y=-2.0, z=4.0),
     E.AxisTemperature(x=0.8, y=-0.4, z=0.5),
     E.GraniteGradient(kelvin=1.0, kelvin_per_hour=1.5, xy=2.0, yz=10.0, zx=8.0),
-    E.ScannerLatency(seconds=0.005),
+    E.Latency(seconds=0.005),
     E.ScannerScale(lateral=5e-4, depth=-4e-4),
-    E.IncidenceError(per_degree=2e-4, per_degree_mm=2e-5),
-    E.AlignmentError(alpha=0.02, beta=-0.015, gamma=0.01),
-    E.MountOffsetError(u1=0.03, v1=-0.02, w1=0.04),
+    E.Incidence(per_degree=2e-4, per_degree_mm=2e-5),
+    E.Alignment(alpha=0.02, beta=-0.015, gamma=0.01),
+    E.MountOffset(u1=0.03, v1=-0.02, w1=0.04),
     E.ArtefactExpansion(ppm_per_kelvin=11.5),
 )
 
@@ -155,7 +155,7 @@ def case_sim_effects() -> dict[str, np.ndarray]:
 
 def case_diagnosis() -> dict:
     """(e) One diagnosis: a hidden squareness offset, found and fitted."""
-    run, _ = sim.simulate_ballbar_run(cmmpose.ErrorMapSet.thesis(), 22.5, [E.SquarenessOffset(yz=25.0)],
+    run, _ = sim.simulate_ballbar_run(cmmpose.ErrorMapSet.thesis(), 22.5, [E.Squareness(yz=25.0)],
                                       scanner=COARSE, jitter=0.0015, seed=11)
     d = cmmpose.diagnose(run, patterns=False, max_effects=2)
     final = d.steps[-1].model

@@ -38,16 +38,7 @@ from .interferometer import (
     write_run,
 )
 from .library import AlignmentLibrary, AlignmentRecord
-from .thermal import (
-    LogProblem,
-    LogReport,
-    ScanTemperatures,
-    ThermalSummary,
-    check_log,
-    per_scan_temperature,
-    select_map_temperature,
-    temperatures_at,
-)
+from .thermal import select_map_temperature
 
 __all__ = [
     "CalibrationError",
@@ -66,13 +57,6 @@ __all__ = [
     "ClosedFormOffset",
     "AlignmentLibrary",
     "AlignmentRecord",
-    "check_log",
-    "LogReport",
-    "LogProblem",
-    "temperatures_at",
-    "ThermalSummary",
-    "per_scan_temperature",
-    "ScanTemperatures",
     "select_map_temperature",
     "InterferometerRun",
     "InterferometerRunError",

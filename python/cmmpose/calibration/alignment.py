@@ -31,7 +31,6 @@ import numpy as np
 from .. import _core
 from .._arrays import as_rows, as_triple
 from ..compensation import compensate, uncompensated
-from .._renamed import renamed
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import CalibrationError, GeometryError, InputError, InputTypeError
 from ..fitting import PlaneFit, SphereFit, fit_plane, fit_sphere
@@ -218,7 +217,6 @@ class VernierAlignment:
         return Pose(self.alpha, self.beta, float(gamma))
 
 
-@renamed(error_map="maps")
 def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | None = None, maps=None,
                             temperature=None, min_spread: float = 1.0,
                             temperature_policy: TemperaturePolicy | None = None) -> VernierAlignment:
@@ -523,7 +521,6 @@ def _wrap180(a: float) -> float:
     return a - 180.0
 
 
-@renamed(error_map="maps")
 def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None, gamma0: float | None = None,
                           offset=None, maps=None, temperature=None, alpha_beta_covariance=None,
                           step: float = 2.0, temperature_policy: TemperaturePolicy | None = None) -> GammaAlignment:
@@ -858,7 +855,6 @@ def _sandwich_centre_covariance(points: np.ndarray, fit: SphereFit, fixed_radius
     return (a @ meat @ a)[:3, :3] * (m / max(m - k, 1))
 
 
-@renamed(error_map="maps")
 def reference_centre_reading(uv, scales, pose, offset=None, maps=None, temperature=None, *,
                              pose_covariance=None, reading_uncertainty=None, radius: float | None = None,
                              reject: float | None = None,

@@ -2,10 +2,9 @@
 the thermocouple log (thesis section 6.4; docs/conventions.md, Interpolation).
 
 The log functions and the temperature policy live in :mod:`cmmpose.temperature`
-(one home); this module re-exports them for the older import path
-(``cmmpose.calibration.thermal``) and keeps :func:`select_map_temperature`,
-which checks temperatures against the range of an :class:`~cmmpose.ErrorMapSet`,
-refusing or clamping.
+(one home: import them from there); this module keeps
+:func:`select_map_temperature`, which checks temperatures against the range of
+an :class:`~cmmpose.ErrorMapSet`, refusing or clamping.
 
 Units: times in s, temperatures in degrees C, temperature differences in K.
 Rows in messages are counted from 0.
@@ -19,41 +18,8 @@ import numpy as np
 
 from ..errormap import ErrorMapSet
 from ..errors import ClampWarning, InputError, InputTypeError, OutOfRangeError
-from ..temperature import (  # noqa: F401  (re-exported: the older import path)
-    AXIS_ROLES,
-    GAP_FACTOR,
-    OPEN_CIRCUIT_ABOVE,
-    PLAUSIBLE,
-    POLICIES,
-    STUCK_AFTER,
-    STUCK_TOLERANCE,
-    LogProblem,
-    LogReport,
-    ScanTemperatures,
-    ThermalSummary,
-    TemperaturePolicy,
-    check_log,
-    per_scan_temperature,
-    temperatures_at,
-)
 
-__all__ = [
-    "LogProblem",
-    "LogReport",
-    "ThermalSummary",
-    "ScanTemperatures",
-    "TemperaturePolicy",
-    "check_log",
-    "temperatures_at",
-    "per_scan_temperature",
-    "select_map_temperature",
-    "PLAUSIBLE",
-    "STUCK_AFTER",
-    "STUCK_TOLERANCE",
-    "GAP_FACTOR",
-    "POLICIES",
-    "AXIS_ROLES",
-]
+__all__ = ["select_map_temperature"]
 
 
 # -- maps ---------------------------------------------------------------------------
@@ -63,7 +29,7 @@ def select_map_temperature(temperatures, error_map_set: ErrorMapSet, *, out_of_r
     Parameters
     ----------
     temperatures : float or array_like, shape (N,) or (N, 3)
-        Machine temperatures, degrees C (e.g. from :func:`temperatures_at`).
+        Machine temperatures, degrees C (e.g. from :func:`cmmpose.temperature.temperatures_at`).
     error_map_set : ErrorMapSet
         The maps; their temperatures (``ErrorMapSet.temperatures``, degrees C)
         span the covered range.

@@ -8,9 +8,7 @@ the diagnosis, the Dask scale-out or the acquisition (issue 27, start-up).
 
 from __future__ import annotations
 
-import copy
 import importlib
-import warnings
 
 import click
 
@@ -45,35 +43,9 @@ NESTED = {
     "map": ("plot", "map", "plot_map_cmd"),
 }
 
-#: Old top-level spellings that still work (hidden, with a FutureWarning): old name -> new spelling.
-OLD_SPELLINGS = {
-    "simulate-alignment": "calibrate simulate-alignment",
-    "plot-map": "map plot",
-    **{name: f"standards {name}" for name in
-       ("iso230-2", "acceptance", "acceptance-sphere", "interim-check", "e3125-distances")},
-}
-
 
 def _load(module: str, attribute: str) -> click.Command:
     return getattr(importlib.import_module(f".{module}", __name__), attribute)
-
-
-def _deprecated(command: click.Command, old: str, new: str) -> click.Command:
-    """``command`` under its old top-level name ``old``: hidden from the
-    list, working as before, with a FutureWarning (on stderr, which a --json
-    reader of stdout never sees) that ``cmmpose new`` is its name now."""
-    alias = copy.copy(command)
-    alias.name, alias.hidden = old, True
-    alias.help = f"(Old spelling of `cmmpose {new}`.) " + (command.help or "")
-    parse = alias.parse_args
-
-    def parse_args(ctx, args):  # said first, before the options are read (also for --help or a usage error)
-        warnings.warn_explicit(f"`cmmpose {old}` is now `cmmpose {new}`; the old spelling still works for now",
-                               FutureWarning, "cmmpose", 0)
-        return parse(ctx, args)
-
-    alias.parse_args = parse_args
-    return alias
 
 
 def command(name: str) -> click.Command | None:
@@ -84,10 +56,6 @@ def command(name: str) -> click.Command | None:
             sub, module, attribute = NESTED[name]
             found.add_command(_load(module, attribute), sub)
         return found
-    if name in OLD_SPELLINGS:
-        group, _, sub = OLD_SPELLINGS[name].partition(" ")
-        target = command(group).commands[sub]
-        return _deprecated(target, name, OLD_SPELLINGS[name])
     return None
 
 
@@ -98,7 +66,7 @@ class _Commands(click.Group):
     said as one line each (cmmpose.cli.common.cli_warnings)."""
 
     def list_commands(self, ctx):
-        return list(COMMANDS)  # the old spellings are hidden
+        return list(COMMANDS)
 
     def get_command(self, ctx, name):
         if name not in self.commands:

@@ -373,20 +373,18 @@ def show(table, as_json: bool, data=None, width: int | None = None) -> None:
 
 
 def report_folder_html(ctx, param, value):
-    """--report of a command whose report is one HTML file: the folder it goes in (``DIR/<command>.html``);
-    a value ending in .html is the older spelling: that file (a FutureWarning says so; the command's checks
-    then refuse it if it is one of its inputs). Any other existing path that is not a folder is passed on as
-    it is, for the command to refuse after its inputs-are-not-outputs check (:func:`check_report_file`)."""
+    """--report of a command whose report is one HTML file: the folder it goes in (``DIR/<command>.html``,
+    the folder made if missing). An existing path that is not a folder is passed on as it is, marked, for the
+    command to refuse after its inputs-are-not-outputs check (:func:`check_report_file`)."""
     if value is None:
         return None
-    if _existing_non_folder(value) and not value.lower().endswith(".html"):
-        return value  # refused by check_report_file (after check_outputs: an input is named as such)
-    if value.lower().endswith(".html"):  # a file named: the older spelling
-        warnings.warn_explicit(f"--report {value}: --report takes a folder now (the report is "
-                               f"FOLDER/{ctx.info_name}.html); a file name still works for now", FutureWarning,
-                               "cmmpose", 0)
-        return value
+    if _existing_non_folder(value):
+        return _NotAFolder(value)  # refused by check_report_file (after check_outputs: an input is named as such)
     return str(Path(value) / f"{ctx.info_name}.html")
+
+
+class _NotAFolder(str):
+    """A --report value naming an existing path that is not a folder (see :func:`report_folder_html`)."""
 
 
 def _existing_non_folder(path) -> bool:
@@ -395,13 +393,11 @@ def _existing_non_folder(path) -> bool:
 
 def check_report_file(path, flag: str = "--report") -> None:
     """The check of a --report that :func:`report_folder_html` passed on, made after the command's
-    :func:`check_outputs` and before any work: a usage error naming ``flag`` for an existing path that is
-    neither a folder nor a FILE.html (the older spelling) - a user's file (notes.txt) is never replaced by the
-    report."""
-    if path is not None and _existing_non_folder(path) and not str(path).lower().endswith(".html"):
+    :func:`check_outputs` and before any work: a usage error naming ``flag`` for an existing path that is not
+    a folder - a user's file (notes.txt, or an earlier report.html) is never replaced by the report."""
+    if isinstance(path, _NotAFolder):
         raise click.BadParameter(f"{path}: exists and is not a folder (--report names a folder, made if missing, "
-                                 "for the HTML report; a FILE.html is the older spelling); give another name",
-                                 param_hint=flag)
+                                 "for the HTML report); give another name", param_hint=flag)
 
 
 def skip_incomplete_option(f):

@@ -33,8 +33,7 @@ from .common import (check_outputs, check_report_file, console, fail, load_maps,
 @click.option("--no-auto", is_flag=True, help="Only rank the candidates (and add --add ones); add nothing automatically.")
 @click.option("--max-effects", type=int, default=4, show_default=True, help="Most effects added automatically.")
 @click.option("--report", "report_file", type=click.Path(), default=None, callback=report_folder_html,
-              help="Folder for the report: a self-contained diagnose.html (made if missing). A FILE.html is the "
-                   "older spelling (that file).")
+              help="Folder for the report: a self-contained diagnose.html (made if missing).")
 @click.option("--save-model", "model_out", type=click.Path(dir_okay=False), default=None, help="Write the final model (JSON) here.")
 @click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="A Python file defining EFFECT (a cmmpose.UserEffect), added to the candidates "

@@ -1,4 +1,4 @@
-"""``cmmpose map`` and ``plot-map``: exchange of linear-axis results (docs/formats.md) and plots of maps."""
+"""``cmmpose map`` (with ``map plot``): exchange of linear-axis results (docs/formats.md) and plots of maps."""
 
 from __future__ import annotations
 
@@ -15,13 +15,13 @@ from .common import (check_plot_path, console, console_log, fail, json_option, l
 
 def _units_option(f):
     """--units of the map files, one meaning with every command's --units: the length unit of the file's values."""
-    return click.option("--units", type=click.Choice(["mm", "in", "inch"]), default="mm", show_default=True,
+    return click.option("--units", type=click.Choice(["mm", "in"]), default="mm", show_default=True,
                         callback=lambda ctx, param, value: "inch" if value == "in" else value,
                         help="Length unit of the files' values (linuxcnc: the machine units; 'in' as in `cmmpose "
-                             "fit`, 'inch' its older spelling).")(f)
+                             "fit`).")(f)
 
 
-@click.command("plot-map")
+@click.command("plot")
 @click.argument("maps", nargs=-1)
 @plot_option("-o", "--output", "out", required=True, help="PNG (or PDF, SVG) to write.")
 @machine_option

@@ -1,4 +1,4 @@
-"""``cmmpose simulate`` and ``simulate-alignment``: virtual runs and alignment measurements."""
+"""``cmmpose simulate`` and ``calibrate simulate-alignment``: virtual runs and alignment measurements."""
 
 from __future__ import annotations
 

@@ -2,8 +2,7 @@
 ``iso230-2`` (positioning of an axis), ``acceptance`` and
 ``acceptance-sphere`` (ISO 10360-8-style probing and length tests against
 MPEs), ``interim-check`` (squareness and scale from one ballbar run) and
-``e3125-distances``. Their old top-level spellings (``cmmpose iso230-2``)
-still work (cmmpose.cli)."""
+``e3125-distances``."""
 
 from __future__ import annotations
 

@@ -15,7 +15,6 @@ from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError, InputTypeError
 from ..fitting import fit_spheres
-from .._renamed import renamed
 from ..run import Run
 from .identify import (ALPHA, Candidate, Problem, value_text, check_effect_names, determined_values, fit_model,
                        model_covariance,
@@ -354,7 +353,6 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-@renamed(model="maps")
 def diagnose(
     run: Run,
     maps: Model | ErrorMap | ErrorMapSet | None = None,
@@ -388,8 +386,7 @@ def diagnose(
         make the thesis model. Default: the run's bundled maps
         (``run.maps``, on the configuration it names) or the thesis set.
         Maps stacked for another machine configuration than run.json names
-        are refused (an InputError naming both). (``model=`` is its older
-        name.)
+        are refused (an InputError naming both).
     add : sequence of str or EffectSpec
         Effects to add first, in order, whether significant or not.
     auto : bool

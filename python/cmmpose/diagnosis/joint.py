@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .._renamed import renamed
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError, InputTypeError
 from ..run import Run
@@ -147,7 +146,6 @@ class JointDiagnosis(Diagnosis):
         return d
 
 @one_blas_thread
-@renamed(model="maps")
 def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *, add=(), auto: bool = True,
                      max_effects: int = 4, user_effects=(), same_artefact: bool = True,
                      run_names=None, map_corrections: bool = True, reproducibility_um=None,
@@ -162,7 +160,7 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
         Two or more runs (different temperatures, poses, layouts).
     maps : Model, ErrorMap or ErrorMapSet, optional
         What compensates at the start (a saved Model, or maps alone);
-        default the thesis maps. (``model=`` is its older name.)
+        default the thesis maps.
     add : sequence of str
         Effects to add first, whether significant or not.
     auto : bool

@@ -53,7 +53,7 @@ model file records the correction by its name and parameters (um or
 arc-seconds), so ``Model.load`` rebuilds it with no code from the user,
 and :func:`corrected_maps` writes it into the maps themselves (the
 component's column of its carriage's table, or the map's squareness: a
-corrected map file in any format the project reads, :mod:`cmmpose.mapfiles`).
+corrected map file in any format the project reads, :mod:`cmmpose.formats.mapfiles`).
 
 Sensitivities are taken at the centre level, linear in each shape's
 coefficients: a correction moves each sphere scan's points by the

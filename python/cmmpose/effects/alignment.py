@@ -33,7 +33,3 @@ class Alignment(Effect):
     @classmethod
     def adjust_poses(cls, values, poses, rows):
         poses[rows, 0:3] += values
-
-
-#: The older name of :class:`Alignment` (the class is named for its registry name now).
-AlignmentError = Alignment

@@ -29,7 +29,3 @@ class Incidence(Effect):
 
     per_degree: float = 0.0
     per_degree_mm: float = 0.0
-
-
-#: The older name of :class:`Incidence` (the class is named for its registry name now).
-IncidenceError = Incidence

@@ -35,7 +35,3 @@ class Latency(Effect):
 
     def latency(self):
         return self.seconds
-
-
-#: The older name of :class:`Latency` (the class is named for its registry name now).
-ScannerLatency = Latency

@@ -32,7 +32,3 @@ class MountOffset(Effect):
     @classmethod
     def adjust_poses(cls, values, poses, rows):
         poses[rows, 3:6] += values
-
-
-#: The older name of :class:`MountOffset` (the class is named for its registry name now).
-MountOffsetError = MountOffset

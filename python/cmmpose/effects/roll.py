@@ -27,7 +27,3 @@ class Roll(Effect):
     x: float = 0.0
     y: float = 0.0
     z: float = 0.0
-
-
-#: The older name of :class:`Roll` (the class is named for its registry name now).
-UnmeasuredRoll = Roll

@@ -25,7 +25,3 @@ class Scale(Effect):
     x: float = 0.0
     y: float = 0.0
     z: float = 0.0
-
-
-#: The older name of :class:`Scale` (the class is named for its registry name now).
-ScaleError = Scale

@@ -26,7 +26,3 @@ class Squareness(Effect):
     xy: float = 0.0
     yz: float = 0.0
     zx: float = 0.0
-
-
-#: The older name of :class:`Squareness` (the class is named for its registry name now).
-SquarenessOffset = Squareness

@@ -12,7 +12,6 @@ from datetime import datetime, timezone
 import numpy as np
 
 from .._json import dumps as strict_json
-from .._renamed import per_kelvin_to_ppm, renamed
 from ..compensation import uncompensated
 from ..errormap import ErrorMap, ErrorMapSet, warn_single_map
 from ..errors import InputError, InputTypeError, MapTemperatureWarning, RunError
@@ -375,7 +374,6 @@ def _ballbar(run: Run, xyz: np.ndarray, label: str, temps: np.ndarray, nominal_r
     return BallbarResult(label, np.array(complete), lengths, pos_temps, spheres, expansion)
 
 
-@renamed(expansion=("expansion_ppm_per_K", per_kelvin_to_ppm))
 def evaluate(
     run: Run,
     maps: ErrorMap | ErrorMapSet | None = None,
@@ -411,8 +409,7 @@ def evaluate(
         Robust sphere fits (see ``fit_sphere``), e.g. 3.5 to drop bar points.
     expansion_ppm_per_K : float
         Part expansion coefficient for lengths at 20 C, ppm/K (steel 12);
-        printed with the results and kept in the provenance. (``expansion=``
-        in 1/K is its older spelling: converted, with a FutureWarning.)
+        printed with the results and kept in the provenance.
     out_of_range : {'raise', 'clamp', 'extrapolate'}, optional
         Temperatures farther than ``temperature_tolerance`` outside the maps
         (and readings outside them) raise, are clamped with a warning, or

@@ -371,7 +371,7 @@ def evaluation_uncertainty(
                                        terms))
     left_out = [
         "the artefact's certificate (these figures are measured lengths, not errors against a calibrated length; "
-        "cmmpose acceptance counts it)",
+        "cmmpose standards acceptance counts it)",
         "a part temperature other than the machine mean the evaluation uses (thesis 6.4.1)",
         "the alignment's pose and mount-offset uncertainty as a common error (cmmpose.evaluation.uncertainty."
         "linear_ballbar_length_uncertainty propagates it; its position-dependent part is in the Type A term)",

@@ -297,7 +297,7 @@ def corrected_maps(model):
     Returns
     -------
     ErrorMap or ErrorMapSet
-        Write it with ``.write(path, format)`` (:mod:`cmmpose.mapfiles`).
+        Write it with ``.write(path, format)`` (:mod:`cmmpose.formats.mapfiles`).
 
     Raises
     ------

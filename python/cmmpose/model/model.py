@@ -25,10 +25,9 @@ from ..atomicfile import write_text
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import Error, InputError, InputTypeError, MapError, ModelDomainWarning, warn_clamped
 from ..fitting import fit_spheres
-from ..policy import LOG_HOLD, TEMPERATURE_TOLERANCE, check_policy
 from ..pose import digitizer
 from ..run import Run
-from ..temperature import TemperaturePolicy
+from ..temperature import LOG_HOLD, TEMPERATURE_TOLERANCE, TemperaturePolicy, check_policy
 from ..kernel_report import KernelReport
 from .alternatives import Alternative, check_alternatives
 from .domain import Domain, correction_uncertainty, domain_notes, uncertainty_notes

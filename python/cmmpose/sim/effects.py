@@ -1,27 +1,26 @@
 """The simulator's view of the physical effects: the classes live one per
 file in :mod:`cmmpose.effects` (their simulator hooks with them); this
-module keeps the names the simulator has always exported."""
+module gathers them for the simulator."""
 
 from __future__ import annotations
 
 from dataclasses import fields
 
 from ..effects import Effect, available, parse
-from ..effects.alignment import Alignment, AlignmentError
+from ..effects.alignment import Alignment
 from ..effects.artefact_expansion import ArtefactExpansion
 from ..effects.axis_temperature import AxisTemperature
 from ..effects.granite_gradient import GraniteGradient
-from ..effects.incidence import Incidence, IncidenceError
-from ..effects.latency import Latency, ScannerLatency
-from ..effects.mount_offset import MountOffset, MountOffsetError
-from ..effects.roll import Roll, UnmeasuredRoll
-from ..effects.scale import Scale, ScaleError
+from ..effects.incidence import Incidence
+from ..effects.latency import Latency
+from ..effects.mount_offset import MountOffset
+from ..effects.roll import Roll
+from ..effects.scale import Scale
 from ..effects.scanner_scale import ScannerScale
-from ..effects.squareness import Squareness, SquarenessOffset
+from ..effects.squareness import Squareness
 
-__all__ = ["Effect", "available_effects", "parse_effect", "inert", "AlignmentError", "ArtefactExpansion", "AxisTemperature",
-           "GraniteGradient", "IncidenceError", "ScannerLatency", "MountOffsetError", "UnmeasuredRoll", "ScaleError",
-           "ScannerScale", "SquarenessOffset",
+__all__ = ["Effect", "available_effects", "parse_effect", "inert", "ArtefactExpansion", "AxisTemperature",
+           "GraniteGradient", "ScannerScale",
            "Alignment", "Incidence", "Latency", "MountOffset", "Roll", "Scale", "Squareness"]
 
 

@@ -46,7 +46,6 @@ import numpy as np
 
 from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
-from .._renamed import per_kelvin_to_ppm, renamed
 from .._validate import finite, nonnegative
 from ..errors import InputError, InputTypeError
 from ..evaluation.ballbar import machine_coordinates, evaluate, machine_temperature, skipped_note
@@ -381,8 +380,6 @@ class AcceptanceResult:
         return save_plot(fig, path)
 
 
-@renamed(calibrated_length_mm="calibrated_length", calibrated_radius_mm="calibrated_radius",
-         reference_radius_mm="reference_radius", expansion=("expansion_ppm_per_K", per_kelvin_to_ppm))
 def acceptance_test(
     run: Run,
     maps: ErrorMap | ErrorMapSet | None = None,
@@ -437,8 +434,7 @@ def acceptance_test(
     u_form_certificate_um : float
         Standard uncertainty of the spheres' form (certified form deviation), um.
     expansion_ppm_per_K : float
-        Expansion coefficient of the artefact, ppm/K (``expansion=`` in 1/K is
-        its older spelling: converted, with a FutureWarning).
+        Expansion coefficient of the artefact, ppm/K.
     u_expansion_ppm_per_K : float
         Standard uncertainty of the expansion coefficient, ppm/K.
     u_part_temperature_K : float
@@ -569,7 +565,6 @@ def _reference_checks(run: Run, maps, temperature, policy, ref_ids: np.ndarray, 
     return out
 
 
-@renamed(calibrated_radius_mm="calibrated_radius")
 def probing_test(points, calibrated_radius: float, *, mpe_form, mpe_size, u_form_certificate_um: float = 0.0,
                  u_diameter_certificate_um: float = 0.0, item: str = "sphere scan") -> AcceptanceResult:
     """Probing form and size errors of one scan of a calibrated sphere (a

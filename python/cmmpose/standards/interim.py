@@ -32,7 +32,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._json import dumps as strict_json
-from .._renamed import per_kelvin_to_ppm, renamed
 from .._validate import finite
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError, InputTypeError
@@ -162,7 +161,6 @@ class InterimCheck:
         return t
 
 
-@renamed(calibrated_length_mm="calibrated_length", expansion=("expansion_ppm_per_K", per_kelvin_to_ppm))
 def interim_check(
     run: Run,
     maps: ErrorMap | ErrorMapSet | None = None,
@@ -195,8 +193,7 @@ def interim_check(
     u_length_certificate_um : float
         Standard uncertainty of the certified length, um.
     expansion_ppm_per_K : float
-        Bar expansion coefficient, ppm/K (``expansion=`` in 1/K is its older
-        spelling: converted, with a FutureWarning).
+        Bar expansion coefficient, ppm/K.
     u_expansion_ppm_per_K : float
         Its standard uncertainty, ppm/K.
     u_temperature_K : float

@@ -1,7 +1,7 @@
-"""The command line's polish: a usage error, not a traceback, for a plot name matplotlib cannot save or a negative
-seed; cmmpose's warnings as one clean line each, once; no pass/fail from an ill-conditioned probing fit; an effect
-that would simulate nothing or names a parameter twice refused; an expansion coefficient in the machine file's range
-on every command that takes one (red-team reproducers 07, 11, 13, 15)."""
+"""Usage errors and warnings on the command line: a usage error, not a traceback, for a plot name matplotlib cannot
+save or a negative seed; cmmpose's warnings as one clean line each, once; no pass/fail from an ill-conditioned probing
+fit; an effect that would simulate nothing or names a parameter twice refused; an expansion coefficient in the machine
+file's range on every command that takes one."""
 
 import re
 import subprocess
@@ -118,10 +118,10 @@ def test_cli_warnings_format_cmmposes_own_once_and_leave_the_rest():
     with cli_warnings():
         first = warnings.formatwarning("clamped into the maps: 1 X", ClampWarning, "/x/compensation.py", 134)
         again = warnings.formatwarning("clamped into the maps: 1 X", ClampWarning, "/y/other.py", 9)
-        old_spelling = warnings.formatwarning("`cmmpose a` is now `cmmpose b`", FutureWarning, "cmmpose", 0)
+        cli_own = warnings.formatwarning("--x ignored with --y", UserWarning, "cmmpose", 0)  # the command line's own
         theirs = warnings.formatwarning("divide by zero", RuntimeWarning, "/numpy/x.py", 5)
     assert first == "warning: clamped into the maps: 1 X\n" and again == ""
-    assert old_spelling == "warning: `cmmpose a` is now `cmmpose b`\n"
+    assert cli_own == "warning: --x ignored with --y\n"
     assert "RuntimeWarning" in theirs and "x.py:5" in theirs  # another package's: Python's form
     assert warnings.formatwarning("m", ClampWarning, "f.py", 1).startswith("f.py:1: ClampWarning")  # restored
 

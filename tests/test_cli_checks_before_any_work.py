@@ -1,4 +1,4 @@
-"""Command-line checks made before any work (red-team round 2): each test fails on the code before its fix.
+"""Command-line checks made before any work: bad options and outputs refused before a run is read or a file written.
 
 The fleet report's folder names, an existing file given as --report, non-positive or NaN calibrated sizes,
 plan's usage errors naming the flags, the printed alignment command's --nominal-pose, implausible ISO 230-2
@@ -60,7 +60,7 @@ def test_report_folder_names_are_the_run_folders_names_and_shared_by_both_paths(
 
 # -- 2: diagnose --report naming an existing file that is not a report ----------------------------------------------
 
-def test_diagnose_report_refuses_an_existing_file_that_is_not_html(tmp_path):
+def test_diagnose_report_refuses_an_existing_file(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     notes = tmp_path / "notes.txt"
@@ -71,7 +71,7 @@ def test_diagnose_report_refuses_an_existing_file_that_is_not_html(tmp_path):
     assert notes.read_text() == "my notes\n"
 
 
-def test_report_folder_html_keeps_folders_and_the_older_html_spelling(tmp_path):
+def test_report_folder_html_takes_a_folder_and_marks_an_existing_file_for_refusal(tmp_path):
     from cmmpose.cli.common import check_report_file, report_folder_html
 
     ctx = click.Context(main.get_command(None, "diagnose"), info_name="diagnose")
@@ -79,18 +79,31 @@ def test_report_folder_html_keeps_folders_and_the_older_html_spelling(tmp_path):
     folder.mkdir()
     assert report_folder_html(ctx, None, str(folder)) == str(folder / "diagnose.html")
     assert report_folder_html(ctx, None, str(tmp_path / "new")) == str(tmp_path / "new" / "diagnose.html")
-    old = tmp_path / "old.html"
-    old.write_text("<html></html>")
-    with pytest.warns(FutureWarning, match="folder"):
-        assert report_folder_html(ctx, None, str(old)) == str(old)
-    other = tmp_path / "data.csv"
-    other.write_text("x\n1\n")
-    assert report_folder_html(ctx, None, str(other)) == str(other)  # refused by the command, after check_outputs
-    with pytest.raises(click.BadParameter, match="not a folder"):
-        check_report_file(str(other))
-    check_report_file(str(old))
+    # A name ending in .html is a folder like any other: made if missing, refused if it is an existing file.
+    assert report_folder_html(ctx, None, str(tmp_path / "r.html")) == str(tmp_path / "r.html" / "diagnose.html")
+    for name, text in (("old.html", "<html></html>"), ("data.csv", "x\n1\n")):
+        other = tmp_path / name
+        other.write_text(text)
+        passed = report_folder_html(ctx, None, str(other))
+        assert passed == str(other)  # refused by the command, after check_outputs
+        with pytest.raises(click.BadParameter, match="not a folder"):
+            check_report_file(passed)
+    # A report already in its folder (a second run of the command) is replaced, not refused.
+    (folder / "diagnose.html").write_text("<html></html>")
+    check_report_file(report_folder_html(ctx, None, str(folder)))
     check_report_file(str(tmp_path / "new" / "diagnose.html"))
     check_report_file(None)
+
+
+def test_diagnose_report_refuses_an_existing_html_file(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    page = tmp_path / "old.html"
+    page.write_text("<html></html>")
+    res = _invoke("diagnose", run, "--no-auto", "--report", page)
+    _usage_error(res, "--report")
+    assert "old.html" in res.output and "not a folder" in res.output, res.output
+    assert page.read_text() == "<html></html>"
 
 
 def test_diagnose_report_naming_an_input_still_says_so(tmp_path):
@@ -103,7 +116,7 @@ def test_diagnose_report_naming_an_input_still_says_so(tmp_path):
     assert model.read_text() == "{}"
 
 
-def test_diagnose_joint_report_refuses_an_existing_file_that_is_not_html(tmp_path):
+def test_diagnose_joint_report_refuses_an_existing_file(tmp_path):
     runs = [tmp_path / "a", tmp_path / "b"]
     for r in runs:
         r.mkdir()
