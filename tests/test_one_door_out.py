@@ -1,0 +1,312 @@
+"""Issue 35, item 2: one door out. Every output is created exclusively (of two
+writers of one name exactly one succeeds; an existing target is refused
+without --overwrite, before any work), written beside its target under a
+short temporary name and renamed; a group of files (a run, a map set) appears
+whole or not at all; every derived name is checked against every input,
+through links. Tests run as root, so a full disk is simulated by making the
+system calls fail."""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+import cmmpose
+from cmmpose import atomicfile
+from cmmpose.atomicfile import AtomicFile, FileGroup, write_text
+from cmmpose.cli import main
+from cmmpose.errors import InputError, OutputError
+from cmmpose.run import Run
+
+HERE = Path(__file__).parent
+ENV = {**os.environ, "PYTHONPATH": str(HERE.parent / "python")}
+
+
+def cli(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def one_line_failure(result, *words, code=1):
+    """Exit ``code`` with one line naming ``words``, no traceback."""
+    assert result.exit_code == code, result.output
+    assert isinstance(result.exception, SystemExit), result.exception
+    text = result.output.strip()
+    assert "Traceback" not in text, text
+    errors = [line for line in text.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1, text
+    for w in words:
+        assert w in errors[0], errors[0]
+    return errors[0]
+
+
+def scratch(folder: Path) -> list[str]:
+    """Names in ``folder`` that a writer left behind (temporary files, stages)."""
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith(".") or p.name.endswith(".tmp"))
+
+
+# -- one file: exclusive creation ---------------------------------------------------------
+
+
+def test_two_writers_of_one_file_never_both_succeed(tmp_path):
+    target = tmp_path / "x.txt"
+    a = AtomicFile(target, "w", overwrite=False)
+    b = AtomicFile(target, "w", overwrite=False)  # both started before either finished
+    a.f.write("a\n")
+    b.f.write("b\n")
+    a.commit()
+    with pytest.raises(OutputError, match="another writer created it"):
+        b.commit()
+    assert target.read_text() == "a\n"
+    assert scratch(tmp_path) == []
+
+
+def test_without_overwrite_an_existing_file_is_refused_at_once(tmp_path):
+    target = tmp_path / "x.txt"
+    target.write_text("mine\n")
+    with pytest.raises(OutputError, match="exists"):
+        AtomicFile(target, "w", overwrite=False)
+    with pytest.raises(OutputError, match="exists"):
+        atomicfile.check_output(target, overwrite=False)
+    write_text(target, "new\n")  # the library's default replaces
+    assert target.read_text() == "new\n"
+    assert scratch(tmp_path) == []
+
+
+def test_exclusive_creation_where_the_file_system_has_no_hard_links(tmp_path, monkeypatch):
+    def no_links(*a, **k):
+        raise OSError(errno.EPERM, os.strerror(errno.EPERM))
+    monkeypatch.setattr(os, "link", no_links)
+    target = tmp_path / "x.txt"
+    a = AtomicFile(target, "w", overwrite=False)
+    b = AtomicFile(target, "w", overwrite=False)
+    a.f.write("a\n")
+    b.f.write("b\n")
+    a.commit()
+    with pytest.raises(OutputError, match="another writer"):
+        b.commit()
+    assert target.read_text() == "a\n"
+    assert scratch(tmp_path) == []
+
+
+@pytest.mark.parametrize("command", [("machine", "example", "thesis"), ("artefact", "example", "ballbar")])
+def test_example_files_are_created_exclusively(tmp_path, monkeypatch, command):
+    """Another writer makes the file while this one works: this one fails, the other's file stays."""
+    target = tmp_path / "x.toml"
+    real = atomicfile._put_in_place
+
+    def meanwhile(tmp, dst, overwrite, what="output"):
+        Path(dst).write_text("the other writer's\n")
+        return real(tmp, dst, overwrite, what)
+
+    monkeypatch.setattr(atomicfile, "_put_in_place", meanwhile)
+    one_line_failure(cli(*command, "-o", target), str(target), "another writer", "--overwrite")
+    assert target.read_text() == "the other writer's\n"
+    assert scratch(tmp_path) == []
+    monkeypatch.undo()
+    one_line_failure(cli(*command, "-o", target), str(target), "exists", "--overwrite")
+    assert cli(*command, "-o", target, "--overwrite").exit_code == 0
+    assert target.read_text() != "the other writer's\n"
+
+
+def test_two_example_commands_started_together(tmp_path):
+    target = tmp_path / "a.toml"
+    procs = [subprocess.Popen([sys.executable, "-m", "cmmpose.cli", "artefact", "example", kind, "-o", str(target)],
+                              env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for kind in ("ballbar", "sphere")]
+    codes = [p.wait(timeout=120) for p in procs]
+    assert sorted(codes) == [0, 1], codes
+    loser = procs[codes.index(1)].communicate()[1]
+    assert str(target) in loser and "Traceback" not in loser
+    assert scratch(tmp_path) == []
+
+
+# -- short temporary names ----------------------------------------------------------------
+
+
+def test_a_name_as_long_as_the_file_system_allows(tmp_path):
+    name = "a" * 250 + ".csv"  # 254 characters: legal (255 is the usual limit)
+    write_text(tmp_path / name, "x\n")
+    assert (tmp_path / name).read_text() == "x\n"
+    em = cmmpose.ErrorMap.appendix_b()
+    em.write(tmp_path / name)  # replaced through a temporary file beside it
+    assert scratch(tmp_path) == []
+
+
+def test_a_run_folder_named_as_long_as_allowed(tmp_path):
+    run_dir = tmp_path / ("r" * 254)
+    assert cli("simulate", "-o", run_dir, "--seed", "1").exit_code == 0
+    assert cli("simulate", "-o", run_dir, "--seed", "2", "--overwrite").exit_code == 0
+    Run.load(run_dir)
+    assert scratch(tmp_path) == []
+
+
+# -- run folders --------------------------------------------------------------------------
+
+
+def test_simulate_refuses_a_full_folder_before_any_work(tmp_path, monkeypatch):
+    import cmmpose.sim
+
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "notes.txt").write_text("mine\n")
+
+    def never(*a, **k):
+        raise AssertionError("simulated before checking the output")
+    monkeypatch.setattr(cmmpose.sim, "simulate_ballbar_run", never)
+    one_line_failure(cli("simulate", "-o", tmp_path / "run"), "not empty", "--overwrite")
+
+
+def test_a_run_filled_by_another_writer_meanwhile_is_never_mixed(tmp_path, monkeypatch):
+    run_dir = tmp_path / "run"
+    real = Run._write_files
+
+    def meanwhile(self, stage, final, *a):
+        final.mkdir(exist_ok=True)
+        (final / "run.json").write_text("the other writer's\n")
+        return real(self, stage, final, *a)
+
+    monkeypatch.setattr(Run, "_write_files", meanwhile)
+    one_line_failure(cli("simulate", "-o", run_dir, "--seed", "1"), str(run_dir), "another writer")
+    assert [p.name for p in run_dir.iterdir()] == ["run.json"]
+    assert (run_dir / "run.json").read_text() == "the other writer's\n"
+    assert scratch(tmp_path) == []
+
+
+def test_two_simulations_into_one_folder_started_together(tmp_path):
+    run_dir = tmp_path / "same"
+    procs = [subprocess.Popen([sys.executable, "-m", "cmmpose.cli", "simulate", "-o", str(run_dir), "--seed", s],
+                              env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for s in ("1", "2")]
+    codes = [p.wait(timeout=300) for p in procs]
+    assert sorted(codes) == [0, 1], codes
+    loser = procs[codes.index(1)].communicate()[1]
+    assert str(run_dir) in loser and "Traceback" not in loser
+    Run.load(run_dir)
+    assert scratch(tmp_path) == []
+
+
+# -- groups of files ----------------------------------------------------------------------
+
+
+def _group(tmp_path, overwrite=True):
+    with FileGroup(overwrite=overwrite, what="set"):
+        for k in range(3):
+            write_text(tmp_path / f"m{k}.csv", f"new {k}\n")
+
+
+def test_a_group_appears_whole(tmp_path):
+    (tmp_path / "m1.csv").write_text("old 1\n")
+    _group(tmp_path)
+    assert [(tmp_path / f"m{k}.csv").read_text() for k in range(3)] == ["new 0\n", "new 1\n", "new 2\n"]
+    assert scratch(tmp_path) == []
+    with pytest.raises(OutputError, match="exists"):
+        _group(tmp_path, overwrite=False)
+
+
+@pytest.mark.parametrize("on", ["write", "place"])
+def test_a_group_that_fails_leaves_nothing_of_it(tmp_path, monkeypatch, on):
+    (tmp_path / "m1.csv").write_text("old 1\n")
+    if on == "write":  # the disk fills on the last member
+        real_fsync, calls = os.fsync, []
+
+        def fsync(fd):
+            if os.readlink(f"/proc/self/fd/{fd}").endswith(".tmp"):
+                calls.append(fd)
+                if len(calls) == 3:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            return real_fsync(fd)
+        monkeypatch.setattr(os, "fsync", fsync)
+    else:  # the last rename into place fails: the first two are taken out again
+        real, calls = atomicfile._put_in_place, []
+
+        def put(tmp, dst, *a):
+            calls.append(dst)
+            if len(calls) == 3:
+                raise OSError(errno.EIO, os.strerror(errno.EIO))
+            return real(tmp, dst, *a)
+        monkeypatch.setattr(atomicfile, "_put_in_place", put)
+    with pytest.raises(OutputError) as exc:
+        _group(tmp_path)
+    monkeypatch.undo()
+    if on == "place":
+        assert "nothing of the set was written" in str(exc.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m1.csv"]
+    assert (tmp_path / "m1.csv").read_text() == "old 1\n"
+
+
+# -- diagnose --corrected-maps --------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def maps_and_run(tmp_path_factory):
+    """A simulated run and the thesis maps as files in/cm_20C.csv, in/cm_25C.csv, in/cm_30C.csv."""
+    root = tmp_path_factory.mktemp("corrected")
+    assert cli("simulate", "-o", root / "run", "--seed", "1").exit_code == 0
+    (root / "in").mkdir()
+    for m in cmmpose.ErrorMapSet.thesis().maps:
+        m.write(root / "in" / f"cm_{m.temperature:g}C.csv")
+    return root
+
+
+def _digests(folder: Path) -> dict:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+@pytest.mark.parametrize("spelling", ["same", "dotdot", "symlink"])
+def test_corrected_maps_never_over_the_input_maps(maps_and_run, spelling):
+    root = maps_and_run
+    before = _digests(root / "in")
+    out = {"same": root / "in" / "cm.csv", "dotdot": root / "run" / ".." / "in" / "cm.csv"}.get(spelling)
+    if spelling == "symlink":
+        link = root / "linked"
+        if not link.exists():
+            link.symlink_to(root / "in")
+        out = link / "cm.csv"
+    maps = [a for m in sorted((root / "in").glob("cm_*C.csv")) for a in ("--maps", m)]
+    r = cli("diagnose", root / "run", *maps, "--corrected-maps", out)
+    one_line_failure(r, "--corrected-maps", "cm_20C.csv", "same file as the input")
+    assert _digests(root / "in") == before
+
+
+def test_corrected_maps_never_over_a_machine_files_maps(maps_and_run, tmp_path):
+    root = maps_and_run
+    before = _digests(root / "in")
+    machine = tmp_path / "m.toml"
+    assert cli("machine", "example", "thesis", "-o", machine).exit_code == 0
+    files = ", ".join(f'"{p}"' for p in sorted((root / "in").glob("cm_*C.csv")))
+    machine.write_text(machine.read_text().replace('bundled = "thesis"', f"files = [{files}]"))
+    r = cli("diagnose", root / "run", "--machine", machine, "--corrected-maps", root / "in" / "cm.csv")
+    one_line_failure(r, "--corrected-maps", "same file as the input", "cm_20C.csv")
+    assert _digests(root / "in") == before
+
+
+def test_corrected_maps_on_a_full_disk_leave_no_part_of_the_set(maps_and_run, tmp_path, monkeypatch):
+    root = maps_and_run
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "cm_25C.csv").write_text("earlier\n")
+    real_fsync, calls = os.fsync, []
+
+    def fsync(fd):
+        where = os.readlink(f"/proc/self/fd/{fd}")
+        if where.startswith(str(out)) and where.endswith(".tmp"):
+            calls.append(fd)
+            if len(calls) == 3:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    maps = [a for m in sorted((root / "in").glob("cm_*C.csv")) for a in ("--maps", m)]
+    r = cli("diagnose", root / "run", *maps, "--corrected-maps", out / "cm.csv")
+    monkeypatch.undo()
+    one_line_failure(r, "cm_30C.csv", "no space left")
+    assert sorted(p.name for p in out.iterdir()) == ["cm_25C.csv"]
+    assert (out / "cm_25C.csv").read_text() == "earlier\n"
+    r = cli("diagnose", root / "run", *maps, "--corrected-maps", out / "cm.csv")
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in out.iterdir()) == ["cm_20C.csv", "cm_25C.csv", "cm_30C.csv"]
