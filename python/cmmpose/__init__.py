@@ -14,7 +14,7 @@ from .compensation import compensate, uncompensated
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import (AcquisitionError, AliasedChoiceWarning, CalibrationError, ClampWarning, Error,
                      ExtrapolationWarning, GeometryError, IllConditionedFit, ImplausibleFit, InputError, InputTypeError,
-                     MapError, ModelDomainWarning,
+                     MapError, MissingFileError, ModelDomainWarning,
                      MapTemperatureWarning, OutOfRangeError, OutputError, RunError, SchedulerError, UserEffectError)
 from .pose import MountOffset, Pose
 from .kernel_report import KernelReport
@@ -150,6 +150,7 @@ __all__ = [
     "OutOfRangeError",
     "InputError",
     "InputTypeError",
+    "MissingFileError",
     "UserEffectError",
     "GeometryError",
     "RunError",
