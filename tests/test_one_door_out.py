@@ -310,3 +310,107 @@ def test_corrected_maps_on_a_full_disk_leave_no_part_of_the_set(maps_and_run, tm
     r = cli("diagnose", root / "run", *maps, "--corrected-maps", out / "cm.csv")
     assert r.exit_code == 0, r.output
     assert sorted(p.name for p in out.iterdir()) == ["cm_20C.csv", "cm_25C.csv", "cm_30C.csv"]
+
+
+# -- evaluate: every report path checked before any is written --------------------------------
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("runs")
+    assert cli("simulate", "-o", root / "run", "--seed", "3").exit_code == 0
+    return root / "run"
+
+
+@pytest.mark.parametrize("name", ["summary.csv", "trend.png"])
+def test_evaluate_runs_named_like_its_report_files_write_nothing(small_run, tmp_path, name):
+    import shutil
+
+    shutil.copytree(small_run, tmp_path / "a" / name)
+    shutil.copytree(small_run, tmp_path / "b" / "other")
+    report = tmp_path / "R"
+    r = cli("evaluate", tmp_path / "a" / name, tmp_path / "b" / "other", "--report", report)
+    one_line_failure(r, "--report", name)
+    assert not report.exists() or not any(report.rglob("*"))
+
+
+def test_evaluate_a_folder_where_a_report_file_goes_writes_nothing(small_run, tmp_path):
+    report = tmp_path / "R"
+    (report / "uncertainty.md").mkdir(parents=True)
+    r = cli("evaluate", small_run, "--report", report)
+    one_line_failure(r, "--report", "uncertainty.md", "is a folder")
+    assert sorted(p.name for p in report.iterdir()) == ["uncertainty.md"]
+
+
+# -- compensate: outputs by known suffix; --maps and missing inputs --------------------------
+
+
+@pytest.fixture
+def scan(tmp_path):
+    p = tmp_path / "a.csv"
+    p.write_text("u,v,D,E,F,T\n0,0,450,275,-250,22\n1,-1,451,275,-250,22\n")
+    return p
+
+
+@pytest.mark.parametrize("out", ["out.txt", "out"])
+def test_compensate_refuses_an_unknown_output_suffix(scan, out):
+    r = cli("compensate", scan, scan.parent / out, "--maps", "thesis", "--temperature", "22")
+    one_line_failure(r, out, "unknown point-file suffix", ".csv", ".parquet", ".ply")
+    assert not (scan.parent / out).exists()
+    assert cli("compensate", scan, "/dev/null", "--maps", "thesis", "--temperature", "22").exit_code == 0  # a stream
+
+
+def test_a_wrong_map_name_lists_the_valid_ones(scan):
+    r = cli("compensate", scan, scan.parent / "o.csv", "--maps", "thesiss")
+    one_line_failure(r, "--maps", "thesiss", "thesis, appendix-b, none", code=2)
+
+
+@pytest.mark.parametrize("args, name", [
+    (["compensate", "{missing}", "{tmp}/o.csv", "--maps", "thesis"], "IN"),
+    (["compensate", "{scan}", "{tmp}/o.csv", "--machine", "{missing}"], "--machine"),
+    (["compensate", "{scan}", "{tmp}/o.csv", "--maps", "{missing}"], "--maps"),
+    (["evaluate", "{missing}"], "RUN_DIR"),
+    (["standards", "iso230-2", "{missing}"], "FILE"),
+    (["artefact", "show", "{missing}"], "no such artefact file"),
+])
+def test_a_missing_input_is_a_usage_error_everywhere(scan, args, name):
+    values = {"missing": scan.parent / "nothing.here", "tmp": scan.parent, "scan": scan}
+    r = cli(*[a.format(**values) for a in args])
+    one_line_failure(r, name, "nothing.here", code=2)
+
+
+# -- one door in: special files as documents -------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["fifo", "zero"])
+@pytest.mark.parametrize("args, what", [
+    (["compensate", "{scan}", "{tmp}/o.csv", "--machine", "{special}"], "machine file"),
+    (["evaluate", "{run}", "--model", "{special}"], "model file"),
+    (["diagnose", "{run}", "--user-effect", "{special}"], "user-effect file"),
+    (["artefact", "show", "{special}"], "artefact file"),
+])
+def test_a_fifo_or_a_device_as_a_document_is_refused_at_once(scan, small_run, kind, args, what):
+    special = scan.parent / "doc.fifo"
+    if kind == "fifo":
+        os.mkfifo(special)  # no writer: a read would wait for ever
+    else:
+        special = Path("/dev/zero")  # endless
+    values = {"special": special, "tmp": scan.parent, "scan": scan, "run": small_run}
+    p = subprocess.run([sys.executable, "-m", "cmmpose.cli", *[a.format(**values) for a in args]], env=ENV,
+                       capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    assert p.returncode == 1, p.stderr
+    assert "Traceback" not in p.stderr and "no such" not in p.stderr
+    kind_text = "a FIFO (named pipe)" if kind == "fifo" else "a character device"
+    assert f"{special}: not a regular file but {kind_text}; give the {what} as a file" in p.stderr
+
+
+def test_the_reader_bounds_the_size(tmp_path):
+    from cmmpose.errors import MissingFileError, read_input
+
+    big = tmp_path / "big.json"
+    big.write_bytes(b" " * 1000)
+    with pytest.raises(InputError, match="more than a model file may hold"):
+        read_input(big, "model file", limit=999)
+    assert read_input(big, "model file", limit=1000) == b" " * 1000
+    with pytest.raises(MissingFileError, match="no such model file"):
+        read_input(tmp_path / "none.json", "model file")
