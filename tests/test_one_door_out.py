@@ -414,3 +414,13 @@ def test_the_reader_bounds_the_size(tmp_path):
     assert read_input(big, "model file", limit=1000) == b" " * 1000
     with pytest.raises(MissingFileError, match="no such model file"):
         read_input(tmp_path / "none.json", "model file")
+
+
+def test_a_group_replaces_where_the_file_system_has_no_hard_links(tmp_path, monkeypatch):
+    def no_links(*a, **k):
+        raise OSError(errno.EPERM, os.strerror(errno.EPERM))
+    monkeypatch.setattr(os, "link", no_links)
+    (tmp_path / "m1.csv").write_text("old 1\n")
+    _group(tmp_path)
+    assert [(tmp_path / f"m{k}.csv").read_text() for k in range(3)] == ["new 0\n", "new 1\n", "new 2\n"]
+    assert scratch(tmp_path) == []

@@ -622,7 +622,13 @@ class FileGroup:
                 aside = None
                 if self.overwrite and _lexists(m.target):
                     aside = str(_temp_path(m.target.parent, ".old"))
-                    os.link(m.target, aside, follow_symlinks=False)
+                    try:  # a second name: the target is never missing
+                        os.link(m.target, aside, follow_symlinks=False)
+                    except OSError as exc:
+                        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK,
+                                             errno.ENOSYS):
+                            raise
+                        os.rename(m.target, aside)  # no hard links here: set aside, missing for a moment
                 _put_in_place(m.tmp, m.target, self.overwrite, self.what)
                 m.tmp = None
                 placed.append((m, aside))
