@@ -59,7 +59,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
     from ..machine import load_machine
 
     if str(points_in) != "-" and not os.path.lexists(points_in):  # as evaluate's RUN_DIR: a usage error, exit 2
-        raise click.BadParameter(f"{points_in!r} does not exist", param_hint="'IN'")
+        raise click.BadParameter(f"{points_in}: no such file", param_hint="'IN'")
     try:
         machine = load_machine(machine_file)
         if alignment is not None:
