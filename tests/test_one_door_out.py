@@ -424,3 +424,36 @@ def test_a_group_replaces_where_the_file_system_has_no_hard_links(tmp_path, monk
     _group(tmp_path)
     assert [(tmp_path / f"m{k}.csv").read_text() for k in range(3)] == ["new 0\n", "new 1\n", "new 2\n"]
     assert scratch(tmp_path) == []
+
+
+def _machine_with_maps(tmp_path, folder: Path) -> Path:
+    machine = tmp_path / "m.toml"
+    assert cli("machine", "example", "thesis", "-o", machine).exit_code == 0
+    files = ", ".join(f'"{p}"' for p in sorted(folder.glob("cm_*C.csv")))
+    machine.write_text(machine.read_text().replace('bundled = "thesis"', f"files = [{files}]"))
+    return machine
+
+
+def test_map_export_never_over_a_machine_files_maps(maps_and_run, tmp_path):
+    root = maps_and_run
+    before = _digests(root / "in")
+    machine = _machine_with_maps(tmp_path, root / "in")
+    r = cli("map", "export", "--machine", machine, "--temperature", "20", "--format", "csv",
+            "-o", root / "run" / ".." / "in" / "cm_20C.csv")
+    one_line_failure(r, "--output", "same file as the input", "cm_20C.csv")
+    assert _digests(root / "in") == before
+
+
+def test_linuxcnc_files_appear_together(tmp_path, monkeypatch):
+    real, calls = atomicfile._put_in_place, []
+
+    def put(tmp, dst, *a):
+        calls.append(dst)
+        if len(calls) == 3:
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        return real(tmp, dst, *a)
+    monkeypatch.setattr(atomicfile, "_put_in_place", put)
+    out = tmp_path / "comp"
+    r = cli("map", "export", "appendix-b", "--format", "linuxcnc", "-o", out)
+    one_line_failure(r, "z.comp", "nothing of the --output was written")
+    assert list(out.iterdir()) == []
