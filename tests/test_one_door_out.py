@@ -457,3 +457,12 @@ def test_linuxcnc_files_appear_together(tmp_path, monkeypatch):
     r = cli("map", "export", "appendix-b", "--format", "linuxcnc", "-o", out)
     one_line_failure(r, "z.comp", "nothing of the --output was written")
     assert list(out.iterdir()) == []
+
+
+def test_diagnose_save_model_never_over_a_machine_files_map(maps_and_run, tmp_path):
+    root = maps_and_run
+    before = _digests(root / "in")
+    machine = _machine_with_maps(tmp_path, root / "in")
+    r = cli("diagnose", root / "run", "--machine", machine, "--save-model", root / "in" / "cm_25C.csv")
+    one_line_failure(r, "--save-model", "same file as the input", "cm_25C.csv")
+    assert _digests(root / "in") == before

@@ -278,8 +278,19 @@ def check_outputs(outputs: dict, run_dirs=(), files=()) -> None:
     from ..run import RUN_FILES
 
     inputs = [Path(r) / n for r in run_dirs for n in RUN_FILES] + [f for f in files if f]
+    inputs += [m for f in files if f and str(f).lower().endswith(".toml") for m in _machine_maps(f)]
     for flag, path in outputs.items():
         check_not_input(path, inputs, flag)
+
+
+def _machine_maps(path) -> list:
+    """The map files a machine file names (inputs too), or none if it is not a machine file that loads."""
+    from ..machine import load_machine
+
+    try:
+        return list(load_machine(path).map_files)
+    except (Error, OSError):
+        return []
 
 
 def fail(exc: Exception) -> click.ClickException:
