@@ -466,3 +466,17 @@ def test_diagnose_save_model_never_over_a_machine_files_map(maps_and_run, tmp_pa
     r = cli("diagnose", root / "run", "--machine", machine, "--save-model", root / "in" / "cm_25C.csv")
     one_line_failure(r, "--save-model", "same file as the input", "cm_25C.csv")
     assert _digests(root / "in") == before
+
+
+def test_a_group_is_this_threads_only(tmp_path):
+    import threading
+
+    other = tmp_path / "other.txt"
+    with FileGroup(what="set"):
+        write_text(tmp_path / "m0.csv", "new 0\n")
+        t = threading.Thread(target=write_text, args=(other, "another thread's\n"))
+        t.start()
+        t.join()
+        assert other.read_text() == "another thread's\n"  # not held back for the group
+        assert not (tmp_path / "m0.csv").exists()
+    assert (tmp_path / "m0.csv").read_text() == "new 0\n"

@@ -45,6 +45,7 @@
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import errno
 import fcntl
 import logging
@@ -333,7 +334,8 @@ class AtomicFile:
                  overwrite: bool = True):
         if mode not in ("w", "wb"):
             raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
-        self.group = _GROUP[-1] if _GROUP else None
+        groups = _GROUP.get()
+        self.group = groups[-1] if groups else None
         if self.group is not None:
             overwrite = self.group.overwrite
             inputs = [*inputs, *self.group.inputs]
@@ -553,8 +555,9 @@ def save_figure(fig, path, **options) -> None:
         fig.savefig(f, format=fmt, **options)
 
 
-#: The groups being written, innermost last (:class:`FileGroup`); a writer's :class:`AtomicFile` joins the last.
-_GROUP: list = []
+#: The groups being written in this thread or task, innermost last (:class:`FileGroup`); a writer's
+#: :class:`AtomicFile` joins the last. A context variable: another thread's writers never join.
+_GROUP: contextvars.ContextVar[tuple] = contextvars.ContextVar("cmmpose_file_group", default=())
 
 
 class FileGroup:
@@ -590,11 +593,11 @@ class FileGroup:
         self.members.append(member)
 
     def __enter__(self):
-        _GROUP.append(self)
+        self._token = _GROUP.set((*_GROUP.get(), self))
         return self
 
     def __exit__(self, kind, exc, tb):
-        _GROUP.remove(self)
+        _GROUP.reset(self._token)
         if kind is not None:
             self._drop()
             return False
