@@ -230,7 +230,7 @@ def full_disk(work: Path, writer: str) -> None:
     if writer == "simulate":
         small_run(work, "old")
     with tmpfs(work, size="64m") as fs:
-        earlier = fs / {"compensate": "prev.csv", "machine": "prev.toml", "model": "prev.json",
+        earlier = fs / {"compensate": "prev.csv", "machine": "prev.toml", "artefact": "prev.toml", "model": "prev.json",
                         "simulate": "run", "map": "prev_map.csv", "report": "rep"}[writer]
         if writer == "simulate":
             shutil.copytree(work / "old", earlier)
@@ -251,6 +251,7 @@ def full_disk(work: Path, writer: str) -> None:
         args = {
             "compensate": ("compensate", "a.csv", earlier, *COMPENSATE),
             "machine": ("machine", "example", "moving-bridge", "-o", earlier),
+            "artefact": ("artefact", "example", "ball-plate", "-o", earlier, "--overwrite"),
             "model": ("diagnose", "r", "--save-model", earlier),
             "simulate": ("simulate", "--seed", 2, "--overwrite", "-o", earlier),
             "map": ("map", "export", "thesis", "--format", "iso230-2", "-o", earlier),
@@ -274,6 +275,15 @@ def read_only_output(work: Path) -> None:
             raise Skip("cannot remount read-only")
         r = cli("compensate", "a.csv", fs / "out.csv", *COMPENSATE, cwd=work)
         refused(r, what="compensate to a read-only disk", mentions=("out.csv",))
+
+
+def read_only_example(work: Path) -> None:
+    """artefact example -o on a read-only file system: a one-line error naming the file, no traceback."""
+    with tmpfs(work) as fs:
+        if subprocess.run(["mount", "-o", "remount,ro", str(fs)], capture_output=True).returncode:
+            raise Skip("cannot remount read-only")
+        r = cli("artefact", "example", "ballbar", "-o", fs / "a.toml", cwd=work)
+        refused(r, what="artefact example to a read-only disk", mentions=("a.toml", "read-only"))
 
 
 def killed_mid_write(work: Path, sig: int) -> None:
@@ -833,6 +843,7 @@ ATTACKS = {
         "output a folder": directory_output,
         "full disk: compensate": lambda w: full_disk(w, "compensate"),
         "full disk: machine example": lambda w: full_disk(w, "machine"),
+        "full disk: artefact example --overwrite": lambda w: full_disk(w, "artefact"),
         "full disk: diagnose --save-model": lambda w: full_disk(w, "model"),
         "full disk: simulate --overwrite": lambda w: full_disk(w, "simulate"),
         "full disk: map export": lambda w: full_disk(w, "map"),
@@ -867,6 +878,7 @@ ATTACKS = {
         "diagnose-fits: header, no rows": fits_header_only,
         "output /dev/full": full_device_output,
         "read-only output": read_only_output,
+        "artefact example -o on a read-only disk": read_only_example,
         "input /dev/zero": lambda w: special_input(w, "zero"),
         "one 1e12 mm outlier in a fit": outlier_fit,
         '--maps ""': empty_maps,

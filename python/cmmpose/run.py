@@ -564,7 +564,10 @@ class Run:
         overwrite : bool
             Write into a non-empty directory, replacing the run files there
             (run.json, the tables as .parquet or .csv, truth/); other files are
-            left alone. Without it a non-empty directory raises ``RunError``.
+            left alone. Without it a non-empty directory raises ``RunError``
+            (:func:`check_run_target` makes the same check before any work),
+            and the run is created exclusively: of two writers of one folder
+            one fails, and the folder holds one whole run, never a mix.
 
         The new run is written into a temporary folder beside ``run_dir`` and
         swapped in only when complete (:func:`cmmpose.atomicfile.staged_folder`):
