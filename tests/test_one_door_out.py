@@ -480,3 +480,29 @@ def test_a_group_is_this_threads_only(tmp_path):
         assert other.read_text() == "another thread's\n"  # not held back for the group
         assert not (tmp_path / "m0.csv").exists()
     assert (tmp_path / "m0.csv").read_text() == "new 0\n"
+
+
+def test_two_saves_into_one_alignment_library_keep_both(tmp_path, monkeypatch):
+    """Each save reads the library, adds its pose and writes it back: two at once must not drop one."""
+    import threading
+    import time
+
+    from cmmpose.calibration.library import AlignmentLibrary, AlignmentRecord
+
+    path = tmp_path / "lib.json"
+    real = AlignmentLibrary._read
+
+    def slow_read(self):
+        poses = real(self)
+        time.sleep(0.3)  # both have read before either writes, unless they take turns
+        return poses
+
+    monkeypatch.setattr(AlignmentLibrary, "_read", slow_read)
+    rec = AlignmentRecord(pose=(90.0, 90.0, 0.0), reading=(1.0, 2.0, 3.0), offset=(1.001, 264.505, 129.575))
+    threads = [threading.Thread(target=AlignmentLibrary(path).save, args=(name, rec)) for name in ("A0B0", "A90B0")]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    monkeypatch.undo()
+    assert AlignmentLibrary(path).names() == ["A0B0", "A90B0"]

@@ -63,7 +63,7 @@ from .errors import InputError, OutputError
 
 __all__ = ["STDOUT", "FIFO_OPEN_TIMEOUT", "AtomicFile", "FileGroup", "atomic_write", "write_text", "write_bytes",
            "save_figure", "check_output", "check_outputs_free", "check_not_input", "ensure_folder", "output_error",
-           "staged_folder", "replace_link", "raise_on_termination", "exists_error"]
+           "staged_folder", "locked_update", "replace_link", "raise_on_termination", "exists_error"]
 
 _log = logging.getLogger("cmmpose")
 
@@ -806,6 +806,24 @@ def _swap_in_locked(stage: Path, folder: Path, replace: list[str]) -> None:
         with contextlib.suppress(OSError):
             (folder / rel).rmdir()
     _fsync_folder(folder)
+
+
+@contextlib.contextmanager
+def locked_update(path):
+    """``with locked_update(path): read, change, write``: a read-modify-write of ``path`` (an alignment
+    library) under a lock on its folder, so that two writers updating one file take turns and neither's
+    change is lost (each would otherwise read the old file and the last rename would drop the other's).
+    The folder is made if missing; the lock is released on exit, or by the system if the process dies."""
+    folder = ensure_folder(Path(os.path.abspath(path)).parent)
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError as exc:
+        raise output_error(path, exc) from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
 
 
 def replace_link(link, target) -> None:
