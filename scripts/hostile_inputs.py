@@ -230,7 +230,7 @@ def full_disk(work: Path, writer: str) -> None:
     if writer == "simulate":
         small_run(work, "old")
     with tmpfs(work, size="64m") as fs:
-        earlier = fs / {"compensate": "prev.csv", "machine": "prev.toml", "model": "prev.json",
+        earlier = fs / {"compensate": "prev.csv", "machine": "prev.toml", "artefact": "prev.toml", "model": "prev.json",
                         "simulate": "run", "map": "prev_map.csv", "report": "rep"}[writer]
         if writer == "simulate":
             shutil.copytree(work / "old", earlier)
@@ -251,6 +251,7 @@ def full_disk(work: Path, writer: str) -> None:
         args = {
             "compensate": ("compensate", "a.csv", earlier, *COMPENSATE),
             "machine": ("machine", "example", "moving-bridge", "-o", earlier),
+            "artefact": ("artefact", "example", "ball-plate", "-o", earlier, "--overwrite"),
             "model": ("diagnose", "r", "--save-model", earlier),
             "simulate": ("simulate", "--seed", 2, "--overwrite", "-o", earlier),
             "map": ("map", "export", "thesis", "--format", "iso230-2", "-o", earlier),
@@ -274,6 +275,15 @@ def read_only_output(work: Path) -> None:
             raise Skip("cannot remount read-only")
         r = cli("compensate", "a.csv", fs / "out.csv", *COMPENSATE, cwd=work)
         refused(r, what="compensate to a read-only disk", mentions=("out.csv",))
+
+
+def read_only_example(work: Path) -> None:
+    """artefact example -o on a read-only file system: a one-line error naming the file, no traceback."""
+    with tmpfs(work) as fs:
+        if subprocess.run(["mount", "-o", "remount,ro", str(fs)], capture_output=True).returncode:
+            raise Skip("cannot remount read-only")
+        r = cli("artefact", "example", "ballbar", "-o", fs / "a.toml", cwd=work)
+        refused(r, what="artefact example to a read-only disk", mentions=("a.toml", "read-only"))
 
 
 def killed_mid_write(work: Path, sig: int) -> None:
@@ -675,6 +685,154 @@ def empty_option(work: Path, option: str, value: str) -> None:
         raise Failed("silent", f"{option} {value!r}: exit {r.code}, a usage error is 2")
 
 
+# ---------------------------------------------------------------------------------------------- one door out (issue 35)
+def started_together(work: Path, command: str) -> None:
+    """Two writers of one output started together: exactly one succeeds, the other fails with a clear
+    message naming the output, and the output is whole (never both exit 0 with one result lost)."""
+    target = work / {"simulate": "same", "artefact": "a.toml", "machine": "m.toml"}[command]
+    argv = {"simulate": [["simulate", "--seed", s, "-o", target] for s in (1, 2)],
+            "artefact": [["artefact", "example", k, "-o", target] for k in ("ballbar", "sphere")],
+            "machine": [["machine", "example", k, "-o", target] for k in ("thesis", "gantry")]}[command]
+    procs = [subprocess.Popen([*cmmpose_exe(), *map(str, a)], cwd=work, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL) for a in argv]
+    try:
+        outs = [p.communicate(timeout=TIMEOUT) for p in procs]
+    except subprocess.TimeoutExpired:
+        for p in procs:
+            p.kill()
+        raise Failed("hang", f"two {command} -o {target.name}: still running after {TIMEOUT:.0f} s") from None
+    codes = sorted(p.returncode for p in procs)
+    if codes == [0, 0]:
+        raise Failed("data loss", f"two {command} -o {target.name} started together both exit 0: one result is gone")
+    if codes != [0, 1]:
+        raise Failed("traceback", f"two {command} -o {target.name}: exits {codes}: {outs}")
+    loser = outs[[p.returncode for p in procs].index(1)]
+    if target.name not in loser[1] or "Traceback" in loser[1]:
+        raise Failed("silent", f"two {command}: the refusal does not name {target.name}: {loser[1][-300:]}")
+    extra = leftovers(work, {target.name})
+    if extra:
+        raise Failed("data loss", f"two {command}: left {extra}")
+    if command == "simulate":
+        check = subprocess.run([sys.executable, "-c", f"import cmmpose.run as r; r.Run.load({str(target)!r})"],
+                               capture_output=True, text=True)
+        if check.returncode:
+            raise Failed("data loss", f"two simulate -o same: the run left does not load: {check.stderr[-300:]}")
+
+
+def _map_inputs(work: Path) -> tuple[list[str], dict[str, str]]:
+    """The thesis maps as files in/cm_20C.csv, in/cm_25C.csv, in/cm_30C.csv: --maps arguments and digests."""
+    (work / "in").mkdir()
+    code = ("import cmmpose,sys\nfor m in cmmpose.ErrorMapSet.thesis().maps: "
+            "m.write(f'{sys.argv[1]}/cm_{m.temperature:g}C.csv')")
+    subprocess.run([sys.executable, "-c", code, str(work / "in")], check=True)
+    files = sorted((work / "in").glob("cm_*C.csv"))
+    return [a for f in files for a in ("--maps", str(f))], {f.name: digest(f) for f in files}
+
+
+def corrected_maps_over_inputs(work: Path, via: str) -> None:
+    """diagnose --corrected-maps in/cm.csv derives cm_20C.csv ... : never written over the input maps of
+    those names, given by --maps or as a machine file's own maps; refused naming the input."""
+    small_run(work, "r")
+    maps, before = _map_inputs(work)
+    if via == "machine":
+        r = cli("machine", "example", "thesis", "-o", "m.toml", cwd=work)
+        text = (work / "m.toml").read_text()
+        files = ", ".join(f'"{work / "in" / n}"' for n in sorted(before))
+        (work / "m.toml").write_text(text.replace('bundled = "thesis"', f"files = [{files}]"))
+        maps = ["--machine", "m.toml"]
+    r = cli("diagnose", "r", *maps, "--corrected-maps", "in/cm.csv", cwd=work)
+    now = {p.name: digest(p) for p in (work / "in").iterdir()}
+    if now != before:
+        raise Failed("data loss", f"diagnose --corrected-maps over the {via} maps: the inputs changed (exit {r.code})")
+    refused(r, what=f"diagnose --corrected-maps over the {via} maps", mentions=("cm_20C.csv", "input"))
+
+
+def corrected_maps_full_disk(work: Path) -> None:
+    """On a disk with room for one map of three, --corrected-maps leaves no part of the set and does not
+    say 'unchanged' of files it changed."""
+    small_run(work, "r")
+    maps, _ = _map_inputs(work)
+    with tmpfs(work, size="64m") as fs:
+        spacer = fs / "spacer"
+        spacer.write_bytes(b"\0" * 8192)  # room for two of the three maps when freed
+        fill(fs)
+        spacer.unlink()
+        r = cli("diagnose", "r", *maps, "--corrected-maps", fs / "cm.csv", cwd=work)
+        extra = leftovers(fs, {"filler"})
+        if extra:
+            raise Failed("data loss", f"--corrected-maps on a full disk left {extra} (exit {r.code})")
+        refused(r, what="--corrected-maps on a full disk", mentions=("cm_",), never=("no such file",))
+
+
+def evaluate_report_named_runs(work: Path) -> None:
+    """evaluate of runs in folders named like its report files: refused before any report is written."""
+    run = small_run(work, "r")
+    shutil.copytree(run, work / "x" / "summary.csv")
+    shutil.copytree(run, work / "y" / "b")
+    r = cli("evaluate", "x/summary.csv", "y/b", "--report", "R", cwd=work)
+    written = sorted(str(p.relative_to(work / "R")) for p in (work / "R").rglob("*")) if (work / "R").exists() else []
+    if written:
+        raise Failed("data loss" if r.code else "silent",
+                     f"evaluate of a run named summary.csv wrote {written[:4]} (exit {r.code})")
+    refused(r, what="evaluate of a run named summary.csv", mentions=("summary.csv",))
+
+
+def long_output_name(work: Path) -> None:
+    """A legal 254-character output name works (the temporary name beside it is short)."""
+    scan_copy(work)
+    name = "o" * 250 + ".csv"
+    r = cli("compensate", "a.csv", name, *COMPENSATE, cwd=work)
+    if r.code != 0 or not (work / name).is_file():
+        raise Failed("silent", f"compensate to a 254-character name: exit {r.code}: {r.text.strip()[-200:]}")
+    r = cli("simulate", "--seed", 1, "-o", "r" * 254, cwd=work)
+    if r.code != 0:
+        raise Failed("silent", f"simulate into a 254-character folder: exit {r.code}: {r.text.strip()[-200:]}")
+
+
+def unknown_output_suffix(work: Path) -> None:
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "out.txt", *COMPENSATE, cwd=work)
+    if (work / "out.txt").exists():
+        raise Failed("silent", "compensate a.csv out.txt: wrote a file (CSV under a name that does not say so)")
+    refused(r, what="compensate a.csv out.txt", mentions=("out.txt", ".csv", ".parquet"))
+
+
+def wrong_map_name(work: Path) -> None:
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "o.csv", "--maps", "thesiss", cwd=work)
+    refused(r, what="--maps thesiss", mentions=("thesiss", "thesis", "appendix-b"), never=("no such file or directory",))
+
+
+def missing_input_status(work: Path) -> None:
+    """A missing input is a usage error (exit 2) in every command, naming what is missing."""
+    scan_copy(work)
+    for args in (("compensate", "nothing.csv", "o.csv", *COMPENSATE), ("evaluate", "nothing"),
+                 ("standards", "iso230-2", "nothing.csv"), ("compensate", "a.csv", "o.csv", "--machine", "nothing"),
+                 ("artefact", "show", "nothing.toml")):
+        r = cli(*args, cwd=work)
+        if r.code != 2 or "nothing" not in r.text:
+            raise Failed("silent", f"{' '.join(args[:2])} of a missing input: exit {r.code} (want 2): "
+                                   f"{r.text.strip()[-200:]}")
+
+
+def special_document(work: Path, kind: str, door: str) -> None:
+    """A FIFO with no writer, or /dev/zero, given as a document: refused at once as not a regular file."""
+    scan_copy(work)
+    if kind == "fifo":
+        os.mkfifo(work / "doc")
+        name = "doc"
+    else:
+        name = "/dev/zero"
+    if door in ("model", "user-effect"):
+        small_run(work, "r")
+    args = {"machine": ("compensate", "a.csv", "o.csv", "--machine", name, *COMPENSATE),
+            "model": ("evaluate", "r", "--model", name),
+            "user-effect": ("diagnose", "r", "--user-effect", name),
+            "artefact": ("artefact", "show", name)}[door]
+    r = cli(*args, cwd=work, timeout=60)
+    refused(r, what=f"{door} file a {kind}", mentions=(name, "not a regular file"), never=("no such file",))
+
+
 ATTACKS = {
     "data loss": {
         "compensate a.csv a.csv": lambda w: same_file(w, "plain"),
@@ -686,6 +844,7 @@ ATTACKS = {
         "output a folder": directory_output,
         "full disk: compensate": lambda w: full_disk(w, "compensate"),
         "full disk: machine example": lambda w: full_disk(w, "machine"),
+        "full disk: artefact example --overwrite": lambda w: full_disk(w, "artefact"),
         "full disk: diagnose --save-model": lambda w: full_disk(w, "model"),
         "full disk: simulate --overwrite": lambda w: full_disk(w, "simulate"),
         "full disk: map export": lambda w: full_disk(w, "map"),
@@ -694,12 +853,23 @@ ATTACKS = {
         "SIGHUP mid-write": lambda w: killed_mid_write(w, signal.SIGHUP),
         "SIGINT mid-write": lambda w: killed_mid_write(w, signal.SIGINT),
         "umask 022 gives 0644": umask_respected,
+        "two simulate -o same started together": lambda w: started_together(w, "simulate"),
+        "two artefact example -o same started together": lambda w: started_together(w, "artefact"),
+        "two machine example -o same started together": lambda w: started_together(w, "machine"),
+        "diagnose --corrected-maps over its --maps files": lambda w: corrected_maps_over_inputs(w, "given"),
+        "diagnose --corrected-maps over a machine's maps": lambda w: corrected_maps_over_inputs(w, "machine"),
+        "full disk: diagnose --corrected-maps": corrected_maps_full_disk,
+        "evaluate: runs named like its report files": evaluate_report_named_runs,
     },
     "hang": {
         "scheduler that never answers": lambda w: scheduler(w, "silent"),
         "scheduler that is an HTTP server": lambda w: scheduler(w, "http"),
         "scheduler given as http://": lambda w: scheduler(w, "url"),
         "input a FIFO with no writer": lambda w: special_input(w, "fifo"),
+        "--machine a FIFO with no writer": lambda w: special_document(w, "fifo", "machine"),
+        "--model a FIFO with no writer": lambda w: special_document(w, "fifo", "model"),
+        "--user-effect a FIFO with no writer": lambda w: special_document(w, "fifo", "user-effect"),
+        "artefact file a FIFO with no writer": lambda w: special_document(w, "fifo", "artefact"),
     },
     "traceback": {
         "Parquet with a repeated column": parquet_repeated_column,
@@ -709,11 +879,15 @@ ATTACKS = {
         "diagnose-fits: header, no rows": fits_header_only,
         "output /dev/full": full_device_output,
         "read-only output": read_only_output,
+        "artefact example -o on a read-only disk": read_only_example,
         "input /dev/zero": lambda w: special_input(w, "zero"),
         "one 1e12 mm outlier in a fit": outlier_fit,
         '--maps ""': empty_maps,
         "a 300-digit temperature": long_number_echo,
         "CLI hint names a Python argument": python_hint,
+        "--machine /dev/zero": lambda w: special_document(w, "zero", "machine"),
+        "--model /dev/zero": lambda w: special_document(w, "zero", "model"),
+        "artefact file /dev/zero": lambda w: special_document(w, "zero", "artefact"),
     },
     "silent": {
         "evaluate/acceptance: a scan labelled ball=3": lambda w: relabelled_scan(w, "ball=3"),
@@ -743,6 +917,10 @@ ATTACKS = {
         "diagnose: a log that ends early and is held": lambda w: thermocouple_attack(w, "held", "diagnose"),
         "acceptance: a thermocouple at a constant 1e6 C": lambda w: thermocouple_attack(w, "dropped", "acceptance"),
         "acceptance: a log that ends early and is held": lambda w: thermocouple_attack(w, "held", "acceptance"),
+        "a 254-character output name": long_output_name,
+        "compensate a.csv out.txt": unknown_output_suffix,
+        "--maps thesiss": wrong_map_name,
+        "a missing input: exit 2 everywhere": missing_input_status,
     },
 }
 

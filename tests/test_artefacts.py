@@ -342,7 +342,7 @@ def test_cli_simulate_and_evaluate(tmp_path):
     (["--artefact", "koba-0420", "--placement", "xy@x=1000,z=-525"], 1, "ball 5 at X 1166.0"),
     (["--artefact", "koba-0420", "--placement", "xy@w=3"], 1, "'w=3' is not"),
     (["--artefact", "koba-0420", "--calibrated"], 2, "--calibrated is for ballbar runs"),
-    (["--artefact", "no-such.toml"], 1, "no such artefact file"),
+    (["--artefact", "no-such.toml"], 2, "no such artefact file"),  # a missing input: a usage error
 ])
 def test_cli_simulate_bad_input(tmp_path, args, code, message):
     res = CliRunner().invoke(main, ["simulate", *args, "-o", str(tmp_path / "run")])

@@ -173,7 +173,7 @@ def test_the_command_writes_a_new_machine_file_and_never_an_input(runs, tmp_path
     res = _cli("machine", "reproducibility", folder / "rep", "--machine", machine, "-o", machine, "--overwrite")
     assert res.exit_code == 1 and "an input is never overwritten" in res.output and machine.read_bytes() == before
     res = _cli("machine", "reproducibility", folder / "rep", "--machine", machine, "-o", out)
-    assert res.exit_code == 1 and "exists (give --overwrite" in res.output
+    assert res.exit_code == 1 and "exists" in res.output and "use --overwrite" in res.output
     res = _cli("machine", "reproducibility", folder / "rep", folder / "bare", "--machine", machine, "-o",
                tmp_path / "other.toml")
     assert res.exit_code == 1 and f"runs: {folder / 'bare'} repeats no scan" in res.output

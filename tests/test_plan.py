@@ -138,7 +138,7 @@ def test_command_line_plan(tmp_path, xy_plate):
     # A usage error naming the flag (exit 2, as the README promises), not the Python argument.
     assert res.exit_code == 2 and "--budget" in res.output and "Traceback" not in res.output
     res = CliRunner().invoke(main, ["plan", str(tmp_path / "plate"), "--artefact", "no-such-plate"])
-    assert res.exit_code == 1 and "no-such-plate" in res.output
+    assert res.exit_code == 2 and "no-such-plate" in res.output  # a missing input: a usage error (issue 35)
     res = CliRunner().invoke(main, ["plan", str(tmp_path / "plate"), "--simulate"])
     assert res.exit_code == 2 and "-o" in res.output
     res = CliRunner().invoke(main, ["plan", str(tmp_path / "plate"), "--budget", "1", "--simulate", "-o",

@@ -286,13 +286,13 @@ def disk(monkeypatch, tmp_path):
                 return real_fsync(fd)
             monkeypatch.setattr(os, "fsync", fsync)
         elif on == "mkstemp":
-            real_mkstemp = atomicfile.tempfile.mkstemp
+            real_make_temp = atomicfile._make_temp  # the temporary file beside the target
 
-            def mkstemp(*a, dir=None, **k):
-                if dir is not None and here(os.path.abspath(dir)):
+            def make_temp(folder):
+                if here(os.path.abspath(folder)):
                     raise OSError(err, os.strerror(err))
-                return real_mkstemp(*a, dir=dir, **k)
-            monkeypatch.setattr(atomicfile.tempfile, "mkstemp", mkstemp)
+                return real_make_temp(folder)
+            monkeypatch.setattr(atomicfile, "_make_temp", make_temp)
         else:
             real = os.fdopen
 

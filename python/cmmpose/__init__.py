@@ -13,7 +13,7 @@ from .compensation import compensate, uncompensated
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import (AcquisitionError, AliasedChoiceWarning, CalibrationError, ClampWarning, Error,
                      ExtrapolationWarning, GeometryError, IllConditionedFit, ImplausibleFit, InputError, InputTypeError,
-                     MapError, ModelDomainWarning,
+                     MapError, MissingFileError, ModelDomainWarning,
                      MapTemperatureWarning, OutOfRangeError, OutputError, RunError, SchedulerError, UserEffectError)
 from .pose import MountOffset, Pose
 from .kernel_report import KernelReport
@@ -140,6 +140,7 @@ __all__ = [
     "OutOfRangeError",
     "InputError",
     "InputTypeError",
+    "MissingFileError",
     "UserEffectError",
     "GeometryError",
     "RunError",

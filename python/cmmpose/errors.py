@@ -35,13 +35,15 @@ it; :meth:`Error.render` says it for the command line, from the same fields.
 from __future__ import annotations
 
 import logging
+import os
+import stat
 import warnings
 from dataclasses import dataclass
 
 __all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "InputTypeError", "UserEffectError", "GeometryError", "RunError",
            "CalibrationError", "AcquisitionError", "SchedulerError", "OutputError", "ClampWarning",
            "ExtrapolationWarning", "IllConditionedFit", "ImplausibleFit", "MapTemperatureWarning", "Remedy", "REMEDIES", "warn_clamped",
-           "read_lines"]
+           "read_lines", "read_input", "read_input_text", "MissingFileError", "MAX_DOCUMENT_BYTES"]
 
 _log = logging.getLogger("cmmpose")
 
@@ -170,6 +172,12 @@ class InputError(Error, ValueError):
     """An input array or argument with the wrong shape, length or value."""
 
 
+class MissingFileError(InputError):
+    """A file or folder the user named does not exist. The command line says
+    it as a usage error (exit status 2), as it does an argument that names
+    no file."""
+
+
 class InputTypeError(InputError, TypeError):
     """An input of the wrong type (a string where a number belongs, ...)."""
 
@@ -255,6 +263,73 @@ def warn_clamped(report) -> None:
             ClampWarning,
             stacklevel=3,
         )
+
+
+#: The largest input document (a model, machine, artefact or user-effect file) cmmpose reads whole (bytes).
+MAX_DOCUMENT_BYTES = 256 << 20
+
+
+def _kind(mode: int) -> str:
+    return ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode)
+            else "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "a folder" if stat.S_ISDIR(mode) else "a special file")
+
+
+def read_input(path, what: str = "file", *, limit: int = MAX_DOCUMENT_BYTES, error=None) -> bytes:
+    """The bytes of the input file ``path`` through the one door in for documents: only a regular file is
+    read (a FIFO, a device such as ``/dev/zero``, a socket or a folder is refused as what it is, without
+    waiting for a writer: the file is opened non-blocking and checked by its descriptor), and no more than
+    ``limit`` bytes.
+
+    Raises
+    ------
+    MissingFileError
+        Nothing at ``path`` ("no such ``what``").
+    InputError (or ``error``)
+        Not a regular file, larger than ``limit``, or unreadable; the message names the file.
+    """
+    error = error or InputError
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | getattr(os, "O_NOCTTY", 0))
+    except FileNotFoundError:
+        raise MissingFileError(f"{path}: no such {what}", file=str(path)) from None
+    except IsADirectoryError:
+        raise error(f"{path}: is a folder, expected a {what}", file=str(path)) from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what} ({exc.strerror or exc})", file=str(path)) from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise error(f"{path}: not a regular file but {_kind(st.st_mode)}; give the {what} as a file",
+                        file=str(path))
+        if st.st_size > limit:
+            raise error(f"{path}: {st.st_size:,} bytes, more than a {what} may hold ({limit:,})", file=str(path))
+        os.set_blocking(fd, True)
+        chunks, size = [], 0
+        while True:
+            chunk = os.read(fd, min(1 << 20, limit + 1 - size))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+            if size > limit:
+                raise error(f"{path}: more than a {what} may hold ({limit:,} bytes)", file=str(path))
+        return b"".join(chunks)
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what} ({exc.strerror or exc})", file=str(path)) from None
+    finally:
+        os.close(fd)
+
+
+def read_input_text(path, what: str = "file", **options) -> str:
+    """:func:`read_input` decoded as UTF-8 (a bad byte: ``InputError`` naming the file and the byte's line)."""
+    raw = read_input(path, what, **options)
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise (options.get("error") or InputError)(
+            f"{path}:{line}: the {what} is not UTF-8 text (byte {raw[exc.start]:#04x})", file=str(path)) from None
 
 
 def read_lines(path) -> list[str]:

@@ -96,7 +96,8 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
         Its other columns (scan_id, intensity, ...) are written to
         ``points_out`` unchanged.
     points_out : path-like
-        The output, in the format of its suffix (CSV for an unknown one):
+        The output, in the format of its suffix (an unknown one is refused,
+        listing the known ones; a stream such as /dev/null is CSV):
         X, Y, Z in mm (E57 in metres). Written through a temporary file
         renamed into place when whole; never one of the inputs.
     maps : ErrorMap, ErrorMapSet or Model

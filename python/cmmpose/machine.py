@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +26,7 @@ from ._arrays import as_triple
 from ._validate import check_reproducibility, finite, nonnegative, parse_toml, positive
 from .effects import channel_roles
 from .errormap import ErrorMap, ErrorMapSet, data_path
-from .errors import InputError
+from .errors import InputError, read_input_text
 from .pose import MountOffset, Pose, check_pose_angles
 from .scanner import Scanner
 
@@ -278,12 +279,8 @@ def load_machine(path: str | Path | None) -> Machine:
     if path is None:
         return Machine.thesis()
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such machine file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot be read as UTF-8 text ({exc})") from None
+    # the one reader: a FIFO or /dev/zero refused as what it is (no wait, no endless read), the size bounded
+    text = read_input_text(path, "machine file")
     doc = parse_toml(text, str(path))  # not TOML, nested 10,000 deep or a 5,001-digit integer: InputError
     return _parse(doc, str(path), path.parent)
 
@@ -459,7 +456,15 @@ def check_map_specs(specs) -> tuple[str, ...]:
         if not spec.strip():
             which = f" (number {k + 1} of {len(specs)})" if len(specs) > 1 else ""
             raise InputError(f"maps: an empty name{which}; give 'thesis', 'appendix-b' or a map file")
+        if spec not in MAP_NAMES and not os.path.lexists(spec):
+            raise InputError(f"maps: {spec!r} is neither a bundled map name ({', '.join(MAP_NAMES)}) nor a file "
+                             "that exists", what="maps", value=spec, allowed=MAP_NAMES, file=spec, option="maps",
+                             cli_option="--maps")
     return specs
+
+
+#: The map names every ``maps=`` / ``--maps`` takes besides files (``none``: uncompensated only, where accepted).
+MAP_NAMES = ("thesis", "appendix-b", "none")
 
 
 def read_maps(specs) -> ErrorMap | ErrorMapSet:

@@ -46,6 +46,7 @@ _log = logging.getLogger("cmmpose.run")
 
 __all__ = [
     "Run",
+    "check_run_target",
     "RunError",
     "load_truth",
     "SCHEMA",
@@ -352,6 +353,17 @@ def _check_channels(channels, prefix: str) -> list[dict]:
 
 
 # -- the run ------------------------------------------------------------------------
+def check_run_target(run_dir, *, overwrite: bool = False) -> Path:
+    """The checks :meth:`Run.save` makes, to make before any work: ``RunError`` if ``run_dir`` is not a
+    folder, or (without ``overwrite``) is a folder that holds anything."""
+    run_dir = Path(run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise RunError(f"{run_dir}: exists and is not a directory")
+    if run_dir.is_dir() and any(run_dir.iterdir()) and not overwrite:
+        raise RunError(f"{run_dir}: directory is not empty (pass overwrite=True to replace the run in it)")
+    return run_dir
+
+
 @dataclass(frozen=True, eq=False, repr=False)
 class Run:
     """One measurement run: points, scans, poses, temperatures and what they
@@ -552,7 +564,10 @@ class Run:
         overwrite : bool
             Write into a non-empty directory, replacing the run files there
             (run.json, the tables as .parquet or .csv, truth/); other files are
-            left alone. Without it a non-empty directory raises ``RunError``.
+            left alone. Without it a non-empty directory raises ``RunError``
+            (:func:`check_run_target` makes the same check before any work),
+            and the run is created exclusively: of two writers of one folder
+            one fails, and the folder holds one whole run, never a mix.
 
         The new run is written into a temporary folder beside ``run_dir`` and
         swapped in only when complete (:func:`cmmpose.atomicfile.staged_folder`):
@@ -560,11 +575,9 @@ class Run:
         """
         final = run_dir = Path(run_dir)
         arrays, info = _check_truth(truth) if truth is not None else (None, None)
-        if run_dir.exists() and not run_dir.is_dir():
-            raise RunError(f"{run_dir}: exists and is not a directory")
-        if run_dir.is_dir() and any(run_dir.iterdir()) and not overwrite:
-            raise RunError(f"{run_dir}: directory is not empty (pass overwrite=True to replace the run in it)")
-        with staged_folder(final, RUN_FILES, error=RunError) as run_dir:
+        check_run_target(run_dir, overwrite=overwrite)
+        # without overwrite: created exclusively (of two writers of one folder, one fails; nothing mixed)
+        with staged_folder(final, RUN_FILES, error=RunError, exclusive=not overwrite) as run_dir:
             self._write_files(run_dir, final, arrays, info)
 
     def _write_files(self, run_dir: Path, final: Path, arrays, info) -> None:

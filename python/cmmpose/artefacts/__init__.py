@@ -19,7 +19,7 @@ import numpy as np
 from .._registry import discover
 from ..errormap import data_path
 from .._validate import parse_toml, vector3
-from ..errors import InputError, InputTypeError
+from ..errors import InputError, InputTypeError, MissingFileError, read_input_text
 from ._base import Artefact, ArtefactKind
 
 __all__ = ["Artefact", "ArtefactKind", "available", "get", "example_names", "example_text", "load_artefact",
@@ -82,12 +82,11 @@ def load_artefact(path) -> Artefact:
     if not text_path.exists() and str(path) in set(example_names()) | set(_REGISTRY):
         name = str(path)
         return parse_artefact(tomllib.loads(example_text(name)), f"bundled artefact {name!r}")
-    try:
-        text = text_path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such artefact file (nor a bundled example: {', '.join(example_names())})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot be read as UTF-8 text ({exc})") from None
+    try:  # the one reader: a FIFO or /dev/zero refused as what it is, the size bounded
+        text = read_input_text(text_path, "artefact file")
+    except MissingFileError:
+        raise MissingFileError(f"{path}: no such artefact file (nor a bundled example: "
+                               f"{', '.join(example_names())})", file=str(path)) from None
     return parse_artefact(parse_toml(text, str(path)), str(path))
 
 

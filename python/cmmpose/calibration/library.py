@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomicfile import ensure_folder, write_text
+from ..atomicfile import ensure_folder, locked_update, write_text
 from ..errors import InputError, InputTypeError
 from ..pose import MountOffset, Pose, pose_tuple
 from ..errors import CalibrationError
@@ -433,12 +433,13 @@ class AlignmentLibrary:
             raise InputError(f"name: expected a non-empty pose name, got {name!r}")
         if not isinstance(record, AlignmentRecord):
             raise InputTypeError(f"record: expected an AlignmentRecord, got {type(record).__name__}")
-        poses = self._read()
-        if name in poses and not overwrite:
-            raise CalibrationError(
-                f"pose {name!r} is already aligned in {self.path} (pass overwrite=True to replace it)")
-        poses[name] = record.to_dict()
-        self._write(poses)
+        with locked_update(self.path):  # two saves into one library take turns: neither pose is lost
+            poses = self._read()
+            if name in poses and not overwrite:
+                raise CalibrationError(
+                    f"pose {name!r} is already aligned in {self.path} (pass overwrite=True to replace it)")
+            poses[name] = record.to_dict()
+            self._write(poses)
 
     def load(self, name: str) -> AlignmentRecord:
         """The record of pose ``name``; CalibrationError if it was never aligned."""
@@ -450,11 +451,12 @@ class AlignmentLibrary:
 
     def remove(self, name: str) -> None:
         """Forget pose ``name`` (CalibrationError if it is not stored)."""
-        poses = self._read()
-        if name not in poses:
-            raise CalibrationError(f"pose {name!r} was never aligned in {self.path}")
-        del poses[name]
-        self._write(poses)
+        with locked_update(self.path):
+            poses = self._read()
+            if name not in poses:
+                raise CalibrationError(f"pose {name!r} was never aligned in {self.path}")
+            del poses[name]
+            self._write(poses)
 
     def records(self) -> dict[str, AlignmentRecord]:
         """Every record, by name."""

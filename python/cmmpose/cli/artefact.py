@@ -29,10 +29,11 @@ __all__ = ["artefact_group", "simulate_artefact", "evaluate_artefact_run", "diag
 
 
 
-def _write_text(path: Path, text: str) -> None:
-    """Write ``text`` at ``path`` (its folder made if missing), atomically (:mod:`cmmpose.atomicfile`)."""
+def _write_text(path: Path, text: str, overwrite: bool = True) -> None:
+    """Write ``text`` at ``path`` (its folder made if missing), atomically (:mod:`cmmpose.atomicfile`;
+    ``overwrite=False``: created exclusively, an existing file refused)."""
     ensure_folder(path.parent if str(path.parent) else ".")
-    write_text(path, text)
+    write_text(path, text, overwrite=overwrite)
 
 
 @click.group("artefact")
@@ -51,14 +52,10 @@ def artefact_example_cmd(name, out, overwrite) -> None:
     if name not in known:
         raise click.BadParameter(f"{name!r} is not one of {', '.join(known)}", param_hint="KIND|NAME")
     path = Path(out)
-    if path.exists() and not overwrite:
-        raise click.ClickException(f"{path}: exists (give --overwrite to replace it)")
-    if path.is_dir():
-        raise click.ClickException(f"{path}: is a directory")
-    try:
-        _write_text(path, artefacts.example_text(name))
-    except OSError as exc:
-        raise click.ClickException(f"{path}: cannot be written ({exc.strerror or exc})") from None
+    try:  # one door out: created exclusively (of two writers one fails), an existing file only with --overwrite
+        _write_text(path, artefacts.example_text(name), overwrite=overwrite)
+    except Error as exc:
+        raise _fail(exc) from None
     console.print(f"wrote {escape(str(path))}: the {name} example (cmmpose artefact show {escape(str(path))})")
 
 
@@ -158,7 +155,10 @@ def simulate_artefact(artefact_spec, placements, machine, maps, temperature, eff
 
     from ..sim.artefact_runs import simulate_artefact_run
 
+    from ..run import check_run_target
+
     try:
+        check_run_target(run_dir, overwrite=overwrite)  # before any work
         artefact = artefacts.load_artefact(artefact_spec)
         start = time.perf_counter()
         with Progress(*progress_columns, console=console) as bar:

@@ -209,7 +209,7 @@ def load_maps(specs: tuple[str, ...], machine=None) -> ErrorMap | ErrorMapSet:
 
 def machine_option(f):
     """--machine FILE, the same on every command."""
-    return click.option("--machine", "machine_file", type=click.Path(dir_okay=False), default=None,
+    return click.option("--machine", "machine_file", type=click.Path(exists=True, dir_okay=False), default=None,
                         help="Machine file (TOML: configuration, travel, maps, scanner, mount; "
                              "`cmmpose machine example`). Default: the thesis machine.")(f)
 
@@ -278,15 +278,31 @@ def check_outputs(outputs: dict, run_dirs=(), files=()) -> None:
     from ..run import RUN_FILES
 
     inputs = [Path(r) / n for r in run_dirs for n in RUN_FILES] + [f for f in files if f]
+    inputs += [m for f in files if f and str(f).lower().endswith(".toml") for m in _machine_maps(f)]
     for flag, path in outputs.items():
         check_not_input(path, inputs, flag)
+
+
+def _machine_maps(path) -> list:
+    """The map files a machine file names (inputs too), or none if it is not a machine file that loads."""
+    from ..machine import load_machine
+
+    try:
+        return list(load_machine(path).map_files)
+    except (Error, OSError):
+        return []
 
 
 def fail(exc: Exception) -> click.ClickException:
     """A library error as the CLI reports it: worded from its fields for the
     command line (the remedy names this command's flag, or says it has none;
     cmmpose.errors.Error.render)."""
-    return click.ClickException(cli_wording(exc, click.get_current_context(silent=True)))
+    from ..errors import MissingFileError
+
+    text = cli_wording(exc, click.get_current_context(silent=True))
+    if isinstance(exc, MissingFileError):  # a name that names no file: a usage error (exit 2), as click says it
+        return click.UsageError(text)
+    return click.ClickException(text)
 
 
 def policy_options(log_hold: bool = True):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import warnings
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from ..atomicfile import check_not_input
 from ..errormap import ErrorMapSet
 from ..errors import AliasedChoiceWarning, Error, MapTemperatureWarning, ModelDomainWarning
 from ..filecompensation import compensate_file
-from ..formats.pointfiles import check_writable
+from ..formats.pointfiles import check_writable, output_format
 from ..formats.pointformats._common import check_file
 from .common import (aliased_choices_once, check_model_or_maps, console, fail, json_option, kernel_report_rows,
                      load_maps, load_model, machine_option, machine_row, map_specs, model_doubts, model_options,
@@ -57,6 +58,8 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
     input's other columns, compensated on the --scheduler in bounded memory."""
     from ..machine import load_machine
 
+    if str(points_in) != "-" and not os.path.lexists(points_in):  # as evaluate's RUN_DIR: a usage error, exit 2
+        raise click.BadParameter(f"{points_in}: no such file", param_hint="'IN'")
     try:
         machine = load_machine(machine_file)
         if alignment is not None:
@@ -79,6 +82,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
                                  param_hint="--scheduler")
     try:
         check_writable(points_out)  # before any work: a missing folder is found now, not after
+        output_format(points_out)  # an unknown suffix is refused now, listing the known ones
         check_not_input(points_out, [points_in, *([model_file] if model_file else []), *user_files], "OUT")
         error_map = load_model(model_file, user_files) if model_file is not None else load_maps(maps, machine)
         size = check_file(points_in).stat().st_size

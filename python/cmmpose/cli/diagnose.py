@@ -12,7 +12,7 @@ from rich.progress import BarColumn, Progress, TextColumn
 from rich.table import Table
 
 from .._json import dumps as strict_json
-from ..atomicfile import ensure_folder, write_text
+from ..atomicfile import FileGroup, check_outputs_free, ensure_folder, write_text
 from ..errors import Error
 from ..temperature import log_notes
 from .artefact import diagnose_plate_fits_cli
@@ -114,6 +114,8 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
         model = _starting_model(run, machine, maps, model_file, user, temperature=temperature,
                                 out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
                                 log_hold=log_hold, temperature_policy=temperature_policy)
+        map_inputs = _map_inputs(run_dirs, [model_file, machine_file, *user_files], machine, maps)
+        _check_corrected_maps(model, corrected_out, map_inputs)
         with console.status("diagnosing ..."):
             known = set(model.names)
             diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects,
@@ -132,7 +134,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
         if model_out:
             files.append(diag.model.save(model_out))
         if corrected_out:
-            files += _write_corrected_maps(diag.model, corrected_out)
+            files += _write_corrected_maps(diag.model, corrected_out, map_inputs)
         if report_file:
             try:
                 ensure_folder(Path(report_file).parent)
@@ -172,23 +174,46 @@ def machine_floor(machine, machine_file, reproducibility_um=None) -> dict:
             "reproducibility_source": f"stated in the machine file {machine.source}"}
 
 
-def _write_corrected_maps(model, path) -> list:
+def _corrected_map_paths(maps, path) -> list[Path]:
+    """Where --corrected-maps writes ``maps``: ``path``, or for a set one file per temperature beside it
+    (``NAME_<T>C.csv``)."""
+    from ..errormap import ErrorMapSet
+
+    path = Path(path)
+    if not isinstance(maps, ErrorMapSet):
+        return [path]
+    return [path.with_name(f"{path.stem}_{m.temperature:g}C{path.suffix or '.csv'}") for m in maps.maps]
+
+
+def _map_inputs(run_dirs, files, machine, maps) -> list:
+    """Every file a diagnosis reads: the runs' files, ``files`` (model, machine, user effects), the map files
+    named by --maps and the machine file's own maps."""
+    from ..run import RUN_FILES
+
+    return ([Path(r) / n for r in run_dirs for n in RUN_FILES] + [f for f in files if f]
+            + [Path(s) for s in maps if Path(s).exists()] + list(machine.map_files))
+
+
+def _check_corrected_maps(model, path, inputs) -> None:
+    """Before any work: every name --corrected-maps derives from ``path`` (the maps' temperatures are the
+    starting model's) is checked against every input, through links (cmmpose.atomicfile.check_outputs_free)."""
+    if path:
+        check_outputs_free(_corrected_map_paths(model.maps, path), inputs, what="--corrected-maps")
+
+
+def _write_corrected_maps(model, path, inputs=()) -> list:
     """The model's maps with its map corrections in them (cmmpose.diagnosis.mapfamily.corrected_maps):
-    one CSV at ``path``, or for a set one per temperature beside it (``NAME_<T>C.csv``)."""
+    one CSV at ``path``, or for a set one per temperature beside it (``NAME_<T>C.csv``), written as one
+    group (cmmpose.atomicfile.FileGroup): all of them or, on a failure, none."""
     from ..errormap import ErrorMapSet
     from ..model.mapshape import corrected_maps
 
     maps = corrected_maps(model)
-    path = Path(path)
-    if not isinstance(maps, ErrorMapSet):
-        maps.write(path)
-        return [path]
-    out = []
-    for m in maps.maps:
-        p = path.with_name(f"{path.stem}_{m.temperature:g}C{path.suffix or '.csv'}")
-        m.write(p)
-        out.append(p)
-    return out
+    paths = _corrected_map_paths(maps, path)
+    with FileGroup(inputs=inputs, what="--corrected-maps"):
+        for m, p in zip(maps.maps if isinstance(maps, ErrorMapSet) else [maps], paths, strict=True):
+            m.write(p)
+    return paths
 
 
 def _print_diagnosis(diag, files, as_json: bool, verbose: bool = False) -> None:
@@ -240,6 +265,8 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
         model = _starting_model(runs[0], machine, maps, model_file, user, temperature=temperature,
                                 out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
                                 log_hold=log_hold, temperature_policy=temperature_policy)
+        map_inputs = _map_inputs(run_dirs, [model_file, machine_file, *user_files], machine, maps)
+        _check_corrected_maps(model, corrected_out, map_inputs)
         with console.status(f"diagnosing {len(runs)} runs together ..."):
             repro = options.pop("reproducibility_um", None)
             if repro is not None:
@@ -249,7 +276,7 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
                                     **machine_floor(machine, machine_file, repro))
         files = [diag.model.save(model_out)] if model_out else []
         if corrected_out:
-            files += _write_corrected_maps(diag.model, corrected_out)
+            files += _write_corrected_maps(diag.model, corrected_out, map_inputs)
         if report_file:
             try:
                 ensure_folder(Path(report_file).parent)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from ..atomicfile import ensure_folder, write_text
 from ..errors import (AliasedChoiceWarning, ClampWarning, Error, ExtrapolationWarning, InputError,
                       MapTemperatureWarning, ModelDomainWarning)
 from ..evaluation.model_check import check_model
-from ..evaluation.files import write_evaluation_files
+from ..evaluation.files import FLEET_FILES, REPORT_FILES, write_evaluation_files
 from ..evaluation.metrics import STEEL_EXPANSION
 from .artefact import evaluate_artefact_run, write_artefact_report
 from .common import (aliased_choices_once, check_model_or_maps, console, console_log, expansion_ppm, fail, load_maps,
@@ -30,7 +31,8 @@ def report_folder_names(run_dirs, report_dir) -> list[str]:
     """The folder of each run's report under ``--report`` (the run folder's name), the same with --model and on
     the --scheduler: ``InputError`` naming both runs when two share a name (day1/run, day2/run), before any
     work - one report would replace the other while the summary lists both."""
-    names = [Path(r).name or str(r) for r in run_dirs]
+    names = [Path(r).name if Path(r).name not in ("", ".", "..") else Path(os.path.abspath(r)).name or "root"
+             for r in run_dirs]
     if report_dir:
         first: dict[str, str] = {}
         for r, name in zip(run_dirs, names):
@@ -38,8 +40,35 @@ def report_folder_names(run_dirs, report_dir) -> list[str]:
                 raise InputError(f"--report: two runs share a folder name: {first[name]} and {r} would both write "
                                  f"{Path(report_dir) / name}, one report overwriting the other; report them in "
                                  "separate --report folders (or rename one run folder)")
+            if name in FLEET_FILES:
+                raise InputError(f"--report: the run {r}'s report folder {Path(report_dir) / name} would be the "
+                                 f"file the summary across runs is written to; report it in another --report folder "
+                                 "(or rename the run folder)")
             first[name] = str(r)
+        check_report_paths(report_dir, [Path(n) / f for n in names for f in (*REPORT_FILES, *UNCERTAINTY_FILES)]
+                           + list(FLEET_FILES))
     return names
+
+
+#: The files of one ballbar run's report beside evaluation/files.py's (the uncertainty budgets).
+UNCERTAINTY_FILES = ("uncertainty.json", "uncertainty.md")
+
+
+def check_report_paths(report_dir, names) -> None:
+    """Before any work: every file --report will write (``names``, relative to ``report_dir``) can be
+    written - no folder where a file goes and no file where a folder goes (cmmpose.atomicfile.check_output)
+    - so that no report is left half written."""
+    report_dir = Path(report_dir)
+    for name in names:
+        path = report_dir / name
+        for parent in [*reversed(Path(name).parents)][1:]:  # the folders on the way
+            where = report_dir / parent
+            if where.exists() and not where.is_dir():
+                raise InputError(f"--report: {where} is a file, where the report needs a folder; give another "
+                                 "--report folder")
+        if path.is_dir():
+            raise InputError(f"--report: {path} is a folder, where the report writes a file; give another "
+                             "--report folder")
 
 
 def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
@@ -118,6 +147,8 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
                                    expansion_ppm_per_K=expansion, skip_incomplete=skip_incomplete,
                                    temperature_policy=temperature_policy)
         run_dir = run_dir[0]
+        if report_dir:
+            check_report_paths(report_dir, (*REPORT_FILES, *UNCERTAINTY_FILES))  # before any work
         run = Run.load(run_dir)
         model = load_model(model_file, user_files) if model_file is not None else machine.maps_for_run(run, maps)
         if "definition" in run.artefact:  # an artefact run (cmmpose simulate --artefact): cli/artefact.py

@@ -8,7 +8,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from ..atomicfile import write_text
+from ..atomicfile import check_output, write_text
 from ..errors import Error
 from ..machine import example_names
 from .common import check_outputs, console, fail, json_option, map_specs, show
@@ -28,10 +28,8 @@ def machine_example_cmd(name, out, overwrite) -> None:
     from ..machine import example_text
 
     path = Path(out)
-    if path.exists() and not overwrite:
-        raise click.ClickException(f"{path}: exists (give --overwrite to replace it)")
-    try:
-        write_text(path, example_text(name))  # atomic: a full disk leaves the earlier file whole
+    try:  # one door out: created exclusively (of two writers one fails), an existing file only with --overwrite
+        write_text(path, example_text(name), overwrite=overwrite)
     except Error as exc:
         raise fail(exc) from None
     console.print(f"wrote {path}: the {name} example (cmmpose machine show {path})")
@@ -111,8 +109,7 @@ def machine_reproducibility_cmd(run_dirs, machine_file, maps, out, overwrite, as
     path = Path(out)
     try:
         check_outputs({"--output": out}, run_dirs, [machine_file])
-        if path.exists() and not overwrite:
-            raise click.ClickException(f"{path}: exists (give --overwrite to replace it)")
+        check_output(path, overwrite=overwrite, what="--output")
         machine = load_machine(machine_file)
         runs = [Run.load(r) for r in run_dirs]
         model = machine.maps_for_run(runs[0], maps)
@@ -121,7 +118,8 @@ def machine_reproducibility_cmd(run_dirs, machine_file, maps, out, overwrite, as
                   f"spheres in {len(runs)} run{'s' if len(runs) > 1 else ''} ({', '.join(map(str, run_dirs))}); "
                   f"u = {est['u_um']:.2g} um on {est['dof']} dof")
         text = Path(machine_file).read_text(encoding="utf-8")
-        write_text(path, with_reproducibility(text, est["per_scan_um"], source, where=str(machine_file)))
+        write_text(path, with_reproducibility(text, est["per_scan_um"], source, where=str(machine_file)),
+                   overwrite=overwrite)
     except Error as exc:
         raise fail(exc) from None
     table = Table(title=f"per-scan reproducibility -> {path}", show_header=False)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 from rich.markup import escape
 
-from ..atomicfile import check_not_input, ensure_folder
+from ..atomicfile import FileGroup, check_not_input, check_outputs_free, ensure_folder
 from ..errormap import ErrorMapSet
 from .._json import dumps as strict_json
 from ..errors import Error, InputError
@@ -194,23 +194,25 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temp
     from ..machine import load_machine
 
     try:
+        inputs = [map_spec, machine_file]
         if map_spec is not None:
             source = _map_spec(map_spec, "MAP")
         elif machine_file is None:
             raise click.UsageError("give MAP or --machine")
         else:
-            source = load_maps((), load_machine(machine_file))
+            machine = load_machine(machine_file)
+            inputs += list(machine.map_files)  # the machine file's own maps are inputs too
+            source = load_maps((), machine)
             if isinstance(source, ErrorMapSet):
                 if temperature is None:
                     raise click.UsageError("the machine's maps are a set: give --temperature (C)")
                 source = source.at(temperature)
-        inputs = [map_spec, machine_file]
         if fmt == "linuxcnc":
             folder = ensure_folder(out)
             files = {a: folder / f"{a.lower()}.comp" for a in ("X", "Y", "Z")}
-            for f in files.values():
-                check_not_input(f, inputs, "--output")
-            write_comp_files(source, files, comp_file_type=int(comp_file_type), units=units)
+            check_outputs_free(files.values(), inputs, what="--output")
+            with FileGroup(inputs=inputs, what="--output"):  # the three files whole or none
+                write_comp_files(source, files, comp_file_type=int(comp_file_type), units=units)
             written = ", ".join(str(p) for p in files.values())
         else:
             check_not_input(out, inputs, "--output")

@@ -59,9 +59,12 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
     from ..machine import load_machine
     from ..sim import simulate_ballbar_run
 
+    from ..run import check_run_target
+
     if placements and artefact is None:
         raise click.UsageError("--placement needs --artefact")
     try:
+        check_run_target(run_dir, overwrite=overwrite)  # before any work (and exclusive when saved)
         machine = load_machine(machine_file)
         parsed = parse_effects(effects)
         machine_maps = load_maps(maps, machine)

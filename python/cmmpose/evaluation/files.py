@@ -15,7 +15,12 @@ from pathlib import Path
 from ..atomicfile import ensure_folder, write_text
 from ..errors import InputError
 
-__all__ = ["write_evaluation_files", "write_fleet_files"]
+__all__ = ["write_evaluation_files", "write_fleet_files", "REPORT_FILES", "FLEET_FILES"]
+
+#: The files of one run's report (a ballbar run's; the plots only with matplotlib, error_map.png with maps).
+REPORT_FILES = ("evaluation.json", "lengths.csv", "ballbar_lengths.png", "error_map.png")
+#: The files of a report across runs, beside each run's folder.
+FLEET_FILES = ("summary.csv", "trend.png")
 
 _log = logging.getLogger("cmmpose")
 

@@ -12,9 +12,11 @@ a real-valued array whose header matches the file's size; a Parquet file
 must hold real-valued columns without nulls. Every format is read and
 written in chunks, so a file of any size takes bounded memory.
 Writing goes to a temporary file renamed into place, so a failure leaves
-nothing behind. A file whose suffix names no registered format is read and
-written as CSV, except a compressed one (``.gz``, ``.zip``, ...), refused by
-name."""
+nothing behind. A file whose suffix names no registered format is read as
+CSV, except a compressed one (``.gz``, ``.zip``, ...), refused by name; an
+output with such a suffix is refused, listing the known ones, unless the
+format is given by name (a stream - ``-``, ``/dev/null``, a FIFO - is CSV
+by default: it has no suffix to go by)."""
 
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ from ..atomicfile import check_not_input
 from .pointclouds import UNITS
 from .pointformats._common import check_file, check_writable, numeric_column
 
-__all__ = ["REQUIRED", "CHUNK_POINTS", "read_points", "write_points", "point_chunks", "PointWriter",
+__all__ = ["REQUIRED", "CHUNK_POINTS", "read_points", "write_points", "point_chunks", "PointWriter", "output_format",
            "RereadPoints", "check_writable"]
 
 REQUIRED = ("u", "v", "D", "E", "F")
@@ -134,10 +136,26 @@ class RereadPoints(Exception):
         self.extras = parts[3]
 
 
+def output_format(path, format: str | None = None):
+    """The format an output ``path`` is written in: ``format`` by name, else its suffix's; ``InputError``
+    naming the file and listing the known suffixes for an unknown suffix (never CSV by default: ``out.txt``
+    is not silently CSV), except for a stream (``-``, ``/dev/null``, a FIFO), which is CSV by default."""
+    import os
+    import stat
+
+    stream = str(path) == "-"
+    if not stream:
+        try:
+            stream = not stat.S_ISREG(os.stat(path).st_mode) and not stat.S_ISDIR(os.stat(path).st_mode)
+        except OSError:
+            stream = False
+    return pointformats.for_path(path, format, default="csv" if stream else None)
+
+
 class PointWriter:
     """Machine coordinates (mm) and any extra columns written chunk by chunk
     to a temporary file renamed over ``path`` on success, in the format of
-    the suffix (CSV for an unknown one) or ``format``: CSV (header
+    the suffix (refused if unknown: :func:`output_format`) or ``format``: CSV (header
     ``X,Y,Z[,extra...]``, coordinates rounded to 1 nm), NPY ((N, 3) float64,
     or a structured array X, Y, Z and the extras when there are extras),
     Parquet (columns X, Y, Z float64 and the extras), PLY, XYZ, PTS or E57
@@ -150,7 +168,7 @@ class PointWriter:
     def __init__(self, path: str | Path, *, format: str | None = None, inputs=()):
         self.path = check_writable(path)
         check_not_input(self.path, inputs)
-        self.format = pointformats.for_path(self.path, format, default="csv")
+        self.format = output_format(self.path, format)
         self._scale = 1.0 / UNITS[self.format.units]  # mm to the format's unit
         self._w = self.format.writer(self.path)
 

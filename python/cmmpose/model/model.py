@@ -23,7 +23,7 @@ from .. import _core
 from .._json import dumps as strict_json
 from ..atomicfile import write_text
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import Error, InputError, InputTypeError, MapError, ModelDomainWarning, warn_clamped
+from ..errors import Error, InputError, InputTypeError, MapError, ModelDomainWarning, read_input_text, warn_clamped
 from ..fitting import fit_spheres
 from ..pose import digitizer
 from ..run import Run
@@ -501,9 +501,10 @@ class Model:
             Specs of the user-defined effects the file names.
         """
         path = Path(path)
+        text = read_input_text(path, "model file")  # a FIFO or /dev/zero refused as such, the size bounded
         try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError, RecursionError) as e:
+            doc = json.loads(text)
+        except (ValueError, RecursionError) as e:
             raise InputError(f"{path}: not a readable model file ({e})") from None
         if not isinstance(doc, dict) or doc.get("schema") != MODEL_SCHEMA or doc.get("schema_version") != 1:
             raise InputError(f"{path}: not a {MODEL_SCHEMA} version 1 file")

@@ -27,7 +27,7 @@ import numpy as np
 
 from .. import effects as effects_registry
 from ..effects import Effect
-from ..errors import Error, InputError, UserEffectError
+from ..errors import Error, InputError, UserEffectError, read_input
 
 __all__ = ["EffectSpec", "UserEffect", "load_user_effect", "load_user_effects", "LIBRARY", "library", "run_library", "effect_spec", "USER_INPUTS"]
 
@@ -303,6 +303,7 @@ def load_user_effect(path) -> UserEffect:
     path : str or Path
         A Python file that sets ``EFFECT = UserEffect.create(...)``.
     """
+    read_input(path, "user-effect file")  # a FIFO or /dev/zero refused as such before Python reads it
     spec = importlib.util.spec_from_file_location(f"cmmpose_user_effect_{Path(path).stem}", path)
     if spec is None or spec.loader is None:
         raise InputError(f"{path}: not a Python file")

@@ -12,7 +12,7 @@ import numpy as np
 
 from ...atomicfile import AtomicFile
 from ...atomicfile import check_output as check_writable  # noqa: F401 - the format modules' name for it
-from ...errors import InputError
+from ...errors import InputError, MissingFileError
 from ..._lazy import LazyModule
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
@@ -33,7 +33,7 @@ def check_file(path: str | Path) -> Path:
     try:
         mode = path.stat().st_mode
     except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
+        raise MissingFileError(f"{path}: no such file", file=str(path)) from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if stat.S_ISDIR(mode):
