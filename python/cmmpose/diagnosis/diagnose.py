@@ -68,6 +68,9 @@ class Step:
     #: Of a joint diagnosis: every run's figures under this step's model, in the runs' order
     #: (``figures`` is the first run's); None for one run.
     run_figures: list | None = None
+    #: The candidates judged beside the one this step's ranking led to
+    #: (:class:`cmmpose.diagnosis.ambiguity.AmbiguitySet`), None when none explained the data as well.
+    ambiguity: object = None
 
     @property
     def effect(self) -> str:
@@ -93,6 +96,7 @@ class Step:
         runs = {} if self.run_figures is None else {"runs": [f.to_dict() for f in self.run_figures]}
         return {"label": self.label, "forced": self.forced, "replaces": self.replaces or None,
                 **self.figures.to_dict(), **runs, "cross_validation": self.cv,
+                "ambiguity": None if self.ambiguity is None else self.ambiguity.to_dict(),
                 "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
                              "units": dict(zip(s.params, s.units))} for s, v in self.model.effects],
                 "ranking": ranking}
@@ -246,6 +250,17 @@ class Diagnosis:
                        covariance=self.final_covariance or final.covariance)
 
     @property
+    def ambiguity(self) -> list:
+        """The ambiguity sets met on the way (:class:`cmmpose.diagnosis.ambiguity.AmbiguitySet`): those
+        still open (``not s.resolved``) are why the diagnosis added none of their members."""
+        return [s.ambiguity for s in self.steps if s.ambiguity is not None]
+
+    @property
+    def open_ambiguity(self) -> list:
+        """The ambiguity sets none of whose members was added: the user chooses, or measures (cmmpose plan)."""
+        return [a for a in self.ambiguity if not a.resolved]
+
+    @property
     def added(self) -> list[str]:
         return [s.effect for s in self.steps[1:] if s.effect in self.model.names]
 
@@ -274,6 +289,7 @@ class Diagnosis:
                 "alternatives": [a.to_dict() for a in self.alternatives], "components": self.components,
                 "cross_validation": self.steps[-1].cv,
                 "ambiguous": [list(a) for a in self.ambiguous], "advice": self.advice,
+                "ambiguity_sets": [a.to_dict() for a in self.ambiguity],
                 "elapsed_s": self.elapsed, "n_points": self.n_points,
                 "patterns": None if self.patterns is None else self.patterns.to_dict(),
                 "provenance": self.provenance()}
@@ -662,8 +678,10 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
     significant or not), then the most significant candidate while one is
     left, refitting after each; ``step(label, model, forced)`` makes each
     step of the history. Returns the steps and the final model."""
-    from .cv import cv_groups, judge_candidate
+    from .cv import INTERPOLATION_ONLY, cv_groups, judge_candidate
     from .cv import step_cv as _step_cv
+
+    across = None  # the folds that judge an ambiguity set (cv_groups(across=True)), made when first needed
 
     # Cross-validation needs the problem's observables (a scripted problem has none: selection by significance).
     cross_validate = hasattr(problem, "classes")
@@ -706,6 +724,8 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
         for c in steps[-1].ranking:
             if not c.significant or c.alternative_to:
                 break
+            if not np.all(np.isfinite(np.asarray(c.uncertainty, float))):
+                continue  # a parameter the data did not determine: never enters a model
             if cross_validate and getattr(c.spec, "family", None) == "map" and _two_axis_first(problem, steps[-1], c):
                 continue  # an error of two axes at once: reported unexplained, not forced into one axis
             if not cross_validate or judge_candidate(problem, steps[-1], c, groups, split):
@@ -713,6 +733,20 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
                 break
         if best is None:
             break
+        if cross_validate:
+            # Competing explanations side by side (cmmpose.diagnosis.ambiguity): when others predict held-out
+            # data as well and their corrections differ over the travel, none is added.
+            from .ambiguity import find_ambiguity
+
+            if across is None:
+                across = cv_groups(problem, across=True)
+            amb = find_ambiguity(problem, steps[-1], best, (across[0], across[1]), across[2],
+                                 INTERPOLATION_ONLY in across[2])
+            if amb is not None:
+                steps[-1].ambiguity = amb
+                if not amb.agree:
+                    break
+                amb.chosen = best.name
         model = fit_model(model.with_values(best.spec, best.values), None, problem=problem)
         steps.append(step(f"+ {best.name}", model, False))
         step_cv(problem, steps[-1], groups, split)
