@@ -68,6 +68,7 @@ __all__ = [
     "candidate_placements",
     "centre_sensitivities",
     "plan",
+    "open_rivals",
 ]
 
 _log = logging.getLogger(__name__)
@@ -753,3 +754,27 @@ def _t_optimal(artefact_name, params, specs, theta, sigma, source, info, before,
                 "explanations (squared predicted differences over the noise variance, the rival refitted) "
                 "maximised, greedy over the candidate placements", params, sigma * 1e3, source, before, status,
                 proposals, len(options), unreachable, notes)
+
+
+def open_rivals(runs: Sequence[Run], model: Model | None = None, user_effects=(), **diagnose_options):
+    """The first open ambiguity set of the diagnosis of ``runs`` (one run:
+    :func:`cmmpose.diagnose`; several: :func:`cmmpose.diagnosis.joint.diagnose_jointly`),
+    for :func:`plan`'s ``rivals`` (``cmmpose plan --separate``).
+
+    Raises
+    ------
+    InputError
+        The diagnosis left no open ambiguity set: nothing to tell apart.
+    """
+    from .diagnose import diagnose
+    from .joint import diagnose_jointly
+
+    runs = list(runs)
+    if len(runs) == 1:
+        d = diagnose(runs[0], model, user_effects=user_effects, patterns=False, **diagnose_options)
+    else:
+        d = diagnose_jointly(runs, model, user_effects=user_effects, **diagnose_options)
+    if not d.open_ambiguity:
+        raise InputError("--separate: the diagnosis of the runs leaves no competing explanations to tell apart "
+                         "(no open ambiguity set); plan without it to sharpen parameters")
+    return d.open_ambiguity[0]
