@@ -16,9 +16,10 @@ ranges, :data:`GRID` nodes per axis, with every pose the runs used), less
 the mean difference over the grid (a common offset no artefact
 measurement sees). The members *agree* when every pair's difference is
 within :data:`AGREE_K` times its standard uncertainty at every node (each
-member's correction uncertainty from its parameters' standard
-uncertainties through a step of each parameter, members independent);
-then any member is safe and the diagnosis adds the one it ranked first.
+member's correction uncertainty ``J C J^T`` from its parameters' data-only
+covariance fitted beside the step's model and the nuisances, through a step
+of each parameter; members independent); then any member is safe and the
+diagnosis adds the one it ranked first.
 Otherwise the set is reported, with where in the volume the members
 disagree most and by how much, and none of them is added: the user chooses
 one by name (``diagnose --add NAME``; a member added on request takes the
@@ -26,8 +27,11 @@ structure, so the others are no longer significant and the set is
 resolved), or measures what tells them apart (``cmmpose plan``, the
 T-optimal criterion of :mod:`cmmpose.diagnosis.plan`).
 
-A member with a parameter the data did not determine (an infinite or
-undefined uncertainty) never enters a model: it is reported, not added.
+A member with a parameter the data did not determine (free in the
+design, or pinned no better than a few typical magnitudes) has an unknown
+correction where that parameter acts: the members then do not agree, and
+none is added (what a saved model applies of an added effect is, besides,
+only what the data determined: :func:`cmmpose.diagnosis.identify.determined_values`).
 
 Units: mm for positions, um for corrections and their differences, each
 parameter in its effect's units.
@@ -165,11 +169,15 @@ class AmbiguitySet:
         else:
             w = self.where
             at = ", ".join(f"{a} {v:.0f}" for a, v in zip("XYZ", w.get("xyz_mm", ())))
+            u = w.get("u_um", float("nan"))
+            loose = [m["name"] for m in self.members if not m["determined"]]
+            size = (f"{self.largest_difference_um:.1f} ± {u:.1f} um" if math.isfinite(u) else
+                    f"{self.largest_difference_um:.1f} um (and by an unknown amount where "
+                    f"{', '.join(loose) or 'a member'} has a parameter the data did not determine)")
             head = (f"the data cannot choose between {names} (cross-validated rms within one standard uncertainty "
-                    f"of the best), and their corrections differ by up to {self.largest_difference_um:.1f} ± "
-                    f"{w.get('u_um', float('nan')):.1f} um over the travel ({' and '.join(w.get('pair', ()))} at "
-                    f"{at} mm): none was added; choose one (diagnose --add NAME) or measure what tells them apart "
-                    f"(cmmpose plan)")
+                    f"of the best), and their corrections differ by up to {size} over the travel "
+                    f"({' and '.join(w.get('pair', ()))} at {at} mm): none was added; choose one (diagnose --add "
+                    f"NAME) or measure what tells them apart (cmmpose plan --separate)")
         if self.interpolation_only:
             head += "; the cross-validation held out data within one placement: it judges interpolation only"
         return head
@@ -223,19 +231,40 @@ def travel_grid(problem, model, n: int = GRID) -> tuple[RunInputs, np.ndarray]:
     return vin, poses[pose_index, :3]
 
 
-def _correction(model, spec, values, uncertainty, grid, base):
-    """A member's correction on the grid (m, 3), mm, and its standard uncertainty (m,), mm."""
-    with_it = model.with_values(spec, values)
-    moved = with_it.compensate(grid)
-    var = np.zeros(len(moved))
-    for j, u in enumerate(np.asarray(uncertainty, float)):
-        if not np.isfinite(u) or u == 0:
-            continue
+def _member_covariance(problem, r0, X0, J, spec) -> np.ndarray:
+    """The data-only covariance of a member's parameters (its units) fitted beside the step's model and the
+    nuisances: the whitened design's (:func:`cmmpose.diagnosis.identify.design_covariance`), with a parameter
+    the design leaves free, or pins no better than UNDETERMINED_PRIORS typical magnitudes, at infinity."""
+    from .identify import UNDETERMINED_PRIORS, design_covariance
+
+    k = J.shape[1]
+    R = problem.wls(r0, np.column_stack([X0, J])).whitened_r
+    cov, free = design_covariance(R)
+    prior = np.asarray(spec.prior, float)
+    C = cov[-k:, -k:] * np.outer(prior, prior)
+    u = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    bad = free[-k:] | ~np.isfinite(u) | (u > UNDETERMINED_PRIORS * prior)
+    C[bad, :] = np.inf
+    C[:, bad] = np.inf
+    return C
+
+
+def _correction(model, spec, values, C, grid, base):
+    """A member's correction on the grid (m, 3), mm, and its standard uncertainty (m,), mm: the 3-D
+    magnitude of sqrt(diag(J C J^T)) per point, through one step of each parameter (inf where an
+    undetermined parameter acts)."""
+    moved = model.with_values(spec, values).compensate(grid)
+    jac = []
+    for j in range(spec.size):
         v = np.array(values, float)
         v[j] += float(spec.steps[j])
-        jac = (model.with_values(spec, v).compensate(grid) - moved) / float(spec.steps[j])
-        var += np.sum(jac ** 2, axis=1) * u ** 2
-    return moved - base, np.sqrt(var)
+        jac.append((model.with_values(spec, v).compensate(grid) - moved) / float(spec.steps[j]))
+    Jg = np.stack(jac, axis=2)  # (m, 3, k) mm per unit
+    bad = ~np.isfinite(np.diag(C))
+    Cf = np.where(np.isfinite(C), C, 0.0)
+    var = np.einsum("mci,ij,mcj->m", Jg, Cf, Jg)
+    acts = np.any(np.abs(Jg[:, :, bad]) > 0, axis=(1, 2)) if bad.any() else np.zeros(len(moved), bool)
+    return moved - base, np.where(acts, np.inf, np.sqrt(np.clip(var, 0.0, None)))
 
 
 def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only: bool) -> AmbiguitySet | None:
@@ -282,10 +311,12 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
     model = step.model
     grid, angles = travel_grid(problem, model)
     base = model.compensate(grid)
-    corr, unc = [], []
+    corr, unc, covs = [], [], []
     for c, _, _ in members:
+        C = _member_covariance(problem, r0, X0, problem.columns[c.name], c.spec)
+        covs.append(C)
         try:
-            d, u = _correction(model, c.spec, c.values, c.uncertainty, grid, base)
+            d, u = _correction(model, c.spec, c.values, C, grid, base)
         except (Error, ValueError) as exc:  # it cannot be applied on the grid: no prediction, no claim
             log.debug("ambiguity: %s not compared over the travel: %s", c.name, exc)
             d, u = np.zeros_like(base), np.full(len(base), np.inf)
@@ -298,7 +329,8 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
             diff = diff - diff.mean(axis=0)  # a common offset: no artefact measurement sees it
             size = np.linalg.norm(diff, axis=1)
             u = np.hypot(unc[a], unc[b])
-            if np.any(size > AGREE_K * u):
+            # Agreement needs a determined difference: where an undetermined parameter acts, it is unknown.
+            if np.any(size > AGREE_K * u) or not np.all(np.isfinite(u)):
                 agree = False
             k = int(np.argmax(size))
             if size[k] * 1e3 >= largest:
@@ -306,8 +338,8 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
                 where = {"xyz_mm": grid.scales[k].tolist(), "pose": angles[k].tolist(),
                          "pair": [members[a][0].name, members[b][0].name], "u_um": float(u[k] * 1e3)}
     out = []
-    for c, rms, u in members:
-        unc_c = np.asarray(c.uncertainty, float)
+    for (c, rms, u), C in zip(members, covs):
+        unc_c = np.sqrt(np.clip(np.diag(C), 0.0, None))
         out.append({"name": c.name, "physics": getattr(c.spec, "physics", "") or "",
                     "values": dict(zip(c.spec.params, map(float, c.values))),
                     "uncertainty": dict(zip(c.spec.params, map(float, unc_c))),

@@ -724,8 +724,6 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
         for c in steps[-1].ranking:
             if not c.significant or c.alternative_to:
                 break
-            if not np.all(np.isfinite(np.asarray(c.uncertainty, float))):
-                continue  # a parameter the data did not determine: never enters a model
             if cross_validate and getattr(c.spec, "family", None) == "map" and _two_axis_first(problem, steps[-1], c):
                 continue  # an error of two axes at once: reported unexplained, not forced into one axis
             if not cross_validate or judge_candidate(problem, steps[-1], c, groups, split):
