@@ -1,13 +1,22 @@
 """Competing explanations side by side (issue 33, section 3).
 
 When the diagnosis picks an effect to add, the other significant candidates
-of that step are judged beside it on data none of them was fitted to
+of that step (for a named effect, the other named effects: the map-shape
+family ranks after them where they explain the structure, and its searched
+periods and knot spacings, chosen on all the data, flatter its held-out
+figures; for a map-shape correction, every significant candidate) are
+judged beside it on data none of them was fitted to
 (:mod:`cmmpose.diagnosis.cv`), with folds that follow how the data were
 taken (:func:`cmmpose.diagnosis.cv.cv_groups` with ``across=True``: whole
 runs, else whole placements, else within one placement, which judges
 interpolation only). Every candidate whose cross-validated headline rms is
 within one standard uncertainty of the best one's (the one-standard-error
 rule) is a member of the *ambiguity set*: the data cannot prefer one.
+
+Effects that follow a sensor or need other inputs than the position and
+the pose (temperatures, velocities) are not compared here: what the data
+cannot tell apart among them is kept as aliased alternatives
+(:mod:`cmmpose.diagnosis.aliases`) and checked where the model is applied.
 
 Whether the choice matters is decided by predictions, not parameters: each
 member's correction (its fitted values added to the step's model, less the
@@ -267,6 +276,14 @@ def _correction(model, spec, values, C, grid, base):
     return moved - base, np.where(acts, np.inf, np.sqrt(np.clip(var, 0.0, None)))
 
 
+def _over_travel(spec) -> bool:
+    """Whether an effect's correction is a function of the position and pose alone, so that it can be
+    compared over a grid of the travel: not one that follows a sensor or needs other inputs (temperatures,
+    velocities); those the data cannot tell apart are kept as aliased alternatives instead
+    (:mod:`cmmpose.diagnosis.aliases`), checked where the model is applied."""
+    return not getattr(spec, "needs", ()) and getattr(spec, "sensor", None) is None
+
+
 def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only: bool) -> AmbiguitySet | None:
     """The ambiguity set of ``chosen`` (the candidate the selection is about
     to add to ``step``'s model), or None when no other candidate explains
@@ -292,6 +309,14 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
 
     rivals = [c for c in step.ranking if c.significant and not c.alternative_to and c.name != chosen.name
               and c.name in problem.columns][:MAX_MEMBERS - 1]
+    if not _over_travel(chosen.spec):
+        return None  # a thermal effect: its aliases are kept as alternatives (cmmpose.diagnosis.aliases)
+    rivals = [c for c in rivals if _over_travel(c.spec)]
+    if getattr(chosen.spec, "family", None) != "map":
+        # A named effect the selection chose is judged against the other named effects (library and user):
+        # the map-shape family ranks after them where they explain the structure, and its searched shapes
+        # (periods, knot spacings) were chosen on all the data, which flatters their held-out figures.
+        rivals = [c for c in rivals if getattr(c.spec, "family", None) != "map"]
     if not rivals:
         return None
     r0, X0, ridge0, target0, sigma = current_state(problem, step)
