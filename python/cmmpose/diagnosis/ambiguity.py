@@ -57,6 +57,7 @@ import numpy as np
 
 from ..errors import Error
 from ..model.inputs import RunInputs
+from .statistics import INDISTINGUISHABLE_LR
 
 __all__ = ["AGREE_K", "GRID", "MAX_MEMBERS", "AmbiguitySet", "equivalences", "find_ambiguity", "travel_grid"]
 
@@ -330,7 +331,10 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
         return None
     best = min(scored, key=lambda t: t[1])
     limit = best[1] + (best[2] if math.isfinite(best[2]) else 0.0)  # one standard error
-    members = [t for t in scored if t[1] <= limit]
+    # ... and not rejected in sample: -2 log L within the margin by which the diagnosis says the data cannot
+    # choose (a few held-out runs judge coarsely; a likelihood ratio of e^20 is not an equal explanation).
+    top = max(t[0].lr for t in scored)
+    members = [t for t in scored if t[1] <= limit and t[0].lr >= top - INDISTINGUISHABLE_LR]
     if len(members) < 2 or all(t[0] is not chosen for t in members):
         return None
     model = step.model
