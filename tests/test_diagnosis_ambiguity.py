@@ -15,6 +15,7 @@ import functools
 import json
 
 import numpy as np
+import pytest
 
 from cmmpose.artefacts import load_artefact
 from cmmpose.diagnosis import cv as cvmod
@@ -125,3 +126,75 @@ def test_known_equivalences_are_named_in_words():
     assert any("twisted table" in w for w in equivalences(["squareness", "twist"]))
     assert any("roll" in w for w in equivalences(["roll", "twist"]))
     assert equivalences(["scale", "squareness"]) == []
+
+
+# -- section 5: a plan that tells the members apart ---------------------------------
+
+
+def test_t_optimal_separation_is_the_rival_refitted_sum_of_squares_over_the_noise():
+    from cmmpose.diagnosis.plan import _pair_separation
+
+    rng = np.random.default_rng(0)
+    Z = rng.normal(size=(12, 3)) * 1e-3  # mm per unit: A has 1 parameter, B 2
+    sigma, prior = 2e-3, np.array([20.0, 5.0, 7.0])
+    info = Z.T @ Z / sigma ** 2 + np.diag(1 / prior ** 2)
+    theta = [np.array([30.0]), np.array([1.0, -2.0])]
+    delta, fitted = _pair_separation(info, [np.array([0]), np.array([1, 2])], theta, 0, 1)
+    # By hand: B's least squares (with its prior) on what A predicts; the rest over the noise, A's prior beside.
+    zb = Z[:, 1:]
+    theta_b = np.linalg.solve(zb.T @ zb / sigma ** 2 + np.diag(1 / prior[1:] ** 2), zb.T @ (Z[:, 0] * 30.0) / sigma ** 2)
+    r = Z[:, 0] * 30.0 - zb @ theta_b
+    want = r @ r / sigma ** 2 + np.sum(theta_b ** 2 / prior[1:] ** 2) + 30.0 ** 2 / prior[0] ** 2
+    assert delta == pytest.approx(want, rel=1e-9) and np.allclose(fitted, theta_b, rtol=1e-9)
+
+
+def test_rivals_alike_everywhere_are_never_separated():
+    from cmmpose.diagnosis.plan import plan
+
+    specs = _effects(copy=True)
+    p = plan(list(runs()), rivals=[(specs[0], [50.0]), (specs[1], [50.0])], budget=1)
+    (sep,) = p.proposals[0].separates
+    # The same function: the rival refitted reproduces it but for its prior's pull, q / (F + q) of its move
+    # (q = 1 / 20^2, F its information), and the separation is theta^2 q (2F + q) / (F + q) < 2 (50 / 20)^2.
+    assert sep["separation"] < 2 * (50.0 / 20.0) ** 2
+    assert sep["difference_um"] < 0.1 * p.sigma_um  # a pull far below the noise
+    assert "T-optimal" in p.criterion
+
+
+def test_plan_separate_from_the_command_line(tmp_path):
+    from click.testing import CliRunner
+
+    from cmmpose.cli import main
+
+    F0 = float(np.mean(runs()[0].points["F"]))
+    head = "import numpy as np\nfrom cmmpose.model import UserEffect\n"
+    (tmp_path / "twist.py").write_text(head + (
+        "def f(inputs, k):\n    g = k * 1e-3 * (inputs['D'] - 450) / 450 * (inputs['E'] - 275) / 275\n"
+        "    return np.column_stack([0 * g, 0 * g, -g])\n"
+        "EFFECT = UserEffect.create('twist', f, {'k': ('um', 20.0)}, physics='a twisted table')\n"))
+    (tmp_path / "roll.py").write_text(head + (
+        f"def f(inputs, k):\n    th = k * 1e-3 * (inputs['D'] - 450) / 450 / 275\n"
+        f"    return np.column_stack([0 * th, th * (inputs['F'] - {F0!r}), -th * (inputs['E'] - 275)])\n"
+        "EFFECT = UserEffect.create('roll-x', f, {'k': ('um', 20.0)}, physics='a roll of X')\n"))
+    dirs = []
+    for i, r in enumerate(runs()):
+        r.save(tmp_path / f"run{i}")
+        dirs.append(str(tmp_path / f"run{i}"))
+    res = CliRunner().invoke(main, ["plan", *dirs, "--separate", "--user-effect", str(tmp_path / "twist.py"),
+                                    "--user-effect", str(tmp_path / "roll.py"), "--budget", "1", "--json"],
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    (sep,) = doc["proposals"][0]["separates"]
+    assert sorted(sep["pair"]) == ["roll-x", "twist"] and sep["separation"] > 25 and sep["difference_um"] > 1
+    assert not doc["proposals"][0]["placement"].startswith("xy@") or "z=-400" not in doc["proposals"][0]["placement"]
+    bad = CliRunner().invoke(main, ["plan", *dirs, "--user-effect", str(tmp_path / "twist.py")])
+    assert bad.exit_code == 2 and "--separate" in bad.output
+
+
+def test_the_html_report_text_holds_the_set():
+    from cmmpose.diagnosis.html_report import _verdict
+
+    text = _verdict(ambiguous(), None, None)
+    assert "competing explanations" in text and "roll-x" in text and "--separate" in text
+    assert "cross-validated rms" in text
