@@ -141,8 +141,11 @@ def verdict(d) -> list[tuple[str, str]]:
     out.append(("found", found))
     if getattr(d, "verification", None):
         out.append(("model check", d.verification["verdict"]))
-    ambiguous = [_ambiguity_words(a) for a in getattr(d, "ambiguity", [])[:MOST_LISTED]]
+    sets = getattr(d, "ambiguity", [])
+    ambiguous = [_ambiguity_words(a) for a in sets[:MOST_LISTED]]
     for group in d.ambiguous[:MOST_LISTED]:
+        if any(set(group) <= set(a.names) for a in sets):
+            continue  # said with the set above
         ambiguous.append(f"the run cannot tell apart {_names(group)}")
     said = [set(group) for group in d.ambiguous[:MOST_LISTED]]
     for chosen in list(dict.fromkeys(a.chosen for a in d.alternatives))[:MOST_LISTED]:
