@@ -25,6 +25,13 @@ The split follows how the data were taken (:func:`cv_groups`):
 Scans of the reference sphere (no figure holds them) are held out one scan at
 a time: each pose a separate view.
 
+The ambiguity set's judge (:mod:`cmmpose.diagnosis.ambiguity`) asks instead
+how a model carries to where it will be used (``cv_groups(..., across=True)``):
+whole runs out when there are two or more (another placement, plane, pose or
+day), else whole placements of a run that holds several (a plate in the XY,
+XZ and YZ planes: plane-out), else the split within the one placement, said
+to judge interpolation only.
+
 The fit of each fold is the linearised weighted least-squares fit of the
 diagnosis (:meth:`cmmpose.diagnosis.identify.Problem.wls`) with each class's
 noise level fixed at its full-data estimate and the same weak prior; folds

@@ -1,7 +1,9 @@
 """What to measure next (``cmmpose plan RUN...``; docs/plan.md): the N
 placements of an artefact (ballbar positions, plate placements, step-gauge
 lines, in the vocabulary of :mod:`cmmpose.placement`) that best determine
-the parameters the runs so far leave aliased or invisible.
+the parameters the runs so far leave aliased or invisible, or, given rival
+explanations (``rivals``: a diagnosis's ambiguity set), that best tell them
+apart (T-optimal, :func:`plan`).
 
 The information. A ball's measured centre moves, to first order, by the
 machine's error at the scale reading where the scan plane passes through
@@ -101,7 +103,9 @@ class Proposal:
     balls : int
         Balls it measures.
     gain : float
-        Increase of ``log det`` of the information it brings (D-optimal).
+        Increase of ``log det`` of the information it brings (D-optimal);
+        of a T-optimal plan (``rivals``), the smallest pairwise separation
+        after it (noise units).
     uncertainty : dict of str -> float
         Every parameter's predicted standard uncertainty after it (and the
         proposals before it), in the parameter's unit.
