@@ -198,3 +198,13 @@ def test_the_html_report_text_holds_the_set():
     text = _verdict(ambiguous(), None, None)
     assert "competing explanations" in text and "roll-x" in text and "--separate" in text
     assert "cross-validated rms" in text
+
+
+def test_the_next_advice_names_the_placement_that_separates_the_members():
+    d = ambiguous()
+    sep = d.separating
+    assert sep is not None and not (sep["placement"].startswith("xy@") and "z=-400" in sep["placement"])
+    (pair,) = sep["separates"]
+    assert sorted(pair["pair"]) == ["roll-x", "twist"] and pair["separation"] > 25
+    assert sep["placement"] in dict(verdict(d))["next"]
+    assert json.loads(d.to_json())["separating"]["placement"] == sep["placement"]

@@ -94,10 +94,9 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
         art = load_artefact(artefact) if artefact is not None else None
         rivals = None
         if separate:
-            from ..diagnosis.plan import open_rivals
             from ..model import load_user_effects
 
-            rivals = open_rivals(runs, model, load_user_effects(user_files) if user_files else ())
+            rivals = _open_rivals(runs, model, load_user_effects(user_files) if user_files else (), machine)
         try:
             result = plan(runs, art, budget, machine=machine, model=model, effects=plan_for or DEFAULT_EFFECTS,
                           sigma_um=sigma_um, rivals=rivals)
@@ -115,6 +114,21 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
         Console(width=max(Console().width, 140)).print(result)
     if written:
         console.print(f"wrote {escape(written)}: the {len(result.proposals)} proposed placements, simulated")
+
+
+def _open_rivals(runs, model, user_effects, machine):
+    """The first open ambiguity set of the runs' diagnosis (one run: cmmpose.diagnose; several: jointly)."""
+    from ..diagnosis.diagnose import diagnose
+    from ..diagnosis.joint import diagnose_jointly
+
+    if len(runs) == 1:
+        d = diagnose(runs[0], model, user_effects=user_effects, patterns=False, machine=machine)
+    else:
+        d = diagnose_jointly(runs, model, user_effects=user_effects, machine=machine)
+    if not d.open_ambiguity:
+        raise click.UsageError("--separate: the diagnosis of the runs leaves no competing explanations to tell "
+                               "apart (no open ambiguity set); plan without it to sharpen parameters")
+    return d.open_ambiguity[0]
 
 
 def _usage(exc: InputError) -> None:

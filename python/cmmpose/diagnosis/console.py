@@ -183,6 +183,13 @@ def _next(d, decisions, added) -> str:
     unexplained, else what reveals an effect the run cannot show, else a check of the model on a new run."""
     has = getattr(d, "run_has", None)
     for a in getattr(d, "open_ambiguity", [])[:1]:
+        sep = getattr(d, "separating", None)
+        if sep:
+            pairs = "; ".join(f"{x['pair'][0]} from {x['pair'][1]} by {x['difference_um']:.2g} um "
+                              f"({x['separation']:.3g} in noise units)" for x in sep["separates"][:MOST_LISTED])
+            return (f"to tell {_names(a.names)} apart, measure {sep['placement']} ({sep['artefact']}): it separates "
+                    f"{pairs}; then diagnose --joint with the new run (cmmpose plan RUN... --separate for more); or "
+                    f"choose one: diagnose --add NAME")
         return (f"to tell {_names(a.names)} apart: cmmpose plan RUN... --separate proposes the placements that "
                 f"separate them most (T-optimal), then diagnose --joint with the new run; or choose one: "
                 f"diagnose --add NAME")

@@ -169,6 +169,9 @@ class Diagnosis:
     alternatives: tuple = ()
     #: Which revealing measurements the run holds (:func:`run_holds`): advice never asks for them.
     run_has: dict = field(default_factory=dict)
+    #: The placement that best tells the first open ambiguity set's members apart
+    #: (:func:`cmmpose.diagnosis.plan.separating_measurement`), None when there is none.
+    separating: dict | None = None
 
     def decisions(self) -> list[dict]:
         """The decision on every candidate, with its reason, in one list:
@@ -289,7 +292,7 @@ class Diagnosis:
                 "alternatives": [a.to_dict() for a in self.alternatives], "components": self.components,
                 "cross_validation": self.steps[-1].cv,
                 "ambiguous": [list(a) for a in self.ambiguous], "advice": self.advice,
-                "ambiguity_sets": [a.to_dict() for a in self.ambiguity],
+                "ambiguity_sets": [a.to_dict() for a in self.ambiguity], "separating": self.separating,
                 "elapsed_s": self.elapsed, "n_points": self.n_points,
                 "patterns": None if self.patterns is None else self.patterns.to_dict(),
                 "provenance": self.provenance()}
@@ -390,6 +393,7 @@ def diagnose(
     temperature_policy=None,
     reproducibility_source: str = "stated",
     default_reproducibility_um: float | None = None,
+    machine=None,
 ) -> Diagnosis:
     """Find which physical effects the model misses on ``run``, add them, and
     keep the history of the error falling.
@@ -462,6 +466,10 @@ def diagnose(
         (:attr:`cmmpose.machine.Machine.reproducibility_um`), the floor when
         ``reproducibility_um`` is not given and the run repeats no scan (a
         run that does measures its own). Checked as ``reproducibility_um``.
+    machine : cmmpose.machine.Machine, optional
+        Where the "next" advice for an open ambiguity set looks for the
+        placement that tells its members apart (its travel and poses;
+        default the thesis machine): ``Diagnosis.separating``.
 
     Returns
     -------
@@ -563,6 +571,10 @@ def diagnose(
                 if which == "patterns":  # the final model's: what it leaves unexplained
                     diag.unexplained = unexplained_findings(diag.patterns, periodic_errors(sub, xyz[keep], fits),
                                                             m.names)
+    if diag.open_ambiguity:
+        from .plan import separating_measurement
+
+        separating_measurement(diag, [run], machine)
     diag.elapsed = time.perf_counter() - t0
     return diag
 

@@ -176,6 +176,11 @@ def _verdict(d, model_file, run_dir) -> str:
             + "".join(f". {w}" for w in a.equivalences)
             + (". cmmpose plan RUN... --separate proposes the placements that tell them apart" if not a.resolved
                else ""))
+    sep = getattr(d, "separating", None)
+    if sep:
+        nxt.append(f"measure {sep['placement']} ({sep['artefact']}): it separates " + "; ".join(
+            f"{x['pair'][0]} from {x['pair'][1]} by {x['difference_um']:.2g} um ({x['separation']:.3g} in noise "
+            f"units)" for x in sep["separates"]) + "; then diagnose the runs jointly with it")
     if d.ambiguous:
         for group in d.ambiguous:
             nxt.append(f"to tell {', '.join(group)} apart: {d.advice.get(group[0], '')}")

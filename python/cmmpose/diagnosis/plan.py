@@ -70,7 +70,7 @@ __all__ = [
     "candidate_placements",
     "centre_sensitivities",
     "plan",
-    "open_rivals",
+    "separating_measurement",
 ]
 
 _log = logging.getLogger(__name__)
@@ -760,25 +760,26 @@ def _t_optimal(artefact_name, params, specs, theta, sigma, source, info, before,
                 proposals, len(options), unreachable, notes)
 
 
-def open_rivals(runs: Sequence[Run], model: Model | None = None, user_effects=(), **diagnose_options):
-    """The first open ambiguity set of the diagnosis of ``runs`` (one run:
-    :func:`cmmpose.diagnose`; several: :func:`cmmpose.diagnosis.joint.diagnose_jointly`),
-    for :func:`plan`'s ``rivals`` (``cmmpose plan --separate``).
-
-    Raises
-    ------
-    InputError
-        The diagnosis left no open ambiguity set: nothing to tell apart.
-    """
-    from .diagnose import diagnose
-    from .joint import diagnose_jointly
-
-    runs = list(runs)
-    if len(runs) == 1:
-        d = diagnose(runs[0], model, user_effects=user_effects, patterns=False, **diagnose_options)
-    else:
-        d = diagnose_jointly(runs, model, user_effects=user_effects, **diagnose_options)
-    if not d.open_ambiguity:
-        raise InputError("--separate: the diagnosis of the runs leaves no competing explanations to tell apart "
-                         "(no open ambiguity set); plan without it to sharpen parameters")
-    return d.open_ambiguity[0]
+def separating_measurement(diagnosis, runs: Sequence[Run], machine=None) -> dict | None:
+    """The diagnosis's "next" advice for its first open ambiguity set: the
+    one placement, reachable on ``machine`` (default the thesis machine), of
+    the runs' artefact that best tells its members apart (:func:`plan` with
+    ``rivals``, budget 1). Sets and returns ``diagnosis.separating``
+    (``placement``, ``artefact``, ``separates``: the pairs with their
+    difference in um and separation in noise units), None when there is no
+    open set or no placement can be planned (e.g. runs off the machine's
+    travel: said in the log)."""
+    sets = getattr(diagnosis, "open_ambiguity", [])
+    if not sets:
+        return None
+    try:
+        p = plan(list(runs), rivals=sets[0], budget=1, machine=machine, model=diagnosis.steps[-1].model)
+    except (Error, ValueError, np.linalg.LinAlgError) as exc:
+        _log.info("no placement planned to tell %s apart: %s", ", ".join(sets[0].names), exc)
+        return None
+    if not p.proposals:
+        return None
+    first = p.proposals[0]
+    diagnosis.separating = {"placement": first.placement, "artefact": p.artefact,
+                            "separates": [dict(x) for x in first.separates], "noise_um": round(p.sigma_um, 4)}
+    return diagnosis.separating
