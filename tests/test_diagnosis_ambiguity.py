@@ -139,12 +139,12 @@ def test_t_optimal_separation_is_the_rival_refitted_sum_of_squares_over_the_nois
     sigma, prior = 2e-3, np.array([20.0, 5.0, 7.0])
     info = Z.T @ Z / sigma ** 2 + np.diag(1 / prior ** 2)
     theta = [np.array([30.0]), np.array([1.0, -2.0])]
-    delta, fitted = _pair_separation(info, [np.array([0]), np.array([1, 2])], theta, 0, 1)
-    # By hand: B's least squares (with its prior) on what A predicts; the rest over the noise, A's prior beside.
+    delta, fitted = _pair_separation(info, np.diag(1 / prior ** 2), [np.array([0]), np.array([1, 2])], theta, 0, 1)
+    # By hand: B's least squares (with its weak prior) on what A predicts; the residual over the noise variance.
     zb = Z[:, 1:]
     theta_b = np.linalg.solve(zb.T @ zb / sigma ** 2 + np.diag(1 / prior[1:] ** 2), zb.T @ (Z[:, 0] * 30.0) / sigma ** 2)
     r = Z[:, 0] * 30.0 - zb @ theta_b
-    want = r @ r / sigma ** 2 + np.sum(theta_b ** 2 / prior[1:] ** 2) + 30.0 ** 2 / prior[0] ** 2
+    want = r @ r / sigma ** 2
     assert delta == pytest.approx(want, rel=1e-9) and np.allclose(fitted, theta_b, rtol=1e-9)
 
 
@@ -155,8 +155,8 @@ def test_rivals_alike_everywhere_are_never_separated():
     p = plan(list(runs()), rivals=[(specs[0], [50.0]), (specs[1], [50.0])], budget=1)
     (sep,) = p.proposals[0].separates
     # The same function: the rival refitted reproduces it but for its prior's pull, q / (F + q) of its move
-    # (q = 1 / 20^2, F its information), and the separation is theta^2 q (2F + q) / (F + q) < 2 (50 / 20)^2.
-    assert sep["separation"] < 2 * (50.0 / 20.0) ** 2
+    # (q = 1 / 20^2, F its information), so the separation is F theta^2 q^2 / (F + q)^2 <= theta^2 q / 4.
+    assert sep["separation"] <= (50.0 / 20.0) ** 2 / 4
     assert sep["difference_um"] < 0.1 * p.sigma_um  # a pull far below the noise
     assert "T-optimal" in p.criterion
 
@@ -208,3 +208,33 @@ def test_the_next_advice_names_the_placement_that_separates_the_members():
     assert sorted(pair["pair"]) == ["roll-x", "twist"] and pair["separation"] > 25
     assert sep["placement"] in dict(verdict(d))["next"]
     assert json.loads(d.to_json())["separating"]["placement"] == sep["placement"]
+
+
+def test_plan_separate_simulate_then_a_joint_diagnosis_resolves_a_ballbar_case(tmp_path):
+    """One B89 layout with a squareness xy of 25 arc-seconds cannot choose between it and rolls of the
+    carriages; the bar placement the plan proposes, measured (--simulate), and the joint diagnosis adds the
+    squareness, at its value, with no open set."""
+    from click.testing import CliRunner
+
+    import cmmpose
+    from cmmpose.cli import main
+    from cmmpose.sim import effects as E
+    from cmmpose.sim.runs import simulate_ballbar_run
+
+    run, truth = simulate_ballbar_run(temperature=22.5, effects=[E.SquarenessOffset(xy=25.0)], seed=8,
+                                      jitter=0.0015, scanner=Scanner(points_per_profile=256))
+    run.save(tmp_path / "run", truth=truth)
+    alone = cmmpose.diagnose(run, patterns=False)
+    assert alone.added == [] and sorted(alone.open_ambiguity[0].names) == ["roll", "squareness"]
+    r = CliRunner().invoke(main, ["plan", str(tmp_path / "run"), "--separate", "--budget", "1", "--simulate",
+                                  "-o", str(tmp_path / "new"), "--effect", "squareness:xy=25", "--jitter", "1.5",
+                                  "--json"], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), str(tmp_path / "new"), "--joint", "--json"],
+                           catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output)
+    added = {x["name"]: x for x in doc["decisions"] if x["decision"] == "added"}
+    assert set(added) == {"squareness"} and all(s["agree"] for s in doc["ambiguity_sets"])  # none left open
+    xy, u = added["squareness"]["values"]["xy"], added["squareness"]["uncertainty"]["xy"]
+    assert abs(xy - 25.0) < 3 * u, (xy, u)

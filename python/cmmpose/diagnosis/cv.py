@@ -135,6 +135,16 @@ def _placement_groups(layout) -> np.ndarray | None:
     return out
 
 
+def _one_kind(parts) -> bool:
+    """Whether the runs of a joint problem are of one kind: all ballbar layouts, or all placements of one
+    artefact (by its name), so that one run's figures can be predicted from the others'."""
+    kinds = set()
+    for p in parts:
+        art = p.layout.artefact
+        kinds.add("ballbar" if art is None else ("artefact", getattr(art.artefact, "name", "")))
+    return len(kinds) == 1
+
+
 def cv_groups(problem, by_run: bool | None = None, across: bool = False) -> tuple[np.ndarray, np.ndarray, str]:
     """The cross-validation fold of every observable row of ``problem``,
     the item each row belongs to (the units whose spread gives the
@@ -152,7 +162,10 @@ def cv_groups(problem, by_run: bool | None = None, across: bool = False) -> tupl
     across : bool
         Folds that mirror how a model is used (the ambiguity set's judge,
         :mod:`cmmpose.diagnosis.ambiguity`): whole runs out when there are
-        two or more (each another placement, plane, pose or day), else whole
+        two or more of one kind (each another placement, plane, pose or
+        day; runs of different kinds, a ballbar layout beside a plate,
+        cannot predict each other's figures: each run's positions or balls
+        then), else whole
         placements of the one run when it holds several, else within the one
         placement, and the split then says that the figure judges
         interpolation only.
@@ -163,8 +176,13 @@ def cv_groups(problem, by_run: bool | None = None, across: bool = False) -> tupl
     split : str
     """
     parts = getattr(problem, "parts", None)
-    if across and parts and len(parts) >= 2:
+    if across and parts and len(parts) >= 2 and _one_kind(parts):
         by_run = True
+    elif across and parts and len(parts) >= 2:
+        # Runs of different kinds (a ballbar layout beside an artefact's placements): one cannot predict the
+        # other's own figures (its rigid fit, its lengths' offset), so each run's positions or balls are held out.
+        folds, items, split = cv_groups(problem, by_run=False)
+        return folds, items, f"{split}; the runs differ in kind; {INTERPOLATION_ONLY}"
     elif across:
         # One run: whole placements out when it holds several, else within the one placement, said so.
         layout = (parts[0] if parts else problem).layout

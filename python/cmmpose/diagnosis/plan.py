@@ -515,13 +515,13 @@ def plan(
         effect with its fitted values in its units). Then the placements
         are chosen to tell them apart, not to sharpen parameters: the
         T-optimal criterion (Atkinson and Fedorov 1975). For a pair (A, B),
-        A taken true at its values theta_A, B refitted to everything A
-        predicts (the runs, the placements chosen so far and the
-        candidate), the separation is the sum of the squared predicted
-        differences of the observables over the noise variance,
-        ``theta_A' (M_AA - M_AB M_BB^-1 M_BA) theta_A`` with M the
-        information of both (the weak prior included), the smaller of the
-        two directions; with several rivals the smallest pairwise
+        A taken true at its values theta_A, B refitted (with its weak
+        prior) to everything A predicts (the runs, the placements chosen
+        so far and the candidate), the separation is the sum of the squared
+        predicted differences of the observables over the noise variance at
+        that refit (the data's information only: without the priors, this
+        is ``theta_A' (M_AA - M_AB M_BB^-1 M_BA) theta_A``), the smaller of
+        the two directions; with several rivals the smallest pairwise
         separation is maximised (greedy). ``effects`` is then not used.
 
     Returns
@@ -627,8 +627,8 @@ def plan(
     before = dict(zip(pnames, np.sqrt(np.diag(cov))))
     status = _status(cov, pnames, priors)
     if theta is not None:
-        return _t_optimal(f"{artefact.name} ({artefact.kind})", params, specs, theta, sigma, source, info, before,
-                          status, options, unreachable, notes, budget)
+        return _t_optimal(f"{artefact.name} ({artefact.kind})", params, specs, theta, sigma, source, info,
+                          prior_info, before, status, options, unreachable, notes, budget)
     proposals, used = [], set()
     _, logdet = np.linalg.slogdet(info)
     for _ in range(min(int(budget), len(options))):
@@ -687,16 +687,23 @@ def _rival_specs(rivals):
     return specs, theta
 
 
-def _pair_separation(info, blocks, theta, a, b):
-    """Separation of rival ``a`` (true at ``theta[a]``) from ``b`` refitted: (non-centrality, theta_b refitted)."""
+def _pair_separation(info, prior_info, blocks, theta, a, b):
+    """Separation of rival ``a`` (true at ``theta[a]``) from ``b`` refitted: (non-centrality, theta_b refitted).
+
+    ``b`` is refitted to what ``a`` predicts by least squares with its weak prior (``info`` holds the data's
+    information and the prior's, ``prior_info`` the prior's alone); the separation is the data's part only:
+    the sum of the squared differences of the observables over the noise variance at that refit, the
+    priors' penalties left out (a rival's typical magnitude is no measurement)."""
     ia, ib = blocks[a], blocks[b]
-    Maa, Mab, Mbb = info[np.ix_(ia, ia)], info[np.ix_(ia, ib)], info[np.ix_(ib, ib)]
+    data = info - prior_info
+    Mab, Mbb = info[np.ix_(ia, ib)], info[np.ix_(ib, ib)]
     fitted = np.linalg.solve(Mbb, Mab.T @ theta[a])
-    schur = Maa - Mab @ np.linalg.solve(Mbb, Mab.T)
-    return float(theta[a] @ schur @ theta[a]), fitted
+    Daa, Dab, Dbb = data[np.ix_(ia, ia)], data[np.ix_(ia, ib)], data[np.ix_(ib, ib)]
+    delta = theta[a] @ Daa @ theta[a] - 2 * theta[a] @ Dab @ fitted + fitted @ Dbb @ fitted
+    return float(max(delta, 0.0)), fitted
 
 
-def _separations(info, blocks, theta, Jp=None, sigma=1.0) -> list[dict]:
+def _separations(info, prior_info, blocks, theta, Jp=None) -> list[dict]:
     """Every pair's separation (the smaller direction) under ``info`` and, with ``Jp`` (a placement's
     projected sensitivities, mm per unit), the largest predicted difference of its observables, um."""
     out = []
@@ -704,7 +711,7 @@ def _separations(info, blocks, theta, Jp=None, sigma=1.0) -> list[dict]:
         for b in range(a + 1, len(blocks)):
             best = None
             for x, y in ((a, b), (b, a)):
-                delta, fitted = _pair_separation(info, blocks, theta, x, y)
+                delta, fitted = _pair_separation(info, prior_info, blocks, theta, x, y)
                 if best is None or delta < best[0]:
                     diff = 0.0
                     if Jp is not None:
@@ -715,8 +722,8 @@ def _separations(info, blocks, theta, Jp=None, sigma=1.0) -> list[dict]:
     return out
 
 
-def _t_optimal(artefact_name, params, specs, theta, sigma, source, info, before, status, options, unreachable,
-               notes, budget) -> Plan:
+def _t_optimal(artefact_name, params, specs, theta, sigma, source, info, prior_info, before, status, options,
+               unreachable, notes, budget) -> Plan:
     """The greedy T-optimal plan (:func:`plan`'s ``rivals``)."""
     blocks, at = [], 0
     for spec in specs:
@@ -728,7 +735,7 @@ def _t_optimal(artefact_name, params, specs, theta, sigma, source, info, before,
         return [{"pair": [names[x["pair"][0]], names[x["pair"][1]]], "separation": round(x["separation"], 4),
                  "difference_um": round(x["difference_um"], 4)} for x in seps]
 
-    now = _separations(info, blocks, theta)
+    now = _separations(info, prior_info, blocks, theta)
     notes.append("from the runs alone: " + "; ".join(
         f"{a} and {b} {x['separation']:.3g} apart in noise units" for x in named(now) for a, b in [x["pair"]]))
     proposals, used = [], set()
@@ -737,7 +744,7 @@ def _t_optimal(artefact_name, params, specs, theta, sigma, source, info, before,
         for i, (label, n, Fi, Jp) in enumerate(options):
             if i in used:
                 continue
-            worst = min(x["separation"] for x in _separations(info + Fi, blocks, theta))
+            worst = min(x["separation"] for x in _separations(info + Fi, prior_info, blocks, theta))
             if best is None or worst > best[1] + 1e-12:
                 best = (i, worst)
         if best is None:
@@ -746,7 +753,7 @@ def _t_optimal(artefact_name, params, specs, theta, sigma, source, info, before,
         used.add(i)
         label, n, Fi, Jp = options[i]
         info = info + Fi
-        seps = named(_separations(info, blocks, theta, Jp, sigma))
+        seps = named(_separations(info, prior_info, blocks, theta, Jp))
         cov = np.linalg.inv(info)
         pn = [p for p, _, _ in params]
         proposals.append(Proposal(_shorthand(label), label, n, float(worst), dict(zip(pn, np.sqrt(np.diag(cov)))),
