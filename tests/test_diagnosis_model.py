@@ -196,8 +196,17 @@ def test_library_lists_per_pose_alignment_only_with_several_poses():
 def test_cli_diagnose_writes_tables_report_json_and_a_reusable_model(tmp_path):
     run, truth = run_with([E.Squareness(xy=25.0)], seed=8, jitter=0.0015, scanner=Scanner(points_per_profile=256))
     run.save(tmp_path / "run", truth=truth)
+    # One B89 layout cannot choose between a squareness and rolls of the carriages (issue 33, section 3: their
+    # cross-validated rms within one standard uncertainty, -2 log L within 10), whose corrections differ by tens
+    # of um at the corners of the travel: the diagnosis adds neither and says so; the user chooses by name.
     r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), "--report", str(tmp_path / "r"),
-                                  "--save-model", str(tmp_path / "m.json")], env={"COLUMNS": "100"})
+                                  "--save-model", str(tmp_path / "open.json")], env={"COLUMNS": "100"})
+    assert r.exit_code == 0, r.output
+    assert "cannot choose between squareness, roll" in " ".join(r.output.split())
+    assert Model.load(tmp_path / "open.json").names == ()
+    r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), "--add", "squareness", "--report",
+                                  str(tmp_path / "r"), "--save-model", str(tmp_path / "m.json")],
+                           env={"COLUMNS": "100"})
     assert r.exit_code == 0, r.output
     assert "squareness" in r.output and "The error falling" in r.output
     html = (tmp_path / "r" / "diagnose.html").read_text()

@@ -38,3 +38,25 @@ def test_plan_tutorial_runs(tmp_path):
 
     maps, m1, m2 = rms("check-maps.json"), rms("check-m1.json"), rms("check-m2.json")
     assert m2 < 0.6 * maps and m2 < 0.6 * m1, (maps, m1, m2)
+
+
+def test_the_walkthrough_resolving_an_ambiguity_runs_as_written():
+    """docs/plan.md, "Telling competing explanations apart" (issue 33, section 5): an ambiguous diagnosis,
+    the T-optimal placement, the joint diagnosis that resolves it, the unseen placement's error falling."""
+    blocks = re.findall(r"```python walkthrough\n(.*?)```", DOC.read_text(encoding="utf-8"), flags=re.DOTALL)
+    assert len(blocks) == 2
+    ns: dict = {"__name__": "walkthrough"}
+    exec(compile(blocks[0], "plan.md walkthrough 1", "exec"), ns)
+    rivals = ns["rivals"]
+    assert ns["first"].added == [] and sorted(rivals.names) == ["roll-x", "twist"] and not rivals.agree
+    # 50 um at the corners of a 900 x 550 travel; the roll's Y term adds up to 50 um x 500 / 275 more: tens of um.
+    assert rivals.largest_difference_um > 20
+    exec(compile(blocks[1], "plan.md walkthrough 2", "exec"), ns)
+    first = ns["proposed"].proposals[0]
+    assert not first.placement.startswith("xy@") or "z=-400" not in first.placement
+    sep = first.separates[0]
+    assert sep["separation"] > 25 and sep["difference_um"] > 1  # well beyond chi-square's 1-dof 5-sigma
+    assert ns["second"].added == ["twist"] and ns["second"].open_ambiguity == []
+    before, after = ns["before"].to_dict(), ns["after"].to_dict()
+    # The first model added nothing: the plain maps' figure; the second removes more than half of it.
+    assert after["model_rms_um"] < 0.5 * before["model_rms_um"], (before, after)

@@ -121,7 +121,7 @@ def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_r
             diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects,
                             user_effects=[u for u in user if u.name not in known],
                             map_corrections=not no_map_corrections, reproducibility_um=reproducibility_um,
-                            **machine_floor(machine, machine_file, reproducibility_um))
+                            machine=machine, **machine_floor(machine, machine_file, reproducibility_um))
         files = []
         if skeleton_out:
             from ..diagnosis.unexplained import user_effect_skeleton
@@ -272,7 +272,7 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
             if repro is not None:
                 options["reproducibility_um"] = repro[0] if len(repro) == 1 else list(repro)
             diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
-                                    run_names=[str(r) for r in run_dirs], **options,
+                                    run_names=[str(r) for r in run_dirs], machine=machine, **options,
                                     **machine_floor(machine, machine_file, repro))
         files = [diag.model.save(model_out)] if model_out else []
         if corrected_out:

@@ -45,9 +45,14 @@ from .common import SEED, Positive, check_outputs, console, fail, load_maps, mac
 @click.option("-o", "--output", "run_out", type=click.Path(file_okay=False), default=None,
               help="With --simulate: the run directory to write.")
 @click.option("--overwrite", is_flag=True, help="With --simulate: replace an existing run in -o.")
+@click.option("--separate", "separate", is_flag=True,
+              help="Diagnose the runs first and propose the placements that best tell apart the competing "
+                   "explanations it cannot choose between (T-optimal), instead of sharpening parameters.")
+@click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="With --separate: a Python file of user effects, candidates of the diagnosis (repeatable).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
 def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_for, sigma_um, simulate, effects,
-             temperature, jitter, seed, run_out, overwrite, as_json) -> None:
+             temperature, jitter, seed, run_out, overwrite, separate, user_files, as_json) -> None:
     """Propose the next placements of an artefact (ballbar positions, plate placements, step-gauge lines) that
     best determine what RUN_DIR... leave aliased or invisible (D-optimal on the centre-level sensitivities,
     greedy over the placements the machine reaches), with the parameters' predicted uncertainties before and
@@ -64,6 +69,10 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
         for flag, given in (("-o", run_out is not None), ("--effect", bool(effects)), ("--overwrite", overwrite)):
             if given:
                 raise click.UsageError(f"{flag} is for --simulate")
+    if user_files and not separate:
+        raise click.UsageError("--user-effect is for --separate")
+    if separate and plan_for:
+        raise click.UsageError("--plan-for sharpens parameters; --separate tells explanations apart: give one")
     if model_file is not None and maps:
         raise click.UsageError("give --maps or --model (whose maps it holds), not both")
     if not math.isfinite(temperature):
@@ -83,9 +92,14 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
         runs = [Run.load(d) for d in run_dirs]
         model = Model.load(model_file) if model_file is not None else Model(load_maps(maps, machine))
         art = load_artefact(artefact) if artefact is not None else None
+        rivals = None
+        if separate:
+            from ..model import load_user_effects
+
+            rivals = _open_rivals(runs, model, load_user_effects(user_files) if user_files else (), machine)
         try:
             result = plan(runs, art, budget, machine=machine, model=model, effects=plan_for or DEFAULT_EFFECTS,
-                          sigma_um=sigma_um)
+                          sigma_um=sigma_um, rivals=rivals)
         except InputError as exc:
             _usage(exc)
         written = None
@@ -100,6 +114,21 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
         Console(width=max(Console().width, 140)).print(result)
     if written:
         console.print(f"wrote {escape(written)}: the {len(result.proposals)} proposed placements, simulated")
+
+
+def _open_rivals(runs, model, user_effects, machine):
+    """The first open ambiguity set of the runs' diagnosis (one run: cmmpose.diagnose; several: jointly)."""
+    from ..diagnosis.diagnose import diagnose
+    from ..diagnosis.joint import diagnose_jointly
+
+    if len(runs) == 1:
+        d = diagnose(runs[0], model, user_effects=user_effects, patterns=False, machine=machine)
+    else:
+        d = diagnose_jointly(runs, model, user_effects=user_effects, machine=machine)
+    if not d.open_ambiguity:
+        raise click.UsageError("--separate: the diagnosis of the runs leaves no competing explanations to tell "
+                               "apart (no open ambiguity set); plan without it to sharpen parameters")
+    return d.open_ambiguity[0]
 
 
 def _usage(exc: InputError) -> None:

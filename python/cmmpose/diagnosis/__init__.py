@@ -10,11 +10,16 @@ what applies them never imports it.
   explain them;
 - :func:`verify`: does a found model hold on a run it never saw
   (:mod:`cmmpose.diagnosis.cv`, which also cross-validates every choice);
+- :class:`AmbiguitySet`: explanations the data cannot choose between,
+  side by side, with where over the travel they disagree
+  (:mod:`cmmpose.diagnosis.ambiguity`; ``Diagnosis.ambiguity``), and what
+  tells them apart (:func:`cmmpose.diagnosis.plan.plan` with ``rivals``);
 - :func:`jacobian`: the named sensitivities of a run's observables to every
   candidate parameter, map corrections (:mod:`cmmpose.diagnosis.mapfamily`)
   included.
 """
 
+from .ambiguity import AmbiguitySet
 from .cv import verify
 from .diagnose import Diagnosis, Step, diagnose
 from .identify import Candidate, Problem, fit_effect, fit_model, rank_candidates
@@ -22,4 +27,4 @@ from .sensitivity import jacobian
 from .spheres import SphereFitDiagnosis, diagnose_sphere_fits
 
 __all__ = ["diagnose", "Diagnosis", "Step", "Candidate", "Problem", "fit_effect", "fit_model", "rank_candidates",
-           "SphereFitDiagnosis", "diagnose_sphere_fits", "verify", "jacobian"]
+           "SphereFitDiagnosis", "diagnose_sphere_fits", "verify", "jacobian", "AmbiguitySet"]

@@ -141,8 +141,11 @@ def verdict(d) -> list[tuple[str, str]]:
     out.append(("found", found))
     if getattr(d, "verification", None):
         out.append(("model check", d.verification["verdict"]))
-    ambiguous = []
+    sets = getattr(d, "ambiguity", [])
+    ambiguous = [_ambiguity_words(a) for a in sets[:MOST_LISTED]]
     for group in d.ambiguous[:MOST_LISTED]:
+        if any(set(group) <= set(a.names) for a in sets):
+            continue  # said with the set above
         ambiguous.append(f"the run cannot tell apart {_names(group)}")
     said = [set(group) for group in d.ambiguous[:MOST_LISTED]]
     for chosen in list(dict.fromkeys(a.chosen for a in d.alternatives))[:MOST_LISTED]:
@@ -179,6 +182,17 @@ def _next(d, decisions, added) -> str:
     """The measurement to make next: what tells an ambiguous group apart, else a user effect on what is
     unexplained, else what reveals an effect the run cannot show, else a check of the model on a new run."""
     has = getattr(d, "run_has", None)
+    for a in getattr(d, "open_ambiguity", [])[:1]:
+        sep = getattr(d, "separating", None)
+        if sep:
+            pairs = "; ".join(f"{x['pair'][0]} from {x['pair'][1]} by {x['difference_um']:.2g} um "
+                              f"({x['separation']:.3g} in noise units)" for x in sep["separates"][:MOST_LISTED])
+            return (f"to tell {_names(a.names)} apart, measure {sep['placement']} ({sep['artefact']}): it separates "
+                    f"{pairs}; then diagnose --joint with the new run (cmmpose plan RUN... --separate for more); or "
+                    f"choose one: diagnose --add NAME")
+        return (f"to tell {_names(a.names)} apart: cmmpose plan RUN... --separate proposes the placements that "
+                f"separate them most (T-optimal), then diagnose --joint with the new run; or choose one: "
+                f"diagnose --add NAME")
     if d.ambiguous:
         group = d.ambiguous[0]
         return f"to tell {_names(group)} apart: " + _group_advice(d.advice.get(group[0], ""), group, has)
@@ -438,3 +452,14 @@ def as_text(d, verbose: bool = True, width: int = WIDE) -> str:
     console.print(DiagnosisView(d, verbose))
     return console.export_text()
 
+
+
+def _ambiguity_words(a) -> str:
+    """An ambiguity set in the verdict's words: the members with their parameters and cross-validated rms, where
+    they disagree most, the known equivalences among them."""
+    members = []
+    for m in a.members:
+        vals = ", ".join(f"{k} = {v:.3g} ± {m['uncertainty'][k]:.2g} {m['units'][k]}" for k, v in m["values"].items())
+        members.append(f"{m['name']} ({m['physics']}; {vals}; cross-validated rms {m['cv_rms_um']:.2f} ± "
+                       f"{m['cv_rms_u_um']:.2f} um)")
+    return "; ".join([a.verdict() + ": " + "; ".join(members), *a.equivalences])

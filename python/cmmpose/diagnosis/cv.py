@@ -25,6 +25,13 @@ The split follows how the data were taken (:func:`cv_groups`):
 Scans of the reference sphere (no figure holds them) are held out one scan at
 a time: each pose a separate view.
 
+The ambiguity set's judge (:mod:`cmmpose.diagnosis.ambiguity`) asks instead
+how a model carries to where it will be used (``cv_groups(..., across=True)``):
+whole runs out when there are two or more (another placement, plane, pose or
+day), else whole placements of a run that holds several (a plate in the XY,
+XZ and YZ planes: plane-out), else the split within the one placement, said
+to judge interpolation only.
+
 The fit of each fold is the linearised weighted least-squares fit of the
 diagnosis (:meth:`cmmpose.diagnosis.identify.Problem.wls`) with each class's
 noise level fixed at its full-data estimate and the same weak prior; folds
@@ -69,7 +76,7 @@ HEADLINE_RISE_SIGMA = 2.0
 #: whitened figure falls (it would trade the figure users read for sphere-fit residuals).
 HEADLINE_RISE_SHARE = 0.01
 
-__all__ = ["CVDesign", "CVScore", "compare", "cv_groups", "cv_score", "judge", "model_design", "verify"]
+__all__ = ["CVDesign", "CVScore", "INTERPOLATION_ONLY", "compare", "current_state", "cv_groups", "cv_score", "judge", "model_design", "verify"]
 
 
 def _single_groups(layout) -> tuple[np.ndarray, str]:
@@ -104,7 +111,41 @@ def _single_groups(layout) -> tuple[np.ndarray, str]:
     return np.concatenate([first, centre, radius, point]).astype(int), how
 
 
-def cv_groups(problem, by_run: bool | None = None) -> tuple[np.ndarray, np.ndarray, str]:
+#: Said of a split whose folds lie within one placement.
+INTERPOLATION_ONLY = "within one placement: this figure judges interpolation only, not a placement never seen"
+
+
+def _placement_groups(layout) -> np.ndarray | None:
+    """Fold of every observable row of one artefact run by its placement
+    (the placement's deviations and scans; -1 elsewhere), or None when the
+    run holds one placement (or is not an artefact run)."""
+    art = layout.artefact
+    if art is None or len(art.spheres) < 2:
+        return None
+    g, _ = _single_groups(layout)
+    n_dev = layout.sizes["length"]
+    out = np.full(len(g), -1)
+    ball_of = np.concatenate([np.full(3 * len(idx), k) for k, idx in enumerate(art.spheres)])
+    # The single split numbers balls in placement order: each ball's group to its placement.
+    lut = np.repeat(np.arange(len(art.spheres)), [len(sph) for sph in art.spheres])
+    out[:n_dev] = ball_of[:n_dev]
+    rest = g[n_dev:]
+    inside = (rest >= 0) & (rest < len(lut))
+    out[n_dev:] = np.where(inside, lut[np.clip(rest, 0, len(lut) - 1)], -1)
+    return out
+
+
+def _one_kind(parts) -> bool:
+    """Whether the runs of a joint problem are of one kind: all ballbar layouts, or all placements of one
+    artefact (by its name), so that one run's figures can be predicted from the others'."""
+    kinds = set()
+    for p in parts:
+        art = p.layout.artefact
+        kinds.add("ballbar" if art is None else ("artefact", getattr(art.artefact, "name", "")))
+    return len(kinds) == 1
+
+
+def cv_groups(problem, by_run: bool | None = None, across: bool = False) -> tuple[np.ndarray, np.ndarray, str]:
     """The cross-validation fold of every observable row of ``problem``,
     the item each row belongs to (the units whose spread gives the
     uncertainty: ballbar positions, balls, reference scans), and the split
@@ -118,6 +159,16 @@ def cv_groups(problem, by_run: bool | None = None) -> tuple[np.ndarray, np.ndarr
         placements within each run (False). Default: whole runs when there
         are three or more (two runs then still pin what needs both, such as
         an expansion seen between two temperatures), within each run for two.
+    across : bool
+        Folds that mirror how a model is used (the ambiguity set's judge,
+        :mod:`cmmpose.diagnosis.ambiguity`): whole runs out when there are
+        two or more of one kind (each another placement, plane, pose or
+        day; runs of different kinds, a ballbar layout beside a plate,
+        cannot predict each other's figures: each run's positions or balls
+        then), else whole
+        placements of the one run when it holds several, else within the one
+        placement, and the split then says that the figure judges
+        interpolation only.
 
     Returns
     -------
@@ -125,6 +176,24 @@ def cv_groups(problem, by_run: bool | None = None) -> tuple[np.ndarray, np.ndarr
     split : str
     """
     parts = getattr(problem, "parts", None)
+    if across and parts and len(parts) >= 2 and _one_kind(parts):
+        by_run = True
+    elif across and parts and len(parts) >= 2:
+        # Runs of different kinds (a ballbar layout beside an artefact's placements): one cannot predict the
+        # other's own figures (its rigid fit, its lengths' offset), so each run's positions or balls are held out.
+        folds, items, split = cv_groups(problem, by_run=False)
+        return folds, items, f"{split}; the runs differ in kind; {INTERPOLATION_ONLY}"
+    elif across:
+        # One run: whole placements out when it holds several, else within the one placement, said so.
+        layout = (parts[0] if parts else problem).layout
+        placed = _placement_groups(layout)
+        if placed is not None and not parts:
+            g, _ = _single_groups(layout)
+            return placed, g, ("leave one placement out (its deviations and scans held out together); "
+                               "uncertainty from the spread over balls")
+        g, how = _single_groups(layout)
+        if not parts:
+            return g, g, f"{how}; {INTERPOLATION_ONLY}"
     if not parts:
         g, how = _single_groups(problem.layout)
         return g, g, how
@@ -431,8 +500,10 @@ def _clean(d: dict) -> dict:
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 
-def _current(problem, step):
-    """(r0, X0, ridge0, target0, sigma) of a step's model."""
+def current_state(problem, step):
+    """(r0, X0, ridge0, target0, sigma) of a step's model: its residual
+    observables (mm), its design with the weak prior and each class's noise
+    level (mm)."""
     r0 = step.residual if step.residual is not None else problem.observe(step.model).residual
     X0, ridge0, target0 = model_design(problem, step.model)
     sigma = problem.wls(r0, X0, ridge=ridge0, target=target0).sigma
@@ -441,7 +512,7 @@ def _current(problem, step):
 
 def step_cv(problem, step, groups: np.ndarray, split: str) -> CVScore:
     """Set ``step.cv`` (the step's model cross-validated) and return its score."""
-    r0, X0, ridge0, target0, sigma = _current(problem, step)
+    r0, X0, ridge0, target0, sigma = current_state(problem, step)
     score = cv_score(problem, r0, X0, ridge0, target0, sigma, groups)
     step.cv = _clean({**score.to_dict(), "split": split, "items": len(score.n_head)})
     step._cv_state = (r0, X0, ridge0, target0, sigma, score)

@@ -67,6 +67,9 @@ class Step:
     #: Of a joint diagnosis: every run's figures under this step's model, in the runs' order
     #: (``figures`` is the first run's); None for one run.
     run_figures: list | None = None
+    #: The candidates judged beside the one this step's ranking led to
+    #: (:class:`cmmpose.diagnosis.ambiguity.AmbiguitySet`), None when none explained the data as well.
+    ambiguity: object = None
 
     @property
     def effect(self) -> str:
@@ -92,6 +95,7 @@ class Step:
         runs = {} if self.run_figures is None else {"runs": [f.to_dict() for f in self.run_figures]}
         return {"label": self.label, "forced": self.forced, "replaces": self.replaces or None,
                 **self.figures.to_dict(), **runs, "cross_validation": self.cv,
+                "ambiguity": None if self.ambiguity is None else self.ambiguity.to_dict(),
                 "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
                              "units": dict(zip(s.params, s.units))} for s, v in self.model.effects],
                 "ranking": ranking}
@@ -164,6 +168,9 @@ class Diagnosis:
     alternatives: tuple = ()
     #: Which revealing measurements the run holds (:func:`run_holds`): advice never asks for them.
     run_has: dict = field(default_factory=dict)
+    #: The placement that best tells the first open ambiguity set's members apart
+    #: (:func:`cmmpose.diagnosis.plan.separating_measurement`), None when there is none.
+    separating: dict | None = None
 
     def decisions(self) -> list[dict]:
         """The decision on every candidate, with its reason, in one list:
@@ -245,6 +252,17 @@ class Diagnosis:
                        covariance=self.final_covariance or final.covariance)
 
     @property
+    def ambiguity(self) -> list:
+        """The ambiguity sets met on the way (:class:`cmmpose.diagnosis.ambiguity.AmbiguitySet`): those
+        still open (``not s.resolved``) are why the diagnosis added none of their members."""
+        return [s.ambiguity for s in self.steps if s.ambiguity is not None]
+
+    @property
+    def open_ambiguity(self) -> list:
+        """The ambiguity sets none of whose members was added: the user chooses, or measures (cmmpose plan)."""
+        return [a for a in self.ambiguity if not a.resolved]
+
+    @property
     def added(self) -> list[str]:
         return [s.effect for s in self.steps[1:] if s.effect in self.model.names]
 
@@ -273,6 +291,7 @@ class Diagnosis:
                 "alternatives": [a.to_dict() for a in self.alternatives], "components": self.components,
                 "cross_validation": self.steps[-1].cv,
                 "ambiguous": [list(a) for a in self.ambiguous], "advice": self.advice,
+                "ambiguity_sets": [a.to_dict() for a in self.ambiguity], "separating": self.separating,
                 "elapsed_s": self.elapsed, "n_points": self.n_points,
                 "patterns": None if self.patterns is None else self.patterns.to_dict(),
                 "provenance": self.provenance()}
@@ -372,6 +391,7 @@ def diagnose(
     temperature_policy=None,
     reproducibility_source: str = "stated",
     default_reproducibility_um: float | None = None,
+    machine=None,
 ) -> Diagnosis:
     """Find which physical effects the model misses on ``run``, add them, and
     keep the history of the error falling.
@@ -443,6 +463,10 @@ def diagnose(
         (:attr:`cmmpose.machine.Machine.reproducibility_um`), the floor when
         ``reproducibility_um`` is not given and the run repeats no scan (a
         run that does measures its own). Checked as ``reproducibility_um``.
+    machine : cmmpose.machine.Machine, optional
+        Where the "next" advice for an open ambiguity set looks for the
+        placement that tells its members apart (its travel and poses;
+        default the thesis machine): ``Diagnosis.separating``.
 
     Returns
     -------
@@ -544,6 +568,10 @@ def diagnose(
                 if which == "patterns":  # the final model's: what it leaves unexplained
                     diag.unexplained = unexplained_findings(diag.patterns, periodic_errors(sub, xyz[keep], fits),
                                                             m.names)
+    if diag.open_ambiguity:
+        from .plan import separating_measurement
+
+        separating_measurement(diag, [run], machine)
     diag.elapsed = time.perf_counter() - t0
     return diag
 
@@ -660,8 +688,10 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
     significant or not), then the most significant candidate while one is
     left, refitting after each; ``step(label, model, forced)`` makes each
     step of the history. Returns the steps and the final model."""
-    from .cv import cv_groups, judge_candidate
+    from .cv import INTERPOLATION_ONLY, cv_groups, judge_candidate
     from .cv import step_cv as _step_cv
+
+    across = None  # the folds that judge an ambiguity set (cv_groups(across=True)), made when first needed
 
     # Cross-validation needs the problem's observables (a scripted problem has none: selection by significance).
     cross_validate = hasattr(problem, "classes")
@@ -711,6 +741,20 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
                 break
         if best is None:
             break
+        if cross_validate:
+            # Competing explanations side by side (cmmpose.diagnosis.ambiguity): when others predict held-out
+            # data as well and their corrections differ over the travel, none is added.
+            from .ambiguity import find_ambiguity
+
+            if across is None:
+                across = cv_groups(problem, across=True)
+            amb = find_ambiguity(problem, steps[-1], best, (across[0], across[1]), across[2],
+                                 INTERPOLATION_ONLY in across[2])
+            if amb is not None:
+                steps[-1].ambiguity = amb
+                if not amb.agree:
+                    break
+                amb.chosen = best.name
         model = fit_model(model.with_values(best.spec, best.values), None, problem=problem)
         steps.append(step(f"+ {best.name}", model, False))
         step_cv(problem, steps[-1], groups, split)

@@ -168,6 +168,19 @@ def _verdict(d, model_file, run_dir) -> str:
         nxt.append(f"check the model on a new run: cmmpose diagnose NEW_RUN --model {target} --no-auto; "
                    f"compensate with it in Python: cmmpose.Model.load('{target}').compensate(...)")
     needs = [x for x in decisions if x["decision"] == "not observable" and not x["name"].startswith("map:")]
+    for a in getattr(d, "ambiguity", []):
+        nxt.append(f"competing explanations: {a.verdict()}. Members: " + "; ".join(
+            f"{m['name']} ({m['physics']}): " + ", ".join(f"{k} = {v:.3g} ± {m['uncertainty'][k]:.2g} {m['units'][k]}"
+                                                           for k, v in m["values"].items())
+            + f", cross-validated rms {m['cv_rms_um']:.2f} ± {m['cv_rms_u_um']:.2f} um" for m in a.members)
+            + "".join(f". {w}" for w in a.equivalences)
+            + (". cmmpose plan RUN... --separate proposes the placements that tell them apart" if not a.resolved
+               else ""))
+    sep = getattr(d, "separating", None)
+    if sep:
+        nxt.append(f"measure {sep['placement']} ({sep['artefact']}): it separates " + "; ".join(
+            f"{x['pair'][0]} from {x['pair'][1]} by {x['difference_um']:.2g} um ({x['separation']:.3g} in noise "
+            f"units)" for x in sep["separates"]) + "; then diagnose the runs jointly with it")
     if d.ambiguous:
         for group in d.ambiguous:
             nxt.append(f"to tell {', '.join(group)} apart: {d.advice.get(group[0], '')}")

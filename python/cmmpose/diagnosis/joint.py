@@ -150,7 +150,7 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
                      max_effects: int = 4, user_effects=(), same_artefact: bool = True,
                      run_names=None, map_corrections: bool = True, reproducibility_um=None,
                      reproducibility_source: str = "stated",
-                     default_reproducibility_um: float | None = None) -> JointDiagnosis:
+                     default_reproducibility_um: float | None = None, machine=None) -> JointDiagnosis:
     """One model for several runs: the effects' parameters shared, each run
     with its own noise levels (and its own nuisances unless ``same_artefact``).
 
@@ -187,6 +187,9 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     default_reproducibility_um : float, optional
         The machine's stated reproducibility, um per axis: the floor of each
         run that repeats no scan when ``reproducibility_um`` is not given.
+    machine : cmmpose.machine.Machine, optional
+        Where the "next" advice for an open ambiguity set looks for the
+        placement that tells its members apart (default the thesis machine).
 
     Returns
     -------
@@ -246,6 +249,10 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
         from .mapfamily import component_report
 
         diag.components = component_report(problem, model)
+    if diag.open_ambiguity:
+        from .plan import separating_measurement
+
+        separating_measurement(diag, runs, machine)
     diag.elapsed = time.perf_counter() - t0
     return diag
 

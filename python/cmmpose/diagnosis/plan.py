@@ -1,7 +1,9 @@
 """What to measure next (``cmmpose plan RUN...``; docs/plan.md): the N
 placements of an artefact (ballbar positions, plate placements, step-gauge
 lines, in the vocabulary of :mod:`cmmpose.placement`) that best determine
-the parameters the runs so far leave aliased or invisible.
+the parameters the runs so far leave aliased or invisible, or, given rival
+explanations (``rivals``: a diagnosis's ambiguity set), that best tell them
+apart (T-optimal, :func:`plan`).
 
 The information. A ball's measured centre moves, to first order, by the
 machine's error at the scale reading where the scan plane passes through
@@ -68,6 +70,7 @@ __all__ = [
     "candidate_placements",
     "centre_sensitivities",
     "plan",
+    "separating_measurement",
 ]
 
 _log = logging.getLogger(__name__)
@@ -100,7 +103,9 @@ class Proposal:
     balls : int
         Balls it measures.
     gain : float
-        Increase of ``log det`` of the information it brings (D-optimal).
+        Increase of ``log det`` of the information it brings (D-optimal);
+        of a T-optimal plan (``rivals``), the smallest pairwise separation
+        after it (noise units).
     uncertainty : dict of str -> float
         Every parameter's predicted standard uncertainty after it (and the
         proposals before it), in the parameter's unit.
@@ -116,10 +121,15 @@ class Proposal:
     uncertainty: dict
     de_aliases: list
     status: dict = field(default_factory=dict)
+    #: T-optimal plans: for each pair of rival explanations, ``pair``, ``difference_um`` (the largest
+    #: predicted difference of this placement's observables, the second explanation refitted to every run and
+    #: the placements before, um) and ``separation`` (the sum of squared differences over every observable
+    #: over the noise variance: the non-centrality a test between the two would have).
+    separates: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {"placement": self.placement, "where": self.where.to_dict(), "balls": self.balls,
-                "gain": round(self.gain, 4),
+                "gain": round(self.gain, 4), "separates": [dict(x) for x in self.separates],
                 "uncertainty": {k: finite_or_none(float(v)) for k, v in self.uncertainty.items()},
                 "de_aliases": list(self.de_aliases), "status": dict(self.status)}
 
@@ -198,8 +208,8 @@ class Plan:
             cells = [name, unit, f"{self.before[name]:.3g}", self.status[name]]
             cells += [f"{p.uncertainty[name]:.3g}" for p in self.proposals]
             t.add_row(*cells)
-        lines = [f"{k}. {p.placement} ({p.balls} balls): "
-                 + (f"de-aliases {', '.join(p.de_aliases)}" if p.de_aliases else "sharpens what is determined")
+        lines = [f"{k}. {p.placement} ({p.balls} balls): " + (separation_text(p.separates) if p.separates else
+                 f"de-aliases {', '.join(p.de_aliases)}" if p.de_aliases else "sharpens what is determined")
                  for k, p in enumerate(self.proposals, start=1)]
         lines.append(f"noise {self.sigma_um:.3g} um per centre coordinate ({self.sigma_source}); "
                      f"{self.candidates} candidate placements reachable, {self.unreachable} not")
@@ -212,6 +222,13 @@ class Plan:
         console = Console(width=140, record=True, file=open("/dev/null", "w"))  # noqa: SIM115 - render to text only
         console.print(self)
         return console.export_text()
+
+
+def separation_text(separates) -> str:
+    """A proposal's separations in words."""
+    return "; ".join(f"separates {a} from {b} by {x['difference_um']:.2g} um ({x['separation']:.3g} in noise units, "
+                     f"sum of squared differences over the noise variance)" for x in separates
+                     for a, b in [x["pair"]])
 
 
 # -- sensitivities at the centre level -----------------------------------------------
@@ -468,6 +485,7 @@ def plan(
     effects: Sequence = DEFAULT_EFFECTS,
     sigma_um: float | None = None,
     candidates: Sequence | None = None,
+    rivals=None,
 ) -> Plan:
     """The ``budget`` next placements that best determine the parameters of
     ``effects`` given ``runs`` (module docstring: D-optimal, greedy).
@@ -491,6 +509,20 @@ def plan(
         Noise per centre coordinate, um; default from the runs' residuals.
     candidates : sequence of str or Placement, optional
         The candidate placements (default :func:`candidate_placements`).
+    rivals : AmbiguitySet or sequence of (EffectSpec or str, values), optional
+        Rival explanations of the runs (a diagnosis's open ambiguity set,
+        :attr:`cmmpose.diagnosis.diagnose.Diagnosis.open_ambiguity`, or each
+        effect with its fitted values in its units). Then the placements
+        are chosen to tell them apart, not to sharpen parameters: the
+        T-optimal criterion (Atkinson and Fedorov 1975). For a pair (A, B),
+        A taken true at its values theta_A, B refitted (with its weak
+        prior) to everything A predicts (the runs, the placements chosen
+        so far and the candidate), the separation is the sum of the squared
+        predicted differences of the observables over the noise variance at
+        that refit (the data's information only: without the priors, this
+        is ``theta_A' (M_AA - M_AB M_BB^-1 M_BA) theta_A``), the smaller of
+        the two directions; with several rivals the smallest pairwise
+        separation is maximised (greedy). ``effects`` is then not used.
 
     Returns
     -------
@@ -529,15 +561,19 @@ def plan(
     if kinematics is not None and model.maps.kinematics != kinematics:
         raise InputError(f"the runs were measured on a {kinematics!r} machine, the model's maps are stacked as "
                          f"{model.maps.kinematics!r}: give the runs' machine (--machine)")
-    specs = _specs(list(dict.fromkeys(e.name if isinstance(e, EffectSpec) else str(e) for e in effects)))
     notes = []
-    for spec, _ in model.effects:  # the model's own effects are planned for too, where a placement can
-        if spec.name in {s.name for s in specs}:
-            continue
-        try:
-            specs += _specs([spec])
-        except InputError:
-            notes.append(f"the model's effect {spec.name} is held at its value (a placement cannot separate it)")
+    theta = None
+    if rivals is not None:
+        specs, theta = _rival_specs(rivals)
+    else:
+        specs = _specs(list(dict.fromkeys(e.name if isinstance(e, EffectSpec) else str(e) for e in effects)))
+        for spec, _ in model.effects:  # the model's own effects are planned for too, where a placement can
+            if spec.name in {s.name for s in specs}:
+                continue
+            try:
+                specs += _specs([spec])
+            except InputError:
+                notes.append(f"the model's effect {spec.name} is held at its value (a placement cannot separate it)")
     params = [(f"{s.name}.{p}", u, float(pr)) for s in specs for p, u, pr in zip(s.params, s.units, s.prior)]
     pnames = [n for n, _, _ in params]
     priors = np.array([pr for _, _, pr in params])
@@ -583,18 +619,21 @@ def plan(
         J = centre_sensitivities(centre_model, _virtual_inputs(uv, sc, idx, pose_rows, temperature), specs)
         P = _rigid_projector(centres, artefact.nominal_radius)
         Jp = P @ J.reshape(-1, len(pnames))
-        options.append((resolved, len(scans), Jp.T @ Jp / sigma ** 2))
+        options.append((resolved, len(scans), Jp.T @ Jp / sigma ** 2, Jp))
     if not options:
         raise InputError(f"no candidate placement of {artefact.name} fits the travel of {machine.name}")
     info = F + prior_info
     cov = np.linalg.inv(info)
     before = dict(zip(pnames, np.sqrt(np.diag(cov))))
     status = _status(cov, pnames, priors)
+    if theta is not None:
+        return _t_optimal(f"{artefact.name} ({artefact.kind})", params, specs, theta, sigma, source, info,
+                          prior_info, before, status, options, unreachable, notes, budget)
     proposals, used = [], set()
     _, logdet = np.linalg.slogdet(info)
     for _ in range(min(int(budget), len(options))):
         best = None
-        for i, (label, n, Fi) in enumerate(options):
+        for i, (label, n, Fi, _) in enumerate(options):
             if i in used:
                 continue
             sign, ld = np.linalg.slogdet(info + Fi)
@@ -604,7 +643,7 @@ def plan(
             break
         i, ld = best
         used.add(i)
-        label, n, Fi = options[i]
+        label, n, Fi, _ = options[i]
         prev_cov, prev_status = cov, _status(cov, pnames, priors)
         info = info + Fi
         cov = np.linalg.inv(info)
@@ -619,3 +658,135 @@ def plan(
     return Plan(f"{artefact.name} ({artefact.kind})", "D-optimal (largest log det of the parameters' information), "
                 "greedy over the candidate placements", params, sigma * 1e3, source, before, status, proposals,
                 len(options), unreachable, notes)
+
+
+# -- telling rival explanations apart (T-optimal) ------------------------------------
+
+
+def _rival_specs(rivals):
+    """(specs, values per spec) of ``rivals``: an AmbiguitySet (its ``rivals``) or (spec or name, values) pairs."""
+    pairs = list(getattr(rivals, "rivals", rivals))
+    specs, theta = [], []
+    for item in pairs:
+        try:
+            spec, values = item
+        except (TypeError, ValueError):
+            raise InputError(f"rivals: each rival is (effect, values), got {item!r}") from None
+        spec = spec if isinstance(spec, EffectSpec) else resolve(str(spec))
+        if spec.needs or spec.sensor is not None or getattr(spec.effect, "on_scanner", False):
+            raise InputError(f"rival {spec.name!r}: a placement cannot show it (what shows it: {spec.reveal})")
+        values = np.asarray(values, float).reshape(-1)
+        if len(values) != spec.size or not np.all(np.isfinite(values)):
+            raise InputError(f"rival {spec.name!r}: give its {spec.size} fitted values (finite), got {values!r}")
+        if spec.name in {s.name for s in specs}:
+            raise InputError(f"rivals: {spec.name!r} is given twice")
+        specs.append(spec)
+        theta.append(values)
+    if len(specs) < 2:
+        raise InputError("rivals: give two or more rival explanations to tell apart")
+    return specs, theta
+
+
+def _pair_separation(info, prior_info, blocks, theta, a, b):
+    """Separation of rival ``a`` (true at ``theta[a]``) from ``b`` refitted: (non-centrality, theta_b refitted).
+
+    ``b`` is refitted to what ``a`` predicts by least squares with its weak prior (``info`` holds the data's
+    information and the prior's, ``prior_info`` the prior's alone); the separation is the data's part only:
+    the sum of the squared differences of the observables over the noise variance at that refit, the
+    priors' penalties left out (a rival's typical magnitude is no measurement)."""
+    ia, ib = blocks[a], blocks[b]
+    data = info - prior_info
+    Mab, Mbb = info[np.ix_(ia, ib)], info[np.ix_(ib, ib)]
+    fitted = np.linalg.solve(Mbb, Mab.T @ theta[a])
+    Daa, Dab, Dbb = data[np.ix_(ia, ia)], data[np.ix_(ia, ib)], data[np.ix_(ib, ib)]
+    delta = theta[a] @ Daa @ theta[a] - 2 * theta[a] @ Dab @ fitted + fitted @ Dbb @ fitted
+    return float(max(delta, 0.0)), fitted
+
+
+def _separations(info, prior_info, blocks, theta, Jp=None) -> list[dict]:
+    """Every pair's separation (the smaller direction) under ``info`` and, with ``Jp`` (a placement's
+    projected sensitivities, mm per unit), the largest predicted difference of its observables, um."""
+    out = []
+    for a in range(len(blocks)):
+        for b in range(a + 1, len(blocks)):
+            best = None
+            for x, y in ((a, b), (b, a)):
+                delta, fitted = _pair_separation(info, prior_info, blocks, theta, x, y)
+                if best is None or delta < best[0]:
+                    diff = 0.0
+                    if Jp is not None:
+                        d = Jp[:, blocks[x]] @ theta[x] - Jp[:, blocks[y]] @ fitted
+                        diff = float(np.max(np.abs(d))) * 1e3 if len(d) else 0.0
+                    best = (delta, diff)
+            out.append({"pair": (a, b), "separation": best[0], "difference_um": best[1]})
+    return out
+
+
+def _t_optimal(artefact_name, params, specs, theta, sigma, source, info, prior_info, before, status, options,
+               unreachable, notes, budget) -> Plan:
+    """The greedy T-optimal plan (:func:`plan`'s ``rivals``)."""
+    blocks, at = [], 0
+    for spec in specs:
+        blocks.append(np.arange(at, at + spec.size))
+        at += spec.size
+    names = [s.name for s in specs]
+
+    def named(seps):
+        return [{"pair": [names[x["pair"][0]], names[x["pair"][1]]], "separation": round(x["separation"], 4),
+                 "difference_um": round(x["difference_um"], 4)} for x in seps]
+
+    now = _separations(info, prior_info, blocks, theta)
+    notes.append("from the runs alone: " + "; ".join(
+        f"{a} and {b} {x['separation']:.3g} apart in noise units" for x in named(now) for a, b in [x["pair"]]))
+    proposals, used = [], set()
+    for _ in range(min(int(budget), len(options))):
+        best = None
+        for i, (label, n, Fi, Jp) in enumerate(options):
+            if i in used:
+                continue
+            worst = min(x["separation"] for x in _separations(info + Fi, prior_info, blocks, theta))
+            if best is None or worst > best[1] + 1e-12:
+                best = (i, worst)
+        if best is None:
+            break
+        i, worst = best
+        used.add(i)
+        label, n, Fi, Jp = options[i]
+        info = info + Fi
+        seps = named(_separations(info, prior_info, blocks, theta, Jp))
+        cov = np.linalg.inv(info)
+        pn = [p for p, _, _ in params]
+        proposals.append(Proposal(_shorthand(label), label, n, float(worst), dict(zip(pn, np.sqrt(np.diag(cov)))),
+                                  [], _status(cov, pn, np.array([pr for _, _, pr in params])), seps))
+        _log.info("plan: %s separates %s", proposals[-1].placement, separation_text(seps))
+    if len(proposals) < budget:
+        notes.append(f"only {len(proposals)} candidate placements reachable: fewer than the budget {budget}")
+    return Plan(artefact_name, "T-optimal (Atkinson and Fedorov 1975): the smallest separation between two rival "
+                "explanations (squared predicted differences over the noise variance, the rival refitted) "
+                "maximised, greedy over the candidate placements", params, sigma * 1e3, source, before, status,
+                proposals, len(options), unreachable, notes)
+
+
+def separating_measurement(diagnosis, runs: Sequence[Run], machine=None) -> dict | None:
+    """The diagnosis's "next" advice for its first open ambiguity set: the
+    one placement, reachable on ``machine`` (default the thesis machine), of
+    the runs' artefact that best tells its members apart (:func:`plan` with
+    ``rivals``, budget 1). Sets and returns ``diagnosis.separating``
+    (``placement``, ``artefact``, ``separates``: the pairs with their
+    difference in um and separation in noise units), None when there is no
+    open set or no placement can be planned (e.g. runs off the machine's
+    travel: said in the log)."""
+    sets = getattr(diagnosis, "open_ambiguity", [])
+    if not sets:
+        return None
+    try:
+        p = plan(list(runs), rivals=sets[0], budget=1, machine=machine, model=diagnosis.steps[-1].model)
+    except (Error, ValueError, np.linalg.LinAlgError) as exc:
+        _log.info("no placement planned to tell %s apart: %s", ", ".join(sets[0].names), exc)
+        return None
+    if not p.proposals:
+        return None
+    first = p.proposals[0]
+    diagnosis.separating = {"placement": first.placement, "artefact": p.artefact,
+                            "separates": [dict(x) for x in first.separates], "noise_um": round(p.sigma_um, 4)}
+    return diagnosis.separating

@@ -1,0 +1,379 @@
+"""Competing explanations side by side (issue 33, section 3).
+
+When the diagnosis picks an effect to add, the other significant candidates
+of that step (for a named effect, the other named effects: the map-shape
+family ranks after them where they explain the structure, and its searched
+periods and knot spacings, chosen on all the data, flatter its held-out
+figures; for a map-shape correction, every significant candidate) are
+judged beside it on data none of them was fitted to
+(:mod:`cmmpose.diagnosis.cv`), with folds that follow how the data were
+taken (:func:`cmmpose.diagnosis.cv.cv_groups` with ``across=True``: whole
+runs, else whole placements, else within one placement, which judges
+interpolation only). Every candidate whose cross-validated headline rms is
+within one standard uncertainty of the best one's (the one-standard-error
+rule) is a member of the *ambiguity set*: the data cannot prefer one.
+
+Effects that follow a sensor or need other inputs than the position and
+the pose (temperatures, velocities) are not compared here: what the data
+cannot tell apart among them is kept as aliased alternatives
+(:mod:`cmmpose.diagnosis.aliases`) and checked where the model is applied.
+
+Whether the choice matters is decided by predictions, not parameters: each
+member's correction (its fitted values added to the step's model, less the
+step's model) is computed on a grid over the machine's travel (the maps'
+ranges, :data:`GRID` nodes per axis, with every pose the runs used), less
+the mean difference over the grid (a common offset no artefact
+measurement sees). The members *agree* when every pair's difference is
+within :data:`AGREE_K` times its standard uncertainty at every node (each
+member's correction uncertainty ``J C J^T`` from its parameters' data-only
+covariance fitted beside the step's model and the nuisances, through a step
+of each parameter; members independent); then any member is safe and the
+diagnosis adds the one it ranked first.
+Otherwise the set is reported, with where in the volume the members
+disagree most and by how much, and none of them is added: the user chooses
+one by name (``diagnose --add NAME``; a member added on request takes the
+structure, so the others are no longer significant and the set is
+resolved), or measures what tells them apart (``cmmpose plan``, the
+T-optimal criterion of :mod:`cmmpose.diagnosis.plan`).
+
+A member with a parameter the data did not determine (free in the
+design, or pinned no better than a few typical magnitudes) has an unknown
+correction where that parameter acts: the members then do not agree, and
+none is added (what a saved model applies of an added effect is, besides,
+only what the data determined: :func:`cmmpose.diagnosis.identify.determined_values`).
+
+Units: mm for positions, um for corrections and their differences, each
+parameter in its effect's units.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import Error
+from ..model.inputs import RunInputs
+from .statistics import INDISTINGUISHABLE_LR
+
+__all__ = ["AGREE_K", "GRID", "MAX_MEMBERS", "AmbiguitySet", "equivalences", "find_ambiguity", "travel_grid"]
+
+log = logging.getLogger(__name__)
+
+#: Nodes per axis of the grid over the travel the members' corrections are compared on.
+GRID = 5
+#: Coverage factor: two corrections agree where they differ by at most this many standard uncertainties.
+AGREE_K = 2.0
+#: Significant candidates judged beside the one chosen (the strongest by likelihood).
+MAX_MEMBERS = 6
+
+# Known equivalences, named in words: (a pattern each member of the pair matches, the words).
+_EQUIVALENT = [
+    ((r"^scale\b|^scale@|:d[xyz]\((?:[XYZ])\):poly", r"artefact-expansion|expansion"),
+     "a scale error and the artefact's expansion change every length in proportion alike: a calibrated "
+     "artefact length, or runs at two temperatures, tell them apart"),
+    ((r"^scale\b|^scale@", r"sag|:d[xyz]\([XYZ]\):poly|:d[xyz]\([XYZ]\):hat"),
+     "a scale error and a sag (a bent guide, a beam bending under the carriage) change the lengths measured "
+     "along one line alike: a placement off that line, or at another height, tells them apart"),
+    ((r"artefact-expansion|expansion", r"sag"),
+     "the artefact's expansion and a sag change the lengths along one line alike: another height or a "
+     "calibrated length tells them apart"),
+    ((r"^squareness|sq\(", r"twist|two-axis|granite"),
+     "a squareness and a twisted table look alike at one height: a placement at another height, or in a "
+     "vertical plane, tells them apart"),
+    ((r"^roll|:e[xyz]\([XYZ]\)", r"twist|two-axis"),
+     "an axis roll varying along another axis and a twisted table move the points alike at one height: a "
+     "placement at another height, or in a vertical plane, tells them apart"),
+]
+
+
+def equivalences(names) -> list[str]:
+    """The known physical equivalences among ``names`` (effect names), in words.
+
+    Parameters
+    ----------
+    names : sequence of str
+
+    Returns
+    -------
+    list of str
+        One sentence per equivalence that two of the names fall under (each once).
+    """
+    out = []
+    names = list(names)
+    for (pa, pb), words in _EQUIVALENT:
+        hit = any(re.search(pa, a) and re.search(pb, b) for a in names for b in names if a != b)
+        if hit and words not in out:
+            out.append(words)
+    return out
+
+
+@dataclass
+class AmbiguitySet:
+    """Candidates the data cannot choose between, side by side.
+
+    Attributes
+    ----------
+    members : list of dict
+        Each: ``name``, ``physics`` (words), ``values``, ``uncertainty`` and
+        ``units`` (parameter -> in the effect's units), ``cv_rms_um`` and
+        ``cv_rms_u_um`` (its cross-validated headline rms and standard
+        uncertainty, um), ``determined`` (every parameter has a finite uncertainty).
+    split : str
+        How the cross-validation held data out.
+    interpolation_only : bool
+        The folds lie within one placement: the figure judges interpolation only.
+    largest_difference_um : float
+        The largest predicted difference of two members' corrections over the travel, um.
+    where : dict
+        Where it is: ``xyz_mm`` (the scale readings), ``pose`` (Euler angles,
+        degrees), ``pair`` (the two members), ``u_um`` (its standard uncertainty).
+    agree : bool
+        Every pair agrees within AGREE_K standard uncertainties over the travel.
+    chosen : str
+        The member added to the model ('' when none was: the set stays open).
+    equivalences : list of str
+        The known physical equivalences among the members, in words.
+    travel : list of (lo, hi)
+        The travel the corrections were compared over, mm.
+    specs : dict of str -> EffectSpec
+        Each member's effect (not saved: what ``cmmpose plan`` separates).
+    """
+
+    members: list
+    split: str
+    interpolation_only: bool
+    largest_difference_um: float
+    where: dict
+    agree: bool
+    chosen: str = ""
+    equivalences: list = field(default_factory=list)
+    travel: list = field(default_factory=list)
+    specs: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def rivals(self) -> list:
+        """(spec, values) of each member, for :func:`cmmpose.diagnosis.plan.plan`'s ``rivals``."""
+        return [(self.specs[m["name"]], np.array(list(m["values"].values()), float)) for m in self.members
+                if m["name"] in self.specs]
+
+    @property
+    def names(self) -> list[str]:
+        return [m["name"] for m in self.members]
+
+    @property
+    def resolved(self) -> bool:
+        """A member was added: the members agree (any is safe)."""
+        return bool(self.chosen)
+
+    def verdict(self) -> str:
+        """The set in one sentence."""
+        names = ", ".join(self.names)
+        if self.agree:
+            head = (f"{names} explain the data alike and their corrections agree within their uncertainties over "
+                    f"the travel (at most {self.largest_difference_um:.2g} um apart): any of them is safe"
+                    + (f"; {self.chosen} was added" if self.chosen else ""))
+        else:
+            w = self.where
+            at = ", ".join(f"{a} {v:.0f}" for a, v in zip("XYZ", w.get("xyz_mm", ())))
+            u = w.get("u_um", float("nan"))
+            loose = [m["name"] for m in self.members if not m["determined"]]
+            size = (f"{self.largest_difference_um:.1f} ± {u:.1f} um" if math.isfinite(u) else
+                    f"{self.largest_difference_um:.1f} um (and by an unknown amount where "
+                    f"{', '.join(loose) or 'a member'} has a parameter the data did not determine)")
+            head = (f"the data cannot choose between {names} (cross-validated rms within one standard uncertainty "
+                    f"of the best), and their corrections differ by up to {size} over the travel "
+                    f"({' and '.join(w.get('pair', ()))} at {at} mm): none was added; choose one (diagnose --add "
+                    f"NAME) or measure what tells them apart (cmmpose plan --separate)")
+        if self.interpolation_only:
+            head += "; the cross-validation held out data within one placement: it judges interpolation only"
+        return head
+
+    def to_dict(self) -> dict:
+        def num(x):
+            return None if x is None or not math.isfinite(float(x)) else float(x)
+
+        members = [{**m, "values": {k: num(v) for k, v in m["values"].items()},
+                    "uncertainty": {k: num(v) for k, v in m["uncertainty"].items()},
+                    "cv_rms_um": num(m["cv_rms_um"]), "cv_rms_u_um": num(m["cv_rms_u_um"])} for m in self.members]
+        where = {k: ([float(x) for x in v] if isinstance(v, (list, tuple, np.ndarray)) and k != "pair" else
+                     list(v) if k == "pair" else num(v)) for k, v in self.where.items()}
+        return {"members": members, "split": self.split, "interpolation_only": self.interpolation_only,
+                "largest_difference_um": num(self.largest_difference_um), "where": where, "agree": self.agree,
+                "chosen": self.chosen or None, "equivalences": list(self.equivalences),
+                "travel_mm": [list(t) for t in self.travel], "verdict": self.verdict()}
+
+
+def _travel(model) -> list[tuple[float, float]]:
+    """The machine's travel as the model's maps describe it (their ranges), mm."""
+    maps = model.maps
+    first = maps.maps[0] if hasattr(maps, "maps") else maps
+    return [(float(lo), float(hi)) for lo, hi in first.ranges]
+
+
+def _inputs_of(problem) -> list[RunInputs]:
+    return [p.inputs for p in (getattr(problem, "parts", None) or [problem])]
+
+
+def travel_grid(problem, model, n: int = GRID) -> tuple[RunInputs, np.ndarray]:
+    """Virtual points on an ``n`` x ``n`` x ``n`` grid over the travel, one per
+    node and pose the runs of ``problem`` used (by angle), at the runs' mean
+    temperature: (inputs, the pose angles of each point (m, 3), degrees)."""
+    travel = _travel(model)
+    axes = [np.linspace(lo, hi, n) for lo, hi in travel]
+    nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    inputs = _inputs_of(problem)
+    rows = {}
+    for i in inputs:
+        for p in np.asarray(i.poses, float):
+            rows.setdefault(tuple(np.round(p[:3], 6)), p)
+    poses = np.array(list(rows.values()), float)
+    m = len(nodes) * len(poses)
+    temp = float(np.mean(np.concatenate([i.temperature for i in inputs])))
+    scales = np.tile(nodes, (len(poses), 1))
+    pose_index = np.repeat(np.arange(len(poses)), len(nodes)).astype(np.uint32)
+    vin = RunInputs(uv=np.zeros((m, 2)), scales=np.ascontiguousarray(scales), t=np.zeros(m), scan_id=np.arange(m),
+                    pose_ids=tuple(range(len(poses))), pose_index=pose_index, poses=poses,
+                    temperature=np.full(m, temp), axis_temperature=None, gradient=None, velocity=np.zeros((m, 3)))
+    return vin, poses[pose_index, :3]
+
+
+def _member_covariance(problem, r0, X0, J, spec) -> np.ndarray:
+    """The data-only covariance of a member's parameters (its units) fitted beside the step's model and the
+    nuisances: the whitened design's (:func:`cmmpose.diagnosis.identify.design_covariance`), with a parameter
+    the design leaves free, or pins no better than UNDETERMINED_PRIORS typical magnitudes, at infinity."""
+    from .identify import UNDETERMINED_PRIORS, design_covariance
+
+    k = J.shape[1]
+    R = problem.wls(r0, np.column_stack([X0, J])).whitened_r
+    cov, free = design_covariance(R)
+    prior = np.asarray(spec.prior, float)
+    C = cov[-k:, -k:] * np.outer(prior, prior)
+    u = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    bad = free[-k:] | ~np.isfinite(u) | (u > UNDETERMINED_PRIORS * prior)
+    C[bad, :] = np.inf
+    C[:, bad] = np.inf
+    return C
+
+
+def _correction(model, spec, values, C, grid, base):
+    """A member's correction on the grid (m, 3), mm, and its standard uncertainty (m,), mm: the 3-D
+    magnitude of sqrt(diag(J C J^T)) per point, through one step of each parameter (inf where an
+    undetermined parameter acts)."""
+    moved = model.with_values(spec, values).compensate(grid)
+    jac = []
+    for j in range(spec.size):
+        v = np.array(values, float)
+        v[j] += float(spec.steps[j])
+        jac.append((model.with_values(spec, v).compensate(grid) - moved) / float(spec.steps[j]))
+    Jg = np.stack(jac, axis=2)  # (m, 3, k) mm per unit
+    bad = ~np.isfinite(np.diag(C))
+    Cf = np.where(np.isfinite(C), C, 0.0)
+    var = np.einsum("mci,ij,mcj->m", Jg, Cf, Jg)
+    acts = np.any(np.abs(Jg[:, :, bad]) > 0, axis=(1, 2)) if bad.any() else np.zeros(len(moved), bool)
+    return moved - base, np.where(acts, np.inf, np.sqrt(np.clip(var, 0.0, None)))
+
+
+def _over_travel(spec) -> bool:
+    """Whether an effect's correction is a function of the position and pose alone, so that it can be
+    compared over a grid of the travel: not one that follows a sensor or needs other inputs (temperatures,
+    velocities); those the data cannot tell apart are kept as aliased alternatives instead
+    (:mod:`cmmpose.diagnosis.aliases`), checked where the model is applied."""
+    return not getattr(spec, "needs", ()) and getattr(spec, "sensor", None) is None
+
+
+def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only: bool) -> AmbiguitySet | None:
+    """The ambiguity set of ``chosen`` (the candidate the selection is about
+    to add to ``step``'s model), or None when no other candidate explains
+    the data as well out of sample.
+
+    Parameters
+    ----------
+    problem : Problem or JointProblem
+    step : Step
+        The step whose ranking holds the candidates (its cross-validation
+        state set, :func:`cmmpose.diagnosis.cv.step_cv`).
+    chosen : Candidate
+    folds : tuple of ndarray
+        (folds, items) of :func:`cmmpose.diagnosis.cv.cv_groups` with ``across=True``.
+    split : str
+    interpolation_only : bool
+
+    Returns
+    -------
+    AmbiguitySet or None
+    """
+    from .cv import CVDesign, current_state
+
+    rivals = [c for c in step.ranking if c.significant and not c.alternative_to and c.name != chosen.name
+              and c.name in problem.columns][:MAX_MEMBERS - 1]
+    if not _over_travel(chosen.spec):
+        return None  # a thermal effect: its aliases are kept as alternatives (cmmpose.diagnosis.aliases)
+    rivals = [c for c in rivals if _over_travel(c.spec)]
+    if getattr(chosen.spec, "family", None) != "map":
+        # A named effect the selection chose is judged against the other named effects (library and user):
+        # the map-shape family ranks after them where they explain the structure, and its searched shapes
+        # (periods, knot spacings) were chosen on all the data, which flatters their held-out figures.
+        rivals = [c for c in rivals if getattr(c.spec, "family", None) != "map"]
+    if not rivals:
+        return None
+    r0, X0, ridge0, target0, sigma = current_state(problem, step)
+    design = CVDesign(problem, r0, X0, ridge0, target0, sigma, folds)
+    scored = []
+    for c in [chosen, *rivals]:
+        s = design.score_with(problem.columns[c.name])
+        if math.isfinite(s.rms_um):
+            scored.append((c, s.rms_um, s.u_rms_um))
+    if len(scored) < 2 or scored[0][0] is not chosen:
+        return None
+    best = min(scored, key=lambda t: t[1])
+    limit = best[1] + (best[2] if math.isfinite(best[2]) else 0.0)  # one standard error
+    # ... and not rejected in sample: -2 log L within the margin by which the diagnosis says the data cannot
+    # choose (a few held-out runs judge coarsely; a likelihood ratio of e^20 is not an equal explanation).
+    top = max(t[0].lr for t in scored)
+    members = [t for t in scored if t[1] <= limit and t[0].lr >= top - INDISTINGUISHABLE_LR]
+    if len(members) < 2 or all(t[0] is not chosen for t in members):
+        return None
+    model = step.model
+    grid, angles = travel_grid(problem, model)
+    base = model.compensate(grid)
+    corr, unc, covs = [], [], []
+    for c, _, _ in members:
+        C = _member_covariance(problem, r0, X0, problem.columns[c.name], c.spec)
+        covs.append(C)
+        try:
+            d, u = _correction(model, c.spec, c.values, C, grid, base)
+        except (Error, ValueError) as exc:  # it cannot be applied on the grid: no prediction, no claim
+            log.debug("ambiguity: %s not compared over the travel: %s", c.name, exc)
+            d, u = np.zeros_like(base), np.full(len(base), np.inf)
+        corr.append(d)
+        unc.append(u)
+    largest, where, agree = 0.0, {}, True
+    for a in range(len(members)):
+        for b in range(a + 1, len(members)):
+            diff = corr[a] - corr[b]
+            diff = diff - diff.mean(axis=0)  # a common offset: no artefact measurement sees it
+            size = np.linalg.norm(diff, axis=1)
+            u = np.hypot(unc[a], unc[b])
+            # Agreement needs a determined difference: where an undetermined parameter acts, it is unknown.
+            if np.any(size > AGREE_K * u) or not np.all(np.isfinite(u)):
+                agree = False
+            k = int(np.argmax(size))
+            if size[k] * 1e3 >= largest:
+                largest = float(size[k] * 1e3)
+                where = {"xyz_mm": grid.scales[k].tolist(), "pose": angles[k].tolist(),
+                         "pair": [members[a][0].name, members[b][0].name], "u_um": float(u[k] * 1e3)}
+    out = []
+    for (c, rms, u), C in zip(members, covs):
+        unc_c = np.sqrt(np.clip(np.diag(C), 0.0, None))
+        out.append({"name": c.name, "physics": getattr(c.spec, "physics", "") or "",
+                    "values": dict(zip(c.spec.params, map(float, c.values))),
+                    "uncertainty": dict(zip(c.spec.params, map(float, unc_c))),
+                    "units": dict(zip(c.spec.params, c.spec.units)), "cv_rms_um": float(rms),
+                    "cv_rms_u_um": float(u), "determined": bool(np.all(np.isfinite(unc_c)))})
+    return AmbiguitySet(out, split, interpolation_only, largest, where, agree,
+                        equivalences=equivalences([m["name"] for m in out]), travel=_travel(model),
+                        specs={c.name: c.spec for c, _, _ in members})
