@@ -167,8 +167,11 @@ def main(argv=None):
         print(f"other cases: said (ambiguous, unexplained, two-axis) in {sum(bool(r['said']) for r in others)} of "
               f"{len(others)} diagnoses")
     if nulls:
-        print(f"null machines: {sum(bool(r['added'] or r['said']) for r in nulls)} of {len(nulls)} diagnoses carry a "
-              f"claim")
+        claims = sum(bool(r["added"] or set(r["said"]) - {"above floor"}) for r in nulls)
+        above = sum("above floor" in r["said"] for r in nulls)
+        print(f"null machines: {claims} of {len(nulls)} diagnoses carry a claim (an effect, an ambiguity, an "
+              f"unexplained or two-axis finding); {above} say error is left above the floor (without a stated "
+              f"reproducibility the floor is the spheres' fit scatter, a lower bound: give --reproducibility-um)")
     print(f"joint diagnosis of two plate placements: {min(r['seconds'] for r in results):.1f}-"
           f"{max(r['seconds'] for r in results):.1f} s")
 

@@ -197,7 +197,11 @@ def test_diagnose_takes_the_machine_files_floor_for_a_run_that_repeats_no_scan(r
     assert stated["source"] == f"stated in the machine file {machine}" and stated["floor_stated_or_measured"]
     assert stated["centre_reproducibility_um"] == 2.5
     # crossed layout, one scan per ball: a length's floor is sqrt(2) x 2.5 um
-    assert stated["floor_um"] == pytest.approx(2.5 * math.sqrt(2), rel=1e-12)
+    # ... with this run's own fit scatter beside the stated value, in quadrature
+    (run,) = stated["runs"]
+    assert run["floor_centre_um"] == pytest.approx(math.hypot(2.5, run["fit_scatter_um"]), rel=1e-12)
+    assert 0 < run["fit_scatter_um"] < 2.5
+    assert stated["floor_um"] == pytest.approx(run["floor_centre_um"] * math.sqrt(2), rel=1e-12)
     # --reproducibility wins, and says so
     given = _floor(folder / "bare", "--machine", machine, "--reproducibility", "1.5")
     assert given["source"] == "stated (--reproducibility)" and given["centre_reproducibility_um"] == 1.5

@@ -7,7 +7,11 @@ made of. The per-scan centre reproducibility comes from the data where the
 run repeats scans of a sphere (Type A: the centre-disagreement class's
 standard deviation per axis, with its (k - 1) degrees of freedom per sphere
 of k scans); else from a stated ``reproducibility_um`` (per scan, per
-axis; one per run of a joint diagnosis); else there is no floor, the verdict
+axis; one per run of a joint diagnosis), combined in quadrature with the
+run's own spheres' fit scatter (the fixture's and machine's reproducibility
+and this run's fit noise are independent; a stated value measured with
+repeated scans of a denser set-up already holds some fit noise, so the
+floor is then conservative); else there is no floor, the verdict
 says so first, and the floor taken is the spheres' fit scatter
 (:func:`fit_scatter_um`: the centre sd the sphere fits imply, a lower bound
 on the reproducibility), so that "noise" is said only where even that floor
@@ -141,8 +145,10 @@ def noise_floor(problem, step, reproducibility_um=None, stated_as: str = "stated
         ``source`` ('repeated scans (Type A)', ``stated_as``,
         :data:`FIT_SCATTER`, or several joined by '; ' for runs that differ),
         ``floor_stated_or_measured`` (False when every run's floor is the
-        fit scatter), ``centre_reproducibility_um`` (rms over the runs),
-        ``runs`` (each run's ``source`` and ``centre_reproducibility_um``),
+        fit scatter), ``centre_reproducibility_um`` (rms over the runs, as
+        measured or stated), ``runs`` (each run's ``source`` and
+        ``centre_reproducibility_um``; a stated one also ``fit_scatter_um``
+        and ``floor_centre_um``, the two in quadrature, which the floor uses),
         ``floor_um`` (rms of the headline at the floor), ``rms_um`` (the
         model's in-sample headline rms), ``chi2``, ``dof``, ``p_value``,
         ``noise`` (bool), ``unexplained_um`` and ``verdict`` (words; they
@@ -156,24 +162,30 @@ def noise_floor(problem, step, reproducibility_um=None, stated_as: str = "stated
     parts = _parts(problem)
     stated = per_run(reproducibility_um, len(parts))
     repeated = repeats_scans(problem)
-    scatter = fit_scatter_um(problem) if not all(repeated[i] or stated[i] is not None for i in range(len(parts))) \
-        else None
+    scatter = fit_scatter_um(problem) if not all(repeated[i] for i in range(len(parts))) else None
     offsets = np.r_[0, np.cumsum([len(p.classes) for p in parts])]
-    sc, sources = np.zeros(len(parts)), []
+    sc, sources, said = np.zeros(len(parts)), [], np.zeros(len(parts))
     for i, p in enumerate(parts):  # one per run
         if repeated[i]:
             centre = res[offsets[i]:offsets[i + 1]][p.classes == 1]
             sc[i] = math.sqrt(float(np.sum(centre ** 2)) / float(p.n_eff[1]))
             sources.append("repeated scans (Type A)")
         elif stated[i] is not None:
-            sc[i] = float(stated[i]) * 1e-3
+            # A stated reproducibility is the fixture's and the machine's; this run's own sphere fits scatter the
+            # centres besides (fewer points per ball, more): the two add in quadrature. (A value measured by
+            # repeated scans of another set-up holds its fit scatter already: the floor is then conservative.)
+            sc[i] = math.hypot(float(stated[i]), float(scatter[i])) * 1e-3
+            said[i] = float(stated[i]) * 1e-3
             sources.append(stated_as)
         else:
             sc[i] = float(scatter[i]) * 1e-3
             sources.append(FIT_SCATTER)
     source = "; ".join(dict.fromkeys(sources))
     measured = any(s != FIT_SCATTER for s in sources)
-    runs = [{"source": s, "centre_reproducibility_um": float(c * 1e3)} for s, c in zip(sources, sc)]
+    # Each run: its per-scan reproducibility as measured or stated, and (stated) with its fit scatter beside it.
+    runs = [{"source": s, "centre_reproducibility_um": float((d if d > 0 else c) * 1e3)}
+            | ({"fit_scatter_um": float(scatter[i]), "floor_centre_um": float(c * 1e3)} if d > 0 else {})
+            for i, (s, c, d) in enumerate(zip(sources, sc, said))]
     what = "ballbar length" if problem.layout.artefact is None else "ball deviation"
     if not head.any() or not np.all(sc > 0):
         return {"source": None, "floor_stated_or_measured": measured, "centre_reproducibility_um": None,
@@ -220,7 +232,8 @@ def noise_floor(problem, step, reproducibility_um=None, stated_as: str = "stated
         words = (f"{extra:.2f} um is unexplained above a floor of {floor:.2f} um in the {what}s "
                  f"(rms {rms:.2f} um; {source}; {stats} < {FLOOR_ALPHA:g})")
     return {"source": source, "floor_stated_or_measured": measured,
-            "centre_reproducibility_um": float(np.sqrt(np.mean(sc ** 2))) * 1e3, "runs": runs, "floor_um": floor,
+            "centre_reproducibility_um": float(np.sqrt(np.mean(np.where(said > 0, said, sc) ** 2))) * 1e3,
+            "runs": runs, "floor_um": floor,
             "rms_um": rms, "chi2": chi2, "dof": int(dof), "p_value": p, "noise": bool(noise),
             "unexplained_um": extra, "verdict": words}
 
