@@ -117,15 +117,8 @@ class AppliedMaps:
         single map); each pose's kernel report (:class:`KernelReport`) is
         appended to ``reports``, and what it says is warned
         (``ClampWarning``). ``compare`` and ``once`` are a model's."""
-        ids = run.scans["scan_id"]
-        order = np.argsort(ids)
-        sid = run.points["scan_id"]
-        # Run validation guarantees every point's scan exists.
-        pose_of_point = run.scans["pose_id"][order][np.searchsorted(ids[order], sid)] if len(sid) else sid
         out = np.empty((run.n_points, 3))
-        for pose_id in np.unique(pose_of_point):
-            rows = np.flatnonzero(pose_of_point == pose_id)
-            pose, offset = run.pose(int(pose_id))
+        for rows, pose, offset in run.points_by_pose():
             t = temperature if temperature is None or np.ndim(temperature) == 0 else \
                 np.ascontiguousarray(temperature[rows], dtype=float)
             out[rows], raw = self.compensate_points(np.ascontiguousarray(run.uv[rows]),

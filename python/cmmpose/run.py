@@ -684,6 +684,18 @@ class Run:
         order = np.argsort(self.poses["pose_id"])
         return self.poses["pose_id"][order], order
 
+    def points_by_pose(self):
+        """The points pose by pose: ``(rows, (alpha, beta, gamma), (U1, V1, W1))``
+        for each pose that took points (rows: indices into the points; angles
+        in degrees, offset in mm), in pose-id order."""
+        ids = self.scans["scan_id"]
+        order = np.argsort(ids)
+        sid = self.points["scan_id"]
+        # Run validation guarantees every point's scan exists.
+        pose_of_point = self.scans["pose_id"][order][np.searchsorted(ids[order], sid)] if len(sid) else sid
+        for pose_id in np.unique(pose_of_point):
+            yield (np.flatnonzero(pose_of_point == pose_id), *self.pose(int(pose_id)))
+
     def pose(self, pose_id: int) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """Pose angles and mount offset of one pose.
 

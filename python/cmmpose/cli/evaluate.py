@@ -18,6 +18,7 @@ from .._json import dumps as strict_json
 from ..atomicfile import ensure_folder, write_text
 from ..errors import (AliasedChoiceWarning, ClampWarning, Error, ExtrapolationWarning, InputError,
                       MapTemperatureWarning, ModelDomainWarning)
+from ..evaluation.ballbar import evaluate
 from ..evaluation.model_check import check_model
 from ..evaluation.files import FLEET_FILES, REPORT_FILES, write_evaluation_files
 from ..evaluation.metrics import STEEL_EXPANSION
@@ -116,7 +117,6 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
     --scheduler and a summary table across them is printed; --report writes
     the summary (CSV), each run's report and a plot of the trend. One run:
     every figure with its uncertainty (k = 2) and budget (docs/uncertainty.md)."""
-    from ..evaluation.ballbar import evaluate
     from ..machine import load_machine
     from ..run import Run
 
@@ -155,16 +155,10 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
             return evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json,
                                          {"temperature_policy": temperature_policy},
                                          strict_model=strict_model if model_file is not None else None)
-        with warnings.catch_warnings(record=True) as caught, aliased_choices_once():
-            warnings.simplefilter("always", MapTemperatureWarning)
-            warnings.simplefilter("always", AliasedChoiceWarning)
-            warnings.simplefilter("always", ModelDomainWarning)
-            options = dict(temperature=temperature, reject=reject, out_of_range=out_of_range,
-                           temperature_tolerance=temperature_tolerance, log_hold=log_hold,
-                           expansion_ppm_per_K=expansion, skip_incomplete=skip_incomplete,
-                           temperature_policy=temperature_policy)
-            ev = evaluate(run, model, **options)
-            check = check_model(run, model, evaluation=ev, **options) if model_file is not None else None
+        ev, check, caught = _evaluated(run, model, model_file is not None, dict(
+            temperature=temperature, reject=reject, out_of_range=out_of_range,
+            temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion_ppm_per_K=expansion,
+            skip_incomplete=skip_incomplete, temperature_policy=temperature_policy))
         say_caught(caught)
         unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
                                       log_hold, u_temperature, u_map, u_model, temperature_policy)
@@ -195,7 +189,6 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
     """`evaluate RUN_DIR... --model m.json`: each run evaluated with the found model in turn (the model loaded
     once), each with its figures, budgets and warnings (an aliased choice that matters on that run); --json a
     list of the single-run documents, each with its ``run``; --report a folder per run."""
-    from ..evaluation.ballbar import evaluate
     from ..machine import load_machine
     from ..run import Run
 
@@ -210,16 +203,10 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
             run = Run.load(r)
             if "definition" in run.artefact:
                 raise InputError(f"{r}: an artefact run: evaluate it on its own with --model")
-            with warnings.catch_warnings(record=True) as caught, aliased_choices_once():
-                warnings.simplefilter("always", MapTemperatureWarning)
-                warnings.simplefilter("always", AliasedChoiceWarning)
-                warnings.simplefilter("always", ModelDomainWarning)
-                options = dict(temperature=temperature, reject=reject, out_of_range=out_of_range,
-                               temperature_tolerance=temperature_tolerance, log_hold=log_hold,
-                               expansion_ppm_per_K=expansion, skip_incomplete=skip_incomplete,
-                               temperature_policy=temperature_policy)
-                ev = evaluate(run, model, **options)
-                check = check_model(run, model, evaluation=ev, **options)
+            ev, check, caught = _evaluated(run, model, True, dict(
+                temperature=temperature, reject=reject, out_of_range=out_of_range,
+                temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion_ppm_per_K=expansion,
+                skip_incomplete=skip_incomplete, temperature_policy=temperature_policy))
             said = [str(w.message) for w in caught if not issubclass(w.category, (DeprecationWarning,
                                                                                    PendingDeprecationWarning))]
             doubts += [f"{name}: {t}" for t in model_doubts(caught) + ([check.verdict] if check.worse else [])]
@@ -309,6 +296,19 @@ def print_evaluation(ev, unc, verbose: bool = False, name: str | None = None) ->
     if verbose:
         out.print(ev)
         out.print(unc)
+
+
+def _evaluated(run, model, check: bool, options: dict):
+    """The run evaluated with ``model`` (cmmpose.evaluate) and, with ``check``, the model checked as saved
+    beside its plain maps (cmmpose.evaluation.model_check); the warnings caught, each kind every time it is
+    given (the command says them once)."""
+
+    with warnings.catch_warnings(record=True) as caught, aliased_choices_once():
+        for category in (MapTemperatureWarning, AliasedChoiceWarning, ModelDomainWarning):
+            warnings.simplefilter("always", category)
+        ev = evaluate(run, model, **options)
+        checked = check_model(run, model, evaluation=ev, **options) if check else None
+    return ev, checked, caught
 
 
 def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance, log_hold,

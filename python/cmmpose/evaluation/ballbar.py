@@ -247,15 +247,8 @@ def machine_coordinates(run: Run, maps, temperature, policy: TemperaturePolicy |
 
 def uncompensated_coordinates(run: Run) -> np.ndarray:
     """All points as the digitizer software reports them (no map), mm."""
-    ids = run.scans["scan_id"]
-    order = np.argsort(ids)
-    sid = run.points["scan_id"]
-    # Run validation guarantees every point's scan exists.
-    pose_of_point = run.scans["pose_id"][order][np.searchsorted(ids[order], sid)] if len(sid) else sid
     out = np.empty((run.n_points, 3))
-    for pose_id in np.unique(pose_of_point):
-        rows = np.flatnonzero(pose_of_point == pose_id)
-        pose, offset = run.pose(int(pose_id))
+    for rows, pose, offset in run.points_by_pose():
         out[rows] = uncompensated(run.uv[rows], run.scales[rows], pose, offset)
     return out
 
