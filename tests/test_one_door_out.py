@@ -388,6 +388,9 @@ def test_a_missing_input_is_a_usage_error_everywhere(scan, args, name):
     (["evaluate", "{run}", "--model", "{special}"], "model file"),
     (["diagnose", "{run}", "--user-effect", "{special}"], "user-effect file"),
     (["artefact", "show", "{special}"], "artefact file"),
+    (["compensate", "{scan}", "{tmp}/o.csv", "--maps", "{special}"], "map file"),
+    (["standards", "iso230-2", "{special}"], "positioning file"),
+    (["diagnose-fits", "{special}", "--artefact", "koba-0420"], "table"),
 ])
 def test_a_fifo_or_a_device_as_a_document_is_refused_at_once(scan, small_run, kind, args, what):
     special = scan.parent / "doc.fifo"
@@ -401,7 +404,7 @@ def test_a_fifo_or_a_device_as_a_document_is_refused_at_once(scan, small_run, ki
     assert p.returncode == 1, p.stderr
     assert "Traceback" not in p.stderr and "no such" not in p.stderr
     kind_text = "a FIFO (named pipe)" if kind == "fifo" else "a character device"
-    assert f"{special}: not a regular file but {kind_text}; give the {what} as a file" in p.stderr
+    assert f"{special}: not a regular file but {kind_text}; the {what} must be a regular file" in p.stderr
 
 
 def test_the_reader_bounds_the_size(tmp_path):
