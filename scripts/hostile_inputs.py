@@ -826,6 +826,9 @@ def special_document(work: Path, kind: str, door: str) -> None:
     if door in ("model", "user-effect"):
         small_run(work, "r")
     args = {"machine": ("compensate", "a.csv", "o.csv", "--machine", name, *COMPENSATE),
+            "maps": ("compensate", "a.csv", "o.csv", "--maps", name, "--pose", "90,90,0"),
+            "positioning": ("standards", "iso230-2", name),
+            "fits": ("diagnose-fits", name, "--artefact", "koba-0420"),
             "model": ("evaluate", "r", "--model", name),
             "user-effect": ("diagnose", "r", "--user-effect", name),
             "artefact": ("artefact", "show", name)}[door]
@@ -870,6 +873,9 @@ ATTACKS = {
         "--model a FIFO with no writer": lambda w: special_document(w, "fifo", "model"),
         "--user-effect a FIFO with no writer": lambda w: special_document(w, "fifo", "user-effect"),
         "artefact file a FIFO with no writer": lambda w: special_document(w, "fifo", "artefact"),
+        "--maps a FIFO with no writer": lambda w: special_document(w, "fifo", "maps"),
+        "iso230-2 of a FIFO with no writer": lambda w: special_document(w, "fifo", "positioning"),
+        "diagnose-fits of a FIFO with no writer": lambda w: special_document(w, "fifo", "fits"),
     },
     "traceback": {
         "Parquet with a repeated column": parquet_repeated_column,

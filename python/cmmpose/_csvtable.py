@@ -11,7 +11,7 @@ import csv
 from collections.abc import Iterable
 from pathlib import Path
 
-from .errors import InputError
+from .errors import InputError, read_input_text
 
 
 def read_csv_table(path, required: Iterable[str]) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
@@ -39,10 +39,7 @@ def read_csv_table(path, required: Iterable[str]) -> tuple[list[str], list[tuple
     """
     path = Path(path)
     required = list(required)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot be read ({exc})") from None
+    text = read_input_text(path, "table")  # the one door in: a FIFO or a device refused, the size bounded
     lines = [(k + 1, ln) for k, ln in enumerate(text.splitlines()) if ln.strip() and not ln.startswith("#")]
     if not lines:
         raise InputError(f"{path}: no header (expected columns {', '.join(required)})")

@@ -599,7 +599,9 @@ class FileGroup:
     def __exit__(self, kind, exc, tb):
         _GROUP.reset(self._token)
         if kind is not None:
-            self._drop()
+            self._drop()  # nothing was put in place: say so of the whole group
+            if issubclass(kind, OutputError) and self.members:
+                raise OutputError(f"{exc.message}; nothing of the {self.what} was written", file=exc.file) from None
             return False
         try:
             self._commit()

@@ -300,8 +300,8 @@ def read_input(path, what: str = "file", *, limit: int = MAX_DOCUMENT_BYTES, err
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise error(f"{path}: not a regular file but {_kind(st.st_mode)}; give the {what} as a file",
-                        file=str(path))
+            raise error(f"{path}: not a regular file but {_kind(st.st_mode)}; the {what} must be a regular file "
+                        "(copy a stream to a file first)", file=str(path))
         if st.st_size > limit:
             raise error(f"{path}: {st.st_size:,} bytes, more than a {what} may hold ({limit:,})", file=str(path))
         os.set_blocking(fd, True)
@@ -332,13 +332,14 @@ def read_input_text(path, what: str = "file", **options) -> str:
             f"{path}:{line}: the {what} is not UTF-8 text (byte {raw[exc.start]:#04x})", file=str(path)) from None
 
 
-def read_lines(path) -> list[str]:
-    """Lines of a UTF-8 text file; an unreadable file or a bad byte raises
-    ``MapError`` naming the file (and the line of the bad byte)."""
+def read_lines(path, what: str = "text file") -> list[str]:
+    """Lines of a UTF-8 text file (map files, positioning tables), read through the one door in
+    (:func:`read_input`: a FIFO or a device is refused, never waited on or read for ever); an unreadable
+    file or a bad byte raises ``MapError`` naming the file (and the line of the bad byte)."""
     try:
-        raw = open(path, "rb").read()
-    except OSError as exc:
-        raise MapError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        raw = read_input(path, what, error=MapError)
+    except MissingFileError:
+        raise MapError(f"{path}: cannot read (No such file or directory)", file=str(path)) from None
     lines = []
     for lineno, chunk in enumerate(raw.splitlines(), start=1):
         try:

@@ -236,7 +236,7 @@ def diagnose_plate_fits_cli(fits_file, artefact_spec, state, temperature, nomina
         if given is not None:
             raise click.UsageError(f"{flag} is a ballbar's: with --artefact the artefact file gives the radius "
                                    f"and the calibrated centres")
-    if not Path(fits_file).is_file():
+    if not Path(fits_file).exists():  # a FIFO or a device: the reader says what it is
         raise click.BadParameter(f"{fits_file}: no such file", param_hint="FITS")
     try:
         artefact = artefacts.load_artefact(artefact_spec)

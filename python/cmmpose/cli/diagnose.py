@@ -368,7 +368,7 @@ def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, artefa
             fits = appendix_c_sphere_fits(state or "compensated")
             nominal_radius = NOMINAL_RADIUS_MM if nominal_radius is None else nominal_radius
         else:
-            if not Path(fits_file).is_file():
+            if not Path(fits_file).exists():  # a FIFO or a device: the reader says what it is
                 raise click.BadParameter(f"{fits_file}: no such file", param_hint="FITS")
             fits = read_sphere_fits(fits_file, state)
         d = diagnose_sphere_fits(fits["centres"], fits["radii"], nominal_radius=nominal_radius,

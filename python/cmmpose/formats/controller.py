@@ -84,7 +84,7 @@ def read_controller_file(path: str | PathLike, temperature: float | None = None)
         Naming the file and line of any malformed content.
     """
     path = Path(path)
-    lines = read_lines(path)
+    lines = read_lines(path, "controller file")
     squareness: dict[str, float] = {}
     axis_params: dict[str, tuple[float, float, float]] = {}
     blocks: dict[str, list[tuple[int, list[float]]]] = {}

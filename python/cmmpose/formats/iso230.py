@@ -105,7 +105,7 @@ def read_results(path: str | PathLike) -> dict[str, AxisResult]:
         :func:`deviation_limit_um` of the axis's span of targets).
     """
     path = Path(path)
-    lines = read_lines(path)
+    lines = read_lines(path, "ISO 230-2 file")
     index: dict[str, int] | None = None
     rows: dict[str, list[tuple[int, float, float, float]]] = {}
     for lineno, raw in enumerate(lines, start=1):

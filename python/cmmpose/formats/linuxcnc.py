@@ -113,7 +113,7 @@ def read_comp_file(path: str | PathLike, axis: str, *, comp_file_type: int = 0, 
     scale = _check_options(comp_file_type, units)
     axis = _axis_key(axis)
     path = Path(path)
-    lines = read_lines(path)
+    lines = read_lines(path, "LinuxCNC file")
     while lines and not lines[-1].strip():
         lines.pop()  # trailing blank lines: LinuxCNC stops there, with nothing after
     if not lines:

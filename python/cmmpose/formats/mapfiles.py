@@ -94,7 +94,7 @@ def read_map(path: str | PathLike) -> ErrorMap:
         On any malformed content, naming the file and line.
     """
     path = Path(path)
-    lines = read_lines(path)
+    lines = read_lines(path, "map file")
     meta: dict[str, tuple[str, int]] = {}
     rows: dict[str, list[list[float]]] = {c: [] for c in CARRIAGES}
     body: list[str] = []  # the column-header row and the data rows, for the sha256 check

@@ -52,7 +52,7 @@ from ..calibration.interferometer import (
     refractivity_uncertainty,
 )
 from .._json import dumps as strict_json
-from ..errors import Error, InputError, InputTypeError, MapError, read_lines
+from ..errors import Error, InputError, InputTypeError, MapError, MissingFileError, read_input, read_lines
 from ..evaluation.plots import new_figure, save_plot
 
 __all__ = [
@@ -462,7 +462,7 @@ def read_positioning_csv(path: str | PathLike) -> PositioningData:
     """
     path = Path(path)
     try:
-        lines = read_lines(path)
+        lines = read_lines(path, "positioning file")
     except MapError as exc:
         raise PositioningError(str(exc)) from None
     numbered = [(i, ln) for i, ln in enumerate(lines, start=1) if ln.strip() and not ln.lstrip().startswith("#")]
@@ -553,11 +553,11 @@ def load_positioning(path: str | PathLike, *, air_correction: bool = True) -> tu
     note : str
     """
     path = Path(path)
-    try:
-        with open(path, "rb") as fh:
-            first = fh.readline().decode("utf-8", "replace").strip()
-    except OSError as exc:
-        raise PositioningError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:  # the one door in: a FIFO or a device refused, never waited on
+        first = read_input(path, "positioning file", error=PositioningError).split(b"\n", 1)[0]
+        first = first.decode("utf-8", "replace").strip()
+    except MissingFileError:
+        raise PositioningError(f"{path}: cannot read (No such file or directory)") from None
     if first.startswith(f"# {MAGIC}"):
         try:
             data, u, note = positioning_from_interferometer(read_run(path), air_correction=air_correction)
