@@ -24,8 +24,10 @@ from cmmpose.cli import main
 from cmmpose.errors import InputError, OutputError
 from cmmpose.run import Run
 
-HERE = Path(__file__).parent
-ENV = {**os.environ, "PYTHONPATH": str(HERE.parent / "python")}
+# The children import the cmmpose these tests import (installed, or a source tree on PYTHONPATH), not the clone's
+# python/ folder, which holds no compiled core when the package was installed as a wheel.
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(Path(cmmpose.__file__).parent.parent),
+                                                                os.environ.get("PYTHONPATH", "")) if p)}
 
 
 def cli(*args):
