@@ -55,6 +55,18 @@ def scratch(folder: Path) -> list[str]:
 # -- one file: exclusive creation ---------------------------------------------------------
 
 
+
+def fail_the_third_rename(monkeypatch) -> None:
+    """The third file put in place fails (EIO): a group's first two are in place by then."""
+    real, calls = atomicfile._put_in_place, []
+
+    def put(tmp, dst, *a):
+        calls.append(dst)
+        if len(calls) == 3:
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        return real(tmp, dst, *a)
+    monkeypatch.setattr(atomicfile, "_put_in_place", put)
+
 def test_two_writers_of_one_file_never_both_succeed(tmp_path):
     target = tmp_path / "x.txt"
     a = AtomicFile(target, "w", overwrite=False)
@@ -224,14 +236,7 @@ def test_a_group_that_fails_leaves_nothing_of_it(tmp_path, monkeypatch, on):
             return real_fsync(fd)
         monkeypatch.setattr(os, "fsync", fsync)
     else:  # the last rename into place fails: the first two are taken out again
-        real, calls = atomicfile._put_in_place, []
-
-        def put(tmp, dst, *a):
-            calls.append(dst)
-            if len(calls) == 3:
-                raise OSError(errno.EIO, os.strerror(errno.EIO))
-            return real(tmp, dst, *a)
-        monkeypatch.setattr(atomicfile, "_put_in_place", put)
+        fail_the_third_rename(monkeypatch)
     with pytest.raises(OutputError) as exc:
         _group(tmp_path)
     monkeypatch.undo()
@@ -449,14 +454,7 @@ def test_map_export_never_over_a_machine_files_maps(maps_and_run, tmp_path):
 
 
 def test_linuxcnc_files_appear_together(tmp_path, monkeypatch):
-    real, calls = atomicfile._put_in_place, []
-
-    def put(tmp, dst, *a):
-        calls.append(dst)
-        if len(calls) == 3:
-            raise OSError(errno.EIO, os.strerror(errno.EIO))
-        return real(tmp, dst, *a)
-    monkeypatch.setattr(atomicfile, "_put_in_place", put)
+    fail_the_third_rename(monkeypatch)
     out = tmp_path / "comp"
     r = cli("map", "export", "appendix-b", "--format", "linuxcnc", "-o", out)
     one_line_failure(r, "z.comp", "nothing of the --output was written")

@@ -45,15 +45,9 @@ reading q (mm) over the travel the run used, ``[lo, hi]``:
   -2 log L rises by 1 from its minimum);
 - ``const``: a squareness (one value).
 
-Names read ``map:<component>:<shape>[lo,hi]``, e.g. ``map:dx(X):sine170.2[-120,780]``
-or ``map:ez(X):poly[0,900]`` (:func:`parse`); an angle on a machine
-configured other than the thesis's X-Y-Z bridge carries the configuration
-(``map:ez(X):poly[0,900]@moving-bridge``), since its arms depend on it. A
-model file records the correction by its name and parameters (um or
-arc-seconds), so ``Model.load`` rebuilds it with no code from the user,
-and :func:`corrected_maps` writes it into the maps themselves (the
-component's column of its carriage's table, or the map's squareness: a
-corrected map file in any format the project reads, :mod:`cmmpose.formats.mapfiles`).
+A correction as a model term (its name, ``map:<component>:<shape>[lo,hi]``,
+how a model applies it, and the maps with it written in) is
+:mod:`cmmpose.model.mapshape`'s; this module searches a run for them.
 
 Sensitivities are taken at the centre level, linear in each shape's
 coefficients: a correction moves each sphere scan's points by the
