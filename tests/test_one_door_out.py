@@ -52,10 +52,6 @@ def scratch(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.name.startswith(".") or p.name.endswith(".tmp"))
 
 
-# -- one file: exclusive creation ---------------------------------------------------------
-
-
-
 def fail_the_third_rename(monkeypatch) -> None:
     """The third file put in place fails (EIO): a group's first two are in place by then."""
     real, calls = atomicfile._put_in_place, []
@@ -66,6 +62,10 @@ def fail_the_third_rename(monkeypatch) -> None:
             raise OSError(errno.EIO, os.strerror(errno.EIO))
         return real(tmp, dst, *a)
     monkeypatch.setattr(atomicfile, "_put_in_place", put)
+
+
+# -- one file: exclusive creation ---------------------------------------------------------
+
 
 def test_two_writers_of_one_file_never_both_succeed(tmp_path):
     target = tmp_path / "x.txt"
