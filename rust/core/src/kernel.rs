@@ -27,6 +27,8 @@ pub use crate::source::{
     Report,
 };
 use crate::thermal::ErrorMapSet;
+use crate::uncertainty::Propagation;
+pub use crate::uncertainty::{Detail, Sources};
 
 /// Points per parallel work item: large enough to amortise scheduling, small
 /// enough to balance two or more threads on a few thousand points.
@@ -99,7 +101,17 @@ where
     C: Default,
     F: Fn(usize, [f64; 3], &mut [f64], &mut Report, &mut C) -> Result<()> + Sync,
 {
-    drive_blocks(inputs, opts, out, width, |_, _| None, row_fn)
+    drive_blocks(inputs, opts, out, width, |_, _| None, row_fn, None)
+}
+
+/// A second output filled chunk by chunk after the points (the per-point
+/// uncertainty): its buffer, its width per row, and
+/// `fill(start, points, rows)` given the chunk's computed points.
+pub(crate) struct Extra<'x> {
+    pub buffer: &'x mut [f64],
+    pub width: usize,
+    #[allow(clippy::type_complexity)]
+    pub fill: &'x (dyn Fn(usize, &[f64], &mut [f64]) -> Result<()> + Sync),
 }
 
 /// [`drive`] with a block path: `block_fn(start, block)` fills a chunk's
@@ -114,6 +126,7 @@ fn drive_blocks<C, B, F>(
     width: usize,
     block_fn: B,
     row_fn: F,
+    extra: Option<Extra>,
 ) -> Result<Report>
 where
     C: Default,
@@ -121,13 +134,37 @@ where
     F: Fn(usize, [f64; 3], &mut [f64], &mut Report, &mut C) -> Result<()> + Sync,
 {
     let n = inputs.check(out, width)?;
-    let chunk_results: Vec<(Report, Option<CoreError>)> = out
-        .par_chunks_mut(width * CHUNK)
-        .enumerate()
-        .map(|(ci, block)| {
-            chunk::<C, B, F>(inputs, opts, block, ci * CHUNK, width, &block_fn, &row_fn)
-        })
-        .collect();
+    let one = |ci: usize, block: &mut [f64]| {
+        chunk::<C, B, F>(inputs, opts, block, ci * CHUNK, width, &block_fn, &row_fn)
+    };
+    let chunk_results: Vec<(Report, Option<CoreError>)> = match extra {
+        None => out
+            .par_chunks_mut(width * CHUNK)
+            .enumerate()
+            .map(|(ci, block)| one(ci, block))
+            .collect(),
+        Some(x) => {
+            if x.buffer.len() != x.width * n {
+                return Err(CoreError::invalid_argument(
+                    "uncertainty out",
+                    format!("has {} values, expected {}", x.buffer.len(), x.width * n),
+                ));
+            }
+            // The second output of a chunk right after its points, while
+            // the chunk's inputs are still in cache.
+            out.par_chunks_mut(width * CHUNK)
+                .zip(x.buffer.par_chunks_mut(x.width * CHUNK))
+                .enumerate()
+                .map(|(ci, (block, rows))| {
+                    let (report, err) = one(ci, block);
+                    if err.is_some() {
+                        return (report, err);
+                    }
+                    (report, (x.fill)(ci * CHUNK, block, rows).err())
+                })
+                .collect()
+        }
+    };
     let mut total = Report::default();
     for (report, err) in chunk_results {
         if let Some(e) = err {
@@ -260,12 +297,40 @@ pub fn compensate_points(
     opts: Options,
     out: &mut [f64],
 ) -> Result<Report> {
+    let d = digitizers;
     match maps {
-        MapSource::Map(m) => compensate_with(points, m, false, digitizers, effects, opts, out),
-        MapSource::Set(s) => compensate_with(points, s, true, digitizers, effects, opts, out),
+        MapSource::Map(m) => compensate_with(points, m, false, d, effects, opts, out, None),
+        MapSource::Set(s) => compensate_with(points, s, true, d, effects, opts, out, None),
     }
 }
 
+/// As [`compensate_points`], and each point's standard uncertainty (k = 1)
+/// from `sources` into `uncertainty` (N x `detail.width()`, see
+/// [`Detail`]), in the same parallel pass: each chunk's uncertainties are
+/// computed right after its points (docs/uncertainty.md, "Per point").
+/// The points are the same bits as [`compensate_points`] gives.
+#[allow(clippy::too_many_arguments)]
+pub fn compensate_points_with_uncertainty(
+    points: &Points,
+    maps: MapSource,
+    digitizers: &[Digitizer],
+    effects: &Effects,
+    opts: Options,
+    sources: &Sources,
+    detail: Detail,
+    out: &mut [f64],
+    uncertainty: &mut [f64],
+) -> Result<Report> {
+    sources.check(digitizers.len())?;
+    let d = digitizers;
+    let u = Some((sources, detail, uncertainty));
+    match maps {
+        MapSource::Map(m) => compensate_with(points, m, false, d, effects, opts, out, u),
+        MapSource::Set(s) => compensate_with(points, s, true, d, effects, opts, out, u),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
 fn compensate_with<S: Source>(
     points: &Points,
     source: &S,
@@ -274,6 +339,7 @@ fn compensate_with<S: Source>(
     effects: &Effects,
     opts: Options,
     out: &mut [f64],
+    uncertainty: Option<(&Sources, Detail, &mut [f64])>,
 ) -> Result<Report> {
     let n = Inputs {
         uv: Some(points.uv),
@@ -347,6 +413,30 @@ fn compensate_with<S: Source>(
     // Profiles take the block path with or without effects; random
     // readings only without (the diagnosis's data are profiles).
     let random_blocks = bound.is_empty();
+    let propagation = uncertainty
+        .as_ref()
+        .map(|(sources, detail, _)| Propagation {
+            source,
+            bound: &bound,
+            arms,
+            uv: points.uv,
+            scales: points.scales,
+            temperature,
+            pose_index: idx,
+            digitizers,
+            opts,
+            sources,
+            detail: *detail,
+        });
+    let fill = |start: usize, xyz: &[f64], rows: &mut [f64]| match &propagation {
+        Some(p) => p.fill(start, xyz, rows),
+        None => Ok(()),
+    };
+    let extra = uncertainty.map(|(_, detail, buffer)| Extra {
+        buffer,
+        width: detail.width(),
+        fill: &fill,
+    });
     drive_blocks(
         &inputs,
         opts,
@@ -387,6 +477,7 @@ fn compensate_with<S: Source>(
             slot.copy_from_slice(x.as_slice());
             Ok(())
         },
+        extra,
     )
 }
 

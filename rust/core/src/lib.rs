@@ -20,6 +20,7 @@ mod source;
 pub mod stream;
 pub mod thermal;
 pub mod truth;
+pub mod uncertainty;
 pub mod units;
 
 pub use effects::{Columns, Effects};
