@@ -7,9 +7,10 @@ import numpy as np
 from . import _core
 from ._arrays import as_rows, as_triple, as_vector
 from .errormap import scalar_temperature
-from .errors import InputTypeError, warn_clamped
+from .errors import InputError, InputTypeError, warn_clamped
 from .kernel_report import KernelReport
 from .model.protocol import MachineModel
+from .point_uncertainty import UncertaintySources
 from .pose import MountOffset, Pose, digitizer
 from .temperature import TemperaturePolicy, as_policy, check_policy
 
@@ -29,6 +30,8 @@ def compensate(
     out: np.ndarray | None = None,
     columns: dict | None = None,
     temperature_policy: TemperaturePolicy | None = None,
+    uncertainty: bool | UncertaintySources | None = None,
+    uncertainty_detail: str = "standard",
 ):
     """Compensated machine coordinates of scanner points.
 
@@ -86,12 +89,24 @@ def compensate(
         The temperature policy (cmmpose.temperature); its map side
         (``out_of_range``, ``temperature_tolerance``) applies here, the two
         keywords above override it. Default ``TemperaturePolicy()``.
+    uncertainty : bool or UncertaintySources, optional
+        Also each point's standard uncertainty (k = 1), propagated in the
+        kernel's pass (docs/uncertainty.md, "Per point"): True takes the
+        sources the inputs state (the maps' ``stated_uncertainty``, a model's
+        parameter covariance); an :class:`cmmpose.point_uncertainty.UncertaintySources`
+        states them (temperature K, scanner scale ppm and noise um, pose
+        covariance). ``out=`` is not taken then.
+    uncertainty_detail : {'standard', 'covariance', 'split'}
+        With ``uncertainty``: u_x, u_y, u_z only; also the covariance (mm^2);
+        also its part common to nearby points.
 
     Returns
     -------
     ndarray, shape (N, 3)
-        Compensated X, Y, Z in mm (machine frame H). With ``return_report``,
-        a tuple ``(xyz, report)``.
+        Compensated X, Y, Z in mm (machine frame H). With ``uncertainty``, an
+        :class:`cmmpose.point_uncertainty.UncertainPoints` (``xyz``, ``u``,
+        ``covariance``, ``common``). With ``return_report``, a tuple
+        ``(result, report)``.
 
     Notes
     -----
@@ -111,6 +126,17 @@ def compensate(
     check_policy(out_of_range, temperature_tolerance)
     pose = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
     offset = tuple(offset) if isinstance(offset, MountOffset) else as_triple("offset", offset)
+    if uncertainty is not None and uncertainty is not False:
+        if out is not None:
+            raise InputError("out: not taken with uncertainty= (the points and their uncertainty are returned)")
+        if uncertainty is True:
+            uncertainty = UncertaintySources()
+        if not isinstance(uncertainty, UncertaintySources):
+            raise InputTypeError(f"uncertainty: expected True or an UncertaintySources, got {type(uncertainty).__name__}")
+        points, report = maps.compensate_points_uncertainty(
+            uv, scales, pose, offset, temperature, sources=uncertainty, detail=uncertainty_detail, policy=policy,
+            nan_policy=nan_policy, columns=dict(columns or {}))
+        return _finish(points, report, return_report)
     xyz, report = maps.compensate_points(uv, scales, pose, offset, temperature, policy=policy, nan_policy=nan_policy,
                                          out=out, columns=dict(columns or {}))
     return _finish(xyz, report, return_report)

@@ -23,6 +23,7 @@ from ._arrays import as_rows, as_triple
 from .temperature import TEMPERATURE_TOLERANCE, TemperaturePolicy
 from .errors import InputError, InputTypeError, MapTemperatureWarning, warn_clamped
 from .kernel_report import KernelReport
+from .point_uncertainty import DETAILS, MapUncertainty, UncertainPoints, UncertaintySources
 from .pose import digitizer
 
 
@@ -30,6 +31,12 @@ from .pose import digitizer
 CARRIAGES = ("X", "Y", "Z")
 #: Columns of a carriage table.
 TABLE_COLUMNS = ("position_mm", "dx_um", "dy_um", "dz_um", "ex_arcsec", "ey_arcsec", "ez_arcsec")
+
+
+def _checked_uncertainty(uncertainty):
+    if uncertainty is not None and not isinstance(uncertainty, MapUncertainty):
+        raise InputTypeError(f"uncertainty: expected a MapUncertainty, got {type(uncertainty).__name__}")
+    return uncertainty
 
 
 def scalar_temperature(value, name: str = "temperature", *, finite: bool = True) -> float:
@@ -52,6 +59,12 @@ def scalar_temperature(value, name: str = "temperature", *, finite: bool = True)
 def data_path(*parts: str):
     """Path of a file bundled in the installed package's ``data`` folder."""
     return resources.files("cmmpose").joinpath("data", *parts)
+
+
+def _detail(detail: str) -> str:
+    if detail not in DETAILS:
+        raise InputError(f"detail: {detail!r} is not one of {', '.join(DETAILS)}")
+    return detail
 
 
 class AppliedMaps:
@@ -110,6 +123,29 @@ class AppliedMaps:
         return _core.compensate(uv, scales, self._core, digitizer(pose, offset), policy or TemperaturePolicy(),
                                 temperature, nan_policy, out)
 
+    def compensate_points_uncertainty(self, uv, scales, pose, offset, temperature=None, *,
+                                      sources: UncertaintySources, detail: str = "standard",
+                                      policy: TemperaturePolicy | None = None, nan_policy: str = "raise",
+                                      columns=None, where: str = "points", once: set | None = None):
+        """As :meth:`compensate_points`, and each point's uncertainty from
+        ``sources`` in the same kernel pass: ``(UncertainPoints, report)``.
+        ``detail`` is one of ``DETAILS`` (cmmpose.point_uncertainty)."""
+        n = len(scales)
+        inputs = None
+        if isinstance(self, ErrorMap):
+            if temperature is not None:
+                raise InputError("temperature: only meaningful with an ErrorMapSet; an ErrorMap has one temperature")
+        elif temperature is None:
+            raise InputError("temperature: required with an ErrorMapSet (a float or an (N,) array, C)")
+        else:
+            t = np.full(n, float(temperature)) if np.ndim(temperature) == 0 else temperature
+            inputs = {"temperature": t}
+        kernel = sources.kernel_sources(self, 1)
+        xyz, rows, report = _core.compensate_uncertainty(
+            uv, scales, self._core, [digitizer(pose, offset)], policy or TemperaturePolicy(), kernel,
+            inputs=inputs, nan_policy=nan_policy, detail=_detail(detail))
+        return UncertainPoints.from_kernel(xyz, rows, sources), report
+
     def compensate_run(self, run, temperature=None, *, policy: TemperaturePolicy | None = None,
                        reports: list | None = None, compare=None, once: set | None = None):
         """All points of ``run`` in machine coordinates (N, 3 mm), pose by
@@ -147,22 +183,33 @@ class ErrorMap(AppliedMaps):
         Temperature of the machine when the map was measured, degrees C.
     source : str, optional
         Where the map came from (file, table), kept for reports.
+    uncertainty : MapUncertainty, optional
+        The stated standard uncertainty of the map's components
+        (:class:`cmmpose.point_uncertainty.MapUncertainty`), propagated to
+        each compensated point (``compensate(..., uncertainty=True)``).
     """
 
-    __slots__ = ("_core", "source")
+    __slots__ = ("_core", "source", "stated_uncertainty")
 
-    def __init__(self, x, y, z, squareness, temperature: float | None = None, source: str | None = None):
+    def __init__(self, x, y, z, squareness, temperature: float | None = None, source: str | None = None,
+                 uncertainty: MapUncertainty | None = None):
         tables = [as_rows(f"{c.lower()} table", t, 7) for c, t in zip(CARRIAGES, (x, y, z))]
         sq = as_triple("squareness", squareness)
         self._core = _core.ErrorMap(*tables, sq, None if temperature is None else float(temperature))
         self.source = source
+        self.stated_uncertainty = _checked_uncertainty(uncertainty)
 
     @classmethod
-    def _wrap(cls, core_map, source: str | None = None) -> ErrorMap:
+    def _wrap(cls, core_map, source: str | None = None, uncertainty: MapUncertainty | None = None) -> ErrorMap:
         obj = cls.__new__(cls)
         obj._core = core_map
         obj.source = source
+        obj.stated_uncertainty = uncertainty
         return obj
+
+    def with_uncertainty(self, uncertainty: MapUncertainty | None) -> ErrorMap:
+        """The same map stating ``uncertainty`` for its components."""
+        return ErrorMap._wrap(self._core, self.source, _checked_uncertainty(uncertainty))
 
     # -- constructors from files -------------------------------------------------
     @classmethod
@@ -229,11 +276,11 @@ class ErrorMap(AppliedMaps):
         :func:`cmmpose.machine.configurations`)."""
         if not isinstance(kinematics, str):
             raise InputError(f"kinematics: expected a configuration name, got {kinematics!r}")
-        return ErrorMap._wrap(self._core.with_kinematics(kinematics), self.source)
+        return ErrorMap._wrap(self._core.with_kinematics(kinematics), self.source, self.stated_uncertainty)
 
     def with_temperature(self, temperature: float | None) -> ErrorMap:
         """The same map labelled with another temperature (C)."""
-        return ErrorMap._wrap(self._core.with_temperature(temperature), self.source)
+        return ErrorMap._wrap(self._core.with_temperature(temperature), self.source, self.stated_uncertainty)
 
     # -- the model ---------------------------------------------------------------
     def position_error(self, scales, *, out_of_range: str = "raise", nan_policy: str = "raise") -> np.ndarray:
@@ -306,7 +353,7 @@ class ErrorMapSet(AppliedMaps):
         blending uses the union of the grids over their common range.
     """
 
-    __slots__ = ("_core", "_sources")
+    __slots__ = ("_core", "_sources", "_uncertainty")
 
     def __init__(self, maps):
         maps = list(maps)
@@ -320,16 +367,28 @@ class ErrorMapSet(AppliedMaps):
             raise InputError(f"maps: the maps are for differently configured machines ({which}); give maps of one "
                              "configuration (ErrorMap.with_kinematics)")
         self._core = _core.ErrorMapSet([m._core for m in maps])
-        by_t = {m.temperature: m.source for m in maps}
-        self._sources = [by_t[t] for t in self._core.temperatures]
+        by_t = {m.temperature: (m.source, m.stated_uncertainty) for m in maps}
+        self._sources = [by_t[t][0] for t in self._core.temperatures]
+        self._uncertainty = [by_t[t][1] for t in self._core.temperatures]
+
+    @property
+    def stated_uncertainty(self) -> MapUncertainty | None:
+        """The maps' stated uncertainty for the blend: the larger per
+        component over the maps that state one (None if none does)."""
+        stated = [u for u in self._uncertainty if u is not None]
+        out = stated[0] if stated else None
+        for u in stated[1:]:
+            out = out.combined(u)
+        return out
 
     @classmethod
     def thesis(cls) -> ErrorMapSet:
-        """The thesis maps at 20, 25 and 30 C (Tables 8-16, squareness Table 7)."""
+        """The thesis maps at 20, 25 and 30 C (Tables 8-16, squareness Table 7),
+        stating the thesis's measurement uncertainty (:meth:`MapUncertainty.thesis`)."""
         maps = []
         for t in (20, 25, 30):
             with resources.as_file(data_path("maps", f"thesis_{t}C.csv")) as p:
-                maps.append(ErrorMap.read(p))
+                maps.append(ErrorMap.read(p).with_uncertainty(MapUncertainty.thesis()))
         return cls(maps)
 
     @property
@@ -340,7 +399,7 @@ class ErrorMapSet(AppliedMaps):
     @property
     def maps(self) -> list[ErrorMap]:
         """The maps, sorted by temperature."""
-        return [ErrorMap._wrap(m, s) for m, s in zip(self._core.maps, self._sources)]
+        return [ErrorMap._wrap(m, s, u) for m, s, u in zip(self._core.maps, self._sources, self._uncertainty)]
 
     @property
     def kinematics(self) -> str:
@@ -354,6 +413,7 @@ class ErrorMapSet(AppliedMaps):
         out = object.__new__(ErrorMapSet)
         out._core = self._core.with_kinematics(kinematics)
         out._sources = list(self._sources)
+        out._uncertainty = list(self._uncertainty)
         return out
 
     def at(self, temperature: float, *, out_of_range: str = "raise",
@@ -367,7 +427,7 @@ class ErrorMapSet(AppliedMaps):
         """
         t = scalar_temperature(temperature)
         policy = TemperaturePolicy(out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
-        return ErrorMap._wrap(self._core.at(t, policy), source=f"blend at {t:g} C")
+        return ErrorMap._wrap(self._core.at(t, policy), source=f"blend at {t:g} C", uncertainty=self.stated_uncertainty)
 
     def __len__(self) -> int:
         return len(self.temperatures)

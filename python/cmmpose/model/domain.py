@@ -46,7 +46,8 @@ from ..errors import InputError
 from .inputs import RunInputs
 
 __all__ = ["COMPARABLE", "Domain", "NEGLIGIBLE_UM", "OUTSIDE_SHARE", "POSE_MARGIN_DEG", "TEMPERATURE_MARGIN_K",
-           "TRAVEL_MARGIN_MM", "correction_uncertainty", "domain_notes", "uncertainty_notes"]
+           "TRAVEL_MARGIN_MM", "correction_uncertainty", "domain_notes", "parameter_jacobian",
+           "uncertainty_notes"]
 
 #: mm beyond the trained travel still inside (a ball's radius and the sweep's run-out).
 TRAVEL_MARGIN_MM = 25.0
@@ -219,6 +220,32 @@ def correction_uncertainty(model, inputs: RunInputs, xyz: np.ndarray | None = No
     base = model.compensate(sub) if xyz is None else np.asarray(xyz)[rows]
     plain = model.without_effects().compensate(sub)
     corr = np.linalg.norm(base - plain, axis=1) * 1e3
+    names, J, undetermined = parameter_jacobian(model, sub, base)
+    var = np.zeros(len(rows))
+    if names:
+        C = model.parameter_covariance(names)
+        var = np.einsum("mik,kl,mil->m", J, C, J) * 1e6
+    sd = np.sqrt(np.clip(var, 0.0, None))
+    return {"correction_um": float(np.sqrt(np.mean(corr ** 2))) if len(corr) else 0.0,
+            "uncertainty_um": float(np.sqrt(np.mean(var))) if len(var) else 0.0,
+            "largest_uncertainty_um": float(sd.max()) if len(sd) else 0.0,
+            "undetermined": undetermined, "points": int(len(rows))}
+
+
+def parameter_jacobian(model, inputs: RunInputs, base: np.ndarray):
+    """The compensated points' Jacobian in each determined effect parameter
+    (one forward step, the effect's ``steps``, through the kernel).
+
+    Returns
+    -------
+    names : list of str
+        ``'effect.param'`` of each column.
+    J : ndarray (N, 3, k)
+        mm per parameter unit.
+    undetermined : list of (str, float)
+        Parameters the training data did not determine (infinite
+        uncertainty) and how far they move the points at most, um.
+    """
     names, columns, undetermined = [], [], []
     for spec, values in model.effects:
         u = np.ravel(model.uncertainty.get(spec.name, np.full(spec.size, np.nan)))
@@ -228,23 +255,15 @@ def correction_uncertainty(model, inputs: RunInputs, xyz: np.ndarray | None = No
             v = np.array(values, dtype=float)
             step = float(spec.steps[j])
             v[j] += step
-            jac = (model.with_values(spec, v).compensate(sub) - base) / step  # mm per unit
+            jac = (model.with_values(spec, v).compensate(inputs) - base) / step  # mm per unit
             if np.isinf(u[j]):
                 move = float(np.max(np.linalg.norm(jac, axis=1)) * abs(float(values[j]))) * 1e3
                 undetermined.append((f"{spec.name}.{param}", move))
                 continue
             names.append(f"{spec.name}.{param}")
             columns.append(jac)
-    var = np.zeros(len(rows))
-    if columns:
-        J = np.stack(columns, axis=2)  # (m, 3, k) mm per unit
-        C = model.parameter_covariance(names)
-        var = np.einsum("mik,kl,mil->m", J, C, J) * 1e6
-    sd = np.sqrt(np.clip(var, 0.0, None))
-    return {"correction_um": float(np.sqrt(np.mean(corr ** 2))) if len(corr) else 0.0,
-            "uncertainty_um": float(np.sqrt(np.mean(var))) if len(var) else 0.0,
-            "largest_uncertainty_um": float(sd.max()) if len(sd) else 0.0,
-            "undetermined": undetermined, "points": int(len(rows))}
+    J = np.stack(columns, axis=2) if columns else np.zeros((len(base), 3, 0))
+    return names, J, undetermined
 
 
 def uncertainty_notes(found: dict) -> list[str]:

@@ -29,8 +29,9 @@ from ..pose import digitizer
 from ..run import Run
 from ..temperature import LOG_HOLD, TEMPERATURE_TOLERANCE, TemperaturePolicy, check_policy
 from ..kernel_report import KernelReport
+from ..point_uncertainty import DETAILS, UncertainPoints, UncertaintySources
 from .alternatives import Alternative, check_alternatives
-from .domain import Domain, correction_uncertainty, domain_notes, uncertainty_notes
+from .domain import Domain, correction_uncertainty, domain_notes, parameter_jacobian, uncertainty_notes
 from .inputs import RunInputs, incidence_angles
 from .names import resolve
 from .point_inputs import check_inputs, point_inputs, single_map_warning
@@ -330,6 +331,61 @@ class Model:
         xyz, raw = model.compensate(inputs, return_report=True)
         model._check_application(inputs, xyz, str(where), once, compare=None, every_call=False)
         return xyz, raw
+
+    def compensate_points_uncertainty(self, uv, scales, pose, offset, temperature=None, *,
+                                      sources: UncertaintySources, detail: str = "standard",
+                                      policy: TemperaturePolicy | None = None, nan_policy: str = "raise",
+                                      columns=None, where: str = "points", once: set | None = None):
+        """As :meth:`compensate_points`, and each point's uncertainty
+        (:meth:`compensate_uncertainty`): ``(UncertainPoints, report)``."""
+        if nan_policy != "raise":
+            raise InputError("compensate with a model: nan_policy='propagate' is for maps only")
+        temps = None
+        if temperature is not None and np.ndim(temperature) > 0:
+            temps, temperature = temperature, None
+        model = self._map_policy(policy)
+        inputs = point_inputs(model, uv, scales, pose, offset, temperature, temps, dict(columns or {}), where)
+        points, raw = model.compensate_uncertainty(inputs, sources, detail)
+        model._check_application(inputs, points.xyz, str(where), once, compare=None, every_call=False)
+        return points, raw
+
+    def compensate_uncertainty(self, run: Run | RunInputs, sources: UncertaintySources, detail: str = "standard"):
+        """Compensated points of ``run`` with each point's uncertainty
+        (k = 1): the kernel propagates the maps', temperature's, scanner's and
+        pose's sources in its pass; the model's parameter covariance is added
+        as J C J^T, J from one kernel pass per determined parameter
+        (:func:`cmmpose.model.domain.parameter_jacobian`). Returns
+        ``(UncertainPoints, report)``; ``detail`` one of ``DETAILS``."""
+        if detail not in DETAILS:
+            raise InputError(f"detail: {detail!r} is not one of {', '.join(DETAILS)}")
+        inputs = run if isinstance(run, RunInputs) else self.inputs(run)
+        needs_incidence = any("incidence" in s.needs and np.any(v != 0) for s, v in self.effects)
+        if needs_incidence and inputs.incidence is None:
+            inputs = inputs_with_incidence(self, inputs)
+        digitizers = [digitizer(p[:3], p[3:]) for p in self.poses(inputs)]
+        named = inputs.named()
+        named |= {s.sensor_input: inputs.sensor(s.sensor) for s, _ in self.effects if s.sensor_input}
+        xyz, rows, report = _core.compensate_uncertainty(
+            inputs.uv, inputs.scales, self.maps._core, digitizers, self.policy,
+            sources.kernel_sources(self, len(digitizers)), pose_index=inputs.pose_index, inputs=named,
+            effects=self.kernel_terms(), detail=detail)
+        users = [(s, v) for s, v in self.effects if s.kind == "python"]
+        if users:
+            pts = _user_inputs(inputs, xyz)
+            for spec, v in users:
+                xyz = xyz + spec.correction(pts, v)
+        if sources.model and sources.on("model") and self.effects:
+            names, J, _ = parameter_jacobian(self, inputs, xyz)
+            if names:
+                C = self.parameter_covariance(names)
+                full = np.einsum("mik,kl,mjl->mij", J, C, J)
+                sym = full[:, [0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]
+                rows[:, :3] = np.sqrt(np.square(rows[:, :3]) + sym[:, :3])
+                if rows.shape[1] >= 9:
+                    rows[:, 3:9] += sym
+                if rows.shape[1] >= 15:
+                    rows[:, 9:15] += sym
+        return UncertainPoints.from_kernel(xyz, rows, sources), report
 
     def compensate_run(self, run: Run, temperature=None, *, policy: TemperaturePolicy | None = None,
                        reports: list | None = None, compare=None, once: set | None = None) -> np.ndarray:

@@ -71,6 +71,13 @@ class MachineModel(Protocol):
         report (a dict of :class:`cmmpose.KernelReport` fields), under the
         caller's :class:`cmmpose.TemperaturePolicy` (None: the model's own)."""
 
+    def compensate_points_uncertainty(self, uv: np.ndarray, scales: np.ndarray, pose, offset, temperature=None, *,
+                                      sources, detail: str = "standard", policy=None, nan_policy: str = "raise",
+                                      columns=None, where: str = "points", once: set | None = None):
+        """As :meth:`compensate_points`, and each point's uncertainty from
+        ``sources`` (:class:`cmmpose.point_uncertainty.UncertaintySources`):
+        ``(UncertainPoints, report)``."""
+
     def compensate_run(self, run, temperature=None, *, policy=None, reports: list | None = None, compare=None,
                        once: set | None = None) -> np.ndarray:
         """All points of ``run`` in machine coordinates, mm (N, 3)."""

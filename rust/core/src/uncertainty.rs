@@ -59,6 +59,12 @@ pub struct MapUncertainty {
     pub rotation: [[f64; 3]; 3],
     /// S_xy, S_yz, S_zx, rad.
     pub squareness: [f64; 3],
+    /// Relative uncertainty of each axis's positioning error (dx of X, dy
+    /// of Y, dz of Z) from `reference` on (an interferometer's ppm; 1 is
+    /// 100 %), added to `position`.
+    pub positioning: [f64; 3],
+    /// Where each axis's positioning error was referred to zero, mm.
+    pub reference: [f64; 3],
 }
 
 /// One digitizer's uncertainties: its pose angles and mount offset (from
@@ -147,6 +153,15 @@ impl Sources {
         }
         for (j, c) in ["xy", "yz", "zx"].iter().enumerate() {
             standard(&format!("map.squareness.{c}"), self.map.squareness[j])?;
+        }
+        for (k, axis) in ["x", "y", "z"].iter().enumerate() {
+            standard(&format!("map.positioning.{axis}"), self.map.positioning[k])?;
+            if !self.map.reference[k].is_finite() {
+                return Err(CoreError::invalid_argument(
+                    format!("uncertainty.map.reference.{axis}"),
+                    format!("{} mm is not finite", self.map.reference[k]),
+                ));
+            }
         }
         standard("temperature", self.temperature)?;
         standard("scanner_scale", self.scanner_scale)?;
@@ -370,6 +385,8 @@ impl<S: Source> Propagation<'_, S> {
         // Positions: each component along its own axis.
         for (j, cj) in c.iter_mut().take(3).enumerate() {
             *cj += src.map.position.iter().map(|p| p[j] * p[j]).sum::<f64>();
+            let along = src.map.positioning[j] * (st.s[j] - src.map.reference[j]);
+            *cj += along * along;
         }
         // Rotations: w x (arm_k + lever), arm_k the carriage's Abbe arm.
         for k in 0..3 {

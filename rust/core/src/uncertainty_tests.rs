@@ -209,6 +209,39 @@ fn each_map_component_alone_matches_the_kernel_moved_by_it() {
 }
 
 #[test]
+fn positioning_grows_with_the_distance_from_its_reference() {
+    let (uv, s) = points(300);
+    let case = Case {
+        uv: &uv,
+        s: &s,
+        t: None,
+    };
+    let base_map = map_from(components, SQUARENESS, None);
+    let base = xyz(&case, MapSource::Map(&base_map), &pose(), OFFSET);
+    for axis in 0..3 {
+        // One um per metre from the table's start: 1e-6 relative.
+        let reference = RANGES[axis].0;
+        let moved_map = map_from(
+            |a, p| {
+                let mut c = components(a, p);
+                if a == axis {
+                    c[a] += (p - reference) / 1000.0;
+                }
+                c
+            },
+            SQUARENESS,
+            None,
+        );
+        let moved = xyz(&case, MapSource::Map(&moved_map), &pose(), OFFSET);
+        let mut sources = Sources::default();
+        sources.map.positioning[axis] = 2.5e-6;
+        sources.map.reference[axis] = reference;
+        let (_, unc) = stated(&case, MapSource::Map(&base_map), &sources);
+        agrees(&unc, &base, &moved, 1e-6, 2.5e-6);
+    }
+}
+
+#[test]
 fn temperature_acts_through_the_map_sets_thermal_sensitivity() {
     let (uv, s) = points(300);
     let lo = map_from(components, SQUARENESS, Some(20.0));

@@ -12,6 +12,7 @@ mod maps;
 mod model;
 mod pose;
 mod sim;
+mod uncertainty;
 
 use pyo3::prelude::*;
 
@@ -30,6 +31,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     model::register(m)?;
     sim::register(m)?;
     fit::register(m)?;
+    uncertainty::register(m)?;
     m.add_function(wrap_pyfunction!(thread_count, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
