@@ -150,6 +150,20 @@ def compensate_model(
     effects: _Effects | None = None,
     nan_policy: _NanPolicy = "raise",
 ) -> tuple[_F64_2D, Report]: ...
+def compensate_uncertainty(
+    uv: _F64_2D,
+    scales: _F64_2D,
+    maps: ErrorMap | ErrorMapSet,
+    digitizers: list[Digitizer],
+    policy: _MapPolicy,
+    sources: Any,
+    *,
+    pose_index: npt.NDArray[np.uint32] | None = None,
+    inputs: _Inputs | None = None,
+    effects: _Effects | None = None,
+    nan_policy: _NanPolicy = "raise",
+    detail: Literal["standard", "covariance", "split"] = "standard",
+) -> tuple[_F64_2D, _F64_2D, Report]: ...
 def effect_terms() -> list[EffectTerm]: ...
 def euler313(alpha: float, beta: float, gamma: float) -> _F64_2D: ...
 def pose_from_normal(normal: tuple[float, float, float] | list[float], gamma: float) -> tuple[float, float, float]: ...
