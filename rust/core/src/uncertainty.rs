@@ -212,26 +212,6 @@ fn covariance(name: &str, m: [[f64; 3]; 3]) -> Result<Matrix3<f64>> {
 /// A symmetric 3 x 3 as xx, yy, zz, xy, xz, yz.
 type Sym = [f64; 6];
 
-#[inline(always)]
-fn add_outer(c: &mut Sym, w: f64, d: &Vector3<f64>) {
-    c[0] += w * d.x * d.x;
-    c[1] += w * d.y * d.y;
-    c[2] += w * d.z * d.z;
-    c[3] += w * d.x * d.y;
-    c[4] += w * d.x * d.z;
-    c[5] += w * d.y * d.z;
-}
-
-#[inline(always)]
-fn add_matrix(c: &mut Sym, m: &Matrix3<f64>) {
-    c[0] += m[(0, 0)];
-    c[1] += m[(1, 1)];
-    c[2] += m[(2, 2)];
-    c[3] += m[(0, 1)];
-    c[4] += m[(0, 2)];
-    c[5] += m[(1, 2)];
-}
-
 /// The error state a row's uncertainty needs, shared by the rows of a
 /// profile (same reading, temperature and pose).
 #[derive(Clone, Copy)]
@@ -242,6 +222,103 @@ struct State {
     /// d e / dT (mm/K) and d w / dT (rad/K) of the maps' components.
     de_dt: Vector3<f64>,
     dw_dt: Vector3<f64>,
+}
+
+/// A covariance quadratic in the point's (u, v): every sensitivity is
+/// affine in (u, v) (the lever is), so per profile the common part is
+/// C(u, v) = A0 + u A1 + v A2 + u^2 A3 + u v A4 + v^2 A5, and each point
+/// costs a few multiply-adds whatever the number of sources.
+#[derive(Clone, Copy, Default)]
+struct Quadratic([Sym; 6]);
+
+impl Quadratic {
+    /// Add w g g^T with g = a + u b + v c.
+    #[inline(always)]
+    fn add(&mut self, w: f64, a: &Vector3<f64>, b: &Vector3<f64>, c: &Vector3<f64>) {
+        if w == 0.0 {
+            return;
+        }
+        let outer = |p: &Vector3<f64>, q: &Vector3<f64>| -> Sym {
+            [
+                w * p.x * q.x,
+                w * p.y * q.y,
+                w * p.z * q.z,
+                w * p.x * q.y,
+                w * p.x * q.z,
+                w * p.y * q.z,
+            ]
+        };
+        let both = |p: &Vector3<f64>, q: &Vector3<f64>| -> Sym {
+            [
+                2.0 * w * p.x * q.x,
+                2.0 * w * p.y * q.y,
+                2.0 * w * p.z * q.z,
+                w * (p.x * q.y + q.x * p.y),
+                w * (p.x * q.z + q.x * p.z),
+                w * (p.y * q.z + q.y * p.z),
+            ]
+        };
+        for (k, term) in [
+            outer(a, a),
+            both(a, b),
+            both(a, c),
+            outer(b, b),
+            both(b, c),
+            outer(c, c),
+        ]
+        .iter()
+        .enumerate()
+        {
+            for (x, t) in self.0[k].iter_mut().zip(term) {
+                *x += t;
+            }
+        }
+    }
+
+    /// Add J S J^T with J = J0 + u Ju + v Jv (3 x 3) and S symmetric.
+    #[inline(always)]
+    fn add_matrix(
+        &mut self,
+        j0: &Matrix3<f64>,
+        ju: &Matrix3<f64>,
+        jv: &Matrix3<f64>,
+        s: &Matrix3<f64>,
+    ) {
+        let sym = |m: Matrix3<f64>| -> Sym {
+            [
+                m[(0, 0)],
+                m[(1, 1)],
+                m[(2, 2)],
+                m[(0, 1)],
+                m[(0, 2)],
+                m[(1, 2)],
+            ]
+        };
+        let cross =
+            |p: &Matrix3<f64>, q: &Matrix3<f64>| p * s * q.transpose() + q * s * p.transpose();
+        let terms = [
+            sym(j0 * s * j0.transpose()),
+            sym(cross(j0, ju)),
+            sym(cross(j0, jv)),
+            sym(ju * s * ju.transpose()),
+            sym(cross(ju, jv)),
+            sym(jv * s * jv.transpose()),
+        ];
+        for (k, term) in terms.iter().enumerate() {
+            for (x, t) in self.0[k].iter_mut().zip(term) {
+                *x += t;
+            }
+        }
+    }
+
+    /// C(u, v).
+    #[inline(always)]
+    fn at(&self, u: f64, v: f64) -> Sym {
+        let [a0, a1, a2, a3, a4, a5] = &self.0;
+        std::array::from_fn(|k| {
+            a0[k] + u * (a1[k] + u * a3[k] + v * a4[k]) + v * (a2[k] + v * a5[k])
+        })
+    }
 }
 
 /// The propagation of one compensation call (built by the kernel beside
@@ -269,19 +346,31 @@ impl<S: Source> Propagation<'_, S> {
     /// point (a NaN input under the propagate policy) gets NaN.
     pub fn fill(&self, start: usize, xyz: &[f64], rows: &mut [f64]) -> Result<()> {
         let w = self.detail.width();
-        let mut last: Option<(usize, State)> = None;
+        let mut last: Option<(usize, Quadratic, Sym)> = None;
         for (j, row) in rows.chunks_exact_mut(w).enumerate() {
             let i = start + j;
             if !xyz[3 * j].is_finite() {
                 row.fill(f64::NAN);
                 continue;
             }
-            let state = match last {
-                Some((k, st)) if self.bound.is_empty() && self.same(k, i) => st,
-                _ => self.state(i)?,
+            let (quad, noise) = match last {
+                Some((k, q, n)) if self.bound.is_empty() && self.same(k, i) => (q, n),
+                _ => self.quadratic(i)?,
             };
-            last = Some((i, state));
-            self.write(i, &state, row);
+            last = Some((i, quad, noise));
+            let mut p = [self.uv[2 * i], self.uv[2 * i + 1]];
+            self.bound.scanner_inverse(i, &mut p);
+            let common = quad.at(p[0], p[1]);
+            let total: Sym = std::array::from_fn(|k| common[k] + noise[k]);
+            row[0] = total[0].max(0.0).sqrt();
+            row[1] = total[1].max(0.0).sqrt();
+            row[2] = total[2].max(0.0).sqrt();
+            if w >= 9 {
+                row[3..9].copy_from_slice(&total);
+            }
+            if w >= 15 {
+                row[9..15].copy_from_slice(&common);
+            }
         }
         Ok(())
     }
@@ -372,74 +461,74 @@ impl<S: Source> Propagation<'_, S> {
         (Vector3::zeros(), Vector3::zeros())
     }
 
-    /// One row: the common covariance, the independent part, the output.
-    #[inline(always)]
-    fn write(&self, i: usize, st: &State, row: &mut [f64]) {
+    /// Row `i`'s state as a covariance quadratic in (u, v) (the common
+    /// part) and its pose's independent part (the noise).
+    fn quadratic(&self, i: usize) -> Result<(Quadratic, Sym)> {
+        let st = self.state(i)?;
         let pose = self.pose_index.map_or(0, |p| p[i] as usize);
         let d = &self.digitizers[pose];
-        let mut p = [self.uv[2 * i], self.uv[2 * i + 1]];
-        self.bound.scanner_inverse(i, &mut p);
-        let lever = st.pe.rotate(&d.lever_scaled(p[0], p[1], st.factor));
         let src = self.sources;
-        let mut c: Sym = [0.0; 6];
-        // Positions: each component along its own axis.
-        for (j, cj) in c.iter_mut().take(3).enumerate() {
-            *cj += src.map.position.iter().map(|p| p[j] * p[j]).sum::<f64>();
+        let mut q = Quadratic::default();
+        let zero = Vector3::zeros();
+        // The lever L = R (f origin + u u_dir + v v_dir), affine in (u, v).
+        let l0 = st.pe.rotate(&(d.origin * st.factor));
+        let (lu, lv) = (st.pe.rotate(&d.u_dir), st.pe.rotate(&d.v_dir));
+        // Positions: each component along its own axis; positioning grows
+        // with the distance from its reference.
+        for j in 0..3 {
             let along = src.map.positioning[j] * (st.s[j] - src.map.reference[j]);
-            *cj += along * along;
+            let var = src.map.position.iter().map(|p| p[j] * p[j]).sum::<f64>() + along * along;
+            q.0[0][j] += var;
         }
-        // Rotations: w x (arm_k + lever), arm_k the carriage's Abbe arm.
+        // Rotations: w x (arm_k + L), arm_k the carriage's Abbe arm.
         for k in 0..3 {
-            let [vx, vy, vz] = src.map.rotation[k].map(|u| u * u);
-            if vx == 0.0 && vy == 0.0 && vz == 0.0 {
-                continue;
-            }
             let a = self.arms[k];
-            let q = Vector3::new(a[0] * st.s[0], a[1] * st.s[1], a[2] * st.s[2]) + lever;
-            c[0] += vy * q.z * q.z + vz * q.y * q.y;
-            c[1] += vx * q.z * q.z + vz * q.x * q.x;
-            c[2] += vx * q.y * q.y + vy * q.x * q.x;
-            c[3] -= vz * q.x * q.y;
-            c[4] -= vy * q.x * q.z;
-            c[5] -= vx * q.y * q.z;
+            let arm = Vector3::new(a[0] * st.s[0], a[1] * st.s[1], a[2] * st.s[2]) + l0;
+            for (axis, u) in src.map.rotation[k].iter().enumerate() {
+                let e = Vector3::ith(axis, 1.0);
+                q.add(u * u, &e.cross(&arm), &e.cross(&lu), &e.cross(&lv));
+            }
         }
         // Squareness: e_x -= E S_xy + F S_zx, e_y -= F S_yz.
         let [sxy, syz, szx] = src.map.squareness.map(|u| u * u);
-        c[0] += sxy * st.s[1] * st.s[1] + szx * st.s[2] * st.s[2];
-        c[1] += syz * st.s[2] * st.s[2];
+        q.0[0][0] += sxy * st.s[1] * st.s[1] + szx * st.s[2] * st.s[2];
+        q.0[0][1] += syz * st.s[2] * st.s[2];
         if src.temperature > 0.0 {
-            let g = st.de_dt + st.dw_dt.cross(&lever);
-            add_outer(&mut c, src.temperature.powi(2), &g);
+            let g0 = st.de_dt + st.dw_dt.cross(&l0);
+            let (gu, gv) = (st.dw_dt.cross(&lu), st.dw_dt.cross(&lv));
+            q.add(src.temperature * src.temperature, &g0, &gu, &gv);
         }
-        if src.scanner_scale > 0.0 {
-            let g = d.u_dir * p[0] + d.v_dir * p[1];
-            add_outer(&mut c, src.scanner_scale.powi(2), &g);
-        }
-        let mut total = c;
+        q.add(
+            src.scanner_scale * src.scanner_scale,
+            &zero,
+            &d.u_dir,
+            &d.v_dir,
+        );
+        let mut noise = [0.0; 6];
         if let Some(pu) = src.poses.get(pose) {
-            add_matrix(&mut c, &pu.offset);
+            for (k, x) in [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
+                .iter()
+                .enumerate()
+            {
+                q.0[0][k] += pu.offset[*x];
+                noise[k] = pu.noise[*x];
+            }
             // d(E q)/d alpha = z x (E q); /d beta = n x (E q); /d gamma =
-            // E (z x q), with q = (u, v, 0) - l1.
-            let q = Vector3::new(p[0], p[1], 0.0) - pu.l1;
-            let eq = pu.u_dir * q.x + pu.v_dir * q.y + pu.u_dir.cross(&pu.v_dir) * q.z;
-            let j = Matrix3::from_columns(&[
-                Vector3::z().cross(&eq),
-                pu.beta_axis.cross(&eq),
-                pu.v_dir * q.x - pu.u_dir * q.y,
+            // E (z x q); q = (u, v, 0) - l1, so E q = E0 + u u_dir + v v_dir.
+            let w_dir = pu.u_dir.cross(&pu.v_dir);
+            let eq0 = -(pu.u_dir * pu.l1.x + pu.v_dir * pu.l1.y + w_dir * pu.l1.z);
+            let z = Vector3::z();
+            let n = pu.beta_axis;
+            let j0 = Matrix3::from_columns(&[
+                z.cross(&eq0),
+                n.cross(&eq0),
+                pu.u_dir * pu.l1.y - pu.v_dir * pu.l1.x,
             ]);
-            add_matrix(&mut c, &(j * pu.angles * j.transpose()));
-            total = c;
-            add_matrix(&mut total, &pu.noise);
+            let ju = Matrix3::from_columns(&[z.cross(&pu.u_dir), n.cross(&pu.u_dir), pu.v_dir]);
+            let jv = Matrix3::from_columns(&[z.cross(&pu.v_dir), n.cross(&pu.v_dir), -pu.u_dir]);
+            q.add_matrix(&j0, &ju, &jv, &pu.angles);
         }
-        row[0] = total[0].max(0.0).sqrt();
-        row[1] = total[1].max(0.0).sqrt();
-        row[2] = total[2].max(0.0).sqrt();
-        if row.len() >= 9 {
-            row[3..9].copy_from_slice(&total);
-        }
-        if row.len() >= 15 {
-            row[9..15].copy_from_slice(&c);
-        }
+        Ok((q, noise))
     }
 }
 

@@ -209,6 +209,7 @@ fn each_map_component_alone_matches_the_kernel_moved_by_it() {
 }
 
 #[test]
+#[allow(clippy::needless_range_loop)]
 fn positioning_grows_with_the_distance_from_its_reference() {
     let (uv, s) = points(300);
     let case = Case {
