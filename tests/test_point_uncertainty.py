@@ -5,12 +5,14 @@ alone through the plain kernel), the sources switched off one by one, and
 bad sources refused by name."""
 
 import pickle
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 import cmmpose
 from cmmpose import ErrorMap, ErrorMapSet, InputError
+from cmmpose.model import Model
 from cmmpose.point_uncertainty import (SOURCES, MapUncertainty, PoseUncertainty, UncertainPoints,
                                        UncertaintySources, covariance_matrices)
 
@@ -211,3 +213,26 @@ def test_sources_pickle_and_a_wrong_detail_or_pose_count_is_refused(points):
     with pytest.raises(InputError, match="out:"):
         cmmpose.compensate(uv, scales, ErrorMapSet.thesis(), POSE, OFFSET, t, uncertainty=True,
                            out=np.empty((len(uv), 3)))
+
+
+@pytest.mark.filterwarnings("ignore::cmmpose.errors.ModelDomainWarning")  # a correction as uncertain as itself
+def test_a_models_parameter_covariance_adds_j_c_jt(points):
+    """A found model's squareness with stated uncertainties: the points' added variance is J C J^T, J from the
+    model moved by one arc-second per parameter (exactly linear in squareness: 1e-9 relative)."""
+    uv, scales, t = points
+    maps = ErrorMapSet.thesis()
+    values = np.array([7.0, -4.0, 3.0])
+    cov = np.array([[4.0, 1.0, 0.0], [1.0, 2.0, 0.5], [0.0, 0.5, 3.0]])  # arc-second^2
+    model = Model(maps).with_values("squareness", values)
+    names = [f"squareness.{p}" for p in model.effects[0][0].params]
+    model = replace(model, uncertainty={"squareness": np.sqrt(np.diag(cov))},
+                    covariance={"parameters": names, "matrix": cov.tolist()})
+    base = cmmpose.compensate(uv, scales, model, POSE, OFFSET, t)
+    J = np.stack([cmmpose.compensate(uv, scales, model.with_values("squareness", values + np.eye(3)[k]), POSE, OFFSET,
+                                     t) - base for k in range(3)], axis=2)
+    want = np.einsum("mik,kl,mil->mi", J, cov, J)
+    only = UncertaintySources().without("map")
+    got = cmmpose.compensate(uv, scales, model, POSE, OFFSET, t, uncertainty=only, uncertainty_detail="covariance")
+    np.testing.assert_array_equal(got.xyz, base)
+    np.testing.assert_allclose(got.u ** 2, want, rtol=1e-6, atol=1e-18)
+    assert np.all(cmmpose.compensate(uv, scales, model, POSE, OFFSET, t, uncertainty=only.without("model")).u == 0)
