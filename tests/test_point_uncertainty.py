@@ -236,3 +236,20 @@ def test_a_models_parameter_covariance_adds_j_c_jt(points):
     np.testing.assert_array_equal(got.xyz, base)
     np.testing.assert_allclose(got.u ** 2, want, rtol=1e-6, atol=1e-18)
     assert np.all(cmmpose.compensate(uv, scales, model, POSE, OFFSET, t, uncertainty=only.without("model")).u == 0)
+
+
+def test_a_map_file_states_its_uncertainty_and_reads_back(tmp_path):
+    m = ErrorMap.appendix_b().with_uncertainty(MapUncertainty.thesis())
+    m.write(tmp_path / "m.csv")
+    back = ErrorMap.read(tmp_path / "m.csv")
+    assert back.stated_uncertainty == m.stated_uncertainty and back == m
+    text = (tmp_path / "m.csv").read_text()
+    bad = text.replace('"positioning_ppm": [2.5', '"positioning_ppm": [-2.5')
+    (tmp_path / "bad.csv").write_text(bad)
+    with pytest.raises(cmmpose.MapError, match=r"bad\.csv:\d+: uncertainty\.positioning_ppm\[0\]"):
+        ErrorMap.read(tmp_path / "bad.csv")
+    line = next(ln for ln in text.splitlines() if ln.startswith("# uncertainty:"))
+    repeated = text.replace(line, line[:-1] + ', "source": "again"}')
+    (tmp_path / "rep.csv").write_text(repeated)
+    with pytest.raises(cmmpose.MapError, match="source repeated"):
+        ErrorMap.read(tmp_path / "rep.csv")

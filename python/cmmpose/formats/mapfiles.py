@@ -6,6 +6,7 @@ and squareness in a commented header and units in the column names
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 from os import PathLike
 from pathlib import Path
@@ -17,13 +18,14 @@ from ..atomicfile import write_text
 from .._validate import parse_number
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from ..errors import Error, InputError, MapError, read_lines
+from ..point_uncertainty import MapUncertainty
 
 MAGIC = "cmmpose-error-map"
 VERSION = "1"
 HEADER = ("carriage",) + TABLE_COLUMNS
 SQUARENESS_KEYS = ("squareness_xy_arcsec", "squareness_yz_arcsec", "squareness_zx_arcsec")
 # Header keys the reader uses; each may be given once (a repeated one would silently win).
-KEYS = ("temperature_C", *SQUARENESS_KEYS, "kinematics", "source", "rows", "sha256")
+KEYS = ("temperature_C", *SQUARENESS_KEYS, "kinematics", "source", "uncertainty", "rows", "sha256")
 #: The machine configuration of a map without a ``kinematics`` line (every file before the line existed).
 DEFAULT_KINEMATICS = "thesis"
 
@@ -158,6 +160,8 @@ def read_map(path: str | PathLike) -> ErrorMap:
     temperature = None if t_text.lower() == "none" else parse_number(t_text, f"{path}:{t_line}", "temperature_C")
     source = meta.get("source", (str(path), 0))[0]
     error_map = ErrorMap(*(np.array(rows[c]) for c in CARRIAGES), squareness, temperature, source=source)
+    if "uncertainty" in meta:
+        error_map = error_map.with_uncertainty(_uncertainty(path, *meta["uncertainty"]))
     if "kinematics" in meta:
         name, lineno = meta["kinematics"]
         try:
@@ -165,6 +169,29 @@ def read_map(path: str | PathLike) -> ErrorMap:
         except Error as exc:
             raise MapError(f"{path}:{lineno}: kinematics: {exc}") from None
     return error_map
+
+
+def _no_repeats(pairs):
+    keys = [k for k, _ in pairs]
+    repeated = sorted({k for k in keys if keys.count(k) > 1})
+    if repeated:
+        raise ValueError(f"key(s) {', '.join(repeated)} repeated")
+    return dict(pairs)
+
+
+def _uncertainty(path: Path, text: str, lineno: int) -> MapUncertainty:
+    """The ``# uncertainty:`` header line: one JSON object of
+    :class:`cmmpose.point_uncertainty.MapUncertainty`'s fields (um,
+    arc-seconds, ppm), checked key by key."""
+    where = f"{path}:{lineno}: uncertainty"
+    try:
+        d = json.loads(text, object_pairs_hook=_no_repeats)
+    except ValueError as exc:
+        raise MapError(f"{where}: not a JSON object of the map's uncertainties ({exc})") from None
+    try:
+        return MapUncertainty.from_dict(d, where)
+    except InputError as exc:
+        raise MapError(str(exc)) from None
 
 
 def _fmt(v: float) -> str:
@@ -190,6 +217,8 @@ def write_map(error_map: ErrorMap, path: str | PathLike) -> None:
     if error_map.source:
         source = str(error_map.source).replace("\r", " ").replace("\n", " ")  # one header line
         lines.append(f"# source: {source}")
+    if error_map.stated_uncertainty is not None:
+        lines.append(f"# uncertainty: {json.dumps(error_map.stated_uncertainty.to_dict(), allow_nan=False)}")
     body = [",".join(HEADER)]
     for c in CARRIAGES:
         for row in error_map.table(c):
