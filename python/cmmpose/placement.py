@@ -351,10 +351,16 @@ def plan(placements, artefact, machine) -> tuple[list[Placement], list[BallScan]
     return resolved, scans
 
 
+#: Sweeps the command line repeats at the end of a simulated run or a plan unless told otherwise: the run then
+#: carries its own noise floor (docs/diagnosis.md, "Is it noise?"; 6 give the floor to about 20 %).
+DEFAULT_REPEAT_SCANS = 6
+
+
 def check_repeat_scans(repeat_scans, n_scans: int) -> int:
     """``repeat_scans`` (sweeps repeated at the end of a run or plan: the
     first ones again, the artefact not moved) checked: a whole number from 0
-    to ``n_scans`` (each scan at most once more).
+    to ``n_scans`` (each scan at most once more); None is the command line's
+    default, :data:`DEFAULT_REPEAT_SCANS` (every scan once more if fewer).
 
     Raises
     ------
@@ -363,6 +369,8 @@ def check_repeat_scans(repeat_scans, n_scans: int) -> int:
     """
     import numbers
 
+    if repeat_scans is None:
+        return min(DEFAULT_REPEAT_SCANS, int(n_scans))
     if isinstance(repeat_scans, bool) or not isinstance(repeat_scans, numbers.Integral) or \
             not 0 <= repeat_scans <= n_scans:
         raise InputError(f"repeat_scans: expected a whole number of sweeps from 0 to {n_scans} (each scan once more "

@@ -329,7 +329,8 @@ def artefact_plan(artefact, placements, machine=None, *, speed: float = 35.0, bi
     for p in placements:
         parsed += placement.parse(p, machine.travel) if isinstance(p, str) else [p]
     resolved, balls = placement.plan(parsed, artefact, machine)
-    balls = list(balls) + list(balls)[:placement.check_repeat_scans(repeat_scans, len(balls))]
+    repeat_scans = placement.check_repeat_scans(repeat_scans, len(balls))
+    balls = list(balls) + list(balls)[:repeat_scans]
     offset = tuple(float(x) for x in machine.offset)
     pose_ids: dict[tuple, int] = {}
     scans = []

@@ -112,9 +112,10 @@ def artefact_check_cmd(path, as_json) -> None:
 @machine_option
 @click.option("--speed", type=float, default=35.0, show_default=True, help="Sweep speed, mm/s.")
 @click.option("--bidirectional", is_flag=True, help="Alternate the sweep direction from ball to ball.")
-@click.option("--repeat-scans", "repeat_scans", type=click.IntRange(0), default=0, show_default=True, metavar="N",
+@click.option("--repeat-scans", "repeat_scans", type=click.IntRange(0), default=None, metavar="N",
               help="Scan the first N balls again at the end, the artefact not moved: the run then measures its own "
-                   "per-scan reproducibility, the diagnosis's noise floor (docs/diagnosis.md).")
+                   "per-scan reproducibility, the diagnosis's noise floor (docs/diagnosis.md). Default 6 (every scan "
+                   "once more if fewer); 0 repeats none.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
               help="Plan file (JSON) for `cmmpose acquire --plan`.")
 def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out, repeat_scans=0) -> None:

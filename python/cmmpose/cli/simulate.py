@@ -35,11 +35,12 @@ from .common import (SEED, console, fail, json_option, load_maps, machine_option
 @click.option("--bidirectional", is_flag=True, help="Alternate forward and reverse sweeps.")
 @click.option("--jitter", type=float, default=0.0, show_default=True,
               help="Per-scan reproducibility: sd of where the artefact really sits at each sweep, um per axis.")
-@click.option("--repeat-scans", "repeat_scans", type=click.IntRange(0), default=0, show_default=True, metavar="N",
+@click.option("--repeat-scans", "repeat_scans", type=click.IntRange(0), default=None, metavar="N",
               help="Scan N balls again at the end (ball 1 and 2 of position 1, then 2, ...; of an --artefact its first "
                    "N balls), the artefact not moved: the "
                    "run then measures its own per-scan reproducibility, the diagnosis's noise floor "
-                   "(docs/diagnosis.md). 6 or more gives a floor to about 20 %.")
+                   "(docs/diagnosis.md). 6 or more gives a floor to about 20 %. Default 6 (every scan once more "
+                   "if fewer); 0 repeats none.")
 @click.option("--calibrated", is_flag=True, help="Record the bar length at 20 C and the ball radius as calibrated values.")
 @click.option("--reference-pose", "reference_poses", multiple=True, metavar="A,B,G",
               help="After the ballbar, scan the reference sphere at this pose (degrees; repeatable).")
@@ -93,6 +94,7 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
         run.save(run_dir, truth=truth, overwrite=overwrite)
     except Error as exc:
         raise fail(exc) from None
+    repeat_scans = int(run.metadata.get("repeat_scans", 0))
     table = Table(title=f"cmmpose simulate -> {run_dir}", show_header=False)
     machine_row(table, machine)
     table.add_row("layout", f"{layout} ({len(run.scans['scan_id'])} sweeps"

@@ -262,6 +262,10 @@ def ballbar_scans(run: Run, skip_incomplete: bool = False) -> tuple[dict[int, di
     position needs exactly one scan of each ball. A position with a ball
     missing, duplicated or mislabelled (``ball`` 3, or its scan moved to
     ``position`` -1), or a scan without points, is incomplete or ambiguous.
+    A run that declares repeated scans (``metadata['repeat_scans']``: scans
+    of a ball again, the bar not moved, for the noise floor) may have up to
+    that many second scans of a ball: the first scan of each ball gives the
+    length, the repeats measure reproducibility (the diagnosis's floor).
 
     Parameters
     ----------
@@ -305,6 +309,10 @@ def ballbar_scans(run: Run, skip_incomplete: bool = False) -> tuple[dict[int, di
             problems.setdefault(pos, []).append(f"position {pos} ball {ball}: scan {scan_id} has no points")
             continue
         by_pos.setdefault(pos, {}).setdefault(ball, []).append(scan_id)
+    repeats = int((run.metadata or {}).get("repeat_scans", 0) or 0)
+    if repeats and sum(len(ids) - 1 for balls in by_pos.values() for ids in balls.values()) <= repeats:
+        # The declared repeats: each ball's first scan gives the length.
+        by_pos = {p: {b: sorted(ids)[:1] for b, ids in balls.items()} for p, balls in by_pos.items()}
     for pos in sorted(set(by_pos) | {p for p in problems if not isinstance(p, tuple)}):
         balls = by_pos.get(pos, {})
         for b in (1, 2):

@@ -116,7 +116,8 @@ def simulate_artefact_run(
     for p in placements:
         parsed += parse(p, machine.travel) if isinstance(p, str) else [p]
     resolved, ball_scans = plan(parsed, artefact, machine)
-    ball_scans = list(ball_scans) + list(ball_scans)[:check_repeat_scans(repeat_scans, len(ball_scans))]
+    repeat_scans = check_repeat_scans(repeat_scans, len(ball_scans))
+    ball_scans = list(ball_scans) + list(ball_scans)[:repeat_scans]
     truth_machine = TruthMachine(maps, effects)
     rng = np.random.default_rng(seed)
     total = len(ball_scans)
