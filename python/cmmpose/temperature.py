@@ -418,12 +418,10 @@ def check_log_coverage(run, t, log_hold: float) -> None:
         i = int(np.argmax(far))
         gap = lt[0] - t[i] if t[i] < lt[0] else t[i] - lt[-1]
         raise InputError(f"point row {i}: t = {t[i]:g} s is {gap:.1f} s outside the temperature log "
-                         f"({lt[0]:g}..{lt[-1]:g} s), more than the {log_hold:g} s held at its ends "
-                         f"({LOG_HOLD_HINT}, or give the temperature)")
+                         f"({lt[0]:g}..{lt[-1]:g} s), more than the {log_hold:g} s held at its ends",
+                         row=i, value=float(t[i]), unit="s", option="log_hold", remedy="log_hold")
 
 
-#: The hint of an error for a point beyond ``log_hold`` (cmmpose.policy words it for the CLI).
-LOG_HOLD_HINT = "pass log_hold= (s) to hold the nearest reading that far"
 _KIND_LABEL = {"gap": "gap", "stuck": "stuck", "open_circuit": "open circuit", "implausible": "implausible",
                "nan": "NaN"}
 #: Why a channel was dropped, by problem kind (for the provenance).
@@ -1095,20 +1093,22 @@ def _evaluate(tq: np.ndarray, log: _Log, rep: LogReport, groups, interpolate: bo
     return _Eval(out, np.array([used[k] for k in idx]), missing, bridged, idx), none_any, per_group
 
 
-def _why(row: int, tq: float, log: _Log, rep: LogReport, label: str, chans: list[int], can_bridge: bool) -> str:
-    """Message for a point with no usable channel of a group."""
+def _why(row: int, tq: float, log: _Log, rep: LogReport, label: str, chans: list[int],
+         can_bridge: bool) -> InputError:
+    """The error for a point with no usable channel of a group."""
     where = f"point row {row} (t = {tq:g} s)"
     t = log.t
     k = int(np.searchsorted(t, tq, side="right")) - 1
     if 0 <= k < len(t) - 1 and t[k] < tq and t[k + 1] - t[k] > rep.max_gap:
-        return (f"{where} falls in a gap of the temperature log: no samples from {t[k]:g} s to {t[k + 1]:g} s "
-                f"({t[k + 1] - t[k]:g} s > max_gap {rep.max_gap:g} s); pass on_gap='interpolate' to interpolate across it")
+        return InputError(f"{where} falls in a gap of the temperature log: no samples from {t[k]:g} s to "
+                          f"{t[k + 1]:g} s ({t[k + 1] - t[k]:g} s > max_gap {rep.max_gap:g} s)", row=row,
+                          option="on_gap", remedy="on_gap")
     names = [log.names[c] for c in chans]
     near = [str(p) for p in rep.problems
             if p.channel in names and p.start - rep.max_gap <= tq <= p.end + rep.max_gap]
-    hint = "; pass on_gap='interpolate' to interpolate across the bad stretch" if can_bridge else ""
-    return (f"{where}: no clean {label} reading ({', '.join(names)}) within max_gap {rep.max_gap:g} s"
-            + (f" [{'; '.join(near)}]" if near else "") + hint)
+    return InputError(f"{where}: no clean {label} reading ({', '.join(names)}) within max_gap {rep.max_gap:g} s"
+                      + (f" [{'; '.join(near)}]" if near else ""), row=row,
+                      option="on_gap" if can_bridge else None, remedy="on_gap_stretch" if can_bridge else None)
 
 
 def _all_broken(log: _Log, rep: LogReport, groups, policy: str) -> None:
@@ -1140,12 +1140,12 @@ def _select(t, temperatures, channels, policy, report, on_gap, out_of_range):
         r = int(np.argmax(bad))
         if outside[r] and not hold:
             raise InputError(f"point row {r} (t = {tq[r]:g} s) is outside the temperature log ({t0:g} s to {t1:g} s)"
-                             + (f"; {int(outside.sum())} points in all" if outside.sum() > 1 else "")
-                             + "; pass out_of_range='hold' to use the log's end values")
+                             + (f"; {int(outside.sum())} points in all" if outside.sum() > 1 else ""),
+                             row=r, option="out_of_range", remedy="log_end_hold")
         gi = next(i for i, m in enumerate(per_group) if m[r])
         glabel, g = groups[gi]
         can_bridge = not interpolate and _bridgeable(tq_eff[r], log, rep, g)
-        raise InputError(_why(r, float(tq[r]), log, rep, glabel, g, can_bridge))
+        raise _why(r, float(tq[r]), log, rep, glabel, g, can_bridge)
     names = tuple(log.names[k] for k in ev.idx)
     dropped = {log.names[k]: int(rep.samples - rep.clean[:, k].sum()) for k in ev.idx}
     summary = ThermalSummary(
@@ -1334,8 +1334,8 @@ def per_scan_temperature(
         if span.any():
             k, gk = np.unravel_index(int(np.argmax(span)), span.shape)
             raise InputError(f"scan {ids[k]} ({a[k]:g} s to {b[k]:g} s) spans a gap of the temperature log: no samples "
-                             f"from {g0[gk]:g} s to {g1[gk]:g} s ({g1[gk] - g0[gk]:g} s > max_gap {rep.max_gap:g} s); "
-                             "pass on_gap='interpolate' to interpolate across it")
+                             f"from {g0[gk]:g} s to {g1[gk]:g} s ({g1[gk] - g0[gk]:g} s > max_gap {rep.max_gap:g} s)",
+                             option="on_gap", remedy="on_gap")
     # knots: each scan's ends and the log samples strictly inside it
     i0 = np.searchsorted(lt, a, side="right")
     i1 = np.searchsorted(lt, b, side="left")
@@ -1352,7 +1352,7 @@ def per_scan_temperature(
         j = int(np.argmax(none_any))
         k = int(np.searchsorted(first, j, side="right")) - 1
         raise InputError(f"scan {ids[k]} ({a[k]:g} s to {b[k]:g} s): no clean channel for policy {policy!r} at "
-                         f"{q[j]:g} s inside the scan; pass on_gap='interpolate' to interpolate across it")
+                         f"{q[j]:g} s inside the scan", option="on_gap", remedy="on_gap")
     y = kev.values  # (K, G)
     owner = np.repeat(np.arange(s), n_in + 2)
     dq = np.diff(q)
@@ -1377,10 +1377,6 @@ def per_scan_temperature(
 
 
 # -- a run's temperatures under a policy --------------------------------------------
-#: Hint of an error for a broken channel with ``broken_channels='raise'``.
-BROKEN_HINT = "pass broken_channels='drop' to leave its bad samples out"
-
-
 def _policy_channels(channels, policy: TemperaturePolicy) -> tuple[list[dict], dict[str, dict]]:
     """The run's channels with the roles the policy's ``sensors`` give them,
     and for each channel whose role changed: its role in the log and the one read."""
@@ -1409,15 +1405,15 @@ def _check_broken(rep: LogReport, channels: list[dict], roles, policy: Temperatu
     bad = [p for p in rep.problems if p.channel in read and p.kind != "gap"]
     if bad:
         name = bad[0].channel
-        raise InputError(f"thermocouple {name}: broken ({'; '.join(str(p) for p in bad if p.channel == name)}); "
-                         f"{BROKEN_HINT}")
+        raise InputError(f"thermocouple {name}: broken ({'; '.join(str(p) for p in bad if p.channel == name)})",
+                         option="broken_channels", remedy="broken_channels")
 
 
 def _log_of(run: Run, policy: TemperaturePolicy, t) -> tuple[list[dict], dict, LogReport]:
     if not isinstance(run, _run.Run):
         raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
     if run.temperatures is None:
-        raise InputError("run has no temperature log: pass temperature= explicitly")
+        raise InputError("run has no temperature log", option="temperature", remedy="temperature_explicit")
     check_log_coverage(run, t, policy.log_hold)
     channels, moved = _policy_channels(run.temperature_channels, policy)
     rep = check_log(run.temperatures, channels, max_gap=policy.max_gap)
