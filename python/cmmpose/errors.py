@@ -45,7 +45,8 @@ from dataclasses import dataclass
 __all__ = ["Error", "MapError", "InterferometerRunError", "OutOfRangeError", "InputError", "InputTypeError",
            "UserEffectError", "PositioningError", "GeometryError", "RunError", "InterferometerWarning",
            "CalibrationError", "AcquisitionError", "SchedulerError", "OutputError", "ClampWarning",
-           "ExtrapolationWarning", "IllConditionedFit", "ImplausibleFit", "MapTemperatureWarning", "Remedy", "REMEDIES", "split_remedy", "quoting", "warn_clamped",
+           "ExtrapolationWarning", "IllConditionedFit", "ImplausibleFit", "MapTemperatureWarning", "Remedy", "REMEDIES",
+           "split_remedy", "quoting", "warn_clamped",
            "read_lines", "read_input", "read_input_text", "MissingFileError", "MAX_DOCUMENT_BYTES"]
 
 _log = logging.getLogger("cmmpose")
