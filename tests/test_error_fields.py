@@ -239,6 +239,25 @@ def test_a_scheduler_that_accepts_nothing():
           head + " (no option of this command sets the limit)")
 
 
+# -- points in another unit (cmmpose.fitting) -------------------------------------------
+def test_points_in_metres_name_the_unit_to_read_them_in():
+    import cmmpose
+    from cmmpose.errors import GeometryError
+
+    rng = np.random.default_rng(1)
+    v = rng.normal(size=(400, 3))
+    v[:, 2] = np.abs(v[:, 2])
+    with pytest.raises(GeometryError) as info:
+        cmmpose.fit_sphere(v / np.linalg.norm(v, axis=1)[:, None] * 0.0125, 12.5)  # a 25 mm sphere in metres
+    exc = info.value
+    assert (exc.what, exc.value, exc.remedy) == ("units", "m", "units")
+    head = exc.message
+    assert head.endswith("the coordinates look like metres (24.92 mm if they are): convert them to mm")
+    # a command without --units (and the Python API) says the call that reads them in metres
+    _said(exc, head + " (read_point_cloud(path, units='m'))", head + " (give --units m)",
+          head + " (read_point_cloud(path, units='m'))")
+
+
 # -- an argument's name leading the message ----------------------------------------------
 def test_reproducibility_per_run():
     from cmmpose.diagnosis.floor import per_run
@@ -293,3 +312,7 @@ def test_the_hint_table_is_gone():
 
     assert not hasattr(policy, "_HINTS") and not hasattr(policy, "SKIP_INCOMPLETE_HINT")
     assert not hasattr(policy, "SCHEDULER_TIMEOUT_HINT")
+    import cmmpose.cli.fit as fit
+    import cmmpose.fitting as fitting
+
+    assert not hasattr(fit, "units_flag") and not hasattr(fitting, "unit_remedy")

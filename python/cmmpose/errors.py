@@ -75,6 +75,9 @@ class Remedy:
         command line as ``cli`` (the flag) or ``missing`` (a command without
         it). A message that does not begin so (quoted inside another) is
         left as it is.
+    template : bool
+        The words name the error's fields (``{value}``, ``{value!r}``):
+        filled from them (``str.format``).
     """
 
     python: str
@@ -83,15 +86,19 @@ class Remedy:
     missing: str
     instead: tuple[tuple[str, str], ...] = ()
     lead: bool = False
+    template: bool = False
 
-    def words(self, interface: str = "python", flags=None) -> str:
+    def words(self, interface: str = "python", flags=None, fields=None) -> str:
         """This remedy as ``interface`` ('python' or 'cli') says it; with 'cli',
-        ``flags`` are the running command's (None: every flag counts)."""
+        ``flags`` are the running command's (None: every flag counts);
+        ``fields``: the error's, for a template."""
         if interface == "python":
-            return self.python
-        if self.flag is not None and (flags is None or self.flag in flags):
-            return self.cli
-        return self.missing + "".join(text for flag, text in self.instead if flags is None or flag in flags)
+            text = self.python
+        elif self.flag is not None and (flags is None or self.flag in flags):
+            text = self.cli
+        else:
+            text = self.missing + "".join(text for flag, text in self.instead if flags is None or flag in flags)
+        return text.format(**(fields or {})) if self.template else text
 
 
 #: The remedies an error may name (its ``remedy`` field), one home for their wording.
@@ -176,6 +183,11 @@ REMEDIES = {
         "8786)?",
         "--scheduler-timeout", " (no option of this command sets the limit): is a Dask scheduler listening there "
         "(its port, usually 8786)?"),
+    # points whose span says they are in another unit (cmmpose.fitting: ``value`` is the unit); a command
+    # without --units says the Python call, as it did
+    "units": Remedy(
+        " (read_point_cloud(path, units={value!r}))", " (give --units {value})", "--units",
+        " (read_point_cloud(path, units={value!r}))", template=True),
     # arguments whose name leads the message, said as the command's flag
     "reproducibility_um": Remedy("reproducibility_um:", "--reproducibility:", "--reproducibility",
                                  "reproducibility:", lead=True),
@@ -264,8 +276,8 @@ class Error(Exception):
         if remedy.lead:
             if interface == "python" or not self.message.startswith(remedy.python):
                 return self.message + (self.after or "")
-            return remedy.words(interface, flags) + self.message[len(remedy.python):] + (self.after or "")
-        return self.message + remedy.words(interface, flags) + (self.after or "")
+            return remedy.words(interface, flags, self.fields) + self.message[len(remedy.python):] + (self.after or "")
+        return self.message + remedy.words(interface, flags, self.fields) + (self.after or "")
 
     def __str__(self) -> str:
         return self.render("python")
