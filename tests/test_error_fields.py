@@ -258,6 +258,15 @@ def test_points_in_metres_name_the_unit_to_read_them_in():
           head + " (read_point_cloud(path, units='m'))")
 
 
+# -- runs too few to estimate their noise from (cmmpose.diagnosis.plan) --------------------
+def test_runs_without_degrees_of_freedom_ask_for_the_noise():
+    exc = InputError("the runs leave no degrees of freedom to estimate their noise from", what="sigma_um",
+                     option="sigma_um", cli_option="--sigma", remedy="sigma")
+    head = exc.message
+    _said(exc, head + ": give sigma_um", head + ": give --sigma UM (noise per ball-centre coordinate, um)",
+          head + ": give sigma_um")
+
+
 # -- an argument's name leading the message ----------------------------------------------
 def test_reproducibility_per_run():
     from cmmpose.diagnosis.floor import per_run

@@ -183,6 +183,9 @@ REMEDIES = {
         "8786)?",
         "--scheduler-timeout", " (no option of this command sets the limit): is a Dask scheduler listening there "
         "(its port, usually 8786)?"),
+    # runs too few to estimate their noise from (cmmpose.diagnosis.plan)
+    "sigma": Remedy(": give sigma_um", ": give --sigma UM (noise per ball-centre coordinate, um)", "--sigma",
+                    ": give sigma_um"),
     # points whose span says they are in another unit (cmmpose.fitting: ``value`` is the unit); a command
     # without --units says the Python call, as it did
     "units": Remedy(
