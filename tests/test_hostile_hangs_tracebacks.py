@@ -241,15 +241,19 @@ def test_hints_name_the_command_lines_flags_or_say_there_is_none(tmp_path, monke
 
 
 def test_the_library_keeps_its_python_hints():
+    from cmmpose.errors import InputError
     from cmmpose.policy import cli_wording
 
-    text = "x (pass nan_policy='propagate' to get NaN rows instead)"
-    assert cli_wording(text) == "x (use --nan-policy propagate to get NaN rows instead)"
+    exc = InputError("x", option="nan_policy", remedy="nan_policy")  # the remedy a field, worded per interface
+    assert str(exc) == "x (pass nan_policy='propagate' to get NaN rows instead)"
+    assert cli_wording(exc) == "x (use --nan-policy propagate to get NaN rows instead)"
 
     class Ctx:  # a command without --nan-policy
         command = type("C", (), {"params": [type("P", (), {"opts": ["--maps"]})()]})()
 
-    assert cli_wording(text, Ctx()) == "x (this command has no option to let NaN rows through)"
+    assert cli_wording(exc, Ctx()) == "x (this command has no option to let NaN rows through)"
+    # a message is never rewritten: text that names a Python argument stays as it is
+    assert cli_wording(str(exc)) == str(exc)
 
 
 def test_an_empty_maps_value_is_a_usage_error(tmp_path):

@@ -13,8 +13,9 @@ from .compensation import compensate, uncompensated
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import (AcquisitionError, AliasedChoiceWarning, CalibrationError, ClampWarning, Error,
                      ExtrapolationWarning, GeometryError, IllConditionedFit, ImplausibleFit, InputError, InputTypeError,
-                     MapError, MissingFileError, ModelDomainWarning,
-                     MapTemperatureWarning, OutOfRangeError, OutputError, RunError, SchedulerError, UserEffectError)
+                     InterferometerRunError, InterferometerWarning, MapError, MissingFileError, ModelDomainWarning,
+                     MapTemperatureWarning, OutOfRangeError, OutputError, PositioningError, RunError, SchedulerError,
+                     UserEffectError)
 from .pose import MountOffset, Pose
 from .kernel_report import KernelReport
 
@@ -137,6 +138,8 @@ __all__ = [
     "thread_count",
     "Error",
     "MapError",
+    "InterferometerRunError",
+    "PositioningError",
     "OutOfRangeError",
     "InputError",
     "InputTypeError",
@@ -149,6 +152,7 @@ __all__ = [
     "AcquisitionError",
     "SchedulerError",
     "ClampWarning",
+    "InterferometerWarning",
     "ExtrapolationWarning",
     "MapTemperatureWarning",
     "AliasedChoiceWarning",

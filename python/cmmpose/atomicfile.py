@@ -59,7 +59,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .errors import InputError, OutputError
+from .errors import InputError, OutputError, quoting
 
 __all__ = ["STDOUT", "FIFO_OPEN_TIMEOUT", "AtomicFile", "FileGroup", "atomic_write", "write_text", "write_bytes",
            "save_figure", "check_output", "check_outputs_free", "check_not_input", "ensure_folder", "output_error",
@@ -150,9 +150,9 @@ def exists_error(path, what: str = "output", *, meanwhile: bool = False) -> Outp
     it while this one worked; this one's result was not put there)."""
     if meanwhile:
         return OutputError(f"{path}: another writer created it while this one worked; the {what} was not written "
-                           f"over it (pass overwrite=True to replace it)", file=str(path))
-    return OutputError(f"{path}: exists; the {what} is never written over an existing file without being told "
-                       f"(pass overwrite=True to replace it)", file=str(path))
+                           "over it", file=str(path), option="overwrite", remedy="overwrite")
+    return OutputError(f"{path}: exists; the {what} is never written over an existing file without being told",
+                       file=str(path), option="overwrite", remedy="overwrite")
 
 
 def _lexists(path) -> bool:
@@ -601,7 +601,8 @@ class FileGroup:
         if kind is not None:
             self._drop()  # nothing was put in place: say so of the whole group
             if issubclass(kind, OutputError) and self.members:
-                raise OutputError(f"{exc.message}; nothing of the {self.what} was written", file=exc.file) from None
+                message, fields = quoting(exc, after=f"; nothing of the {self.what} was written")
+                raise OutputError(message, **fields) from None
             return False
         try:
             self._commit()
@@ -717,7 +718,7 @@ def staged_folder(folder, replace=(), *, error=OutputError, exclusive: bool = Fa
             yield stage
             if not _rename_in_whole(stage, folder) and not _swap_in(stage, folder, list(replace), exclusive):
                 raise error(f"{shown}: another writer filled the folder while this one worked; nothing of this "
-                            "one was written into it (pass overwrite=True to replace the run in it)")
+                            "one was written into it", option="overwrite", remedy="overwrite_run")
         except OSError as exc:
             raise error(str(output_error(shown, exc))) from None
     finally:

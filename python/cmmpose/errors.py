@@ -27,9 +27,11 @@ fields across processes (a Dask worker's error is caught on the client by
 Fields (each None when it does not apply): ``what`` (the quantity or
 argument), ``value``, ``allowed`` ((lo, hi)), ``unit``, ``file``, ``row``,
 ``column``, ``option`` (the Python argument at fault), ``cli_option`` (the
-command-line flag at fault) and ``remedy`` (a key of :data:`REMEDIES`: what
-the user can change). ``str(error)`` is the message as the Python API says
-it; :meth:`Error.render` says it for the command line, from the same fields.
+command-line flag at fault), ``remedy`` (a key of :data:`REMEDIES`: what
+the user can change) and ``after`` (text that follows the remedy, when a
+larger message quotes an error and goes on). ``str(error)`` is the message
+as the Python API says it; :meth:`Error.render` says it for the command
+line, from the same fields; the command line never rewrites the text.
 """
 
 from __future__ import annotations
@@ -40,9 +42,11 @@ import stat
 import warnings
 from dataclasses import dataclass
 
-__all__ = ["Error", "MapError", "OutOfRangeError", "InputError", "InputTypeError", "UserEffectError", "GeometryError", "RunError",
+__all__ = ["Error", "MapError", "InterferometerRunError", "OutOfRangeError", "InputError", "InputTypeError",
+           "UserEffectError", "PositioningError", "GeometryError", "RunError", "InterferometerWarning",
            "CalibrationError", "AcquisitionError", "SchedulerError", "OutputError", "ClampWarning",
-           "ExtrapolationWarning", "IllConditionedFit", "ImplausibleFit", "MapTemperatureWarning", "Remedy", "REMEDIES", "warn_clamped",
+           "ExtrapolationWarning", "IllConditionedFit", "ImplausibleFit", "MapTemperatureWarning", "Remedy", "REMEDIES",
+           "split_remedy", "quoting", "warn_clamped",
            "read_lines", "read_input", "read_input_text", "MissingFileError", "MAX_DOCUMENT_BYTES"]
 
 _log = logging.getLogger("cmmpose")
@@ -62,12 +66,39 @@ class Remedy:
         The command-line flag that does it (None: no command has one).
     missing : str
         Appended on the command line when the command lacks ``flag``.
+    instead : tuple of (str, str)
+        ``(flag, text)``: ``text`` follows ``missing`` when the command has
+        that other flag (what it can do instead).
+    lead : bool
+        The remedy leads the message instead of following it: the message
+        begins with ``python`` (the argument's name and a colon), said on the
+        command line as ``cli`` (the flag) or ``missing`` (a command without
+        it). A message that does not begin so (quoted inside another) is
+        left as it is.
+    template : bool
+        The words name the error's fields (``{value}``, ``{value!r}``):
+        filled from them (``str.format``).
     """
 
     python: str
     cli: str
     flag: str | None
     missing: str
+    instead: tuple[tuple[str, str], ...] = ()
+    lead: bool = False
+    template: bool = False
+
+    def words(self, interface: str = "python", flags=None, fields=None) -> str:
+        """This remedy as ``interface`` ('python' or 'cli') says it; with 'cli',
+        ``flags`` are the running command's (None: every flag counts);
+        ``fields``: the error's, for a template."""
+        if interface == "python":
+            text = self.python
+        elif self.flag is not None and (flags is None or self.flag in flags):
+            text = self.cli
+        else:
+            text = self.missing + "".join(text for flag, text in self.instead if flags is None or flag in flags)
+        return text.format(**(fields or {})) if self.template else text
 
 
 #: The remedies an error may name (its ``remedy`` field), one home for their wording.
@@ -93,9 +124,105 @@ REMEDIES = {
         ": pass its UserEffect in user_effects=",
         ": give its file with --user-effect FILE.py", "--user-effect",
         ": this command takes no user effects (docs/user-effects.md)"),
+    # the thermocouple log (cmmpose.temperature)
+    "log_hold": Remedy(
+        " (pass log_hold= (s) to hold the nearest reading that far, or give the temperature)",
+        " (use --log-hold S to hold the nearest reading that far, or give the temperature)",
+        "--log-hold", " (this command has no option to hold the log's readings, or give the temperature)"),
+    "on_gap": Remedy(
+        "; pass on_gap='interpolate' to interpolate across it",
+        "; use --on-gap interpolate to interpolate across it",
+        "--on-gap", "; the command line has no option to interpolate across it",
+        instead=(("--temperature", " (give the machine temperature with --temperature instead)"),)),
+    "on_gap_stretch": Remedy(
+        "; pass on_gap='interpolate' to interpolate across the bad stretch",
+        "; use --on-gap interpolate to interpolate across the bad stretch",
+        "--on-gap", "; the command line has no option to interpolate across the bad stretch",
+        instead=(("--temperature", " (give the machine temperature with --temperature instead)"),)),
+    "broken_channels": Remedy(
+        "; pass broken_channels='drop' to leave its bad samples out",
+        "; use --broken-channels drop to leave its bad samples out",
+        "--broken-channels", "; this command has no option to leave a broken thermocouple out"),
+    "log_end_hold": Remedy(
+        "; pass out_of_range='hold' to use the log's end values", "",
+        None, "; the command line has no option to hold the log's end values this far"),
+    "temperature": Remedy(
+        ": pass temperature= (C)", ": give --temperature (C)", "--temperature",
+        ": record a temperature log with the run"),
+    "temperature_explicit": Remedy(
+        ": pass temperature= explicitly", ": give --temperature (C)", "--temperature",
+        ": record a temperature log with the run"),
+    # the maps' temperature range (cmmpose.calibration.thermal)
+    "clamp_temperature": Remedy(
+        "; pass out_of_range='clamp' to clamp instead", "; use --out-of-range clamp to clamp instead",
+        "--out-of-range", "; this command has no option to clamp it"),
+    # a ballbar run's positions (cmmpose.evaluation.ballbar)
+    "skip_incomplete": Remedy(
+        " (fix the scans' position and ball labels, or pass skip_incomplete=True to evaluate the complete "
+        "positions only and list the others)",
+        " (fix the scans' position and ball labels, or use --skip-incomplete to evaluate the complete positions "
+        "only and list the others)",
+        "--skip-incomplete", " (fix the scans' position and ball labels, or complete or relabel the positions)"),
+    # outputs that exist (cmmpose.atomicfile, cmmpose.run, the alignment library, the recorder)
+    "overwrite": Remedy(
+        " (pass overwrite=True to replace it)", " (use --overwrite to replace it)", "--overwrite",
+        " (remove it first to replace it)"),
+    "overwrite_run": Remedy(
+        " (pass overwrite=True to replace the run in it)", " (use --overwrite to replace the run in it)",
+        "--overwrite", " (remove it first to replace the run in it)"),
+    "overwrite_recording": Remedy(
+        " (pass overwrite=True / --overwrite to replace it)", " (use --overwrite to replace it)", "--overwrite",
+        " (choose another folder)"),
+    # a scheduler that does not answer (cmmpose.scale)
+    "scheduler_timeout": Remedy(
+        " (scheduler_timeout= sets the limit)", " (--scheduler-timeout SECONDS sets the limit)",
+        "--scheduler-timeout", " (no option of this command sets the limit)"),
+    "scheduler_handshake": Remedy(
+        " (scheduler_timeout= sets the limit): is a Dask scheduler listening there (its port, usually 8786)?",
+        " (--scheduler-timeout SECONDS sets the limit): is a Dask scheduler listening there (its port, usually "
+        "8786)?",
+        "--scheduler-timeout", " (no option of this command sets the limit): is a Dask scheduler listening there "
+        "(its port, usually 8786)?"),
+    # runs too few to estimate their noise from (cmmpose.diagnosis.plan)
+    "sigma": Remedy(": give sigma_um", ": give --sigma UM (noise per ball-centre coordinate, um)", "--sigma",
+                    ": give sigma_um"),
+    # points whose span says they are in another unit (cmmpose.fitting: ``value`` is the unit); a command
+    # without --units says the Python call, as it did
+    "units": Remedy(
+        " (read_point_cloud(path, units={value!r}))", " (give --units {value})", "--units",
+        " (read_point_cloud(path, units={value!r}))", template=True),
+    # arguments whose name leads the message, said as the command's flag
+    "reproducibility_um": Remedy("reproducibility_um:", "--reproducibility:", "--reproducibility",
+                                 "reproducibility:", lead=True),
+    "repeat_scans": Remedy("repeat_scans:", "--repeat-scans:", "--repeat-scans", "repeat_scans:", lead=True),
 }
 
-_FIELDS = ("what", "value", "allowed", "unit", "file", "row", "column", "option", "cli_option", "remedy")
+
+def split_remedy(exc: BaseException) -> tuple[str, dict]:
+    """An exception's message without its remedy, and the fields to raise it
+    again with (its remedy included), for a message that quotes ``exc``
+    inside a larger one: ``InputError(f"{where}: {text}", **fields)`` keeps
+    the remedy a field, worded for each interface (not text to rewrite); a
+    message that goes on after the quote adds it to ``fields['after']``
+    (:func:`quoting`). An exception not of cmmpose: ``(str(exc), {})``."""
+    if not isinstance(exc, Error):
+        return str(exc), {}
+    return exc.message, exc.fields
+
+
+def quoting(exc: BaseException, before: str = "", after: str = "") -> tuple[str, dict]:
+    """The message and fields of an error whose message is ``before``, the
+    text of ``exc``, then ``after``: ``exc``'s remedy stays a field (worded
+    for each interface where the quote ends), ``after`` follows it.
+    ``message, fields = quoting(exc, f"{path}: ")``, then
+    ``raise cls(message, **fields)``; the fields are ``exc``'s (file, row,
+    option, ...)."""
+    text, fields = split_remedy(exc)
+    if not fields:
+        return before + text + after, {}
+    return before + text, {**fields, "after": (fields.get("after") or "") + after or None}
+
+_FIELDS = ("what", "value", "allowed", "unit", "file", "row", "column", "option", "cli_option", "remedy", "after")
 
 
 def _restore(cls, message, fields):
@@ -112,13 +239,14 @@ class Error(Exception):
     ----------
     message : str
         What is wrong, naming the file, row or argument at fault; without the
-        remedy (added from ``remedy`` in each interface's words).
-    what, value, allowed, unit, file, row, column, option, cli_option, remedy
+        remedy (added from ``remedy`` in each interface's words; a leading
+        remedy, ``Remedy.lead``, begins it), and without ``after``.
+    what, value, allowed, unit, file, row, column, option, cli_option, remedy, after
         The fields (see :mod:`cmmpose.errors`); keyword only.
     """
 
     def __init__(self, message: str = "", *, what=None, value=None, allowed=None, unit=None, file=None, row=None,
-                 column=None, option=None, cli_option=None, remedy=None):
+                 column=None, option=None, cli_option=None, remedy=None, after=None):
         if remedy is not None and remedy not in REMEDIES:
             raise KeyError(f"remedy: expected one of {', '.join(REMEDIES)}, got {remedy!r}")
         super().__init__(message)
@@ -126,6 +254,7 @@ class Error(Exception):
         self.what, self.value, self.allowed, self.unit = what, value, allowed, unit
         self.file, self.row, self.column = file, row, column
         self.option, self.cli_option, self.remedy = option, cli_option, remedy
+        self.after = after
 
     @property
     def fields(self) -> dict:
@@ -146,11 +275,12 @@ class Error(Exception):
             raise KeyError(f"interface: expected 'python' or 'cli', got {interface!r}")
         remedy = REMEDIES.get(self.remedy)
         if remedy is None:
-            return self.message
-        if interface == "python":
-            return self.message + remedy.python
-        has = remedy.flag is not None and (flags is None or remedy.flag in flags)
-        return self.message + (remedy.cli if has else remedy.missing)
+            return self.message + (self.after or "")
+        if remedy.lead:
+            if interface == "python" or not self.message.startswith(remedy.python):
+                return self.message + (self.after or "")
+            return remedy.words(interface, flags, self.fields) + self.message[len(remedy.python):] + (self.after or "")
+        return self.message + remedy.words(interface, flags, self.fields) + (self.after or "")
 
     def __str__(self) -> str:
         return self.render("python")
@@ -163,6 +293,12 @@ class MapError(Error, ValueError):
     """A malformed error map or map file (names the file, carriage and row)."""
 
 
+class InterferometerRunError(MapError):
+    """A malformed interferometer run (file or in-memory), or runs that cannot
+    make a map (:mod:`cmmpose.calibration.interferometer`). The message names
+    the file and line (or the row, or the run)."""
+
+
 class OutOfRangeError(Error, ValueError):
     """A scale reading or temperature outside what the maps cover (``value``,
     ``allowed`` and ``unit`` say by how much)."""
@@ -170,6 +306,14 @@ class OutOfRangeError(Error, ValueError):
 
 class InputError(Error, ValueError):
     """An input array or argument with the wrong shape, length or value."""
+
+
+class PositioningError(InputError):
+    """Positioning data that cannot give ISO 230-2 figures
+    (:mod:`cmmpose.standards.iso230_2`): one cycle (no standard deviation),
+    one target, a target approached from one direction only, a repeated
+    cycle, a bad column. The message names the source (file) and the target
+    or row at fault."""
 
 
 class MissingFileError(InputError):
@@ -226,6 +370,12 @@ class ImplausibleFit(UserWarning):
     """A sphere fit whose answer is implausible: an rms too large for the
     radius, or a fixed radius the points disagree with (a wrong radius, a
     diameter, a raw scan not segmented); docs/fitting.md, Sanity checks."""
+
+
+class InterferometerWarning(UserWarning):
+    """Map assembly from interferometer runs filled components with zeros,
+    truncated a carriage's range, or mixed runs at different material
+    temperatures (:mod:`cmmpose.calibration.interferometer`)."""
 
 
 class MapTemperatureWarning(UserWarning):

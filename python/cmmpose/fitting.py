@@ -57,11 +57,6 @@ RADIUS_MISFIT_FRACTION = 0.02
 
 
 
-def unit_remedy(unit: str) -> str:
-    """The Python API's words for reading points in ``unit`` (the command
-    line replaces them with its ``--units`` flag)."""
-    return f" (read_point_cloud(path, units={unit!r}))"
-
 RULES = ("none", "mad", "e3125")
 STARTS = ("algebraic", "lmeds")
 
@@ -402,7 +397,8 @@ def _unit_hint(rows: np.ndarray, radius: float) -> tuple[str, str | None]:
     sphere (a scan in metres read as mm) and the likely unit (or None): a
     scan that sees a sphere spans at least about its radius, so points
     spanning under half of it, at the scale of another unit, are in that
-    unit."""
+    unit. An error that names the unit carries how to read the points in it
+    as its remedy (``remedy='units'``, ``value`` the unit)."""
     span = float(np.max(np.ptp(rows, axis=0))) if len(rows) else 0.0
     if not (span > 0) or span >= 0.5 * radius:
         return "", None
@@ -413,14 +409,15 @@ def _unit_hint(rows: np.ndarray, radius: float) -> tuple[str, str | None]:
                 f"points and the radius in the same unit (mm)?"), None
     return (f"; the points span only {span:.3g} mm against the sphere's {2 * radius:g} mm diameter: the "
             f"coordinates look like {LENGTH_UNIT_NAMES[slip[0]]} ({span * slip[1]:.4g} mm if they are): convert "
-            f"them to mm" + unit_remedy(slip[0])), slip[0]
+            f"them to mm"), slip[0]
 
 
 def _coverage_error(rows: np.ndarray, radius: float, coverage: float, min_coverage: float, what: str) -> GeometryError:
     hint, unit = _unit_hint(rows, radius)
     return GeometryError(f"{what}: polar coverage {coverage:.3g} deg is below min_coverage = {min_coverage:g} deg with "
                          f"the radius fixed at {radius:g} mm: the points are too small a cap of that sphere for its "
-                         f"centre to mean anything{hint}", what="units" if unit else None, value=unit)
+                         f"centre to mean anything{hint}", what="units" if unit else None, value=unit,
+                         remedy="units" if unit else None)
 
 
 def _implausible(rows: np.ndarray, fit: SphereFit, fixed: bool, what: str) -> str | None:
@@ -533,7 +530,8 @@ def fit_sphere(points, radius: float | None = None, *, reject: float | None = No
         text = _far_point(rows, str(exc))
         if radius is not None and text == str(exc) and "polar coverage" in text:
             hint, unit = _unit_hint(rows, float(radius))
-            raise GeometryError(text + hint, what="units" if unit else None, value=unit) from None
+            raise GeometryError(text + hint, what="units" if unit else None, value=unit,
+                                remedy="units" if unit else None) from None
         raise GeometryError(text) from None
     fit = SphereFit._from(raw)
     _warn_conditioning(fit, radius is None)

@@ -375,5 +375,5 @@ def check_repeat_scans(repeat_scans, n_scans: int) -> int:
             not 0 <= repeat_scans <= n_scans:
         raise InputError(f"repeat_scans: expected a whole number of sweeps from 0 to {n_scans} (each scan once more "
                          f"at most), got {repeat_scans!r}", what="repeat_scans", option="repeat_scans",
-                         cli_option="--repeat-scans")
+                         cli_option="--repeat-scans", remedy="repeat_scans")
     return int(repeat_scans)

@@ -360,7 +360,8 @@ def check_run_target(run_dir, *, overwrite: bool = False) -> Path:
     if run_dir.exists() and not run_dir.is_dir():
         raise RunError(f"{run_dir}: exists and is not a directory")
     if run_dir.is_dir() and any(run_dir.iterdir()) and not overwrite:
-        raise RunError(f"{run_dir}: directory is not empty (pass overwrite=True to replace the run in it)")
+        raise RunError(f"{run_dir}: directory is not empty", file=str(run_dir), option="overwrite",
+                       remedy="overwrite_run")
     return run_dir
 
 

@@ -51,8 +51,7 @@ import numpy as np
 from .compensation import compensate
 from .atomicfile import AtomicFile, ensure_folder
 from .errormap import ErrorMap, ErrorMapSet, warn_single_map
-from .errors import Error, InputError, InputTypeError, SchedulerError, warn_clamped
-from .policy import SCHEDULER_TIMEOUT_HINT
+from .errors import Error, InputError, InputTypeError, SchedulerError, quoting, warn_clamped
 from .temperature import TEMPERATURE_TOLERANCE, TemperaturePolicy, as_policy
 from .pose import pose_tuple
 from ._arrays import as_triple
@@ -155,12 +154,13 @@ def _probe_scheduler(address: str, timeout: float) -> None:
     scheme, _, rest = address.partition("://")
     host, _, port = rest.rstrip("/").rpartition(":")
     host = host.strip("[]")  # an IPv6 literal
-    limit = f"{timeout:g} s ({SCHEDULER_TIMEOUT_HINT})"
+    limit = f"{timeout:g} s"
     deadline = time.monotonic() + timeout
     try:
         sock = socket.create_connection((host, int(port)), timeout=timeout)
     except TimeoutError:
-        raise SchedulerError(f"scheduler {address}: nothing accepted the connection within {limit}") from None
+        raise SchedulerError(f"scheduler {address}: nothing accepted the connection within {limit}", value=timeout,
+                             unit="s", option="scheduler_timeout", remedy="scheduler_timeout") from None
     except OSError as exc:
         raise SchedulerError(f"scheduler {address}: cannot connect ({exc.strerror or exc})") from None
     if scheme.lower() != "tcp":
@@ -186,7 +186,8 @@ def _probe_scheduler(address: str, timeout: float) -> None:
             head += chunk
     if len(head) < 8:
         raise SchedulerError(f"scheduler {address}: accepted the connection but sent no Dask handshake within "
-                             f"{limit}: is a Dask scheduler listening there (its port, usually 8786)?")
+                             f"{limit}", value=timeout, unit="s", option="scheduler_timeout",
+                             remedy="scheduler_handshake")
     if min(struct.unpack("<Q", head)[0], struct.unpack(">Q", head)[0]) > _MAX_GREETING:
         said = head.split(b"\r")[0].decode("ascii", "replace")
         raise SchedulerError(f"scheduler {address}: answered, but not as a Dask scheduler (it began {said!r}; "
@@ -495,7 +496,8 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
             try:
                 xyz, rep = kernel(uv, scales, temps)
             except Error as exc:
-                raise type(exc)(f"{src_p}: rows {n}..{n + m - 1} (from 0): {exc}") from None
+                message, fields = quoting(exc, f"{src_p}: rows {n}..{n + m - 1} (from 0): ")
+                raise type(exc)(message, **fields) from None
             kernel_s += time.perf_counter() - t0
             cols = [pa.array(xyz[:, k]) for k in range(3)]
             cols += [batch.column(batch.schema.get_field_index(c)) for c in passthrough]
@@ -741,7 +743,8 @@ def _on_run(func, run_dir: str, args: tuple, kwargs: dict):
     except Error as exc:
         if run_dir in str(exc):
             raise
-        raise type(exc)(f"{run_dir}: {exc}") from None
+        message, fields = quoting(exc, f"{run_dir}: ")
+        raise type(exc)(message, **fields) from None
 
 
 def map_runs(func, run_dirs, *shared, scheduler="threads", progress=None, scheduler_timeout: float = SCHEDULER_TIMEOUT,

@@ -166,7 +166,8 @@ class Recorder:
         d = self.run_dir
         journal = d / JOURNAL_NAME
         if (journal.exists() or (d / "run.json").exists()) and not self.overwrite:
-            raise AcquisitionError(f"{d}: already holds a recording (pass overwrite=True / --overwrite to replace it)")
+            raise AcquisitionError(f"{d}: already holds a recording", file=str(d), option="overwrite",
+                                   remedy="overwrite_recording")
         if d.exists() and not d.is_dir():
             raise AcquisitionError(f"{d}: not a directory")
         self._open_readers()

@@ -43,7 +43,7 @@ import numpy as np
 from ..atomicfile import save_figure, write_text
 from ..evaluation.plots import new_figure
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
-from ..errors import InputError, InputTypeError, MapError, read_lines
+from ..errors import InputError, InputTypeError, InterferometerRunError, InterferometerWarning, MapError, read_lines
 from .._validate import finite, nonnegative, positive, triple
 
 __all__ = [
@@ -78,16 +78,6 @@ __all__ = [
     "compare_maps",
     "plot_map_difference",
 ]
-
-
-class InterferometerRunError(MapError):
-    """A malformed interferometer run (file or in-memory), or runs that cannot
-    make a map. The message names the file and line (or the row, or the run)."""
-
-
-class InterferometerWarning(UserWarning):
-    """Map assembly filled components with zeros, truncated a carriage's range,
-    or mixed runs at different material temperatures."""
 
 
 # ---------------------------------------------------------------------------

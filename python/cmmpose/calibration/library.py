@@ -437,7 +437,8 @@ class AlignmentLibrary:
             poses = self._read()
             if name in poses and not overwrite:
                 raise CalibrationError(
-                    f"pose {name!r} is already aligned in {self.path} (pass overwrite=True to replace it)")
+                    f"pose {name!r} is already aligned in {self.path}", file=str(self.path), option="overwrite",
+                    remedy="overwrite")
             poses[name] = record.to_dict()
             self._write(poses)
 

@@ -81,8 +81,9 @@ def select_map_temperature(temperatures, error_map_set: ErrorMapSet, *, out_of_r
         axis = f" ({'XYZ'[col]} axis)" if flat.shape[1] == 3 and temp.ndim == 2 else ""
         raise OutOfRangeError(
             f"{where}{axis}: temperature {flat[r, col]:g} C is outside the maps' range [{lo:g}, {hi:g}] C "
-            f"(maps at {', '.join(f'{x:g}' for x in temps)} C; {n_out} of {flat.shape[0]} rows outside); "
-            "pass out_of_range='clamp' to clamp instead")
+            f"(maps at {', '.join(f'{x:g}' for x in temps)} C; {n_out} of {flat.shape[0]} rows outside)",
+            what="temperature", value=float(flat[r, col]), allowed=(float(lo), float(hi)), unit="C",
+            option="out_of_range", remedy="clamp_temperature")
     if n_out:
         temp = np.clip(temp, lo, hi)
         warnings.warn(f"clamped {n_out} of {flat.shape[0]} temperatures into the maps' range [{lo:g}, {hi:g}] C",

@@ -18,7 +18,7 @@ from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import Error, ModelDomainWarning
 from ..policy import cli_wording
 from ..pose import check_pose_angles
-from ..temperature import temperature_options
+from .temperature_options import temperature_options
 
 console = Console(stderr=True)
 
@@ -308,7 +308,7 @@ def fail(exc: Exception) -> click.ClickException:
 def policy_options(log_hold: bool = True):
     """The temperature policy's flags, the same on every command: built from
     the fields of cmmpose.temperature.TemperaturePolicy
-    (:func:`cmmpose.temperature.temperature_options`; ``log_hold=False``: the
+    (:func:`cmmpose.cli.temperature_options.temperature_options`; ``log_hold=False``: the
     map side only, for a command given temperatures rather than a log)."""
     return temperature_options(log=log_hold)
 

@@ -16,17 +16,6 @@ from ..formats.pointclouds import read_point_cloud, unit_factor
 from .common import fail, triple, warn
 
 
-def units_flag(exc: Error) -> Error:
-    """A fit error that names the points' likely unit (``what='units'``,
-    cmmpose.fitting) as the command line says it: give --units."""
-    from ..fitting import unit_remedy
-
-    unit = exc.value if getattr(exc, "what", None) == "units" else None
-    if not isinstance(unit, str) or unit_remedy(unit) not in exc.message:
-        return exc
-    return type(exc)(exc.message.replace(unit_remedy(unit), f" (give --units {unit})"), **exc.fields)
-
-
 @click.command("fit")
 @click.argument("scan", type=click.Path(exists=True, dir_okay=False))
 @click.option("--units", type=click.Choice(sorted(POINT_UNITS)), default=None,
@@ -89,7 +78,7 @@ def fit_cmd(scan, units, radius, segment, scanner_origin, rule, reject, start, a
                        "centre_radius_correlation": (None if radius is not None
                                                      else float(f.centre_radius_correlation))}
     except Error as exc:
-        raise fail(units_flag(exc)) from None
+        raise fail(exc) from None  # a fit naming the points' likely unit: its remedy says --units
     notes = [str(w.message) for w in caught if issubclass(w.category, (IllConditionedFit, ImplausibleFit))]
     out["warnings"] = notes
     if as_json:

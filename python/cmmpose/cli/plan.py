@@ -133,16 +133,13 @@ def _open_rivals(runs, model, user_effects, machine):
 
 def _usage(exc: InputError) -> None:
     """The library's error about an argument this command takes as an option (--sigma, --budget; the options'
-    types check their values first) as a usage error naming the option (exit 2), not the Python argument;
-    any other error raised on as it is."""
-    text = str(exc)
-    if text.endswith("give sigma_um"):  # runs without the degrees of freedom to estimate the noise from
-        raise click.UsageError(text.removesuffix("sigma_um")
-                               + "--sigma UM (noise per ball-centre coordinate, um)") from None
-    for name, flag in (("sigma_um", "--sigma"), ("budget", "--budget")):
-        if text.startswith(f"{name}: "):
-            raise click.BadParameter(text.removeprefix(f"{name}: "), param_hint=flag) from None
-    raise exc
+    types check their values first) as a usage error naming the option (exit 2), not the Python argument,
+    from its fields (``cli_option``; a remedy worded for the command line); any other error raised on as it is."""
+    if exc.cli_option not in ("--sigma", "--budget"):
+        raise exc
+    if exc.remedy is not None:  # runs without the degrees of freedom to estimate the noise from: give --sigma
+        raise click.UsageError(exc.render("cli")) from None
+    raise click.BadParameter(exc.message.removeprefix(f"{exc.option}: "), param_hint=exc.cli_option) from None
 
 
 def _simulate(result, runs, art, machine, maps, effects, temperature, jitter_um, seed, run_out, overwrite) -> str:

@@ -261,9 +261,7 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
                               u_diameter_certificate_um=u_diameter_cert,
                               item=f"{Path(scan).name}" + (" (E3125 segment)" if segment == "e3125" else ""))
     except Error as exc:
-        from .fit import units_flag
-
-        raise _fail(units_flag(exc)) from None
+        raise _fail(exc) from None
     if as_json:
         click.echo(strict_json(result.to_dict(), indent=2))
     else:
@@ -293,7 +291,6 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
     from ..formats.pointclouds import read_point_cloud, unit_factor
     from ..standards.acceptance import parse_mpe
     from ..standards.e3125_distances import distance_errors, read_pairs, sphere_targets
-    from .fit import units_flag
 
     check_plot_path(plot_path, "--plot")
     if not (radius > 0):
@@ -323,7 +320,7 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
         files = _outputs(result, "e3125-distances", result.plot, plot_path, report_dir,
                          [*named.values(), pairs_file])
     except Error as exc:
-        raise _fail(units_flag(exc)) from None
+        raise _fail(exc) from None
     _show(result, files, as_json)
     for w in caught:  # an implausible sphere fit (a wrong radius, an unsegmented scan): said, on stderr
         console.print(f"[yellow]warning:[/] {escape(str(w.message))}")

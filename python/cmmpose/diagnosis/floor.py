@@ -116,7 +116,8 @@ def per_run(value, n: int, name: str = "reproducibility_um") -> list:
     values = list(value)
     if len(values) != n:
         raise InputError(f"{name}: one value, or one per run ({n}), got {len(values)}", what=name, option=name,
-                         cli_option="--reproducibility")
+                         cli_option="--reproducibility",
+                         remedy="reproducibility_um" if name == "reproducibility_um" else None)
     return values
 
 

@@ -128,7 +128,8 @@ class Problem:
         (a crossed layout's 8 lengths at 1.9 um rms against a 4.24 um
         floor: a 3-parameter map correction at p = 2e-6 on noise alone)."""
         sc = check_reproducibility("reproducibility_um", reproducibility_um, what="reproducibility_um",
-                                   option="reproducibility_um", cli_option="--reproducibility") * 1e-3
+                                   option="reproducibility_um", cli_option="--reproducibility",
+                                   remedy="reproducibility_um") * 1e-3
         f = headline_floors(self.layout, sc)
         if len(f):
             self.class_floor[0] = max(SIGMA_FLOOR, float(np.sqrt(np.mean(f ** 2))))

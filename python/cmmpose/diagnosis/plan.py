@@ -543,7 +543,8 @@ def plan(
         if not isinstance(r, Run):
             raise InputError(f"runs: item {k} is a {type(r).__name__}, not a cmmpose.Run")
     if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
-        raise InputError(f"budget: how many placements to propose, a whole number >= 1; got {budget!r}")
+        raise InputError(f"budget: how many placements to propose, a whole number >= 1; got {budget!r}",
+                         what="budget", option="budget", cli_option="--budget")
     machine = Machine.thesis() if machine is None else machine
     kinematics = _same_machine(runs, machine)
     if artefact is None:
@@ -585,13 +586,15 @@ def plan(
     dof = sum(m.dof for m in measured)
     if sigma_um is not None:
         if not (isinstance(sigma_um, (int, float)) and math.isfinite(sigma_um) and sigma_um > 0):
-            raise InputError(f"sigma_um: a noise level > 0 um, got {sigma_um!r}")
+            raise InputError(f"sigma_um: a noise level > 0 um, got {sigma_um!r}", what="sigma_um", option="sigma_um",
+                             cli_option="--sigma")
         sigma, source = float(sigma_um) * 1e-3, "given"
     elif dof > 0:
         sigma = max(math.sqrt(sum(m.rss for m in measured) / dof), SIGMA_FLOOR)
         source = f"the runs' centre-level residuals after fitting these parameters, {dof} degrees of freedom"
     else:
-        raise InputError("the runs leave no degrees of freedom to estimate their noise from: give sigma_um")
+        raise InputError("the runs leave no degrees of freedom to estimate their noise from", what="sigma_um",
+                         option="sigma_um", cli_option="--sigma", remedy="sigma")
     prior_info = np.diag(1.0 / priors ** 2)
     F = sum(m.fisher for m in measured) / sigma ** 2
     temperature = float(np.mean([m.temperature for m in measured]))

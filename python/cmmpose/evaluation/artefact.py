@@ -41,7 +41,7 @@ from ..run import Run
 from .artefact_balls import (check_labels, ball_scans, check_ball_positions, is_artefact_run,
                              rigid_fit, rigid_projection)
 
-__all__ = ["BallDeviation", "LengthError", "PlacementResult", "ArtefactResult", "ArtefactEvaluation",
+__all__ = ["BallDeviation", "LengthDeviation", "PlacementResult", "ArtefactResult", "ArtefactEvaluation",
            "evaluate_artefact"]
 
 
@@ -84,7 +84,7 @@ class BallDeviation:
 
 
 @dataclass(frozen=True)
-class LengthError:
+class LengthDeviation:
     """One ball pair: calibrated ``length`` at 20 C, ``error`` = measured
     minus calibrated and its standard uncertainty ``u``, mm."""
 
@@ -109,7 +109,7 @@ class _Figures:
         return max(self.balls, key=lambda b: b.magnitude)
 
     @property
-    def largest_length_error(self) -> LengthError | None:
+    def largest_length_error(self) -> LengthDeviation | None:
         return max(self.lengths, key=lambda e: abs(e.error)) if self.lengths else None
 
 
@@ -123,7 +123,7 @@ class PlacementResult(_Figures):
     rotation: np.ndarray
     translation: np.ndarray
     balls: tuple[BallDeviation, ...]
-    lengths: tuple[LengthError, ...]
+    lengths: tuple[LengthDeviation, ...]
     missing: tuple[int, ...] = ()
 
 
@@ -139,7 +139,7 @@ class ArtefactResult(_Figures):
         return [b for p in self.placements for b in p.balls]
 
     @property
-    def lengths(self) -> list[LengthError]:
+    def lengths(self) -> list[LengthDeviation]:
         return [e for p in self.placements for e in p.lengths]
 
     def to_dict(self) -> dict:
@@ -321,7 +321,7 @@ def _evaluate_state(label, run, xyz, groups, artefact, temps, labels, reject, u_
                 direction = d_meas / np.linalg.norm(d_meas)
                 u2 = direction @ (cov[i] + cov[j]) @ direction + (alpha * length * u_temperature) ** 2
                 u2 += sum(float(direction @ (d[j] - d[i])) ** 2 for d in moves)
-                lengths.append(LengthError(ids[i], ids[j], length, float(np.linalg.norm(d_meas)) - length,
+                lengths.append(LengthDeviation(ids[i], ids[j], length, float(np.linalg.norm(d_meas)) - length,
                                            float(np.sqrt(u2))))
         missing = tuple(int(b) for b in artefact.ids if int(b) not in balls)
         placements.append(PlacementResult(pos, labels.get(pos, f"position {pos}"), T, r, t, deviations,

@@ -17,7 +17,6 @@ from ..errormap import ErrorMap, ErrorMapSet, warn_single_map
 from ..errors import InputError, InputTypeError, MapTemperatureWarning, RunError
 from ..fitting import fit_spheres
 from .metrics import STEEL_EXPANSION, STEEL_EXPANSION_PPM_PER_K, b89_value, improvement, length_at_20c, rms_accuracy_error
-from ..policy import SKIP_INCOMPLETE_HINT
 from ..run import Run
 from .observables import figures_difference
 from ..temperature import (LOG_HOLD, TEMPERATURE_TOLERANCE, TemperaturePolicy, as_policy, log_notes,  # noqa: F401
@@ -336,8 +335,7 @@ def ballbar_scans(run: Run, skip_incomplete: bool = False) -> tuple[dict[int, di
         lines = [s["reason"] for s in skipped]
         more = f"; and {len(lines) - 10} more" if len(lines) > 10 else ""
         raise RunError(f"run: {len(lines)} incomplete or ambiguous ballbar position(s) or scan(s): "
-                       + "; ".join(lines[:10]) + more
-                       + f" (fix the scans' position and ball labels, or {SKIP_INCOMPLETE_HINT})")
+                       + "; ".join(lines[:10]) + more, option="skip_incomplete", remedy="skip_incomplete")
     for s in skipped:
         _log.info("skipped %s: %s", "scan" if s["position"] is None else f"position {s['position']}", s["reason"])
     return dict(sorted(complete.items())), skipped

@@ -22,7 +22,7 @@ from .._arrays import as_rows, as_triple, as_vector
 from .._validate import finite
 from ..compensation import compensate
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import InputError, InputTypeError, OutOfRangeError
+from ..errors import InputError, InputTypeError, OutOfRangeError, quoting
 from ..fitting import fit_sphere
 from ..pose import pose_tuple
 
@@ -721,8 +721,9 @@ def _trial_centre(p: _Problem, work: np.ndarray, v0: np.ndarray, noise: np.ndarr
     try:
         return p.centre(uv=work, dpose=dpose, doffset=doff, dT=dT)
     except OutOfRangeError as exc:
-        raise OutOfRangeError(f"Monte Carlo trial {k}{p.label and ' (ball ' + p.label + ')'}: temperature offset "
-                              f"{dT:+.4g} K: {exc} (use out_of_range='clamp' or a smaller u_temperature)") from None
+        message, fields = quoting(exc, f"Monte Carlo trial {k}{p.label and ' (ball ' + p.label + ')'}: temperature "
+                                  f"offset {dT:+.4g} K: ", " (use out_of_range='clamp' or a smaller u_temperature)")
+        raise OutOfRangeError(message, **fields) from None
 
 
 def _inputs_record(p: _Problem, u: dict[str, float], u_noise_key=("noise",)) -> dict[str, tuple]:

@@ -135,7 +135,7 @@ class RunInputs:
         if temperature is not None:
             temps = np.full(n, float(temperature))
         elif run.temperatures is None:
-            raise InputError("run has no temperature log: pass temperature= (C)")
+            raise InputError("run has no temperature log", option="temperature", remedy="temperature")
         else:
             read = run_sensor_temperatures(run, t, as_policy(temperature_policy, log_hold=log_hold))
             temps, axis_t, gradient, sensors, thermal = (read.temperature, read.axis_temperature, read.gradient,

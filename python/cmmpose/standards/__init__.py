@@ -9,7 +9,7 @@ acceptance test asks for (docs/standards.md):
 """
 
 from .acceptance import MPE, AcceptanceResult, Check, acceptance_test, decide, parse_mpe, probing_test
-from .e3125_distances import DistanceError, E3125Distances, SphereTarget, distance_errors, read_pairs, sphere_targets
+from .e3125_distances import DistanceResult, E3125Distances, SphereTarget, distance_errors, read_pairs, sphere_targets
 from .interim import InterimCheck, InterimValue, interim_check
 from .iso230_2 import (
     PositioningData,
@@ -23,7 +23,7 @@ from .iso230_2 import (
 )
 
 __all__ = [
-    "DistanceError",
+    "DistanceResult",
     "E3125Distances",
     "SphereTarget",
     "distance_errors",

@@ -51,7 +51,7 @@ RULE = f"{DECISION_RULE}; U = 2 u, u from the two centres' covariances along the
 #: or a mistyped reference is.
 GROSS_ERROR_FRACTION = 0.10
 
-__all__ = ["GROSS_ERROR_FRACTION", "SphereTarget", "DistanceError", "E3125Distances", "sphere_targets", "distance_errors", "read_pairs"]
+__all__ = ["GROSS_ERROR_FRACTION", "SphereTarget", "DistanceResult", "E3125Distances", "sphere_targets", "distance_errors", "read_pairs"]
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,7 @@ class SphereTarget:
 
 
 @dataclass(frozen=True)
-class DistanceError:
+class DistanceResult:
     """One pair's distance and its error.
 
     Attributes
@@ -120,7 +120,7 @@ class E3125Distances:
     Attributes
     ----------
     targets : dict of str -> SphereTarget
-    errors : list of DistanceError
+    errors : list of DistanceResult
     rule : str
         The decision rule, in words.
     """
@@ -277,7 +277,7 @@ def distance_errors(targets: dict[str, SphereTarget], pairs, mpe: MPE | None = N
         if mpe is not None:
             limit = mpe.at(ref)
             decision = decide(err, limit, 2 * u)
-        errors.append(DistanceError(a, b, dist, ref, err, u, limit, decision))
+        errors.append(DistanceResult(a, b, dist, ref, err, u, limit, decision))
     return E3125Distances(dict(targets), errors, RULE)
 
 

@@ -52,7 +52,8 @@ from ..calibration.interferometer import (
     refractivity_uncertainty,
 )
 from .._json import dumps as strict_json
-from ..errors import Error, InputError, InputTypeError, MapError, MissingFileError, read_input, read_lines
+from ..errors import (Error, InputError, InputTypeError, MapError, MissingFileError, PositioningError, read_input,
+                      read_lines)
 from ..evaluation.plots import new_figure, save_plot
 
 __all__ = [
@@ -80,13 +81,6 @@ STANDARD_CYCLES = 5
 AXIS_KEYS = ("A", "A_up", "A_down", "B", "B_mean", "E", "E_up", "E_down", "M", "R", "R_up", "R_down")
 #: Decimal places of a target position when grouping rows (1 nm).
 _TARGET_DECIMALS = 6
-
-
-class PositioningError(InputError):
-    """Positioning data that cannot give ISO 230-2 figures: one cycle (no
-    standard deviation), one target, a target approached from one direction
-    only, a repeated cycle, a bad column. The message names the source (file)
-    and the target or row at fault."""
 
 
 @dataclass(frozen=True)
