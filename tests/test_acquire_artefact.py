@@ -60,7 +60,8 @@ def test_a_plate_run_recorded_through_simulated_instruments_evaluates_as_simulat
     run, _ = plate
     plan_file = tmp_path / "plan.json"
     res = CliRunner().invoke(main, ["artefact", "plan", "koba-0320", *[a for p in PLACEMENTS for a in ("--placement", p)],
-                                    "--speed", "20", "-o", str(plan_file)])
+                                    "--speed", "20", "--repeat-scans", "0", "-o", str(plan_file)])
+    # (no repeats: the plan must match the simulated run's 50 sweeps, which repeats none)
     assert res.exit_code == 0, res.output
     said = " ".join(res.output.split())  # Rich wraps at the terminal's width, which the test does not choose
     assert "50 sweeps" in said and "+X" in said

@@ -135,7 +135,9 @@ def test_cli_simulate_writes_a_loadable_run(tmp_path):
             "--effect", "scale:x=3", "--seed", "2", "-o", out)
     assert r.exit_code == 0, r.output
     loaded = cmmpose.Run.load(out)
-    assert len(loaded.scans["scan_id"]) == 16 and loaded.n_points > 10_000
+    # 16 ball scans and, by default, 6 repeated (the run's own noise floor)
+    assert len(loaded.scans["scan_id"]) == 16 + 6 and loaded.n_points > 10_000
+    assert loaded.metadata["repeat_scans"] == 6
     _, info = cmmpose.load_truth(out)
     assert [e["name"] for e in info["effects"]] == ["latency", "scale"]
     again = CliRunner().invoke(main, ["simulate", "--layout", "crossed", "-o", str(out)])
