@@ -191,3 +191,29 @@ def test_logger_port_disappears_and_comes_back(tmp_path):
     assert_all_scans_kept(sim, run, tmp_path / "run")
     kinds = [e["type"] for e in events if e["stream"] == "thermo"]
     assert "disconnected" in kinds and "reconnected" in kinds
+
+
+def test_non_finite_points_and_huge_scan_numbers_are_kept_in_the_journal_and_left_out_by_name(tmp_path):
+    """A NaN (u, v), an infinite scale reading and a scan number beyond int32 in valid frames: the journal keeps
+    every frame as received, the run is built from the rest, and what was left out or renumbered is counted and
+    named (issue 35: a recording is never lost)."""
+    from dataclasses import replace as dc_replace
+    from cmmpose.acquire.assemble import SCAN_ID_MAX
+    profiles = synthetic_profiles(N, points=64, rate=40.0, per_scan=10)
+    uv = profiles[3].uv.copy()
+    uv[[2, 5]] = np.nan
+    uv[7, 1] = np.inf
+    profiles[3] = dc_replace(profiles[3], uv=uv)
+    profiles[7] = dc_replace(profiles[7], scales=(float("inf"), 275.0, -250.0))
+    profiles = [dc_replace(p, scan=2**31 + 5) if p.scan == 3 else p for p in profiles]
+    sim, run, _ = record_scanner(tmp_path, profiles=profiles)
+    frames = [f for _, f in read_journal(tmp_path / "run" / "journal.cmmj").scanner]
+    assert frames == [s["frame"] for s in sim.sent] and len(frames) == N  # every frame kept as received
+    excluded = run.metadata["acquisition"]["scanner"]["excluded"]
+    assert excluded["non_finite_points"] == 3 and excluded["non_finite_readings"] == 64
+    assert excluded["scans"] == [0]
+    assert run.n_points == N * 64 - 3 - 64
+    assert np.isfinite(run.uv).all() and np.isfinite(run.scales).all()
+    renumbered = run.metadata["acquisition"]["scanner"]["renumbered_scans"]
+    assert [(r["scan"], r["reason"]) for r in renumbered] == [(2**31 + 5, "beyond int32")]
+    assert renumbered[0]["scan_id"] <= SCAN_ID_MAX and np.all(run.points["scan_id"] >= 0)

@@ -31,6 +31,8 @@ __all__ = ["assemble", "HEADER_DTYPE"]
 HEADER_DTYPE = np.dtype([("magic", "S4"), ("seq", "<u4"), ("time_us", "<u8"), ("scan", "<u4"), ("n", "<u2"),
                          ("flags", "<u2"), ("D", "<f8"), ("E", "<f8"), ("F", "<f8")])
 _STREAMS = ("scanner", "thermo")
+#: The largest scan number a run's int32 ``scan_id`` holds; a device's larger one is renumbered.
+SCAN_ID_MAX = 2**31 - 1
 
 
 def _fits(dev: np.ndarray, host: np.ndarray, seg: np.ndarray) -> list[ClockFit]:
@@ -79,6 +81,21 @@ def _summary(contents: JournalContents) -> dict:
     out["thermo"]["records"] = len(contents.thermo)
     out["backpressure"] = backpressure
     return out
+
+
+def _finite_points(points: dict) -> tuple[dict, dict]:
+    """The points whose (u, v) and scale readings are finite, and what was
+    left out: counted and named (the first scans), never dropped silently.
+    The journal keeps every record as received, so nothing is lost: a later
+    reader may decide otherwise."""
+    bad_uv = ~(np.isfinite(points["u"]) & np.isfinite(points["v"]))
+    bad_reading = ~(np.isfinite(points["D"]) & np.isfinite(points["E"]) & np.isfinite(points["F"]))
+    bad = bad_uv | bad_reading
+    excluded = {"non_finite_points": int((bad_uv & ~bad_reading).sum()), "non_finite_readings": int(bad_reading.sum())}
+    if bad.any():
+        excluded["scans"] = sorted({int(x) for x in points["scan_id"][bad]})[:10]
+        points = {k: v[~bad] for k, v in points.items()}
+    return points, excluded
 
 
 def _infer_scan(scales: np.ndarray, t: np.ndarray) -> tuple[str, int, float]:
@@ -185,9 +202,12 @@ def assemble(contents: JournalContents, plan: Plan, *, created: str, pose=(90.0,
     for i, (sg, sc) in enumerate(zip(s_seg.tolist(), heads["scan"].tolist())):
         key = (sg, sc)
         if key not in assigned:
-            new = sc if sc not in used else max(used | {sc}) + 1
+            # A scan number already used, or one the run's int32 cannot hold, gets the next free one.
+            fits = sc <= SCAN_ID_MAX
+            new = sc if fits and sc not in used else max(used | ({sc} if fits else {-1})) + 1
             if new != sc:
-                renumbered.append({"segment": sg, "scan": sc, "scan_id": new})
+                renumbered.append({"segment": sg, "scan": sc, "scan_id": new,
+                                   **({"reason": "beyond int32"} if sc > SCAN_ID_MAX else {})})
             assigned[key] = new
             used.add(new)
             origin[new] = sc
@@ -199,6 +219,7 @@ def assemble(contents: JournalContents, plan: Plan, *, created: str, pose=(90.0,
     uv64 = uv.astype(np.float64)[take] if len(take) else np.empty((0, 2))
     points = {"scan_id": ids[rep].astype(np.int32), "t": t_rec[rep], "u": uv64[:, 0], "v": uv64[:, 1],
               "D": heads["D"][rep], "E": heads["E"][rep], "F": heads["F"][rep]}
+    points, summary["scanner"]["excluded"] = _finite_points(points)
 
     # -- scans and poses
     if plan.poses:
@@ -216,7 +237,7 @@ def assemble(contents: JournalContents, plan: Plan, *, created: str, pose=(90.0,
         if p is not None:
             scan_rows.append({**p, "scan_id": sid})
         else:
-            sel = np.flatnonzero(m)
+            sel = np.flatnonzero(m & np.isfinite(heads["D"]) & np.isfinite(heads["E"]) & np.isfinite(heads["F"]))
             sel = sel[np.argsort(t_rec[sel], kind="stable")]
             axis, direction, speed = _infer_scan(np.column_stack([heads["D"][sel], heads["E"][sel], heads["F"][sel]]), t_rec[sel])
             scan_rows.append({"scan_id": sid, "pose_id": default_pose, "feature": "unknown", "position": -1, "ball": -1,
