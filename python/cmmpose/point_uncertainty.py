@@ -220,11 +220,14 @@ class PoseUncertainty:
     def from_record(cls, record) -> PoseUncertainty:
         """From a stored alignment (:class:`cmmpose.calibration.library.AlignmentRecord`):
         its pose covariance (else its pose uncertainties as independent) and
-        its offset uncertainty (independent per component)."""
+        its offset covariance (stored by ``calibrate offset --store``; else
+        its offset uncertainty, independent per component)."""
         ac = record.pose_covariance
         if ac is None and record.pose_uncertainty is not None:
             ac = np.diag(np.square(record.pose_uncertainty))
-        oc = None if record.offset_uncertainty is None else np.diag(np.square(record.offset_uncertainty))
+        oc = getattr(record, "offset_covariance", None)
+        if oc is None and record.offset_uncertainty is not None:
+            oc = np.diag(np.square(record.offset_uncertainty))
         zero = ((0.0,) * 3,) * 3
         return cls(zero if oc is None else oc, zero if ac is None else ac, source=f"alignment of {record.date}")
 

@@ -13,6 +13,7 @@ File format (UTF-8 JSON, docs/calibration.md)::
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
@@ -30,7 +31,7 @@ from .alignment import CalibratedPose, MountOffsetFit, ReferenceReading
 
 _FIELDS = ("pose", "reading", "offset", "pose_uncertainty", "reading_uncertainty", "offset_uncertainty",
            "temperature", "date", "residuals", "note", "pose_covariance", "reading_covariance", "pose_jacobian",
-           "position", "lever")
+           "position", "lever", "offset_covariance")
 
 __all__ = ["AlignmentRecord", "AlignmentLibrary", "LIBRARY_FORMAT", "LIBRARY_VERSION"]
 
@@ -48,6 +49,7 @@ UNITS = {
     "lever": "1 (d sphere centre / d(-offset))",
     "offset": "mm (U1, V1, W1)",
     "offset_uncertainty": "mm",
+    "offset_covariance": "mm^2 (U1, V1, W1: the mount-offset fit's, stored by `calibrate offset --store`)",
     "temperature": "degree C",
     "residuals": "mm",
     "date": "ISO 8601",
@@ -155,6 +157,9 @@ class AlignmentRecord:
         Covariance of D0, E0, F0 without the pose term, mm^2.
     pose_jacobian : 3 x 3 nested sequence of float, optional
         d (D0, E0, F0) / d (alpha, beta, gamma), mm/degree.
+    offset_covariance : 3 x 3 nested sequence of float, optional
+        Covariance of the mount offset, mm^2 (the mount-offset fit's:
+        :meth:`AlignmentLibrary.store_offset`).
     position : sequence of 3 float, optional
         The mount point's position with the laser origin at the sphere centre,
         mm (``ReferenceReading.position``; equals ``reading`` without a map).
@@ -186,6 +191,7 @@ class AlignmentRecord:
     pose_jacobian: tuple | None = None
     position: tuple | None = None
     lever: tuple | None = None
+    offset_covariance: tuple | None = None
 
     def __post_init__(self):
         raw = {f: getattr(self, f) for f in _FIELDS}
@@ -206,6 +212,7 @@ class AlignmentRecord:
             "note": self.note,
             "pose_covariance": mat(self.pose_covariance), "reading_covariance": mat(self.reading_covariance),
             "pose_jacobian": mat(self.pose_jacobian), "position": lst(self.position), "lever": mat(self.lever),
+            "offset_covariance": mat(self.offset_covariance),
         }
 
     @staticmethod
@@ -225,7 +232,7 @@ class AlignmentRecord:
         }
         for k in ("pose_uncertainty", "reading_uncertainty", "offset_uncertainty"):
             out[k] = _triple(where, k, d.get(k), optional=True, nonnegative=True)
-        for k in ("pose", "reading"):
+        for k in ("pose", "reading", "offset"):
             out[f"{k}_covariance"] = _matrix(where, f"{k}_covariance", d.get(f"{k}_covariance"), covariance=True)
             out[f"{k}_uncertainty"] = _agree(where, k, out[f"{k}_uncertainty"], out[f"{k}_covariance"])
         out["pose_jacobian"] = _matrix(where, "pose_jacobian", d.get("pose_jacobian"))
@@ -295,8 +302,10 @@ class AlignmentRecord:
             raise InputTypeError(f"reading: expected a ReferenceReading, got {type(reading).__name__}")
         if pc is None and np.any(reading.pose_covariance != 0):
             pc = reading.pose_covariance
+        oc = None
         if isinstance(offset, MountOffsetFit):
             o, ou = tuple(offset.offset), tuple(float(x) for x in offset.uncertainty)
+            oc = np.asarray(offset.covariance).tolist()
         else:
             o, ou = tuple(float(x) for x in offset), None
         res = {} if reading.fit is None else {"sphere_rms": float(reading.fit.rms)}
@@ -307,7 +316,7 @@ class AlignmentRecord:
                    pose_jacobian=np.asarray(reading.pose_jacobian).tolist(),
                    position=tuple(float(x) for x in reading.position), lever=np.asarray(reading.lever).tolist(),
                    temperature=reading.temperature if temperature is None else float(temperature),
-                   date=_now() if date is None else date, residuals=res, note=note)
+                   date=_now() if date is None else date, residuals=res, note=note, offset_covariance=oc)
 
     def reference_reading(self) -> ReferenceReading:
         """The alignment as :func:`cmmpose.calibration.mount_offset` takes it.
@@ -449,6 +458,31 @@ class AlignmentLibrary:
             known = ", ".join(repr(k) for k in sorted(poses)) if poses else "none; the library is empty"
             raise CalibrationError(f"pose {name!r} was never aligned (known: {known}) in {self.path}")
         return AlignmentRecord.from_dict(poses[name], where=f"{self.path}: pose {name!r}")
+
+    def store_offset(self, names, fit: MountOffsetFit) -> None:
+        """Store the mount offset solved from the alignments ``names``
+        (:func:`cmmpose.calibration.mount_offset`) in each of their records,
+        with its uncertainty and covariance, where compensation takes it from
+        (``AlignmentRecord.as_offset``, ``compensate --alignment NAME``). The
+        records' readings are not touched: solving again gives the same fit.
+        All records change together or none does."""
+        if not isinstance(fit, MountOffsetFit):
+            raise InputTypeError(f"fit: expected a MountOffsetFit, got {type(fit).__name__}")
+        names = [str(n) for n in names]
+        note = f"offset solved from {', '.join(names)} on {_now()}"
+        with locked_update(self.path):
+            poses = self._read()
+            missing = [n for n in names if n not in poses]
+            if missing:
+                raise CalibrationError(f"pose(s) {', '.join(map(repr, missing))} never aligned in {self.path}")
+            for n in names:
+                rec = AlignmentRecord.from_dict(poses[n], where=f"{self.path}: pose {n!r}")
+                rec = dataclasses.replace(rec, offset=tuple(float(x) for x in fit.offset),
+                                          offset_uncertainty=tuple(float(x) for x in fit.uncertainty),
+                                          offset_covariance=np.asarray(fit.covariance).tolist(),
+                                          note=f"{rec.note}; {note}" if rec.note else note)
+                poses[n] = rec.to_dict()
+            self._write(poses)
 
     def remove(self, name: str) -> None:
         """Forget pose ``name`` (CalibrationError if it is not stored)."""

@@ -229,7 +229,9 @@ def _check_branch(library, name, record, opposite, normal, plane_files) -> str |
 @click.option("--tolerance", type=float, default=4.0, show_default=True,
               help="Largest standardised residual before the alignments count as disagreeing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the fit (offset, covariances, residuals, chi-square) as JSON.")
-def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) -> None:
+@click.option("--store", is_flag=True, help="Store the solved offset, with its covariance, in the NAMES' records of the "
+              "library, where `compensate --alignment NAME` takes it from (their readings are kept).")
+def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json, store=False) -> None:
     """Mount offset U1, V1, W1 by least squares from three or more aligned poses NAMES in the library."""
     from ..calibration import AlignmentLibrary, mount_offset
     from ..machine import load_machine
@@ -248,6 +250,8 @@ def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) 
             except CalibrationError as exc:
                 raise CalibrationError(f"{library_file}: alignment {n!r}: {exc}") from None
         fit = mount_offset(readings, tolerance=tolerance)
+        if store:
+            lib.store_offset(names, fit)
     except Error as exc:
         raise fail(exc) from None
     if as_json:
@@ -258,6 +262,7 @@ def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) 
             "centre_covariance": np.asarray(fit.centre_covariance).tolist(),
             "residuals": {n: [float(v) for v in r] for n, r in zip(names, fit.residuals)},
             "chi2": float(fit.chi2), "dof": int(fit.dof), "p_value": float(fit.p_value),
+            "stored_in": str(library_file) if store else None,
         }, indent=2))
         return
     table = Table(title=f"mount offset from {', '.join(names)}")
@@ -269,7 +274,9 @@ def calibrate_offset_cmd(names, library_file, machine_file, tolerance, as_json) 
     table.add_row("u (mm)", *(f"{v:.4f}" for v in fit.uncertainty))
     for n, r in zip(names, fit.residuals):
         table.add_row(f"residual {n} (um)", *(f"{v * 1e3:+.1f}" for v in r))
-    table.caption = f"chi-square p = {fit.p_value:.3f} ({fit.dof} dof)"
+    table.caption = f"chi-square p = {fit.p_value:.3f} ({fit.dof} dof)" + (
+        f"; stored in {library_file} for {', '.join(names)}" if store else
+        "; not stored (--store puts it where `compensate --alignment` takes it from)")
     Console().print(table)
 
 
