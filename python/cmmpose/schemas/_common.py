@@ -38,8 +38,8 @@ __all__ = ["DRAFT", "TEMPERATURE_C", "LENGTH_MM", "ANGLE_DEG", "MAX_ITEMS", "MAX
 
 #: The JSON Schema dialect of every schema.
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
-#: Where the published schemas say they live (their ``$id`` base).
-ID_BASE = "https://cmmpose.invalid/schemas/"
+#: The base of the schemas' ``$id`` (a name, not an address: the files are docs/schemas/<kind>.schema.json).
+ID_BASE = "urn:cmmpose:schema:"
 #: A machine's or an artefact's temperature, C: above absolute zero by far, within a physical band.
 TEMPERATURE_C = (-50.0, 150.0)
 #: |length or position|, mm (100 m: beyond the largest CMM's travel).
@@ -117,7 +117,9 @@ def obj(properties: dict, required=(), *, closed: bool = True, description: str 
 
 
 def _is_number(checker, value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return False
+    return isinstance(value, int) or math.isfinite(value)  # a 400-digit integer is finite (and too big for a float)
 
 
 #: A finite number only: NaN and the infinities are not JSON numbers (TOML writes them, Python's JSON reads them).
@@ -146,8 +148,13 @@ def short(value, limit: int = 40) -> str:
     if isinstance(value, bool) or value is None:
         return json.dumps(value)
     if isinstance(value, int):
-        digits = int(value.bit_length() * 0.30103) + 1
-        return str(value) if digits <= 20 else f"a {digits}-digit integer"
+        size = abs(value)
+        digits = int(size.bit_length() * 0.30102999566398120) + 1  # exact after the correction below
+        if digits > 1 and 10 ** (digits - 1) > size:
+            digits -= 1
+        if digits <= 20:
+            return str(value)
+        return f"a {'negative ' if value < 0 else ''}{digits}-digit integer"
     if isinstance(value, float):
         return f"{value:.6g}"
     if isinstance(value, str):
@@ -267,8 +274,9 @@ def describe(error) -> str:
 
 
 def _best(errors):
-    """The error to report: the deepest of the most relevant (``oneOf``/``anyOf`` descended into)."""
-    best = min(errors, key=lambda e: (relevance(e)[0], -len(e.path)), default=None)
+    """The error to report: the deepest in the document, of those the most specific rule (the longest schema
+    path: an effect's own bound before the bound of any parameter); ``oneOf``/``anyOf`` descended into."""
+    best = min(errors, key=lambda e: (relevance(e)[0], -len(e.absolute_schema_path)), default=None)
     if best is None:
         return None
     while best.context:

@@ -66,6 +66,6 @@ def definition() -> dict:
 
 def schema() -> dict:
     """The artefact file's schema (draft 2020-12)."""
-    return {"$schema": DRAFT, "$id": ID_BASE + "artefact.schema.json", "title": "cmmpose artefact file",
+    return {"$schema": DRAFT, "$id": ID_BASE + "artefact", "title": "cmmpose artefact file",
             "description": "A calibration certificate of an artefact (docs/artefacts.md). Units: mm, um, ppm/K, "
                            "degrees C.", **definition()}

@@ -91,6 +91,6 @@ def schema() -> dict:
     }, ["travel", "maps", "mount", "thermocouples", "kinematics"],
         **{"x-messages": {"required": "{header} is missing ({hint}); a machine file states it (cmmpose machine "
                                       "example)"}})
-    return {"$schema": DRAFT, "$id": ID_BASE + "machine.schema.json", "title": "cmmpose machine file",
+    return {"$schema": DRAFT, "$id": ID_BASE + "machine", "title": "cmmpose machine file",
             "description": "One CMM with its scanner (docs/your-machine.md). Units: mm, um, degrees, degrees C, "
                            "ppm/K.", **body}

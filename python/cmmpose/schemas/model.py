@@ -165,7 +165,7 @@ def schema() -> dict:
         "non_finite": array(obj({"key": {"type": "string", "maxLength": 10_000, "pattern": NO_CONTROL},
                                  "value": {"enum": ["inf", "-inf"]}}, ["key", "value"]), 0, MAX_ITEMS),
     }, ["schema", "schema_version", "maps", "effects"])
-    return {"$schema": DRAFT, "$id": ID_BASE + "model.schema.json", "title": "cmmpose model file",
+    return {"$schema": DRAFT, "$id": ID_BASE + "model", "title": "cmmpose model file",
             "description": "A model saved by cmmpose (Model.save, cmmpose diagnose --save-model): error maps plus "
                            "physical effects with their values (docs/diagnosis.md).",
             **body, "$defs": {"record": record()}}

@@ -61,6 +61,6 @@ def schema() -> dict:
         "rows": {"type": "object", "propertyNames": {"enum": list(TABLES)},
                  "additionalProperties": integer(0, min(MAX_ROWS, INT64[1]))},
     }, ["schema", "schema_version", "created"])
-    return {"$schema": DRAFT, "$id": ID_BASE + "run.schema.json", "title": "cmmpose run.json",
+    return {"$schema": DRAFT, "$id": ID_BASE + "run", "title": "cmmpose run.json",
             "description": "The header of a measurement run directory (docs/formats.md).", **body,
             "$defs": {"record": record(), "artefact": definition()}}
