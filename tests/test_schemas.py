@@ -220,7 +220,9 @@ def test_an_artefact_of_too_many_balls_is_refused_before_any_work():
 
 
 @pytest.mark.parametrize("edit, words", [
-    (lambda d: d["rows"].update(points=-1), r"run\.json: rows\.points: expected a whole number >= 0, got -1"),
+    (lambda d: d["rows"].update(points=-1), r"run\.json: 'rows' must be an object .*: rows\.points is -1$"),
+    (lambda d: d["rows"].update(points=2**63), r"rows\.points is 9223372036854775808$"),
+    (lambda d: d["rows"].update(point=1), r"run\.json: 'rows' names an unknown table 'point'"),
     (lambda d: d["temperature_channels"][0].update(name="X\x1b"), r"temperature_channels\[0\]\.name: .*control"),
     (lambda d: d["artefact"].update(calibrated_length_mm=1e30), r"artefact\.calibrated_length_mm: 1e\+30 is above"),
     (lambda d: d["maps"].update(kinematics="cantilever"), r"maps\.kinematics = 'cantilever' is not one of"),

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from .. import _core
 from ..effects import channel_roles
-from ._common import DRAFT, ID_BASE, INT64, LENGTH_MM, MAX_ITEMS, NO_CONTROL, array, integer, number, obj, text
+from ._common import DRAFT, ID_BASE, LENGTH_MM, MAX_ITEMS, NO_CONTROL, array, integer, number, obj, text
 from .artefact import definition
 from .model import record
 
@@ -58,8 +58,12 @@ def schema() -> dict:
         "maps": maps,
         "temperature_channels": array(channel, 0, MAX_ITEMS),
         "metadata": {"type": "object", "additionalProperties": rec},
-        "rows": {"type": "object", "propertyNames": {"enum": list(TABLES)},
-                 "additionalProperties": integer(0, min(MAX_ROWS, INT64[1]))},
+        "rows": {"type": "object", "description": "each table's row count, checked against the table",
+                 "propertyNames": {"enum": list(TABLES), "x-template": "'rows' names an unknown table {value} "
+                                                                       f"(tables: {', '.join(TABLES)})"},
+                 "additionalProperties": {**integer(0, MAX_ROWS), "x-template": "'rows' must be an object of table "
+                                          "name -> row count (a whole number >= 0 and at most 2^53): {path} is "
+                                          "{value}"}},
     }, ["schema", "schema_version", "created"])
     return {"$schema": DRAFT, "$id": ID_BASE + "run", "title": "cmmpose run.json",
             "description": "The header of a measurement run directory (docs/formats.md).", **body,
