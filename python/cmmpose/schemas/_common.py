@@ -28,9 +28,8 @@ import numbers
 
 import jsonschema
 from jsonschema import Draft202012Validator
-from jsonschema.exceptions import relevance
 
-from ..errors import InputError
+from ..errors import Error, InputError
 
 __all__ = ["DRAFT", "TEMPERATURE_C", "LENGTH_MM", "ANGLE_DEG", "MAX_ITEMS", "MAX_NAME", "INT64", "TEXT",
            "number", "integer", "nullable", "text", "triple", "pair", "obj", "array", "check", "key_path", "short",
@@ -276,11 +275,12 @@ def describe(error) -> str:
 def _best(errors):
     """The error to report: the deepest in the document, of those the most specific rule (the longest schema
     path: an effect's own bound before the bound of any parameter); ``oneOf``/``anyOf`` descended into."""
-    best = min(errors, key=lambda e: (relevance(e)[0], -len(e.absolute_schema_path)), default=None)
-    if best is None:
-        return None
-    while best.context:
-        best = min(best.context, key=lambda e: (-len(e.path), relevance(e)))
+    def depth(e):
+        return -len(e.absolute_path), -len(e.absolute_schema_path)
+
+    best = min(errors, key=depth, default=None)
+    while best is not None and best.context:
+        best = min(best.context, key=depth)
     return best
 
 
@@ -326,6 +326,7 @@ def check(document, schema_validator, path, *, error=InputError) -> None:
 
 
 def _no_repeats(path, error):
+    """An ``object_pairs_hook`` that refuses a key given twice in one object, naming it and the file."""
     def hook(pairs):
         out = {}
         for k, v in pairs:
@@ -354,7 +355,7 @@ def loads_json(text: str, path, what: str, *, error=InputError, constants: bool 
                     file=str(path)) from None
     except RecursionError:
         raise error(f"{path}: JSON nested too deeply to be a {what}", file=str(path)) from None
-    except InputError:
+    except Error:  # a repeated key, already named
         raise
     except ValueError as exc:
         why = "an integer of more than 4,300 digits" if "digits" in str(exc) else str(exc)
