@@ -122,6 +122,15 @@ def test_the_schemas_are_written_atomically_where_asked(tmp_path):
     assert (tmp_path / "out" / "model.schema.json").read_text() == schemas.schema_text("model")
 
 
+def test_every_library_effect_unit_has_its_bound():
+    """A new effect's unit must be given a range in UNIT_BOUNDS (else it would only have a user effect's)."""
+    from cmmpose.effects import available
+    from cmmpose.schemas.model import UNIT_BOUNDS
+
+    units = {p.unit for effect in available().values() for p in effect.params.values()}
+    assert units and units <= set(UNIT_BOUNDS), units - set(UNIT_BOUNDS)
+
+
 def test_an_unknown_kind_names_the_known_ones():
     with pytest.raises(InputError, match="not one of model, machine, artefact, run"):
         schemas.validate({}, "plan", "p.json")
