@@ -836,6 +836,55 @@ def special_document(work: Path, kind: str, door: str) -> None:
     refused(r, what=f"{door} file a {kind}", mentions=(name, "not a regular file"), never=("no such file",))
 
 
+def _saved_model(work: Path) -> dict:
+    """A model as ``Model.save`` writes it (the thesis maps and a squareness), as a dict."""
+    code = ("import sys, cmmpose\nfrom cmmpose.model import Model\n"
+            "Model(cmmpose.ErrorMapSet.thesis()).with_values('squareness', [1.0, 2.0, 3.0]).save(sys.argv[1])")
+    subprocess.run([sys.executable, "-c", code, str(work / "good.json")], check=True)
+    return json.loads((work / "good.json").read_text())
+
+
+def schema_attack(work: Path, kind: str) -> None:
+    """A document its schema refuses (issue 35, cmmpose.schemas): the command fails with one line naming the
+    file and the key, never a traceback, and a long number is not echoed."""
+    scan_copy(work)
+    if kind in ("machine -300 C", "machine 400-digit number", "machine repeated key"):
+        text = (DATA / "machines" / "moving-bridge.toml").read_text()
+        text = {"machine -300 C": text.replace("artefact = 12.0", "artefact = -300.0"),
+                "machine 400-digit number": text.replace("noise_um = 8.0", "noise_um = 1" + "0" * 399),
+                "machine repeated key": text.replace("noise_um = 8.0", "noise_um = 8.0\nnoise_um = 80.0")}[kind]
+        (work / "m.toml").write_text(text)
+        r = cli("compensate", "a.csv", "o.csv", "--machine", "m.toml", *COMPENSATE, cwd=work)
+        key = {"machine -300 C": "expansion.artefact", "machine 400-digit number": "scanner.noise_um",
+               "machine repeated key": "line"}[kind]
+        refused(r, what=kind, mentions=("m.toml", key))
+    elif kind == "artefact -300 C":
+        text = (DATA / "artefacts" / "koba-0320.toml").read_text()
+        (work / "p.toml").write_text(text.replace("reference_temperature_C = 20.0", "reference_temperature_C = -300.0"))
+        r = cli("artefact", "check", "p.toml", cwd=work)
+        refused(r, what=kind, mentions=("p.toml", "reference_temperature_C"))
+    else:
+        doc = _saved_model(work)
+        text = json.dumps(doc)
+        if kind == "model 1e30 squareness":
+            doc["effects"][0]["params"]["xy"] = 1e30
+            text, key = json.dumps(doc), "effects[0].params.xy"
+        elif kind == "model -300 C":
+            doc["temperature"] = -300.0
+            text, key = json.dumps(doc), "temperature"
+        elif kind == "model repeated key":
+            text, key = text.replace('"effects":', '"effects": [], "effects":', 1), "'effects' is repeated"
+        else:  # a 400-digit number
+            text, key = text.replace('"xy": 1.0', '"xy": 1' + "0" * 399, 1), "effects[0].params.xy"
+        (work / "m.json").write_text(text)
+        r = cli("compensate", "a.csv", "o.csv", "--model", "m.json", "--pose", "90,90,0", cwd=work)
+        refused(r, what=kind, mentions=("m.json", key))
+    if "0" * 40 in r.text:
+        raise Failed("silent", f"{kind}: a 400-digit number printed back in full")
+    if (work / "o.csv").exists():
+        raise Failed("silent", f"{kind}: refused, yet an output was written")
+
+
 ATTACKS = {
     "data loss": {
         "compensate a.csv a.csv": lambda w: same_file(w, "plain"),
@@ -894,6 +943,8 @@ ATTACKS = {
         "--machine /dev/zero": lambda w: special_document(w, "zero", "machine"),
         "--model /dev/zero": lambda w: special_document(w, "zero", "model"),
         "artefact file /dev/zero": lambda w: special_document(w, "zero", "artefact"),
+        "model with a 400-digit number": lambda w: schema_attack(w, "model 400-digit number"),
+        "machine with a 400-digit number": lambda w: schema_attack(w, "machine 400-digit number"),
     },
     "silent": {
         "evaluate/acceptance: a scan labelled ball=3": lambda w: relabelled_scan(w, "ball=3"),
@@ -927,6 +978,12 @@ ATTACKS = {
         "compensate a.csv out.txt": unknown_output_suffix,
         "--maps thesiss": wrong_map_name,
         "a missing input: exit 2 everywhere": missing_input_status,
+        "model with a squareness of 1e30 arc-seconds": lambda w: schema_attack(w, "model 1e30 squareness"),
+        "model at -300 C": lambda w: schema_attack(w, "model -300 C"),
+        "model with a repeated key": lambda w: schema_attack(w, "model repeated key"),
+        "machine: an expansion of -300": lambda w: schema_attack(w, "machine -300 C"),
+        "machine with a repeated key": lambda w: schema_attack(w, "machine repeated key"),
+        "artefact certificate at -300 C": lambda w: schema_attack(w, "artefact -300 C"),
     },
 }
 

@@ -6,6 +6,7 @@ file or table, column and row."""
 import builtins
 import io
 import json
+import os
 
 import numpy as np
 import pyarrow as pa
@@ -211,8 +212,15 @@ def test_load_never_opens_truth(big, tmp_path, monkeypatch):
         opened.append(str(file))
         return real_load(file, *args, **kwargs)
 
+    real_os_open = os.open
+
+    def spy_os_open(file, *args, **kwargs):  # the one door in (cmmpose.errors.read_input) opens by descriptor
+        opened.append(str(file))
+        return real_os_open(file, *args, **kwargs)
+
     monkeypatch.setattr(builtins, "open", spy_open)
     monkeypatch.setattr(io, "open", spy_open)
+    monkeypatch.setattr(os, "open", spy_os_open)
     monkeypatch.setattr(np, "load", spy_load)
     back = Run.load(d)
     monkeypatch.undo()

@@ -14,7 +14,8 @@ from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path
 from .errors import (AcquisitionError, AliasedChoiceWarning, CalibrationError, ClampWarning, Error,
                      ExtrapolationWarning, GeometryError, IllConditionedFit, ImplausibleFit, InputError, InputTypeError,
                      InterferometerRunError, InterferometerWarning, MapError, MissingFileError, ModelDomainWarning,
-                     MapTemperatureWarning, OutOfRangeError, OutputError, PositioningError, RunError, SchedulerError,
+                     MapTemperatureWarning, OutOfRangeError, OutputError, PositioningError, RunError, RunFileError,
+                     SchedulerError,
                      UserEffectError)
 from .pose import MountOffset, Pose
 from .kernel_report import KernelReport
@@ -147,6 +148,7 @@ __all__ = [
     "UserEffectError",
     "GeometryError",
     "RunError",
+    "RunFileError",
     "OutputError",
     "CalibrationError",
     "AcquisitionError",

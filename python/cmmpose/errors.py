@@ -8,7 +8,8 @@ argument at fault, and every error carries the same facts as fields.
   ``InputTypeError`` when the value is of the wrong type; ``UserEffectError``
   when a user effect's own code fails (docs/user-effects.md).
 - ``GeometryError``: degenerate geometry (zero normal, coplanar points, ...).
-- ``RunError``: a malformed measurement run directory.
+- ``RunError``: a malformed measurement run directory (``RunFileError``: a
+  run.json its schema refuses, also an ``InputError``).
 - ``CalibrationError``: data that cannot give a trustworthy calibration.
 - ``AcquisitionError``: serial acquisition: a port, journal or run directory at fault.
 - ``SchedulerError``: scaling out (cmmpose.scale): the dask extra missing, a bad
@@ -43,7 +44,7 @@ import warnings
 from dataclasses import dataclass
 
 __all__ = ["Error", "MapError", "InterferometerRunError", "OutOfRangeError", "InputError", "InputTypeError",
-           "UserEffectError", "PositioningError", "GeometryError", "RunError", "InterferometerWarning",
+           "UserEffectError", "PositioningError", "GeometryError", "RunError", "RunFileError", "InterferometerWarning",
            "CalibrationError", "AcquisitionError", "SchedulerError", "OutputError", "ClampWarning",
            "ExtrapolationWarning", "IllConditionedFit", "ImplausibleFit", "MapTemperatureWarning", "Remedy", "REMEDIES",
            "split_remedy", "quoting", "warn_clamped",
@@ -343,6 +344,13 @@ class RunError(Error, ValueError):
     """A malformed measurement run: a missing or unreadable file, a missing or
     badly typed column, a bad value, or tables that do not fit together. The
     message names the file (or table), the column and the first bad row."""
+
+
+class RunFileError(RunError, InputError):
+    """A run's ``run.json`` that its schema refuses (:mod:`cmmpose.schemas`):
+    a ``RunError`` as every fault of a run, and an ``InputError`` as every
+    document refused at the one door in. The message names the file and the
+    key path."""
 
 
 class CalibrationError(Error, ValueError):

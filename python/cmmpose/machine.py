@@ -29,14 +29,10 @@ from .errormap import ErrorMap, ErrorMapSet, data_path
 from .errors import InputError, read_input_text
 from .pose import MountOffset, Pose, check_pose_angles
 from .scanner import Scanner
-
-#: The thesis machine's thermocouple channels (name, role), in log order.
-CHANNELS = (
-    ("X1", "x_scale"), ("X2", "x_scale"), ("X3", "x_scale"),
-    ("Y1", "y_scale"), ("Y2", "y_scale"), ("Y3", "y_scale"),
-    ("Z1", "z_scale"), ("Z2", "z_scale"), ("Z3", "z_scale"),
-    ("GT", "granite_top"), ("GB", "granite_bottom"),
-)  # fmt: skip
+from .schemas import validate
+# The thesis machine's thermocouple channels and the physical ranges of a machine file's numbers live with the
+# machine file's schema (defined once there, used here and by the schema).
+from .schemas.machine import CHANNELS, EXPANSION_RANGE_PPM, OFFSET_LIMIT_MM, TRAVEL_LIMIT_MM
 
 __all__ = ["Machine", "configurations", "example_names", "example_text", "load_machine", "read_maps",
            "check_map_specs", "with_reproducibility"]
@@ -67,13 +63,6 @@ _REQUIRED_TABLES = {
     "thermocouples": "channel = 'role' for each thermocouple",
 }
 
-#: Physical ranges of a machine file's numbers, in the file's units; a value
-#: outside is a typo or a unit error and is refused, naming the key.
-TRAVEL_LIMIT_MM = 100_000.0  # |scale reading|; the largest CMMs travel some 30 m
-OFFSET_LIMIT_MM = 10_000.0  # |U1|, |V1|, |W1|
-#: Expansion coefficient of an artefact, ppm/K: from carbon fibre and glass
-#: ceramics (slightly negative to zero) to the light metals (~25) and beyond.
-EXPANSION_RANGE_PPM = (-1.0, 100.0)
 
 
 def configurations() -> list[dict]:
@@ -286,6 +275,7 @@ def load_machine(path: str | Path | None) -> Machine:
 
 
 def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
+    validate(doc, "machine", where)  # the one door in: every key typed and every number within its range
     for table, allowed in _KEYS.items():
         part = doc if table == "" else doc.get(table, {})
         if not isinstance(part, dict):

@@ -32,8 +32,9 @@ import numpy as np
 
 from ._lazy import LazyModule
 from .atomicfile import staged_folder
-from .effects import channel_roles as effect_channel_roles
-from .errors import RunError
+from .errors import RunError, RunFileError, read_input_text
+from .schemas import loads_json, validate
+from .schemas.run import CHANNEL_ROLES, SCHEMA, SCHEMA_VERSION, SUPPORTED_SCHEMA_VERSIONS, TABLES
 from .formats.pointformats._common import parquet_options
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
@@ -60,16 +61,8 @@ __all__ = [
 ]
 
 
-#: Value of ``schema`` in run.json.
-SCHEMA = "cmmpose-run"
-#: Schema version written by :meth:`Run.save`.
-SCHEMA_VERSION = 1
-#: Schema versions :meth:`Run.load` reads.
-SUPPORTED_SCHEMA_VERSIONS = (1,)
-#: Allowed ``role`` of a temperature channel: the machine's own, then those
-#: the physical effects bring (e.g. 'mount'; see :mod:`cmmpose.effects`).
-CHANNEL_ROLES = ("x_scale", "y_scale", "z_scale", "granite_top", "granite_bottom", "air", "part", "other",
-                 *effect_channel_roles())
+# run.json's ``schema`` and versions (SCHEMA, SCHEMA_VERSION, SUPPORTED_SCHEMA_VERSIONS) and the allowed roles
+# of a temperature channel (CHANNEL_ROLES) live with run.json's schema (cmmpose.schemas.run), defined once there.
 #: Sweep axes allowed in scans.sweep_axis.
 SWEEP_AXES = ("X", "Y", "Z")
 
@@ -106,7 +99,7 @@ POSES_COLUMNS = {
     "V1": "float64",
     "W1": "float64",
 }
-_TABLES = ("points", "scans", "poses", "temperatures")
+_TABLES = TABLES
 _FIXED = {"points": POINTS_COLUMNS, "scans": SCANS_COLUMNS, "poses": POSES_COLUMNS}
 #: Arrow type (a ``pyarrow`` factory's name) of each column type.
 _ARROW = {"int32": "int32", "int8": "int8", "float64": "float64", "str": "string"}
@@ -797,24 +790,9 @@ def _read_run_json(path: Path) -> dict:
     """run.json, checked for schema and version and completed with defaults."""
     if not path.is_file():
         raise RunError(f"{path}: missing (every run directory has a run.json)")
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except OSError as exc:
-        raise RunError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError as exc:
-        raise RunError(f"{path}: not UTF-8 text (byte {exc.start})") from None
-
-    def no_constant(name):
-        raise ValueError(f"{name} is not allowed")
-
-    try:
-        doc = json.loads(text, parse_constant=no_constant)
-    except json.JSONDecodeError as exc:
-        raise RunError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON ({exc.msg})") from None
-    except ValueError as exc:
-        raise RunError(f"{path}: invalid JSON ({exc})") from None
-    except RecursionError:
-        raise RunError(f"{path}: JSON nested too deeply to be a run header") from None
+    # the one door in: a FIFO or a device refused, the size bounded, a bad byte named; a repeated key refused
+    text = read_input_text(path, "run header", error=RunFileError)
+    doc = loads_json(text, path, "run header", error=RunFileError, constants=False)
     if not isinstance(doc, dict):
         raise RunError(f"{path}: expected a JSON object, got {type(doc).__name__}")
     if doc.get("schema") != SCHEMA:
@@ -832,6 +810,12 @@ def _read_run_json(path: Path) -> dict:
         doc.setdefault(key, {})
     doc.setdefault("temperature_channels", [])
     _check_channels(doc["temperature_channels"], f"{path}: ")
+    for key in ("artefact", "maps", "metadata"):
+        if not isinstance(doc[key], dict):
+            raise RunError(f"{path}: {key}: expected a dict (JSON object), got {type(doc[key]).__name__}")
+    _check_artefact_numbers(doc["artefact"], f"{path}: artefact")
+    _check_created(doc["created"], f"{path}: created")
+    validate(doc, "run", path, error=RunFileError)  # every key typed and every number within its range
     return doc
 
 

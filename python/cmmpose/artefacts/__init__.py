@@ -20,16 +20,13 @@ from .._registry import discover
 from ..errormap import data_path
 from .._validate import parse_toml, vector3
 from ..errors import InputError, InputTypeError, MissingFileError, read_input_text
+from ..schemas import validate
+# The ranges of an artefact file's numbers live with its schema (defined once there, used here and by the schema).
+from ..schemas.artefact import EXPANSION_RANGE_PPM, REFERENCE_TEMPERATURE_RANGE_C
 from ._base import Artefact, ArtefactKind
 
 __all__ = ["Artefact", "ArtefactKind", "available", "get", "example_names", "example_text", "load_artefact",
            "parse_artefact", "from_dict", "EXPANSION_RANGE_PPM", "REFERENCE_TEMPERATURE_RANGE_C"]
-
-#: Coefficients of expansion accepted, ppm/K: Zerodur and carbon fibre (about 0,
-#: slightly negative) to aluminium (23) and a margin.
-EXPANSION_RANGE_PPM = (-1.0, 30.0)
-#: Certificate reference temperatures accepted, degrees C.
-REFERENCE_TEMPERATURE_RANGE_C = (0.0, 40.0)
 
 #: Keys an artefact file may hold, per table ('' is the top level, 'balls' each ball).
 _KEYS = {
@@ -99,6 +96,7 @@ def from_dict(doc: dict, where: str = "run.json: artefact.definition") -> Artefa
 
 def parse_artefact(doc: dict, where: str) -> Artefact:
     """An artefact from a parsed file (``where`` names it in messages)."""
+    validate(doc, "artefact", where)  # the one door in: every key typed and every number within its range
     for table, allowed in _KEYS.items():
         parts = [doc] if table == "" else (doc.get(table) if table == "balls" else [doc.get(table, {})])
         if table == "balls":

@@ -9,7 +9,6 @@ answer (:class:`cmmpose.model.MachineModel`)."""
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import tempfile
@@ -27,6 +26,8 @@ from ..errors import Error, InputError, InputTypeError, MapError, ModelDomainWar
 from ..fitting import fit_spheres
 from ..pose import digitizer
 from ..run import Run
+from ..schemas import loads_json, validate
+from ..schemas.model import MODEL_SCHEMA  # ``schema`` of a saved model file, defined with the file's schema
 from ..temperature import LOG_HOLD, TEMPERATURE_TOLERANCE, TemperaturePolicy, check_policy
 from ..kernel_report import KernelReport
 from ..point_uncertainty import DETAILS, UncertainPoints, UncertaintySources
@@ -41,8 +42,6 @@ __all__ = ["Model", "MODEL_SCHEMA", "as_model", "check_kinematics", "run_kinemat
 
 _log = logging.getLogger(__name__)
 
-#: ``schema`` of a saved model file.
-MODEL_SCHEMA = "cmmpose-model"
 
 
 @dataclass(frozen=True)
@@ -558,12 +557,10 @@ class Model:
         """
         path = Path(path)
         text = read_input_text(path, "model file")  # a FIFO or /dev/zero refused as such, the size bounded
-        try:
-            doc = json.loads(text)
-        except (ValueError, RecursionError) as e:
-            raise InputError(f"{path}: not a readable model file ({e})") from None
+        doc = loads_json(text, path, "model file")  # not JSON, or a key repeated in an object: InputError
         if not isinstance(doc, dict) or doc.get("schema") != MODEL_SCHEMA or doc.get("schema_version") != 1:
-            raise InputError(f"{path}: not a {MODEL_SCHEMA} version 1 file")
+            raise InputError(f"{path}: not a {MODEL_SCHEMA} version 1 file", file=str(path))
+        validate(doc, "model", path)  # the one door in: every key typed and every number within its range
         try:
             with tempfile.TemporaryDirectory() as d:
                 maps = []
