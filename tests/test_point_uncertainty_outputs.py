@@ -146,6 +146,17 @@ def test_no_stated_source_is_refused_not_written_as_zeros(tmp_path, scan):
     assert cmmpose.read_point_cloud(out).columns["u_z_mm"].min() > 0
 
 
+def test_a_nan_row_propagates_to_its_uncertainty_and_is_not_counted(tmp_path):
+    src = tmp_path / "nan.csv"
+    src.write_text("u,v,D,E,F,T\n1,130,100,100,-100,21\nnan,130,100,100,-100,21\n2,131,200,100,-100,22\n")
+    done = compensate_file(src, tmp_path / "out.npy", MAPS, POSE, OFFSET, nan_policy="propagate", uncertainty=True)
+    rec = np.load(tmp_path / "out.npy")
+    u = np.column_stack([rec[c] for c in U_COLUMNS])
+    assert np.isnan(u[1]).all() and np.isfinite(u[[0, 2]]).all()
+    assert done.uncertainty.points == 2
+    np.testing.assert_allclose(done.uncertainty.max_um, np.nanmax(u, axis=0) * 1e3, rtol=1e-15)
+
+
 def test_an_input_column_named_as_an_uncertainty_column_is_refused(tmp_path, scan):
     path = tmp_path / "again.parquet"
     compensate_file(scan[0], tmp_path / "first.parquet", MAPS, POSE, OFFSET, uncertainty=True)
@@ -195,6 +206,14 @@ def test_dask_array_dataframe_and_dataset_equal_the_in_memory_call(tmp_path, sca
     np.testing.assert_allclose(result.uncertainty.max_um, want.u.max(axis=0) * 1e3, rtol=1e-15)
     with pytest.raises(InputError, match="no source of uncertainty"):
         scale.compensate_array(arr, MAPS.maps[0].with_uncertainty(None), POSE, OFFSET, uncertainty=True)
+    # The command on a folder: the same columns, and the budget under "uncertainty" in --json.
+    r = cli("compensate", folder, tmp_path / "cliout", "--uncertainty", "--temperature-uncertainty", 0.3,
+            "--scanner-scale-ppm", 20, "--scanner-noise", "2,8", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout[r.stdout.index("{"):])["uncertainty"]["points"] == len(uv)
+    table = pq.read_table(tmp_path / "cliout" / "a.parquet")
+    assert table.column_names == ["X", "Y", "Z", *U_COLUMNS, "scan_id"]
+    assert _same_bits(np.column_stack([table[c].to_numpy() for c in U_COLUMNS]), want.u)
 
 
 # -- the command line -----------------------------------------------------------------------------
