@@ -238,8 +238,8 @@ def test_the_command_writes_the_columns_and_prints_the_budget(tmp_path, scan):
     text = " ".join(r.output.split())
     assert "uncertainty budget (k = 1)" in text
     for words in ("temperature │ on │ 0.3 K │ --temperature-uncertainty", "scanner_scale │ on │ 20 ppm",
-                  "scanner_noise │ on │ u 0 um, v 8 um", "scanner.noise_um", "Harris thesis: interferometer 2.5 ppm",
-                  "pose │ on │ none stated"):
+                  "scanner_noise │ on │ u 0 um, v 8 um", "scanner.noise_um",
+                  "Harris thesis: interferometer 2.5 ppm", "pose │ on │ none stated"):
         assert words in text, words
     rms = np.sqrt(np.mean(want.u ** 2, axis=0)) * 1e3
     assert f"over 2,000 points: rms X {rms[0]:.3g}, Y {rms[1]:.3g}, Z {rms[2]:.3g} um" in text

@@ -551,7 +551,8 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
             except Error as exc:
                 raise type(exc)(f"{src_p}: rows {n}..{n + m - 1} (from 0): {exc}") from None
             kernel_s += time.perf_counter() - t0
-            cols = [pa.array(xyz[:, k]) for k in range(3)] + [pa.array(np.ascontiguousarray(v)) for v in u_cols.values()]
+            cols = [pa.array(xyz[:, k]) for k in range(3)]
+            cols += [pa.array(np.ascontiguousarray(v)) for v in u_cols.values()]
             cols += [batch.column(batch.schema.get_field_index(c)) for c in passthrough]
             writer.write_table(pa.Table.from_arrays(cols, schema=out_schema))
             reports.append(rep)

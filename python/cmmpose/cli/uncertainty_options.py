@@ -52,7 +52,8 @@ def _noise(ctx, param, value):
     try:
         parts = tuple(float(p) for p in value.split(","))
     except ValueError:
-        raise click.BadParameter(f"{value!r}: expected um, one value or two (u,v)", param_hint="--scanner-noise") from None
+        raise click.BadParameter(f"{value!r}: expected um, one value or two (u,v)",
+                                 param_hint="--scanner-noise") from None
     if len(parts) not in (1, 2) or not all(math.isfinite(p) for p in parts):
         raise click.BadParameter(f"{value!r}: expected one or two finite values, um", param_hint="--scanner-noise")
     parts = parts * 2 if len(parts) == 1 else parts
