@@ -164,11 +164,11 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     points_in, points_out = Path(points_in), Path(points_out)
     check_writable(points_out)  # before any work: a missing folder is found now, not after
     check_not_input(points_out, [points_in], "OUT")
+    size, chunks = point_chunks(points_in, chunk, extras=True)
+    state = {"temperature": None, "warned": False, "kernel": 0.0, "rows": 0}
     if not isinstance(maps, MachineModel):
         raise InputTypeError(f"maps: expected an ErrorMap, ErrorMapSet or Model, got {type(maps).__name__}")
     sources, tally = _uncertainty_plan(points_out, maps, uncertainty, uncertainty_detail, uncertainty_origins)
-    size, chunks = point_chunks(points_in, chunk, extras=True)
-    state = {"temperature": None, "warned": False, "kernel": 0.0, "rows": 0}
     if maps.reads_sweeps:  # a model with latency: each sweep whole in one chunk
         chunks = whole_scans(chunks)
     pose = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
