@@ -26,12 +26,15 @@ import numpy as np
 from ._arrays import as_triple
 from .errormap import ErrorMap, ErrorMapSet, warn_single_map
 from .errors import Error, InputError, InputTypeError, warn_clamped
-from .formats.pointfiles import PointWriter, RereadPoints, check_writable, point_chunks
+from .formats.pointfiles import PointWriter, RereadPoints, check_writable, output_format, point_chunks
 from .atomicfile import check_not_input
 from .kernel_report import KernelReport
 from .model import MachineModel
+from .point_uncertainty import UncertaintySources
 from .pose import MountOffset, Pose
 from .temperature import TemperaturePolicy, as_policy
+from .uncertainty_columns import (UncertaintyTally, budget_rows, check_detail, check_no_collision, columns_of,
+                                  log_budget, require_stated, uncertainty_columns)
 
 __all__ = ["compensate_file", "FileCompensation", "QUEUE_CHUNKS"]
 
@@ -64,6 +67,10 @@ class FileCompensation:
     temperature : str or None
         How the temperature was given: ``"per point (T column)"``, ``"21.5 C"``,
         or None (a single map without one).
+    uncertainty : UncertaintyTally or None
+        With ``uncertainty=``: the budget (each source on or off, its value
+        and where it comes from) and the rms and largest u per axis over the
+        points (:class:`cmmpose.uncertainty_columns.UncertaintyTally`).
     """
 
     points_in: Path
@@ -72,6 +79,7 @@ class FileCompensation:
     report: KernelReport
     kernel_seconds: float
     temperature: str | None
+    uncertainty: UncertaintyTally | None = None
 
 
 class _Failed:
@@ -84,7 +92,9 @@ class _Failed:
 def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
                     out_of_range: str | None = None, nan_policy: str = "raise",
                     temperature_tolerance: float | None = None, progress=None,
-                    chunk: int | None = None, temperature_policy: TemperaturePolicy | None = None) -> FileCompensation:
+                    chunk: int | None = None, temperature_policy: TemperaturePolicy | None = None,
+                    uncertainty: bool | UncertaintySources | None = None, uncertainty_detail: str = "standard",
+                    uncertainty_origins: dict | None = None) -> FileCompensation:
     """Compensate the scanner points of a file into machine coordinates in
     another, in bounded memory, reading, compensating and writing at once.
 
@@ -120,6 +130,20 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
         written points reach, called in the calling thread.
     chunk : int, optional
         Rows per chunk (default :data:`cmmpose.formats.pointfiles.CHUNK_POINTS`).
+    uncertainty : bool or UncertaintySources, optional
+        Also write each point's standard uncertainty (k = 1), computed per
+        chunk by the same kernel call as :func:`cmmpose.compensate` with
+        ``uncertainty=`` (True: the sources the maps or model state):
+        columns ``u_x_mm, u_y_mm, u_z_mm`` (mm) after X, Y, Z, before the
+        input's other columns (:mod:`cmmpose.uncertainty_columns`). A format
+        that cannot carry named columns (PTS) is refused, and so is a set of
+        sources that states none (every u would be 0).
+    uncertainty_detail : {'standard', 'covariance', 'split'}
+        Also the six covariance columns ``cov_xx_mm2`` ... (mm^2); also the
+        six of its common part ``cov_common_xx_mm2`` ....
+    uncertainty_origins : dict of str -> str, optional
+        Where each source's value comes from, by source name, for the budget
+        (e.g. ``{"scanner_noise": "machine.toml: scanner.noise_um"}``).
 
     Returns
     -------
@@ -129,7 +153,9 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     ------
     InputError
         A bad input (the file, row and column named), an output that is an
-        input, a map set without a temperature.
+        input, a map set without a temperature; with ``uncertainty``: an
+        output format without named columns, an input column named as an
+        uncertainty column, no stated source.
     OutputError
         The output cannot be written (a full disk): nothing is left behind.
     """
@@ -142,6 +168,7 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     state = {"temperature": None, "warned": False, "kernel": 0.0, "rows": 0}
     if not isinstance(maps, MachineModel):
         raise InputTypeError(f"maps: expected an ErrorMap, ErrorMapSet or Model, got {type(maps).__name__}")
+    sources, tally = _uncertainty_plan(points_out, maps, uncertainty, uncertainty_detail, uncertainty_origins)
     if maps.reads_sweeps:  # a model with latency: each sweep whole in one chunk
         chunks = whole_scans(chunks)
     pose = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
@@ -173,12 +200,20 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
             if temperature is None:
                 t = np.ascontiguousarray(t, dtype=float)
         t0 = time.perf_counter()
-        xyz, raw = maps.compensate_points(uv, scales, pose, offset, t, policy=policy, nan_policy=nan_policy,
-                                          columns=extras, where=str(points_in), once=once)
+        if sources is None:
+            xyz, raw = maps.compensate_points(uv, scales, pose, offset, t, policy=policy, nan_policy=nan_policy,
+                                              columns=extras, where=str(points_in), once=once)
+        else:
+            check_no_collision(points_in, extras, uncertainty_detail)
+            points, raw = maps.compensate_points_uncertainty(
+                uv, scales, pose, offset, t, sources=sources, detail=uncertainty_detail, policy=policy,
+                nan_policy=nan_policy, columns=extras, where=str(points_in), once=once)
+            xyz, extras = points.xyz, {**columns_of(points), **extras}  # u columns after X, Y, Z
+            tally.add(points.u)
         state["kernel"] += time.perf_counter() - t0
         report = KernelReport(**raw)
         warn_clamped(report)
-        return xyz, report
+        return xyz, report, extras
 
     reports: list[KernelReport] = []
     writer = PointWriter(points_out, inputs=[points_in])
@@ -190,6 +225,8 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
             writer = PointWriter(points_out, inputs=[points_in])
             reports.clear()
             state["kernel"], state["rows"] = 0.0, 0
+            if tally is not None:
+                tally = UncertaintyTally(budget=tally.budget)
             _pipeline(iter([(*again.points, again.extras, size)]), kernel, writer, reports, size, progress)
     except BaseException:
         writer.abort()
@@ -197,7 +234,29 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     writer.close()
     report = KernelReport.total(reports)
     _log.info("compensated %d points of %s into %s", report.points, points_in, points_out)
-    return FileCompensation(points_in, points_out, report.points, report, state["kernel"], state["temperature"])
+    if tally is not None:
+        log_budget(tally, str(points_out))
+    return FileCompensation(points_in, points_out, report.points, report, state["kernel"], state["temperature"],
+                            tally)
+
+
+def _uncertainty_plan(points_out, maps, uncertainty, detail: str, origins):
+    """The sources and an empty tally with their budget (None, None without
+    ``uncertainty``); checked before any work: the output format carries
+    named columns, some source is stated."""
+    if uncertainty is None or uncertainty is False:
+        return None, None
+    sources = UncertaintySources() if uncertainty is True else uncertainty
+    if not isinstance(sources, UncertaintySources):
+        raise InputTypeError(f"uncertainty: expected True or an UncertaintySources, got {type(sources).__name__}")
+    check_detail(detail)
+    fmt = output_format(points_out)
+    if not fmt.named_columns:
+        raise InputError(f"{points_out}: the {fmt.name.upper()} format cannot carry the uncertainty columns "
+                         f"({', '.join(uncertainty_columns(detail))}) that uncertainty= (--uncertainty) writes; "
+                         f"write .csv, .parquet, .npy, .ply, .xyz or .e57, or leave out the uncertainty")
+    require_stated(sources, maps, str(points_out))
+    return sources, UncertaintyTally(budget=budget_rows(sources, maps, origins))
 
 
 def whole_scans(chunks):
@@ -337,7 +396,7 @@ def _pipeline(chunks, kernel, writer: PointWriter, reports: list, size: int, pro
             if item is _STOPPED:
                 raise report_progress(block=True) or RuntimeError("the point writer stopped without a result")
             uv, scales, temps, extras, done = item
-            xyz, rep = kernel(uv, scales, temps, extras)
+            xyz, rep, extras = kernel(uv, scales, temps, extras)
             reports.append(rep)
             del uv, scales, temps, item
             if not put(write_q, (xyz, extras, done)):

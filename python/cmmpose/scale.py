@@ -57,6 +57,9 @@ from .pose import pose_tuple
 from ._arrays import as_triple
 from .kernel_report import KernelReport
 from .formats.pointformats._common import parquet_options
+from .point_uncertainty import UncertainPoints, UncertaintySources
+from .uncertainty_columns import (UncertaintyTally, budget_rows, check_detail, columns_of, log_budget, require_stated,
+                                  uncertainty_columns)
 from ._lazy import LazyModule
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
@@ -298,6 +301,10 @@ class Compensator:
         block's T column.
     out_of_range, nan_policy, temperature_tolerance
         As in :func:`cmmpose.compensate`.
+    uncertainty : UncertaintySources, optional
+        Also each point's uncertainty from these sources (:meth:`uncertain`).
+    uncertainty_detail : {'standard', 'covariance', 'split'}
+        What of it (:mod:`cmmpose.uncertainty_columns`).
     """
 
     error_map: ErrorMap | ErrorMapSet
@@ -307,12 +314,18 @@ class Compensator:
     out_of_range: str = "raise"
     nan_policy: str = "raise"
     temperature_tolerance: float = TEMPERATURE_TOLERANCE
+    uncertainty: UncertaintySources | None = None
+    uncertainty_detail: str = "standard"
 
     @classmethod
     def make(cls, error_map, pose, offset, temperature=None, *, out_of_range=None, nan_policy="raise",
-             temperature_tolerance=None, temperature_policy: TemperaturePolicy | None = None) -> Compensator:
+             temperature_tolerance=None, temperature_policy: TemperaturePolicy | None = None,
+             uncertainty: bool | UncertaintySources | None = None,
+             uncertainty_detail: str = "standard") -> Compensator:
         """Checked arguments, as :func:`cmmpose.compensate` takes them (the
-        keywords override ``temperature_policy``'s map side)."""
+        keywords override ``temperature_policy``'s map side); with
+        ``uncertainty`` (True: the maps' stated sources), a set of sources
+        that states none is an ``InputError`` (every u would be 0)."""
         if not isinstance(error_map, (ErrorMap, ErrorMapSet)):
             raise InputTypeError(f"error_map: expected an ErrorMap or ErrorMapSet, got {type(error_map).__name__}")
         policy = as_policy(temperature_policy, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
@@ -324,28 +337,56 @@ class Compensator:
                 temperature = float(temperature)
             except (TypeError, ValueError):
                 raise InputError(f"temperature: expected a number (C), got {temperature!r}") from None
+        if uncertainty is not None and uncertainty is not False:
+            uncertainty = UncertaintySources() if uncertainty is True else uncertainty
+            if not isinstance(uncertainty, UncertaintySources):
+                raise InputTypeError(f"uncertainty: expected True or an UncertaintySources, "
+                                     f"got {type(uncertainty).__name__}")
+            require_stated(uncertainty, error_map)
+        else:
+            uncertainty = None
         return cls(error_map, pose_tuple(pose), as_triple("offset", offset), temperature, out_of_range, nan_policy,
-                   float(temperature_tolerance))
+                   float(temperature_tolerance), uncertainty, check_detail(uncertainty_detail))
 
     @property
     def needs_temperature_column(self) -> bool:
         """Whether each block must bring its own temperatures (a set, no fixed value)."""
         return isinstance(self.error_map, ErrorMapSet) and self.temperature is None
 
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The uncertainty columns each block gains (none without ``uncertainty``)."""
+        return () if self.uncertainty is None else uncertainty_columns(self.uncertainty_detail)
+
+    def _temperature(self, temps):
+        if not isinstance(self.error_map, ErrorMapSet):
+            return None
+        t = self.temperature if self.temperature is not None else temps
+        if t is None:
+            raise InputError("temperature: a map set needs a temperature or a T column")
+        return t
+
     def __call__(self, uv: np.ndarray, scales: np.ndarray, temps: np.ndarray | None) -> tuple[np.ndarray, KernelReport]:
         """Compensated X, Y, Z (N, 3) mm of one block, and the kernel's report
         (no warnings: the caller sums the reports and warns once)."""
-        if isinstance(self.error_map, ErrorMapSet):
-            t = self.temperature if self.temperature is not None else temps
-            if t is None:
-                raise InputError("temperature: a map set needs a temperature or a T column")
-        else:
-            t = None
+        t = self._temperature(temps)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return compensate(uv, scales, self.error_map, self.pose, self.offset, t, out_of_range=self.out_of_range,
                               nan_policy=self.nan_policy, temperature_tolerance=self.temperature_tolerance,
                               return_report=True)
+
+    def uncertain(self, uv: np.ndarray, scales: np.ndarray,
+                  temps: np.ndarray | None) -> tuple[UncertainPoints, KernelReport]:
+        """With ``uncertainty``: one block's points and their uncertainty,
+        the same kernel call as ``compensate(..., uncertainty=)``."""
+        t = self._temperature(temps)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return compensate(uv, scales, self.error_map, self.pose, self.offset, t, out_of_range=self.out_of_range,
+                              nan_policy=self.nan_policy, temperature_tolerance=self.temperature_tolerance,
+                              return_report=True, uncertainty=self.uncertainty,
+                              uncertainty_detail=self.uncertainty_detail)
 
 
 # -- Parquet datasets -------------------------------------------------------------------------
@@ -366,6 +407,9 @@ class DatasetResult:
         Time spent in the kernel, summed over the workers, s.
     elapsed : float
         Wall time, s (scheduler start-up included).
+    uncertainty : UncertaintyTally or None
+        With ``uncertainty=``: the budget and the rms and largest u per axis
+        over the dataset (:class:`cmmpose.uncertainty_columns.UncertaintyTally`).
     """
 
     outputs: list[Path]
@@ -373,6 +417,7 @@ class DatasetResult:
     report: KernelReport
     kernel_seconds: float
     elapsed: float
+    uncertainty: UncertaintyTally | None = None
 
 
 #: Suffixes of a dataset's Parquet files, any case (those of the Parquet point format).
@@ -427,9 +472,10 @@ def dataset_temperature_range(dataset_dir) -> tuple[float, float] | None:
     return (lo, hi) if lo <= hi else None
 
 
-def _plan_file(path: Path, needs_t: bool) -> tuple[int, list[str]]:
+def _plan_file(path: Path, needs_t: bool, written: tuple = ()) -> tuple[int, list[str]]:
     """Rows and pass-through columns of one dataset file, from its footer
-    only; the file and the column are named when one is missing or not numeric."""
+    only; the file and the column are named when one is missing or not
+    numeric, or would be written over (X, Y, Z and the ``written`` uncertainty columns)."""
     try:
         meta = pq.read_metadata(path)
         schema = meta.schema.to_arrow_schema()
@@ -447,7 +493,7 @@ def _plan_file(path: Path, needs_t: bool) -> tuple[int, list[str]]:
         t = schema.field(c).type
         if not (pa.types.is_floating(t) or pa.types.is_integer(t)):
             raise InputError(f"{path}: column {c!r} has type {t}, expected numbers")
-    for c in OUTPUT_COLUMNS:
+    for c in OUTPUT_COLUMNS + tuple(written):
         if c in names:
             raise InputError(f"{path}: has a column {c!r}, which the output would write over")
     passthrough = [c for c in names if c not in INPUT_COLUMNS + ("T",)]
@@ -460,9 +506,10 @@ def _float_column(batch: pa.RecordBatch, name: str) -> np.ndarray:
 
 
 def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[str], batch_rows: int,
-                     topic: str | None) -> tuple[int, KernelReport, float]:
+                     topic: str | None) -> tuple[int, KernelReport, float, UncertaintyTally | None]:
     """One dataset file through the kernel, batch by batch, into ``dst``
-    (written under a temporary name, renamed when whole). Runs on a worker."""
+    (written under a temporary name, renamed when whole); with the kernel's
+    ``uncertainty``, the u columns after X, Y, Z and their tally. Runs on a worker."""
     worker = None
     if topic is not None:
         try:
@@ -473,12 +520,13 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
             worker = None
     src_p, dst_p = Path(src), Path(dst)
     reports, kernel_s, n = [], 0.0, 0
+    tally = UncertaintyTally() if kernel.uncertainty is not None else None
     writer = out = None
     try:
         out = AtomicFile(dst_p, "wb", inputs=[src_p])  # cmmpose.atomicfile: renamed into place when whole
         pf = pq.ParquetFile(src_p)
         in_schema = pf.schema_arrow
-        out_schema = pa.schema([pa.field(c, pa.float64()) for c in OUTPUT_COLUMNS]
+        out_schema = pa.schema([pa.field(c, pa.float64()) for c in OUTPUT_COLUMNS + kernel.columns]
                                + [in_schema.field(c) for c in passthrough], metadata=in_schema.metadata)
         # X, Y, Z never repeat: no dictionary for them (it only costs time); parquet_options
         writer = pq.ParquetWriter(out.f, out_schema, **parquet_options(out_schema))
@@ -494,12 +542,19 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
             temps = _float_column(batch, "T") if use_t else None
             t0 = time.perf_counter()
             try:
-                xyz, rep = kernel(uv, scales, temps)
+                if tally is None:
+                    xyz, rep = kernel(uv, scales, temps)
+                    u_cols = {}
+                else:
+                    points, rep = kernel.uncertain(uv, scales, temps)
+                    xyz, u_cols = points.xyz, columns_of(points)
+                    tally.add(points.u)
             except Error as exc:
                 message, fields = quoting(exc, f"{src_p}: rows {n}..{n + m - 1} (from 0): ")
                 raise type(exc)(message, **fields) from None
             kernel_s += time.perf_counter() - t0
             cols = [pa.array(xyz[:, k]) for k in range(3)]
+            cols += [pa.array(np.ascontiguousarray(v)) for v in u_cols.values()]
             cols += [batch.column(batch.schema.get_field_index(c)) for c in passthrough]
             writer.write_table(pa.Table.from_arrays(cols, schema=out_schema))
             reports.append(rep)
@@ -517,7 +572,7 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
                 writer.close()
         if out is not None:
             out.abort()  # nothing once committed
-    return n, KernelReport.total(reports), kernel_s
+    return n, KernelReport.total(reports), kernel_s, tally
 
 
 def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
@@ -525,7 +580,9 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
                        temperature_tolerance: float | None = None, scheduler="threads",
                        batch_rows: int = BATCH_ROWS, progress=None,
                        scheduler_timeout: float = SCHEDULER_TIMEOUT,
-                       temperature_policy: TemperaturePolicy | None = None) -> DatasetResult:
+                       temperature_policy: TemperaturePolicy | None = None,
+                       uncertainty: bool | UncertaintySources | None = None, uncertainty_detail: str = "standard",
+                       uncertainty_origins: dict | None = None) -> DatasetResult:
     """Compensate a folder of Parquet scans into a folder of Parquet files.
 
     Each input ``NAME.parquet`` (columns ``u, v`` mm, ``D, E, F`` mm, ``T`` C
@@ -556,6 +613,9 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
     scheduler_timeout : float
         s: the longest wait for a scheduler at an address to connect and
         greet (:func:`scheduler_client`'s ``timeout``).
+    uncertainty, uncertainty_detail, uncertainty_origins
+        As :func:`cmmpose.compensate_file` takes them: the u columns (and
+        covariance) after X, Y, Z, each batch by the same kernel call.
 
     Returns
     -------
@@ -581,7 +641,8 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
             warn_single_map(error_map, given, policy.temperature_tolerance)
     kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
                               nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
-                              temperature_policy=temperature_policy)
+                              temperature_policy=temperature_policy, uncertainty=uncertainty,
+                              uncertainty_detail=uncertainty_detail)
     if not isinstance(batch_rows, (int, np.integer)) or batch_rows < 1:
         raise InputError(f"batch_rows: expected a positive integer, got {batch_rows!r}")
     files = dataset_files(dataset_dir)
@@ -590,7 +651,7 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         raise InputError(f"{out}: exists and is not a folder")
     if out.exists() and out.resolve() == Path(dataset_dir).resolve():
         raise InputError(f"{out}: the output folder is the input folder; the inputs would be replaced")
-    plans = [_plan_file(f, kernel.needs_temperature_column) for f in files]
+    plans = [_plan_file(f, kernel.needs_temperature_column, kernel.columns) for f in files]
     total = sum(rows for rows, _ in plans)
     ensure_folder(out)
     outputs = [out / f.name for f in files]
@@ -621,25 +682,36 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
                 client.unsubscribe_topic(topic)
     if progress is not None:
         progress(total, total)
-    report = KernelReport.total(r for _, r, _ in results)
+    report = KernelReport.total(r for _, r, _, _ in results)
     warn_clamped(report)
-    return DatasetResult(outputs, sum(n for n, _, _ in results), report, sum(s for _, _, s in results),
-                         time.perf_counter() - t_start)
+    tally = None
+    if kernel.uncertainty is not None:
+        tally = UncertaintyTally(budget=budget_rows(kernel.uncertainty, error_map, uncertainty_origins))
+        for *_, part in results:
+            tally = tally.merge(part)
+        log_budget(tally, str(out))
+    return DatasetResult(outputs, sum(n for n, *_ in results), report, sum(s for _, _, s, _ in results),
+                         time.perf_counter() - t_start, tally)
 
 
 # -- lazy collections -------------------------------------------------------------------------
 
 def _block(points: np.ndarray, kernel: Compensator) -> np.ndarray:
-    """One (n, 5 or 6) block of u, v, D, E, F[, T] -> (n, 3) X, Y, Z mm."""
+    """One (n, 5 or 6) block of u, v, D, E, F[, T] -> (n, 3) X, Y, Z mm
+    (with uncertainty: and the uncertainty columns, mm and mm^2)."""
     uv = np.ascontiguousarray(points[:, 0:2], dtype=np.float64)
     scales = np.ascontiguousarray(points[:, 2:5], dtype=np.float64)
     temps = np.ascontiguousarray(points[:, 5], dtype=np.float64) if points.shape[1] == 6 else None
-    return kernel(uv, scales, temps)[0]
+    if kernel.uncertainty is None:
+        return kernel(uv, scales, temps)[0]
+    p = kernel.uncertain(uv, scales, temps)[0]
+    return np.column_stack([p.xyz, *columns_of(p).values()])
 
 
 def compensate_array(points, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
                      out_of_range: str | None = None, nan_policy: str = "raise",
-                     temperature_tolerance: float | None = None, temperature_policy: TemperaturePolicy | None = None):
+                     temperature_tolerance: float | None = None, temperature_policy: TemperaturePolicy | None = None,
+                     uncertainty: bool | UncertaintySources | None = None, uncertainty_detail: str = "standard"):
     """Compensate a Dask array of points, lazily, block by block.
 
     Parameters
@@ -650,12 +722,18 @@ def compensate_array(points, error_map: ErrorMap | ErrorMapSet, pose, offset, te
     error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance, temperature_policy
         As in :func:`cmmpose.compensate` (``temperature`` a float, C; with a
         set and none, column T).
+    uncertainty, uncertainty_detail
+        As in :func:`cmmpose.compensate`: each block's uncertainty by the
+        same kernel call.
 
     Returns
     -------
-    dask.array.Array, shape (N, 3)
+    dask.array.Array, shape (N, 3) or (N, 3 + k)
         X, Y, Z in mm, float64, chunked as ``points`` along rows; computing it
-        calls the kernel once per block. The maps are one key of the graph,
+        calls the kernel once per block. With ``uncertainty``, k more columns
+        in the order of :func:`cmmpose.uncertainty_columns.uncertainty_columns`
+        (u_x, u_y, u_z mm; the covariance and its common part, mm^2: k = 3,
+        9 or 15). The maps are one key of the graph,
         sent to each worker once. Kernel warnings are not raised per block;
         ``out_of_range='raise'`` still raises.
     """
@@ -668,13 +746,15 @@ def compensate_array(points, error_map: ErrorMap | ErrorMapSet, pose, offset, te
                          f"got {type(points).__name__} {getattr(points, 'shape', '')}")
     kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
                               nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
-                              temperature_policy=temperature_policy)
+                              temperature_policy=temperature_policy, uncertainty=uncertainty,
+                              uncertainty_detail=uncertainty_detail)
     if kernel.needs_temperature_column and points.shape[1] != 6:
         raise InputError("points: a map set without a temperature needs a sixth column T (C)")
     points = points.rechunk({1: -1})
     shared = dask.delayed(kernel, pure=True, traverse=False)
-    return da.map_blocks(_block, points, shared, dtype=np.float64, chunks=(points.chunks[0], (3,)),
-                         meta=np.empty((0, 3), dtype=np.float64))
+    width = 3 + len(kernel.columns)
+    return da.map_blocks(_block, points, shared, dtype=np.float64, chunks=(points.chunks[0], (width,)),
+                         meta=np.empty((0, width), dtype=np.float64))
 
 
 def _partition(frame, kernel: Compensator, passthrough: list[str]):
@@ -685,8 +765,16 @@ def _partition(frame, kernel: Compensator, passthrough: list[str]):
     scales = np.column_stack([frame[c].to_numpy(dtype=np.float64) for c in ("D", "E", "F")]) if len(frame) \
         else np.empty((0, 3))
     temps = frame["T"].to_numpy(dtype=np.float64) if kernel.needs_temperature_column else None
-    xyz = kernel(uv, scales, temps)[0] if len(frame) else np.empty((0, 3))
-    out = pd.DataFrame({c: xyz[:, k] for k, c in enumerate(OUTPUT_COLUMNS)}, index=frame.index)
+    u_cols = {}
+    if not len(frame):
+        xyz = np.empty((0, 3))
+        u_cols = {c: np.empty(0) for c in kernel.columns}
+    elif kernel.uncertainty is None:
+        xyz = kernel(uv, scales, temps)[0]
+    else:
+        p = kernel.uncertain(uv, scales, temps)[0]
+        xyz, u_cols = p.xyz, columns_of(p)
+    out = pd.DataFrame({**{c: xyz[:, k] for k, c in enumerate(OUTPUT_COLUMNS)}, **u_cols}, index=frame.index)
     for c in passthrough:
         out[c] = frame[c]
     return out
@@ -694,7 +782,8 @@ def _partition(frame, kernel: Compensator, passthrough: list[str]):
 
 def compensate_dataframe(frame, error_map: ErrorMap | ErrorMapSet, pose, offset, temperature=None, *,
                          out_of_range: str | None = None, nan_policy: str = "raise",
-                         temperature_tolerance: float | None = None, temperature_policy: TemperaturePolicy | None = None):
+                         temperature_tolerance: float | None = None, temperature_policy: TemperaturePolicy | None = None,
+                         uncertainty: bool | UncertaintySources | None = None, uncertainty_detail: str = "standard"):
     """Compensate a Dask dataframe, lazily, partition by partition.
 
     Parameters
@@ -703,13 +792,16 @@ def compensate_dataframe(frame, error_map: ErrorMap | ErrorMapSet, pose, offset,
         Columns u, v, D, E, F (mm)[, T (C)] and any others.
     error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance, temperature_policy
         As in :func:`compensate_array`.
+    uncertainty, uncertainty_detail
+        As in :func:`compensate_array`: the uncertainty columns
+        (``u_x_mm`` ..., :mod:`cmmpose.uncertainty_columns`) after X, Y, Z.
 
     Returns
     -------
     dask.dataframe.DataFrame
-        X, Y, Z (mm, float64) and the other columns of ``frame`` (all but u,
-        v, D, E, F, T), partitioned as ``frame``; e.g. ``.to_parquet(folder)``
-        writes it partition by partition.
+        X, Y, Z (mm, float64), the uncertainty columns when asked, and the
+        other columns of ``frame`` (all but u, v, D, E, F, T), partitioned as
+        ``frame``; e.g. ``.to_parquet(folder)`` writes it partition by partition.
     """
     _distributed()
     import dask
@@ -718,12 +810,13 @@ def compensate_dataframe(frame, error_map: ErrorMap | ErrorMapSet, pose, offset,
         raise InputTypeError(f"frame: expected a dask dataframe, got {type(frame).__name__}")
     kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
                               nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
-                              temperature_policy=temperature_policy)
+                              temperature_policy=temperature_policy, uncertainty=uncertainty,
+                              uncertainty_detail=uncertainty_detail)
     names = list(frame.columns)
     for c in INPUT_COLUMNS + (("T",) if kernel.needs_temperature_column else ()):
         if c not in names:
             raise InputError(f"frame: missing column {c!r}")
-    for c in OUTPUT_COLUMNS:
+    for c in OUTPUT_COLUMNS + kernel.columns:
         if c in names:
             raise InputError(f"frame: has a column {c!r}, which the output would write over")
     passthrough = [c for c in names if c not in INPUT_COLUMNS + ("T",)]

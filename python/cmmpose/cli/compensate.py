@@ -20,6 +20,7 @@ from ..formats.pointformats._common import check_file
 from .common import (aliased_choices_once, check_model_or_maps, console, fail, json_option, kernel_report_rows,
                      load_maps, load_model, machine_option, machine_row, map_specs, model_doubts, model_options,
                      offset_mm, policy_options, pose_angles, say_caught, scheduler_options, show, strict_model_exit)
+from .uncertainty_options import budget_table, check_uncertainty_options, uncertainty_options, uncertainty_sources
 
 
 @click.command("compensate")
@@ -45,9 +46,11 @@ from .common import (aliased_choices_once, check_model_or_maps, console, fail, j
                    "(needs the dask extra).")
 @model_options(", which read their inputs from IN's columns (t and scan_id for latency, T_<role> for a "
                "thermocouple role; docs/diagnosis.md).")
+@uncertainty_options
 def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
                    out_of_range, temperature_tolerance, nan_policy, scheduler, scheduler_timeout, model_file,
-                   user_files, as_json, strict_model=False) -> None:
+                   user_files, as_json, uncertainty, uncertainty_detail, temperature_uncertainty, scanner_noise,
+                   scanner_scale_ppm, uncertainty_off, strict_model=False) -> None:
     """Compensate scanner points IN (CSV, NPY, Parquet, PLY or XYZ: u, v, D, E, F[, T])
     into machine coordinates OUT (by suffix: CSV, NPY, Parquet, PLY, XYZ, PTS or E57;
     X, Y, Z in mm, E57 in metres). Any other column of IN (scan_id, intensity, ...)
@@ -55,19 +58,30 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
 
     IN may be a folder of Parquet files (a dataset): OUT is then a folder that
     gets one Parquet file per input, named after it, with X, Y, Z and the
-    input's other columns, compensated on the --scheduler in bounded memory."""
+    input's other columns, compensated on the --scheduler in bounded memory.
+
+    With --uncertainty, each point's standard uncertainty (k = 1) follows
+    X, Y, Z (u_x_mm, u_y_mm, u_z_mm; with --uncertainty-detail also the
+    covariance, mm^2), and a budget of its sources is printed."""
     from ..machine import load_machine
 
     if str(points_in) != "-" and not os.path.lexists(points_in):  # as evaluate's RUN_DIR: a usage error, exit 2
         raise click.BadParameter(f"{points_in}: no such file", param_hint="'IN'")
+    stated = {"temperature_uncertainty": temperature_uncertainty, "scanner_noise": scanner_noise,
+              "scanner_scale_ppm": scanner_scale_ppm, "uncertainty_off": uncertainty_off}
+    check_uncertainty_options(uncertainty, uncertainty_detail=uncertainty_detail, **stated)
+    record = None
     try:
         machine = load_machine(machine_file)
         if alignment is not None:
             if pose is not None or offset is not None:
                 raise click.UsageError("give --alignment or --pose/--offset, not both")
-            pose, offset = _aligned(alignment, library_file or machine.alignments)
+            pose, offset, record = _aligned(alignment, library_file or machine.alignments)
+        sources, origins = uncertainty_sources(machine, record, **stated) if uncertainty else (None, None)
     except Error as exc:
         raise fail(exc) from None
+    u_args = {"uncertainty": sources, "uncertainty_detail": uncertainty_detail or "standard",
+              "uncertainty_origins": origins}
     pose_t = pose_angles(pose, "--pose") if pose is not None else machine.pose.as_tuple()
     offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
     check_model_or_maps(model_file, user_files, maps, strict_model)
@@ -76,7 +90,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
             raise click.UsageError(f"{points_in} is a folder: --model compensates a point file")
         return _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
                                    temperature_tolerance, nan_policy, scheduler or "threads", scheduler_timeout,
-                                   as_json)
+                                   as_json, u_args)
     if scheduler is not None:
         raise click.BadParameter(f"{points_in} is a file; --scheduler is for a folder of Parquet files",
                                  param_hint="--scheduler")
@@ -98,7 +112,7 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
             done = compensate_file(points_in, points_out, error_map, pose_t, offset_t, temperature,
                                    out_of_range=out_of_range, nan_policy=nan_policy,
                                    temperature_tolerance=temperature_tolerance,
-                                   progress=lambda at, _: bar.update(task, completed=at))
+                                   progress=lambda at, _: bar.update(task, completed=at), **u_args)
             bar.update(task, completed=size)
         say_caught(caught)
         doubts = model_doubts(caught)
@@ -118,12 +132,26 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
     show(table, as_json, {"input": str(points_in), "output": str(points_out), "machine": machine.name,
                           "points": n, "maps": repr(error_map), "temperature": t_all, "pose_deg": list(pose_t),
                           "offset_mm": list(offset_t), "kernel_report": dataclasses.asdict(report),
-                          "kernel_seconds": elapsed, **({"model_doubts": doubts} if model_file else {})})
+                          "kernel_seconds": elapsed, **({"model_doubts": doubts} if model_file else {}),
+                          **_budget(done.uncertainty)})
+    _print_budget(done.uncertainty, as_json)
     strict_model_exit(doubts, strict_model)
 
 
+def _budget(tally) -> dict:
+    """With --uncertainty: the budget's JSON, under ``uncertainty``."""
+    return {} if tally is None else {"uncertainty": tally.to_dict()}
+
+
+def _print_budget(tally, as_json: bool) -> None:
+    """With --uncertainty and without --json: the budget, after the summary."""
+    if tally is not None and not as_json:
+        show(budget_table(tally, "uncertainty budget (k = 1)"), False)
+
+
 def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
-                        temperature_tolerance, nan_policy, scheduler, scheduler_timeout, as_json=False) -> None:
+                        temperature_tolerance, nan_policy, scheduler, scheduler_timeout, as_json=False,
+                        u_args=None) -> None:
     """`compensate DATASET_DIR OUT_DIR`: a folder of Parquet files on a Dask scheduler (cmmpose.scale)."""
     import logging
 
@@ -139,7 +167,8 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
             result = compensate_dataset(points_in, points_out, error_map, pose_t, offset_t, temperature,
                                         out_of_range=out_of_range, nan_policy=nan_policy,
                                         temperature_tolerance=temperature_tolerance, scheduler=scheduler,
-                                        scheduler_timeout=scheduler_timeout, progress=lambda done, total: bar.update(task, completed=done, total=total))
+                                        scheduler_timeout=scheduler_timeout, progress=lambda done, total: bar.update(task, completed=done, total=total),
+                                        **(u_args or {}))
         say_caught(caught)
     except Error as exc:
         raise fail(exc) from None
@@ -160,11 +189,12 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
                           "files": [str(f) for f in result.outputs], "points": result.points, "maps": repr(error_map),
                           "temperature": temperature, "pose_deg": list(pose_t), "offset_mm": list(offset_t),
                           "scheduler": scheduler, "kernel_report": dataclasses.asdict(report),
-                          "wall_seconds": result.elapsed})
+                          "wall_seconds": result.elapsed, **_budget(result.uncertainty)})
+    _print_budget(result.uncertainty, as_json)
 
 
-def _aligned(name: str, library_file) -> tuple[str, str]:
-    """--pose and --offset text of the alignment ``name`` in the library."""
+def _aligned(name: str, library_file) -> tuple[str, str, object]:
+    """--pose and --offset text of the alignment ``name`` in the library, and its record."""
     from ..calibration.library import AlignmentLibrary
 
     if library_file is None:
@@ -172,4 +202,4 @@ def _aligned(name: str, library_file) -> tuple[str, str]:
     if not Path(library_file).is_file():
         raise click.BadParameter(f"{library_file}: no such alignment library", param_hint="--library")
     record = AlignmentLibrary(library_file).load(name)
-    return ",".join(map(repr, record.as_pose().as_tuple())), ",".join(map(repr, record.as_offset()))
+    return ",".join(map(repr, record.as_pose().as_tuple())), ",".join(map(repr, record.as_offset())), record

@@ -80,6 +80,9 @@ class PointFormat:
         E57 (the standard's), ``"mm"`` for every other.
     description : str
         One line for messages and listings.
+    named_columns : bool
+        Whether the writer carries any named extra column (PTS carries only
+        intensity and colour): the uncertainty columns need it.
     """
 
     name: str
@@ -88,6 +91,7 @@ class PointFormat:
     writer: Callable[..., Any]
     units: str = "mm"
     description: str = ""
+    named_columns: bool = True
 
 
 _FORMATS: dict[str, PointFormat] = {}

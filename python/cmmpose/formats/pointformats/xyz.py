@@ -236,4 +236,4 @@ class PtsWriter(XyzWriter):
 register(PointFormat("xyz", (".xyz",), _make_chunks(False), XyzWriter,
                      description="ASCII x y z [more columns], blank or tab separated, optional //header"))
 register(PointFormat("pts", (".pts",), _make_chunks(True), PtsWriter,
-                     description="Leica PTS: a count line, then x y z [intensity] [r g b]"))
+                     description="Leica PTS: a count line, then x y z [intensity] [r g b]", named_columns=False))
