@@ -11,6 +11,7 @@ from .errors import InputError, InputTypeError, warn_clamped
 from .kernel_report import KernelReport
 from .model.protocol import MachineModel
 from .point_uncertainty import UncertaintySources
+from .uncertainty_columns import require_stated
 from .pose import MountOffset, Pose, digitizer
 from .temperature import TemperaturePolicy, as_policy, check_policy
 
@@ -133,6 +134,7 @@ def compensate(
             uncertainty = UncertaintySources()
         if not isinstance(uncertainty, UncertaintySources):
             raise InputTypeError(f"uncertainty: expected True or an UncertaintySources, got {type(uncertainty).__name__}")
+        require_stated(uncertainty, maps)  # every u 0 would be a silent wrong answer
         points, report = maps.compensate_points_uncertainty(
             uv, scales, pose, offset, temperature, sources=uncertainty, detail=uncertainty_detail, policy=policy,
             nan_policy=nan_policy, columns=dict(columns or {}))
