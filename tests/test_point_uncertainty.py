@@ -254,3 +254,37 @@ def test_a_map_file_states_its_uncertainty_and_reads_back(tmp_path):
     (tmp_path / "rep.csv").write_text(repeated)
     with pytest.raises(cmmpose.MapError, match="source repeated"):
         ErrorMap.read(tmp_path / "rep.csv")
+
+
+def _machine_text(extra: str) -> str:
+    from cmmpose.machine import example_text
+    return example_text("thesis") + "\n" + extra
+
+
+def test_a_machine_file_states_its_maps_uncertainty(tmp_path):
+    from cmmpose.machine import load_machine
+    path = tmp_path / "m.toml"
+    path.write_text(_machine_text('[uncertainty]\nposition_um = [[0.5, 0.5, 0.5], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5]]\n'
+                                  'positioning_ppm = [1.0, 1.0, 1.0]\nsource = "certificate 123"\n'))
+    machine = load_machine(path)
+    assert machine.map_uncertainty.source == "certificate 123"
+    maps = machine.maps()
+    assert maps.stated_uncertainty == machine.map_uncertainty
+    assert all(m.stated_uncertainty == machine.map_uncertainty for m in maps.maps)
+    # Maps named apart are taken as they state themselves.
+    assert machine.maps(("appendix-b",)).stated_uncertainty is None
+
+
+@pytest.mark.parametrize("table, match", [
+    ("squareness_arcsec = [1.0, 1e30, 0.0]", r"uncertainty\.squareness_arcsec\[1\]"),
+    ("positioning_ppm = [-1.0, 0.0, 0.0]", r"uncertainty\.positioning_ppm\[0\]"),
+    ("rotation_arcsec = [[0.1, 0.1], [0.1, 0.1, 0.1], [0.1, 0.1, 0.1]]", r"uncertainty\.rotation_arcsec\[0\]"),
+    ("position = 1.0", r"uncertainty.*position"),
+])
+def test_a_machine_files_bad_uncertainty_is_refused_by_key(tmp_path, table, match):
+    from cmmpose.machine import load_machine
+    path = tmp_path / "m.toml"
+    path.write_text(_machine_text("[uncertainty]\n" + table + "\n"))
+    with pytest.raises(InputError, match=match) as info:
+        load_machine(path)
+    assert "m.toml" in str(info.value)

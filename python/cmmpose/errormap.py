@@ -406,6 +406,10 @@ class ErrorMapSet(AppliedMaps):
         """The machine configuration of the set's maps (see ``ErrorMap.kinematics``)."""
         return self._core.kinematics
 
+    def with_uncertainty(self, uncertainty: MapUncertainty | None) -> ErrorMapSet:
+        """The same set, every map stating ``uncertainty`` for its components."""
+        return ErrorMapSet([m.with_uncertainty(uncertainty) for m in self.maps])
+
     def with_kinematics(self, kinematics: str) -> ErrorMapSet:
         """The same set for a machine configured as ``kinematics``."""
         if not isinstance(kinematics, str):

@@ -27,6 +27,7 @@ from ._validate import check_reproducibility, finite, nonnegative, parse_toml, p
 from .effects import channel_roles
 from .errormap import ErrorMap, ErrorMapSet, data_path
 from .errors import InputError, read_input_text
+from .point_uncertainty import MapUncertainty
 from .pose import MountOffset, Pose, check_pose_angles
 from .scanner import Scanner
 from .schemas import validate
@@ -45,13 +46,14 @@ _DEFAULT_SOURCE = "the thesis machine (default)"
 #: Keys a machine file may hold, per table ('' is the top level).
 _KEYS = {
     "": {"name", "kinematics", "travel", "maps", "scanner", "mount", "thermocouples", "expansion",
-         "reproducibility"},
+         "reproducibility", "uncertainty"},
     "travel": {"x", "y", "z"},
     "maps": {"bundled", "files"},
     "scanner": {"field_of_view_mm", "depth_of_view_mm", "points_per_profile", "profile_rate_hz", "noise_um"},
     "mount": {"offset_mm", "pose_deg", "alignments"},
     "expansion": {"artefact"},
     "reproducibility": {"per_scan_um", "source"},
+    "uncertainty": {"position_um", "rotation_arcsec", "squareness_arcsec", "positioning_ppm", "reference_mm", "source"},
 }
 
 #: Tables a machine file must have: without them a machine would silently be
@@ -149,6 +151,8 @@ class Machine:
     #: Per-scan centre reproducibility, um per axis, and where it comes from (None: not stated).
     reproducibility_um: float | None = None
     reproducibility_source: str | None = None
+    #: The maps' stated uncertainty per component (``[uncertainty]``; None: the maps' own, if they state one).
+    map_uncertainty: MapUncertainty | None = None
 
     @classmethod
     def thesis(cls) -> Machine:
@@ -169,6 +173,8 @@ class Machine:
         """The machine's error maps (or those named by ``specs``, as
         :func:`read_maps` takes them), stacked as its configuration says."""
         maps = read_maps(specs or (self.map_files or (self.bundled_maps,)))
+        if self.map_uncertainty is not None and not specs:
+            maps = maps.with_uncertainty(self.map_uncertainty)
         return maps.with_kinematics(self.kinematics)
 
     def maps_for_run(self, run, specs=()) -> ErrorMap | ErrorMapSet | None:
@@ -368,10 +374,14 @@ def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
         raise InputError(f"{where}: expansion.artefact = {expansion_ppm:g} ppm/K is outside {lo:g}..{hi:g} ppm/K "
                          "(a coefficient of expansion in ppm/K, e.g. 11.5 for steel)")
     repro_um, repro_source = _reproducibility(doc, where)
+    map_uncertainty = None
+    if "uncertainty" in doc:
+        map_uncertainty = MapUncertainty.from_dict(dict(doc["uncertainty"]), f"{where}: [uncertainty]")
     machine = Machine(name=name, kinematics=kinematics, travel=travel, map_files=files, bundled_maps=bundled,
                       scanner=scanner, offset=offset, pose=pose, alignments=alignments, thermocouples=dict(tc),
                       artefact_expansion=expansion_ppm * 1e-6, source=where, defaults=tuple(defaults),
-                      reproducibility_um=repro_um, reproducibility_source=repro_source)
+                      reproducibility_um=repro_um, reproducibility_source=repro_source,
+                      map_uncertainty=map_uncertainty)
     for d in defaults:
         _log.info("machine %s: %s (the default; the file does not give it)", where, d)
     _log.info("machine %s: %s, %s", where, name, kinematics)

@@ -83,6 +83,16 @@ def schema() -> dict:
                           "propertyNames": text(), "additionalProperties": {"enum": roles, "x-what": "role"},
                           "description": "channel = 'role' for each thermocouple"},
         "expansion": obj({"artefact": expansion}),
+        "uncertainty": obj({
+            "position_um": triple(triple(number(0.0, 1000.0, "um")), "[carriage X, Y, Z][dx, dy, dz], um"),
+            "rotation_arcsec": triple(triple(number(0.0, 3600.0, "arc-second")),
+                                      "[carriage X, Y, Z][ex, ey, ez], arc-seconds"),
+            "squareness_arcsec": triple(number(0.0, 3600.0, "arc-second"), "S_xy, S_yz, S_zx, arc-seconds"),
+            "positioning_ppm": triple(number(0.0, 1000.0, "ppm"), "X's dx, Y's dy, Z's dz: ppm of the distance"),
+            "reference_mm": triple(number(-TRAVEL_LIMIT_MM, TRAVEL_LIMIT_MM, "mm"), "where each axis was zeroed"),
+            "source": {"type": "string", "maxLength": 100_000, "pattern": NO_CONTROL},
+        }, description="the maps' stated standard uncertainty (k = 1) per component (docs/uncertainty.md, "
+                       "section 5)"),
         "reproducibility": obj({
             "per_scan_um": number(0.0, MAX_REPRODUCIBILITY_MM * 1e3, "um", exclusive_lo=True,
                                   description="the per-scan centre reproducibility, um per axis"),
