@@ -212,7 +212,7 @@ LAYERS = [
     ("evaluation",),
     ("compensation", "filecompensation"),
     ("model",),
-    ("fitting", "run", "machine", "errormap", "point_uncertainty", "pose", "scanner", "temperature", "layouts", "placement",
+    ("fitting", "centre_uncertainty", "run", "machine", "errormap", "point_uncertainty", "pose", "scanner", "temperature", "layouts", "placement",
      "kernel_report", "policy", "effects", "artefacts", "formats"),
     ("atomicfile", "errors", "_json", "_csvtable", "_registry", "_validate", "_arrays", "_lazy", "_core"),
 ]
