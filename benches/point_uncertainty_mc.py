@@ -78,7 +78,8 @@ def points_table(n: int, draws: int) -> None:
     uv, scales = scan(n)
     pose = (30.0, 60.0, 20.0)
     alone = lambda name: ALL.without(*(s for s in SOURCES if s != name))  # noqa: E731
-    cases = [(f"{s} alone", maps, T, alone(s)) for s in ("map", "temperature", "scanner_scale", "scanner_noise", "pose")]
+    cases = [(f"{s} alone", maps, T, alone(s))
+             for s in ("map", "temperature", "scanner_scale", "scanner_noise", "pose")]
     cases += [("model alone", model_case(maps), T, alone("model")), ("all, map set", maps, T, ALL),
               ("all, one map", maps.at(T).with_uncertainty(None), None, ALL)]
     print(f"1. points: {n} readings over the thesis maps' travel, pose {pose}, {draws} draws "
@@ -88,7 +89,8 @@ def points_table(n: int, draws: int) -> None:
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", cmmpose.ModelDomainWarning)
-            stated = cmmpose.compensate(uv, scales, m, pose, OFFSET, t, uncertainty=src, uncertainty_detail="covariance")
+            stated = cmmpose.compensate(uv, scales, m, pose, OFFSET, t, uncertainty=src,
+                                        uncertainty_detail="covariance")
             mc = monte_carlo_points(uv, scales, m, pose, OFFSET, t, sources=src, draws=draws, rng=1)
         ref = np.maximum(stated.u, 0.01 * stated.u.max(axis=1, keepdims=True))
         rel = (mc.u - stated.u) / ref
