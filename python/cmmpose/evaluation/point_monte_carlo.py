@@ -91,11 +91,13 @@ def perturbed_maps(maps: ErrorMap | ErrorMapSet, draw: MapDraw, reference=None) 
     """The maps with one draw of their component errors: the same draw on
     every map of a set (the stated uncertainty is the blend's, common to its
     temperatures), the positioning error from ``reference`` (mm per axis;
-    None: each table's first position, as the kernel takes it)."""
+    None: the first map's table starts, as the kernel takes them)."""
     if isinstance(maps, ErrorMap):
         return _shifted_map(maps, draw, reference)
     if isinstance(maps, ErrorMapSet):
-        return ErrorMapSet([_shifted_map(m, draw, reference) for m in maps.maps])
+        first = maps.maps
+        ref = reference if reference is not None else [lo for lo, _ in first[0].ranges]
+        return ErrorMapSet([_shifted_map(m, draw, ref) for m in first])
     raise InputTypeError(f"maps: expected an ErrorMap or ErrorMapSet, got {type(maps).__name__}")
 
 
