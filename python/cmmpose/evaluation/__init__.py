@@ -4,7 +4,8 @@
 - ``artefact``: ball plates, step gauges and spheres at placements
   (:func:`evaluate_artefact`, docs/artefacts.md).
 - ``metrics``: the figures of merit (rms accuracy error, B89 value).
-- ``uncertainty``: the GUM toolkit (budgets, inputs, coverage);
+- ``uncertainty``: the GUM toolkit (budgets, inputs, coverage); ``point_monte_carlo``:
+  the Monte Carlo of compensated points (each point's uncertainty checked);
   ``ballbar_uncertainty``: every ballbar figure's budget.
 - ``files``: the files an evaluation writes; ``plots``: its figures and those of
   fits and maps (extra ``plot``).
@@ -19,7 +20,7 @@ from typing import TYPE_CHECKING
 
 from .._lazy import lazy_attributes
 
-_MODULES = ("ballbar", "artefact", "metrics", "uncertainty", "ballbar_uncertainty", "files", "plots")
+_MODULES = ("ballbar", "artefact", "metrics", "uncertainty", "ballbar_uncertainty", "point_monte_carlo", "files", "plots")
 
 __getattr__, __dir__ = lazy_attributes(__name__, {
     **{name: (name, None) for name in _MODULES},

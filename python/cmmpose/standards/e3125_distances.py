@@ -14,8 +14,14 @@ line between them with the reference's:
 
     u(E_ab)^2 = n^T (C_a + C_b) n + u(L_ref)^2,    n = (c_b - c_a) / |c_b - c_a|,
 
-treating the two scans' centres as independent (separate scans). Lengths in
-mm. Errors may be judged against an MPE (A or A + L/K) with the same ISO
+treating the two scans' centres as independent (separate scans). A scan given
+as compensated points with their uncertainty
+(:class:`cmmpose.point_uncertainty.UncertainPoints`, ``uncertainty_detail='split'``)
+gives its centre the covariance of :mod:`cmmpose.centre_uncertainty`: the
+points' common part (maps, temperature, pose) whole, their noise through the
+fit (docs/uncertainty.md, section 5); counted independent for both centres,
+the common part that a pair shares is counted twice, not cancelled (an upper
+bound). Lengths in mm. Errors may be judged against an MPE (A or A + L/K) with the same ISO
 14253-1 style rule as :mod:`.acceptance` (the test uncertainty counted against
 the user): pass when |E| + U <= MPE, fail when |E| - U > MPE, else not proven.
 
@@ -35,7 +41,9 @@ import numpy as np
 from .._csvtable import read_csv_table
 from .._validate import LENGTH_UNIT_NAMES, length_unit_slip
 from ..errors import GeometryError, ImplausibleFit, InputError
+from ..centre_uncertainty import e3125_uncertain
 from ..fitting import e3125
+from ..point_uncertainty import UncertainPoints
 from ..evaluation.plots import new_figure, save_plot
 from .acceptance import DECISION_RULE, MPE, decide
 
@@ -206,8 +214,11 @@ def sphere_targets(scans: dict, radius: float, scanner_origin=(0.0, 0.0, 0.0)) -
 
     Parameters
     ----------
-    scans : dict of str -> array_like (N, 3)
-        Raw scans, mm, all in the scanner's frame.
+    scans : dict of str -> array_like (N, 3) or UncertainPoints
+        Raw scans, mm, all in the scanner's frame. Points with their
+        uncertainty (split) give the centre's covariance from it
+        (:func:`cmmpose.centre_uncertainty.e3125_uncertain`), else from the
+        fit's residuals (noise only).
     radius : float
         Calibrated sphere radius, mm.
     scanner_origin : array_like (3,)
@@ -218,7 +229,8 @@ def sphere_targets(scans: dict, radius: float, scanner_origin=(0.0, 0.0, 0.0)) -
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", ImplausibleFit)
-                r = e3125(points, radius, scanner_origin)
+                r = e3125_uncertain(points, radius, scanner_origin).fit if isinstance(points, UncertainPoints) \
+                    else e3125(points, radius, scanner_origin)
         except (InputError, GeometryError) as exc:
             raise type(exc)(f"target {name!r}: {exc.message}", **exc.fields) from None
         for w in caught:  # each implausible fit again, naming its target
