@@ -25,6 +25,7 @@ Units: mm inside, um in tables and JSON (``_um`` keys), degrees C.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,6 +38,7 @@ from .ballbar import machine_coordinates, evaluation_provenance, rounded_dict, l
 from ..temperature import TemperaturePolicy, as_policy
 from .ballbar_uncertainty import DEFAULT_U_TEMPERATURE_K
 from ..fitting import fit_spheres
+from .point_monte_carlo import MapDraw, perturbed_maps
 from ..run import Run
 from .artefact_balls import (check_labels, ball_scans, check_ball_positions, is_artefact_run,
                              rigid_fit, rigid_projection)
@@ -259,6 +261,37 @@ def _model_moves(run, model, model_t, groups, reject, policy, base_xyz, once: se
     return out
 
 
+def _map_moves(run, maps, model_t, groups, reject, policy, base_xyz, once: set | None = None) -> list[dict]:
+    """Per component the maps state an uncertainty for (:class:`cmmpose.point_uncertainty.MapUncertainty`):
+    each scan's fitted centre move for a change of that u (mm), the maps moved by one unit of the component
+    (um, arc-second or ppm: the model is linear in each) through the kernel and the fits. Such a move is common
+    to every ball, as a parameter of a model is: the rigid fit and the lengths take it with its correlations."""
+    stated = maps.error_maps.stated_uncertainty
+    if stated is None:
+        return []
+    sid = run.points["scan_id"]
+    keep = np.isin(sid, [s for balls in groups.values() for scans in balls.values() for s in scans])
+    base = fit_spheres(base_xyz[keep], sid[keep], reject=reject)
+    ref = stated.reference_mm
+    out = []
+    for field_name, shape in (("position_um", (3, 3)), ("rotation_arcsec", (3, 3)), ("squareness_arcsec", (3,)),
+                              ("positioning_ppm", (3,))):
+        u_all = np.asarray(getattr(stated, field_name), dtype=float)
+        for index in np.ndindex(shape):
+            if u_all[index] <= 0:
+                continue
+            unit = {f: np.zeros(s) for f, s in (("position_um", (3, 3)), ("rotation_arcsec", (3, 3)),
+                                                 ("squareness_arcsec", (3,)), ("positioning_ppm", (3,)))}
+            unit[field_name][index] = 1.0
+            moved_maps = perturbed_maps(maps.error_maps, MapDraw(**unit), ref)
+            moved_model = moved_maps if maps.error_maps is maps else dataclasses.replace(maps, maps=moved_maps)
+            xyz = machine_coordinates(run, moved_model, model_t, policy, once=once)
+            moved = fit_spheres(xyz[keep], sid[keep], reject=reject)
+            d = (moved.centre - base.centre) * u_all[index]
+            out.append({int(k): d[i] for i, k in enumerate(base.labels.tolist())})
+    return out
+
+
 def _evaluate_state(label, run, xyz, groups, artefact, temps, labels, reject, u_temperature,
                     model_moves=(), check=False) -> ArtefactResult:
     sid = run.points["scan_id"]
@@ -340,6 +373,7 @@ def evaluate_artefact(
     temperature_tolerance: float | None = None,
     log_hold: float | None = None,
     temperature_policy: TemperaturePolicy | None = None,
+    map_uncertainty: bool = False,
 ) -> ArtefactEvaluation:
     """Evaluate an artefact run: deviations and length errors per placement.
 
@@ -362,6 +396,13 @@ def evaluate_artefact(
     temperature_policy : TemperaturePolicy, optional
         How the log becomes temperatures (cmmpose.temperature); default
         ``TemperaturePolicy()``.
+    map_uncertainty : bool
+        Also carry the maps' stated uncertainty per component
+        (``stated_uncertainty``, docs/uncertainty.md section 5) into the
+        compensated deviations' and lengths' u: each component moves every
+        ball's centre at once (one kernel pass and fit per stated
+        component), so the rigid fit and the lengths take it with its
+        correlations, not as independent per ball.
 
     Returns
     -------
@@ -427,6 +468,13 @@ def evaluate_artefact(
     if moves:
         prov["notes"].append(f"the u of the compensated deviations and lengths include the model's {len(moves)} "
                              f"parameter uncertainties (taken as independent: the model file keeps no correlations)")
+    if map_uncertainty:
+        stated_moves = _map_moves(run, maps, model_t, groups, reject, policy, xyz, once)
+        moves = list(moves) + stated_moves
+        prov["notes"].append(
+            f"the u of the compensated deviations and lengths include the maps' stated uncertainty "
+            f"({len(stated_moves)} components, each common to every ball)" if stated_moves else
+            "map_uncertainty: the maps state no uncertainty (docs/uncertainty.md, section 5): none is included")
     undetermined = [f"{s.name}.{p}" for s, _ in maps.effects for p, u in
                     zip(s.params, np.ravel(maps.uncertainty.get(s.name, np.full(s.size, np.nan)))) if np.isinf(u)]
     if undetermined:  # the diagnosis could not determine them: no number would be honest
