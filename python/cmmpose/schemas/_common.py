@@ -166,6 +166,16 @@ def short(value, limit: int = 40) -> str:
     return type(value).__name__
 
 
+def given(value) -> str:
+    """``value`` as the document wrote it: Python's ``repr`` of a float, a boolean or (short) text, as
+    :func:`short` shows anything else (a 400-digit integer is not printed back)."""
+    if isinstance(value, (bool, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return short(value)
+    return short(value)
+
+
 _TYPE_WORDS = {"number": "a number", "integer": "a whole number", "string": "text", "array": "a list",
                "object": "a table", "boolean": "true or false", "null": "null"}
 
@@ -194,7 +204,8 @@ def _template(error) -> str | None:
 def _templated(error, document) -> str:
     """The message of a node with its own words (:func:`_template`), a format string with the fields
     ``path`` (the key path), ``parent`` (its table's or list's), ``key`` (the last key), ``item`` (the
-    item's name from ``x-item-names``), ``value`` (as shown), ``name`` (the ``name`` of the nearest table
+    item's name from ``x-item-names``), ``value`` (as shown), ``given`` (as written: Python's repr of a
+    float, a boolean or text, the value as shown otherwise), ``name`` (the ``name`` of the nearest table
     above that has one) and, for a missing key, ``missing`` (its path), ``header`` (``[table]`` for a
     table) and ``hint`` (its description)."""
     name, node = None, document
@@ -207,7 +218,8 @@ def _templated(error, document) -> str:
     names = error.schema.get("x-item-names", ())
     fields = {"path": _key(key_path(parts)), "parent": _key(key_path(parts[:-1])), "key": key,
               "item": names[key] if isinstance(key, int) and key < len(names) else key,
-              "value": short(error.instance), "name": short(name), "missing": "", "header": "", "hint": ""}
+              "value": short(error.instance), "given": given(error.instance), "name": short(name), "missing": "",
+              "header": "", "hint": ""}
     if error.validator == "required":
         missing = [k for k in error.validator_value if k not in error.instance][0]
         sub = error.schema.get("properties", {}).get(missing, {})
@@ -274,9 +286,10 @@ def describe(error) -> str:
 
 def _best(errors):
     """The error to report: the deepest in the document, of those the most specific rule (the longest schema
-    path: an effect's own bound before the bound of any parameter); ``oneOf``/``anyOf`` descended into."""
+    path: an effect's own bound before the bound of any parameter), an unknown key before a missing one (it is
+    most often the missing one misspelt, as the loaders say); ``oneOf``/``anyOf`` descended into."""
     def depth(e):
-        return -len(e.absolute_path), -len(e.absolute_schema_path)
+        return -len(e.absolute_path), -len(e.absolute_schema_path), e.validator != "additionalProperties"
 
     best = min(errors, key=depth, default=None)
     while best is not None and best.context:

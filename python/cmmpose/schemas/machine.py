@@ -94,10 +94,19 @@ def schema() -> dict:
         }, description="the maps' stated standard uncertainty (k = 1) per component (docs/uncertainty.md, "
                        "section 5)"),
         "reproducibility": obj({
-            "per_scan_um": number(0.0, MAX_REPRODUCIBILITY_MM * 1e3, "um", exclusive_lo=True,
-                                  description="the per-scan centre reproducibility, um per axis"),
-            "source": {"type": "string", "maxLength": 100_000, "pattern": NO_CONTROL},
-        }, ["per_scan_um"]),
+            # The loader's own words (cmmpose._validate.check_reproducibility), which commands and tests quote.
+            "per_scan_um": own_words(own_words(
+                number(0.0, MAX_REPRODUCIBILITY_MM * 1e3, "um", exclusive_lo=True,
+                       description="the per-scan centre reproducibility, um per axis"),
+                "{path}: expected a positive number of um, got {given}", ("exclusiveMinimum", "type")),
+                f"{{path}}: {{value}} um per axis is implausible for a sphere centre (more than "
+                f"{MAX_REPRODUCIBILITY_MM * 1e3:g} um, ten times a whole uncompensated machine's errors): a unit "
+                "slip? (um expected)", ("maximum",)),
+            "source": own_words({"type": "string", "maxLength": 100_000, "pattern": NO_CONTROL},
+                                "{path} must be a non-empty text, got {given}", ("type",)),
+        }, ["per_scan_um"], **{"x-messages": {
+            "required": "{missing} is missing (the per-scan centre reproducibility, um per axis, from a repeat test: "
+                        "cmmpose machine reproducibility)"}}),
     }, ["travel", "maps", "mount", "thermocouples", "kinematics"],
         **{"x-messages": {"required": "{header} is missing ({hint}); a machine file states it (cmmpose machine "
                                       "example)"}})
