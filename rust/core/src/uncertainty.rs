@@ -311,6 +311,13 @@ impl Quadratic {
         }
     }
 
+    /// The diagonal of C(u, v): all a standard uncertainty needs.
+    #[inline(always)]
+    fn diagonal_at(&self, u: f64, v: f64) -> [f64; 3] {
+        let [a0, a1, a2, a3, a4, a5] = &self.0;
+        std::array::from_fn(|k| a0[k] + u * (a1[k] + u * a3[k] + v * a4[k]) + v * (a2[k] + v * a5[k]))
+    }
+
     /// C(u, v).
     #[inline(always)]
     fn at(&self, u: f64, v: f64) -> Sym {
@@ -360,6 +367,14 @@ impl<S: Source> Propagation<'_, S> {
             last = Some((i, quad, noise));
             let mut p = [self.uv[2 * i], self.uv[2 * i + 1]];
             self.bound.scanner_inverse(i, &mut p);
+            if w == 3 {
+                // The same sums as `at` for the diagonal, so the same bits as the other details.
+                let d = quad.diagonal_at(p[0], p[1]);
+                for k in 0..3 {
+                    row[k] = (d[k] + noise[k]).max(0.0).sqrt();
+                }
+                continue;
+            }
             let common = quad.at(p[0], p[1]);
             let total: Sym = std::array::from_fn(|k| common[k] + noise[k]);
             row[0] = total[0].max(0.0).sqrt();
