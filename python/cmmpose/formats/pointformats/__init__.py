@@ -1,9 +1,9 @@
 """Registry of point-file formats (docs/formats.md, "Point files").
 
 Each format lives in one public module of this package and registers itself
-when the package is imported (every public module is, in name order; a second
-format of a name already taken is refused): a name, the file suffixes it is found by, a chunked
-reader of named columns and a chunked writer. :mod:`cmmpose.formats.pointfiles`
+when the package is imported (every public module is, in name order; a
+second format of a name already taken is refused): a name, the file suffixes
+it is found by, a chunked reader of named columns and a chunked writer. :mod:`cmmpose.formats.pointfiles`
 (``cmmpose compensate``) and :mod:`cmmpose.formats.pointclouds`
 (:func:`~cmmpose.read_point_cloud`) dispatch through it and never import a
 format module themselves.
