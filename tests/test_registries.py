@@ -228,7 +228,7 @@ def test_a_new_per_axis_map_format_goes_through_the_commands(tmp_path, monkeypat
     its declaration: the commands name no format."""
     from cmmpose.formats.linuxcnc import read_comp_files, write_comp_files
 
-    reg = Registry("map file format", order=mapformats.REGISTRY._order,
+    reg = Registry("map file format",
                    unknown=lambda name, known: InputError(f"unknown map file format {name!r} ({known})"))
     for name, entry in mapformats.REGISTRY.items():
         reg.register(name, entry)
