@@ -2,7 +2,7 @@
 same run: `cmmpose.formats.pointfiles.PointWriter` writing 10,000,000 compensated
 points (X, Y, Z float64 in profiles of 1000 points, as scanner data come, and
 an integer scan_id) in chunks of 1,000,000, once with the encodings chosen
-per column kind (``cmmpose.formats.pointformats._common.parquet_options``: no
+per column kind (``cmmpose.formats.pointformats.common.parquet_options``: no
 dictionary and BYTE_STREAM_SPLIT + zstd for reals, a dictionary for
 integers) and once with pyarrow's defaults (a dictionary on every column,
 snappy). Runs alternate; min-max of ``--repeats`` each, and the file sizes.

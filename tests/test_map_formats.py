@@ -20,10 +20,13 @@ APPENDIX_B = cmmpose.data_path("errors_1102.txt")
 
 
 def test_registry_lists_the_formats():
-    assert mapformats.names() == ["csv", "controller", "iso230-2"]
+    assert mapformats.names() == ["csv", "controller", "iso230-2", "linuxcnc"]
     assert mapformats.get("csv").write is not None
     assert mapformats.get("controller").write is None  # read only
     assert mapformats.get("iso230-2").write is not None
+    assert mapformats.get("linuxcnc").write is not None
+    # one file per axis is what the format declares, not what its name says
+    assert [n for n in mapformats.names() if mapformats.get(n).per_axis] == ["linuxcnc"]
     assert all(mapformats.get(n).description for n in mapformats.names())
 
 
@@ -60,7 +63,7 @@ def test_each_module_imports_alone(module):
     code = f"import {module}; from cmmpose.formats import mapformats; print(','.join(mapformats.names()))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "csv,controller,iso230-2"
+    assert out.stdout.strip() == "csv,controller,iso230-2,linuxcnc"
 
 
 def imported_modules(name):
@@ -83,8 +86,8 @@ def imported_modules(name):
 def test_no_import_cycle_between_errormap_and_the_format_modules():
     formats = {f"formats.{m}" for m in ("mapfiles", "controller", "iso230", "linuxcnc", "linearaxis")}
     assert not imported_modules("errormap") & formats
-    assert imported_modules("formats.mapformats") == {"errors"}
-    for fmt in ("mapfiles", "controller", "iso230"):
+    assert imported_modules("formats.mapformats") == {"errors", "_registry"}
+    for fmt in ("mapfiles", "controller", "iso230", "linuxcnc"):
         assert {"errormap", "formats.mapformats"} <= imported_modules(f"formats.{fmt}")
 
 

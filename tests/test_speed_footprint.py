@@ -228,7 +228,7 @@ def test_the_cli_compensate_uses_the_pipeline_and_prints_its_summary(tmp_path):
 def test_memory_mapped_inputs_read_the_same_after_their_pages_are_released(tmp_path, suffix):
     """NPY and binary PLY chunks give their pages back as they go (release_pages):
     every value still reads as written, including rows on shared page edges."""
-    from cmmpose.formats.pointformats._common import release_pages
+    from cmmpose.formats.pointformats.common import release_pages
 
     n = 20_011  # chunks of 997 rows: blocks start and end inside pages
     rng = np.random.default_rng(7)

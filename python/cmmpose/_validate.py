@@ -18,14 +18,14 @@ from .errors import InputError, MapError
 
 #: A decimal number as map and point files write them: sign, digits, point,
 #: exponent; ASCII only.
-_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
+DECIMAL_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
 
 #: Spelled-out non-finite values: numbers, but refused as not finite.
 _NON_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE)
 
 __all__ = ["finite", "nonnegative", "positive", "triple", "vector3", "parse_number", "parse_toml",
            "LENGTH_UNITS_MM", "LENGTH_UNIT_NAMES", "length_unit_slip", "MAX_REPRODUCIBILITY_MM",
-           "check_reproducibility"]
+           "check_reproducibility", "DECIMAL_NUMBER"]
 
 #: Largest stated per-scan centre reproducibility, mm per axis: a sphere
 #: scan's centre repeats to micrometres, and a whole uncompensated machine
@@ -251,7 +251,7 @@ def parse_number(text: str, where: str, what: str, *, error: type[Exception] = M
     """
     # Plain ASCII decimal numbers only: Python's float() also takes '1_0',
     # non-ASCII digits and 'infinity', which no map file means.
-    if not (_NUMBER.fullmatch(text.strip()) or _NON_FINITE.fullmatch(text.strip())):
+    if not (DECIMAL_NUMBER.fullmatch(text.strip()) or _NON_FINITE.fullmatch(text.strip())):
         raise error(f"{where}: {what} {text.strip()!r} is not a number")
     value = float(text)
     if not math.isfinite(value):

@@ -217,13 +217,15 @@ class ErrorMap(AppliedMaps):
         """Read a map file: by default the canonical CSV format (docs/formats.md).
 
         ``format`` names a registered map file format (:mod:`cmmpose.formats.mapformats`:
-        ``'csv'``, ``'controller'``, ``'iso230-2'``), or ``'auto'`` for the one that recognises
-        the file; ``options`` go to that format's reader.
+        ``'csv'``, ``'controller'``, ``'iso230-2'``, ``'linuxcnc'``), or ``'auto'`` for the one that
+        recognises the file; ``options`` go to that format's reader. A format of one file per axis
+        (``'linuxcnc'``) reads a mapping axis -> file, or the files of a folder.
         """
         return mapformats.read(path, format, **options)
 
     def write(self, path: str | PathLike, format: str = "csv") -> None:
-        """Write the map, by default in the canonical CSV format (docs/formats.md)."""
+        """Write the map, by default in the canonical CSV format (docs/formats.md); a format of one
+        file per axis (``'linuxcnc'``) writes into the folder ``path``."""
         mapformats.write(self, path, format)
 
     @classmethod

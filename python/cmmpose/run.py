@@ -35,7 +35,7 @@ from .atomicfile import staged_folder
 from .errors import RunError, RunFileError, read_input_text
 from .schemas import loads_json, validate
 from .schemas.run import CHANNEL_ROLES, SCHEMA, SCHEMA_VERSION, SUPPORTED_SCHEMA_VERSIONS, TABLES
-from .formats.pointformats._common import parquet_options
+from .formats.pointformats.common import parquet_options
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
 pa = LazyModule("pyarrow")

@@ -56,7 +56,7 @@ from .temperature import TEMPERATURE_TOLERANCE, TemperaturePolicy, as_policy
 from .pose import pose_tuple
 from ._arrays import as_triple
 from .kernel_report import KernelReport
-from .formats.pointformats._common import parquet_options
+from .formats.pointformats.common import parquet_options
 from .point_uncertainty import UncertainPoints, UncertaintySources
 from .uncertainty_columns import (UncertaintyTally, budget_rows, check_detail, columns_of, log_budget, require_stated,
                                   uncertainty_columns)

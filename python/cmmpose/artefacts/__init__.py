@@ -16,17 +16,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .._registry import discover
+from .._registry import Registry
 from ..errormap import data_path
 from .._validate import parse_toml, vector3
 from ..errors import InputError, InputTypeError, MissingFileError, read_input_text
 from ..schemas import validate
 # The ranges of an artefact file's numbers live with its schema (defined once there, used here and by the schema).
 from ..schemas.artefact import EXPANSION_RANGE_PPM, REFERENCE_TEMPERATURE_RANGE_C
-from ._base import Artefact, ArtefactKind
+from .base import Artefact, ArtefactKind
 
-__all__ = ["Artefact", "ArtefactKind", "available", "get", "example_names", "example_text", "load_artefact",
-           "parse_artefact", "from_dict", "EXPANSION_RANGE_PPM", "REFERENCE_TEMPERATURE_RANGE_C"]
+__all__ = ["Artefact", "ArtefactKind", "REGISTRY", "available", "get", "example_names", "example_text",
+           "load_artefact", "parse_artefact", "from_dict", "EXPANSION_RANGE_PPM", "REFERENCE_TEMPERATURE_RANGE_C"]
 
 #: Keys an artefact file may hold, per table ('' is the top level, 'balls' each ball).
 _KEYS = {
@@ -35,19 +35,21 @@ _KEYS = {
     "balls": {"id", "xyz_mm", "u_um"},
 }
 
-_REGISTRY: dict[str, type[ArtefactKind]] = discover(__name__, __path__, ArtefactKind, "kind", "artefact kind")
+#: The artefact kinds by name: each public module's ``ArtefactKind`` subclasses, by their ``kind``.
+REGISTRY: Registry[type[ArtefactKind]] = Registry(
+    "artefact kind", order=str,
+    unknown=lambda kind, names: InputError(f"artefact kind {kind!r}: unknown; known: {', '.join(names)}"),
+).discover(__name__, __path__, ArtefactKind, "kind")
 
 
 def available() -> dict[str, type[ArtefactKind]]:
     """Artefact kinds by name, sorted."""
-    return dict(sorted(_REGISTRY.items()))
+    return REGISTRY.as_dict()
 
 
 def get(kind: str) -> type[ArtefactKind]:
     """The artefact kind ``kind``; ``InputError`` naming the known ones."""
-    if kind not in _REGISTRY:
-        raise InputError(f"artefact kind {kind!r}: unknown; known: {', '.join(available())}")
-    return _REGISTRY[kind]
+    return REGISTRY.get(kind)
 
 
 def example_names() -> list[str]:
@@ -57,8 +59,8 @@ def example_names() -> list[str]:
 
 def example_text(name: str) -> str:
     """The text of the bundled example ``name``, or of a kind's default example."""
-    if name in _REGISTRY:
-        name = _REGISTRY[name].example
+    if name in REGISTRY:
+        name = REGISTRY.get(name).example
     if name not in example_names():
         raise InputError(f"artefact example {name!r}: not a kind ({', '.join(available())}) "
                          f"nor an example ({', '.join(example_names())})")
@@ -76,7 +78,7 @@ def load_artefact(path) -> Artefact:
         key, a repeated ball, a missing uncertainty, a non-physical number.
     """
     text_path = Path(path)
-    if not text_path.exists() and str(path) in set(example_names()) | set(_REGISTRY):
+    if not text_path.exists() and str(path) in set(example_names()) | set(REGISTRY):
         name = str(path)
         return parse_artefact(tomllib.loads(example_text(name)), f"bundled artefact {name!r}")
     try:  # the one reader: a FIFO or /dev/zero refused as what it is, the size bounded
@@ -113,7 +115,7 @@ def parse_artefact(doc: dict, where: str) -> Artefact:
                 prefix = f"{label}." if table else ""
                 raise InputError(f"{where}: unknown key {prefix}{unknown[0]} (known: {', '.join(sorted(allowed))})")
     kind = _text(doc, "kind", where)
-    cls = get(kind) if kind in _REGISTRY else None
+    cls = get(kind) if kind in REGISTRY else None
     if cls is None:
         raise InputError(f"{where}: kind = {kind!r} is not one of {', '.join(available())}")
     name = _text(doc, "name", where)

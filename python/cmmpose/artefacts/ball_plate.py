@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 from ..errors import InputError
-from ._base import Artefact, ArtefactKind, line_distance, plane_distance
+from .base import Artefact, ArtefactKind, line_distance, plane_distance
 
 
 class BallPlate(ArtefactKind):
@@ -16,6 +16,7 @@ class BallPlate(ArtefactKind):
     example: ClassVar[str] = "koba-0620"
     min_balls: ClassVar[int] = 4
     layout: ClassVar[str] = "planes"
+    spans: ClassVar[str] = "plane"
 
     @classmethod
     def check(cls, artefact: Artefact, where: str) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from ._base import ArtefactKind
+from .base import ArtefactKind
 
 
 class Ballbar(ArtefactKind):
@@ -16,3 +16,4 @@ class Ballbar(ArtefactKind):
     min_balls: ClassVar[int] = 2
     max_balls: ClassVar[int] = 2
     layout: ClassVar[str] = "iso10360-2"
+    spans: ClassVar[str] = "line"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from ._base import ArtefactKind
+from .base import ArtefactKind
 
 
 class Sphere(ArtefactKind):
@@ -16,3 +16,4 @@ class Sphere(ArtefactKind):
     min_balls: ClassVar[int] = 1
     max_balls: ClassVar[int] = 1
     layout: ClassVar[str] = "xy"
+    spans: ClassVar[str] = "point"

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 from ..errors import InputError
-from ._base import Artefact, ArtefactKind, line_distance
+from .base import Artefact, ArtefactKind, line_distance
 
 
 class StepGauge(ArtefactKind):
@@ -16,6 +16,7 @@ class StepGauge(ArtefactKind):
     example: ClassVar[str] = "step-gauge-31x20"
     min_balls: ClassVar[int] = 3
     layout: ClassVar[str] = "iso10360-2"
+    spans: ClassVar[str] = "line"
 
     @classmethod
     def check(cls, artefact: Artefact, where: str) -> None:

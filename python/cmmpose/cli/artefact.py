@@ -71,7 +71,7 @@ def _show(path, check: bool, as_json: bool = False) -> None:
         ("kind", f"{a.kind}: {kind.summary}"),
         ("name", a.name),
         ("certificate", a.certificate),
-        ("balls", f"{a.n_balls} (ids {artefacts._base._ranges(a.ids)})"),
+        ("balls", f"{a.n_balls} (ids {artefacts.base.id_ranges(a.ids)})"),
         ("extent (mm)", ", ".join(f"{ax} {l:.3f}..{h:.3f}" for ax, l, h in zip("xyz", lo, hi))),
         ("radius (mm)", f"nominal {a.nominal_radius:g}, calibrated {a.calibrated_radius:g} (u {a.u_radius * 1e3:g} um)"),
         ("u of centres (um)", f"{a.u_centres.min() * 1e3:g}..{a.u_centres.max() * 1e3:g}"),

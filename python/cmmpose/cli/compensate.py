@@ -16,7 +16,7 @@ from ..errormap import ErrorMapSet
 from ..errors import AliasedChoiceWarning, Error, MapTemperatureWarning, ModelDomainWarning
 from ..filecompensation import compensate_file
 from ..formats.pointfiles import check_writable, output_format
-from ..formats.pointformats._common import check_file
+from ..formats.pointformats.common import check_file
 from .common import (aliased_choices_once, check_model_or_maps, console, fail, json_option, kernel_report_rows,
                      load_maps, load_model, machine_option, machine_row, map_specs, model_doubts, model_options,
                      offset_mm, policy_options, pose_angles, say_caught, scheduler_options, show, strict_model_exit)

@@ -42,10 +42,28 @@ def plot_map_cmd(maps, out, machine_file) -> None:
     console.print(f"wrote {out}")
 
 
-_MAP_IMPORT_FORMATS = ("iso230-2", "linuxcnc")
+class _MapFormatChoice(click.Choice):
+    """The registered map file formats that can be read (``map import``) or written (``map export``), listed from
+    the registry (:mod:`cmmpose.formats.mapformats`) when first asked: the built-in formats load on first use."""
+
+    def __init__(self, written: bool):
+        self._written = written
+        super().__init__((), case_sensitive=True)
+
+    @property
+    def choices(self):
+        from ..formats import mapformats
+
+        return tuple(n for n in mapformats.names() if not self._written or mapformats.get(n).write is not None)
+
+    @choices.setter
+    def choices(self, value) -> None:  # click sets it in __init__; the registry decides
+        pass
 
 
-_MAP_EXPORT_FORMATS = ("csv", "iso230-2", "linuxcnc")
+#: ``map import`` options that shape the map built (not a file format's own): refused with a format whose reader
+#: does not take them, when given. The others (``--comp-file-type``, ``--units``) go to the formats that take them.
+_MAP_OPTIONS = {"base": "--base", "temperature": "--temperature", "hold_ends": "--hold-ends"}
 
 
 def _map_spec(spec: str, what: str):
@@ -109,7 +127,7 @@ def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_js
 
 
 @map_group.command("import")
-@click.argument("fmt", metavar="FORMAT", type=click.Choice(_MAP_IMPORT_FORMATS))
+@click.argument("fmt", metavar="FORMAT", type=_MapFormatChoice(written=False))
 @click.argument("files", metavar="FILE...", nargs=-1, required=True)
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
 @click.option("--base", default=None,
@@ -126,37 +144,45 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
     """Build a canonical map from linear-axis results in FORMAT (probe-relative results; a moving table's own
     motion, read by an instrument riding on it, is converted by `cmmpose map table-motion`).
 
-    iso230-2: one CSV file. linuxcnc: one AXIS=FILE per axis, e.g. X=x.comp Y=y.comp.
+    A format of one file (csv, controller, iso230-2): one FILE. A format of one file per axis (linuxcnc): one
+    AXIS=FILE per axis, e.g. X=x.comp Y=y.comp.
     The map keeps the mean of the two approach directions; axes without results
     are zero (or, with --base, keep the base's component). With --machine, the
     map is checked against the machine's travel.
     """
     from ..errors import Error
-    from ..formats.iso230 import read_iso230
-    from ..formats.linuxcnc import read_comp_files
+    from ..formats import mapformats
     from ..machine import load_machine
 
     try:
-        read = files if fmt == "iso230-2" else [f.partition("=")[2] for f in files]
+        entry = mapformats.get(fmt)
+        read = [f.partition("=")[2] for f in files] if entry.per_axis else files
         check_not_input(out, [*read, base, machine_file], "--output")
         base_map = None if base is None else _map_spec(base, "--base")
+        takes = entry.read_options()
+        options = {"base": base_map, "temperature": temperature, "hold_ends": hold_ends,
+                   "comp_file_type": int(comp_file_type), "units": units}
+        for name, flag in _MAP_OPTIONS.items():
+            if options[name] not in (None, False) and name not in takes and takes != ["*"]:
+                raise click.UsageError(f"{flag}: not an option of {fmt}, which takes "
+                                       f"{', '.join('--' + t.replace('_', '-') for t in takes) or 'none'}")
+        options = {k: v for k, v in options.items() if k in takes or takes == ["*"]}
         with console_log():
-            if fmt == "iso230-2":
+            if not entry.per_axis:
                 if len(files) != 1:
-                    raise click.UsageError(f"iso230-2 takes one FILE, got {len(files)}")
-                built = read_iso230(files[0], base=base_map, temperature=temperature, hold_ends=hold_ends)
+                    raise click.UsageError(f"{fmt} takes one FILE, got {len(files)}")
+                source = files[0]
             else:
-                pairs = {}
+                source = {}
                 for item in files:
                     axis, sep, path = item.partition("=")
-                    if not sep or not path or axis.upper() not in ("X", "Y", "Z"):
+                    if not sep or not path or axis.upper() not in mapformats.AXES:
                         raise click.BadParameter(f"expected AXIS=FILE with AXIS X, Y or Z, got {item!r}",
                                                  param_hint="FILE")
-                    if axis.upper() in pairs:
+                    if axis.upper() in source:
                         raise click.BadParameter(f"axis {axis.upper()} given twice", param_hint="FILE")
-                    pairs[axis.upper()] = path
-                built = read_comp_files(pairs, comp_file_type=int(comp_file_type), units=units, base=base_map,
-                                        temperature=temperature, hold_ends=hold_ends)
+                    source[axis.upper()] = path
+            built = mapformats.read(source, fmt, **options)
         notes = travel_notes(load_machine(machine_file), built) if machine_file else []
         built.write(out)
     except Error as exc:
@@ -171,7 +197,7 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
 
 @map_group.command("export")
 @click.argument("map_spec", metavar="MAP", required=False)
-@click.option("--format", "fmt", type=click.Choice(_MAP_EXPORT_FORMATS), required=True,
+@click.option("--format", "fmt", type=_MapFormatChoice(written=True), required=True,
               help="Format to write (linuxcnc: one file per axis in the directory OUT).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(), help="File to write (linuxcnc: a directory).")
 @click.option("--comp-file-type", type=click.Choice(["0", "1"]), default="0", show_default=True,
@@ -186,14 +212,15 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temp
     without MAP, the machine's map (--machine; a set at --temperature).
 
     iso230-2 and linuxcnc carry delta_x of X, delta_y of Y and delta_z of Z only,
-    the same value in both approach directions; linuxcnc writes x.comp, y.comp
-    and z.comp into the directory OUT.
+    the same value in both approach directions; linuxcnc (a format of one file per
+    axis) writes x.comp, y.comp and z.comp into the directory OUT.
     """
     from ..errors import Error
-    from ..formats.linuxcnc import write_comp_files
+    from ..formats import mapformats
     from ..machine import load_machine
 
     try:
+        entry = mapformats.get(fmt)
         inputs = [map_spec, machine_file]
         if map_spec is not None:
             source = _map_spec(map_spec, "MAP")
@@ -207,23 +234,25 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temp
                 if temperature is None:
                     raise click.UsageError("the machine's maps are a set: give --temperature (C)")
                 source = source.at(temperature)
-        if fmt == "linuxcnc":
-            folder = ensure_folder(out)
-            files = {a: folder / f"{a.lower()}.comp" for a in ("X", "Y", "Z")}
+        takes = entry.write_options()
+        options = {k: v for k, v in {"comp_file_type": int(comp_file_type), "units": units}.items()
+                   if k in takes or takes == ["*"]}
+        if entry.per_axis:
+            files = entry.files(ensure_folder(out))
             check_outputs_free(files.values(), inputs, what="--output")
-            with FileGroup(inputs=inputs, what="--output"):  # the three files whole or none
-                write_comp_files(source, files, comp_file_type=int(comp_file_type), units=units)
-            written = ", ".join(str(p) for p in files.values())
+            with FileGroup(inputs=inputs, what="--output"):  # the files of every axis whole or none
+                mapformats.write(source, files, fmt, **options)
+            written = [str(p) for p in files.values()]
         else:
             check_not_input(out, inputs, "--output")
-            source.write(out, format=fmt)
+            mapformats.write(source, out, fmt, **options)
             written = out
     except Error as exc:
         raise fail(exc) from None
     except OSError as exc:
         raise click.ClickException(f"{out}: {exc.strerror or exc}") from None
     if as_json:
-        click.echo(strict_json({"output": written.split(", ") if fmt == "linuxcnc" else str(written),
+        click.echo(strict_json({"output": written if isinstance(written, list) else str(written),
                                 "format": fmt}, indent=2))
         return
-    console.print(f"wrote {written}")
+    console.print(f"wrote {', '.join(written) if isinstance(written, list) else written}")

@@ -27,7 +27,7 @@ def linearised_columns(spec) -> bool:
     ball, and only a fit of all its points sees their small centre shifts."""
     if spec.kind == "length":
         return True
-    return spec.kind == "kernel" and not getattr(spec.effect, "on_scanner", False) and spec.key != "incidence"
+    return spec.kind == "kernel" and not getattr(spec.effect, "on_scanner", False)
 
 
 def artefact_columns(problem, model, spec, current: np.ndarray, obs) -> np.ndarray:
@@ -67,8 +67,8 @@ def artefact_columns(problem, model, spec, current: np.ndarray, obs) -> np.ndarr
     cache = problem.__dict__.setdefault("_artefact_sample", {})
     if cache.get("of") is not problem.inputs or cache.get("maps") is not model.maps:
         inputs = problem.inputs
-        if inputs.incidence is None and any(s.key == "incidence" for s in problem.candidates.values()):
-            # The incidence effect reads angles from sphere fits of every point under the maps
+        if inputs.incidence is None and any("incidence" in s.needs for s in problem.candidates.values()):
+            # An effect that needs the incidence (what it declares, not its name) reads angles from sphere fits of every point under the maps
             # alone (whatever the effects): the model would take them on each call; take them once.
             inputs = inputs_with_incidence(model, inputs)
         sid = inputs.scan_id

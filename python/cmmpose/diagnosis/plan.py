@@ -393,34 +393,51 @@ def _measured(run: Run, model: Model, specs, centre_model: Model) -> _Measured:
 # -- the candidates ------------------------------------------------------------------
 
 
+def _plane_candidates(at, machine) -> list[Placement]:
+    """A plate: its plane as XY, XZ and YZ, turned by ROTATIONS, at SHARES of the travel across it."""
+    out = []
+    for plane, normal in (("xy", 2), ("xz", 1), ("yz", 0)):
+        for rot in ROTATIONS:
+            for share in SHARES:
+                key = "xyz"[normal]
+                out += parse(f"{plane}@{key}={at(normal, share):g},rot={rot:g}", machine.travel)
+    return out
+
+
+def _line_candidates(at, machine) -> list[Placement]:
+    """A bar or a gauge: its line along X, Y, Z and the face diagonals at SHARES of the travel across it, and the
+    space diagonals."""
+    out = []
+    for plane, rots in (("xy", (0.0, 45.0, 90.0, 135.0)), ("xz", (45.0, 90.0, 135.0)),
+                        ("yz", (45.0, 135.0))):
+        normal = {"xy": 2, "xz": 1, "yz": 0}[plane]
+        for rot in rots:
+            for share in SHARES:
+                out += parse(f"{plane}@{'xyz'[normal]}={at(normal, share):g},rot={rot:g}", machine.travel)
+    out += [p for p in parse("iso10360-2", machine.travel) if "diagonal" in p.label]
+    return out
+
+
+#: The candidate placements by what an artefact kind's balls span (``ArtefactKind.spans``); a kind whose balls
+#: span a point (one sphere) has none.
+CANDIDATES = {"plane": _plane_candidates, "line": _line_candidates}
+
+
 def candidate_placements(artefact, machine) -> list[Placement]:
-    """Every candidate placement of ``artefact`` on ``machine``: for a plate,
-    the three planes turned by ROTATIONS; for a bar or a step gauge, its
-    line along X, Y, Z, the face diagonals and the space diagonals; each at
-    SHARES of the travel across it (a plate's plane at three heights or
-    depths, a line's centroid moved off the middle)."""
+    """Every candidate placement of ``artefact`` on ``machine``, by what its
+    kind's balls span (``ArtefactKind.spans``, never the kind's name): for a
+    plane (a plate), the three planes turned by ROTATIONS; for a line (a bar
+    or a step gauge), its line along X, Y, Z, the face diagonals and the
+    space diagonals; each at SHARES of the travel across it (a plate's plane
+    at three heights or depths, a line's centroid moved off the middle)."""
     travel = np.array(machine.travel, float)
     lo, span = travel[:, 0], travel[:, 1] - travel[:, 0]
     at = lambda axis, share: lo[axis] + share * span[axis]
-    out = []
-    if artefact.kind == "ball-plate":
-        for plane, normal in (("xy", 2), ("xz", 1), ("yz", 0)):
-            for rot in ROTATIONS:
-                for share in SHARES:
-                    key = "xyz"[normal]
-                    out += parse(f"{plane}@{key}={at(normal, share):g},rot={rot:g}", machine.travel)
-    elif artefact.kind in ("ballbar", "step-gauge"):
-        for plane, rots in (("xy", (0.0, 45.0, 90.0, 135.0)), ("xz", (45.0, 90.0, 135.0)),
-                            ("yz", (45.0, 135.0))):
-            normal = {"xy": 2, "xz": 1, "yz": 0}[plane]
-            for rot in rots:
-                for share in SHARES:
-                    out += parse(f"{plane}@{'xyz'[normal]}={at(normal, share):g},rot={rot:g}", machine.travel)
-        out += [p for p in parse("iso10360-2", machine.travel) if "diagonal" in p.label]
-    else:
+    candidates = CANDIDATES.get(artefacts.get(artefact.kind).spans)
+    if candidates is None:
         raise InputError(f"artefact {artefact.name!r} ({artefact.kind}): one ball cannot separate the machine's "
                          f"geometry; plan with a ball plate, a step gauge or a ballbar (--artefact)")
-    return out
+    return candidates(at, machine)
 
 
 def _shorthand(pl: Placement) -> str:

@@ -5,25 +5,36 @@ report all read it; a new module in this package is a new effect
 
 from __future__ import annotations
 
-from .._registry import discover
+from .._registry import Registry
 from ..errors import InputError
 from ._base import Effect, Param
 
-__all__ = ["Effect", "Param", "available", "get", "parse", "channel_roles", "channels"]
+__all__ = ["Effect", "Param", "REGISTRY", "available", "get", "parse", "channel_roles", "channels"]
 
-_REGISTRY: dict[str, type[Effect]] = discover(__name__, __path__, Effect, "name", "effect name")
+
+def _order(name: str):
+    return (ORDER.index(name), "") if name in ORDER else (len(ORDER), name)
+
+
+#: Listing order: machine, thermal, scanner, pose, artefact; new effects last.
+ORDER = ("squareness", "scale", "roll", "axis-temperature", "squareness-temperature", "granite-gradient", "latency",
+         "scanner-scale", "incidence", "alignment", "mount-offset", "artefact-expansion")
+
+#: The effects by name: each public module's ``Effect`` subclasses, by their ``name``.
+REGISTRY: Registry[type[Effect]] = Registry(
+    "effect", order=_order,
+    unknown=lambda name, names: InputError(f"effect {name!r}: unknown; available: {', '.join(names)}"),
+).discover(__name__, __path__, Effect, "name")
 
 
 def available() -> dict[str, type[Effect]]:
     """Effect classes by name, in the order of ``ORDER`` then by name."""
-    return {k: _REGISTRY[k] for k in sorted(_REGISTRY, key=_order)}
+    return REGISTRY.as_dict()
 
 
 def get(name: str) -> type[Effect]:
     """The effect class named ``name``."""
-    if name not in _REGISTRY:
-        raise InputError(f"effect {name!r}: unknown; available: {', '.join(available())}")
-    return _REGISTRY[name]
+    return REGISTRY.get(name)
 
 
 def parse(text: str) -> Effect:
@@ -56,14 +67,5 @@ def channels() -> tuple[tuple[str, str], ...]:
 def channel_roles() -> tuple[str, ...]:
     """Thermocouple roles that effects introduce."""
     return tuple(dict.fromkeys(role for _, role in channels()))
-
-
-#: Listing order: machine, thermal, scanner, pose, artefact; new effects last.
-ORDER = ("squareness", "scale", "roll", "axis-temperature", "squareness-temperature", "granite-gradient", "latency",
-         "scanner-scale", "incidence", "alignment", "mount-offset", "artefact-expansion")
-
-
-def _order(name: str):
-    return (ORDER.index(name), "") if name in ORDER else (len(ORDER), name)
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import artefacts
-from ..artefacts._base import line_distance
+from ..artefacts.base import line_distance
 from ..errors import InputError
 from ..run import Run
 

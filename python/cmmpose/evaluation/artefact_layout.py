@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import artefacts
 from .artefact_balls import ball_scans, check_ball_positions, rigid_fit
-from ..artefacts._base import line_distance
+from ..artefacts.base import line_distance
 
 __all__ = ["ArtefactLayout", "artefact_deviations", "check_placements", "rigid_dof"]
 

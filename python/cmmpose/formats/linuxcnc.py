@@ -17,7 +17,8 @@ stops there silently, needs the nominal positions to increase and keeps at
 most 256 entries per joint; the reader refuses a file that LinuxCNC would
 read otherwise than as written.
 
-These are one file per axis, so they are not a registered map file format:
+These are one file per axis: the registered map file format ``'linuxcnc'``
+declares it (``per_axis``, files ``x.comp``, ``y.comp``, ``z.comp``), so
 :func:`read_comp_files` takes a mapping axis -> file and
 :func:`write_comp_files` writes one file per axis. Reading keeps the mean of
 the two directions (:mod:`cmmpose.formats.linearaxis`).
@@ -31,6 +32,7 @@ from typing import Mapping
 
 import numpy as np
 
+from . import mapformats
 from .._validate import parse_number
 from ..atomicfile import write_text
 from ..errormap import CARRIAGES, ErrorMap
@@ -288,3 +290,7 @@ def write_comp_files(error_map: ErrorMap, files: Mapping[str, str | PathLike], *
 def _fixed(v: float, decimals: int) -> str:
     text = f"{float(v):.{decimals}f}"
     return text[1:] if float(text) == 0 and text.startswith("-") else text  # no '-0.000000'
+
+
+mapformats.register("linuxcnc", read=read_comp_files, write=write_comp_files, per_axis="{axis}.comp",
+                    description="LinuxCNC compensation tables (COMP_FILE), one file per axis, machine units")

@@ -16,7 +16,7 @@ import numpy as np
 
 from . import pointformats
 from ..errors import InputError, InputTypeError
-from .pointformats._common import numeric_column
+from .pointformats.common import numeric_column
 
 __all__ = ["PointCloud", "read_point_cloud", "write_point_cloud", "unit_factor", "UNITS"]
 

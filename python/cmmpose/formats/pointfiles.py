@@ -27,7 +27,7 @@ import numpy as np
 from . import pointformats
 from ..atomicfile import check_not_input
 from .pointclouds import UNITS
-from .pointformats._common import check_file, check_writable, numeric_column
+from .pointformats.common import check_file, check_writable, numeric_column
 
 __all__ = ["REQUIRED", "CHUNK_POINTS", "read_points", "write_points", "point_chunks", "PointWriter", "output_format",
            "RereadPoints", "check_writable"]

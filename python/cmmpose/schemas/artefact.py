@@ -32,7 +32,7 @@ MAX_U_UM = 1e4
 
 def definition() -> dict:
     """The artefact's object (without ``$schema``): embedded as a run's ``artefact.definition`` too."""
-    from ..artefacts._base import ArtefactKind  # on first use: the artefacts package imports this module
+    from ..artefacts.base import ArtefactKind  # on first use: the artefacts package imports this module
 
     package = Path(__file__).resolve().parents[1] / "artefacts"
     kinds = sorted(discover("cmmpose.artefacts", [str(package)], ArtefactKind, "kind", "artefact kind"))

@@ -1,8 +1,9 @@
 """Registry of point-file formats (docs/formats.md, "Point files").
 
-Each format lives in one module of this package and registers itself when
-the package is imported: a name, the file suffixes it is found by, a chunked
-reader of named columns and a chunked writer. :mod:`cmmpose.formats.pointfiles`
+Each format lives in one public module of this package and registers itself
+when the package is imported (every public module is, in name order; a
+second format of a name already taken is refused): a name, the file suffixes
+it is found by, a chunked reader of named columns and a chunked writer. :mod:`cmmpose.formats.pointfiles`
 (``cmmpose compensate``) and :mod:`cmmpose.formats.pointclouds`
 (:func:`~cmmpose.read_point_cloud`) dispatch through it and never import a
 format module themselves.
@@ -33,9 +34,10 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..._registry import Registry, import_modules
 from ...errors import InputError
 
-__all__ = ["PointFormat", "Need", "register", "names", "get", "for_path", "read_all", "Reread"]
+__all__ = ["PointFormat", "Need", "REGISTRY", "register", "names", "get", "for_path", "read_all", "Reread"]
 
 
 @dataclass(frozen=True)
@@ -94,26 +96,26 @@ class PointFormat:
     named_columns: bool = True
 
 
-_FORMATS: dict[str, PointFormat] = {}
+#: The point-file formats by name, in registration order (each module registers its own).
+REGISTRY: Registry[PointFormat] = Registry(
+    "point-file format",
+    unknown=lambda name, known: InputError(f"unknown point-file format {name!r}; known: {', '.join(known)}"))
 
 
 def register(fmt: PointFormat) -> PointFormat:
-    """Register (or replace) ``fmt`` under its name; returns it."""
-    _FORMATS[fmt.name] = fmt
-    return fmt
+    """Register ``fmt`` under its name; returns it. ``ValueError`` when
+    another format holds the name already (a format never replaces another)."""
+    return REGISTRY.register(fmt.name, fmt)
 
 
 def names() -> list[str]:
     """The registered format names."""
-    return list(_FORMATS)
+    return REGISTRY.names()
 
 
 def get(name: str) -> PointFormat:
     """The format called ``name``; ``InputError`` listing the known names otherwise."""
-    try:
-        return _FORMATS[name]
-    except KeyError:
-        raise InputError(f"unknown point-file format {name!r}; known: {', '.join(_FORMATS)}") from None
+    return REGISTRY.get(name)
 
 
 #: Suffixes of compressed files, refused by name rather than read or written as CSV.
@@ -138,18 +140,19 @@ def for_path(path: str | Path, format: str | None = None, default: str | None = 
         # Read as text, such a file is garbage; written as CSV, a file named .gz is not gzip.
         raise InputError(f"{path}: compressed point files ({suffix!r}) are neither read nor written: decompress "
                          f"the input first, and name an output without {suffix!r} (compress it afterwards)")
-    for fmt in _FORMATS.values():
+    for fmt in REGISTRY.values():
         if suffix in fmt.suffixes:
             return fmt
     if default is not None:
         return get(default)
-    known = sorted({s for f in _FORMATS.values() for s in f.suffixes})
+    known = sorted({s for f in REGISTRY.values() for s in f.suffixes})
     raise InputError(f"{path}: unknown point-file suffix {suffix or '(none)'!r}; known: {', '.join(known)} "
-                     f"(or give the format by name: {', '.join(_FORMATS)})")
+                     f"(or give the format by name: {', '.join(REGISTRY.names())})")
 
 
-# Each module registers its format(s) when imported.
-from . import csv, e57, npy, parquet, ply, xyz  # noqa: E402,F401
+# Each public module registers its format(s) when imported (``common`` holds what they share); in name order.
+import_modules(__name__, __path__)
+from . import csv  # noqa: E402
 
 #: The strict CSV reader's whole file, raised when the fast reader gave up on
 #: a line the strict one accepts (see :mod:`.csv`).

@@ -17,7 +17,7 @@ import numpy as np
 
 from ...errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, arrow_table, check_file, plain_text_names
+from .common import ColumnWriter, arrow_table, check_file, plain_text_names
 from ..._lazy import LazyModule
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
@@ -146,13 +146,13 @@ def _whole_numbers(fields: list[str], values: np.ndarray) -> bool:
 
 def _first_bad_field(path: Path, lines: list[str]) -> str | None:
     """On the error path only: the first field that is not a plain number."""
-    from ..._validate import _NUMBER
+    from ..._validate import DECIMAL_NUMBER
 
     for lineno, line in enumerate(lines[1:], start=2):
         if not line.strip():
             continue
         for k, field in enumerate(line.split(",")):
-            if not _NUMBER.fullmatch(field.strip()) and field.strip().lower() not in ("nan", "inf", "-inf", "+inf"):
+            if not DECIMAL_NUMBER.fullmatch(field.strip()) and field.strip().lower() not in ("nan", "inf", "-inf", "+inf"):
                 return f"{path}:{lineno}: value {field.strip()!r} in column {k + 1} is not a number"
     return None
 

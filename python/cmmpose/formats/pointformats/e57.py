@@ -30,7 +30,7 @@ import numpy as np
 
 from ...errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, check_file
+from .common import ColumnWriter, check_file
 
 _log = logging.getLogger("cmmpose")
 

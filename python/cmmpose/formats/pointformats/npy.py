@@ -18,7 +18,7 @@ import numpy as np
 
 from ...errors import InputError
 from . import PointFormat, register
-from ._common import NUMERIC_KINDS, ColumnWriter, check_file, require, release_pages
+from .common import NUMERIC_KINDS, ColumnWriter, check_file, require, release_pages
 
 #: The first bytes of every .npy file.
 MAGIC = b"\x93NUMPY"

@@ -1,7 +1,7 @@
 """Parquet point files (pyarrow): one column per quantity, integer or real,
 without nulls. Read row group by row group in batches; written one row
 group per chunk with columns ``X, Y, Z`` (float64) and the extra columns in
-their own types, each column encoded for what it holds (``_common.parquet_options``)."""
+their own types, each column encoded for what it holds (``common.parquet_options``)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 
 from ...errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, arrow_table, check_file, parquet_options, require
+from .common import ColumnWriter, arrow_table, check_file, parquet_options, require
 from ..._lazy import LazyModule
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).

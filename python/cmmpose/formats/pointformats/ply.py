@@ -24,7 +24,7 @@ import numpy as np
 
 from ...errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, arrow_table, check_file, require, release_pages
+from .common import ColumnWriter, arrow_table, check_file, require, release_pages
 from ..._lazy import LazyModule
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).

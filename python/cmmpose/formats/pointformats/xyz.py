@@ -30,7 +30,7 @@ import numpy as np
 
 from ...errors import InputError
 from . import PointFormat, register
-from ._common import ColumnWriter, arrow_table, check_file, plain_text_names, require
+from .common import ColumnWriter, arrow_table, check_file, plain_text_names, require
 from ..._lazy import LazyModule
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Artefact", "ArtefactKind"]
+__all__ = ["Artefact", "ArtefactKind", "id_ranges", "line_distance", "plane_distance"]
 
 
 @dataclass(frozen=True)
@@ -82,7 +82,7 @@ class Artefact:
         """Row of ball ``ball_id``; ``InputError`` when the artefact lacks it."""
         hits = np.flatnonzero(self.ids == int(ball_id))
         if not len(hits):
-            raise InputError(f"{self.source or self.name}: has no ball {ball_id} (balls {_ranges(self.ids)})")
+            raise InputError(f"{self.source or self.name}: has no ball {ball_id} (balls {id_ranges(self.ids)})")
         return int(hits[0])
 
     def scale_to(self, temperature) -> np.ndarray | float:
@@ -124,6 +124,12 @@ class ArtefactKind:
         How many balls it has (max 0: no limit).
     layout : str
         The named placement layout that suits it (:mod:`cmmpose.placement`).
+    spans : str
+        What its balls span, which decides the placements a measurement plan
+        tries (:func:`cmmpose.diagnosis.plan.candidate_placements`):
+        ``"plane"`` (a plate: turned in the XY, XZ and YZ planes), ``"line"``
+        (a bar or a gauge: along the axes and the diagonals) or ``"point"``
+        (one ball: nothing to plan).
     """
 
     kind: ClassVar[str] = ""
@@ -132,6 +138,7 @@ class ArtefactKind:
     min_balls: ClassVar[int] = 1
     max_balls: ClassVar[int] = 0
     layout: ClassVar[str] = "planes"
+    spans: ClassVar[str] = "point"
 
     @classmethod
     def check(cls, artefact: Artefact, where: str) -> None:
@@ -158,7 +165,8 @@ def plane_distance(centres: np.ndarray) -> np.ndarray:
     return np.abs(d @ normal)
 
 
-def _ranges(ids) -> str:
+def id_ranges(ids) -> str:
+    """Ball numbers as runs, ``"1-4, 7, 9-10"``."""
     ids = sorted(int(i) for i in ids)
     out, start = [], ids[0]
     for a, b in zip(ids, ids[1:] + [None]):
