@@ -16,9 +16,8 @@ from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import InputError, InputTypeError
 from ..fitting import fit_spheres
 from ..run import Run
-from .identify import (ALPHA, Candidate, Problem, value_text, check_effect_names, determined_values, fit_model,
-                       model_covariance,
-                       rank_candidates)
+from .covariance import determined_values, model_covariance
+from .identify import ALPHA, Candidate, Problem, value_text, check_effect_names, fit_model, rank_candidates
 from ..model.spec import EffectSpec, effect_spec, run_library
 from ..model.point_inputs import single_map_warning
 from ..model.domain import Domain
@@ -137,12 +136,12 @@ class Diagnosis:
     advice: dict[str, str] = field(default_factory=dict)
     final_uncertainty: dict = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
-    #: The covariance of the final model's determined parameters (:func:`cmmpose.diagnosis.identify.model_covariance`).
+    #: The covariance of the final model's determined parameters (:func:`cmmpose.diagnosis.covariance.model_covariance`).
     final_covariance: dict = field(default_factory=dict)
     #: Where the final model was fitted (:class:`cmmpose.model.domain.Domain`), saved with it.
     domain: Domain | None = None
     #: The final model's values with what the data did not determine taken out
-    #: (:func:`cmmpose.diagnosis.identify.determined_values`): what the saved model applies.
+    #: (:func:`cmmpose.diagnosis.covariance.determined_values`): what the saved model applies.
     final_values: dict = field(default_factory=dict)
     unexplained: list = field(default_factory=list)
     #: How the run's temperatures were read (cmmpose.temperature.log_provenance), None if given.
@@ -242,7 +241,7 @@ class Diagnosis:
         covariance, how the run's temperatures were read, its aliased
         alternatives and the domain it was fitted on. A combination of its
         parameters the data did not determine is taken out
-        (:func:`cmmpose.diagnosis.identify.determined_values`): it is never
+        (:func:`cmmpose.diagnosis.covariance.determined_values`): it is never
         applied."""
         final = self.steps[-1].model
         unc = {k: np.array(v, float) for k, v in self.final_uncertainty.items()}
