@@ -511,7 +511,7 @@ def plan(
         The candidate placements (default :func:`candidate_placements`).
     rivals : AmbiguitySet or sequence of (EffectSpec or str, values), optional
         Rival explanations of the runs (a diagnosis's open ambiguity set,
-        :attr:`cmmpose.diagnosis.diagnose.Diagnosis.open_ambiguity`, or each
+        :attr:`cmmpose.diagnosis.result.Diagnosis.open_ambiguity`, or each
         effect with its fitted values in its units). Then the placements
         are chosen to tell them apart, not to sharpen parameters: the
         T-optimal criterion (Atkinson and Fedorov 1975). For a pair (A, B),
