@@ -37,7 +37,8 @@ from ..artefacts import Artefact
 from .._csvtable import read_csv_table
 from ..errors import InputError
 from ..evaluation.artefact_layout import rigid_dof
-from .patterns import Patterns, categorical_pattern, mean_offset_pattern, ranked_patterns
+from .pattern_results import Patterns
+from .patterns import categorical_pattern, mean_offset_pattern, ranked_patterns
 
 __all__ = ["PlateFitDiagnosis", "diagnose_plate_fits", "read_plate_fits", "LINEAR_ERRORS"]
 
