@@ -135,25 +135,8 @@ def diagnose(
     t0 = time.perf_counter()
     if not isinstance(run, Run):
         raise InputTypeError(f"run: expected a cmmpose.Run, got {type(run).__name__}")
-    model = as_model(maps, run_kinematics(run))
-    check_kinematics(model, run)  # a model for another machine configuration: refused, naming both
-    policy = {k: v for k, v in (("out_of_range", out_of_range), ("temperature_tolerance", temperature_tolerance),
-                                ("log_hold", log_hold)) if v is not None}
-    if temperature_policy is not None:  # the whole policy, then the keywords given
-        model = replace(model, temperature_policy=temperature_policy, out_of_range=temperature_policy.out_of_range,
-                        temperature_tolerance=temperature_policy.temperature_tolerance,
-                        log_hold=temperature_policy.log_hold)
-    if policy:
-        model = replace(model, **policy)
-    cand = None
-    if candidates is not None:
-        cand = {}
-        known = run_library(model.inputs(run))
-        for c in candidates:
-            # A name of an effect that follows a sensor stands for all its variants.
-            variants = [k for k in known if isinstance(c, str) and k.startswith(f"{c}@") and known[k].sensor]
-            for spec in [known[k] for k in variants] or [effect_spec(c, known if isinstance(c, str) else None)]:
-                cand[spec.name] = spec
+    model = _starting_model(run, maps, out_of_range, temperature_tolerance, log_hold, temperature_policy)
+    cand = None if candidates is None else _candidate_specs(model, run, candidates)
     problem = Problem(model, run, cand,
                       extra=user_specs([a for a in add if not isinstance(a, str)] + list(user_effects)))
     if reproducibility_um is None and default_reproducibility_um is not None:
@@ -166,29 +149,7 @@ def diagnose(
     check_effect_names(add_names, problem)
     steps, model = select_effects(problem, model, add_names, auto, max_effects,
                                   lambda label, m, forced: _step(label, m, problem, forced))
-    uncertainty_problem = problem
-    # Only the effects that shape the points within a scan (on the scanner,
-    # or user-defined) gain from more point residuals; the others are fixed
-    # by lengths and centres, which do not grow with the points.
-    # A model given to start from is applied as saved: what it holds is never refitted here.
-    given = set(steps[0].model.names)
-    shaping = {spec.name for spec, _ in model.effects
-               if (spec.kind == "python" or getattr(spec.effect, "on_scanner", False)) and spec.name not in given}
-    if polish and shaping:
-        # The selection fits the effects to POINTS_PER_SCAN points of each scan;
-        # the residual patterns and the findings look at every point. Refit the
-        # final model's effects on many more points so that its own parameters'
-        # imprecision does not show up as structure (a depth scale off by its
-        # uncertainty leaves a v pattern that 400 points cannot see but all can).
-        fine = Problem(model, run, {s.name: s for s, _ in model.effects}, points_per_scan=POLISH_POINTS_PER_SCAN)
-        model = fit_model(model, run, iterations=2, problem=fine, only=shaping)
-        last = steps[-1]
-        steps[-1] = _step(last.label, model, problem, forced=last.forced)
-        from .cv import cv_groups, step_cv
-
-        folds, items, split = cv_groups(problem)
-        step_cv(problem, steps[-1], (folds, items), split)
-        uncertainty_problem = fine
+    model, uncertainty_problem = _polish(problem, run, model, steps) if polish else (model, problem)
     unobservable, advice, ambiguous = unobservable_candidates(problem, steps)
     final_unc, final_cov = model_covariance(uncertainty_problem, model)
     diag = Diagnosis(steps, unobservable, ambiguous, n_points=run.n_points, advice=advice,
@@ -209,29 +170,92 @@ def diagnose(
 
         diag.verification = verify(steps[0].model, run)
     if patterns:
-        try:
-            from .patterns import find_patterns
-        except ImportError:  # pragma: no cover
-            find_patterns = None
-        if find_patterns is not None:
-            nominal = run.artefact.get("calibrated_radius_mm")
-            for which, m in (("base_patterns", steps[0].model), ("patterns", steps[-1].model)):
-                xyz = m.compensate(problem.inputs)
-                sid = problem.inputs.scan_id
-                keep = np.isin(sid, problem.layout.labels)
-                fits = fit_spheres(xyz[keep], sid[keep])
-                sub = run if keep.all() else _subset(run, keep)
-                setattr(diag, which, find_patterns(sub, xyz[keep], fits, temperature=problem.inputs.temperature[keep],
-                                                   nominal_radius=nominal))
-                if which == "patterns":  # the final model's: what it leaves unexplained
-                    diag.unexplained = unexplained_findings(diag.patterns, periodic_errors(sub, xyz[keep], fits),
-                                                            m.names)
+        _attach_patterns(diag, problem, run, steps)
     if diag.open_ambiguity:
         from .plan import separating_measurement
 
         separating_measurement(diag, [run], machine)
     diag.elapsed = time.perf_counter() - t0
     return diag
+
+
+def _starting_model(run: Run, maps, out_of_range, temperature_tolerance, log_hold, temperature_policy) -> Model:
+    """:func:`diagnose`'s model to start from: ``maps`` as a model for the run's configuration (another's
+    refused, naming both), with the whole ``temperature_policy`` and then the keywords given."""
+    model = as_model(maps, run_kinematics(run))
+    check_kinematics(model, run)  # a model for another machine configuration: refused, naming both
+    policy = {k: v for k, v in (("out_of_range", out_of_range), ("temperature_tolerance", temperature_tolerance),
+                                ("log_hold", log_hold)) if v is not None}
+    if temperature_policy is not None:  # the whole policy, then the keywords given
+        model = replace(model, temperature_policy=temperature_policy, out_of_range=temperature_policy.out_of_range,
+                        temperature_tolerance=temperature_policy.temperature_tolerance,
+                        log_hold=temperature_policy.log_hold)
+    if policy:
+        model = replace(model, **policy)
+    return model
+
+
+def _candidate_specs(model: Model, run: Run, candidates) -> dict:
+    """:func:`diagnose`'s ``candidates`` as name -> EffectSpec: a name of an effect that follows a sensor
+    stands for all its variants."""
+    cand = {}
+    known = run_library(model.inputs(run))
+    for c in candidates:
+        # A name of an effect that follows a sensor stands for all its variants.
+        variants = [k for k in known if isinstance(c, str) and k.startswith(f"{c}@") and known[k].sensor]
+        for spec in [known[k] for k in variants] or [effect_spec(c, known if isinstance(c, str) else None)]:
+            cand[spec.name] = spec
+    return cand
+
+
+def _polish(problem: Problem, run: Run, model: Model, steps: list[Step]) -> tuple[Model, Problem]:
+    """The final model with the effects that shape the points within a scan refitted on
+    POLISH_POINTS_PER_SCAN points of each scan (its step replaced and cross-validated again), and the problem
+    its uncertainties come from; the model and ``problem`` unchanged when it has no such effect."""
+    # Only the effects that shape the points within a scan (on the scanner,
+    # or user-defined) gain from more point residuals; the others are fixed
+    # by lengths and centres, which do not grow with the points.
+    # A model given to start from is applied as saved: what it holds is never refitted here.
+    given = set(steps[0].model.names)
+    shaping = {spec.name for spec, _ in model.effects
+               if (spec.kind == "python" or getattr(spec.effect, "on_scanner", False)) and spec.name not in given}
+    if not shaping:
+        return model, problem
+    # The selection fits the effects to POINTS_PER_SCAN points of each scan;
+    # the residual patterns and the findings look at every point. Refit the
+    # final model's effects on many more points so that its own parameters'
+    # imprecision does not show up as structure (a depth scale off by its
+    # uncertainty leaves a v pattern that 400 points cannot see but all can).
+    fine = Problem(model, run, {s.name: s for s, _ in model.effects}, points_per_scan=POLISH_POINTS_PER_SCAN)
+    model = fit_model(model, run, iterations=2, problem=fine, only=shaping)
+    last = steps[-1]
+    steps[-1] = _step(last.label, model, problem, forced=last.forced)
+    from .cv import cv_groups, step_cv
+
+    folds, items, split = cv_groups(problem)
+    step_cv(problem, steps[-1], (folds, items), split)
+    return model, fine
+
+
+def _attach_patterns(diag: Diagnosis, problem: Problem, run: Run, steps: list[Step]) -> None:
+    """The residual patterns of the base and the final model on ``diag``, and what the final one leaves
+    unexplained."""
+    try:
+        from .patterns import find_patterns
+    except ImportError:  # pragma: no cover
+        return
+    nominal = run.artefact.get("calibrated_radius_mm")
+    for which, m in (("base_patterns", steps[0].model), ("patterns", steps[-1].model)):
+        xyz = m.compensate(problem.inputs)
+        sid = problem.inputs.scan_id
+        keep = np.isin(sid, problem.layout.labels)
+        fits = fit_spheres(xyz[keep], sid[keep])
+        sub = run if keep.all() else _subset(run, keep)
+        setattr(diag, which, find_patterns(sub, xyz[keep], fits, temperature=problem.inputs.temperature[keep],
+                                           nominal_radius=nominal))
+        if which == "patterns":  # the final model's: what it leaves unexplained
+            diag.unexplained = unexplained_findings(diag.patterns, periodic_errors(sub, xyz[keep], fits),
+                                                    m.names)
 
 
 def _two_axis_first(problem, step, candidate) -> bool:
