@@ -381,6 +381,81 @@ def _wrap180(a: float) -> float:
     return a - 180.0
 
 
+def _plane_scan_inputs(uv, scales, alpha, beta, step) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """:func:`gamma_from_plane_scan`'s points, scale readings, alpha and beta, checked (enough finite rows, a
+    grid step in (0, 30] degrees, motion during the scan)."""
+    uv = as_rows("uv", uv, 2)
+    scales = as_rows("scales", scales, 3)
+    if len(uv) != len(scales):
+        raise InputError(f"uv and scales: expected the same number of rows, got {len(uv)} and {len(scales)}")
+    if len(uv) < MIN_PLANE_POINTS:
+        raise InputError(f"uv: a plane scan needs at least {MIN_PLANE_POINTS} points, got {len(uv)}")
+    for name, a in (("uv", uv), ("scales", scales)):
+        if not np.all(np.isfinite(a)):
+            bad = int(np.flatnonzero(~np.all(np.isfinite(a), axis=1))[0])
+            raise InputError(f"{name}: row {bad} is not finite ({a[bad].tolist()})")
+    alpha, beta = (float(x) for x in as_triple("alpha, beta", (alpha, beta, 0.0))[:2])
+    if not (np.isfinite(step) and 0 < step <= 30):
+        raise InputError(f"step: expected a grid step in (0, 30] degrees, got {step}")
+    travel = np.ptp(scales, axis=0)
+    if travel.max() <= MOTION_FLOOR_MM:
+        raise CalibrationError(
+            f"gamma: the plane scan has no motion: all {len(scales)} scale readings are equal "
+            f"(D, E, F = {scales[0].tolist()} mm). gamma needs the machine to move while the plane is "
+            "scanned (thesis section 4.3)")
+    return uv, scales, alpha, beta
+
+
+def _unit_normal(normal) -> np.ndarray:
+    """``normal`` as a unit vector (the zero vector refused)."""
+    nv = np.asarray(as_triple("normal", normal))
+    if np.linalg.norm(nv) == 0:
+        raise InputError("normal: must not be the zero vector")
+    return nv / np.linalg.norm(nv)
+
+
+def _gamma_grid(alpha: float, beta: float, nv, gamma0, step: float) -> np.ndarray:
+    """The gammas of the initial search, degrees: the whole circle, or within 90 degrees of ``gamma0``; with a
+    normal ``nv`` only those at which the scanner faces it (none: CalibrationError)."""
+    if gamma0 is None:
+        grid = np.arange(-180.0, 180.0, step)
+    else:
+        g0 = float(gamma0)
+        if not np.isfinite(g0):
+            raise InputError(f"gamma0: must be finite, got {gamma0}")
+        grid = g0 + np.arange(-90.0 + step / 2, 90.0, step)
+    if nv is not None:
+        e_v = np.array([e313_matrix((alpha, beta, g))[:, 1] for g in grid])  # (grid, 3), not points
+        grid = grid[e_v @ nv > 0]
+        if len(grid) == 0:
+            raise CalibrationError(
+                f"gamma: at every gamma within 90 deg of the nominal gamma0 {float(gamma0):g} deg the scanner "
+                f"would look at the back of a face whose outward normal is {(np.round(nv, 6) + 0.0).tolist()} (v . normal "
+                f"<= 0); is `normal` the outward normal of the scanned face (pointing towards the scanner), or is "
+                f"it {(np.round(-nv, 6) + 0.0).tolist()}?"
+                if gamma0 is not None else
+                "gamma: no gamma turns the scanner towards the plane; is `normal` the outward normal of the "
+                "scanned face (pointing towards the scanner)?")
+    return grid
+
+
+def _alpha_beta_sensitivity(problem: _PlaneProblem, gamma: float) -> np.ndarray:
+    """d gamma / d (alpha, beta) at the solution ``gamma`` (numerical): the solution moved by one
+    Gauss-Newton step (exact to second order) for alpha, beta +- h."""
+    h = 0.01
+    sens = np.zeros(2)
+    for j in range(2):  # two angles
+        sol = []
+        for sgn in (1.0, -1.0):
+            d = np.array([problem.alpha, problem.beta])
+            d[j] += sgn * h
+            p = _PlaneProblem(problem.uv, problem.scales, d[0], d[1], problem.normal, problem.offset, problem.maps,
+                              problem.temperature, problem.policy)
+            sol.append(gamma + p.step(gamma)[0])
+        sens[j] = (sol[0] - sol[1]) / (2 * h)
+    return sens
+
+
 def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None, gamma0: float | None = None,
                           offset=None, maps=None, temperature=None, alpha_beta_covariance=None,
                           step: float = 2.0, temperature_policy: TemperaturePolicy | None = None) -> GammaAlignment:
@@ -455,35 +530,11 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
         along two axes of the face can (any other normal has a component
         along one of them).
     """
-    uv = as_rows("uv", uv, 2)
-    scales = as_rows("scales", scales, 3)
-    if len(uv) != len(scales):
-        raise InputError(f"uv and scales: expected the same number of rows, got {len(uv)} and {len(scales)}")
-    if len(uv) < MIN_PLANE_POINTS:
-        raise InputError(f"uv: a plane scan needs at least {MIN_PLANE_POINTS} points, got {len(uv)}")
-    for name, a in (("uv", uv), ("scales", scales)):
-        if not np.all(np.isfinite(a)):
-            bad = int(np.flatnonzero(~np.all(np.isfinite(a), axis=1))[0])
-            raise InputError(f"{name}: row {bad} is not finite ({a[bad].tolist()})")
-    alpha, beta = (float(x) for x in as_triple("alpha, beta", (alpha, beta, 0.0))[:2])
-    if not (np.isfinite(step) and 0 < step <= 30):
-        raise InputError(f"step: expected a grid step in (0, 30] degrees, got {step}")
-    travel = np.ptp(scales, axis=0)
-    if travel.max() <= MOTION_FLOOR_MM:
-        raise CalibrationError(
-            f"gamma: the plane scan has no motion: all {len(scales)} scale readings are equal "
-            f"(D, E, F = {scales[0].tolist()} mm). gamma needs the machine to move while the plane is "
-            "scanned (thesis section 4.3)")
+    uv, scales, alpha, beta = _plane_scan_inputs(uv, scales, alpha, beta, step)
     check_map(maps, temperature)
     policy = as_policy(temperature_policy)
     temperature = as_temperature(temperature, len(uv))
-    if normal is not None:
-        nv = np.asarray(as_triple("normal", normal))
-        if np.linalg.norm(nv) == 0:
-            raise InputError("normal: must not be the zero vector")
-        nv = nv / np.linalg.norm(nv)
-    else:
-        nv = None
+    nv = None if normal is None else _unit_normal(normal)
     l1 = (0.0, 0.0, 0.0) if offset is None else as_triple("offset", offset)
     ab_cov = None if alpha_beta_covariance is None else as_covariance("alpha_beta_covariance", alpha_beta_covariance, 2)
     if nv is None:
@@ -499,25 +550,7 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
     t_sub = temperature[idx] if isinstance(temperature, np.ndarray) else temperature
     coarse = _PlaneProblem(uv[idx], scales[idx], alpha, beta, nv, l1, maps, t_sub, policy)
 
-    if gamma0 is None:
-        grid = np.arange(-180.0, 180.0, step)
-    else:
-        g0 = float(gamma0)
-        if not np.isfinite(g0):
-            raise InputError(f"gamma0: must be finite, got {gamma0}")
-        grid = g0 + np.arange(-90.0 + step / 2, 90.0, step)
-    if nv is not None:
-        e_v = np.array([e313_matrix((alpha, beta, g))[:, 1] for g in grid])  # (grid, 3), not points
-        grid = grid[e_v @ nv > 0]
-        if len(grid) == 0:
-            raise CalibrationError(
-                f"gamma: at every gamma within 90 deg of the nominal gamma0 {float(gamma0):g} deg the scanner "
-                f"would look at the back of a face whose outward normal is {(np.round(nv, 6) + 0.0).tolist()} (v . normal "
-                f"<= 0); is `normal` the outward normal of the scanned face (pointing towards the scanner), or is "
-                f"it {(np.round(-nv, 6) + 0.0).tolist()}?"
-                if gamma0 is not None else
-                "gamma: no gamma turns the scanner towards the plane; is `normal` the outward normal of the "
-                "scanned face (pointing towards the scanner)?")
+    grid = _gamma_grid(alpha, beta, nv, gamma0, step)
     costs = np.array([coarse.cost(g) for g in grid])  # one kernel call per candidate
     start = float(grid[int(np.argmin(costs))])
     gamma, var, rms, n_fit, iterations = _solve_gamma(problem, start)
@@ -531,18 +564,7 @@ def gamma_from_plane_scan(uv, scales, alpha: float, beta: float, *, normal=None,
             "gamma: the points lie in the scan plane (the machine hardly moved across it, along w), so every "
             "gamma fits them; sweep across the scan plane, or give `normal`")
 
-    # Sensitivities to alpha and beta (numerical): the solution moved by one
-    # Gauss-Newton step (exact to second order) for alpha, beta +- h.
-    h = 0.01
-    sens = np.zeros(2)
-    for j in range(2):  # two angles
-        sol = []
-        for sgn in (1.0, -1.0):
-            d = np.array([alpha, beta])
-            d[j] += sgn * h
-            p = _PlaneProblem(uv, scales, d[0], d[1], nv, l1, maps, temperature, policy)
-            sol.append(gamma + p.step(gamma)[0])
-        sens[j] = (sol[0] - sol[1]) / (2 * h)
+    sens = _alpha_beta_sensitivity(problem, gamma)
     noise_u = math.degrees(math.sqrt(var))
     total_var = noise_u**2 + (float(sens @ ab_cov @ sens) if ab_cov is not None else 0.0)
     n_out = np.asarray(n_fit, dtype=float)
