@@ -57,6 +57,53 @@ class MapBuild:
     notes: tuple[str, ...] = field(default=())
 
 
+def _by_component(processed: list[ProcessedRun]) -> dict[tuple[str, str], ProcessedRun]:
+    """(carriage, component) -> its run; two runs for one component, or runs processed with different
+    material modes, refused."""
+    by_key: dict[tuple[str, str], ProcessedRun] = {}
+    for p in processed:
+        key = (p.axis, p.component)
+        if key in by_key:
+            raise InterferometerRunError(
+                f"two runs for {p.component}({p.axis}): {by_key[key].source or by_key[key].name} and "
+                f"{p.source or p.name}; average them into one run or leave one out")
+        by_key[key] = p
+    modes = {p.material for p in processed}
+    if len(modes) > 1:
+        raise InterferometerRunError("runs mix material='keep' and material='normalise'; a map has one temperature")
+    return by_key
+
+
+def _carriage_table(c: str, by_key: dict, notes: list[str], missing: list[str]) -> np.ndarray:
+    """Carriage ``c``'s map table (position, dx ... ez): the union of its runs' targets over their common
+    range, each component interpolated linearly (zero without a run, named in ``missing``); a truncation
+    is noted in ``notes``."""
+    mine = [by_key[(c, comp)] for comp in _COMPONENTS if (c, comp) in by_key]
+    if not mine:
+        raise InterferometerRunError(f"no run for the {c} carriage: its grid is unknown (give at least one run)")
+    lo = max(float(p.positions_mm[0]) for p in mine)
+    hi = min(float(p.positions_mm[-1]) for p in mine)
+    if not lo < hi:
+        raise InterferometerRunError(
+            f"the {c} carriage runs have no common range: " +
+            ", ".join(f"{p.name} {p.positions_mm[0]:g}..{p.positions_mm[-1]:g} mm" for p in mine))
+    longer = [p.name for p in mine if p.positions_mm[0] < lo or p.positions_mm[-1] > hi]
+    if longer:
+        notes.append(f"{c} carriage: map truncated to the common range {lo:g}..{hi:g} mm of its runs "
+                     f"(longer: {', '.join(longer)})")
+    grid = np.unique(np.concatenate([p.positions_mm for p in mine]))
+    grid = grid[(grid >= lo) & (grid <= hi)]
+    table = np.zeros((len(grid), 7))
+    table[:, 0] = grid
+    for j, comp in enumerate(_COMPONENTS, start=1):
+        p = by_key.get((c, comp))
+        if p is None:
+            missing.append(f"{comp}({c})")
+            continue
+        table[:, j] = np.interp(grid, p.positions_mm, p.values)
+    return table
+
+
 def build_map(
     runs: Iterable[InterferometerRun | ProcessedRun],
     squareness: Sequence[float],
@@ -115,45 +162,10 @@ def build_map(
         else:
             raise InputTypeError(f"runs[{i}]: expected an InterferometerRun or ProcessedRun, got {type(r).__name__}")
     sq = triple("squareness", squareness, unit="arc-seconds")
-    by_key: dict[tuple[str, str], ProcessedRun] = {}
-    for p in processed:
-        key = (p.axis, p.component)
-        if key in by_key:
-            raise InterferometerRunError(
-                f"two runs for {p.component}({p.axis}): {by_key[key].source or by_key[key].name} and "
-                f"{p.source or p.name}; average them into one run or leave one out")
-        by_key[key] = p
-    modes = {p.material for p in processed}
-    if len(modes) > 1:
-        raise InterferometerRunError("runs mix material='keep' and material='normalise'; a map has one temperature")
+    by_key = _by_component(processed)
     notes: list[str] = []
-    tables = []
     missing: list[str] = []
-    for c in CARRIAGES:
-        mine = [by_key[(c, comp)] for comp in _COMPONENTS if (c, comp) in by_key]
-        if not mine:
-            raise InterferometerRunError(f"no run for the {c} carriage: its grid is unknown (give at least one run)")
-        lo = max(float(p.positions_mm[0]) for p in mine)
-        hi = min(float(p.positions_mm[-1]) for p in mine)
-        if not lo < hi:
-            raise InterferometerRunError(
-                f"the {c} carriage runs have no common range: " +
-                ", ".join(f"{p.name} {p.positions_mm[0]:g}..{p.positions_mm[-1]:g} mm" for p in mine))
-        longer = [p.name for p in mine if p.positions_mm[0] < lo or p.positions_mm[-1] > hi]
-        if longer:
-            notes.append(f"{c} carriage: map truncated to the common range {lo:g}..{hi:g} mm of its runs "
-                         f"(longer: {', '.join(longer)})")
-        grid = np.unique(np.concatenate([p.positions_mm for p in mine]))
-        grid = grid[(grid >= lo) & (grid <= hi)]
-        table = np.zeros((len(grid), 7))
-        table[:, 0] = grid
-        for j, comp in enumerate(_COMPONENTS, start=1):
-            p = by_key.get((c, comp))
-            if p is None:
-                missing.append(f"{comp}({c})")
-                continue
-            table[:, j] = np.interp(grid, p.positions_mm, p.values)
-        tables.append(table)
+    tables = [_carriage_table(c, by_key, notes, missing) for c in CARRIAGES]
     if missing:
         rolls = [m for m in missing if m in ("ex(X)", "ey(Y)", "ez(Z)")]
         extra = " (roll is usually measured with levels, if at all: the thesis stores it as 0, line 793)" if rolls else ""

@@ -209,6 +209,59 @@ def positional_deviations(run: InterferometerRun, *, air_correction: bool = True
     return _linear_errors(run, corrected, material, alpha, label)[0]
 
 
+def _expansion(material: str, expansion_ppm_per_C) -> float:
+    """The scale's expansion coefficient, 1/C: 0 unless ``material`` is 'normalise', which requires it."""
+    if material != "normalise":
+        return 0.0
+    if expansion_ppm_per_C is None:
+        raise InputError("expansion_ppm_per_C: required with material='normalise' (e.g. 12 for steel, "
+                         "thesis line 822)")
+    return nonnegative("expansion_ppm_per_C", expansion_ppm_per_C) * 1e-6
+
+
+def _air_uncertainty(air_uncertainty) -> tuple[float, float, float]:
+    """``air_uncertainty`` as (u_T C, u_P mmHg, u_H %RH)."""
+    try:
+        u_air = tuple(float(v) for v in air_uncertainty)
+    except (TypeError, ValueError):
+        raise InputError(f"air_uncertainty: expected (u_T C, u_P mmHg, u_H %RH), got {air_uncertainty!r}") from None
+    if len(u_air) != 3:
+        raise InputError(f"air_uncertainty: expected 3 values (u_T C, u_P mmHg, u_H %RH), got {len(u_air)}")
+    return u_air
+
+
+def _direction_means(target: np.ndarray, direction: np.ndarray, err: np.ndarray):
+    """Step 3 of :func:`process_run`: per target (ascending), the mean of the repeats in each direction, the
+    pooled within-direction standard deviation of the repeats (NaN without repeats) and the repeats counted
+    in both directions."""
+    positions = np.unique(target)
+    m = len(positions)
+    fwd = np.empty(m)
+    bwd = np.empty(m)
+    rep = np.full(m, np.nan)
+    counts = np.empty(m, dtype=np.int64)
+    idx = np.searchsorted(positions, target)
+    for k in range(m):
+        sel = idx == k
+        f = err[sel & (direction == 1)]
+        b = err[sel & (direction == -1)]
+        fwd[k], bwd[k] = f.mean(), b.mean()
+        counts[k] = min(len(f), len(b))
+        dof = (len(f) - 1) + (len(b) - 1)
+        if dof > 0:
+            rep[k] = math.sqrt((np.sum((f - f.mean()) ** 2) + np.sum((b - b.mean()) ** 2)) / dof)
+    return positions, fwd, bwd, rep, counts
+
+
+def _straightness_line(positions: np.ndarray, mean: np.ndarray, kind: str) -> np.ndarray:
+    """Step 4 of :func:`process_run`: the ``'endpoint'`` or ``'least_squares'`` line through the mean
+    component at each position."""
+    if kind == "endpoint":
+        slope = (mean[-1] - mean[0]) / (positions[-1] - positions[0])
+        return mean[0] + slope * (positions - positions[0])
+    return np.polyval(np.polyfit(positions, mean, 1), positions)
+
+
 def process_run(
     run: InterferometerRun,
     *,
@@ -287,18 +340,8 @@ def process_run(
         raise InputError(f"straightness_line: expected None, 'endpoint' or 'least_squares', got {straightness_line!r}")
     if straightness_line is not None and run.optics != "straightness":
         raise InputError(f"straightness_line: only for straightness optics; {run.name} is {run.optics}")
-    alpha = 0.0
-    if material == "normalise":
-        if expansion_ppm_per_C is None:
-            raise InputError("expansion_ppm_per_C: required with material='normalise' (e.g. 12 for steel, "
-                             "thesis line 822)")
-        alpha = nonnegative("expansion_ppm_per_C", expansion_ppm_per_C) * 1e-6
-    try:
-        u_air = tuple(float(v) for v in air_uncertainty)
-    except (TypeError, ValueError):
-        raise InputError(f"air_uncertainty: expected (u_T C, u_P mmHg, u_H %RH), got {air_uncertainty!r}") from None
-    if len(u_air) != 3:
-        raise InputError(f"air_uncertainty: expected 3 values (u_T C, u_P mmHg, u_H %RH), got {len(u_air)}")
+    alpha = _expansion(material, expansion_ppm_per_C)
+    u_air = _air_uncertainty(air_uncertainty)
 
     label = run.source or run.name
     t_air, p_air, h_air = run.air_temperature_C, run.pressure_mmHg, run.humidity_percent
@@ -315,29 +358,11 @@ def process_run(
         correction_ppm = 0.0
         unit = READING_UNIT[run.optics] if run.optics == "angular" else "um"
 
-    positions = np.unique(target)
+    positions, fwd, bwd, rep, counts = _direction_means(target, run.direction, err)
     m = len(positions)
-    fwd = np.empty(m)
-    bwd = np.empty(m)
-    rep = np.full(m, np.nan)
-    counts = np.empty(m, dtype=np.int64)
-    idx = np.searchsorted(positions, target)
-    for k in range(m):
-        sel = idx == k
-        f = err[sel & (run.direction == 1)]
-        b = err[sel & (run.direction == -1)]
-        fwd[k], bwd[k] = f.mean(), b.mean()
-        counts[k] = min(len(f), len(b))
-        dof = (len(f) - 1) + (len(b) - 1)
-        if dof > 0:
-            rep[k] = math.sqrt((np.sum((f - f.mean()) ** 2) + np.sum((b - b.mean()) ** 2)) / dof)
     mean = 0.5 * (fwd + bwd)
     if straightness_line is not None:
-        if straightness_line == "endpoint":
-            slope = (mean[-1] - mean[0]) / (positions[-1] - positions[0])
-            line = mean[0] + slope * (positions - positions[0])
-        else:
-            line = np.polyval(np.polyfit(positions, mean, 1), positions)
+        line = _straightness_line(positions, mean, straightness_line)
         mean, fwd, bwd = mean - line, fwd - line, bwd - line
     k_home = int(np.searchsorted(positions, home))
     zero = mean[k_home]

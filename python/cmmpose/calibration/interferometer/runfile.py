@@ -338,6 +338,64 @@ class InterferometerRun:
         write_run(self, path)
 
 
+def _split_run_lines(path: Path, lines: list[str]):
+    """A run file's lines after the first: the header keys (key -> (value, line number)), the column header
+    and its line number, and the data rows (fields) with their line numbers. A key given twice is refused;
+    plain comments, and comments after the column header, are skipped."""
+    meta: dict[str, tuple[str, int]] = {}
+    header: tuple[str, ...] | None = None
+    header_line = 0
+    rows: list[list[str]] = []
+    row_lines: list[int] = []
+    for lineno, raw in enumerate(lines[1:], start=2):
+        line = raw.strip()
+        if not line:
+            continue
+        if line.startswith("#"):
+            if header is not None:
+                continue  # comments after the column header are ignored
+            key, sep, value = line[1:].partition(":")
+            key = key.strip()
+            if not sep or not key:
+                continue  # a plain comment
+            if key in meta:
+                raise InterferometerRunError(f"{path}:{lineno}: header key {key!r} repeats line {meta[key][1]}")
+            meta[key] = (value.strip(), lineno)
+            continue
+        fields = [f.strip() for f in line.split(",")]
+        if header is None:
+            header, header_line = tuple(fields), lineno
+            continue
+        rows.append(fields)
+        row_lines.append(lineno)
+    return meta, header, header_line, rows, row_lines
+
+
+def _parse_rows(path: Path, expected: tuple[str, ...], rows: list[list[str]], row_lines: list[int]) -> dict:
+    """Column -> values of a run file's data rows: ``repeat`` and ``direction`` integers, the others finite
+    numbers; a row of another length, or a field that is not its column's kind, refused naming its line."""
+    values: dict[str, list] = {c: [] for c in expected}
+    for fields, lineno in zip(rows, row_lines):
+        if len(fields) != len(expected):
+            raise InterferometerRunError(f"{path}:{lineno}: expected {len(expected)} fields, got {len(fields)}")
+        for name, text in zip(expected, fields):
+            if name in ("repeat", "direction"):
+                try:
+                    v = int(text)
+                except ValueError:
+                    want = "+1 or -1" if name == "direction" else "an integer >= 1"
+                    raise InterferometerRunError(f"{path}:{lineno}: {name} {text!r} is not {want}") from None
+            else:
+                try:
+                    v = float(text)
+                except ValueError:
+                    raise InterferometerRunError(f"{path}:{lineno}: {name} {text!r} is not a number") from None
+                if not math.isfinite(v):
+                    raise InterferometerRunError(f"{path}:{lineno}: {name} is not finite ({text})")
+            values[name].append(v)
+    return values
+
+
 def read_run(path: str | PathLike) -> InterferometerRun:
     """Read an interferometer run file.
 
@@ -365,32 +423,7 @@ def read_run(path: str | PathLike) -> InterferometerRun:
         got = lines[0].strip() if lines else "an empty file"
         raise InterferometerRunError(
             f"{path}:1: not a cmmpose interferometer run (first line must be '# {MAGIC}: {VERSION}', got {got!r})")
-    meta: dict[str, tuple[str, int]] = {}
-    header: tuple[str, ...] | None = None
-    header_line = 0
-    rows: list[list[str]] = []
-    row_lines: list[int] = []
-    for lineno, raw in enumerate(lines[1:], start=2):
-        line = raw.strip()
-        if not line:
-            continue
-        if line.startswith("#"):
-            if header is not None:
-                continue  # comments after the column header are ignored
-            key, sep, value = line[1:].partition(":")
-            key = key.strip()
-            if not sep or not key:
-                continue  # a plain comment
-            if key in meta:
-                raise InterferometerRunError(f"{path}:{lineno}: header key {key!r} repeats line {meta[key][1]}")
-            meta[key] = (value.strip(), lineno)
-            continue
-        fields = [f.strip() for f in line.split(",")]
-        if header is None:
-            header, header_line = tuple(fields), lineno
-            continue
-        rows.append(fields)
-        row_lines.append(lineno)
+    meta, header, header_line, rows, row_lines = _split_run_lines(path, lines)
 
     def where_key(key: str) -> str:
         return f"{path}:{meta[key][1]}" if key in meta else f"{path}: header line '# {key}: ...'"
@@ -422,25 +455,7 @@ def read_run(path: str | PathLike) -> InterferometerRun:
             hint = f" ({optics} optics read in {READING_UNIT[optics]}: the column is 'reading_{READING_UNIT[optics]}')"
         raise InterferometerRunError(
             f"{path}:{header_line}: column header must be {','.join(expected)!r}, got {','.join(header)!r}{hint}")
-    values: dict[str, list] = {c: [] for c in expected}
-    for fields, lineno in zip(rows, row_lines):
-        if len(fields) != len(expected):
-            raise InterferometerRunError(f"{path}:{lineno}: expected {len(expected)} fields, got {len(fields)}")
-        for name, text in zip(expected, fields):
-            if name in ("repeat", "direction"):
-                try:
-                    v = int(text)
-                except ValueError:
-                    want = "+1 or -1" if name == "direction" else "an integer >= 1"
-                    raise InterferometerRunError(f"{path}:{lineno}: {name} {text!r} is not {want}") from None
-            else:
-                try:
-                    v = float(text)
-                except ValueError:
-                    raise InterferometerRunError(f"{path}:{lineno}: {name} {text!r} is not a number") from None
-                if not math.isfinite(v):
-                    raise InterferometerRunError(f"{path}:{lineno}: {name} is not finite ({text})")
-            values[name].append(v)
+    values = _parse_rows(path, expected, rows, row_lines)
     if not rows:
         raise InterferometerRunError(f"{path}: no readings after the column header (line {header_line})")
     metadata = {k: v for k, (v, _) in meta.items() if k not in _KNOWN_KEYS}
