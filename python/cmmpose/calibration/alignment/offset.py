@@ -201,12 +201,7 @@ def mount_offset(alignments, *, tolerance: float | None = 4.0, max_residual: flo
     k = len(items)
     if k < 2:
         raise InputError(f"alignments: the mount offset needs at least 2 alignments (3 to check them), got {k}")
-    if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
-        raise InputError(f"tolerance: must be a positive number of standard deviations or None, got {tolerance}")
-    if max_residual is not None and not (np.isfinite(max_residual) and max_residual > 0):
-        raise InputError(f"max_residual: must be a positive length in mm or None, got {max_residual}")
-    if significance is not None and not (0 < significance < 1):
-        raise InputError(f"significance: must be in (0, 1) or None, got {significance}")
+    _check_limits(tolerance, max_residual, significance)
     y = np.stack([a.position for a in items])  # (K, 3)
     lev = np.stack([a.lever for a in items])  # (K, 3, 3)
     c_fit = np.stack([a.fit_covariance for a in items])
@@ -253,17 +248,40 @@ def mount_offset(alignments, *, tolerance: float | None = 4.0, max_residual: flo
     chi2 = float((white**2).sum())
     dof = 3 * k - 6
     p_val = chi2_sf(chi2, dof)
-    # Residual covariance C - A cov_x A^T (per component: its diagonal).
-    a_flat = a_mat.reshape(3 * k, 6)
-    var_r = np.einsum("kii->ki", cov_k).reshape(3 * k) - np.einsum("ij,jk,ik->i", a_flat, cov_x, a_flat)
-    floor = 1e-12 * max(float(np.max(np.einsum("kii->ki", cov_k))), 1e-300)
-    sd_r = np.where(var_r > floor, np.sqrt(np.clip(var_r, 0.0, None)), np.nan).reshape(k, 3)
-    std_res = resid / sd_r
+    std_res = resid / _residual_sd(a_mat, cov_k, cov_x)
     result = MountOffsetFit(
         offset=MountOffset(*(float(v) for v in x[3:])), covariance=cov_x[3:, 3:].copy(), centre=x[:3].copy(),
         centre_covariance=cov_x[:3, :3].copy(), full_covariance=cov_x, residuals=resid,
         standardised_residuals=std_res, chi2=chi2, dof=dof, p_value=p_val, contributions=contrib,
         poses=tuple(a.pose for a in items))
+    _check_agreement(result, tolerance, max_residual, significance)
+    return result
+
+
+def _check_limits(tolerance, max_residual, significance) -> None:
+    """:func:`mount_offset`'s limits: each None or a positive number (significance in (0, 1))."""
+    if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
+        raise InputError(f"tolerance: must be a positive number of standard deviations or None, got {tolerance}")
+    if max_residual is not None and not (np.isfinite(max_residual) and max_residual > 0):
+        raise InputError(f"max_residual: must be a positive length in mm or None, got {max_residual}")
+    if significance is not None and not (0 < significance < 1):
+        raise InputError(f"significance: must be in (0, 1) or None, got {significance}")
+
+
+def _residual_sd(a_mat: np.ndarray, cov_k: np.ndarray, cov_x: np.ndarray) -> np.ndarray:
+    """The standard deviation of each residual component, (K, 3) mm: the diagonal of the residual covariance
+    C - A cov_x A^T (NaN where it vanishes: a component the fit reproduces exactly)."""
+    k = len(a_mat)
+    a_flat = a_mat.reshape(3 * k, 6)
+    var_r = np.einsum("kii->ki", cov_k).reshape(3 * k) - np.einsum("ij,jk,ik->i", a_flat, cov_x, a_flat)
+    floor = 1e-12 * max(float(np.max(np.einsum("kii->ki", cov_k))), 1e-300)
+    return np.where(var_r > floor, np.sqrt(np.clip(var_r, 0.0, None)), np.nan).reshape(k, 3)
+
+
+def _check_agreement(fit: MountOffsetFit, tolerance, max_residual, significance) -> None:
+    """CalibrationError naming the worst alignment when the alignments disagree beyond ``tolerance``
+    (standard deviations), ``max_residual`` (mm) or the chi-square test at ``significance``."""
+    resid, std_res, chi2, dof, p_val = fit.residuals, fit.standardised_residuals, fit.chi2, fit.dof, fit.p_value
     score = np.nan_to_num(np.abs(std_res), nan=0.0)
     worst = np.unravel_index(int(np.argmax(score)), score.shape)
     worst_mm = np.unravel_index(int(np.argmax(np.abs(resid))), resid.shape)
@@ -272,7 +290,7 @@ def mount_offset(alignments, *, tolerance: float | None = 4.0, max_residual: flo
     rejected = significance is not None and dof > 0 and p_val < significance
     if too_many_sd or too_far or rejected:
         bad = worst if too_many_sd or not too_far else worst_mm
-        why = (f"alignment {bad[0]} at pose {pose_name(items[bad[0]].pose)} is off by "
+        why = (f"alignment {bad[0]} at pose {pose_name(fit.poses[bad[0]])} is off by "
                f"{np.round(resid[bad[0]] * 1000, 1).tolist()} um in D, E, F "
                f"({np.round(std_res[bad[0]], 1).tolist()} standard deviations)")
         limit = (f"more than the tolerance of {tolerance:g} standard deviations" if too_many_sd else
@@ -284,7 +302,6 @@ def mount_offset(alignments, *, tolerance: float | None = 4.0, max_residual: flo
             "sphere did not move and each pose is right, that the readings were compensated with the "
             "machine's error map (uncompensated, its errors alone make alignments disagree by up to ~0.1 mm), "
             "or raise tolerance")
-    return result
 
 
 @dataclass(frozen=True)

@@ -77,6 +77,45 @@ class VernierAlignment:
         return Pose(self.alpha, self.beta, float(gamma))
 
 
+def _w_side(n: np.ndarray, centred: np.ndarray, sv: np.ndarray, w_hint) -> float:
+    """+1 or -1: the sign that turns the fitted plane normal ``n`` towards +w, from ``w_hint`` or else from
+    the order of the (centred) vernier points (counter-clockwise seen from +w)."""
+    if w_hint is not None:
+        hint = np.asarray(as_triple("w_hint", w_hint))
+        s = float(n @ hint)
+        if np.linalg.norm(hint) == 0 or abs(s) < 0.1 * np.linalg.norm(hint):
+            raise InputError(f"w_hint: {hint.tolist()} lies (within 6 degrees) in the scan plane; it cannot tell "
+                             "the +w side")
+        return 1.0 if s > 0 else -1.0
+    # Newell's vector area of the polygon p0 -> p1 -> ... -> p0: along +w for counter-clockwise points.
+    area = 0.5 * np.cross(centred, np.roll(centred, -1, axis=0)).sum(axis=0)
+    s = float(n @ area)
+    if abs(s) <= 1e-3 * sv[0] * sv[1] / len(centred):
+        raise GeometryError(
+            "points: their order does not tell which side of the scan plane +w is on (the polygon they "
+            "trace has no area); order them counter-clockwise seen from +w or give w_hint")
+    return 1.0 if s > 0 else -1.0
+
+
+def _alpha_beta(n: np.ndarray, cov_n: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """alpha, beta (degrees) of the scan-plane normal ``n`` (eqs. 5-6, quadrant-safe) and their (2, 2)
+    covariance, deg^2, from the normal's ``cov_n``; W along Z: alpha 0 by convention, its variance inf."""
+    nx, ny, nz = n
+    beta = math.degrees(math.acos(min(1.0, max(-1.0, nz))))
+    rho2 = nx * nx + ny * ny
+    if rho2 < 1e-18:
+        alpha = 0.0
+        # W along Z: alpha is undefined (0 by convention); beta is the tilt's size, ~ its rms.
+        cov_ab = np.array([[np.inf, 0.0], [0.0, float(np.trace(cov_n)) / _DEG**2]])
+    else:
+        alpha = math.degrees(math.atan2(nx, -ny))
+        d_alpha = np.array([-ny, nx, 0.0]) / rho2  # d atan2(n_x, -n_y)
+        d_beta = np.array([0.0, 0.0, -1.0 / math.sqrt(rho2)])  # d acos(n_z), |n| = 1
+        g = np.vstack([d_alpha, d_beta]) / _DEG
+        cov_ab = g @ cov_n @ g.T
+    return alpha, beta, cov_ab
+
+
 def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | None = None, maps=None,
                             temperature=None, min_spread: float = 1.0,
                             temperature_policy: TemperaturePolicy | None = None) -> VernierAlignment:
@@ -167,23 +206,7 @@ def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | N
             "determined; take the points well spread in both directions of the field of view")
     fit = fit_plane(pts)
     n = np.asarray(fit.normal, dtype=float)
-    if w_hint is not None:
-        hint = np.asarray(as_triple("w_hint", w_hint))
-        s = float(n @ hint)
-        if np.linalg.norm(hint) == 0 or abs(s) < 0.1 * np.linalg.norm(hint):
-            raise InputError(f"w_hint: {hint.tolist()} lies (within 6 degrees) in the scan plane; it cannot tell "
-                             "the +w side")
-        sign = 1.0 if s > 0 else -1.0
-    else:
-        # Newell's vector area of the polygon p0 -> p1 -> ... -> p0: along +w for counter-clockwise points.
-        area = 0.5 * np.cross(centred, np.roll(centred, -1, axis=0)).sum(axis=0)
-        s = float(n @ area)
-        if abs(s) <= 1e-3 * sv[0] * sv[1] / n_pts:
-            raise GeometryError(
-                "points: their order does not tell which side of the scan plane +w is on (the polygon they "
-                "trace has no area); order them counter-clockwise seen from +w or give w_hint")
-        sign = 1.0 if s > 0 else -1.0
-    n = sign * n
+    n = _w_side(n, centred, sv, w_hint) * n
     axes = np.asarray(fit.axes, dtype=float)
     if point_uncertainty is not None:
         sigma = float(point_uncertainty)
@@ -203,19 +226,7 @@ def alpha_beta_from_vernier(points, *, w_hint=None, point_uncertainty: float | N
         n = rot.T @ n
         n = n / np.linalg.norm(n)
         cov_n = rot.T @ cov_n @ rot
-    nx, ny, nz = n
-    beta = math.degrees(math.acos(min(1.0, max(-1.0, nz))))
-    rho2 = nx * nx + ny * ny
-    if rho2 < 1e-18:
-        alpha = 0.0
-        # W along Z: alpha is undefined (0 by convention); beta is the tilt's size, ~ its rms.
-        cov_ab = np.array([[np.inf, 0.0], [0.0, float(np.trace(cov_n)) / _DEG**2]])
-    else:
-        alpha = math.degrees(math.atan2(nx, -ny))
-        d_alpha = np.array([-ny, nx, 0.0]) / rho2  # d atan2(n_x, -n_y)
-        d_beta = np.array([0.0, 0.0, -1.0 / math.sqrt(rho2)])  # d acos(n_z), |n| = 1
-        g = np.vstack([d_alpha, d_beta]) / _DEG
-        cov_ab = g @ cov_n @ g.T
+    alpha, beta, cov_ab = _alpha_beta(n, cov_n)
     return VernierAlignment(alpha=alpha, beta=beta, covariance=cov_ab, normal=n, normal_covariance=cov_n,
                             fit=fit, sigma=sigma)
 

@@ -131,6 +131,39 @@ def _sandwich_centre_covariance(points: np.ndarray, fit: SphereFit, fixed_radius
     return (a @ meat @ a)[:3, :3] * (m / max(m - k, 1))
 
 
+def _reading_at_centre(m, c_y: np.ndarray, lever: np.ndarray, e313: np.ndarray, l1) -> np.ndarray:
+    """The reading S at which the laser origin S + e(S) - R(S) E313 l1 is at the centre c = c_Y - lever l1,
+    with the map ``m`` (fixed point; e and R change by ppm per mm); ``l1`` None: the origin itself."""
+    if l1 is None:
+        target, s = c_y, c_y.copy()
+    else:
+        target = c_y - lever @ l1
+        s = target + e313 @ l1
+    for _ in range(20):
+        s_new = target - m.position_error(s[None, :])[0]
+        if l1 is not None:
+            s_new = s_new + m.rotation_error(s[None, :])[0] @ e313 @ l1
+        done = np.abs(s_new - s).max() < 1e-12
+        s = s_new
+        if done:
+            break
+    return s
+
+
+def _pose_jacobian(centre_of, p) -> np.ndarray:
+    """d reading / d pose, (3, 3) mm per degree: numerical, central differences of 0.01 deg of the sphere
+    centre ``centre_of(angles)`` fits."""
+    h = 0.01
+    jac = np.empty((3, 3))
+    for j in range(3):  # three angles
+        d = np.zeros(3)
+        d[j] = h
+        plus = np.asarray(centre_of(tuple(np.add(p, d))).centre)
+        minus = np.asarray(centre_of(tuple(np.subtract(p, d))).centre)
+        jac[:, j] = (plus - minus) / (2 * h)
+    return jac
+
+
 def reference_centre_reading(uv, scales, pose, offset=None, maps=None, temperature=None, *,
                              pose_covariance=None, reading_uncertainty=None, radius: float | None = None,
                              reject: float | None = None,
@@ -227,32 +260,9 @@ def reference_centre_reading(uv, scales, pose, offset=None, maps=None, temperatu
         lever = np.column_stack([(c_y - np.asarray(centre_of(p, tuple(big * np.eye(3)[j])).centre)) / big
                                  for j in range(3)])  # three directions
         position = c_y
-        # The reading S at which the laser origin S + e(S) - R(S) E313 l1 is at the
-        # centre c = c_Y - lever l1 (fixed point; e and R change by ppm per mm).
-        if l1 is None:
-            target, s = c_y, c_y.copy()
-        else:
-            target = c_y - lever @ l1
-            s = target + e313 @ l1
-        for _ in range(20):
-            s_new = target - m.position_error(s[None, :])[0]
-            if l1 is not None:
-                s_new = s_new + m.rotation_error(s[None, :])[0] @ e313 @ l1
-            done = np.abs(s_new - s).max() < 1e-12
-            s = s_new
-            if done:
-                break
-        reading = s
+        reading = _reading_at_centre(m, c_y, lever, e313, l1)
         t_mean = float(np.mean(temperature)) if temperature is not None else m.temperature
-    # d reading / d pose, numerical (central differences, 0.01 deg).
-    h = 0.01
-    jac = np.empty((3, 3))
-    for j in range(3):  # three angles
-        d = np.zeros(3)
-        d[j] = h
-        plus = np.asarray(centre_of(tuple(np.add(p, d))).centre)
-        minus = np.asarray(centre_of(tuple(np.subtract(p, d))).centre)
-        jac[:, j] = (plus - minus) / (2 * h)
+    jac = _pose_jacobian(centre_of, p)
     fit_cov = _sandwich_centre_covariance(machine_points(uv, scales, p, zero, maps, temperature, policy), fit,
                                           radius is not None)
     if extra is not None:
