@@ -127,7 +127,8 @@ class Diagnosis:
     advice: dict[str, str] = field(default_factory=dict)
     final_uncertainty: dict = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
-    #: The covariance of the final model's determined parameters (:func:`cmmpose.diagnosis.covariance.model_covariance`).
+    #: The covariance of the final model's determined parameters
+    #: (:func:`cmmpose.diagnosis.covariance.model_covariance`).
     final_covariance: dict = field(default_factory=dict)
     #: Where the final model was fitted (:class:`cmmpose.model.domain.Domain`), saved with it.
     domain: Domain | None = None
@@ -156,7 +157,8 @@ class Diagnosis:
     #: Effects the data could not tell from one in the final model, fitted in
     #: its place (:mod:`cmmpose.diagnosis.aliases`): saved with the model.
     alternatives: tuple = ()
-    #: Which revealing measurements the run holds (:func:`cmmpose.diagnosis.diagnose.run_holds`): advice never asks for them.
+    #: Which revealing measurements the run holds (:func:`cmmpose.diagnosis.diagnose.run_holds`): advice never
+    #: asks for them.
     run_has: dict = field(default_factory=dict)
     #: The placement that best tells the first open ambiguity set's members apart
     #: (:func:`cmmpose.diagnosis.plan.separating_measurement`), None when there is none.
