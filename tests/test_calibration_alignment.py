@@ -441,12 +441,12 @@ def test_chi_square_p_value_is_scipys(dof):
     """mount_offset's p-value, P(chi^2_dof > chi2), equals scipy.stats.chi2.sf."""
     from scipy.stats import chi2 as chi2_dist
 
-    from cmmpose.calibration.alignment import _chi2_sf
+    from cmmpose.calibration.alignment.common import chi2_sf
 
     for x in np.geomspace(1e-6, 400.0, 60):
-        assert _chi2_sf(float(x), dof) == pytest.approx(chi2_dist.sf(x, dof), rel=1e-12, abs=1e-300)
-    assert _chi2_sf(0.0, dof) == 1.0 and _chi2_sf(-1.0, dof) == 1.0
-    assert _chi2_sf(3.0, 0) == 1.0
+        assert chi2_sf(float(x), dof) == pytest.approx(chi2_dist.sf(x, dof), rel=1e-12, abs=1e-300)
+    assert chi2_sf(0.0, dof) == 1.0 and chi2_sf(-1.0, dof) == 1.0
+    assert chi2_sf(3.0, 0) == 1.0
 
 
 def test_alignments_that_disagree_raise(monte_carlo_alignments):

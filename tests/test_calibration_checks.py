@@ -13,11 +13,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from cmmpose.calibration import STANDARD_POSES, gamma_from_plane_scan
-from cmmpose.calibration.alignment import (
-    MAX_OFFSET_AMPLIFICATION,
-    ReferenceReading,
-    mount_offset,
-)
+from cmmpose.calibration.alignment import ReferenceReading, mount_offset
+from cmmpose.calibration.alignment.offset import MAX_OFFSET_AMPLIFICATION
 from cmmpose.cli import main
 from cmmpose.formats.linuxcnc import read_comp_file, read_comp_files, write_comp_files
 from cmmpose.sim import Plane, plane_scan

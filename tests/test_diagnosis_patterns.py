@@ -12,7 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import cmmpose
-from cmmpose.diagnosis.patterns import Patterns, f_test_p_value, find_patterns
+from cmmpose.diagnosis.pattern_results import Patterns
+from cmmpose.diagnosis.patterns import f_test_p_value, find_patterns
 from cmmpose.evaluation.ballbar import machine_coordinates, machine_temperature
 from cmmpose.fitting import fit_spheres
 from cmmpose.sim.effects import Incidence, Latency, Scale, ScannerScale, Squareness

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 import cmmpose
 from cmmpose.cli import main
 from cmmpose.model import Model
-from cmmpose.diagnosis.patterns import Pattern, Patterns
+from cmmpose.diagnosis.pattern_results import Pattern, Patterns
 from cmmpose.diagnosis.unexplained import Finding, periodic_errors, unexplained_findings, user_effect_skeleton
 from cmmpose.fitting import fit_spheres
 from cmmpose.sim.runs import simulate_ballbar_run

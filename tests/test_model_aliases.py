@@ -26,7 +26,7 @@ from click.testing import CliRunner
 from cmmpose import Model
 from cmmpose.model.alternatives import ALIAS_FLOOR_UM, Alternative, check_alternatives, points_difference_um
 from cmmpose.model.names import resolve
-from cmmpose.diagnosis.identify import design_variances
+from cmmpose.diagnosis.covariance import design_variances
 from cmmpose.errors import AliasedChoiceWarning
 from cmmpose.evaluation.ballbar import machine_coordinates
 from cmmpose.evaluation.observables import figures_difference

@@ -54,14 +54,14 @@ def scratch(folder: Path) -> list[str]:
 
 def fail_the_third_rename(monkeypatch) -> None:
     """The third file put in place fails (EIO): a group's first two are in place by then."""
-    real, calls = atomicfile._put_in_place, []
+    real, calls = atomicfile.files._put_in_place, []
 
     def put(tmp, dst, *a):
         calls.append(dst)
         if len(calls) == 3:
             raise OSError(errno.EIO, os.strerror(errno.EIO))
         return real(tmp, dst, *a)
-    monkeypatch.setattr(atomicfile, "_put_in_place", put)
+    monkeypatch.setattr(atomicfile.files, "_put_in_place", put)
 
 
 # -- one file: exclusive creation ---------------------------------------------------------
@@ -112,13 +112,13 @@ def test_exclusive_creation_where_the_file_system_has_no_hard_links(tmp_path, mo
 def test_example_files_are_created_exclusively(tmp_path, monkeypatch, command):
     """Another writer makes the file while this one works: this one fails, the other's file stays."""
     target = tmp_path / "x.toml"
-    real = atomicfile._put_in_place
+    real = atomicfile.files._put_in_place
 
     def meanwhile(tmp, dst, overwrite, what="output"):
         Path(dst).write_text("the other writer's\n")
         return real(tmp, dst, overwrite, what)
 
-    monkeypatch.setattr(atomicfile, "_put_in_place", meanwhile)
+    monkeypatch.setattr(atomicfile.files, "_put_in_place", meanwhile)
     one_line_failure(cli(*command, "-o", target), str(target), "another writer", "--overwrite")
     assert target.read_text() == "the other writer's\n"
     assert scratch(tmp_path) == []

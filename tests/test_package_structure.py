@@ -239,7 +239,7 @@ LAYERS = [
 # list and docs/architecture.md stay true).
 UPWARD = {
     # The default map uncertainty is the interferometer calibration's air budget (thesis section 3.3).
-    ("evaluation/ballbar_uncertainty", "calibration.interferometer"),
+    ("evaluation/ballbar_uncertainty", "calibration.interferometer.air"),
 }
 
 

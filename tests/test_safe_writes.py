@@ -214,7 +214,7 @@ def test_a_fifo_is_written_as_a_stream(tmp_path, scan, suffix, no_rename_over):
 def test_a_fifo_without_reader_times_out(tmp_path, monkeypatch):
     fifo = tmp_path / "f.csv"
     os.mkfifo(fifo)
-    monkeypatch.setattr(atomicfile, "FIFO_OPEN_TIMEOUT", 0.2)
+    monkeypatch.setattr(atomicfile.files, "FIFO_OPEN_TIMEOUT", 0.2)
     with pytest.raises(OutputError, match="no reader opened the FIFO within 0.2 s"):
         atomicfile.write_text(fifo, "x\n")
 
@@ -286,13 +286,13 @@ def disk(monkeypatch, tmp_path):
                 return real_fsync(fd)
             monkeypatch.setattr(os, "fsync", fsync)
         elif on == "mkstemp":
-            real_make_temp = atomicfile._make_temp  # the temporary file beside the target
+            real_make_temp = atomicfile.files._make_temp  # the temporary file beside the target
 
             def make_temp(folder):
                 if here(os.path.abspath(folder)):
                     raise OSError(err, os.strerror(err))
                 return real_make_temp(folder)
-            monkeypatch.setattr(atomicfile, "_make_temp", make_temp)
+            monkeypatch.setattr(atomicfile.files, "_make_temp", make_temp)
         else:
             real = os.fdopen
 

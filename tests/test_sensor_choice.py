@@ -25,7 +25,8 @@ import pytest
 
 import cmmpose
 from cmmpose.model import Model
-from cmmpose.diagnosis.diagnose import Step, select_effects
+from cmmpose.diagnosis.diagnose import select_effects
+from cmmpose.diagnosis.result import Step
 from cmmpose.model.names import resolve
 from cmmpose.model.spec import LIBRARY
 from cmmpose.diagnosis.identify import INDISTINGUISHABLE_LR, Candidate
@@ -173,7 +174,7 @@ def test_selection_replaces_a_sibling_the_data_come_to_prefer(monkeypatch):
     assert [s.label for s in steps] == ["base", f"+ {x}", f"+ {z} (instead of {x})"]
     assert steps[-1].replaces == x and steps[-1].effect == z and model.names == (z,)
     # The decisions say what happened to each.
-    from cmmpose.diagnosis.diagnose import Diagnosis
+    from cmmpose.diagnosis.result import Diagnosis
 
     decisions = Diagnosis(steps, {}, []).decisions()
     assert len({d["name"] for d in decisions}) == len(decisions)  # one decision per candidate

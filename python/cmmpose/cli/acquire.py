@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields
+
 import click
 from rich.console import Console
 
@@ -46,32 +48,60 @@ BAUD = click.IntRange(min=1)
 @click.option("--overwrite", is_flag=True, help="Replace a recording already in RUN_DIR.")
 @click.option("--recover", is_flag=True, help="Rebuild RUN_DIR from its journal (after a crash); opens no ports.")
 @click.option("--no-display", is_flag=True, help="No live display.")
-def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, machine_file, tc_type, thermo_interval,
-                flush_interval, scanner_baud, thermo_baud, overwrite, recover, no_display) -> None:
+def acquire_cmd(**flags) -> None:
     """Record the scanner + scales stream and the thermocouple logger into RUN_DIR
     (live display; Ctrl-C stops cleanly and closes the run)."""
     from ..acquire import recover as recover_run
     from ..acquire.display import record_live, summary_table
     from ..machine import load_machine
 
+    o = AcquireOptions.from_flags(flags)
     try:
-        if recover:
-            rec = recover_run(run_dir)
+        if o.recover:
+            rec = recover_run(o.run_dir)
             console.print(repr(rec))
             run = rec.run
         else:
-            if not (scanner or thermo):
+            if not (o.scanner or o.thermo):
                 raise click.UsageError("give --scanner, --thermo or both")
-            machine = load_machine(machine_file)
-            pose_t = pose_angles(pose, "--pose") if pose is not None else machine.pose.as_tuple()
-            offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
-            run = record_live(run_dir, scanner, thermo, duration=duration, console=console, show=not no_display,
-                              plan=_plan_for(plan, machine, machine_file), pose=pose_t, offset=offset_t, tc_type=tc_type,
-                              thermo_interval=thermo_interval, flush_interval=flush_interval,
-                              scanner_baudrate=scanner_baud, thermo_baudrate=thermo_baud, overwrite=overwrite)
+            machine = load_machine(o.machine_file)
+            pose_t = pose_angles(o.pose, "--pose") if o.pose is not None else machine.pose.as_tuple()
+            offset_t = offset_mm(o.offset, "--offset") if o.offset is not None else tuple(machine.offset)
+            run = record_live(o.run_dir, o.scanner, o.thermo, duration=o.duration, console=console,
+                              show=not o.no_display, plan=_plan_for(o.plan, machine, o.machine_file), pose=pose_t,
+                              offset=offset_t, tc_type=o.tc_type, thermo_interval=o.thermo_interval,
+                              flush_interval=o.flush_interval, scanner_baudrate=o.scanner_baud,
+                              thermo_baudrate=o.thermo_baud, overwrite=o.overwrite)
     except Error as exc:
         raise fail(exc) from None
-    Console().print(summary_table(run, run_dir))
+    Console().print(summary_table(run, o.run_dir))
+
+
+@dataclass(frozen=True)
+class AcquireOptions:
+    """What ``cmmpose acquire`` was asked, from its flags (each field the click parameter of its name)."""
+
+    scanner: str | None
+    thermo: str | None
+    run_dir: str
+    duration: float | None
+    plan: str | None
+    pose: str | None
+    offset: str | None
+    machine_file: str | None
+    tc_type: str
+    thermo_interval: float
+    flush_interval: float
+    scanner_baud: int
+    thermo_baud: int
+    overwrite: bool
+    recover: bool
+    no_display: bool
+
+    @classmethod
+    def from_flags(cls, flags: dict) -> AcquireOptions:
+        """The options from the command's click parameters (by their names)."""
+        return cls(**{f.name: flags[f.name] for f in fields(cls)})
 
 
 def _plan_for(plan_file, machine, machine_file):

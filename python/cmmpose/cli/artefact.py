@@ -9,6 +9,7 @@ import json
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 import numpy as np
@@ -23,6 +24,9 @@ from ..errors import Error, InputError, ModelDomainWarning
 from .common import (json_option, table_data, console, show, machine_option, model_doubts, print_model_check,
                      say_caught, strict_model_exit)
 from .common import fail as _fail
+
+if TYPE_CHECKING:
+    from .simulate import SimulateOptions
 
 __all__ = ["artefact_group", "simulate_artefact", "evaluate_artefact_run", "diagnose_plate_fits_cli"]
 
@@ -147,17 +151,19 @@ def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out,
                   f"(cmmpose acquire --plan {escape(str(out))} ...)")
 
 
-def simulate_artefact(artefact_spec, placements, machine, maps, temperature, effects, speed, bidirectional,
-                      jitter_um, seed, run_dir, overwrite, progress_columns, record_maps, as_json=False,
-                      repeat_scans: int = 0) -> None:
-    """``cmmpose simulate --artefact A --placement P ...``: simulate, save, print a summary;
-    ``record_maps(run)`` gives the run with its record of the maps (as a ballbar run's)."""
+def simulate_artefact(o: SimulateOptions, machine, maps, effects, progress_columns, record_maps) -> None:
+    """``cmmpose simulate --artefact A --placement P ...``: simulate, save, print a summary; ``maps`` and
+    ``effects`` as loaded and parsed from ``o``; ``record_maps(run)`` gives the run with its record of the maps
+    (as a ballbar run's)."""
     from rich.progress import Progress
 
     from ..sim.artefact_runs import simulate_artefact_run
 
     from ..run import check_run_target
 
+    artefact_spec, placements, temperature, run_dir, overwrite = (o.artefact, o.placements, o.temperature, o.run_dir,
+                                                                  o.overwrite)
+    speed, bidirectional, jitter_um, seed, repeat_scans = o.speed, o.bidirectional, o.jitter, o.seed, o.repeat_scans
     try:
         check_run_target(run_dir, overwrite=overwrite)  # before any work
         artefact = artefacts.load_artefact(artefact_spec)
@@ -184,7 +190,7 @@ def simulate_artefact(artefact_spec, placements, machine, maps, temperature, eff
     table.add_row("temperature", f"{temperature:g} C")
     table.add_row("effects", escape(", ".join(e.name for e in effects)) or "none")
     table.add_row("time", f"{elapsed:.2f} s")
-    show(table, as_json)
+    show(table, o.as_json)
 
 
 def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json, policy,

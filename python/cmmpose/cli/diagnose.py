@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -14,7 +15,7 @@ from rich.table import Table
 from .._json import dumps as strict_json
 from ..atomicfile import FileGroup, check_outputs_free, ensure_folder, write_text
 from ..errors import Error
-from ..temperature import log_notes
+from ..temperature import TemperaturePolicy, log_notes
 from .artefact import diagnose_plate_fits_cli
 from .common import (check_outputs, check_report_file, console, fail, load_maps, machine_option, map_specs,
                      policy_options, report_folder_html, scheduler_options)
@@ -59,91 +60,144 @@ from .common import (check_outputs, check_report_file, console, fail, load_maps,
               help="Offer only the library's named effects (no corrections of the map components).")
 @click.option("--corrected-maps", "corrected_out", type=click.Path(dir_okay=False), default=None,
               help="Write the maps with the found map corrections in them (CSV; a set: one file per temperature).")
-def diagnose_cmd(run_dirs, machine_file, maps, model_file, temperature, out_of_range, temperature_tolerance, log_hold,
-                 add, no_auto, max_effects, report_file, model_out, user_files, skeleton_out, joint, separate_artefacts,
-                 scheduler, scheduler_timeout, as_json, temperature_policy, reproducibility_um=None,
-                 no_map_corrections=False, corrected_out=None, verbose=False) -> None:
+def diagnose_cmd(**flags) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall.
     Several RUN_DIRs are diagnosed one by one on a Dask scheduler, with one table across them."""
+    o = DiagnoseOptions.from_flags(flags)
+    if o.joint:
+        if len(o.run_dirs) < 2 or o.scheduler:
+            raise click.UsageError("--joint takes two or more runs and runs in this process (no --scheduler)")
+        if o.skeleton_out:
+            raise click.UsageError("--user-effect-skeleton takes one run: diagnose the run of interest on its own")
+        if o.reproducibility_um is not None and len(o.reproducibility_um) not in (1, len(o.run_dirs)):
+            raise click.BadParameter(f"{len(o.reproducibility_um)} values for {len(o.run_dirs)} runs: give one value, "
+                                     "or one per run (comma-separated, in the runs' order)",
+                                     param_hint="--reproducibility")
+        return _diagnose_joint(o)
+    if o.reproducibility_um is not None and len(o.reproducibility_um) > 1:
+        raise click.BadParameter("one value per run is for --joint; without it every run takes the one value",
+                                 param_hint="--reproducibility")
+    if len(o.run_dirs) > 1 or o.scheduler:
+        for flag, given in (("--report", o.report_file), ("--save-model", o.model_out), ("--user-effect", o.user_files),
+                            ("--user-effect-skeleton", o.skeleton_out)):
+            if given:
+                raise click.UsageError(f"{flag} takes one run: diagnose the run of interest on its own")
+        return _diagnose_fleet(o)
+    _diagnose_one(o)
+
+
+@dataclass(frozen=True)
+class DiagnoseOptions:
+    """What ``cmmpose diagnose`` was asked, from its flags: one object for the command and its helpers.
+
+    The temperature policy's flags arrive as ``temperature_policy`` (built by
+    :func:`~cmmpose.cli.temperature_options.temperature_options`); its ``out_of_range``,
+    ``temperature_tolerance`` and ``log_hold`` are what the model and the scale-out are given."""
+
+    run_dirs: tuple[str, ...]
+    machine_file: str | None
+    maps: tuple[str, ...]
+    model_file: str | None
+    temperature: float | None
+    temperature_policy: TemperaturePolicy
+    add: tuple[str, ...]
+    auto: bool
+    max_effects: int
+    report_file: str | None
+    model_out: str | None
+    user_files: tuple[str, ...]
+    skeleton_out: str | None
+    joint: bool
+    same_artefact: bool
+    scheduler: str | None
+    scheduler_timeout: float
+    as_json: bool
+    verbose: bool
+    #: --reproducibility: one value, or with --joint one per run (um); None when not given.
+    reproducibility_um: tuple[float, ...] | None
+    map_corrections: bool
+    corrected_out: str | None
+
+    @classmethod
+    def from_flags(cls, flags: dict) -> DiagnoseOptions:
+        """The options from the command's click parameters (by their names)."""
+        return cls(run_dirs=tuple(flags["run_dirs"]), machine_file=flags["machine_file"], maps=flags["maps"],
+                   model_file=flags["model_file"], temperature=flags["temperature"],
+                   temperature_policy=flags["temperature_policy"], add=flags["add"], auto=not flags["no_auto"],
+                   max_effects=flags["max_effects"], report_file=flags["report_file"], model_out=flags["model_out"],
+                   user_files=flags["user_files"], skeleton_out=flags["skeleton_out"], joint=flags["joint"],
+                   same_artefact=not flags["separate_artefacts"], scheduler=flags["scheduler"],
+                   scheduler_timeout=flags["scheduler_timeout"], as_json=flags["as_json"], verbose=flags["verbose"],
+                   reproducibility_um=flags["reproducibility_um"], map_corrections=not flags["no_map_corrections"],
+                   corrected_out=flags["corrected_out"])
+
+    @property
+    def one_reproducibility_um(self) -> float | None:
+        """--reproducibility's one value (one run, or each run of a fleet), None when not given."""
+        return None if self.reproducibility_um is None else self.reproducibility_um[0]
+
+    @property
+    def inputs(self) -> list:
+        """The files the diagnosis reads besides the runs and the maps: model, machine, user effects."""
+        return [self.model_file, self.machine_file, *self.user_files]
+
+    def model_policy(self) -> dict:
+        """The starting model's temperature keywords: --temperature and the policy (its fields and itself)."""
+        policy = self.temperature_policy
+        return {"temperature": self.temperature, "out_of_range": policy.out_of_range,
+                "temperature_tolerance": policy.temperature_tolerance, "log_hold": policy.log_hold,
+                "temperature_policy": policy}
+
+
+def _diagnose_one(o: DiagnoseOptions) -> None:
+    """`diagnose RUN_DIR`: one run's diagnosis, the files it writes, printed."""
     from ..diagnosis import diagnose
     from ..machine import load_machine
     from ..run import Run
 
-    if joint:
-        if len(run_dirs) < 2 or scheduler:
-            raise click.UsageError("--joint takes two or more runs and runs in this process (no --scheduler)")
-        if skeleton_out:
-            raise click.UsageError("--user-effect-skeleton takes one run: diagnose the run of interest on its own")
-        if reproducibility_um is not None and len(reproducibility_um) not in (1, len(run_dirs)):
-            raise click.BadParameter(f"{len(reproducibility_um)} values for {len(run_dirs)} runs: give one value, "
-                                     "or one per run (comma-separated, in the runs' order)",
-                                     param_hint="--reproducibility")
-        return _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file,
-                               temperature=temperature, out_of_range=out_of_range,
-                               temperature_tolerance=temperature_tolerance, log_hold=log_hold,
-                               temperature_policy=temperature_policy, add=add, auto=not no_auto,
-                               max_effects=max_effects, same_artefact=not separate_artefacts,
-                               map_corrections=not no_map_corrections, corrected_out=corrected_out,
-                               reproducibility_um=reproducibility_um, verbose=verbose)
-    if reproducibility_um is not None and len(reproducibility_um) > 1:
-        raise click.BadParameter("one value per run is for --joint; without it every run takes the one value",
-                                 param_hint="--reproducibility")
-    reproducibility_um = None if reproducibility_um is None else reproducibility_um[0]
-    if len(run_dirs) > 1 or scheduler:
-        for flag, given in (("--report", report_file), ("--save-model", model_out), ("--user-effect", user_files),
-                            ("--user-effect-skeleton", skeleton_out)):
-            if given:
-                raise click.UsageError(f"{flag} takes one run: diagnose the run of interest on its own")
-        return _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler or "threads", as_json,
-                               scheduler_timeout=scheduler_timeout,
-                               temperature=temperature, out_of_range=out_of_range,
-                               temperature_tolerance=temperature_tolerance, log_hold=log_hold, add=add,
-                               auto=not no_auto, max_effects=max_effects, temperature_policy=temperature_policy,
-                               reproducibility_um=reproducibility_um, verbose=verbose)
-    run_dir = run_dirs[0]
+    run_dir = o.run_dirs[0]
+    reproducibility_um = o.one_reproducibility_um
     try:
-        check_outputs({"--save-model": model_out, "--report": report_file, "--user-effect-skeleton": skeleton_out,
-                       "--corrected-maps": corrected_out},
-                      run_dirs, [model_file, machine_file, *user_files])
-        check_report_file(report_file)
-        machine = load_machine(machine_file)
+        check_outputs({"--save-model": o.model_out, "--report": o.report_file,
+                       "--user-effect-skeleton": o.skeleton_out, "--corrected-maps": o.corrected_out},
+                      o.run_dirs, o.inputs)
+        check_report_file(o.report_file)
+        machine = load_machine(o.machine_file)
         run = Run.load(run_dir)
         from ..model import load_user_effects
 
-        user = load_user_effects(user_files)
-        model = _starting_model(run, machine, maps, model_file, user, temperature=temperature,
-                                out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
-                                log_hold=log_hold, temperature_policy=temperature_policy)
-        map_inputs = _map_inputs(run_dirs, [model_file, machine_file, *user_files], machine, maps)
-        _check_corrected_maps(model, corrected_out, map_inputs)
+        user = load_user_effects(o.user_files)
+        model = _starting_model(run, machine, user, o)
+        map_inputs = _map_inputs(o, machine)
+        _check_corrected_maps(model, o.corrected_out, map_inputs)
         with console.status("diagnosing ..."):
             known = set(model.names)
-            diag = diagnose(run, model, add=add, auto=not no_auto, max_effects=max_effects,
+            diag = diagnose(run, model, add=o.add, auto=o.auto, max_effects=o.max_effects,
                             user_effects=[u for u in user if u.name not in known],
-                            map_corrections=not no_map_corrections, reproducibility_um=reproducibility_um,
-                            machine=machine, **machine_floor(machine, machine_file, reproducibility_um))
+                            map_corrections=o.map_corrections, reproducibility_um=reproducibility_um,
+                            machine=machine, **machine_floor(machine, o.machine_file, reproducibility_um))
         files = []
-        if skeleton_out:
+        if o.skeleton_out:
             from ..diagnosis.unexplained import user_effect_skeleton
 
             if diag.unexplained:
-                write_text(skeleton_out, user_effect_skeleton(diag.unexplained[0]))
-                files.append(skeleton_out)
+                write_text(o.skeleton_out, user_effect_skeleton(diag.unexplained[0]))
+                files.append(o.skeleton_out)
             else:
                 console.print("no unexplained structure: no user-effect draft written")
-        if model_out:
-            files.append(diag.model.save(model_out))
-        if corrected_out:
-            files += _write_corrected_maps(diag.model, corrected_out, map_inputs)
-        if report_file:
+        if o.model_out:
+            files.append(diag.model.save(o.model_out))
+        if o.corrected_out:
+            files += _write_corrected_maps(diag.model, o.corrected_out, map_inputs)
+        if o.report_file:
             try:
-                ensure_folder(Path(report_file).parent)
-                files.append(diag.write_report(report_file, run, run_dir=run_dir, model_file=model_out))
+                ensure_folder(Path(o.report_file).parent)
+                files.append(diag.write_report(o.report_file, run, run_dir=run_dir, model_file=o.model_out))
             except ImportError as exc:  # the diagnosis is still printed and the model saved
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
         raise fail(exc) from None
-    _print_diagnosis(diag, files, as_json, verbose)
+    _print_diagnosis(diag, files, o.as_json, o.verbose)
 
 
 def _reproducibility_values(text) -> tuple[float, ...] | None:
@@ -185,13 +239,13 @@ def _corrected_map_paths(maps, path) -> list[Path]:
     return [path.with_name(f"{path.stem}_{m.temperature:g}C{path.suffix or '.csv'}") for m in maps.maps]
 
 
-def _map_inputs(run_dirs, files, machine, maps) -> list:
-    """Every file a diagnosis reads: the runs' files, ``files`` (model, machine, user effects), the map files
+def _map_inputs(o: DiagnoseOptions, machine) -> list:
+    """Every file a diagnosis reads: the runs' files, the model, machine and user-effect files, the map files
     named by --maps and the machine file's own maps."""
     from ..run import RUN_FILES
 
-    return ([Path(r) / n for r in run_dirs for n in RUN_FILES] + [f for f in files if f]
-            + [Path(s) for s in maps if Path(s).exists()] + list(machine.map_files))
+    return ([Path(r) / n for r in o.run_dirs for n in RUN_FILES] + [f for f in o.inputs if f]
+            + [Path(s) for s in o.maps if Path(s).exists()] + list(machine.map_files))
 
 
 def _check_corrected_maps(model, path, inputs) -> None:
@@ -229,24 +283,20 @@ def _print_diagnosis(diag, files, as_json: bool, verbose: bool = False) -> None:
         console.print(f"wrote {f}")
 
 
-def _starting_model(run, machine, maps, model_file, user, **policy):
+def _starting_model(run, machine, user, o: DiagnoseOptions):
     """The model a diagnosis starts from: a saved one (with its user effects),
     or the maps (--maps, the machine's, or the run's) with the temperature policy."""
     from ..model import Model
 
-    if model_file:
-        return Model.load(model_file, user_effects=user)
-    if policy.get("temperature_policy") is None:
-        policy.pop("temperature_policy", None)
-    maps_ = machine.maps_for_run(run, maps)
+    if o.model_file:
+        return Model.load(o.model_file, user_effects=user)
+    maps_ = machine.maps_for_run(run, o.maps)
     if maps_ is None:
         raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
-    return Model(maps_, **policy)
+    return Model(maps_, **o.model_policy())
 
 
-def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_out, as_json, report_file, *,
-                    temperature, out_of_range, temperature_tolerance, log_hold, temperature_policy=None,
-                    corrected_out=None, verbose=False, **options) -> None:
+def _diagnose_joint(o: DiagnoseOptions) -> None:
     """`diagnose RUN_DIR... --joint`: one model for several runs (cmmpose.diagnosis.joint); the
     report shows the first run's plots and every run's error at each step."""
     from ..diagnosis.joint import diagnose_jointly
@@ -254,73 +304,76 @@ def _diagnose_joint(run_dirs, machine_file, maps, model_file, user_files, model_
     from ..run import Run
 
     try:
-        check_outputs({"--save-model": model_out, "--report": report_file, "--corrected-maps": corrected_out},
-                      run_dirs, [model_file, machine_file, *user_files])
-        check_report_file(report_file)
-        machine = load_machine(machine_file)
-        runs = [Run.load(r) for r in run_dirs]
+        check_outputs({"--save-model": o.model_out, "--report": o.report_file, "--corrected-maps": o.corrected_out},
+                      o.run_dirs, o.inputs)
+        check_report_file(o.report_file)
+        machine = load_machine(o.machine_file)
+        runs = [Run.load(r) for r in o.run_dirs]
         from ..model import load_user_effects
 
-        user = load_user_effects(user_files)
-        model = _starting_model(runs[0], machine, maps, model_file, user, temperature=temperature,
-                                out_of_range=out_of_range, temperature_tolerance=temperature_tolerance,
-                                log_hold=log_hold, temperature_policy=temperature_policy)
-        map_inputs = _map_inputs(run_dirs, [model_file, machine_file, *user_files], machine, maps)
-        _check_corrected_maps(model, corrected_out, map_inputs)
+        user = load_user_effects(o.user_files)
+        model = _starting_model(runs[0], machine, user, o)
+        map_inputs = _map_inputs(o, machine)
+        _check_corrected_maps(model, o.corrected_out, map_inputs)
         with console.status(f"diagnosing {len(runs)} runs together ..."):
-            repro = options.pop("reproducibility_um", None)
+            options = {"add": o.add, "auto": o.auto, "max_effects": o.max_effects, "same_artefact": o.same_artefact,
+                       "map_corrections": o.map_corrections}
+            repro = o.reproducibility_um
             if repro is not None:
                 options["reproducibility_um"] = repro[0] if len(repro) == 1 else list(repro)
             diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
-                                    run_names=[str(r) for r in run_dirs], machine=machine, **options,
-                                    **machine_floor(machine, machine_file, repro))
-        files = [diag.model.save(model_out)] if model_out else []
-        if corrected_out:
-            files += _write_corrected_maps(diag.model, corrected_out, map_inputs)
-        if report_file:
+                                    run_names=[str(r) for r in o.run_dirs], machine=machine, **options,
+                                    **machine_floor(machine, o.machine_file, repro))
+        files = [diag.model.save(o.model_out)] if o.model_out else []
+        if o.corrected_out:
+            files += _write_corrected_maps(diag.model, o.corrected_out, map_inputs)
+        if o.report_file:
             try:
-                ensure_folder(Path(report_file).parent)
-                files.append(diag.write_report(report_file, runs[0], run_dir=run_dirs[0], model_file=model_out))
+                ensure_folder(Path(o.report_file).parent)
+                files.append(diag.write_report(o.report_file, runs[0], run_dir=o.run_dirs[0], model_file=o.model_out))
             except ImportError as exc:  # the diagnosis is still printed and the model saved
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
         raise fail(exc) from None
-    _print_diagnosis(diag, files, as_json, verbose)
+    _print_diagnosis(diag, files, o.as_json, o.verbose)
 
 
-def _diagnose_fleet(run_dirs, machine_file, maps, model_file, scheduler, as_json, *, scheduler_timeout, temperature,
-                    out_of_range, temperature_tolerance, log_hold, verbose=False, **options) -> None:
+def _diagnose_fleet(o: DiagnoseOptions) -> None:
     """`diagnose RUN_DIR...`: each run's diagnosis on a Dask scheduler (cmmpose.scale), one table across them."""
     from ..model import Model
     from ..machine import load_machine
     from ..scale import diagnose_runs
 
+    scheduler = o.scheduler or "threads"
+    policy = o.temperature_policy
     try:
-        machine = load_machine(machine_file)
-        options.update(machine_floor(machine, machine_file, options.get("reproducibility_um")))
+        machine = load_machine(o.machine_file)
+        options = {"add": o.add, "auto": o.auto, "max_effects": o.max_effects, "temperature_policy": policy,
+                   "reproducibility_um": o.one_reproducibility_um}
+        options.update(machine_floor(machine, o.machine_file, options.get("reproducibility_um")))
         model = "run"  # each run's bundled maps, on its worker
-        if model_file:
-            model = Model.load(model_file)
-        elif maps == ("none",):
+        if o.model_file:
+            model = Model.load(o.model_file)
+        elif o.maps == ("none",):
             raise click.BadParameter("the model needs maps ('none' is not a model)", param_hint="--maps")
-        elif maps or machine_file:
-            model = Model(load_maps(maps, machine))
+        elif o.maps or o.machine_file:
+            model = Model(load_maps(o.maps, machine))
         with Progress(TextColumn("diagnosing"), BarColumn(), TextColumn("{task.completed}/{task.total} runs"),
                       console=console) as bar:
-            task = bar.add_task("", total=len(run_dirs))
-            diags = diagnose_runs(run_dirs, model, scheduler=scheduler, scheduler_timeout=scheduler_timeout,
+            task = bar.add_task("", total=len(o.run_dirs))
+            diags = diagnose_runs(o.run_dirs, model, scheduler=scheduler, scheduler_timeout=o.scheduler_timeout,
                                   progress=lambda done, total: bar.update(task, completed=done, total=total),
-                                  temperature=temperature, out_of_range=out_of_range,
-                                  temperature_tolerance=temperature_tolerance, log_hold=log_hold,
+                                  temperature=o.temperature, out_of_range=policy.out_of_range,
+                                  temperature_tolerance=policy.temperature_tolerance, log_hold=policy.log_hold,
                                   **options)
     except Error as exc:
         raise fail(exc) from None
-    if as_json:
-        click.echo(strict_json({str(r): json.loads(d.to_json()) for r, d in zip(run_dirs, diags)}, indent=1))
+    if o.as_json:
+        click.echo(strict_json({str(r): json.loads(d.to_json()) for r, d in zip(o.run_dirs, diags)}, indent=1))
         return
-    Console().print(fleet_table(run_dirs, diags, scheduler))
-    if verbose:  # each run's own view after the table
-        for r, d in zip(run_dirs, diags):
+    Console().print(fleet_table(o.run_dirs, diags, scheduler))
+    if o.verbose:  # each run's own view after the table
+        for r, d in zip(o.run_dirs, diags):
             Console().print(f"[bold]{escape(str(r))}[/]")
             Console().print(d.view(verbose=True))
 

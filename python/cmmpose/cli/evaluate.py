@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -22,6 +23,7 @@ from ..evaluation.ballbar import evaluate
 from ..evaluation.model_check import check_model
 from ..evaluation.files import FLEET_FILES, REPORT_FILES, write_evaluation_files
 from ..evaluation.metrics import STEEL_EXPANSION
+from ..temperature import TemperaturePolicy
 from .artefact import evaluate_artefact_run, write_artefact_report
 from .common import (aliased_choices_once, check_model_or_maps, console, console_log, expansion_ppm, fail, load_maps,
                      load_model, machine_option, map_specs, model_doubts, model_options, policy_options,
@@ -107,10 +109,7 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @model_options(" (inputs the run lacks are an error naming them); its parameters' uncertainties enter the "
                "budgets. Several runs: each evaluated in turn with the model, with its budgets; --json prints a "
                "list, --report a folder per run.")
-def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, temperature_tolerance, log_hold, expansion,
-                 reject, u_temperature, u_map, u_model, report_dir, as_json, skip_incomplete, scheduler,
-                 scheduler_timeout, temperature_policy, model_file, user_files, strict_model=False,
-                 verbose=False) -> None:
+def evaluate_cmd(**flags) -> None:
     """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated.
 
     With several runs (a fleet, or a day's runs), each is evaluated on the
@@ -120,72 +119,114 @@ def evaluate_cmd(run_dir, machine_file, maps, temperature, out_of_range, tempera
     from ..machine import load_machine
     from ..run import Run
 
-    check_model_or_maps(model_file, user_files, maps, strict_model)
-    if model_file is not None and scheduler is not None:
+    o = EvaluateOptions.from_flags(flags)
+    check_model_or_maps(o.model_file, o.user_files, o.maps, o.strict_model)
+    if o.model_file is not None and o.scheduler is not None:
         raise click.UsageError("--model evaluates its runs one after another in this process, each with its "
                                "budgets: --scheduler is for maps")
-    if model_file is not None and len(run_dir) > 1:
-        return _evaluate_with_model(run_dir, machine_file, model_file, user_files, temperature, out_of_range,
-                                    temperature_tolerance, log_hold, expansion, reject, u_temperature, u_map, u_model,
-                                    report_dir, as_json, skip_incomplete, temperature_policy, strict_model, verbose)
+    if o.model_file is not None and len(o.run_dirs) > 1:
+        return _evaluate_with_model(o)
     try:
-        machine = load_machine(machine_file)
-        if expansion is None:
-            expansion = machine.artefact_expansion * 1e6
-        if len(run_dir) > 1 or scheduler is not None:
+        machine = load_machine(o.machine_file)
+        expansion = o.expansion_for(machine)
+        if len(o.run_dirs) > 1 or o.scheduler is not None:
             # The table across runs carries no uncertainties: their options would do nothing.
-            for flag, given in (("--u-temperature", u_temperature is not None), ("--u-map", u_map is not None),
-                                ("--u-model", u_model != 0.0)):
+            for flag, given in (("--u-temperature", o.u_temperature is not None), ("--u-map", o.u_map is not None),
+                                ("--u-model", o.u_model != 0.0)):
                 if given:
                     raise click.UsageError(f"{flag} takes one run: the table across runs has no uncertainties "
                                            "(evaluate each run on its own for them)")
-            report_folder_names(run_dir, report_dir)  # before any work
-            return _evaluate_fleet(run_dir, machine, maps, scheduler or "threads", report_dir, as_json,
-                                   scheduler_timeout=scheduler_timeout,
-                                   temperature=temperature, reject=reject, out_of_range=out_of_range,
-                                   temperature_tolerance=temperature_tolerance, log_hold=log_hold,
-                                   expansion_ppm_per_K=expansion, skip_incomplete=skip_incomplete,
-                                   temperature_policy=temperature_policy)
-        run_dir = run_dir[0]
-        if report_dir:
-            check_report_paths(report_dir, (*REPORT_FILES, *UNCERTAINTY_FILES))  # before any work
+            report_folder_names(o.run_dirs, o.report_dir)  # before any work
+            return _evaluate_fleet(o, machine, expansion)
+        run_dir = o.run_dirs[0]
+        if o.report_dir:
+            check_report_paths(o.report_dir, (*REPORT_FILES, *UNCERTAINTY_FILES))  # before any work
         run = Run.load(run_dir)
-        model = load_model(model_file, user_files) if model_file is not None else machine.maps_for_run(run, maps)
+        with_model = o.model_file is not None
+        model = load_model(o.model_file, o.user_files) if with_model else machine.maps_for_run(run, o.maps)
         if "definition" in run.artefact:  # an artefact run (cmmpose simulate --artefact): cli/artefact.py
-            return evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json,
-                                         {"temperature_policy": temperature_policy},
-                                         strict_model=strict_model if model_file is not None else None)
-        ev, check, caught = _evaluated(run, model, model_file is not None, dict(
-            temperature=temperature, reject=reject, out_of_range=out_of_range,
-            temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion_ppm_per_K=expansion,
-            skip_incomplete=skip_incomplete, temperature_policy=temperature_policy))
+            return evaluate_artefact_run(run, model, o.temperature, o.reject, o.u_temperature, o.report_dir,
+                                         o.as_json, {"temperature_policy": o.temperature_policy},
+                                         strict_model=o.strict_model if with_model else None)
+        ev, check, caught = _evaluated(run, model, with_model, o.evaluate_keywords(expansion))
         say_caught(caught)
-        unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
-                                      log_hold, u_temperature, u_map, u_model, temperature_policy)
-        files = write_report(ev, Path(report_dir), getattr(model, "maps", model) if model_file else model) \
-            if report_dir else []
-        if report_dir:
-            files += [Path(report_dir) / "uncertainty.json", Path(report_dir) / "uncertainty.md"]
+        unc = _evaluation_uncertainty(run, ev, model, o)
+        files = write_report(ev, Path(o.report_dir), getattr(model, "maps", model) if with_model else model) \
+            if o.report_dir else []
+        if o.report_dir:
+            files += [Path(o.report_dir) / "uncertainty.json", Path(o.report_dir) / "uncertainty.md"]
             write_text(files[-2], unc.to_json(indent=2))
             write_text(files[-1], unc.to_markdown())
     except Error as exc:
         raise fail(exc) from None
-    if as_json:
+    if o.as_json:
         click.echo(strict_json({**ev.to_dict(), "uncertainty": unc.to_dict(),
                                 **({"model_check": check.to_dict()} if check is not None else {})}, indent=2))
     else:
-        print_evaluation(ev, unc, verbose)
+        print_evaluation(ev, unc, o.verbose)
         if check is not None:
             print_model_check(check)
     for f in files:
         console.print(f"wrote {f}")
     if check is not None:
-        strict_model_exit(model_doubts(caught) + ([check.verdict] if check.worse else []), strict_model)
+        strict_model_exit(model_doubts(caught) + ([check.verdict] if check.worse else []), o.strict_model)
 
 
-def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, temperature, out_of_range,
-                         temperature_tolerance, log_hold, expansion, reject, u_temperature, u_map, u_model, report_dir,
-                         as_json, skip_incomplete, temperature_policy, strict_model=False, verbose=False) -> None:
+@dataclass(frozen=True)
+class EvaluateOptions:
+    """What ``cmmpose evaluate`` was asked, from its flags: one object for the command and its helpers.
+
+    The temperature policy's flags arrive as ``temperature_policy`` (built by
+    :func:`~cmmpose.cli.temperature_options.temperature_options`); its ``out_of_range``,
+    ``temperature_tolerance`` and ``log_hold`` are what the evaluation is given beside it."""
+
+    run_dirs: tuple[str, ...]
+    machine_file: str | None
+    maps: tuple[str, ...]
+    temperature: float | None
+    temperature_policy: TemperaturePolicy
+    #: --expansion, ppm/K; None: the machine's artefact expansion.
+    expansion: float | None
+    reject: float | None
+    u_temperature: float | None
+    u_map: float | None
+    u_model: float
+    report_dir: str | None
+    as_json: bool
+    skip_incomplete: bool
+    scheduler: str | None
+    scheduler_timeout: float
+    model_file: str | None
+    user_files: tuple[str, ...]
+    strict_model: bool
+    verbose: bool
+
+    @classmethod
+    def from_flags(cls, flags: dict) -> EvaluateOptions:
+        """The options from the command's click parameters (by their names)."""
+        return cls(run_dirs=tuple(flags["run_dir"]), machine_file=flags["machine_file"], maps=flags["maps"],
+                   temperature=flags["temperature"], temperature_policy=flags["temperature_policy"],
+                   expansion=flags["expansion"], reject=flags["reject"], u_temperature=flags["u_temperature"],
+                   u_map=flags["u_map"], u_model=flags["u_model"], report_dir=flags["report_dir"],
+                   as_json=flags["as_json"], skip_incomplete=flags["skip_incomplete"], scheduler=flags["scheduler"],
+                   scheduler_timeout=flags["scheduler_timeout"], model_file=flags["model_file"],
+                   user_files=flags["user_files"], strict_model=flags["strict_model"], verbose=flags["verbose"])
+
+    def expansion_for(self, machine) -> float:
+        """The artefact's expansion coefficient, ppm/K: --expansion, or the machine's."""
+        return machine.artefact_expansion * 1e6 if self.expansion is None else self.expansion
+
+    def evaluate_keywords(self, expansion: float) -> dict:
+        """The keywords of :func:`cmmpose.evaluate` (and of the model check and the scale-out): the temperature,
+        its policy (the whole and its fields), the fits' rejection, the expansion, skipping incomplete
+        positions."""
+        policy = self.temperature_policy
+        return dict(temperature=self.temperature, reject=self.reject, out_of_range=policy.out_of_range,
+                    temperature_tolerance=policy.temperature_tolerance, log_hold=policy.log_hold,
+                    expansion_ppm_per_K=expansion, skip_incomplete=self.skip_incomplete, temperature_policy=policy)
+
+
+def _evaluate_with_model(o: EvaluateOptions) -> None:
     """`evaluate RUN_DIR... --model m.json`: each run evaluated with the found model in turn (the model loaded
     once), each with its figures, budgets and warnings (an aliased choice that matters on that run); --json a
     list of the single-run documents, each with its ``run``; --report a folder per run."""
@@ -194,45 +235,40 @@ def _evaluate_with_model(run_dirs, machine_file, model_file, user_files, tempera
 
     docs, files, doubts = [], [], []
     try:
-        machine = load_machine(machine_file)
-        if expansion is None:
-            expansion = machine.artefact_expansion * 1e6
-        model = load_model(model_file, user_files)
-        names = report_folder_names(run_dirs, report_dir)
-        for r, name in zip(run_dirs, names):
+        machine = load_machine(o.machine_file)
+        expansion = o.expansion_for(machine)
+        model = load_model(o.model_file, o.user_files)
+        names = report_folder_names(o.run_dirs, o.report_dir)
+        for r, name in zip(o.run_dirs, names):
             run = Run.load(r)
             if "definition" in run.artefact:
                 raise InputError(f"{r}: an artefact run: evaluate it on its own with --model")
-            ev, check, caught = _evaluated(run, model, True, dict(
-                temperature=temperature, reject=reject, out_of_range=out_of_range,
-                temperature_tolerance=temperature_tolerance, log_hold=log_hold, expansion_ppm_per_K=expansion,
-                skip_incomplete=skip_incomplete, temperature_policy=temperature_policy))
+            ev, check, caught = _evaluated(run, model, True, o.evaluate_keywords(expansion))
             said = [str(w.message) for w in caught if not issubclass(w.category, (DeprecationWarning,
                                                                                    PendingDeprecationWarning))]
             doubts += [f"{name}: {t}" for t in model_doubts(caught) + ([check.verdict] if check.worse else [])]
             for text in said:
                 warn(f"{name}: {text}")
-            unc = _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance,
-                                          log_hold, u_temperature, u_map, u_model, temperature_policy)
-            if report_dir:
-                folder = Path(report_dir) / name
+            unc = _evaluation_uncertainty(run, ev, model, o)
+            if o.report_dir:
+                folder = Path(o.report_dir) / name
                 files += write_report(ev, folder, model.maps)
                 files += [folder / "uncertainty.json", folder / "uncertainty.md"]
                 write_text(files[-2], unc.to_json(indent=2))
                 write_text(files[-1], unc.to_markdown())
-            if as_json:
+            if o.as_json:
                 docs.append({"run": str(r), **ev.to_dict(), "uncertainty": unc.to_dict(), "warnings": said,
                              "model_check": check.to_dict()})
             else:
-                print_evaluation(ev, unc, verbose, name=str(r))
+                print_evaluation(ev, unc, o.verbose, name=str(r))
                 print_model_check(check)
     except Error as exc:
         raise fail(exc) from None
-    if as_json:
+    if o.as_json:
         click.echo(strict_json(docs, indent=2))
     for f in files:
         console.print(f"wrote {f}")
-    strict_model_exit(doubts, strict_model)
+    strict_model_exit(doubts, o.strict_model)
 
 
 def evaluation_summary(ev, unc, name: str | None = None) -> Group:
@@ -311,29 +347,30 @@ def _evaluated(run, model, check: bool, options: dict):
     return ev, checked, caught
 
 
-def _evaluation_uncertainty(run, ev, model, temperature, reject, out_of_range, temperature_tolerance, log_hold,
-                            u_temperature, u_map, u_model, temperature_policy=None):
+def _evaluation_uncertainty(run, ev, model, o: EvaluateOptions):
     """u (k = 2) and budgets of every figure of ``ev`` (cmmpose.evaluation.ballbar_uncertainty)."""
     from ..evaluation.ballbar_uncertainty import DEFAULT_U_TEMPERATURE_K, evaluation_uncertainty
 
+    policy = o.temperature_policy
     with warnings.catch_warnings():  # the evaluation said what it clamped or extrapolated; not again at each
         for category in (ClampWarning, ExtrapolationWarning):  # +-step of the temperature sensitivity
             warnings.simplefilter("ignore", category)
         return evaluation_uncertainty(
-            run, ev, model, temperature, reject=reject, out_of_range=out_of_range,
-            temperature_tolerance=temperature_tolerance, log_hold=log_hold,
-            u_temperature_K=DEFAULT_U_TEMPERATURE_K if u_temperature is None else u_temperature,
-            u_map_ppm=u_map, u_model_ppm=u_model, temperature_policy=temperature_policy)
+            run, ev, model, o.temperature, reject=o.reject, out_of_range=policy.out_of_range,
+            temperature_tolerance=policy.temperature_tolerance, log_hold=policy.log_hold,
+            u_temperature_K=DEFAULT_U_TEMPERATURE_K if o.u_temperature is None else o.u_temperature,
+            u_map_ppm=o.u_map, u_model_ppm=o.u_model, temperature_policy=policy)
 
 
-def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, scheduler_timeout,
-                    **options) -> None:
+def _evaluate_fleet(o: EvaluateOptions, machine, expansion: float) -> None:
     """`evaluate RUN_DIR...`: every run on a Dask scheduler (cmmpose.scale), then one table across them."""
     import logging
 
     from ..evaluation.ballbar import skipped_note
     from ..scale import evaluate_runs, fleet_summary
 
+    run_dirs, maps, report_dir, as_json = o.run_dirs, o.maps, o.report_dir, o.as_json
+    scheduler, options = o.scheduler or "threads", o.evaluate_keywords(expansion)
     logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
     if maps == ("none",):
         model = None
@@ -344,7 +381,7 @@ def _evaluate_fleet(run_dirs, machine, maps, scheduler, report_dir, as_json, *, 
     with Progress(TextColumn("evaluating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} runs"),
                   console=console) as bar:
         task = bar.add_task("", total=len(run_dirs))
-        evaluations = evaluate_runs(run_dirs, model, scheduler=scheduler, scheduler_timeout=scheduler_timeout,
+        evaluations = evaluate_runs(run_dirs, model, scheduler=scheduler, scheduler_timeout=o.scheduler_timeout,
                                     progress=lambda done, total: bar.update(task, completed=done), **options)
     rows = fleet_summary(run_dirs, evaluations)
     files = []

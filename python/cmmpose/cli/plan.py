@@ -5,6 +5,7 @@ and, with ``--simulate``, a simulated run of them."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import click
@@ -51,8 +52,7 @@ from .common import SEED, Positive, check_outputs, console, fail, load_maps, mac
 @click.option("--user-effect", "user_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="With --separate: a Python file of user effects, candidates of the diagnosis (repeatable).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
-def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_for, sigma_um, simulate, effects,
-             temperature, jitter, seed, run_out, overwrite, separate, user_files, as_json) -> None:
+def plan_cmd(**flags) -> None:
     """Propose the next placements of an artefact (ballbar positions, plate placements, step-gauge lines) that
     best determine what RUN_DIR... leave aliased or invisible (D-optimal on the centre-level sensitivities,
     greedy over the placements the machine reaches), with the parameters' predicted uncertainties before and
@@ -63,57 +63,93 @@ def plan_cmd(run_dirs, machine_file, maps, model_file, artefact, budget, plan_fo
     from ..machine import load_machine
     from ..run import Run
 
-    if simulate and run_out is None:
-        raise click.UsageError("--simulate needs -o RUN_DIR (where the simulated run goes)")
-    if not simulate:
-        for flag, given in (("-o", run_out is not None), ("--effect", bool(effects)), ("--overwrite", overwrite)):
-            if given:
-                raise click.UsageError(f"{flag} is for --simulate")
-    if user_files and not separate:
-        raise click.UsageError("--user-effect is for --separate")
-    if separate and plan_for:
-        raise click.UsageError("--plan-for sharpens parameters; --separate tells explanations apart: give one")
-    if model_file is not None and maps:
-        raise click.UsageError("give --maps or --model (whose maps it holds), not both")
-    if not math.isfinite(temperature):
-        raise click.BadParameter(f"{temperature!r} is not a temperature in C", param_hint="--temperature")
-    if not (math.isfinite(jitter) and jitter >= 0):
-        raise click.BadParameter(f"{jitter!r} is not a reproducibility >= 0 um", param_hint="--jitter")
-    if simulate and any(Path(run_out).resolve() == Path(r).resolve() for r in run_dirs):
-        raise click.UsageError(f"-o {run_out}: is one of the runs read; the simulated run goes elsewhere")
-    if simulate and Path(run_out).exists() and not overwrite and (not Path(run_out).is_dir()
-                                                                  or any(Path(run_out).iterdir())):
-        raise click.UsageError(f"{run_out}: exists and is not empty (use --overwrite to replace the run in it)")
-    parsed = parse_effects(effects)  # before any work
+    o = PlanOptions.from_flags(flags)
+    _check_flags(o)
+    parsed = parse_effects(o.effects)  # before any work
     try:
-        if simulate:
-            check_outputs({"-o": run_out}, run_dirs, [model_file])
-        machine = load_machine(machine_file)
-        runs = [Run.load(d) for d in run_dirs]
-        model = Model.load(model_file) if model_file is not None else Model(load_maps(maps, machine))
-        art = load_artefact(artefact) if artefact is not None else None
+        if o.simulate:
+            check_outputs({"-o": o.run_out}, o.run_dirs, [o.model_file])
+        machine = load_machine(o.machine_file)
+        runs = [Run.load(d) for d in o.run_dirs]
+        model = Model.load(o.model_file) if o.model_file is not None else Model(load_maps(o.maps, machine))
+        art = load_artefact(o.artefact) if o.artefact is not None else None
         rivals = None
-        if separate:
+        if o.separate:
             from ..model import load_user_effects
 
-            rivals = _open_rivals(runs, model, load_user_effects(user_files) if user_files else (), machine)
+            rivals = _open_rivals(runs, model, load_user_effects(o.user_files) if o.user_files else (), machine)
         try:
-            result = plan(runs, art, budget, machine=machine, model=model, effects=plan_for or DEFAULT_EFFECTS,
-                          sigma_um=sigma_um, rivals=rivals)
+            result = plan(runs, art, o.budget, machine=machine, model=model, effects=o.plan_for or DEFAULT_EFFECTS,
+                          sigma_um=o.sigma_um, rivals=rivals)
         except InputError as exc:
             _usage(exc)
         written = None
-        if simulate:
-            written = _simulate(result, runs, art, machine, maps, parsed, temperature, jitter, seed, run_out,
-                                overwrite)
+        if o.simulate:
+            written = _simulate(result, runs, art, machine, parsed, o)
     except Error as exc:
         raise fail(exc) from None
-    if as_json:
+    if o.as_json:
         click.echo(strict_json({**result.to_dict(), "simulated": written}, indent=2))
     else:
         Console(width=max(Console().width, 140)).print(result)
     if written:
         console.print(f"wrote {escape(written)}: the {len(result.proposals)} proposed placements, simulated")
+
+
+@dataclass(frozen=True)
+class PlanOptions:
+    """What ``cmmpose plan`` was asked, from its flags (each field the click parameter of its name): one
+    object for the command and its helpers."""
+
+    run_dirs: tuple[str, ...]
+    machine_file: str | None
+    maps: tuple[str, ...]
+    model_file: str | None
+    artefact: str | None
+    budget: int
+    plan_for: tuple[str, ...]
+    sigma_um: float | None
+    simulate: bool
+    effects: tuple[str, ...]
+    temperature: float
+    jitter: float
+    seed: int
+    run_out: str | None
+    overwrite: bool
+    separate: bool
+    user_files: tuple[str, ...]
+    as_json: bool
+
+    @classmethod
+    def from_flags(cls, flags: dict) -> PlanOptions:
+        """The options from the command's click parameters (by their names)."""
+        return cls(**{f.name: flags[f.name] for f in fields(cls)})
+
+
+def _check_flags(o: PlanOptions) -> None:
+    """The usage errors of ``cmmpose plan``, before any work: flags for --simulate or --separate without it,
+    --maps with --model, a temperature or jitter that is no number, an -o that is a run read or not empty."""
+    if o.simulate and o.run_out is None:
+        raise click.UsageError("--simulate needs -o RUN_DIR (where the simulated run goes)")
+    if not o.simulate:
+        for flag, given in (("-o", o.run_out is not None), ("--effect", bool(o.effects)), ("--overwrite", o.overwrite)):
+            if given:
+                raise click.UsageError(f"{flag} is for --simulate")
+    if o.user_files and not o.separate:
+        raise click.UsageError("--user-effect is for --separate")
+    if o.separate and o.plan_for:
+        raise click.UsageError("--plan-for sharpens parameters; --separate tells explanations apart: give one")
+    if o.model_file is not None and o.maps:
+        raise click.UsageError("give --maps or --model (whose maps it holds), not both")
+    if not math.isfinite(o.temperature):
+        raise click.BadParameter(f"{o.temperature!r} is not a temperature in C", param_hint="--temperature")
+    if not (math.isfinite(o.jitter) and o.jitter >= 0):
+        raise click.BadParameter(f"{o.jitter!r} is not a reproducibility >= 0 um", param_hint="--jitter")
+    if o.simulate and any(Path(o.run_out).resolve() == Path(r).resolve() for r in o.run_dirs):
+        raise click.UsageError(f"-o {o.run_out}: is one of the runs read; the simulated run goes elsewhere")
+    if o.simulate and Path(o.run_out).exists() and not o.overwrite and (not Path(o.run_out).is_dir()
+                                                                        or any(Path(o.run_out).iterdir())):
+        raise click.UsageError(f"{o.run_out}: exists and is not empty (use --overwrite to replace the run in it)")
 
 
 def _open_rivals(runs, model, user_effects, machine):
@@ -142,8 +178,9 @@ def _usage(exc: InputError) -> None:
     raise click.BadParameter(exc.message.removeprefix(f"{exc.option}: "), param_hint=exc.cli_option) from None
 
 
-def _simulate(result, runs, art, machine, maps, effects, temperature, jitter_um, seed, run_out, overwrite) -> str:
-    """The proposals measured on the virtual machine, saved as a run; its directory."""
+def _simulate(result, runs, art, machine, effects, o: PlanOptions) -> str:
+    """The proposals measured on the virtual machine (``effects``: --effect parsed), saved as a run (-o); its
+    directory."""
     import dataclasses
 
     from .. import artefacts
@@ -154,8 +191,8 @@ def _simulate(result, runs, art, machine, maps, effects, temperature, jitter_um,
         first = next((r for r in runs if is_artefact_run(r)), None)
         art = (artefacts.from_dict(first.artefact["definition"]) if first is not None
                else artefacts.load_artefact("thesis-ballbar"))
-    run, truth = simulate_artefact_run(art, [p.where for p in result.proposals], load_maps(maps, machine),
-                                       temperature, effects, machine=machine, jitter=jitter_um * 1e-3, seed=seed)
-    run = dataclasses.replace(run, maps=machine.maps_record(maps))  # as `cmmpose simulate` records them
-    run.save(run_out, truth=truth, overwrite=overwrite)
-    return str(run_out)
+    run, truth = simulate_artefact_run(art, [p.where for p in result.proposals], load_maps(o.maps, machine),
+                                       o.temperature, effects, machine=machine, jitter=o.jitter * 1e-3, seed=o.seed)
+    run = dataclasses.replace(run, maps=machine.maps_record(o.maps))  # as `cmmpose simulate` records them
+    run.save(o.run_out, truth=truth, overwrite=o.overwrite)
+    return str(o.run_out)

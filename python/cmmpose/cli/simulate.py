@@ -53,8 +53,7 @@ from .common import (SEED, console, fail, json_option, load_maps, machine_option
 @json_option
 @click.option("-o", "--output", "run_dir", required=True, type=click.Path(file_okay=False), help="Run directory to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing run in RUN_DIR.")
-def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidirectional, jitter, calibrated,
-                 reference_poses, artefact, placements, seed, as_json, run_dir, overwrite, repeat_scans=0) -> None:
+def simulate_cmd(**flags) -> None:
     """Simulate a ballbar run (or, with --artefact, an artefact at its placements) on a virtual machine (default:
     the thesis's Iota 1102 + Hyscan 45C) and write it as a run directory."""
     from ..machine import load_machine
@@ -62,50 +61,80 @@ def simulate_cmd(layout, temperature, machine_file, maps, effects, speed, bidire
 
     from ..run import check_run_target
 
-    if placements and artefact is None:
+    o = SimulateOptions.from_flags(flags)
+    if o.placements and o.artefact is None:
         raise click.UsageError("--placement needs --artefact")
     try:
-        check_run_target(run_dir, overwrite=overwrite)  # before any work (and exclusive when saved)
-        machine = load_machine(machine_file)
-        parsed = parse_effects(effects)
-        machine_maps = load_maps(maps, machine)
-        if artefact is not None:
-            for flag, given in (("--calibrated", calibrated), ("--reference-pose", reference_poses)):
+        check_run_target(o.run_dir, overwrite=o.overwrite)  # before any work (and exclusive when saved)
+        machine = load_machine(o.machine_file)
+        parsed = parse_effects(o.effects)
+        machine_maps = load_maps(o.maps, machine)
+        if o.artefact is not None:
+            for flag, given in (("--calibrated", o.calibrated), ("--reference-pose", o.reference_poses)):
                 if given:
                     raise click.UsageError(f"{flag} is for ballbar runs, not with --artefact")
-            return simulate_artefact(artefact, placements, machine, machine_maps, temperature, parsed, speed,
-                                     bidirectional, jitter, seed, run_dir, overwrite,
+            return simulate_artefact(o, machine, machine_maps, parsed,
                                      (TextColumn("simulating"), BarColumn(),
                                       TextColumn("{task.completed}/{task.total} sweeps")),
-                                     lambda r: dataclasses.replace(r, maps=machine.maps_record(maps)), as_json=as_json,
-                                     repeat_scans=repeat_scans)
+                                     lambda r: dataclasses.replace(r, maps=machine.maps_record(o.maps)))
         start = time.perf_counter()
         with Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.completed}/{task.total} sweeps"),
                       console=console) as bar:
             task = bar.add_task("", total=None)
             run, truth = simulate_ballbar_run(
-                machine_maps, temperature, parsed, layout=layout, speed=speed, bidirectional=bidirectional, seed=seed,
-                scanner=machine.scanner, offset=tuple(machine.offset), jitter=jitter * 1e-3,
-                calibrated=("length", "radius") if calibrated else (),
-                reference_poses=[pose_angles(p, "--reference-pose") for p in reference_poses],
-                progress=lambda done, total: bar.update(task, completed=done, total=total), repeat_scans=repeat_scans)
-        run = dataclasses.replace(run, maps=machine.maps_record(maps))
+                machine_maps, o.temperature, parsed, layout=o.layout, speed=o.speed, bidirectional=o.bidirectional,
+                seed=o.seed, scanner=machine.scanner, offset=tuple(machine.offset), jitter=o.jitter * 1e-3,
+                calibrated=("length", "radius") if o.calibrated else (),
+                reference_poses=[pose_angles(p, "--reference-pose") for p in o.reference_poses],
+                progress=lambda done, total: bar.update(task, completed=done, total=total),
+                repeat_scans=o.repeat_scans)
+        run = dataclasses.replace(run, maps=machine.maps_record(o.maps))
         elapsed = time.perf_counter() - start
-        run.save(run_dir, truth=truth, overwrite=overwrite)
+        run.save(o.run_dir, truth=truth, overwrite=o.overwrite)
     except Error as exc:
         raise fail(exc) from None
     repeat_scans = int(run.metadata.get("repeat_scans", 0))
-    table = Table(title=f"cmmpose simulate -> {run_dir}", show_header=False)
+    table = Table(title=f"cmmpose simulate -> {o.run_dir}", show_header=False)
     machine_row(table, machine)
-    table.add_row("layout", f"{layout} ({len(run.scans['scan_id'])} sweeps"
+    table.add_row("layout", f"{o.layout} ({len(run.scans['scan_id'])} sweeps"
                   + (f", {repeat_scans} of them repeats)" if repeat_scans else ")"))
     table.add_row("points", f"{run.n_points:,} ({run.n_points / len(run.scans['scan_id']):,.0f} per sphere)")
-    table.add_row("temperature", f"{temperature:g} C")
-    table.add_row("effects", ", ".join(effects) or "none")
+    table.add_row("temperature", f"{o.temperature:g} C")
+    table.add_row("effects", ", ".join(o.effects) or "none")
     table.add_row("time", f"{elapsed:.2f} s")
-    show(table, as_json, {"run": str(run_dir), "machine": machine.name, "layout": layout,
-                          "sweeps": len(run.scans["scan_id"]), "repeat_scans": repeat_scans, "points": run.n_points,
-                          "temperature_C": temperature, "effects": list(effects), "seconds": elapsed})
+    show(table, o.as_json, {"run": str(o.run_dir), "machine": machine.name, "layout": o.layout,
+                            "sweeps": len(run.scans["scan_id"]), "repeat_scans": repeat_scans, "points": run.n_points,
+                            "temperature_C": o.temperature, "effects": list(o.effects), "seconds": elapsed})
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulateOptions:
+    """What ``cmmpose simulate`` was asked, from its flags (each field the click parameter of its name): one
+    object for the command and :func:`cmmpose.cli.artefact.simulate_artefact`."""
+
+    layout: str
+    temperature: float
+    machine_file: str | None
+    maps: tuple[str, ...]
+    effects: tuple[str, ...]
+    speed: float
+    bidirectional: bool
+    jitter: float
+    calibrated: bool
+    reference_poses: tuple[str, ...]
+    artefact: str | None
+    placements: tuple[str, ...]
+    seed: int
+    as_json: bool
+    run_dir: str
+    overwrite: bool
+    #: --repeat-scans; None: the default (docs/diagnosis.md).
+    repeat_scans: int | None
+
+    @classmethod
+    def from_flags(cls, flags: dict) -> SimulateOptions:
+        """The options from the command's click parameters (by their names)."""
+        return cls(**{f.name: flags[f.name] for f in dataclasses.fields(cls)})
 
 
 def _exact_text(value: float) -> str:

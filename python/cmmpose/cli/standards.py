@@ -7,6 +7,7 @@ MPEs), ``interim-check`` (squareness and scale from one ballbar run) and
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import click
@@ -17,6 +18,7 @@ from .._json import dumps as strict_json
 from ..atomicfile import check_not_input, ensure_folder, write_text
 from ..errors import Error
 from ..formats.pointclouds import UNITS
+from ..temperature import TemperaturePolicy
 from .common import (POSITIVE_MM, check_plot_path, console, expansion_ppm, map_specs, plot_option, policy_options,
                      skip_incomplete_option)
 from .common import fail as _fail
@@ -148,9 +150,7 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
 @skip_incomplete_option
 @policy_options()
-def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, temperature, calibrated_length,
-                   calibrated_radius, expansion, u_length_cert, u_diameter_cert, u_form_cert, u_expansion, u_part_temperature,
-                   plot_path, report_dir, as_json, skip_incomplete, temperature_policy) -> None:
+def acceptance_cmd(**flags) -> None:
     """Probing form and size errors and length measurement errors of RUN_DIR (in the manner of ISO 10360-8),
     each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven.
 
@@ -161,24 +161,58 @@ def acceptance_cmd(run_dir, mpe_form, mpe_size, mpe_length, machine_file, maps, 
     from ..run import Run
     from ..standards.acceptance import acceptance_test
 
-    check_plot_path(plot_path, "--plot")
+    o = AcceptanceOptions.from_flags(flags)
+    check_plot_path(o.plot_path, "--plot")
     try:
-        machine = load_machine(machine_file)
-        run = Run.load(run_dir)
-        model = machine.maps_for_run(run, maps)
+        machine = load_machine(o.machine_file)
+        run = Run.load(o.run_dir)
+        model = machine.maps_for_run(run, o.maps)
         result = acceptance_test(
-            run, model, temperature, mpe_form=mpe_form, mpe_size=mpe_size, mpe_length=mpe_length,
-            calibrated_length=calibrated_length, calibrated_radius=calibrated_radius,
-            u_length_certificate_um=u_length_cert, u_diameter_certificate_um=u_diameter_cert,
-            u_form_certificate_um=u_form_cert,
-            expansion_ppm_per_K=machine.artefact_expansion * 1e6 if expansion is None else expansion,
-            u_expansion_ppm_per_K=u_expansion, u_part_temperature_K=u_part_temperature,
-            skip_incomplete=skip_incomplete, temperature_policy=temperature_policy)
-        files = _outputs(result, "acceptance", result.plot, plot_path, report_dir)
+            run, model, o.temperature, mpe_form=o.mpe_form, mpe_size=o.mpe_size, mpe_length=o.mpe_length,
+            calibrated_length=o.calibrated_length, calibrated_radius=o.calibrated_radius,
+            u_length_certificate_um=o.u_length_cert, u_diameter_certificate_um=o.u_diameter_cert,
+            u_form_certificate_um=o.u_form_cert,
+            expansion_ppm_per_K=machine.artefact_expansion * 1e6 if o.expansion is None else o.expansion,
+            u_expansion_ppm_per_K=o.u_expansion, u_part_temperature_K=o.u_part_temperature,
+            skip_incomplete=o.skip_incomplete, temperature_policy=o.temperature_policy)
+        files = _outputs(result, "acceptance", result.plot, o.plot_path, o.report_dir)
     except Error as exc:
         raise _fail(exc) from None
-    _show(result, files, as_json)
+    _show(result, files, o.as_json)
     _exit_with_decision(result)
+
+
+@dataclass(frozen=True)
+class AcceptanceOptions:
+    """What ``cmmpose standards acceptance`` was asked, from its flags (each field the click parameter of its
+    name; the temperature policy's flags as ``temperature_policy``)."""
+
+    run_dir: str
+    mpe_form: str
+    mpe_size: str
+    mpe_length: str
+    machine_file: str | None
+    maps: tuple[str, ...]
+    temperature: float | None
+    calibrated_length: float | None
+    calibrated_radius: float | None
+    #: --expansion, ppm/K; None: the machine's artefact expansion.
+    expansion: float | None
+    u_length_cert: float
+    u_diameter_cert: float
+    u_form_cert: float
+    u_expansion: float
+    u_part_temperature: float
+    plot_path: str | None
+    report_dir: str | None
+    as_json: bool
+    skip_incomplete: bool
+    temperature_policy: TemperaturePolicy
+
+    @classmethod
+    def from_flags(cls, flags: dict) -> AcceptanceOptions:
+        """The options from the command's click parameters (by their names)."""
+        return cls(**{f.name: flags[f.name] for f in fields(cls)})
 
 
 @click.command("interim-check")

@@ -21,8 +21,9 @@ what applies them never imports it.
 
 from .ambiguity import AmbiguitySet
 from .cv import verify
-from .diagnose import Diagnosis, Step, diagnose
+from .diagnose import diagnose
 from .identify import Candidate, Problem, fit_effect, fit_model, rank_candidates
+from .result import Diagnosis, Step
 from .sensitivity import jacobian
 from .spheres import SphereFitDiagnosis, diagnose_sphere_fits
 

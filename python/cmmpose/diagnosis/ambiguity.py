@@ -40,7 +40,7 @@ A member with a parameter the data did not determine (free in the
 design, or pinned no better than a few typical magnitudes) has an unknown
 correction where that parameter acts: the members then do not agree, and
 none is added (what a saved model applies of an added effect is, besides,
-only what the data determined: :func:`cmmpose.diagnosis.identify.determined_values`).
+only what the data determined: :func:`cmmpose.diagnosis.covariance.determined_values`).
 
 Units: mm for positions, um for corrections and their differences, each
 parameter in its effect's units.
@@ -243,9 +243,9 @@ def travel_grid(problem, model, n: int = GRID) -> tuple[RunInputs, np.ndarray]:
 
 def _member_covariance(problem, r0, X0, J, spec) -> np.ndarray:
     """The data-only covariance of a member's parameters (its units) fitted beside the step's model and the
-    nuisances: the whitened design's (:func:`cmmpose.diagnosis.identify.design_covariance`), with a parameter
+    nuisances: the whitened design's (:func:`cmmpose.diagnosis.covariance.design_covariance`), with a parameter
     the design leaves free, or pins no better than UNDETERMINED_PRIORS typical magnitudes, at infinity."""
-    from .identify import UNDETERMINED_PRIORS, design_covariance
+    from .covariance import UNDETERMINED_PRIORS, design_covariance
 
     k = J.shape[1]
     R = problem.wls(r0, np.column_stack([X0, J])).whitened_r

@@ -304,7 +304,7 @@ def write_report(diagnosis, path, *, run=None, run_dir=None, model_file=None,
     if truth is not None:
         sections.append({"heading": "Found against the simulator's truth", "table": truth})
     # Each step's figures (a joint diagnosis: its first run's), as Diagnosis.history gives them; called on the
-    # steps here, since .diagnose imports this module to write its report (no circle back).
+    # steps here, since .result imports this module to write its report (no circle back).
     fig = plot_history([{"label": s.label, **s.figures.to_dict()} for s in d.steps])
     history = [{"model": s.label, **_headline_columns(s.figures),
                 "cross-validated rms (um)": _cv_text(s.cv),

@@ -45,7 +45,7 @@ from ..model.spec import EffectSpec, run_library
 from ..model.inputs import RunInputs
 from ..evaluation.observables import CLASSES, POINTS_PER_SCAN, ObservationLayout, Observed, check_first_observation, observe
 
-__all__ = ["Problem", "Candidate", "rank_candidates", "determined_values", "fit_effect", "fit_model", "model_uncertainties", "ALPHA", "OBSERVABLE_AT"]
+__all__ = ["Problem", "Candidate", "rank_candidates", "fit_effect", "fit_model", "ALPHA", "OBSERVABLE_AT"]
 
 
 
@@ -478,11 +478,7 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
             # A map (or cross-axis) correction moves centres and radii only: it is ranked on a view of the problem whose
             # point residuals are compressed to their R factor (the same fits, at a fraction of the cost).
             if map_rows is None:
-                view, r0v, X0v = compressed_view(problem, r0, X0)
-                bv = view.wls(r0v, X0v, ridge=ridge0, target=target0)
-                W0v = view.whitened(X0v, bv.sigma)
-                map_rows = (view, r0v, X0v, bv, W0v, np.linalg.qr(W0v)[0] if X0v.shape[1] else
-                            np.zeros((len(r0v), 0)))
+                map_rows = _compressed_rows(problem, r0, X0, ridge0, target0)
             P, r0_, X0_, base_, _, q0_ = map_rows
         J = P.columns[name]
         fit = P.wls(r0_, np.column_stack([X0_, J]), ridge=np.r_[ridge0, np.full(J.shape[1], PRIOR_WEIGHT)],
@@ -514,51 +510,16 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
         # taken on the fit's reduced whitened design [X0 | J] (a few rows per
         # column), which has the inner products of its thousands of rows.
         k0_ = X0_.shape[1]
-        Rf = fit.whitened_r
-        Rm, Rk = Rf[:, :k0_], Rf[:, k0_:]
-        unc = np.empty(k)
-        for j in range(k):
-            others = np.column_stack([Rm, np.delete(Rk, j, axis=1)])
-            q = np.linalg.qr(others)[0] if others.shape[1] else np.zeros((len(Rf), 0))
-            rest = Rk[:, j] - q @ (q.T @ Rk[:, j])
-            s = float(np.sum(rest * rest))
-            unc[j] = np.inf if s <= 1e-10 * float(np.sum(Rk[:, j] ** 2)) or s == 0 else spec.prior[j] / math.sqrt(s)
+        unc = _marginal_uncertainty(fit.whitened_r, k0_, spec.prior)
         # Observability at the prior magnitude, against the current model only.
         Wb = P.whitened(J, base_.sigma)
         perp = Wb - q0_ @ (q0_.T @ Wb)
         s2 = np.sum(perp ** 2, axis=0)
-        # The model's columns whitened by the base fit's noise levels beside the candidate's by its own fit's:
-        # their inner products (correlations, singular values) from each class's R factor of [X0 | J], which
-        # has the inner products of the class's rows.
-        wf, wb0 = 1.0 / fit.sigma, 1.0 / base_.sigma
-        mixed = np.vstack([np.concatenate([wb0[c] * R[:, :k0_], wf[c] * R[:, k0_:]], axis=1) for c, R in fit.blocks])
-        norms = np.maximum(np.linalg.norm(mixed, axis=0), 1e-300)
-        mixed = mixed / norms
-        corr, with_ = 0.0, ""
-        if k0_:
-            c = np.abs(mixed[:, k0_:].T @ mixed[:, :k0_])
-            i, j = np.unravel_index(np.argmax(c), c.shape)
-            corr, with_ = float(c[i, j]), labels[j]
-        sv = np.linalg.svd(mixed, compute_uv=False)
-        cond = float(sv[0] / sv[-1]) if len(sv) == mixed.shape[1] and sv[-1] > 0 else float("inf")
+        corr, with_, cond = _correlation_and_condition(fit, base_, k0_, labels)
         out.append(Candidate(name, spec, values, unc, lr, dof, p, dbic,
                              1 - after / before if before > 0 else 0.0,
                              1 - la / lb if lb > 0 else 0.0, corr, with_, cond, float(np.max(s2)) if k else 0.0))
-    # The map corrections (cmmpose.diagnosis.mapfamily) are a family of
-    # their own, with their own Bonferroni threshold; the library's named
-    # effects rank before them (the better physics where they explain it).
-    # The cross-axis corrections (cmmpose.model.crossaxis) likewise; they rank with the named effects (a
-    # twisted table is physics in words), each family paying Bonferroni over its own members.
-    n_map = sum(1 for c in out if getattr(c.spec, "family", None) == "map")
-    n_cross = sum(1 for c in out if getattr(c.spec, "family", None) == "cross")
-    threshold = ALPHA / max(len(todo) - len(alternatives) - n_map - n_cross, 1)
-    map_threshold = ALPHA / max(n_map, 1)
-    cross_threshold = ALPHA / max(n_cross, 1)
-    for c in out:
-        family = getattr(c.spec, "family", None)
-        c.threshold = map_threshold if family == "map" else cross_threshold if family == "cross" else threshold
-        c.significant = c.dof > 0 and c.p_value < c.threshold
-        c.model_effects = tuple(model.names)
+    threshold = _judge(out, len(todo) - len(alternatives), model)
     # Significant first; then by p-value, which weighs the likelihood gain
     # against the parameters spent on it.
     # A cross-axis term ranks with the named effects only where it explains clearly more than the best of
@@ -578,6 +539,72 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
         c.model_effects = tuple(model.names)
     # Alternatives after the candidates, the data's favourite first.
     return out + sorted(alternatives, key=lambda c: -c.lr)
+
+
+def _compressed_rows(problem: Problem, r0, X0, ridge0, target0) -> tuple:
+    """:func:`rank_candidates`'s rows for a map (or cross-axis) correction: the problem's view with its point
+    residuals compressed to their R factor (:func:`~cmmpose.diagnosis.mapfamily.compressed_view`), the base
+    fit on it, its whitened design and that design's Q factor."""
+    view, r0v, X0v = compressed_view(problem, r0, X0)
+    bv = view.wls(r0v, X0v, ridge=ridge0, target=target0)
+    W0v = view.whitened(X0v, bv.sigma)
+    return (view, r0v, X0v, bv, W0v, np.linalg.qr(W0v)[0] if X0v.shape[1] else np.zeros((len(r0v), 0)))
+
+
+def _marginal_uncertainty(Rf: np.ndarray, k0: int, prior) -> np.ndarray:
+    """The marginal standard uncertainty of each of a candidate's parameters (the last columns of the fit's
+    reduced whitened design ``Rf`` after the ``k0`` model columns), in the parameters' units: the prior over
+    the norm of its column after projecting out every other column (exact for weighted least squares); inf
+    where the run does not determine it."""
+    Rm, Rk = Rf[:, :k0], Rf[:, k0:]
+    unc = np.empty(Rk.shape[1])
+    for j in range(Rk.shape[1]):
+        others = np.column_stack([Rm, np.delete(Rk, j, axis=1)])
+        q = np.linalg.qr(others)[0] if others.shape[1] else np.zeros((len(Rf), 0))
+        rest = Rk[:, j] - q @ (q.T @ Rk[:, j])
+        s = float(np.sum(rest * rest))
+        unc[j] = np.inf if s <= 1e-10 * float(np.sum(Rk[:, j] ** 2)) or s == 0 else prior[j] / math.sqrt(s)
+    return unc
+
+
+def _correlation_and_condition(fit: Fit, base: Fit, k0: int, labels) -> tuple[float, str, float]:
+    """A candidate's largest correlation with a model column (and that column's label) and the condition
+    number of the design: the model's ``k0`` columns whitened by the base fit's noise levels beside the
+    candidate's by its own fit's, their inner products from each class's R factor of [X0 | J] (which has the
+    inner products of the class's rows)."""
+    wf, wb0 = 1.0 / fit.sigma, 1.0 / base.sigma
+    mixed = np.vstack([np.concatenate([wb0[c] * R[:, :k0], wf[c] * R[:, k0:]], axis=1) for c, R in fit.blocks])
+    norms = np.maximum(np.linalg.norm(mixed, axis=0), 1e-300)
+    mixed = mixed / norms
+    corr, with_ = 0.0, ""
+    if k0:
+        c = np.abs(mixed[:, k0:].T @ mixed[:, :k0])
+        i, j = np.unravel_index(np.argmax(c), c.shape)
+        corr, with_ = float(c[i, j]), labels[j]
+    sv = np.linalg.svd(mixed, compute_uv=False)
+    cond = float(sv[0] / sv[-1]) if len(sv) == mixed.shape[1] and sv[-1] > 0 else float("inf")
+    return corr, with_, cond
+
+
+def _judge(out: list[Candidate], n_ranked: int, model) -> float:
+    """Each ranked candidate's threshold and significance against ``model``; the named effects' threshold.
+
+    The map corrections (cmmpose.diagnosis.mapfamily) are a family of their own, with their own Bonferroni
+    threshold; the library's named effects rank before them (the better physics where they explain it). The
+    cross-axis corrections (cmmpose.model.crossaxis) likewise; they rank with the named effects (a twisted
+    table is physics in words), each family paying Bonferroni over its own members. ``n_ranked``: the
+    candidates evaluated, alternatives to a held effect not counted."""
+    n_map = sum(1 for c in out if getattr(c.spec, "family", None) == "map")
+    n_cross = sum(1 for c in out if getattr(c.spec, "family", None) == "cross")
+    threshold = ALPHA / max(n_ranked - n_map - n_cross, 1)
+    map_threshold = ALPHA / max(n_map, 1)
+    cross_threshold = ALPHA / max(n_cross, 1)
+    for c in out:
+        family = getattr(c.spec, "family", None)
+        c.threshold = map_threshold if family == "map" else cross_threshold if family == "cross" else threshold
+        c.significant = c.dof > 0 and c.p_value < c.threshold
+        c.model_effects = tuple(model.names)
+    return threshold
 
 
 def _alternative(problem: Problem, model, spec: EffectSpec, held: str, r0, X0, index, ridge0, target0,
@@ -758,137 +785,6 @@ def fit_model(model, run: Run, iterations: int = 3, problem: Problem | None = No
         if float(np.max(np.abs(beta))) < 1e-3:  # a thousandth of the prior: converged
             break
     return model
-
-
-@one_blas_thread
-def model_uncertainties(problem: Problem, model) -> dict[str, np.ndarray]:
-    """Standard uncertainty of every parameter of the effects in ``model``
-    (each effect's units), jointly with the nuisances and each other: the
-    weighted least-squares covariance of the linearised problem at ``model``,
-    without the weak prior (the data's own uncertainty). inf where the run
-    does not determine a parameter."""
-    return model_covariance(problem, model)[0]
-
-
-def model_covariance(problem: Problem, model) -> tuple[dict[str, np.ndarray], dict]:
-    """:func:`model_uncertainties`, and the covariance of the determined
-    parameters (``{"parameters": ["effect.param", ...], "matrix": (k, k)}``
-    in their units; empty without effects): what a saved model keeps to
-    predict the uncertainty of its correction elsewhere
-    (:mod:`cmmpose.model.domain`)."""
-    obs = problem.observe(model)
-    X0, index = problem.model_design(model)
-    k0 = problem.nuisance.shape[1]
-    if not index:
-        return {}, {}
-    fit = problem.wls(obs.residual, X0)
-    cov, free = design_covariance(fit.whitened_r)
-    var = np.diag(cov)
-    out, pos, names, at, scale = {}, k0, [], [], []
-    for name, k in index:
-        spec = problem.candidates[name]
-        prior = np.asarray(spec.prior, float)
-        sd = np.sqrt(np.clip(var[pos:pos + k], 0.0, None)) * prior
-        # A parameter the data alone cannot tell from zero at UNDETERMINED_PRIORS typical magnitudes is not
-        # determined by them: its fitted value is the prior's (an XY-plane run's squareness yz and zx).
-        out[name] = np.where(free[pos:pos + k] | (sd > UNDETERMINED_PRIORS * np.abs(prior)), np.inf, sd)
-        for j, param in enumerate(spec.params):
-            if np.isfinite(out[name][j]):
-                names.append(f"{name}.{param}")
-                at.append(pos + j)
-                scale.append(prior[j])
-        pos += k
-    scale = np.asarray(scale, float)
-    matrix = cov[np.ix_(at, at)] * np.outer(scale, scale)
-    return out, ({"parameters": names, "matrix": (matrix + matrix.T) / 2} if names else {})
-
-
-def determined_values(problem: Problem, model) -> dict[str, np.ndarray]:
-    """The effects' values of ``model`` with every combination the data do
-    not determine taken out: what a saved model applies.
-
-    The whitened design of the effects, with the nuisances (each placement's
-    rigid fit, a run's offsets) projected out, has singular directions the
-    data cannot see (below ``UNDETERMINED_RCOND`` of the largest: an
-    alignment change on a single-pose plate, which each placement's rigid
-    fit absorbs; a knot no ball came near). The fit's values along them are
-    the prior's, not the data's, and act elsewhere in the volume: they are
-    removed (the values projected onto the determined subspace, in
-    column-normalised coordinates). The training observables do not change
-    (to first order); the values elsewhere do only by what the data never
-    tested. Effects with no determined direction keep no value. Returns
-    effect -> values in its units (every effect of ``model``)."""
-    X0, index = problem.model_design(model)
-    k0 = problem.nuisance.shape[1]
-    if not index:
-        return {}
-    obs = problem.observe(model)
-    R = problem.wls(obs.residual, X0).whitened_r
-    Rn, Re = R[:, :k0], R[:, k0:]
-    if k0:
-        q, _ = np.linalg.qr(Rn)
-        Re = Re - q @ (q.T @ Re)
-    norm = np.linalg.norm(Re, axis=0)
-    top = norm.max() if len(norm) else 0.0
-    zero = norm <= UNDETERMINED_RCOND * max(top, 1e-300)
-    prior = np.concatenate([np.asarray(problem.candidates[n].prior, float) for n, _ in index])
-    b = np.concatenate([np.asarray(model.values(n), float) for n, _ in index]) / prior
-    c = np.where(zero, 0.0, b * norm)
-    live = ~zero
-    if live.any():
-        _, s, vt = np.linalg.svd(Re[:, live] / norm[live], full_matrices=True)
-        s = np.r_[s, np.zeros(int(live.sum()) - len(s))]
-        null = vt.T[:, s <= UNDETERMINED_RCOND * (s[0] if len(s) and s[0] > 0 else 1.0)]
-        c[live] -= null @ (null.T @ c[live])
-    values = np.where(zero, 0.0, c / np.where(zero, 1.0, norm)) * prior
-    out, pos = {}, 0
-    for name, k in index:
-        out[name] = values[pos:pos + k]
-        pos += k
-    return out
-
-
-#: Relative singular value below which a direction of the (column-normalised,
-#: whitened) design counts as undetermined, and the share of a parameter on
-#: such directions that makes it undetermined.
-UNDETERMINED_RCOND, UNDETERMINED_SHARE = 1e-10, 1e-6
-#: Data-only standard uncertainty, in typical magnitudes (priors), above which
-#: a model parameter counts as undetermined (inf).
-UNDETERMINED_PRIORS = 5.0
-
-
-def design_variances(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The diagonal of :func:`design_covariance`, and which parameters the design leaves free."""
-    cov, free = design_covariance(R)
-    return np.diag(cov).copy(), free
-
-
-def design_covariance(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The covariance of the least-squares parameters of the whitened design
-    ``R`` (columns in their own units), and which parameters the design leaves
-    free (a share of ``UNDETERMINED_SHARE`` or more on a direction whose
-    singular value is below ``UNDETERMINED_RCOND`` of the largest): their
-    variance is infinite. The SVD acts on ``R`` with its columns normalised,
-    not on ``R^T R``: the normal matrix squares the condition number, and a
-    pseudo-inverse of it drops directions the data do determine weakly
-    (then their variance reads near zero: an XY-plane run's squareness yz
-    and zx at 1e-5 arc-seconds instead of tens)."""
-    k = R.shape[1]
-    if k == 0:
-        return np.zeros((0, 0)), np.zeros(0, bool)
-    norm = np.linalg.norm(R, axis=0)
-    zero = norm <= 0
-    A = R / np.where(zero, 1.0, norm)
-    _, s, vt = np.linalg.svd(A, full_matrices=True)
-    s = np.r_[s, np.zeros(k - len(s))]
-    keep = s > UNDETERMINED_RCOND * (s[0] if len(s) and s[0] > 0 else 1.0)
-    v = vt.T
-    w = v[:, keep] / s[keep]
-    n = np.where(zero, 1.0, norm)
-    cov = (w @ w.T) / np.outer(n, n)
-    np.fill_diagonal(cov, np.sum(w ** 2, axis=1) / n ** 2)  # the variances summed as such, not through a product
-    free = zero | (np.sum(v[:, ~keep] ** 2, axis=1) > UNDETERMINED_SHARE)
-    return cov, free
 
 
 def check_effect_names(names, problem: Problem) -> None:

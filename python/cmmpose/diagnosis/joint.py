@@ -26,9 +26,11 @@ from ..errors import InputError, InputTypeError
 from ..run import Run
 from ._blas import one_blas_thread
 from .aliases import find_alternatives
-from .diagnose import (Diagnosis, Step, add_map_candidates, attach_floor, default_floor, run_holds,
-                       select_effects, state_floor, unobservable_candidates, user_specs)
-from .identify import Problem, check_effect_names, determined_values, model_covariance, rank_candidates
+from .diagnose import (add_map_candidates, attach_floor, default_floor, run_holds, select_effects, state_floor,
+                       unobservable_candidates, user_specs)
+from .covariance import determined_values, model_covariance
+from .identify import Problem, check_effect_names, rank_candidates
+from .result import Diagnosis, Step
 from ..model.point_inputs import single_map_warning
 from ..model.domain import Domain
 from ..model.model import Model, as_model, check_kinematics, run_kinematics

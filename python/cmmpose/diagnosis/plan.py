@@ -33,7 +33,10 @@ problem: they hold for the model's parameters and the noise level stated;
 an error outside the candidate effects (or map corrections) the data will
 show in the next diagnosis, not here.
 
-Units: mm, degrees; parameters in their effects' units.
+Units: mm, degrees; parameters in their effects' units. What it proposes
+(:class:`~cmmpose.diagnosis.plan_results.Plan`,
+:class:`~cmmpose.diagnosis.plan_results.Proposal`) is in
+:mod:`cmmpose.diagnosis.plan_results`.
 """
 
 from __future__ import annotations
@@ -41,12 +44,11 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .. import artefacts
-from .._json import dumps as strict_json, finite_or_none
 from ..evaluation.artefact_balls import is_artefact_run
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import Error, InputError, InputTypeError
@@ -54,6 +56,7 @@ from ..layouts import sweep_readings
 from ..placement import PLANES, Placement, parse
 from ..placement import plan as place
 from ..run import Run
+from .plan_results import Plan, Proposal, separation_text
 from ..evaluation.artefact_layout import rigid_dof
 from ..model.names import resolve
 from ..model.spec import EffectSpec
@@ -65,8 +68,6 @@ __all__ = [
     "ALIASED_ABOVE",
     "DEFAULT_EFFECTS",
     "INVISIBLE_ABOVE",
-    "Plan",
-    "Proposal",
     "candidate_placements",
     "centre_sensitivities",
     "plan",
@@ -87,148 +88,6 @@ SIGMA_FLOOR = 1e-4
 ROTATIONS = (0.0, 45.0, 90.0, 135.0)
 #: Where along each axis a candidate's centroid is tried: shares of the travel.
 SHARES = (0.25, 0.5, 0.75)
-
-
-@dataclass(frozen=True)
-class Proposal:
-    """One proposed placement.
-
-    Attributes
-    ----------
-    placement : str
-        Its shorthand (``cmmpose.placement``), centre given in full (mm);
-        a space diagonal by its ISO 10360-2 name.
-    where : Placement
-        The placement itself (what ``--simulate`` measures).
-    balls : int
-        Balls it measures.
-    gain : float
-        Increase of ``log det`` of the information it brings (D-optimal);
-        of a T-optimal plan (``rivals``), the smallest pairwise separation
-        after it (noise units).
-    uncertainty : dict of str -> float
-        Every parameter's predicted standard uncertainty after it (and the
-        proposals before it), in the parameter's unit.
-    de_aliases : list of str
-        Parameters it turns from invisible or aliased into determined, or
-        whose uncertainty it at least halves.
-    """
-
-    placement: str
-    where: Placement
-    balls: int
-    gain: float
-    uncertainty: dict
-    de_aliases: list
-    status: dict = field(default_factory=dict)
-    #: T-optimal plans: for each pair of rival explanations, ``pair``, ``difference_um`` (the largest
-    #: predicted difference of this placement's observables, the second explanation refitted to every run and
-    #: the placements before, um) and ``separation`` (the sum of squared differences over every observable
-    #: over the noise variance: the non-centrality a test between the two would have).
-    separates: list = field(default_factory=list)
-
-    def to_dict(self) -> dict:
-        return {"placement": self.placement, "where": self.where.to_dict(), "balls": self.balls,
-                "gain": round(self.gain, 4), "separates": [dict(x) for x in self.separates],
-                "uncertainty": {k: finite_or_none(float(v)) for k, v in self.uncertainty.items()},
-                "de_aliases": list(self.de_aliases), "status": dict(self.status)}
-
-
-@dataclass(frozen=True)
-class Plan:
-    """What :func:`plan` proposes.
-
-    Attributes
-    ----------
-    artefact : str
-        The artefact's name and kind.
-    criterion : str
-        How the proposals were chosen.
-    parameters : list of (str, str, float)
-        Each candidate parameter: 'effect.param', unit, prior.
-    sigma_um : float
-        The noise per centre coordinate used, um; ``sigma_source`` says where from.
-    before : dict of str -> float
-        Each parameter's standard uncertainty from the runs (and the prior).
-    status : dict of str -> str
-        'determined', 'invisible' or 'aliased with X' from the runs.
-    proposals : list of Proposal
-        In the order chosen.
-    candidates : int
-        Candidate placements the machine reaches (and ``unreachable`` not).
-    """
-
-    artefact: str
-    criterion: str
-    parameters: list
-    sigma_um: float
-    sigma_source: str
-    before: dict
-    status: dict
-    proposals: list
-    candidates: int
-    unreachable: int
-    notes: list = field(default_factory=list)
-
-    @property
-    def placements(self) -> list[str]:
-        """The proposed placements' shorthands, in order."""
-        return [p.placement for p in self.proposals]
-
-    @property
-    def after(self) -> dict:
-        """Each parameter's predicted uncertainty after every proposal."""
-        return self.proposals[-1].uncertainty if self.proposals else dict(self.before)
-
-    def to_dict(self) -> dict:
-        return {"artefact": self.artefact, "criterion": self.criterion,
-                "parameters": [{"name": n, "unit": u, "prior": p} for n, u, p in self.parameters],
-                "sigma_um": round(self.sigma_um, 4), "sigma_source": self.sigma_source,
-                "before": {k: finite_or_none(float(v)) for k, v in self.before.items()}, "status": dict(self.status),
-                "after": {k: finite_or_none(float(v)) for k, v in self.after.items()},
-                "proposals": [p.to_dict() for p in self.proposals], "candidates": self.candidates,
-                "unreachable": self.unreachable, "notes": list(self.notes)}
-
-    def to_json(self, **kw) -> str:
-        return strict_json(self.to_dict(), **kw)
-
-    def __rich__(self):
-        from rich.console import Group
-        from rich.table import Table
-        from rich.text import Text
-
-        t = Table(title=f"Next placements: {self.artefact} ({self.criterion})")
-        t.add_column("parameter")
-        t.add_column("unit")
-        t.add_column("now (u)", justify="right")
-        t.add_column("status")
-        for k, p in enumerate(self.proposals, start=1):
-            t.add_column(f"+{k}", justify="right")
-        for name, unit, _ in self.parameters:
-            cells = [name, unit, f"{self.before[name]:.3g}", self.status[name]]
-            cells += [f"{p.uncertainty[name]:.3g}" for p in self.proposals]
-            t.add_row(*cells)
-        lines = [f"{k}. {p.placement} ({p.balls} balls): " + (separation_text(p.separates) if p.separates else
-                 f"de-aliases {', '.join(p.de_aliases)}" if p.de_aliases else "sharpens what is determined")
-                 for k, p in enumerate(self.proposals, start=1)]
-        lines.append(f"noise {self.sigma_um:.3g} um per centre coordinate ({self.sigma_source}); "
-                     f"{self.candidates} candidate placements reachable, {self.unreachable} not")
-        lines += self.notes
-        return Group(t, Text("\n".join(lines)))
-
-    def __str__(self) -> str:
-        from rich.console import Console
-
-        console = Console(width=140, record=True, file=open("/dev/null", "w"))  # noqa: SIM115 - render to text only
-        console.print(self)
-        return console.export_text()
-
-
-def separation_text(separates) -> str:
-    """A proposal's separations in words."""
-    return "; ".join(f"separates {a} from {b} by {x['difference_um']:.2g} um ({x['separation']:.3g} in noise units, "
-                     f"sum of squared differences over the noise variance)" for x in separates
-                     for a, b in [x["pair"]])
 
 
 # -- sensitivities at the centre level -----------------------------------------------
@@ -492,6 +351,136 @@ def _status(cov: np.ndarray, names, priors) -> dict:
     return out
 
 
+def _check_runs_and_budget(runs, budget) -> list[Run]:
+    """:func:`plan`'s runs as a list (at least one, each a Run) once the budget is a whole number >= 1."""
+    if isinstance(runs, Run) or not runs:
+        raise InputError("runs: give the runs measured so far (a list of at least one cmmpose.Run)")
+    runs = list(runs)
+    for k, r in enumerate(runs, start=1):
+        if not isinstance(r, Run):
+            raise InputError(f"runs: item {k} is a {type(r).__name__}, not a cmmpose.Run")
+    if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
+        raise InputError(f"budget: how many placements to propose, a whole number >= 1; got {budget!r}",
+                         what="budget", option="budget", cli_option="--budget")
+    return runs
+
+
+def _plan_artefact(artefact, runs: list[Run]):
+    """What to place next: ``artefact`` loaded, or the artefact the first artefact run embeds, else the thesis
+    ballbar."""
+    if artefact is None:
+        art_run = next((r for r in runs if is_artefact_run(r)), None)
+        return (artefacts.from_dict(art_run.artefact["definition"]) if art_run is not None
+                else artefacts.load_artefact("thesis-ballbar"))
+    if not isinstance(artefact, artefacts.Artefact):
+        return artefacts.load_artefact(artefact)
+    return artefact
+
+
+def _plan_model(model, machine, kinematics) -> Model:
+    """The current model: ``model`` (maps make one), default the machine's maps; refused when its maps are
+    stacked for another configuration than the runs'."""
+    if model is None:
+        model = Model(machine.maps())
+    elif isinstance(model, (ErrorMap, ErrorMapSet)):
+        model = Model(model)
+    elif not isinstance(model, Model):
+        raise InputTypeError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
+    if kinematics is not None and model.maps.kinematics != kinematics:
+        raise InputError(f"the runs were measured on a {kinematics!r} machine, the model's maps are stacked as "
+                         f"{model.maps.kinematics!r}: give the runs' machine (--machine)")
+    return model
+
+
+def _planned_specs(effects, model: Model, notes: list[str]) -> list:
+    """The specs of ``effects``, then of the model's own effects where a placement can separate them (those it
+    cannot are held at their values, said in ``notes``)."""
+    specs = _specs(list(dict.fromkeys(e.name if isinstance(e, EffectSpec) else str(e) for e in effects)))
+    for spec, _ in model.effects:  # the model's own effects are planned for too, where a placement can
+        if spec.name in {s.name for s in specs}:
+            continue
+        try:
+            specs += _specs([spec])
+        except InputError:
+            notes.append(f"the model's effect {spec.name} is held at its value (a placement cannot separate it)")
+    return specs
+
+
+def _noise(measured: list, sigma_um) -> tuple[float, str]:
+    """The noise per centre coordinate, mm, and where it comes from: ``sigma_um`` given, or the runs'
+    centre-level residuals (floored at SIGMA_FLOOR)."""
+    dof = sum(m.dof for m in measured)
+    if sigma_um is not None:
+        if not (isinstance(sigma_um, (int, float)) and math.isfinite(sigma_um) and sigma_um > 0):
+            raise InputError(f"sigma_um: a noise level > 0 um, got {sigma_um!r}", what="sigma_um", option="sigma_um",
+                             cli_option="--sigma")
+        return float(sigma_um) * 1e-3, "given"
+    if dof > 0:
+        sigma = max(math.sqrt(sum(m.rss for m in measured) / dof), SIGMA_FLOOR)
+        return sigma, f"the runs' centre-level residuals after fitting these parameters, {dof} degrees of freedom"
+    raise InputError("the runs leave no degrees of freedom to estimate their noise from", what="sigma_um",
+                     option="sigma_um", cli_option="--sigma", remedy="sigma")
+
+
+def _placement_options(cand, artefact, machine, centre_model: Model, specs, n_params: int, temperature: float,
+                       sigma: float) -> tuple[list, int]:
+    """Each candidate placement the machine reaches as (placement, scans, its information, its projected
+    sensitivities): the centre-level sensitivities of virtual scans at it, the rigid placement projected out;
+    and how many it does not reach."""
+    options, unreachable = [], 0
+    offset = tuple(machine.offset)
+    for pl in cand:
+        try:
+            (resolved,), scans = place([pl], artefact, machine)
+        except InputError:
+            unreachable += 1
+            continue
+        poses = sorted({s.pose for s in scans})
+        pose_rows = np.array([[*p, *offset] for p in poses], float)
+        centres = np.array([s.centre for s in scans])
+        sc = np.array([sweep_readings(c, s.pose, offset, radius=artefact.nominal_radius).mean(axis=0)
+                       for c, s in zip(centres, scans)])
+        uv = np.array([[0.0, -artefact.nominal_radius]] * len(scans))
+        idx = np.array([poses.index(s.pose) for s in scans])
+        J = centre_sensitivities(centre_model, _virtual_inputs(uv, sc, idx, pose_rows, temperature), specs)
+        P = _rigid_projector(centres, artefact.nominal_radius)
+        Jp = P @ J.reshape(-1, n_params)
+        options.append((resolved, len(scans), Jp.T @ Jp / sigma ** 2, Jp))
+    return options, unreachable
+
+
+def _d_optimal(options: list, info: np.ndarray, cov: np.ndarray, pnames: list[str], priors: np.ndarray,
+               budget: int) -> list[Proposal]:
+    """Up to ``budget`` placements chosen greedily, each the one that raises the log determinant of the
+    parameters' information ``info`` most, with the parameters' uncertainties after it and those it
+    determines."""
+    proposals, used = [], set()
+    _, logdet = np.linalg.slogdet(info)
+    for _ in range(min(int(budget), len(options))):
+        best = None
+        for i, (label, n, Fi, _) in enumerate(options):
+            if i in used:
+                continue
+            sign, ld = np.linalg.slogdet(info + Fi)
+            if sign > 0 and (best is None or ld > best[1] + 1e-9):
+                best = (i, ld)
+        if best is None:
+            break
+        i, ld = best
+        used.add(i)
+        label, n, Fi, _ = options[i]
+        prev_cov, prev_status = cov, _status(cov, pnames, priors)
+        info = info + Fi
+        cov = np.linalg.inv(info)
+        u_prev, u_now = np.sqrt(np.diag(prev_cov)), np.sqrt(np.diag(cov))
+        now = _status(cov, pnames, priors)
+        de = [n_ for j, n_ in enumerate(pnames)
+              if (prev_status[n_] != "determined" and now[n_] == "determined") or u_now[j] < 0.5 * u_prev[j]]
+        proposals.append(Proposal(_shorthand(label), label, n, float(ld - logdet), dict(zip(pnames, u_now)), de, now))
+        logdet = ld
+    return proposals
+
+
 def plan(
     runs: Sequence[Run],
     artefact=None,
@@ -528,7 +517,7 @@ def plan(
         The candidate placements (default :func:`candidate_placements`).
     rivals : AmbiguitySet or sequence of (EffectSpec or str, values), optional
         Rival explanations of the runs (a diagnosis's open ambiguity set,
-        :attr:`cmmpose.diagnosis.diagnose.Diagnosis.open_ambiguity`, or each
+        :attr:`cmmpose.diagnosis.result.Diagnosis.open_ambiguity`, or each
         effect with its fitted values in its units). Then the placements
         are chosen to tell them apart, not to sharpen parameters: the
         T-optimal criterion (Atkinson and Fedorov 1975). For a pair (A, B),
@@ -553,45 +542,17 @@ def plan(
     """
     from ..machine import Machine
 
-    if isinstance(runs, Run) or not runs:
-        raise InputError("runs: give the runs measured so far (a list of at least one cmmpose.Run)")
-    runs = list(runs)
-    for k, r in enumerate(runs, start=1):
-        if not isinstance(r, Run):
-            raise InputError(f"runs: item {k} is a {type(r).__name__}, not a cmmpose.Run")
-    if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
-        raise InputError(f"budget: how many placements to propose, a whole number >= 1; got {budget!r}",
-                         what="budget", option="budget", cli_option="--budget")
+    runs = _check_runs_and_budget(runs, budget)
     machine = Machine.thesis() if machine is None else machine
     kinematics = _same_machine(runs, machine)
-    if artefact is None:
-        art_run = next((r for r in runs if is_artefact_run(r)), None)
-        artefact = (artefacts.from_dict(art_run.artefact["definition"]) if art_run is not None
-                    else artefacts.load_artefact("thesis-ballbar"))
-    elif not isinstance(artefact, artefacts.Artefact):
-        artefact = artefacts.load_artefact(artefact)
-    if model is None:
-        model = Model(machine.maps())
-    elif isinstance(model, (ErrorMap, ErrorMapSet)):
-        model = Model(model)
-    elif not isinstance(model, Model):
-        raise InputTypeError(f"model: expected a Model, ErrorMap or ErrorMapSet, got {type(model).__name__}")
-    if kinematics is not None and model.maps.kinematics != kinematics:
-        raise InputError(f"the runs were measured on a {kinematics!r} machine, the model's maps are stacked as "
-                         f"{model.maps.kinematics!r}: give the runs' machine (--machine)")
+    artefact = _plan_artefact(artefact, runs)
+    model = _plan_model(model, machine, kinematics)
     notes = []
     theta = None
     if rivals is not None:
         specs, theta = _rival_specs(rivals)
     else:
-        specs = _specs(list(dict.fromkeys(e.name if isinstance(e, EffectSpec) else str(e) for e in effects)))
-        for spec, _ in model.effects:  # the model's own effects are planned for too, where a placement can
-            if spec.name in {s.name for s in specs}:
-                continue
-            try:
-                specs += _specs([spec])
-            except InputError:
-                notes.append(f"the model's effect {spec.name} is held at its value (a placement cannot separate it)")
+        specs = _planned_specs(effects, model, notes)
     params = [(f"{s.name}.{p}", u, float(pr)) for s in specs for p, u, pr in zip(s.params, s.units, s.prior)]
     pnames = [n for n, _, _ in params]
     priors = np.array([pr for _, _, pr in params])
@@ -600,18 +561,7 @@ def plan(
     names = {s.name for s in specs}
     centre_model = replace(model, effects=tuple((s, v) for s, v in model.effects if s.name in names))
     measured = [_measured(r, model, specs, centre_model) for r in runs]
-    dof = sum(m.dof for m in measured)
-    if sigma_um is not None:
-        if not (isinstance(sigma_um, (int, float)) and math.isfinite(sigma_um) and sigma_um > 0):
-            raise InputError(f"sigma_um: a noise level > 0 um, got {sigma_um!r}", what="sigma_um", option="sigma_um",
-                             cli_option="--sigma")
-        sigma, source = float(sigma_um) * 1e-3, "given"
-    elif dof > 0:
-        sigma = max(math.sqrt(sum(m.rss for m in measured) / dof), SIGMA_FLOOR)
-        source = f"the runs' centre-level residuals after fitting these parameters, {dof} degrees of freedom"
-    else:
-        raise InputError("the runs leave no degrees of freedom to estimate their noise from", what="sigma_um",
-                         option="sigma_um", cli_option="--sigma", remedy="sigma")
+    sigma, source = _noise(measured, sigma_um)
     prior_info = np.diag(1.0 / priors ** 2)
     F = sum(m.fisher for m in measured) / sigma ** 2
     temperature = float(np.mean([m.temperature for m in measured]))
@@ -621,25 +571,8 @@ def plan(
         cand = []
         for c in candidates:
             cand += parse(c, machine.travel) if isinstance(c, str) else [c]
-    options, unreachable = [], 0
-    offset = tuple(machine.offset)
-    for pl in cand:
-        try:
-            (resolved,), scans = place([pl], artefact, machine)
-        except InputError:
-            unreachable += 1
-            continue
-        poses = sorted({s.pose for s in scans})
-        pose_rows = np.array([[*p, *offset] for p in poses], float)
-        centres = np.array([s.centre for s in scans])
-        sc = np.array([sweep_readings(c, s.pose, offset, radius=artefact.nominal_radius).mean(axis=0)
-                       for c, s in zip(centres, scans)])
-        uv = np.array([[0.0, -artefact.nominal_radius]] * len(scans))
-        idx = np.array([poses.index(s.pose) for s in scans])
-        J = centre_sensitivities(centre_model, _virtual_inputs(uv, sc, idx, pose_rows, temperature), specs)
-        P = _rigid_projector(centres, artefact.nominal_radius)
-        Jp = P @ J.reshape(-1, len(pnames))
-        options.append((resolved, len(scans), Jp.T @ Jp / sigma ** 2, Jp))
+    options, unreachable = _placement_options(cand, artefact, machine, centre_model, specs, len(pnames),
+                                              temperature, sigma)
     if not options:
         raise InputError(f"no candidate placement of {artefact.name} fits the travel of {machine.name}")
     info = F + prior_info
@@ -649,30 +582,7 @@ def plan(
     if theta is not None:
         return _t_optimal(f"{artefact.name} ({artefact.kind})", params, specs, theta, sigma, source, info,
                           prior_info, before, status, options, unreachable, notes, budget)
-    proposals, used = [], set()
-    _, logdet = np.linalg.slogdet(info)
-    for _ in range(min(int(budget), len(options))):
-        best = None
-        for i, (label, n, Fi, _) in enumerate(options):
-            if i in used:
-                continue
-            sign, ld = np.linalg.slogdet(info + Fi)
-            if sign > 0 and (best is None or ld > best[1] + 1e-9):
-                best = (i, ld)
-        if best is None:
-            break
-        i, ld = best
-        used.add(i)
-        label, n, Fi, _ = options[i]
-        prev_cov, prev_status = cov, _status(cov, pnames, priors)
-        info = info + Fi
-        cov = np.linalg.inv(info)
-        u_prev, u_now = np.sqrt(np.diag(prev_cov)), np.sqrt(np.diag(cov))
-        now = _status(cov, pnames, priors)
-        de = [n_ for j, n_ in enumerate(pnames)
-              if (prev_status[n_] != "determined" and now[n_] == "determined") or u_now[j] < 0.5 * u_prev[j]]
-        proposals.append(Proposal(_shorthand(label), label, n, float(ld - logdet), dict(zip(pnames, u_now)), de, now))
-        logdet = ld
+    proposals = _d_optimal(options, info, cov, pnames, priors, budget)
     if len(proposals) < budget:
         notes.append(f"only {len(proposals)} candidate placements reachable: fewer than the budget {budget}")
     return Plan(f"{artefact.name} ({artefact.kind})", "D-optimal (largest log det of the parameters' information), "

@@ -37,7 +37,8 @@ from ..artefacts import Artefact
 from .._csvtable import read_csv_table
 from ..errors import InputError
 from ..evaluation.artefact_layout import rigid_dof
-from .patterns import Patterns, categorical_pattern, mean_offset_pattern, ranked_patterns
+from .pattern_results import Patterns
+from .patterns import categorical_pattern, mean_offset_pattern, ranked_patterns
 
 __all__ = ["PlateFitDiagnosis", "diagnose_plate_fits", "read_plate_fits", "LINEAR_ERRORS"]
 
@@ -120,6 +121,65 @@ def _linear_columns(centres: np.ndarray) -> np.ndarray:
     return a.reshape(3 * n, 6)
 
 
+def _pose_group_shifts(pose: np.ndarray) -> np.ndarray:
+    """The columns of a placement's balls (in rows of three) that translate each pose group but the first on
+    its own: balls scanned with another pose read the scales at another offset from their centres."""
+    groups = sorted(set(pose.tolist()))
+    shift = np.zeros((3 * len(pose), 3 * (len(groups) - 1)))
+    for g, name in enumerate(groups[1:]):
+        for k in np.flatnonzero(pose == name):
+            shift[3 * k:3 * k + 3, 3 * g:3 * g + 3] = np.eye(3)
+    return shift
+
+
+def _without_pose_groups(y: np.ndarray, X: np.ndarray, shifts: list[np.ndarray]):
+    """The deviations ``y`` and the columns ``X`` with every placement's pose-group translations (``shifts``,
+    block-diagonal) projected out, and how many such translations there are."""
+    nuisance = np.zeros((len(y), sum(n.shape[1] for n in shifts)))
+    r0 = c0 = 0
+    for n in shifts:
+        nuisance[r0:r0 + n.shape[0], c0:c0 + n.shape[1]] = n
+        r0, c0 = r0 + n.shape[0], c0 + n.shape[1]
+    if nuisance.shape[1]:  # the pose groups' translations taken out of the data and the columns
+        q = np.linalg.qr(nuisance)[0]
+        y = y - q @ (q.T @ y)
+        X = X - q @ (q.T @ X)
+    return y, X, nuisance.shape[1]
+
+
+def _linear_errors(X: np.ndarray, y: np.ndarray, n_rigid: int, where: str, n_placements: int):
+    """The six linear errors by least squares on the columns ``X`` (their units) with their standard
+    uncertainties (inf, value NaN: not determined), and the residual deviations, mm. ``n_rigid``: the degrees
+    of freedom the rigid fits and the pose groups took."""
+    # A parameter whose unit (1 arc-second, 1 ppm) moves the deviations, over
+    # all balls, by less than SEEN_MM is one the placements cannot show. The
+    # others' columns are scaled to unit norm for the solution.
+    norms = np.linalg.norm(X, axis=0)
+    seen = norms > SEEN_MM
+    if not seen.any():
+        raise InputError(f"{where}: the placements show none of the linear errors (balls at one point?)")
+    Xs = X[:, seen] / norms[seen]
+    u_, s, vt = np.linalg.svd(Xs, full_matrices=False)
+    keep = s > 1e-6 * s[0]
+    beta_s = vt[keep].T @ ((u_[:, keep].T @ y) / s[keep])
+    residual = y - Xs @ beta_s
+    dof = len(y) - n_rigid - int(keep.sum())
+    if dof < 1:
+        raise InputError(f"{where}: {len(y) // 3} balls over {n_placements} placement(s) leave no degrees of "
+                         f"freedom for the noise after the rigid fits and the linear errors")
+    sigma2 = float(residual @ residual) / dof
+    values = np.full(6, math.nan)
+    unc = np.full(6, math.inf)
+    # A direction the placements do not determine (a small singular value) leaves its parameters undetermined.
+    cov_s = (vt[keep].T / s[keep] ** 2) @ vt[keep] * sigma2
+    undetermined = np.abs(vt[~keep]).max(axis=0) > 1e-6 if (~keep).any() else np.zeros(int(seen.sum()), bool)
+    idx = np.flatnonzero(seen)
+    values[idx] = beta_s / norms[seen]
+    unc[idx] = np.where(undetermined, math.inf, np.sqrt(np.clip(np.diag(cov_s), 0, None)) / norms[seen])
+    values[~np.isfinite(unc)] = math.nan
+    return values, unc, residual
+
+
 def diagnose_plate_fits(artefact: Artefact, table: dict, *, temperature: float = 20.0,
                         alpha: float = 1e-3) -> PlateFitDiagnosis:
     """Diagnose an artefact from its measured ball centres.
@@ -176,52 +236,14 @@ def diagnose_plate_fits(artefact: Artefact, table: dict, *, temperature: float =
         cols.append(proj @ _linear_columns(m))
         # Balls scanned with another pose read the scales at another offset
         # from their centres: a translation of that group of its own.
-        groups = sorted(set(pose[rows].tolist()))
-        shift = np.zeros((3 * len(rows), 3 * (len(groups) - 1)))
-        for g, name in enumerate(groups[1:]):
-            for k in np.flatnonzero(pose[rows] == name):
-                shift[3 * k:3 * k + 3, 3 * g:3 * g + 3] = np.eye(3)
-        shifts.append(proj @ shift)
+        shifts.append(proj @ _pose_group_shifts(pose[rows]))
         balls.append(ball[rows])
         n_rigid += rigid_dof(c, artefact.nominal_radius)
     y = np.concatenate(blocks)
     X = np.vstack(cols)
-    nuisance = np.zeros((len(y), sum(n.shape[1] for n in shifts)))
-    r0 = c0 = 0
-    for n in shifts:
-        nuisance[r0:r0 + n.shape[0], c0:c0 + n.shape[1]] = n
-        r0, c0 = r0 + n.shape[0], c0 + n.shape[1]
-    if nuisance.shape[1]:  # the pose groups' translations taken out of the data and the columns
-        q = np.linalg.qr(nuisance)[0]
-        y = y - q @ (q.T @ y)
-        X = X - q @ (q.T @ X)
-        n_rigid += nuisance.shape[1]
-    # A parameter whose unit (1 arc-second, 1 ppm) moves the deviations, over
-    # all balls, by less than SEEN_MM is one the placements cannot show. The
-    # others' columns are scaled to unit norm for the solution.
-    norms = np.linalg.norm(X, axis=0)
-    seen = norms > SEEN_MM
-    if not seen.any():
-        raise InputError(f"{where}: the placements show none of the linear errors (balls at one point?)")
-    Xs = X[:, seen] / norms[seen]
-    u_, s, vt = np.linalg.svd(Xs, full_matrices=False)
-    keep = s > 1e-6 * s[0]
-    beta_s = vt[keep].T @ ((u_[:, keep].T @ y) / s[keep])
-    residual = y - Xs @ beta_s
-    dof = len(y) - n_rigid - int(keep.sum())
-    if dof < 1:
-        raise InputError(f"{where}: {len(y) // 3} balls over {len(placements)} placement(s) leave no degrees of "
-                         f"freedom for the noise after the rigid fits and the linear errors")
-    sigma2 = float(residual @ residual) / dof
-    values = np.full(6, math.nan)
-    unc = np.full(6, math.inf)
-    # A direction the placements do not determine (a small singular value) leaves its parameters undetermined.
-    cov_s = (vt[keep].T / s[keep] ** 2) @ vt[keep] * sigma2
-    undetermined = np.abs(vt[~keep]).max(axis=0) > 1e-6 if (~keep).any() else np.zeros(int(seen.sum()), bool)
-    idx = np.flatnonzero(seen)
-    values[idx] = beta_s / norms[seen]
-    unc[idx] = np.where(undetermined, math.inf, np.sqrt(np.clip(np.diag(cov_s), 0, None)) / norms[seen])
-    values[~np.isfinite(unc)] = math.nan
+    y, X, n_groups = _without_pose_groups(y, X, shifts)
+    n_rigid += n_groups
+    values, unc, residual = _linear_errors(X, y, n_rigid, where, len(placements))
     rr = radii
     nominal = artefact.calibrated_radius
     rdev = (rr - nominal) * _UM

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import InputError, InputTypeError
 from ..evaluation.plots import new_figure, save_plot
-from .patterns import Pattern, Patterns
+from .pattern_results import Pattern, Patterns
 
 __all__ = ["plot_patterns", "plot_length_deviation", "plot_point_residuals", "plot_history"]
 

@@ -27,7 +27,8 @@ import numpy as np
 from .._csvtable import read_csv_table
 from .._validate import length_unit_slip
 from ..errors import InputError
-from .patterns import Patterns, categorical_pattern, continuous_pattern, mean_offset_pattern, length_shape_patterns, ranked_patterns
+from .pattern_results import Patterns
+from .patterns import categorical_pattern, continuous_pattern, mean_offset_pattern, length_shape_patterns, ranked_patterns
 
 __all__ = ["SphereFitDiagnosis", "diagnose_sphere_fits", "read_sphere_fits", "appendix_c_sphere_fits",
            "NOMINAL_RADIUS_MM"]

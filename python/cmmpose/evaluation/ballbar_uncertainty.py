@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..calibration.interferometer import THESIS_AIR_UNCERTAINTY, refractivity_uncertainty
+from ..calibration.interferometer.air import THESIS_AIR_UNCERTAINTY, refractivity_uncertainty
 from .._json import dumps as strict_json
 from ..errormap import ErrorMap, ErrorMapSet
 from .._validate import nonnegative

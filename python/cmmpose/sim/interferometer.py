@@ -28,13 +28,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ..calibration.interferometer import (
-    HENE_VACUUM_WAVELENGTH_NM,
-    READING_BASES,
-    STANDARD_AIR,
-    InterferometerRun,
-    refractive_index,
-)
+from ..calibration.interferometer.air import HENE_VACUUM_WAVELENGTH_NM, READING_BASES, STANDARD_AIR, refractive_index
+from ..calibration.interferometer.runfile import InterferometerRun
 from ..errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap
 from ..errors import InputError, InputTypeError
 from .._validate import triple

@@ -43,14 +43,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..calibration.interferometer import (
-    MAGIC,
-    THESIS_AIR_UNCERTAINTY,
-    InterferometerRun,
-    positional_deviations,
-    read_run,
-    refractivity_uncertainty,
-)
+from ..calibration.interferometer.air import THESIS_AIR_UNCERTAINTY, refractivity_uncertainty
+from ..calibration.interferometer.processing import positional_deviations
+from ..calibration.interferometer.runfile import MAGIC, InterferometerRun, read_run
 from .._json import dumps as strict_json
 from ..errors import (Error, InputError, InputTypeError, MapError, MissingFileError, PositioningError, read_input,
                       read_lines)
