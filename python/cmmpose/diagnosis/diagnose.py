@@ -393,6 +393,8 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
         step_cv(problem, steps[-1], groups, split)
     added = 0
     swapped: set[str] = set()
+    open_names: set[str] = set()  # members of the ambiguity sets left open: never added, never offered again
+    held: list = []  # (spec, values) of each open set's best member, held in while looking past it
     while auto:
         # An alternative the data now prefer (the same physics following
         # another sensor) takes its sibling's place, once per effect; one
@@ -409,18 +411,11 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
             continue
         if added >= max_effects:
             break
-        # The most significant candidate that also predicts held-out data
-        # better (cmmpose.diagnosis.cv): a step that raises the
-        # cross-validated error is never added.
-        best = None
-        for c in steps[-1].ranking:
-            if not c.significant or c.alternative_to:
-                break
-            if cross_validate and getattr(c.spec, "family", None) == "map" and _two_axis_first(problem, steps[-1], c):
-                continue  # an error of two axes at once: reported unexplained, not forced into one axis
-            if not cross_validate or judge_candidate(problem, steps[-1], c, groups, split):
-                best = c
-                break
+        # The candidates are ranked against the model so far and, once an ambiguity set is left open, against
+        # it with that set's best member held in (never added): what the open set explains is then not offered
+        # again through another of its aliases, and what it does not explain (another physics) still is.
+        context = steps[-1] if not held else _look_past(problem, model, held, step)
+        best = _next_candidate(problem, context, open_names, cross_validate, groups, split)
         if best is None:
             break
         if cross_validate:
@@ -430,18 +425,50 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
 
             if across is None:
                 across = cv_groups(problem, across=True)
-            amb = find_ambiguity(problem, steps[-1], best, (across[0], across[1]), across[2],
+            amb = find_ambiguity(problem, context, best, (across[0], across[1]), across[2],
                                  INTERPOLATION_ONLY in across[2])
             if amb is not None:
-                steps[-1].ambiguity = amb
+                if steps[-1].ambiguity is None:
+                    steps[-1].ambiguity = amb
+                else:
+                    steps[-1].further_ambiguity.append(amb)
                 if not amb.agree:
-                    break
+                    open_names |= set(amb.names) | {best.name}
+                    held.append((best.spec, best.values))
+                    continue
                 amb.chosen = best.name
         model = fit_model(model.with_values(best.spec, best.values), None, problem=problem)
         steps.append(step(f"+ {best.name}", model, False))
         step_cv(problem, steps[-1], groups, split)
         added += 1
     return steps, model
+
+
+def _next_candidate(problem, context: Step, skip: set, cross_validate: bool, groups, split):
+    """The most significant candidate of ``context``'s ranking not in ``skip`` that also predicts held-out data
+    better (cmmpose.diagnosis.cv: a step that raises the cross-validated error is never added); None if none."""
+    from .cv import judge_candidate
+
+    for c in context.ranking:
+        if not c.significant or c.alternative_to:
+            break
+        if c.name in skip:
+            continue
+        if cross_validate and getattr(c.spec, "family", None) == "map" and _two_axis_first(problem, context, c):
+            continue  # an error of two axes at once: reported unexplained, not forced into one axis
+        if not cross_validate or judge_candidate(problem, context, c, groups, split):
+            return c
+    return None
+
+
+def _look_past(problem, model: Model, held: list, step) -> Step:
+    """The step that ranks the candidates with each open ambiguity set's best member held in the model (a
+    look past what the data cannot tell apart, to what else they show); never part of the history."""
+    trial = model
+    for spec, values in held:
+        trial = trial.with_values(spec, values)
+    trial = fit_model(trial, None, problem=problem)
+    return step("(looking past the open ambiguity)", trial, False)
 
 
 def _step(label: str, model: Model, problem: Problem, forced: bool = False, obs=None) -> Step:

@@ -60,6 +60,8 @@ class Step:
     #: The candidates judged beside the one this step's ranking led to
     #: (:class:`cmmpose.diagnosis.ambiguity.AmbiguitySet`), None when none explained the data as well.
     ambiguity: object = None
+    #: Ambiguity sets met after ``ambiguity`` was left open, looking past it to what else the data show.
+    further_ambiguity: list = field(default_factory=list)
 
     @property
     def effect(self) -> str:
@@ -86,6 +88,8 @@ class Step:
         return {"label": self.label, "forced": self.forced, "replaces": self.replaces or None,
                 **self.figures.to_dict(), **runs, "cross_validation": self.cv,
                 "ambiguity": None if self.ambiguity is None else self.ambiguity.to_dict(),
+                **({"further_ambiguity": [a.to_dict() for a in self.further_ambiguity]}
+                   if self.further_ambiguity else {}),
                 "effects": [{"name": s.name, "params": dict(zip(s.params, map(float, v))),
                              "units": dict(zip(s.params, s.units))} for s, v in self.model.effects],
                 "ranking": ranking}
@@ -247,7 +251,8 @@ class Diagnosis:
     def ambiguity(self) -> list:
         """The ambiguity sets met on the way (:class:`cmmpose.diagnosis.ambiguity.AmbiguitySet`): those
         still open (``not s.resolved``) are why the diagnosis added none of their members."""
-        return [s.ambiguity for s in self.steps if s.ambiguity is not None]
+        return [a for s in self.steps for a in ([s.ambiguity] if s.ambiguity is not None else [])
+                + list(s.further_ambiguity)]
 
     @property
     def open_ambiguity(self) -> list:
