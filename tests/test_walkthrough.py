@@ -9,6 +9,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "your-machine.md"
@@ -33,3 +34,9 @@ def test_your_machine_walkthrough_runs(tmp_path):
     truth = json.loads((tmp_path / "align" / "A90B90-truth.json").read_text())
     for est, true, u in zip(fit["offset"], truth["true_offset"], fit["uncertainty"]):
         assert abs(est - true) < 3 * u, (fit, truth)
+    # ... and stored it where `compensate --alignment` takes it from: the aligned scan used the solved offset
+    assert fit["stored_in"] == "align.json"
+    library = json.loads((tmp_path / "align.json").read_text())
+    assert library["poses"]["A90B90"]["offset"] == fit["offset"]
+    # (the record keeps the covariance symmetrised: the last bit of an off-diagonal pair may differ)
+    np.testing.assert_allclose(library["poses"]["A90B90"]["offset_covariance"], fit["covariance"], rtol=1e-14)
