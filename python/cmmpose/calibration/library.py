@@ -23,20 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from ..atomicfile import ensure_folder, locked_update, write_text
-from ..errors import InputError, InputTypeError
+from ..errors import InputError, InputTypeError, read_input_text
 from ..pose import MountOffset, Pose, pose_tuple
 from ..errors import CalibrationError
 from .._validate import triple
+from ..schemas import validate
+from ..schemas._common import no_repeats
+from ..schemas.alignments import FIELDS as _FIELDS, LIBRARY_FORMAT, LIBRARY_VERSION
 from .alignment import CalibratedPose, MountOffsetFit, ReferenceReading
-
-_FIELDS = ("pose", "reading", "offset", "pose_uncertainty", "reading_uncertainty", "offset_uncertainty",
-           "temperature", "date", "residuals", "note", "pose_covariance", "reading_covariance", "pose_jacobian",
-           "position", "lever", "offset_covariance")
 
 __all__ = ["AlignmentRecord", "AlignmentLibrary", "LIBRARY_FORMAT", "LIBRARY_VERSION"]
 
-LIBRARY_FORMAT = "cmmpose-alignment-library"
-LIBRARY_VERSION = 1
 UNITS = {
     "pose": "degree (alpha, beta, gamma, Euler 3-1-3)",
     "pose_uncertainty": "degree",
@@ -387,22 +384,28 @@ class AlignmentLibrary:
 
     # -- file --------------------------------------------------------------------
     def _read(self) -> dict:
-        """name -> raw dict; raises CalibrationError for a malformed file."""
+        """name -> raw dict; raises CalibrationError for a malformed file.
+
+        The one door in (issue 35): the file is read as a regular file only
+        (a FIFO or a device is refused at once, its size bounded), a key
+        repeated in one object is refused, every record is checked, and the
+        whole document is validated against its schema
+        (:mod:`cmmpose.schemas.alignments`, ranges and types naming the key)
+        before any record is used."""
         if not self.path.exists():
             return {}
+        text = read_input_text(self.path, "alignment library", error=CalibrationError)
         try:
-            text = self.path.read_text(encoding="utf-8")
-        except UnicodeDecodeError as exc:
-            raise CalibrationError(f"{self.path}: not an alignment library (not UTF-8 text: {exc.reason})") from None
-        except OSError as exc:
-            raise CalibrationError(f"{self.path}: cannot read ({exc.strerror or exc})") from None
-        try:
-            doc = json.loads(text)
+            doc = json.loads(text, object_pairs_hook=no_repeats(self.path, CalibrationError))
         except json.JSONDecodeError as exc:
             raise CalibrationError(
                 f"{self.path}:{exc.lineno}:{exc.colno}: not an alignment library (bad JSON: {exc.msg})") from None
         except RecursionError:
             raise CalibrationError(f"{self.path}: not an alignment library (JSON nested too deeply)") from None
+        except CalibrationError:  # a repeated key, named
+            raise
+        except ValueError as exc:  # an integer of more than 4,300 digits
+            raise CalibrationError(f"{self.path}: not an alignment library (bad JSON: {exc})") from None
         if not isinstance(doc, dict) or doc.get("format") != LIBRARY_FORMAT:
             raise CalibrationError(f"{self.path}: not an alignment library (expected \"format\": \"{LIBRARY_FORMAT}\")")
         if doc.get("version") != LIBRARY_VERSION:
@@ -416,6 +419,9 @@ class AlignmentLibrary:
         poses = doc.get("poses")
         if not isinstance(poses, dict):
             raise CalibrationError(f"{self.path}: \"poses\" must be an object of pose name -> record")
+        for name, rec in poses.items():  # each record in the library's own words first
+            AlignmentRecord._checked(rec, f"{self.path}: pose {name!r}")
+        validate(doc, "alignments", self.path, error=CalibrationError)  # then every range, every key typed
         return poses
 
     def _write(self, poses: dict) -> None:
