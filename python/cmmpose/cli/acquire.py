@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import click
 from rich.console import Console
 
@@ -56,6 +58,8 @@ def acquire_cmd(scanner, thermo, run_dir, duration, plan, pose, offset, machine_
 
     try:
         if recover:
+            if not os.path.lexists(run_dir):  # a name that names no folder: a usage error (exit 2) as everywhere
+                raise click.BadParameter(f"{run_dir}: no such run directory to recover", param_hint="--output")
             rec = recover_run(run_dir)
             console.print(repr(rec))
             run = rec.run

@@ -245,6 +245,8 @@ def triple(text: str, name: str) -> tuple[float, float, float]:
         raise click.BadParameter("an empty value: give three comma-separated numbers, or leave the option out",
                                  param_hint=name)
     try:
+        if not text.isascii():  # float() reads Arabic-Indic and other digits: "٩٠" is not typed as 90 on purpose
+            raise ValueError(text)
         vals = tuple(float(x) for x in text.split(","))
     except ValueError:
         raise click.BadParameter(f"expected three comma-separated numbers, got {text!r}", param_hint=name) from None

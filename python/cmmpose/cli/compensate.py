@@ -99,6 +99,8 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         output_format(points_out)  # an unknown suffix is refused now, listing the known ones
         check_not_input(points_out, [points_in, *([model_file] if model_file else []), *user_files], "OUT")
         error_map = load_model(model_file, user_files) if model_file is not None else load_maps(maps, machine)
+        if model_file is not None:
+            _check_model_kinematics(error_map, model_file, machine)
         size = check_file(points_in).stat().st_size
         # One bar over reading, compensating and writing, by bytes of input;
         # memory stays bounded by a few chunks whatever the file's size.
@@ -203,3 +205,17 @@ def _aligned(name: str, library_file) -> tuple[str, str, object]:
         raise click.BadParameter(f"{library_file}: no such alignment library", param_hint="--library")
     record = AlignmentLibrary(library_file).load(name)
     return ",".join(map(repr, record.as_pose().as_tuple())), ",".join(map(repr, record.as_offset())), record
+
+
+def _check_model_kinematics(model, model_file, machine) -> None:
+    """A --model whose maps are stacked for another machine configuration than the machine's (its file's
+    ``kinematics``, the thesis machine by default) is refused, as evaluate and diagnose refuse it for a run:
+    every map error would act through the wrong lever arms."""
+    from ..errors import InputError
+
+    stacked = model.maps.kinematics
+    if stacked != machine.kinematics:
+        raise InputError(f"{model_file}: the model's maps are stacked as {stacked!r}, but the machine "
+                         f"({machine.name}; {machine.source}) is configured as {machine.kinematics!r}: the model was "
+                         f"found on (or made for) another machine; give its machine file (--machine, kinematics = "
+                         f"{stacked!r})", file=str(model_file), what="kinematics", value=stacked)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import click
 from rich.markup import escape
 
@@ -9,7 +11,7 @@ from ..atomicfile import FileGroup, check_not_input, check_outputs_free, ensure_
 from ..errormap import ErrorMapSet
 from .._json import dumps as strict_json
 from ..errors import Error, InputError
-from .common import (check_plot_path, console, console_log, fail, json_option, load_maps, machine_option,
+from .common import (check_plot_path, console, console_log, fail, json_option, load_maps, machine_option, map_specs,
                      plot_option, travel_notes, warn)
 
 
@@ -21,8 +23,17 @@ def _units_option(f):
                              "fit`).")(f)
 
 
+def _maps_argument(value):
+    """MAPS of `map plot`: as --maps everywhere, an empty name or one that is neither bundled nor a file is a
+    usage error (exit 2)."""
+    try:
+        return map_specs(None, None, value)
+    except click.BadParameter as exc:
+        raise click.BadParameter(exc.message, param_hint="MAPS") from None
+
+
 @click.command("plot")
-@click.argument("maps", nargs=-1)
+@click.argument("maps", nargs=-1, callback=lambda ctx, param, value: _maps_argument(value))
 @plot_option("-o", "--output", "out", required=True, help="PNG (or PDF, SVG) to write.")
 @machine_option
 def plot_map_cmd(maps, out, machine_file) -> None:
@@ -60,6 +71,9 @@ def _map_spec(spec: str, what: str):
         except ValueError:
             raise click.BadParameter(f"expected thesis@<temperature C>, got {spec!r}", param_hint=what) from None
         return ErrorMapSet.thesis().at(t)
+    if not os.path.lexists(spec):  # a name that names no file: a usage error (exit 2) as in every command
+        raise click.BadParameter(f"{spec!r} is neither 'appendix-b', 'thesis@<temperature C>' nor a map file "
+                                 "that exists", param_hint=what)
     return ErrorMap.read(spec, format="auto")
 
 
@@ -138,6 +152,9 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
 
     try:
         read = files if fmt == "iso230-2" else [f.partition("=")[2] for f in files]
+        missing = [f for f in read if f and not os.path.lexists(f)]
+        if missing:  # a name that names no file: a usage error (exit 2) as in every command
+            raise click.BadParameter(f"{missing[0]}: no such file", param_hint="FILE...")
         check_not_input(out, [*read, base, machine_file], "--output")
         base_map = None if base is None else _map_spec(base, "--base")
         with console_log():

@@ -224,6 +224,9 @@ class Plan:
         return console.export_text()
 
 
+#: A given noise per centre coordinate, um: a nanometre to a centimetre.
+SIGMA_RANGE_UM = (1e-3, 1e4)
+
 def separation_text(separates) -> str:
     """A proposal's separations in words."""
     return "; ".join(f"separates {a} from {b} by {x['difference_um']:.2g} um ({x['separation']:.3g} in noise units, "
@@ -588,6 +591,11 @@ def plan(
         if not (isinstance(sigma_um, (int, float)) and math.isfinite(sigma_um) and sigma_um > 0):
             raise InputError(f"sigma_um: a noise level > 0 um, got {sigma_um!r}", what="sigma_um", option="sigma_um",
                              cli_option="--sigma")
+        lo, hi = SIGMA_RANGE_UM
+        if not lo <= sigma_um <= hi:  # 1e-320 um: a typo that would promise uncertainties of nothing
+            raise InputError(f"sigma_um: {sigma_um:.6g} um is outside {lo:g}..{hi:g} um, the noise of a ball centre "
+                             "a CMM can have (check the unit: um)", what="sigma_um", value=f"{sigma_um:.6g}",
+                             allowed=SIGMA_RANGE_UM, unit="um", option="sigma_um", cli_option="--sigma")
         sigma, source = float(sigma_um) * 1e-3, "given"
     elif dof > 0:
         sigma = max(math.sqrt(sum(m.rss for m in measured) / dof), SIGMA_FLOOR)
