@@ -152,9 +152,10 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
 
     try:
         read = files if fmt == "iso230-2" else [f.partition("=")[2] for f in files]
-        missing = [f for f in read if f and not os.path.lexists(f)]
+        named = files if fmt == "iso230-2" else [f.partition("=")[2] for f in files if f.partition("=")[0] in tuple("XYZ")]
+        missing = [f for f in named if f and not os.path.lexists(f)]
         if missing:  # a name that names no file: a usage error (exit 2) as in every command
-            raise click.BadParameter(f"{missing[0]}: no such file", param_hint="FILE...")
+            raise click.BadParameter(f"{missing[0]}: cannot read (no such file)", param_hint="FILE...")
         check_not_input(out, [*read, base, machine_file], "--output")
         base_map = None if base is None else _map_spec(base, "--base")
         with console_log():
