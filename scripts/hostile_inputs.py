@@ -1291,6 +1291,28 @@ def missing_input_more(work: Path) -> None:
                                    f"{r.text.strip()[-200:]}")
 
 
+def markup_in_names(work: Path, where: str) -> None:
+    """Text from a file that Rich would read as markup (``[/bold][red]``) in an artefact's name, or in a file's
+    name: printed as text, never a MarkupError traceback."""
+    if where == "artefact":
+        text = (DATA / "artefacts" / "koba-0320.toml").read_text()
+        (work / "p.toml").write_text(re.sub(r'^name = "', 'name = "[/bold][red]', text, count=1, flags=re.M))
+        cli("simulate", "--artefact", "p.toml", "--seed", 1, "--repeat-scans", 0, "-o", "r", cwd=work)
+        commands = (("artefact", "show", "p.toml"), ("evaluate", "r"), ("plan", "r", "--budget", 1))
+    else:
+        rows = ["target_mm,direction,cycle,deviation_um"] + [f"{t},{d},{c},{1.0 + 0.01 * t + 0.3 * c}"
+                                                            for t in range(0, 500, 50) for d in (1, -1)
+                                                            for c in range(1, 6)]
+        (work / "[").mkdir()
+        (work / "[" / "b].csv").write_text("\n".join(rows) + "\n")
+        commands = (("standards", "iso230-2", "[/b].csv"),)
+    for args in commands:
+        r = cli(*args, cwd=work)
+        if r.code != 0 or "[/bold][red]KOBA" not in r.text and "[/b].csv" not in r.text:
+            raise Failed("silent", f"{' '.join(map(str, args[:2]))} of a name holding Rich markup: exit {r.code}, "
+                                   f"not printed as written: {r.text.strip()[-200:]}")
+
+
 ATTACKS = {
     "data loss": {
         "compensate a.csv a.csv": lambda w: same_file(w, "plain"),
@@ -1367,6 +1389,8 @@ ATTACKS = {
         "alignment library with a 400-digit number": lambda w: library_attack(w, "400-digit number"),
         "plan with a 400-digit ball number": lambda w: plan_attack(w, "400-digit ball"),
         "plan with a scan id beyond int32": lambda w: plan_attack(w, "scan id beyond int32"),
+        "Rich markup in an artefact's name": lambda w: markup_in_names(w, "artefact"),
+        "Rich markup in a file's name": lambda w: markup_in_names(w, "file"),
     },
     "silent": {
         "evaluate/acceptance: a scan labelled ball=3": lambda w: relabelled_scan(w, "ball=3"),

@@ -88,6 +88,9 @@ ROTATIONS = (0.0, 45.0, 90.0, 135.0)
 #: Where along each axis a candidate's centroid is tried: shares of the travel.
 SHARES = (0.25, 0.5, 0.75)
 
+#: A given noise per centre coordinate, um: a nanometre to a centimetre.
+SIGMA_RANGE_UM = (1e-3, 1e4)
+
 
 @dataclass(frozen=True)
 class Proposal:
@@ -194,10 +197,12 @@ class Plan:
 
     def __rich__(self):
         from rich.console import Group
+        from rich.markup import escape
         from rich.table import Table
         from rich.text import Text
 
-        t = Table(title=f"Next placements: {self.artefact} ({self.criterion})")
+        # The artefact's name comes from its file: shown as text, never as Rich markup.
+        t = Table(title=f"Next placements: {escape(str(self.artefact))} ({self.criterion})")
         t.add_column("parameter")
         t.add_column("unit")
         t.add_column("now (u)", justify="right")
@@ -205,7 +210,7 @@ class Plan:
         for k, p in enumerate(self.proposals, start=1):
             t.add_column(f"+{k}", justify="right")
         for name, unit, _ in self.parameters:
-            cells = [name, unit, f"{self.before[name]:.3g}", self.status[name]]
+            cells = [escape(name), escape(unit), f"{self.before[name]:.3g}", escape(self.status[name])]
             cells += [f"{p.uncertainty[name]:.3g}" for p in self.proposals]
             t.add_row(*cells)
         lines = [f"{k}. {p.placement} ({p.balls} balls): " + (separation_text(p.separates) if p.separates else
@@ -223,9 +228,6 @@ class Plan:
         console.print(self)
         return console.export_text()
 
-
-#: A given noise per centre coordinate, um: a nanometre to a centimetre.
-SIGMA_RANGE_UM = (1e-3, 1e4)
 
 def separation_text(separates) -> str:
     """A proposal's separations in words."""

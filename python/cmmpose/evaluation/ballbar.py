@@ -171,6 +171,7 @@ class Evaluation:
         return pd.DataFrame([{"result": r.label, **row} for r in self.results for row in r.rows()])
 
     def __rich__(self):
+        from rich.markup import escape
         from rich.table import Table
 
         t = Table(title="Ballbar evaluation")
@@ -197,7 +198,7 @@ class Evaluation:
         if self.compensated is not None:
             caption.insert(0, f"improvement: rms {self.improvement_rms:.1%}, B89 {self.improvement_b89:.1%}")
         for note in self.provenance.get("notes", []):
-            caption.append(note)
+            caption.append(escape(str(note)))  # notes name runs and files: text, not Rich markup
         t.caption = "\n".join(caption)
         return t
 

@@ -132,7 +132,8 @@ def simulate_sweep(
     scanner = scanner or Scanner()
     effects = machine.effects if effects is None else tuple(effects)
     rng = np.random.default_rng(rng)
-    span = sweep.length / sweep.speed * scanner.profile_rate
+    with np.errstate(over="ignore", divide="ignore"):
+        span = float(sweep.length) / float(sweep.speed) * float(scanner.profile_rate)
     if not (np.isfinite(span) and span < MAX_PROFILES_PER_SWEEP):
         raise InputError(f"speed: {sweep.speed:.6g} mm/s over a {sweep.length:.6g} mm sweep at "
                          f"{scanner.profile_rate:g} profiles/s would take more than {MAX_PROFILES_PER_SWEEP:,} "
