@@ -1313,6 +1313,22 @@ def markup_in_names(work: Path, where: str) -> None:
                                    f"not printed as written: {r.text.strip()[-200:]}")
 
 
+def temperature_option(work: Path, value: str) -> None:
+    """--temperature below absolute zero (-273.16 C, even with --out-of-range extrapolate) or of 1e6 C: a usage
+    error naming the option; 1e-320 C is said in a sensible precision, never with 320 digits."""
+    scan_copy(work)
+    extra = ("--out-of-range", "extrapolate") if value == "-273.16" else ()
+    r = cli("compensate", "a.csv", "o.csv", *COMPENSATE, "--temperature", value, *extra, cwd=work)
+    if value == "1e-320":
+        refused(r, what="--temperature 1e-320", mentions=("temperature",))
+        if "0" * 40 in r.text or "digits)" in r.text:
+            raise Failed("silent", f"--temperature 1e-320 printed with hundreds of digits: {r.text.strip()[-200:]}")
+        return
+    refused(r, what=f"--temperature {value}", mentions=("--temperature",))
+    if r.code != 2 or (work / "o.csv").exists():
+        raise Failed("silent", f"--temperature {value}: exit {r.code} (want 2)")
+
+
 ATTACKS = {
     "data loss": {
         "compensate a.csv a.csv": lambda w: same_file(w, "plain"),
@@ -1441,6 +1457,9 @@ ATTACKS = {
         "compensate --model stacked for another configuration": model_other_kinematics,
         "joint diagnosis of a run and its copy": joint_copy,
         "model at NaN C": nan_model_temperature,
+        "--temperature -273.16 with --out-of-range extrapolate": lambda w: temperature_option(w, "-273.16"),
+        "--temperature 1e6": lambda w: temperature_option(w, "1e6"),
+        "--temperature 1e-320 said in six digits": lambda w: temperature_option(w, "1e-320"),
         "--uncertainty --temperature-uncertainty 1e9": lambda w: uncertainty_option(w, "--temperature-uncertainty",
                                                                                      "1e9"),
         "--uncertainty --scanner-noise nan": lambda w: uncertainty_option(w, "--scanner-noise", "nan"),

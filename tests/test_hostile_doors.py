@@ -242,3 +242,28 @@ def test_an_artefact_name_holding_rich_markup_is_shown_as_written():
     plate = artefacts.parse_artefact(doc, "p.toml")
     run, _ = simulate_artefact_run(plate, ["xy"], scanner=Scanner(points_per_profile=128), seed=1, repeat_scans=0)
     assert "Artefact evaluation: [/bold][red]KOBA (ball-plate)" in str(evaluate_artefact(run, None))
+
+
+# -- --temperature: within a CMM room's range, said in a sensible precision -------------------------------------------
+
+@pytest.mark.parametrize("value, words", [
+    ("-273.16", r"-273\.16 C \(below absolute zero, -273\.15 C\) is outside -50\.\.150 C"),
+    ("1e6", r"1e\+06 C is outside -50\.\.150 C"),
+    ("nan", r"nan C is outside"),
+    ("٢٢", r"expected a temperature in degrees C"),
+])
+def test_a_temperature_option_out_of_a_rooms_range_is_a_usage_error(tmp_path, value, words):
+    import re
+
+    for command in (("compensate", SCAN, tmp_path / "o.csv", "--maps", "thesis", "--pose", "90,90,0",
+                     "--out-of-range", "extrapolate"), ("simulate", "-o", tmp_path / "r")):
+        r = invoke(*command, "--temperature", value)
+        assert r.exit_code == 2 and "--temperature" in r.output and re.search(words, r.output), r.output
+        assert not (tmp_path / "o.csv").exists() and not (tmp_path / "r").exists()
+
+
+def test_a_long_decimal_is_said_in_six_significant_digits():
+    from cmmpose.policy import shorten_numbers
+
+    assert shorten_numbers("temperature 0." + "0" * 319 + "1 C is") == "temperature 9.99989e-321 C is"
+    assert shorten_numbers("1.5 and 22.125 and 0.123456789") == "1.5 and 22.125 and 0.123456789"

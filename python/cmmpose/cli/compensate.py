@@ -20,6 +20,7 @@ from ..formats.pointformats._common import check_file
 from .common import (aliased_choices_once, check_model_or_maps, console, fail, json_option, kernel_report_rows,
                      load_maps, load_model, machine_option, machine_row, map_specs, model_doubts, model_options,
                      offset_mm, policy_options, pose_angles, say_caught, scheduler_options, show, strict_model_exit)
+from .common import TEMPERATURE
 from .uncertainty_options import budget_table, check_uncertainty_options, uncertainty_options, uncertainty_sources
 
 
@@ -30,7 +31,7 @@ from .uncertainty_options import budget_table, check_uncertainty_options, uncert
 @click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="'thesis', 'appendix-b', or map files (.csv canonical, .txt controller); repeat for a set. "
                    "Default: the machine's maps.")
-@click.option("--temperature", type=float, default=None,
+@click.option("--temperature", type=TEMPERATURE, default=None,
               help="Machine temperature in C for every point (default: the T column, if the file has one).")
 @click.option("--pose", default=None, help="alpha,beta,gamma in degrees (Euler 3-1-3). Default: the machine's.")
 @click.option("--offset", default=None, help="U1,V1,W1 mount offset in mm. Default: the machine's.")

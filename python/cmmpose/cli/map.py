@@ -13,6 +13,7 @@ from .._json import dumps as strict_json
 from ..errors import Error, InputError
 from .common import (check_plot_path, console, console_log, fail, json_option, load_maps, machine_option, map_specs,
                      plot_option, travel_notes, warn)
+from .common import TEMPERATURE
 
 
 def _units_option(f):
@@ -129,7 +130,7 @@ def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_js
 @click.option("--base", default=None,
               help="Replace only the linear components of this map ('appendix-b', 'thesis@T' or a map file); "
                    "the results are interpolated onto its grid.")
-@click.option("--temperature", type=float, default=None, help="Map temperature, C (default: the base's, else none).")
+@click.option("--temperature", type=TEMPERATURE, default=None, help="Map temperature, C (default: the base's, else none).")
 @click.option("--comp-file-type", type=click.Choice(["0", "1"]), default="0", show_default=True,
               help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
 @_units_option
@@ -196,7 +197,7 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
               help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
 @_units_option
 @machine_option
-@click.option("--temperature", type=float, default=None,
+@click.option("--temperature", type=TEMPERATURE, default=None,
               help="With --machine and a map set: the temperature to export the map at, C.")
 @json_option
 def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temperature, as_json) -> None:

@@ -14,6 +14,7 @@ from rich.markup import escape
 from .._json import dumps as strict_json
 from ..errors import Error, InputError
 from .common import SEED, Positive, check_outputs, console, fail, load_maps, machine_option, map_specs, parse_effects
+from .common import TEMPERATURE
 
 
 @click.command("plan")
@@ -38,7 +39,7 @@ from .common import SEED, Positive, check_outputs, console, fail, load_maps, mac
               help="Simulate the proposed placements on the machine (with --effect physics) into -o RUN_DIR.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
               help="With --simulate: the physics the simulated machine has beyond its maps (as `cmmpose simulate`).")
-@click.option("--temperature", type=float, default=20.0, show_default=True, help="With --simulate: machine temperature, C.")
+@click.option("--temperature", type=TEMPERATURE, default=20.0, show_default=True, help="With --simulate: machine temperature, C.")
 @click.option("--jitter", type=float, default=0.0, show_default=True,
               help="With --simulate: per-scan reproducibility, um per axis.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="With --simulate: noise seed.")

@@ -11,6 +11,7 @@ from .. import _core
 from ._common import ANGLE_DEG, DRAFT, ID_BASE, LENGTH_MM, MAX_ITEMS, array, integer, number, obj, text, triple
 from .artefact import definition
 from .model import record
+from .run import CHANNEL_ROLES, SWEEP_AXES
 
 __all__ = ["schema", "INT32", "MAX_SPEED_MM_S", "OFFSET_LIMIT_MM", "MAX_CHANNEL"]
 
@@ -26,8 +27,6 @@ MAX_CHANNEL = 100_000
 
 def schema() -> dict:
     """The plan's schema (draft 2020-12)."""
-    from ..run import CHANNEL_ROLES, SWEEP_AXES  # on first use: cmmpose.run imports the schemas package
-
     rec = {"$ref": "#/$defs/record"}
     size = number(0.0, LENGTH_MM, "mm", exclusive_lo=True)
     artefact = obj({
