@@ -1329,6 +1329,31 @@ def temperature_option(work: Path, value: str) -> None:
         raise Failed("silent", f"--temperature {value}: exit {r.code} (want 2)")
 
 
+def plate_fits_attack(work: Path, kind: str) -> None:
+    """diagnose-fits --artefact of fitted centres with a placement beyond a C long (never an OverflowError), or
+    in um or inches (never "scale x -999000 ppm"): refused naming the file."""
+    cli("simulate", "--artefact", "koba-0420", "--placement", "planes", "--seed", 1, "--repeat-scans", 0, "-o", "r",
+        cwd=work)
+    cli("evaluate", "r", "--report", "rep", cwd=work)
+    rows = list(csv.reader((work / "rep" / "centres.csv").read_text().splitlines()))
+    header, body = rows[0], rows[1:]
+    if kind == "placement beyond C long":
+        k = header.index("placement")
+        body = [[("9" * 25 if i == k and v == "1" else v) for i, v in enumerate(r)] for r in body]
+        words = ("fits.csv", "placement")
+    else:
+        factor = 1000.0 if kind == "centres in um" else 1 / 25.4
+        cols = [header.index(c) for c in ("x_mm", "y_mm", "z_mm")]
+        body = [[(repr(float(v) * factor) if i in cols else v) for i, v in enumerate(r)] for r in body]
+        words = ("fits.csv", "um" if kind == "centres in um" else "inches")
+    with open(work / "fits.csv", "w", newline="") as f:
+        csv.writer(f).writerows([header, *body])
+    r = cli("diagnose-fits", "fits.csv", "--artefact", "koba-0420", "--state", "compensated", cwd=work)
+    refused(r, what=f"diagnose-fits --artefact of {kind}", mentions=words, never=("OverflowError",))
+    if "0" * 40 in r.text or "9" * 25 in r.text:
+        raise Failed("silent", f"diagnose-fits of {kind}: a 25-digit number printed back")
+
+
 ATTACKS = {
     "data loss": {
         "compensate a.csv a.csv": lambda w: same_file(w, "plain"),
@@ -1407,6 +1432,7 @@ ATTACKS = {
         "plan with a scan id beyond int32": lambda w: plan_attack(w, "scan id beyond int32"),
         "Rich markup in an artefact's name": lambda w: markup_in_names(w, "artefact"),
         "Rich markup in a file's name": lambda w: markup_in_names(w, "file"),
+        "diagnose-fits: a placement beyond a C long": lambda w: plate_fits_attack(w, "placement beyond C long"),
     },
     "silent": {
         "evaluate/acceptance: a scan labelled ball=3": lambda w: relabelled_scan(w, "ball=3"),
@@ -1456,6 +1482,8 @@ ATTACKS = {
         "plan --sigma 1e-320": plan_sigma,
         "compensate --model stacked for another configuration": model_other_kinematics,
         "joint diagnosis of a run and its copy": joint_copy,
+        "diagnose-fits --artefact: centres in um": lambda w: plate_fits_attack(w, "centres in um"),
+        "diagnose-fits --artefact: centres in inches": lambda w: plate_fits_attack(w, "centres in inches"),
         "model at NaN C": nan_model_temperature,
         "--temperature -273.16 with --out-of-range extrapolate": lambda w: temperature_option(w, "-273.16"),
         "--temperature 1e6": lambda w: temperature_option(w, "1e6"),

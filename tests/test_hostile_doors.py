@@ -267,3 +267,47 @@ def test_a_long_decimal_is_said_in_six_significant_digits():
 
     assert shorten_numbers("temperature 0." + "0" * 319 + "1 C is") == "temperature 9.99989e-321 C is"
     assert shorten_numbers("1.5 and 22.125 and 0.123456789") == "1.5 and 22.125 and 0.123456789"
+
+
+# -- diagnose-fits --artefact: ids beyond a C long, centres in another unit -----------------------------------------
+
+def _plate_rows():
+    from cmmpose import artefacts
+
+    plate = artefacts.load_artefact("koba-0420")
+    rows = ["placement,ball,x_mm,y_mm,z_mm,radius_mm"]
+    for p, (rot, shift) in enumerate(((np.eye(3), [300.0, 100.0, -500.0]),
+                                      (np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]), [600.0, 100.0, -400.0])), 1):
+        for b, c in zip(plate.ids.tolist(), plate.centres @ rot.T + shift):
+            rows.append(f"{p},{b},{float(c[0])!r},{float(c[1])!r},{float(c[2])!r},{float(plate.calibrated_radius)!r}")
+    return plate, rows
+
+
+def test_a_placement_beyond_a_c_long_is_refused_naming_the_line(tmp_path):
+    from cmmpose.diagnosis.plate_fits import read_plate_fits
+
+    _, rows = _plate_rows()
+    rows[1] = "9" * 25 + rows[1][1:]
+    (tmp_path / "f.csv").write_text("\n".join(rows) + "\n")
+    with pytest.raises(InputError, match=r"f\.csv:2: placement and ball are numbers >= 1 that fit a C long .*"
+                                         r"a 25-digit number") as info:
+        read_plate_fits(tmp_path / "f.csv")
+    assert "9" * 25 not in str(info.value)
+
+
+@pytest.mark.parametrize("factor, unit", [(1000.0, "um"), (1 / 25.4, "inches"), (1e-3, "metres")])
+def test_fitted_centres_in_another_unit_are_refused(tmp_path, factor, unit):
+    from cmmpose.diagnosis.plate_fits import diagnose_plate_fits, read_plate_fits
+
+    plate, rows = _plate_rows()
+    diagnose_plate_fits(plate, _read(tmp_path, rows, read_plate_fits))  # in mm: diagnosed
+    scaled = [rows[0]] + [",".join([*r.split(",")[:2], *(repr(float(v) * factor) for v in r.split(",")[2:5]),
+                                    r.split(",")[5]]) for r in rows[1:]]
+    with pytest.raises(InputError, match=rf"placement 1: the measured centres are .* times as far apart as the "
+                                         rf"certificate's .*look like {unit}, not mm"):
+        diagnose_plate_fits(plate, _read(tmp_path, scaled, read_plate_fits))
+
+
+def _read(tmp_path, rows, reader):
+    (tmp_path / "f.csv").write_text("\n".join(rows) + "\n")
+    return reader(tmp_path / "f.csv")
