@@ -1274,6 +1274,13 @@ def wrong_names(work: Path) -> None:
                          ("map", "temperature"))):
         r = cli(*args, cwd=work)
         refused(r, what=" ".join(map(str, args[:3])), mentions=valid)
+        if r.code != 2:
+            raise Failed("silent", f"{' '.join(map(str, args[:3]))}: a wrong name exits {r.code} (a usage error is 2)")
+    small_run(work, "r", "--repeat-scans", 0)
+    r = cli("plan", "r", "--plan-for", "squarenes", cwd=work)
+    refused(r, what="plan --plan-for squarenes", mentions=("squareness", "roll"))
+    if r.code != 2:
+        raise Failed("silent", f"plan --plan-for squarenes: exits {r.code} (a usage error is 2)")
 
 
 def missing_input_more(work: Path) -> None:

@@ -121,6 +121,12 @@ def test_plan_sigma_is_a_noise_a_cmm_can_have(tmp_path, simulated_run):
         assert r.exit_code == 2 and "--sigma" in r.output and "0" * 40 not in r.output, r.output
 
 
+def test_plan_for_an_unknown_effect_is_a_usage_error_listing_the_known_ones(tmp_path, simulated_run):
+    simulated_run.save(tmp_path / "r")
+    r = invoke("plan", tmp_path / "r", "--plan-for", "squarenes")
+    assert r.exit_code == 2 and "--plan-for" in r.output and "squareness" in r.output, r.output
+
+
 def test_a_plan_id_beyond_int32_is_refused_when_read(tmp_path):
     from cmmpose.acquire.plan import Plan, artefact_plan
     from cmmpose.errors import AcquisitionError

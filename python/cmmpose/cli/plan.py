@@ -133,9 +133,11 @@ def _open_rivals(runs, model, user_effects, machine):
 
 
 def _usage(exc: InputError) -> None:
-    """The library's error about an argument this command takes as an option (--sigma, --budget; the options'
-    types check their values first) as a usage error naming the option (exit 2), not the Python argument,
+    """The library's error about an argument this command takes as an option (--sigma, --budget, an unknown
+    --plan-for effect listing the known ones; the options' types check their values first) as a usage error naming the option (exit 2), not the Python argument,
     from its fields (``cli_option``; a remedy worded for the command line); any other error raised on as it is."""
+    if exc.message.startswith("effect ") and ": unknown; available: " in exc.message:  # a --plan-for name
+        raise click.BadParameter(exc.message, param_hint="--plan-for") from None
     if exc.cli_option not in ("--sigma", "--budget"):
         raise exc
     if exc.remedy is not None:  # runs without the degrees of freedom to estimate the noise from: give --sigma
