@@ -1361,6 +1361,55 @@ def plate_fits_attack(work: Path, kind: str) -> None:
         raise Failed("silent", f"diagnose-fits of {kind}: a 25-digit number printed back")
 
 
+def errormap_text_temperature(work: Path) -> None:
+    """ErrorMap(..., temperature="22") and with_temperature(True): refused, not converted in silence."""
+    code = ("import cmmpose\nm = cmmpose.ErrorMapSet.thesis().maps[0]\nout = []\n"
+            "for make in (lambda: cmmpose.ErrorMap(m.table('X'), m.table('Y'), m.table('Z'), m.squareness, "
+            "temperature='22'), lambda: m.with_temperature(True), lambda: m.with_temperature(float('nan'))):\n"
+            "    try:\n        make()\n        out.append('accepted')\n"
+            "    except cmmpose.Error as e:\n        out.append('refused' if 'temperature' in str(e) else str(e))\n"
+            "print(' '.join(out))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    if "Traceback" in r.stderr:
+        raise Failed("traceback", r.stderr.strip()[-300:])
+    if r.stdout.split() != ["refused"] * 3:
+        raise Failed("silent", f"ErrorMap temperatures '22', True, nan: {r.stdout.strip()}")
+
+
+def alignment_attack(work: Path, kind: str) -> None:
+    """calibrate alignment: three vernier points without --vernier-uncertainty (a usage error saying to give
+    it, not a covariance message); a wrong --plane-normal with --nominal-pose (refused naming it) or without
+    (said, never a silent gamma)."""
+    cli("calibrate", "simulate-alignment", "--pose", "90,90,0", "--name", "A", "-o", "al", cwd=work)
+    args = ["calibrate", "alignment", "--vernier", "al/A-vernier.csv", "--plane-scan", "al/A-plane.csv",
+            "--reference-scan", "al/A-sphere.csv", "--name", "A", "--library", "lib.json", "--maps", "thesis",
+            "--temperature", 20]
+    if kind == "no vernier uncertainty":
+        r = cli(*args, "--plane-normal", "0,0,1", cwd=work)
+        refused(r, what="calibrate alignment of 3 vernier points", mentions=("--vernier-uncertainty",),
+                never=("covariance",))
+    elif kind == "wrong normal, nominal pose":
+        r = cli(*args, "--plane-normal", "0,1,0", "--vernier-uncertainty", 9, "--nominal-pose", "90,90,0", cwd=work)
+        refused(r, what="calibrate alignment with a wrong --plane-normal", mentions=("--plane-normal",))
+    else:
+        r = cli(*args, "--plane-normal", "0,1,0", "--vernier-uncertainty", 9, cwd=work)
+        if r.code == 0 and "--plane-normal" not in r.text:
+            raise Failed("silent", "calibrate alignment with a wrong --plane-normal: exit 0 and no word of it")
+    if kind != "wrong normal, no nominal pose" and (work / "lib.json").exists():
+        raise Failed("silent", f"calibrate alignment, {kind}: refused, yet the library was written")
+
+
+def huge_sparse_document(work: Path) -> None:
+    """A 300 MiB model file (sparse, read in no time): refused by its size before it is read."""
+    scan_copy(work)
+    with open(work / "m.json", "wb") as f:
+        f.truncate(300 << 20)
+    r = cli("compensate", "a.csv", "o.csv", "--model", "m.json", "--pose", "90,90,0", cwd=work, timeout=60)
+    refused(r, what="a 300 MiB model file", mentions=("m.json", "bytes"))
+    if r.seconds > 10:
+        raise Failed("hang", f"a 300 MiB model file: {r.seconds:.0f} s to refuse")
+
+
 ATTACKS = {
     "data loss": {
         "compensate a.csv a.csv": lambda w: same_file(w, "plain"),
@@ -1411,6 +1460,7 @@ ATTACKS = {
         "acquire --plan FIFO: SIGINT and SIGTERM": sigint_during_plan_fifo,
         "RAYON_NUM_THREADS=100000": thread_env,
         "artefact check of a 10,000-ball plate": big_plate,
+        "a 300 MiB model file": huge_sparse_document,
     },
     "traceback": {
         "Parquet with a repeated column": parquet_repeated_column,
@@ -1440,6 +1490,7 @@ ATTACKS = {
         "Rich markup in an artefact's name": lambda w: markup_in_names(w, "artefact"),
         "Rich markup in a file's name": lambda w: markup_in_names(w, "file"),
         "diagnose-fits: a placement beyond a C long": lambda w: plate_fits_attack(w, "placement beyond C long"),
+        "ErrorMap(temperature='22')": errormap_text_temperature,
     },
     "silent": {
         "evaluate/acceptance: a scan labelled ball=3": lambda w: relabelled_scan(w, "ball=3"),
@@ -1517,6 +1568,12 @@ ATTACKS = {
         "plan with a sweep speed of 1e30": lambda w: plan_attack(w, "sweep speed 1e30"),
         "plan: terminal escapes in a channel name": lambda w: plan_attack(w, "escape in a channel"),
         "a wrong name lists the valid ones": wrong_names,
+        "calibrate alignment: 3 vernier points, no --vernier-uncertainty":
+            lambda w: alignment_attack(w, "no vernier uncertainty"),
+        "calibrate alignment: a wrong --plane-normal, --nominal-pose": lambda w: alignment_attack(
+            w, "wrong normal, nominal pose"),
+        "calibrate alignment: a wrong --plane-normal alone": lambda w: alignment_attack(
+            w, "wrong normal, no nominal pose"),
         "a missing input: exit 2 in the other commands": missing_input_more,
     },
 }

@@ -317,3 +317,16 @@ def test_fitted_centres_in_another_unit_are_refused(tmp_path, factor, unit):
 def _read(tmp_path, rows, reader):
     (tmp_path / "f.csv").write_text("\n".join(rows) + "\n")
     return reader(tmp_path / "f.csv")
+
+
+# -- ErrorMap: a temperature label is a number ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("value, error", [("22", cmmpose.InputTypeError), (True, cmmpose.InputTypeError),
+                                          (float("nan"), InputError)])
+def test_an_error_map_temperature_is_a_finite_number_never_text(value, error):
+    m = cmmpose.ErrorMapSet.thesis().maps[0]
+    with pytest.raises(error, match="temperature"):
+        cmmpose.ErrorMap(m.table("X"), m.table("Y"), m.table("Z"), m.squareness, temperature=value)
+    with pytest.raises(error, match="temperature"):
+        m.with_temperature(value)
+    assert m.with_temperature(np.float64(21.5)).temperature == 21.5 and m.with_temperature(None).temperature is None
