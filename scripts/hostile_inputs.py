@@ -1410,6 +1410,30 @@ def huge_sparse_document(work: Path) -> None:
         raise Failed("hang", f"a 300 MiB model file: {r.seconds:.0f} s to refuse")
 
 
+def escapes_in_files(work: Path, kind: str) -> None:
+    """Terminal escape sequences in a point file's value, a fit file's value or a map's source line: never
+    printed raw (a message quotes what it echoes, control characters escaped)."""
+    if kind == "point file":
+        (work / "e.csv").write_text("u,v,D,E,F\n1,2\x1b[2J\x1b[31m,450,275,-250\n")
+        args = ("compensate", "e.csv", "o.csv", *COMPENSATE, "--temperature", 20)
+    elif kind == "fit file":
+        (work / "e.csv").write_text("x,y,z\n1,2\x1b]0;pwned\x07,3\n")
+        args = ("fit", "e.csv")
+    else:
+        code = "import sys, cmmpose\ncmmpose.ErrorMapSet.thesis().maps[0].write(sys.argv[1])"
+        subprocess.run([sys.executable, "-c", code, str(work / "m.csv")], check=True)
+        text = (work / "m.csv").read_text()
+        (work / "m.csv").write_text(text.replace("# source: ", "# source: \x1b[2J\x1b[31m", 1))
+        scan_copy(work)
+        args = ("compensate", "a.csv", "o.csv", "--maps", "m.csv", "--temperature", 20, "--pose", "90,90,0",
+                "--offset", "1.001,264.505,129.575", "--json")
+    r = cli(*args, cwd=work)
+    if "\x1b" in r.text or "\x07" in r.text:
+        raise Failed("silent", f"{kind} with terminal escapes: printed raw (exit {r.code})")
+    if kind != "map source":
+        refused(r, what=f"a {kind} with terminal escapes", mentions=("e.csv",))
+
+
 ATTACKS = {
     "data loss": {
         "compensate a.csv a.csv": lambda w: same_file(w, "plain"),
@@ -1534,6 +1558,9 @@ ATTACKS = {
         "simulate --jitter 1e308": lambda w: simulate_option(w, "--jitter", "1e308"),
         "artefact with a ball id beyond int64": lambda w: artefact_attack(w, "ball id beyond int64"),
         "artefact named with terminal escapes": lambda w: artefact_attack(w, "escape"),
+        "terminal escapes in a point file's value": lambda w: escapes_in_files(w, "point file"),
+        "terminal escapes in a fit file's value": lambda w: escapes_in_files(w, "fit file"),
+        "terminal escapes in a map's source line": lambda w: escapes_in_files(w, "map source"),
         "user effect returning complex values": lambda w: user_effect_attack(w, "complex"),
         "user effect named with terminal escapes": lambda w: user_effect_attack(w, "escape"),
         "Arabic-Indic digits in --placement and --pose": arabic_digits,
