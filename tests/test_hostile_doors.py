@@ -322,7 +322,7 @@ def _read(tmp_path, rows, reader):
 # -- ErrorMap: a temperature label is a number ----------------------------------------------------------------------
 
 @pytest.mark.parametrize("value, error", [("22", cmmpose.InputTypeError), (True, cmmpose.InputTypeError),
-                                          (float("nan"), InputError)])
+                                          (float("nan"), cmmpose.MapError)])
 def test_an_error_map_temperature_is_a_finite_number_never_text(value, error):
     m = cmmpose.ErrorMapSet.thesis().maps[0]
     with pytest.raises(error, match="temperature"):

@@ -170,16 +170,14 @@ class AppliedMaps:
 
 
 def _map_temperature(value) -> float | None:
-    """A map's temperature label, C: None, or a finite real number (never text such as "22", converted in
-    silence, nor a boolean)."""
+    """A map's temperature label, C: None, or a real number (never text such as "22", converted in silence,
+    nor a boolean); its finiteness is the core's check."""
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, Real):
         raise InputTypeError(f"temperature: expected a number of degrees C or None, got {type(value).__name__} "
                              f"{value!r}"[:200], what="temperature")
-    if not math.isfinite(value):
-        raise InputError(f"temperature: expected a finite number of degrees C, got {value!r}", what="temperature")
-    return float(value)
+    return float(value)  # a non-finite one: the core's one check (MapError "temperature: nan C is not finite")
 
 class ErrorMap(AppliedMaps):
     """The component errors of a CMM at one temperature.
