@@ -1089,6 +1089,9 @@ def artefact_attack(work: Path, kind: str) -> None:
         text = re.sub(r"calibrated_mm = [0-9.]+", "calibrated_mm = 5e-324", text)
     elif kind == "ball id beyond int64":
         text, key = text.replace("{ id = 2,", "{ id = 99999999999999999999,", 1), "balls[1].id"
+    elif kind == "repeated key":
+        text, key = re.sub(r"^(reference_temperature_C = .*)$", r"\1\nreference_temperature_C = 35.0", text, count=1,
+                           flags=re.M), "line"
     else:
         text, key = re.sub(r'^name = "', 'name = "\\\\u001b[2J\\\\u001b[31m', text, count=1, flags=re.M), "name"
     (work / "p.toml").write_text(text)
@@ -1558,6 +1561,7 @@ ATTACKS = {
         "simulate --jitter 1e308": lambda w: simulate_option(w, "--jitter", "1e308"),
         "artefact with a ball id beyond int64": lambda w: artefact_attack(w, "ball id beyond int64"),
         "artefact named with terminal escapes": lambda w: artefact_attack(w, "escape"),
+        "artefact with a repeated key": lambda w: artefact_attack(w, "repeated key"),
         "terminal escapes in a point file's value": lambda w: escapes_in_files(w, "point file"),
         "terminal escapes in a fit file's value": lambda w: escapes_in_files(w, "fit file"),
         "terminal escapes in a map's source line": lambda w: escapes_in_files(w, "map source"),
