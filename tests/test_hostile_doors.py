@@ -330,3 +330,34 @@ def test_an_error_map_temperature_is_a_finite_number_never_text(value, error):
     with pytest.raises(error, match="temperature"):
         m.with_temperature(value)
     assert m.with_temperature(np.float64(21.5)).temperature == 21.5 and m.with_temperature(None).temperature is None
+
+
+# -- a 400-digit number anywhere in the alignment library or the plan: refused by its size, never an OverflowError --
+
+@pytest.mark.parametrize("key, value", [("temperature", 10**400), ("pose_covariance", [[10**400, 0, 0], [0, 1, 0],
+                                                                                        [0, 0, 1]]),
+                                        ("residuals", {"r": 10**400}), ("reading", [10**400, 1, 2])])
+def test_a_400_digit_number_in_an_alignment_library_is_refused(tmp_path, key, value):
+    from cmmpose.calibration import AlignmentLibrary, AlignmentRecord
+    from cmmpose.errors import CalibrationError
+
+    lib = AlignmentLibrary(tmp_path / "lib.json")
+    lib.save("A", AlignmentRecord(pose=(1, 2, 3), reading=(1, 2, 3), offset=(0, 0, 0)))
+    doc = json.loads(lib.path.read_text())
+    doc["poses"]["A"][key] = value
+    lib.path.write_text(json.dumps(doc))
+    with pytest.raises(CalibrationError, match=rf"lib\.json: pose 'A': .*{key.split('_')[0].rstrip('s')}") as info:
+        lib.load("A")
+    assert "0" * 40 not in str(info.value)
+
+
+@pytest.mark.parametrize("where, key", [("scans", "sweep_speed"), ("poses", "alpha")])
+def test_a_400_digit_number_in_a_plan_float_column_is_refused(tmp_path, where, key):
+    from cmmpose.acquire.plan import Plan, artefact_plan
+    from cmmpose.errors import AcquisitionError
+
+    doc = artefact_plan("koba-0320", ["xy"]).to_dict()
+    doc[where][0][key] = 10**400
+    (tmp_path / "p.json").write_text(json.dumps(doc))
+    with pytest.raises(AcquisitionError, match=rf"{where}\[0\]: {key} = a 401-digit integer is not a finite number"):
+        Plan.read(tmp_path / "p.json")

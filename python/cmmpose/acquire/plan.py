@@ -274,7 +274,10 @@ def _fits(value, dtype: str) -> bool:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return False
     if dtype == "float64":
-        return math.isfinite(value)
+        try:
+            return math.isfinite(value)
+        except OverflowError:  # an integer beyond any float
+            return False
     if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
         return False
     lo, hi = _INT_RANGES.get(dtype, _INT_RANGES["int64"])
