@@ -76,7 +76,9 @@ def _as_float(name: str, value, error: type[Exception]) -> float:
     try:
         return float(value)
     except (TypeError, ValueError):
-        raise error(f"{name}: expected a number, got {value!r}") from None
+        raise error(f"{name}: expected a number, got {_digits_cut(repr(value))}") from None
+    except OverflowError:  # an integer beyond any float (a 400-digit number): not finite, not echoed
+        raise error(f"{name}: must be finite, got {_digits_cut(repr(value))}") from None
 
 
 def _not_a_number(x) -> bool:

@@ -26,7 +26,7 @@ from ..atomicfile import ensure_folder, locked_update, write_text
 from ..errors import InputError, InputTypeError, read_input_text
 from ..pose import MountOffset, Pose, pose_tuple
 from ..errors import CalibrationError
-from .._validate import _digits_cut, triple
+from .._validate import _digits_cut, finite, triple
 from ..schemas import validate
 from ..schemas._common import no_repeats
 from ..schemas.alignments import FIELDS as _FIELDS, LIBRARY_FORMAT, LIBRARY_VERSION
@@ -82,12 +82,13 @@ def _check_units(path, units) -> None:
                                    f"{_unit(UNITS[key])} only ({UNITS[key]}): convert the values and the unit")
 
 
-def _finite(x) -> bool:
-    """Whether the number ``x`` is finite (an integer beyond any float is not, rather than an OverflowError)."""
+def _is_finite_number(x) -> bool:
+    """Whether ``x`` is a finite number (not a boolean; an integer beyond any float is not finite)."""
     try:
-        return math.isfinite(x)
-    except OverflowError:
+        finite("x", x, error=CalibrationError)
+    except CalibrationError:
         return False
+    return True
 
 
 def _no_text(where: str, name: str, value) -> None:
@@ -245,7 +246,7 @@ class AlignmentRecord:
         out["position"] = _triple(where, "position", d.get("position"), optional=True)
         t = d.get("temperature")
         if t is not None:
-            if isinstance(t, bool) or not isinstance(t, (int, float)) or not _finite(t):
+            if isinstance(t, bool) or not isinstance(t, (int, float)) or not _is_finite_number(t):
                 raise CalibrationError(f"{where}: temperature must be a finite number (C) or null, got {_digits_cut(repr(t))}")
             t = float(t)
         out["temperature"] = t
@@ -262,7 +263,7 @@ class AlignmentRecord:
             raise CalibrationError(f"{where}: residuals must be an object of named values (mm)")
         clean = {}
         for k, v in res.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not _is_finite_number(v):
                 raise CalibrationError(f"{where}: residual {k!r} must be a finite number (mm), got {_digits_cut(repr(v))}")
             clean[k] = float(v)
         out["residuals"] = clean
