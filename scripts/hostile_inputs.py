@@ -27,6 +27,7 @@ import csv
 import hashlib
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -872,6 +873,9 @@ def schema_attack(work: Path, kind: str) -> None:
         elif kind == "model -300 C":
             doc["temperature"] = -300.0
             text, key = json.dumps(doc), "temperature"
+        elif kind == "model text temperature":
+            doc["temperature"] = "twenty"
+            text, key = json.dumps(doc), "temperature"
         elif kind == "model repeated key":
             text, key = text.replace('"effects":', '"effects": [], "effects":', 1), "'effects' is repeated"
         else:  # a 400-digit number
@@ -883,6 +887,554 @@ def schema_attack(work: Path, kind: str) -> None:
         raise Failed("silent", f"{kind}: a 400-digit number printed back in full")
     if (work / "o.csv").exists():
         raise Failed("silent", f"{kind}: refused, yet an output was written")
+
+
+# ---------------------------------------------------------------------------------------------- issue 35, the rest
+_JOURNAL = """
+import sys
+import numpy as np
+from cmmpose.acquire.protocol import encode_profile
+from cmmpose.acquire.store import SCANNER, JournalWriter, encode_record
+from cmmpose.sim.instruments import synthetic_profiles
+
+folder, kind = sys.argv[1], sys.argv[2]
+writer = JournalWriter(folder + "/journal.cmmj", fsync=False)
+records = []
+for i, p in enumerate(synthetic_profiles(40, points=64, rate=40.0, per_scan=10)):
+    uv, scales, scan = np.array(p.uv, dtype=np.float32), list(p.scales), p.scan
+    if 10 <= i < 14:  # frames of scan 1
+        if kind == "nan scale":
+            scales[1] = float("nan")
+        elif kind == "inf scale":
+            scales[0] = float("inf")
+        elif kind == "nan point":
+            uv[[2, 5]] = np.nan
+        elif kind == "huge scan":
+            scan = 2**31 + 5
+    records.append(encode_record(SCANNER, 1.7e9 + 0.025 * i, encode_profile(i, 25_000 * i, scan, scales, uv)))
+writer.write_block(records)
+writer.close()
+"""
+
+
+def recover_attack(work: Path, kind: str) -> None:
+    """A recorded scanner frame holding a NaN or an infinite scale reading, NaN points or a scan number beyond
+    int32: ``acquire --recover`` builds a run from the journal all the same (the good frames kept, the bad points
+    left out and counted), never fails and loses the recording (issue 35, item 3)."""
+    rec = work / "rec"
+    rec.mkdir()
+    subprocess.run([sys.executable, "-c", _JOURNAL, str(rec), kind], check=True)
+    journal = digest(rec / "journal.cmmj")
+    r = cli("acquire", "--recover", "-o", rec, cwd=work)
+    if digest(rec / "journal.cmmj") != journal:
+        raise Failed("data loss", f"acquire --recover with a {kind} changed the journal (exit {r.code})")
+    if r.code != 0:
+        raise Failed("data loss", f"acquire --recover with a {kind} built no run (exit {r.code}): {r.text.strip()[-300:]}")
+    code = ("import sys, json, numpy as np\nfrom cmmpose.run import Run\nr = Run.load(sys.argv[1])\n"
+            "ok = np.isfinite(r.uv).all() and np.isfinite(r.scales).all() and (r.points['scan_id'] >= 0).all()\n"
+            "print(json.dumps([int(r.n_points), bool(ok), r.metadata['acquisition']['scanner']]))")
+    out = subprocess.run([sys.executable, "-c", code, str(rec)], capture_output=True, text=True)
+    if out.returncode:
+        raise Failed("data loss", f"acquire --recover with a {kind}: the run does not load: {out.stderr[-300:]}")
+    n, finite, scanner = json.loads(out.stdout)
+    want = 40 * 64 - {"nan scale": 4 * 64, "inf scale": 4 * 64, "nan point": 4 * 2, "huge scan": 0}[kind]
+    if n != want or not finite:
+        raise Failed("silent", f"acquire --recover with a {kind}: {n} points (want {want}), all finite: {finite}")
+    said = scanner.get("renumbered_scans") if kind == "huge scan" else scanner.get("excluded", {}).get("scans")
+    if not said:
+        raise Failed("silent", f"acquire --recover with a {kind}: the run's metadata does not name what was left out "
+                               f"or renumbered: {json.dumps(scanner)[:200]}")
+
+
+def _library_file(work: Path) -> Path:
+    """An alignment library of three poses written by the library itself (hand-made records)."""
+    code = ("import sys\nfrom cmmpose.calibration import AlignmentLibrary, AlignmentRecord\n"
+            "lib = AlignmentLibrary(sys.argv[1])\n"
+            "for name, pose, reading in (('A', (90, 90, 0), (450, 275, -250)), ('B', (90, 90, 90), (452, 276, -249)),"
+            " ('C', (180, 90, 0), (449, 277, -251))):\n"
+            "    lib.save(name, AlignmentRecord(pose=pose, reading=reading, offset=(1.001, 264.505, 129.575),"
+            " reading_uncertainty=(0.001, 0.001, 0.001), temperature=20.0))\n")
+    subprocess.run([sys.executable, "-c", code, str(work / "lib.json")], check=True)
+    return work / "lib.json"
+
+
+def library_attack(work: Path, kind: str) -> None:
+    """An alignment library that its schema refuses (issue 35, item 1): compensate --alignment and calibrate
+    offset fail with one line naming the file and the key, never a traceback, the file left as it was."""
+    lib = _library_file(work)
+    scan_copy(work)
+    text = lib.read_text()
+    key = {"repeated key": "'temperature' is repeated", "temperature 1e6": "poses.A.temperature",
+           "400-digit number": "reading", "pose 1e9 degrees": "poses.A.pose[0]",
+           "escape in a name": "holds a control character"}[kind]
+    if kind == "repeated key":
+        text = text.replace('"temperature": 20.0', '"temperature": 20.0, "temperature": 99.0', 1)
+    elif kind == "temperature 1e6":
+        text = text.replace('"temperature": 20.0', '"temperature": 1e6', 1)
+    elif kind == "400-digit number":
+        text = text.replace("450.0", "1" + "0" * 399, 1)
+    elif kind == "pose 1e9 degrees":
+        text = text.replace("90.0", "1e9", 1)
+    else:
+        text = text.replace('"A": {', '"A\\u001b[2J": {', 1)
+    lib.write_text(text)
+    for args in (("compensate", "a.csv", "o.csv", "--alignment", "B", "--library", "lib.json", "--maps", "thesis"),
+                 ("calibrate", "offset", "A", "B", "C", "--library", "lib.json")):
+        r = cli(*args, cwd=work)
+        refused(r, what=f"{args[0]}: an alignment library with {kind}", mentions=("lib.json", key))
+        if "\x1b" in r.text or "0" * 40 in r.text:
+            raise Failed("silent", f"an alignment library with {kind}: its text printed back raw")
+    if lib.read_text() != text or (work / "o.csv").exists():
+        raise Failed("data loss", f"an alignment library with {kind}: refused, yet a file was written or changed")
+
+
+def store_unknown_pose(work: Path) -> None:
+    """calibrate offset --store naming a pose the library lacks changes nothing and names the pose."""
+    lib = _library_file(work)
+    before = digest(lib)
+    r = cli("calibrate", "offset", "A", "B", "NOPE", "--library", "lib.json", "--store", cwd=work)
+    if digest(lib) != before:
+        raise Failed("data loss", f"calibrate offset --store with an unknown pose changed the library (exit {r.code})")
+    refused(r, what="calibrate offset --store with an unknown pose", mentions=("NOPE",))
+    if leftovers(work, {"lib.json"}):
+        raise Failed("data loss", f"calibrate offset --store with an unknown pose left {leftovers(work, {'lib.json'})}")
+
+
+def plan_attack(work: Path, kind: str) -> None:
+    """An acquisition plan that its schema refuses (issue 35, item 1): acquire fails at once, before opening a
+    port, with one line naming the file and the key; a FIFO with no writer is refused, not waited on."""
+    r = cli("artefact", "plan", "koba-0320", "--placement", "xy", "-o", "p.json", cwd=work)
+    if r.code:
+        raise Failed("silent", f"artefact plan: exit {r.code}: {r.text.strip()[-200:]}")
+    text = (work / "p.json").read_text()
+    doc = json.loads(text)
+    key = {"repeated key": "'scans' is repeated", "sweep speed 1e30": "scans[0].sweep_speed",
+           "400-digit ball": "scans[0]", "scan id beyond int32": "scans[0]", "escape in a channel": "control",
+           "fifo": "not a regular file"}[kind]
+    if kind == "repeated key":
+        text = text.replace('"scans":', '"scans": [], "scans":', 1)
+    elif kind == "sweep speed 1e30":
+        doc["scans"][0]["sweep_speed"] = 1e30
+        text = json.dumps(doc)
+    elif kind == "400-digit ball":
+        text = json.dumps(doc).replace('"ball": 1,', '"ball": 1' + "0" * 399 + ",", 1)
+    elif kind == "scan id beyond int32":
+        doc["scans"][0]["scan_id"] = 2**31
+        text = json.dumps(doc)
+    elif kind == "escape in a channel":
+        doc["temperature_channels"] = [{"name": "X1\x1b[2J", "role": "x_scale", "channel": 101}]
+        text = json.dumps(doc)
+    (work / "p.json").unlink()
+    if kind == "fifo":
+        os.mkfifo(work / "p.json")
+    else:
+        (work / "p.json").write_text(text)
+    with server(None) as port:
+        r = cli("acquire", "--scanner", f"socket://127.0.0.1:{port}", "--plan", "p.json", "--duration", 1,
+                "-o", "rec", cwd=work, timeout=60)
+    refused(r, what=f"a plan with {kind}", mentions=("p.json", key))
+    if "\x1b" in r.text or "0" * 40 in r.text:
+        raise Failed("silent", f"a plan with {kind}: its text printed back raw")
+    if (work / "rec").exists():
+        raise Failed("silent", f"a plan with {kind}: refused, yet a recording was started")
+
+
+def sigint_during_plan_fifo(work: Path) -> None:
+    """acquire --plan FIFO answers SIGINT and SIGTERM at once (refused before any wait, or stopped)."""
+    os.mkfifo(work / "p.json")
+    with server(None) as port:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            proc = subprocess.Popen([*cmmpose_exe(), "acquire", "--scanner", f"socket://127.0.0.1:{port}", "--plan",
+                                     "p.json", "-o", "rec"], cwd=work, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                    text=True, stdin=subprocess.DEVNULL)
+            time.sleep(1.5)
+            if proc.poll() is None:
+                proc.send_signal(sig)
+            try:
+                out, err = proc.communicate(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
+                raise Failed("hang", f"acquire --plan FIFO ignored signal {sig} for 5 s")
+            if "Traceback" in out + err:
+                raise Failed("traceback", f"acquire --plan FIFO, signal {sig}: {err.strip()[-300:]}")
+
+
+def thread_env(work: Path) -> None:
+    """RAYON_NUM_THREADS=100000: the thread count from the environment is bounded, the answer as quick."""
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "o.csv", *COMPENSATE, cwd=work, env={"RAYON_NUM_THREADS": "100000"}, timeout=60)
+    if r.code != 0 or r.seconds > 30:
+        raise Failed("hang", f"RAYON_NUM_THREADS=100000: exit {r.code} after {r.seconds:.0f} s")
+
+
+def big_plate(work: Path) -> None:
+    """artefact check of a plate of 10,000 balls: refused at once by its schema (no n x n distance array)."""
+    lines = [(DATA / "artefacts" / "koba-0320.toml").read_text().split("[[balls]]")[0].split("balls = [")[0]]
+    body = ",\n".join(f"  {{ id = {i + 1}, xyz_mm = [{30.0 * (i % 100):.1f}, {30.0 * (i // 100):.1f}, 0.0], "
+                      f"u_um = [0.4, 0.4, 0.6] }}" for i in range(10_000))
+    (work / "big.toml").write_text(lines[0] + "balls = [\n" + body + "\n]\n")
+    r = cli("artefact", "check", "big.toml", cwd=work, timeout=60)
+    refused(r, what="a plate of 10,000 balls", mentions=("big.toml", "balls"))
+    if r.seconds > 20:
+        raise Failed("hang", f"artefact check of 10,000 balls took {r.seconds:.0f} s")
+
+
+def artefact_attack(work: Path, kind: str) -> None:
+    """An artefact file its schema refuses: a radius of 5e-324 mm, a ball id beyond int64, terminal escapes in
+    its name (never printed raw)."""
+    text = (DATA / "artefacts" / "koba-0320.toml").read_text()
+    if kind == "radius 5e-324":
+        text, key = re.sub(r"nominal_mm = [0-9.]+", "nominal_mm = 5e-324", text), "radius.nominal_mm"
+        text = re.sub(r"calibrated_mm = [0-9.]+", "calibrated_mm = 5e-324", text)
+    elif kind == "ball id beyond int64":
+        text, key = text.replace("{ id = 2,", "{ id = 99999999999999999999,", 1), "balls[1].id"
+    elif kind == "repeated key":
+        text, key = re.sub(r"^(reference_temperature_C = .*)$", r"\1\nreference_temperature_C = 35.0", text, count=1,
+                           flags=re.M), "line"
+    else:
+        text, key = re.sub(r'^name = "', 'name = "\\\\u001b[2J\\\\u001b[31m', text, count=1, flags=re.M), "name"
+    (work / "p.toml").write_text(text)
+    for args in (("artefact", "check", "p.toml"), ("artefact", "show", "p.toml"),
+                 ("simulate", "--artefact", "p.toml", "-o", "r")):
+        r = cli(*args, cwd=work)
+        refused(r, what=f"{' '.join(args[:2])}: an artefact with {kind}", mentions=("p.toml", key))
+        if "\x1b" in r.text:
+            raise Failed("silent", f"{' '.join(args[:2])}: terminal escapes from the artefact file printed raw")
+    if (work / "r").exists():
+        raise Failed("silent", f"an artefact with {kind}: refused, yet a run was written")
+
+
+def simulate_option(work: Path, option: str, value: str) -> None:
+    """simulate with a speed or jitter that measures nothing (1e-320, 1e308): refused naming the option's
+    quantity, never an empty run written as success nor a traceback."""
+    r = cli("simulate", option, value, "-o", "r", cwd=work)
+    refused(r, what=f"simulate {option} {value}", mentions=(option.removeprefix("--"),))
+    if (work / "r").exists():
+        raise Failed("silent", f"simulate {option} {value}: refused, yet a run was written")
+
+
+def user_effect_attack(work: Path, kind: str) -> None:
+    """A user effect returning complex values (never truncated with a warning) or named with terminal escapes
+    (never printed raw): refused naming the file."""
+    small_run(work, "r")
+    name = "ripple\\x1b[2J" if kind == "escape" else "ripple"
+    dtype = "complex" if kind == "complex" else "float"
+    (work / "ue.py").write_text(
+        "import numpy as np\nfrom cmmpose.model import UserEffect\n\n\ndef correction(inputs, a_um):\n"
+        f"    out = np.zeros((len(inputs['D']), 3), dtype={dtype})\n"
+        "    out[:, 0] = a_um * 1e-3 * np.sin(inputs['D'] / 10.0)" + (" * (1 + 1j)" if kind == "complex" else "")
+        + "\n    return out\n\n\n"
+        f"EFFECT = UserEffect.create('{name}', correction, {{'a_um': ('um', 1.0)}}, physics='x', reveal='y')\n")
+    r = cli("diagnose", "r", "--user-effect", "ue.py", "--max-effects", 1, cwd=work)
+    refused(r, what=f"a user effect with {kind}", mentions=("complex" if kind == "complex" else "control",),
+            never=("ComplexWarning",))
+    if "\x1b" in r.text:
+        raise Failed("silent", "a user effect's name with terminal escapes printed raw")
+
+
+def arabic_digits(work: Path) -> None:
+    """--placement and --pose with Arabic-Indic digits are refused, not read as 525 and 90."""
+    r = cli("simulate", "--artefact", "koba-0320", "--placement", "xy@z=-٥٢٥", "-o", "r", cwd=work)
+    refused(r, what="--placement xy@z=-٥٢٥", mentions=("placement",))
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "o.csv", "--maps", "thesis", "--pose", "٩٠,90,0", "--offset",
+            "1.001,264.505,129.575", cwd=work)
+    refused(r, what="--pose ٩٠,90,0", mentions=("--pose",))
+
+
+def plan_sigma(work: Path) -> None:
+    """plan --sigma 1e-320: refused (a noise of nothing promises uncertainties of nothing), not printed with
+    320 digits."""
+    small_run(work, "r", "--repeat-scans", 0)
+    r = cli("plan", "r", "--sigma", "1e-320", cwd=work)
+    refused(r, what="plan --sigma 1e-320", mentions=("--sigma",))
+    if "0" * 40 in r.text:
+        raise Failed("silent", "plan --sigma 1e-320: printed with hundreds of digits")
+
+
+def model_other_kinematics(work: Path) -> None:
+    """compensate --model of a model stacked for another configuration than the machine's: refused naming both,
+    as evaluate and diagnose refuse it."""
+    scan_copy(work)
+    code = ("import sys, cmmpose\nfrom cmmpose.model import Model\n"
+            "Model(cmmpose.ErrorMapSet.thesis().with_kinematics('gantry')).save(sys.argv[1])")
+    subprocess.run([sys.executable, "-c", code, str(work / "mg.json")], check=True)
+    r = cli("compensate", "a.csv", "o.csv", "--model", "mg.json", "--pose", "90,90,0", cwd=work)
+    refused(r, what="compensate --model stacked for a gantry on the thesis machine", mentions=("gantry", "thesis"))
+    if (work / "o.csv").exists():
+        raise Failed("silent", "compensate --model of another configuration: refused, yet written")
+
+
+def joint_copy(work: Path) -> None:
+    """A joint diagnosis of a run and its copy with only ``created`` changed: refused (it would shrink every
+    uncertainty by sqrt 2)."""
+    small_run(work, "r")
+    shutil.copytree(work / "r", work / "c")
+    doc = json.loads((work / "c" / "run.json").read_text())
+    doc["created"] = "2020-01-01T00:00:00Z"
+    (work / "c" / "run.json").write_text(json.dumps(doc))
+    r = cli("diagnose", "r", "c", "--joint", "--max-effects", 1, cwd=work)
+    refused(r, what="a joint diagnosis of a run and its copy", mentions=("copy",))
+
+
+def uncertainty_option(work: Path, option: str, value: str) -> None:
+    """compensate --uncertainty with an absurd stated uncertainty: a usage error (exit 2) naming the option."""
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "o.csv", *COMPENSATE, "--uncertainty", option, value, cwd=work)
+    refused(r, what=f"--uncertainty {option} {value}", mentions=(option,))
+    if r.code != 2 or (work / "o.csv").exists():
+        raise Failed("silent", f"--uncertainty {option} {value}: exit {r.code} (want 2), output written: "
+                               f"{(work / 'o.csv').exists()}")
+
+
+def map_uncertainty_header(work: Path, kind: str) -> None:
+    """A map file whose ``# uncertainty:`` header line is out of range, repeats a key or is not JSON: refused
+    naming the file, its line and the key."""
+    code = "import sys, cmmpose\ncmmpose.ErrorMapSet.thesis().maps[0].write(sys.argv[1])"
+    subprocess.run([sys.executable, "-c", code, str(work / "m.csv")], check=True)
+    text = (work / "m.csv").read_text()
+    edit, key = {"negative": (('"positioning_ppm": [2.5', '"positioning_ppm": [-1'), "positioning_ppm"),
+                 "1e30": (('"positioning_ppm": [2.5', '"positioning_ppm": [1e30'), "positioning_ppm"),
+                 "repeated key": (('"positioning_ppm"', '"source": "x", "positioning_ppm"'), "source"),
+                 "not JSON": (("# uncertainty: {", "# uncertainty: {{"), "uncertainty")}[kind]
+    if edit[0] not in text:
+        raise Skip("the map file has no uncertainty header")
+    (work / "m.csv").write_text(text.replace(*edit, 1))
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "o.csv", "--maps", "m.csv", "--temperature", 20, "--pose", "90,90,0",
+            "--offset", "1.001,264.505,129.575", "--uncertainty", cwd=work)
+    refused(r, what=f"a map's uncertainty header {kind}", mentions=("m.csv", key))
+
+
+def machine_uncertainty(work: Path, kind: str) -> None:
+    """A machine file whose [uncertainty] table is out of range, has an unknown key or a NaN: refused naming
+    the file and the key."""
+    text = (DATA / "machines" / "moving-bridge.toml").read_text()
+    table = {"1e9 ppm": "[uncertainty]\npositioning_ppm = [1e9, 1.0, 1.0]\n",
+             "unknown key": "[uncertainty]\npositioning_pm = [1.0, 1.0, 1.0]\n",
+             "nan": "[uncertainty]\nsquareness_arcsec = [nan, 1.0, 1.0]\n"}[kind]
+    key = {"1e9 ppm": "uncertainty.positioning_ppm", "unknown key": "positioning_pm",
+           "nan": "uncertainty.squareness_arcsec"}[kind]
+    if "[uncertainty]" in text:
+        raise Skip("the bundled machine file has its own [uncertainty]")
+    (work / "m.toml").write_text(text + "\n" + table)
+    scan_copy(work)
+    r = cli("compensate", "a.csv", "o.csv", "--machine", "m.toml", "--uncertainty", cwd=work)
+    refused(r, what=f"a machine file's [uncertainty] with {kind}", mentions=("m.toml", key))
+
+
+def run_json_attack(work: Path, kind: str) -> None:
+    """A run.json out of range or with a repeated key: refused naming the file and the key."""
+    run = small_run(work, "r")
+    text = (run / "run.json").read_text()
+    doc = json.loads(text)
+    if kind == "repeated key":
+        text, key = text.replace('"metadata":', '"maps": {}, "metadata":', 1), "'maps' is repeated"
+    elif kind == "negative row count":
+        doc["rows"]["points"] = -1
+        text, key = json.dumps(doc), "rows.points"
+    else:  # a radius of 1e30 mm
+        doc["artefact"]["ball_radius_mm"] = 1e30
+        text, key = json.dumps(doc), "artefact.ball_radius_mm"
+    (run / "run.json").write_text(text)
+    for args in (("evaluate", "r"), ("diagnose", "r", "--max-effects", 1)):
+        refused(cli(*args, cwd=work), what=f"{args[0]}: a run.json with {kind}", mentions=("run.json", key))
+
+
+def nan_model_temperature(work: Path) -> None:
+    """A model file with a NaN temperature: refused naming the file and its 'temperature', never blamed on the
+    points' T column."""
+    scan_copy(work)
+    doc = _saved_model(work)
+    doc["temperature"] = float("nan")
+    (work / "m.json").write_text(json.dumps(doc))
+    r = cli("compensate", "a.csv", "o.csv", "--model", "m.json", "--pose", "90,90,0", cwd=work)
+    refused(r, what="a model at NaN C", mentions=("m.json", "temperature"), never=("column",))
+
+
+def existing_run_kept(work: Path) -> None:
+    """simulate -o an existing run without --overwrite: refused before any work, the run unchanged."""
+    run = small_run(work, "r")
+    before = {p.name: digest(p) for p in run.iterdir() if p.is_file()}
+    r = cli("simulate", "--seed", 2, "-o", "r", cwd=work)
+    after = {p.name: digest(p) for p in run.iterdir() if p.is_file()}
+    if after != before:
+        raise Failed("data loss", f"simulate -o an existing run without --overwrite changed it (exit {r.code})")
+    refused(r, what="simulate -o an existing run", mentions=("--overwrite",))
+
+
+def wrong_names(work: Path) -> None:
+    """A wrong name lists the valid ones: --format, an artefact kind, a machine example, an effect, a source of
+    uncertainty, a layout."""
+    scan_copy(work)
+    for args, valid in ((("map", "export", "thesis@20", "--format", "cvs", "-o", "x.csv"), ("csv", "iso230-2")),
+                        (("artefact", "example", "ball-plates", "-o", "a.toml"), ("ball-plate", "ballbar")),
+                        (("machine", "example", "gantri", "-o", "m.toml"), ("gantry", "moving-bridge")),
+                        (("simulate", "--effect", "squarenes:xy=5", "-o", "r"), ("squareness", "scale")),
+                        (("simulate", "--layout", "b98", "-o", "r"), ("b89",)),
+                        (("compensate", "a.csv", "o.csv", *COMPENSATE, "--uncertainty", "--uncertainty-off", "mapp"),
+                         ("map", "temperature"))):
+        r = cli(*args, cwd=work)
+        refused(r, what=" ".join(map(str, args[:3])), mentions=valid)
+        if r.code != 2:
+            raise Failed("silent", f"{' '.join(map(str, args[:3]))}: a wrong name exits {r.code} (a usage error is 2)")
+    small_run(work, "r", "--repeat-scans", 0)
+    r = cli("plan", "r", "--plan-for", "squarenes", cwd=work)
+    refused(r, what="plan --plan-for squarenes", mentions=("squareness", "roll"))
+    if r.code != 2:
+        raise Failed("silent", f"plan --plan-for squarenes: exits {r.code} (a usage error is 2)")
+
+
+def missing_input_more(work: Path) -> None:
+    """A missing input is a usage error (exit 2) in every other command too, naming what is missing."""
+    for args in (("diagnose", "nothing"), ("fit", "nothing.csv"), ("diagnose-fits", "nothing.csv"),
+                 ("calibrate", "offset", "A", "B", "C", "--library", "nothing.json"),
+                 ("map", "import", "iso230-2", "nothing.csv", "-o", "x.csv"), ("map", "plot", "nothing.csv", "-o", "p.png"),
+                 ("map", "export", "nothing.csv", "--format", "iso230-2", "-o", "y.csv"), ("machine", "check", "nothing.toml"),
+                 ("plan", "nothing"), ("acquire", "--recover", "-o", "nothing"),
+                 ("standards", "acceptance", "nothing", "--mpe-form", 1, "--mpe-size", 1, "--mpe-length", 1),
+                 ("evaluate", "nothing", "--model", "nothing.json")):
+        r = cli(*args, cwd=work)
+        if r.code != 2 or "nothing" not in r.text:
+            raise Failed("silent", f"{' '.join(map(str, args[:3]))} of a missing input: exit {r.code} (want 2): "
+                                   f"{r.text.strip()[-200:]}")
+
+
+def markup_in_names(work: Path, where: str) -> None:
+    """Text from a file that Rich would read as markup (``[/bold][red]``) in an artefact's name, or in a file's
+    name: printed as text, never a MarkupError traceback."""
+    if where == "artefact":
+        text = (DATA / "artefacts" / "koba-0320.toml").read_text()
+        (work / "p.toml").write_text(re.sub(r'^name = "', 'name = "[/bold][red]', text, count=1, flags=re.M))
+        cli("simulate", "--artefact", "p.toml", "--seed", 1, "--repeat-scans", 0, "-o", "r", cwd=work)
+        commands = (("artefact", "show", "p.toml"), ("evaluate", "r"), ("plan", "r", "--budget", 1))
+    else:
+        rows = ["target_mm,direction,cycle,deviation_um"] + [f"{t},{d},{c},{1.0 + 0.01 * t + 0.3 * c}"
+                                                            for t in range(0, 500, 50) for d in (1, -1)
+                                                            for c in range(1, 6)]
+        (work / "[").mkdir()
+        (work / "[" / "b].csv").write_text("\n".join(rows) + "\n")
+        commands = (("standards", "iso230-2", "[/b].csv"),)
+    for args in commands:
+        r = cli(*args, cwd=work)
+        if r.code != 0 or "[/bold][red]KOBA" not in r.text and "[/b].csv" not in r.text:
+            raise Failed("silent", f"{' '.join(map(str, args[:2]))} of a name holding Rich markup: exit {r.code}, "
+                                   f"not printed as written: {r.text.strip()[-200:]}")
+
+
+def temperature_option(work: Path, value: str) -> None:
+    """--temperature below absolute zero (-273.16 C, even with --out-of-range extrapolate) or of 1e6 C: a usage
+    error naming the option; 1e-320 C is said in a sensible precision, never with 320 digits."""
+    scan_copy(work)
+    extra = ("--out-of-range", "extrapolate") if value == "-273.16" else ()
+    r = cli("compensate", "a.csv", "o.csv", *COMPENSATE, "--temperature", value, *extra, cwd=work)
+    if value == "1e-320":
+        refused(r, what="--temperature 1e-320", mentions=("temperature",))
+        if "0" * 40 in r.text or "digits)" in r.text:
+            raise Failed("silent", f"--temperature 1e-320 printed with hundreds of digits: {r.text.strip()[-200:]}")
+        return
+    refused(r, what=f"--temperature {value}", mentions=("--temperature",))
+    if r.code != 2 or (work / "o.csv").exists():
+        raise Failed("silent", f"--temperature {value}: exit {r.code} (want 2)")
+
+
+def plate_fits_attack(work: Path, kind: str) -> None:
+    """diagnose-fits --artefact of fitted centres with a placement beyond a C long (never an OverflowError), or
+    in um or inches (never "scale x -999000 ppm"): refused naming the file."""
+    cli("simulate", "--artefact", "koba-0420", "--placement", "planes", "--seed", 1, "--repeat-scans", 0, "-o", "r",
+        cwd=work)
+    cli("evaluate", "r", "--report", "rep", cwd=work)
+    rows = list(csv.reader((work / "rep" / "centres.csv").read_text().splitlines()))
+    header, body = rows[0], rows[1:]
+    if kind == "placement beyond C long":
+        k = header.index("placement")
+        body = [[("9" * 25 if i == k and v == "1" else v) for i, v in enumerate(r)] for r in body]
+        words = ("fits.csv", "placement")
+    else:
+        factor = 1000.0 if kind == "centres in um" else 1 / 25.4
+        cols = [header.index(c) for c in ("x_mm", "y_mm", "z_mm")]
+        body = [[(repr(float(v) * factor) if i in cols else v) for i, v in enumerate(r)] for r in body]
+        words = ("fits.csv", "um" if kind == "centres in um" else "inches")
+    with open(work / "fits.csv", "w", newline="") as f:
+        csv.writer(f).writerows([header, *body])
+    r = cli("diagnose-fits", "fits.csv", "--artefact", "koba-0420", "--state", "compensated", cwd=work)
+    refused(r, what=f"diagnose-fits --artefact of {kind}", mentions=words, never=("OverflowError",))
+    if "0" * 40 in r.text or "9" * 25 in r.text:
+        raise Failed("silent", f"diagnose-fits of {kind}: a 25-digit number printed back")
+
+
+def errormap_text_temperature(work: Path) -> None:
+    """ErrorMap(..., temperature="22") and with_temperature(True): refused, not converted in silence."""
+    code = ("import cmmpose\nm = cmmpose.ErrorMapSet.thesis().maps[0]\nout = []\n"
+            "for make in (lambda: cmmpose.ErrorMap(m.table('X'), m.table('Y'), m.table('Z'), m.squareness, "
+            "temperature='22'), lambda: m.with_temperature(True), lambda: m.with_temperature(float('nan'))):\n"
+            "    try:\n        make()\n        out.append('accepted')\n"
+            "    except cmmpose.Error as e:\n        out.append('refused' if 'temperature' in str(e) else str(e))\n"
+            "print(' '.join(out))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    if "Traceback" in r.stderr:
+        raise Failed("traceback", r.stderr.strip()[-300:])
+    if r.stdout.split() != ["refused"] * 3:
+        raise Failed("silent", f"ErrorMap temperatures '22', True, nan: {r.stdout.strip()}")
+
+
+def alignment_attack(work: Path, kind: str) -> None:
+    """calibrate alignment: three vernier points without --vernier-uncertainty (a usage error saying to give
+    it, not a covariance message); a wrong --plane-normal with --nominal-pose (refused naming it) or without
+    (said, never a silent gamma)."""
+    cli("calibrate", "simulate-alignment", "--pose", "90,90,0", "--name", "A", "-o", "al", cwd=work)
+    args = ["calibrate", "alignment", "--vernier", "al/A-vernier.csv", "--plane-scan", "al/A-plane.csv",
+            "--reference-scan", "al/A-sphere.csv", "--name", "A", "--library", "lib.json", "--maps", "thesis",
+            "--temperature", 20]
+    if kind == "no vernier uncertainty":
+        r = cli(*args, "--plane-normal", "0,0,1", cwd=work)
+        refused(r, what="calibrate alignment of 3 vernier points", mentions=("--vernier-uncertainty",),
+                never=("covariance",))
+    elif kind == "wrong normal, nominal pose":
+        r = cli(*args, "--plane-normal", "0,1,0", "--vernier-uncertainty", 9, "--nominal-pose", "90,90,0", cwd=work)
+        refused(r, what="calibrate alignment with a wrong --plane-normal", mentions=("--plane-normal",))
+    else:
+        r = cli(*args, "--plane-normal", "0,1,0", "--vernier-uncertainty", 9, cwd=work)
+        if r.code == 0 and "--plane-normal" not in r.text:
+            raise Failed("silent", "calibrate alignment with a wrong --plane-normal: exit 0 and no word of it")
+    if kind != "wrong normal, no nominal pose" and (work / "lib.json").exists():
+        raise Failed("silent", f"calibrate alignment, {kind}: refused, yet the library was written")
+
+
+def huge_sparse_document(work: Path) -> None:
+    """A 300 MiB model file (sparse, read in no time): refused by its size before it is read."""
+    scan_copy(work)
+    with open(work / "m.json", "wb") as f:
+        f.truncate(300 << 20)
+    r = cli("compensate", "a.csv", "o.csv", "--model", "m.json", "--pose", "90,90,0", cwd=work, timeout=60)
+    refused(r, what="a 300 MiB model file", mentions=("m.json", "bytes"))
+    if r.seconds > 10:
+        raise Failed("hang", f"a 300 MiB model file: {r.seconds:.0f} s to refuse")
+
+
+def escapes_in_files(work: Path, kind: str) -> None:
+    """Terminal escape sequences in a point file's value, a fit file's value or a map's source line: never
+    printed raw (a message quotes what it echoes, control characters escaped)."""
+    if kind == "point file":
+        (work / "e.csv").write_text("u,v,D,E,F\n1,2\x1b[2J\x1b[31m,450,275,-250\n")
+        args = ("compensate", "e.csv", "o.csv", *COMPENSATE, "--temperature", 20)
+    elif kind == "fit file":
+        (work / "e.csv").write_text("x,y,z\n1,2\x1b]0;pwned\x07,3\n")
+        args = ("fit", "e.csv")
+    else:
+        code = "import sys, cmmpose\ncmmpose.ErrorMapSet.thesis().maps[0].write(sys.argv[1])"
+        subprocess.run([sys.executable, "-c", code, str(work / "m.csv")], check=True)
+        text = (work / "m.csv").read_text()
+        (work / "m.csv").write_text(text.replace("# source: ", "# source: \x1b[2J\x1b[31m", 1))
+        scan_copy(work)
+        args = ("compensate", "a.csv", "o.csv", "--maps", "m.csv", "--temperature", 20, "--pose", "90,90,0",
+                "--offset", "1.001,264.505,129.575", "--json")
+    r = cli(*args, cwd=work)
+    if "\x1b" in r.text or "\x07" in r.text:
+        raise Failed("silent", f"{kind} with terminal escapes: printed raw (exit {r.code})")
+    if kind != "map source":
+        refused(r, what=f"a {kind} with terminal escapes", mentions=("e.csv",))
 
 
 ATTACKS = {
@@ -912,6 +1464,12 @@ ATTACKS = {
         "diagnose --corrected-maps over a machine's maps": lambda w: corrected_maps_over_inputs(w, "machine"),
         "full disk: diagnose --corrected-maps": corrected_maps_full_disk,
         "evaluate: runs named like its report files": evaluate_report_named_runs,
+        "acquire --recover: a NaN scale reading in a frame": lambda w: recover_attack(w, "nan scale"),
+        "acquire --recover: an infinite scale reading": lambda w: recover_attack(w, "inf scale"),
+        "acquire --recover: NaN points in a frame": lambda w: recover_attack(w, "nan point"),
+        "acquire --recover: a scan number beyond int32": lambda w: recover_attack(w, "huge scan"),
+        "calibrate offset --store with an unknown pose": store_unknown_pose,
+        "simulate -o an existing run without --overwrite": existing_run_kept,
     },
     "hang": {
         "scheduler that never answers": lambda w: scheduler(w, "silent"),
@@ -925,6 +1483,11 @@ ATTACKS = {
         "--maps a FIFO with no writer": lambda w: special_document(w, "fifo", "maps"),
         "iso230-2 of a FIFO with no writer": lambda w: special_document(w, "fifo", "positioning"),
         "diagnose-fits of a FIFO with no writer": lambda w: special_document(w, "fifo", "fits"),
+        "acquire --plan a FIFO with no writer": lambda w: plan_attack(w, "fifo"),
+        "acquire --plan FIFO: SIGINT and SIGTERM": sigint_during_plan_fifo,
+        "RAYON_NUM_THREADS=100000": thread_env,
+        "artefact check of a 10,000-ball plate": big_plate,
+        "a 300 MiB model file": huge_sparse_document,
     },
     "traceback": {
         "Parquet with a repeated column": parquet_repeated_column,
@@ -945,6 +1508,16 @@ ATTACKS = {
         "artefact file /dev/zero": lambda w: special_document(w, "zero", "artefact"),
         "model with a 400-digit number": lambda w: schema_attack(w, "model 400-digit number"),
         "machine with a 400-digit number": lambda w: schema_attack(w, "machine 400-digit number"),
+        'model with "temperature": "twenty"': lambda w: schema_attack(w, "model text temperature"),
+        "simulate --speed 1e-320": lambda w: simulate_option(w, "--speed", "1e-320"),
+        "artefact of radius 5e-324 mm": lambda w: artefact_attack(w, "radius 5e-324"),
+        "alignment library with a 400-digit number": lambda w: library_attack(w, "400-digit number"),
+        "plan with a 400-digit ball number": lambda w: plan_attack(w, "400-digit ball"),
+        "plan with a scan id beyond int32": lambda w: plan_attack(w, "scan id beyond int32"),
+        "Rich markup in an artefact's name": lambda w: markup_in_names(w, "artefact"),
+        "Rich markup in a file's name": lambda w: markup_in_names(w, "file"),
+        "diagnose-fits: a placement beyond a C long": lambda w: plate_fits_attack(w, "placement beyond C long"),
+        "ErrorMap(temperature='22')": errormap_text_temperature,
     },
     "silent": {
         "evaluate/acceptance: a scan labelled ball=3": lambda w: relabelled_scan(w, "ball=3"),
@@ -984,6 +1557,55 @@ ATTACKS = {
         "machine: an expansion of -300": lambda w: schema_attack(w, "machine -300 C"),
         "machine with a repeated key": lambda w: schema_attack(w, "machine repeated key"),
         "artefact certificate at -300 C": lambda w: schema_attack(w, "artefact -300 C"),
+        "simulate --speed 1e308": lambda w: simulate_option(w, "--speed", "1e308"),
+        "simulate --jitter 1e308": lambda w: simulate_option(w, "--jitter", "1e308"),
+        "artefact with a ball id beyond int64": lambda w: artefact_attack(w, "ball id beyond int64"),
+        "artefact named with terminal escapes": lambda w: artefact_attack(w, "escape"),
+        "artefact with a repeated key": lambda w: artefact_attack(w, "repeated key"),
+        "terminal escapes in a point file's value": lambda w: escapes_in_files(w, "point file"),
+        "terminal escapes in a fit file's value": lambda w: escapes_in_files(w, "fit file"),
+        "terminal escapes in a map's source line": lambda w: escapes_in_files(w, "map source"),
+        "user effect returning complex values": lambda w: user_effect_attack(w, "complex"),
+        "user effect named with terminal escapes": lambda w: user_effect_attack(w, "escape"),
+        "Arabic-Indic digits in --placement and --pose": arabic_digits,
+        "plan --sigma 1e-320": plan_sigma,
+        "compensate --model stacked for another configuration": model_other_kinematics,
+        "joint diagnosis of a run and its copy": joint_copy,
+        "diagnose-fits --artefact: centres in um": lambda w: plate_fits_attack(w, "centres in um"),
+        "diagnose-fits --artefact: centres in inches": lambda w: plate_fits_attack(w, "centres in inches"),
+        "model at NaN C": nan_model_temperature,
+        "--temperature -273.16 with --out-of-range extrapolate": lambda w: temperature_option(w, "-273.16"),
+        "--temperature 1e6": lambda w: temperature_option(w, "1e6"),
+        "--temperature 1e-320 said in six digits": lambda w: temperature_option(w, "1e-320"),
+        "--uncertainty --temperature-uncertainty 1e9": lambda w: uncertainty_option(w, "--temperature-uncertainty",
+                                                                                     "1e9"),
+        "--uncertainty --scanner-noise nan": lambda w: uncertainty_option(w, "--scanner-noise", "nan"),
+        "--uncertainty --scanner-scale-ppm -5": lambda w: uncertainty_option(w, "--scanner-scale-ppm", "-5"),
+        "map # uncertainty: a negative ppm": lambda w: map_uncertainty_header(w, "negative"),
+        "map # uncertainty: 1e30 ppm": lambda w: map_uncertainty_header(w, "1e30"),
+        "map # uncertainty: a repeated key": lambda w: map_uncertainty_header(w, "repeated key"),
+        "map # uncertainty: not JSON": lambda w: map_uncertainty_header(w, "not JSON"),
+        "machine [uncertainty]: 1e9 ppm": lambda w: machine_uncertainty(w, "1e9 ppm"),
+        "machine [uncertainty]: an unknown key": lambda w: machine_uncertainty(w, "unknown key"),
+        "machine [uncertainty]: nan": lambda w: machine_uncertainty(w, "nan"),
+        "run.json with a repeated key": lambda w: run_json_attack(w, "repeated key"),
+        "run.json with a negative row count": lambda w: run_json_attack(w, "negative row count"),
+        "run.json with a 1e30 mm ball": lambda w: run_json_attack(w, "huge radius"),
+        "alignment library with a repeated key": lambda w: library_attack(w, "repeated key"),
+        "alignment library at 1e6 C": lambda w: library_attack(w, "temperature 1e6"),
+        "alignment library with a pose of 1e9 degrees": lambda w: library_attack(w, "pose 1e9 degrees"),
+        "alignment library: terminal escapes in a pose name": lambda w: library_attack(w, "escape in a name"),
+        "plan with a repeated key": lambda w: plan_attack(w, "repeated key"),
+        "plan with a sweep speed of 1e30": lambda w: plan_attack(w, "sweep speed 1e30"),
+        "plan: terminal escapes in a channel name": lambda w: plan_attack(w, "escape in a channel"),
+        "a wrong name lists the valid ones": wrong_names,
+        "calibrate alignment: 3 vernier points, no --vernier-uncertainty":
+            lambda w: alignment_attack(w, "no vernier uncertainty"),
+        "calibrate alignment: a wrong --plane-normal, --nominal-pose": lambda w: alignment_attack(
+            w, "wrong normal, nominal pose"),
+        "calibrate alignment: a wrong --plane-normal alone": lambda w: alignment_attack(
+            w, "wrong normal, no nominal pose"),
+        "a missing input: exit 2 in the other commands": missing_input_more,
     },
 }
 

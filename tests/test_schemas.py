@@ -132,8 +132,8 @@ def test_every_library_effect_unit_has_its_bound():
 
 
 def test_an_unknown_kind_names_the_known_ones():
-    with pytest.raises(InputError, match="not one of model, machine, artefact, run"):
-        schemas.validate({}, "plan", "p.json")
+    with pytest.raises(InputError, match="not one of model, machine, artefact, run, alignments, plan"):
+        schemas.validate({}, "recipe", "p.json")
 
 
 # -- one broken document per kind names the file and the key ------------------------------------------------------
@@ -468,3 +468,115 @@ def test_a_generated_model_file_loads_or_is_refused_with_a_cmmpose_error(tmp_pat
             assert isinstance(info.value, InputError) and broken in str(info.value)
 
     check()
+
+
+# -- the alignment library and the acquisition plan (issue 35, item 1) --------------------------------------------
+
+def _library(tmp_path):
+    from cmmpose.calibration import AlignmentLibrary, AlignmentRecord
+
+    lib = AlignmentLibrary(tmp_path / "lib.json")
+    lib.save("A90B90", AlignmentRecord(pose=(90.0, 90.0, 0.0), reading=(450.0, 275.0, -250.0),
+                                       offset=(1.001, 264.505, 129.575), reading_uncertainty=(0.001,) * 3,
+                                       pose_covariance=[[1e-4, 0, 0], [0, 1e-4, 0], [0, 0, 1e-4]],
+                                       temperature=20.5, residuals={"sphere_rms": 0.004}, note="bench"))
+    return lib
+
+
+def test_a_saved_alignment_library_validates_and_loads(tmp_path):
+    lib = _library(tmp_path)
+    schemas.validate(json.loads(lib.path.read_text()), "alignments", lib.path)
+    assert lib.load("A90B90").temperature == 20.5
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda d: d["poses"]["A90B90"].update(temperature=1e6), r"lib\.json: poses\.A90B90\.temperature: 1e\+06 is above"),
+    (lambda d: d["poses"]["A90B90"].update(pose=[900.0, 90.0, 0.0]), r"poses\.A90B90\.pose\[0\]: 900 is above the "
+                                                                       r"maximum 360 \(degree\)"),
+    (lambda d: d["poses"]["A90B90"].update(offset=[1e30, 0.0, 0.0]), r"poses\.A90B90\.offset\[0\]: 1e\+30 is above"),
+    (lambda d: d["poses"]["A90B90"]["residuals"].update(sphere_rms=1e12), r"residuals\.sphere_rms: 1e\+12 is above"),
+    (lambda d: d["poses"].update({"A\x1b[2J": d["poses"]["A90B90"]}), r"poses: 'A\\x1b\[2J' holds a control"),
+])
+def test_a_broken_alignment_library_is_refused_naming_the_file_and_the_key(tmp_path, edit, words):
+    from cmmpose.errors import CalibrationError
+
+    lib = _library(tmp_path)
+    doc = json.loads(lib.path.read_text())
+    edit(doc)
+    lib.path.write_text(json.dumps(doc))
+    with pytest.raises(CalibrationError, match=words) as info:
+        lib.load("A90B90")
+    assert str(lib.path) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_repeated_key_in_an_alignment_library_is_refused_and_the_file_left_alone(tmp_path):
+    from cmmpose.calibration import mount_offset  # noqa: F401 - the package imports
+    from cmmpose.errors import CalibrationError
+
+    lib = _library(tmp_path)
+    text = lib.path.read_text().replace('"temperature": 20.5', '"temperature": 20.5, "temperature": 99.0', 1)
+    lib.path.write_text(text)
+    with pytest.raises(CalibrationError, match=r"lib\.json: the key 'temperature' is repeated"):
+        lib.load("A90B90")
+    with pytest.raises(CalibrationError, match="repeated"):
+        lib.save("B", lib_record())
+    assert lib.path.read_text() == text
+
+
+def lib_record():
+    from cmmpose.calibration import AlignmentRecord
+
+    return AlignmentRecord(pose=(0.0, 0.0, 0.0), reading=(1.0, 2.0, 3.0), offset=(0.0, 0.0, 0.0))
+
+
+def _plan_doc():
+    from cmmpose.acquire.plan import artefact_plan
+
+    return artefact_plan("koba-0320", ["xy"]).to_dict()
+
+
+def test_typical_plans_validate(tmp_path, simulated_run):
+    from cmmpose.acquire.plan import Plan, plan_from_run
+
+    for doc in (_plan_doc(), plan_from_run(simulated_run).to_dict(), {}):
+        schemas.validate(json.loads(json.dumps(doc)), "plan", "p.json")
+        (tmp_path / "p.json").write_text(json.dumps(doc))
+        Plan.read(tmp_path / "p.json")
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda d: d["scans"][0].update(sweep_speed=1e30), r"p\.json: scans\[0\]\.sweep_speed: 1e\+30 is above"),
+    (lambda d: d["poses"][0].update(alpha=1e9), r"p\.json: poses\[0\]\.alpha: 1e\+09 is above the maximum 360"),
+    (lambda d: d["scans"][0].update(scan_id=2**31), r"scans\[0\]: scan_id = 2147483648 is not an integer that fits"),
+    (lambda d: d["scans"][0].update(ball=10**400), r"scans\[0\]: ball = .* is not an integer that fits its int32"),
+    (lambda d: d["metadata"].update(x=[1e300]), r"p\.json: metadata\.x\[0\]: 1e\+300 is above the maximum 1e\+15"),
+    (lambda d: d.update(temperature_channels=[{"name": "X\x1b[2J", "role": "x_scale"}]),
+     r"temperature_channels\[0\]\.name: 'X\\x1b\[2J' holds a control character"),
+    (lambda d: d["artefact"].update(calibrated_radius_mm="11"), r"artefact\.calibrated_radius_mm: expected a number"),
+])
+def test_a_broken_plan_is_refused_naming_the_file_and_the_key(tmp_path, edit, words):
+    from cmmpose.acquire.plan import Plan
+    from cmmpose.errors import AcquisitionError
+
+    doc = _plan_doc()
+    edit(doc)
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(AcquisitionError, match=words) as info:
+        Plan.read(path)
+    assert str(path) in str(info.value) and "\n" not in str(info.value) and "0" * 40 not in str(info.value)
+
+
+def test_a_repeated_key_in_a_plan_and_a_fifo_as_a_plan_are_refused(tmp_path):
+    import os
+
+    from cmmpose.acquire.plan import Plan
+    from cmmpose.errors import AcquisitionError
+
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(_plan_doc()).replace('"scans":', '"scans": [], "scans":', 1))
+    with pytest.raises(AcquisitionError, match=r"p\.json: the key 'scans' is repeated"):
+        Plan.read(path)
+    os.mkfifo(tmp_path / "fifo.json")
+    with pytest.raises(AcquisitionError, match="not a regular file but a FIFO"):
+        Plan.read(tmp_path / "fifo.json")

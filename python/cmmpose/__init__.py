@@ -7,7 +7,11 @@ map tables, degrees for pose angles, degrees C for temperatures.
 
 from typing import TYPE_CHECKING
 
-from ._core import __version__, thread_count
+from ._threads import bound_thread_count
+
+bound_thread_count()  # before the kernel's thread pool starts: RAYON_NUM_THREADS=100000 is not 100,000 threads
+
+from ._core import __version__, thread_count  # noqa: E402
 from ._lazy import lazy_attributes
 from .compensation import compensate, uncompensated
 from .errormap import CARRIAGES, TABLE_COLUMNS, ErrorMap, ErrorMapSet, data_path

@@ -76,7 +76,9 @@ def _as_float(name: str, value, error: type[Exception]) -> float:
     try:
         return float(value)
     except (TypeError, ValueError):
-        raise error(f"{name}: expected a number, got {value!r}") from None
+        raise error(f"{name}: expected a number, got {_digits_cut(repr(value))}") from None
+    except OverflowError:  # an integer beyond any float (a 400-digit number): not finite, not echoed
+        raise error(f"{name}: must be finite, got {_digits_cut(repr(value))}") from None
 
 
 def _not_a_number(x) -> bool:
@@ -178,17 +180,25 @@ def triple(name: str, value, *, unit: str | None = None, nonnegative: bool = Fal
         ``"<name>: expected three finite numbers (<unit>), got <value>"`` or
         ``"<name>: must be >= 0, got <value>"``.
     """
+    shown = _digits_cut(repr(value))
     if any(_not_a_number(x) for x in _items(value)):
-        raise error(f"{name}: expected three numbers{_unit(unit)}, got {value!r}")
+        raise error(f"{name}: expected three numbers{_unit(unit)}, got {shown}")
     try:
         vals = tuple(float(x) for x in value)
     except (TypeError, ValueError):
-        raise error(f"{name}: expected three numbers{_unit(unit)}, got {value!r}") from None
+        raise error(f"{name}: expected three numbers{_unit(unit)}, got {shown}") from None
+    except OverflowError:  # an integer beyond any float (a 400-digit number)
+        vals = (math.inf,)
     if len(vals) != 3 or not all(math.isfinite(x) for x in vals):
-        raise error(f"{name}: expected three finite numbers{_unit(unit)}, got {value!r}")
+        raise error(f"{name}: expected three finite numbers{_unit(unit)}, got {shown}")
     if nonnegative and min(vals) < 0:
-        raise error(f"{name}: must be >= 0, got {value!r}")
+        raise error(f"{name}: must be >= 0, got {shown}")
     return vals  # type: ignore[return-value]
+
+
+def _digits_cut(text: str) -> str:
+    """``text`` with every run of more than 20 digits said by its length (a 400-digit number is not echoed)."""
+    return re.sub(r"\d{21,}", lambda m: f"<{len(m.group())} digits>", text)
 
 
 def vector3(name: str, value, *, unit: str | None = None, error: type[Exception] = InputError) -> np.ndarray:

@@ -168,6 +168,17 @@ class AppliedMaps:
 
 
 
+
+def _map_temperature(value) -> float | None:
+    """A map's temperature label, C: None, or a real number (never text such as "22", converted in silence,
+    nor a boolean); its finiteness is the core's check."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, Real):
+        raise InputTypeError(f"temperature: expected a number of degrees C or None, got {type(value).__name__} "
+                             f"{value!r}"[:200], what="temperature")
+    return float(value)  # a non-finite one: the core's one check (MapError "temperature: nan C is not finite")
+
 class ErrorMap(AppliedMaps):
     """The component errors of a CMM at one temperature.
 
@@ -195,7 +206,7 @@ class ErrorMap(AppliedMaps):
                  uncertainty: MapUncertainty | None = None):
         tables = [as_rows(f"{c.lower()} table", t, 7) for c, t in zip(CARRIAGES, (x, y, z))]
         sq = as_triple("squareness", squareness)
-        self._core = _core.ErrorMap(*tables, sq, None if temperature is None else float(temperature))
+        self._core = _core.ErrorMap(*tables, sq, _map_temperature(temperature))
         self.source = source
         self.stated_uncertainty = _checked_uncertainty(uncertainty)
 
@@ -282,7 +293,8 @@ class ErrorMap(AppliedMaps):
 
     def with_temperature(self, temperature: float | None) -> ErrorMap:
         """The same map labelled with another temperature (C)."""
-        return ErrorMap._wrap(self._core.with_temperature(temperature), self.source, self.stated_uncertainty)
+        return ErrorMap._wrap(self._core.with_temperature(_map_temperature(temperature)), self.source,
+                              self.stated_uncertainty)
 
     # -- the model ---------------------------------------------------------------
     def position_error(self, scales, *, out_of_range: str = "raise", nan_policy: str = "raise") -> np.ndarray:

@@ -67,7 +67,7 @@ LAYOUTS = {"planes": "a ball plate in the XY, XZ and YZ planes (three placements
 #: Smallest cosine between the scanner's view (v, part -> sensor) and the
 #: side the balls face for a pose to be used (60 degrees).
 MIN_VIEW_COSINE = 0.5
-_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+_NUMBER = re.compile(r"^[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?$")  # ASCII digits: "٥٢٥" is not 525
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,8 @@ __all__ = ["cli_wording", "shorten_numbers"]
 
 # A number of more digits than a float holds (echoed back from a hostile input): printed as a float.
 _LONG_NUMBER = re.compile(r"(?<![\w.])[-+]?\d{21,}(?:\.\d*)?(?![\w.])")
+# A decimal of more than 20 digits after its point (1e-320 printed in full): as a float, 6 significant digits.
+_LONG_DECIMAL = re.compile(r"(?<![\w.])[-+]?\d*\.\d{21,}(?![\w.])")
 # Any other run of that many digits (inside a quoted value): its first 20, then '...'.
 _LONG_DIGITS = re.compile(r"\d{21,}")
 
@@ -28,7 +30,10 @@ _LONG_DIGITS = re.compile(r"\d{21,}")
 def shorten_numbers(message: str) -> str:
     """``message`` with numbers of more than 20 digits shortened: a number
     alone as a float (``1e+300``), digits inside other text to their first 20
-    and ``'...'`` with the count (a 300-digit input is not printed back)."""
+    and ``'...'`` with the count (a 300-digit input is not printed back); a
+    decimal of more than 20 digits after its point in six significant digits
+    (a temperature of 1e-320 C is not printed with 320 digits)."""
+    message = _LONG_DECIMAL.sub(lambda m: f"{float(m[0]):.6g}", message)
     message = _LONG_NUMBER.sub(lambda m: f"{float(m[0]):.6g}", message)
     return _LONG_DIGITS.sub(lambda m: f"{m[0][:20]}...({len(m[0])} digits)", message)
 

@@ -34,7 +34,7 @@ from ._lazy import LazyModule
 from .atomicfile import staged_folder
 from .errors import RunError, RunFileError, read_input_text
 from .schemas import loads_json, validate
-from .schemas.run import CHANNEL_ROLES, SCHEMA, SCHEMA_VERSION, SUPPORTED_SCHEMA_VERSIONS, TABLES
+from .schemas.run import CHANNEL_ROLES, SCHEMA, SCHEMA_VERSION, SUPPORTED_SCHEMA_VERSIONS, SWEEP_AXES, TABLES
 from .formats.pointformats.common import parquet_options
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
@@ -62,9 +62,8 @@ __all__ = [
 
 
 # run.json's ``schema`` and versions (SCHEMA, SCHEMA_VERSION, SUPPORTED_SCHEMA_VERSIONS) and the allowed roles
-# of a temperature channel (CHANNEL_ROLES) live with run.json's schema (cmmpose.schemas.run), defined once there.
-#: Sweep axes allowed in scans.sweep_axis.
-SWEEP_AXES = ("X", "Y", "Z")
+# of a temperature channel (CHANNEL_ROLES) and the sweep axes of scans.sweep_axis (SWEEP_AXES) live with run.json's
+# schema (cmmpose.schemas.run), defined once there.
 
 # Column name -> numpy dtype of each table, in file order. "str" columns are
 # stored as numpy object arrays of Python str.

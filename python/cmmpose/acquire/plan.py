@@ -47,8 +47,10 @@ from pathlib import Path
 
 from .. import artefacts, placement
 from ..atomicfile import write_text
-from ..errors import AcquisitionError, InputError
+from ..errors import AcquisitionError, InputError, MissingFileError, read_input_text
 from ..machine import CHANNELS
+from ..schemas import loads_json, validate
+from ..schemas._common import short
 from ..run import CHANNEL_ROLES, POSES_COLUMNS, SCANS_COLUMNS, SWEEP_AXES, Run
 
 __all__ = ["Plan", "DEFAULT_CHANNELS", "plan_from_run", "artefact_plan"]
@@ -98,8 +100,8 @@ class Plan:
                     raise AcquisitionError(f"plan: {name}[{k}]: expected an object, got {type(row).__name__}")
                 for c, dt in spec.items():
                     if c in row and not _fits(row[c], dt):
-                        raise AcquisitionError(f"plan: {name}[{k}]: {c} = {row[c]!r} is not "
-                                               f"{'a string' if dt == 'str' else 'an integer' if dt != 'float64' else 'a finite number'}")
+                        raise AcquisitionError(f"plan: {name}[{k}]: {c} = {_shown(row[c])} is not "
+                                               f"{'a string' if dt == 'str' else f'an integer that fits its {dt} column' if dt != 'float64' else 'a finite number'}")
         if not self.temperature_channels:
             self.channels_defaulted = True
             self.temperature_channels = [{"name": n, "role": r, "channel": 101 + k} for k, (n, r) in enumerate(DEFAULT_CHANNELS)]
@@ -109,7 +111,7 @@ class Plan:
             ch.setdefault("channel", 101 + k)
             if not isinstance(ch["name"], str) or not _fits(ch["channel"], "int32"):
                 raise AcquisitionError(f"plan: temperature_channels[{k}]: 'name' must be a string and 'channel' an "
-                                       f"integer, got {ch['name']!r}, {ch['channel']!r}")
+                                       f"integer, got {_shown(ch['name'])}, {_shown(ch['channel'])}")
         for k, p in enumerate(self.poses):
             missing = [c for c in POSES_COLUMNS if c not in p]
             if missing:
@@ -202,23 +204,31 @@ class Plan:
 
     @classmethod
     def read(cls, path) -> Plan:
-        """Read a plan JSON file (errors name the file)."""
+        """Read a plan JSON file (errors name the file).
+
+        The one door in (issue 35): the file is read as a regular file only
+        (a FIFO or a device is refused at once, its size bounded), a key
+        repeated in one object is refused, the plan is checked in its own
+        words (:class:`Plan`) and then validated against its schema
+        (:mod:`cmmpose.schemas.plan`: every key typed, every number within
+        its range, the file and the key named)."""
         path = Path(path)
         try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
-            raise AcquisitionError(f"{path}: not a readable plan ({exc})") from None
-        except RecursionError:
-            raise AcquisitionError(f"{path}: not a readable plan (JSON nested too deeply)") from None
+            text = read_input_text(path, "plan", error=AcquisitionError)
+        except MissingFileError as exc:
+            raise AcquisitionError(f"{path}: not a readable plan ({exc})", file=str(path)) from None
+        doc = loads_json(text, path, "plan", error=AcquisitionError)
         if not isinstance(doc, dict):
             raise AcquisitionError(f"{path}: a plan is a JSON object")
         extra = [k for k in doc if k not in _KEYS]
         if extra:
             raise AcquisitionError(f"{path}: unknown key {extra[0]!r} (allowed: {', '.join(_KEYS)})")
         try:
-            return cls(**doc)
+            plan = cls(**doc)
         except AcquisitionError as exc:
             raise AcquisitionError(f"{path}: {exc}") from None
+        validate(doc, "plan", path, error=AcquisitionError)
+        return plan
 
     def with_machine_channels(self, machine) -> Plan:
         """This plan, or where it lists no thermocouple channels, a copy with
@@ -247,15 +257,31 @@ class Plan:
         return {k: getattr(self, k) for k in _KEYS}
 
 
+def _shown(value) -> str:
+    """``value`` as a message shows it: its repr, a long integer by its size (never 400 digits echoed)."""
+    return short(value) if isinstance(value, int) and not isinstance(value, bool) else repr(value)
+
+
+#: The range of each integer column type of a run.
+_INT_RANGES = {"int8": (-(2**7), 2**7 - 1), "int32": (-(2**31), 2**31 - 1), "int64": (-(2**63), 2**63 - 1)}
+
+
 def _fits(value, dtype: str) -> bool:
-    """Whether a JSON value is of a run column's type (booleans are not numbers)."""
+    """Whether a JSON value is of a run column's type (booleans are not numbers; an integer within its
+    column's range, never converted through a float: a 400-digit id is refused, not an OverflowError)."""
     if dtype == "str":
         return isinstance(value, str)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return False
     if dtype == "float64":
-        return math.isfinite(value)
-    return float(value).is_integer()
+        try:
+            return math.isfinite(value)
+        except OverflowError:  # an integer beyond any float
+            return False
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        return False
+    lo, hi = _INT_RANGES.get(dtype, _INT_RANGES["int64"])
+    return lo <= value <= hi
 
 
 def plan_from_run(run: Run) -> Plan:

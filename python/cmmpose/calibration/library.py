@@ -23,20 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from ..atomicfile import ensure_folder, locked_update, write_text
-from ..errors import InputError, InputTypeError
+from ..errors import InputError, InputTypeError, read_input_text
 from ..pose import MountOffset, Pose, pose_tuple
 from ..errors import CalibrationError
-from .._validate import triple
+from .._validate import _digits_cut, finite, triple
+from ..schemas import validate
+from ..schemas._common import no_repeats
+from ..schemas.alignments import FIELDS as _FIELDS, LIBRARY_FORMAT, LIBRARY_VERSION
 from .alignment import CalibratedPose, MountOffsetFit, ReferenceReading
-
-_FIELDS = ("pose", "reading", "offset", "pose_uncertainty", "reading_uncertainty", "offset_uncertainty",
-           "temperature", "date", "residuals", "note", "pose_covariance", "reading_covariance", "pose_jacobian",
-           "position", "lever", "offset_covariance")
 
 __all__ = ["AlignmentRecord", "AlignmentLibrary", "LIBRARY_FORMAT", "LIBRARY_VERSION"]
 
-LIBRARY_FORMAT = "cmmpose-alignment-library"
-LIBRARY_VERSION = 1
 UNITS = {
     "pose": "degree (alpha, beta, gamma, Euler 3-1-3)",
     "pose_uncertainty": "degree",
@@ -85,11 +82,20 @@ def _check_units(path, units) -> None:
                                    f"{_unit(UNITS[key])} only ({UNITS[key]}): convert the values and the unit")
 
 
+def _is_finite_number(x) -> bool:
+    """Whether ``x`` is a finite number (not a boolean; an integer beyond any float is not finite)."""
+    try:
+        finite("x", x, error=CalibrationError)
+    except CalibrationError:
+        return False
+    return True
+
+
 def _no_text(where: str, name: str, value) -> None:
     """Refuse text where numbers belong (``"90"`` would otherwise read as 90)."""
     if isinstance(value, (str, bytes)) or any(isinstance(x, (str, bytes)) for x in np.ravel(
             np.asarray(value, dtype=object))):
-        raise CalibrationError(f"{where}: {name} must be numbers, not text, got {value!r}")
+        raise CalibrationError(f"{where}: {name} must be numbers, not text, got {_digits_cut(repr(value))}")
 
 
 def _triple(where: str, name: str, value, *, optional: bool = False, nonnegative: bool = False):
@@ -107,10 +113,10 @@ def _matrix(where: str, name: str, value, *, covariance: bool = False):
     _no_text(where, name, value)
     try:
         m = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise CalibrationError(f"{where}: {name} must be a 3 x 3 matrix of numbers, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):  # an integer beyond any float too
+        raise CalibrationError(f"{where}: {name} must be a 3 x 3 matrix of numbers, got {_digits_cut(repr(value))}") from None
     if m.shape != (3, 3) or not np.isfinite(m).all():
-        raise CalibrationError(f"{where}: {name} must be a finite 3 x 3 matrix, got {value!r}")
+        raise CalibrationError(f"{where}: {name} must be a finite 3 x 3 matrix, got {_digits_cut(repr(value))}")
     if covariance:
         scale = max(float(np.abs(m).max()), 1e-300)
         if np.abs(m - m.T).max() > 1e-9 * scale or np.linalg.eigvalsh((m + m.T) / 2).min() < -1e-9 * scale:
@@ -240,8 +246,8 @@ class AlignmentRecord:
         out["position"] = _triple(where, "position", d.get("position"), optional=True)
         t = d.get("temperature")
         if t is not None:
-            if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
-                raise CalibrationError(f"{where}: temperature must be a finite number (C) or null, got {t!r}")
+            if isinstance(t, bool) or not isinstance(t, (int, float)) or not _is_finite_number(t):
+                raise CalibrationError(f"{where}: temperature must be a finite number (C) or null, got {_digits_cut(repr(t))}")
             t = float(t)
         out["temperature"] = t
         date = d.get("date", _now())
@@ -257,8 +263,8 @@ class AlignmentRecord:
             raise CalibrationError(f"{where}: residuals must be an object of named values (mm)")
         clean = {}
         for k, v in res.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise CalibrationError(f"{where}: residual {k!r} must be a finite number (mm), got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not _is_finite_number(v):
+                raise CalibrationError(f"{where}: residual {k!r} must be a finite number (mm), got {_digits_cut(repr(v))}")
             clean[k] = float(v)
         out["residuals"] = clean
         note = d.get("note", "")
@@ -387,22 +393,28 @@ class AlignmentLibrary:
 
     # -- file --------------------------------------------------------------------
     def _read(self) -> dict:
-        """name -> raw dict; raises CalibrationError for a malformed file."""
+        """name -> raw dict; raises CalibrationError for a malformed file.
+
+        The one door in (issue 35): the file is read as a regular file only
+        (a FIFO or a device is refused at once, its size bounded), a key
+        repeated in one object is refused, every record is checked, and the
+        whole document is validated against its schema
+        (:mod:`cmmpose.schemas.alignments`, ranges and types naming the key)
+        before any record is used."""
         if not self.path.exists():
             return {}
+        text = read_input_text(self.path, "alignment library", error=CalibrationError)
         try:
-            text = self.path.read_text(encoding="utf-8")
-        except UnicodeDecodeError as exc:
-            raise CalibrationError(f"{self.path}: not an alignment library (not UTF-8 text: {exc.reason})") from None
-        except OSError as exc:
-            raise CalibrationError(f"{self.path}: cannot read ({exc.strerror or exc})") from None
-        try:
-            doc = json.loads(text)
+            doc = json.loads(text, object_pairs_hook=no_repeats(self.path, CalibrationError))
         except json.JSONDecodeError as exc:
             raise CalibrationError(
                 f"{self.path}:{exc.lineno}:{exc.colno}: not an alignment library (bad JSON: {exc.msg})") from None
         except RecursionError:
             raise CalibrationError(f"{self.path}: not an alignment library (JSON nested too deeply)") from None
+        except CalibrationError:  # a repeated key, named
+            raise
+        except ValueError as exc:  # an integer of more than 4,300 digits
+            raise CalibrationError(f"{self.path}: not an alignment library (bad JSON: {exc})") from None
         if not isinstance(doc, dict) or doc.get("format") != LIBRARY_FORMAT:
             raise CalibrationError(f"{self.path}: not an alignment library (expected \"format\": \"{LIBRARY_FORMAT}\")")
         if doc.get("version") != LIBRARY_VERSION:
@@ -416,6 +428,9 @@ class AlignmentLibrary:
         poses = doc.get("poses")
         if not isinstance(poses, dict):
             raise CalibrationError(f"{self.path}: \"poses\" must be an object of pose name -> record")
+        for name, rec in poses.items():  # each record in the library's own words first
+            AlignmentRecord._checked(rec, f"{self.path}: pose {name!r}")
+        validate(doc, "alignments", self.path, error=CalibrationError)  # then every range, every key typed
         return poses
 
     def _write(self, poses: dict) -> None:

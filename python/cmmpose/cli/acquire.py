@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+import os
 
 import click
 from rich.console import Console
@@ -58,6 +59,8 @@ def acquire_cmd(**flags) -> None:
     o = AcquireOptions.from_flags(flags)
     try:
         if o.recover:
+            if not os.path.lexists(o.run_dir):  # a name that names no folder: a usage error (exit 2) as everywhere
+                raise click.BadParameter(f"{o.run_dir}: no such run directory to recover", param_hint="--output")
             rec = recover_run(o.run_dir)
             console.print(repr(rec))
             run = rec.run

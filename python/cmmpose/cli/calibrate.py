@@ -17,6 +17,7 @@ from ..formats.pointclouds import read_point_cloud
 from ..formats.pointfiles import read_points
 from ..pose import Pose
 from .common import json_option, console, fail, load_maps, machine_option, map_specs, offset_mm, travel_notes, triple
+from .common import TEMPERATURE
 from .common import check_plot_path, plot_option
 
 
@@ -46,7 +47,7 @@ NOMINAL_W_TOLERANCE_DEG = 10.0
 @click.option("--name", required=True, help="Name of the indexed trunnion pose, e.g. A90B90.")
 @click.option("--library", "library_file", default=None, type=click.Path(dir_okay=False),
               help="Alignment library (JSON). Default: the machine file's mount.alignments.")
-@click.option("--temperature", type=float, default=None,
+@click.option("--temperature", type=TEMPERATURE, default=None,
               help="Machine temperature during the alignment, C (needed with a map set).")
 @machine_option
 @click.option("--maps", "maps", multiple=True, callback=map_specs,
@@ -297,7 +298,7 @@ def _compare_map(spec: str):
 @calibrate.command("map")
 @click.argument("run_files", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
 @click.option("--squareness", required=True, help="S_xy,S_yz,S_zx in arc-seconds (thesis sign convention).")
-@click.option("--temperature", type=float, default=None, help="Map temperature, C (default: mean material temperature).")
+@click.option("--temperature", type=TEMPERATURE, default=None, help="Map temperature, C (default: mean material temperature).")
 @click.option("--no-air-correction", is_flag=True, help="Do not correct linear readings for the refractive index of air.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Canonical map CSV to write.")
 @click.option("--compare", "compare_to", default=None, help="A map ('thesis@20', 'appendix-b' or a file) to compare with.")

@@ -53,6 +53,41 @@ class Positive(click.ParamType):
 POSITIVE_MM = Positive("mm")
 
 
+class Temperature(click.ParamType):
+    """A machine's or a map's temperature, C, as every command takes it (``--temperature``): a finite number
+    within the range the document schemas give a temperature (cmmpose.schemas._common.TEMPERATURE_C, -50..150
+    C). Colder or hotter is no CMM's room, and -273.16 C, below absolute zero, is refused as such rather than
+    "extrapolated"; a usage error (exit 2) naming the option, the value in six significant digits."""
+
+    name = "float"
+
+    def convert(self, value, param, ctx):
+        from ..schemas._common import TEMPERATURE_C
+
+        if isinstance(value, float):
+            v = value
+        else:
+            try:
+                if not str(value).isascii():
+                    raise ValueError(value)
+                v = float(value)
+            except (TypeError, ValueError):
+                self.fail(f"expected a temperature in degrees C, got {value!r}", param, ctx)
+        lo, hi = TEMPERATURE_C
+        if not (math.isfinite(v) and lo <= v <= hi):
+            below = " (below absolute zero, -273.15 C)" if math.isfinite(v) and v < -273.15 else ""
+            self.fail(f"{v:.6g} C{below} is outside {lo:g}..{hi:g} C, the temperatures of a CMM's room "
+                      "(check the unit: degrees C)", param, ctx)
+        return v
+
+    def __repr__(self) -> str:
+        return "Temperature()"
+
+
+#: A machine's or a map's temperature, C (-50..150).
+TEMPERATURE = Temperature()
+
+
 # -- warnings: cmmpose's own as one line each, once per command ------------------------------------------------------
 
 _said: set[str] = set()  # the warnings said while the current command runs (cli_warnings)
@@ -245,6 +280,8 @@ def triple(text: str, name: str) -> tuple[float, float, float]:
         raise click.BadParameter("an empty value: give three comma-separated numbers, or leave the option out",
                                  param_hint=name)
     try:
+        if not text.isascii():  # float() reads Arabic-Indic and other digits: "٩٠" is not typed as 90 on purpose
+            raise ValueError(text)
         vals = tuple(float(x) for x in text.split(","))
     except ValueError:
         raise click.BadParameter(f"expected three comma-separated numbers, got {text!r}", param_hint=name) from None

@@ -20,6 +20,7 @@ from ..formats.pointformats.common import check_file
 from .common import (aliased_choices_once, check_model_or_maps, console, fail, json_option, kernel_report_rows,
                      load_maps, load_model, machine_option, machine_row, map_specs, model_doubts, model_options,
                      offset_mm, policy_options, pose_angles, say_caught, scheduler_options, show, strict_model_exit)
+from .common import TEMPERATURE
 from .uncertainty_options import budget_table, check_uncertainty_options, uncertainty_options, uncertainty_sources
 
 
@@ -30,7 +31,7 @@ from .uncertainty_options import budget_table, check_uncertainty_options, uncert
 @click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="'thesis', 'appendix-b', or map files (.csv canonical, .txt controller); repeat for a set. "
                    "Default: the machine's maps.")
-@click.option("--temperature", type=float, default=None,
+@click.option("--temperature", type=TEMPERATURE, default=None,
               help="Machine temperature in C for every point (default: the T column, if the file has one).")
 @click.option("--pose", default=None, help="alpha,beta,gamma in degrees (Euler 3-1-3). Default: the machine's.")
 @click.option("--offset", default=None, help="U1,V1,W1 mount offset in mm. Default: the machine's.")
@@ -99,6 +100,8 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         output_format(points_out)  # an unknown suffix is refused now, listing the known ones
         check_not_input(points_out, [points_in, *([model_file] if model_file else []), *user_files], "OUT")
         error_map = load_model(model_file, user_files) if model_file is not None else load_maps(maps, machine)
+        if model_file is not None:
+            _check_model_kinematics(error_map, model_file, machine)
         size = check_file(points_in).stat().st_size
         # One bar over reading, compensating and writing, by bytes of input;
         # memory stays bounded by a few chunks whatever the file's size.
@@ -203,3 +206,17 @@ def _aligned(name: str, library_file) -> tuple[str, str, object]:
         raise click.BadParameter(f"{library_file}: no such alignment library", param_hint="--library")
     record = AlignmentLibrary(library_file).load(name)
     return ",".join(map(repr, record.as_pose().as_tuple())), ",".join(map(repr, record.as_offset())), record
+
+
+def _check_model_kinematics(model, model_file, machine) -> None:
+    """A --model whose maps are stacked for another machine configuration than the machine's (its file's
+    ``kinematics``, the thesis machine by default) is refused, as evaluate and diagnose refuse it for a run:
+    every map error would act through the wrong lever arms."""
+    from ..errors import InputError
+
+    stacked = model.maps.kinematics
+    if stacked != machine.kinematics:
+        raise InputError(f"{model_file}: the model's maps are stacked as {stacked!r}, but the machine "
+                         f"({machine.name}; {machine.source}) is configured as {machine.kinematics!r}: the model was "
+                         f"found on (or made for) another machine; give its machine file (--machine, kinematics = "
+                         f"{stacked!r})", file=str(model_file), what="kinematics", value=stacked)

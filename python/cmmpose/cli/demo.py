@@ -13,11 +13,12 @@ from rich.progress import BarColumn, Progress, TextColumn
 from .._json import dumps as strict_json
 from ..errors import Error
 from .common import SEED, json_option, console, fail, load_maps, machine_option
+from .common import TEMPERATURE
 from .evaluate import write_report
 
 
 @click.command("demo")
-@click.option("--temperature", type=float, default=22.5, show_default=True, help="Machine temperature, C (between two thesis maps).")
+@click.option("--temperature", type=TEMPERATURE, default=22.5, show_default=True, help="Machine temperature, C (between two thesis maps).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the random numbers: the same seed, the same run.")
 @click.option("--jitter", type=float, default=None,
               help="Per-scan reproducibility, um per axis (default 3: a real fixture and machine; 0: the "

@@ -28,6 +28,7 @@ from .artefact import evaluate_artefact_run, write_artefact_report
 from .common import (aliased_choices_once, check_model_or_maps, console, console_log, expansion_ppm, fail, load_maps,
                      load_model, machine_option, map_specs, model_doubts, model_options, policy_options,
                      print_model_check, scheduler_options, say_caught, skip_incomplete_option, strict_model_exit, warn)
+from .common import TEMPERATURE
 
 
 def report_folder_names(run_dirs, report_dir) -> list[str]:
@@ -86,7 +87,7 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @machine_option
 @click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="Compensation maps ('thesis', files, or 'none'); default: the machine's, or as run.json says.")
-@click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
+@click.option("--temperature", type=TEMPERATURE, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
 @policy_options()
 @click.option("--expansion", type=float, default=None, callback=expansion_ppm,
               help=f"Artefact expansion coefficient for lengths at 20 C, ppm/K (default: the machine's, "

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import click
 from rich.markup import escape
 
@@ -9,8 +11,9 @@ from ..atomicfile import FileGroup, check_not_input, check_outputs_free, ensure_
 from ..errormap import ErrorMapSet
 from .._json import dumps as strict_json
 from ..errors import Error, InputError
-from .common import (check_plot_path, console, console_log, fail, json_option, load_maps, machine_option,
+from .common import (check_plot_path, console, console_log, fail, json_option, load_maps, machine_option, map_specs,
                      plot_option, travel_notes, warn)
+from .common import TEMPERATURE
 
 
 def _units_option(f):
@@ -21,8 +24,17 @@ def _units_option(f):
                              "fit`).")(f)
 
 
+def _maps_argument(value):
+    """MAPS of `map plot`: as --maps everywhere, an empty name or one that is neither bundled nor a file is a
+    usage error (exit 2)."""
+    try:
+        return map_specs(None, None, value)
+    except click.BadParameter as exc:
+        raise click.BadParameter(exc.message, param_hint="MAPS") from None
+
+
 @click.command("plot")
-@click.argument("maps", nargs=-1)
+@click.argument("maps", nargs=-1, callback=lambda ctx, param, value: _maps_argument(value))
 @plot_option("-o", "--output", "out", required=True, help="PNG (or PDF, SVG) to write.")
 @machine_option
 def plot_map_cmd(maps, out, machine_file) -> None:
@@ -78,6 +90,9 @@ def _map_spec(spec: str, what: str):
         except ValueError:
             raise click.BadParameter(f"expected thesis@<temperature C>, got {spec!r}", param_hint=what) from None
         return ErrorMapSet.thesis().at(t)
+    if not os.path.lexists(spec):  # a name that names no file: a usage error (exit 2) as in every command
+        raise click.BadParameter(f"{spec!r} is neither 'appendix-b', 'thesis@<temperature C>' nor a map file "
+                                 "that exists", param_hint=what)
     return ErrorMap.read(spec, format="auto")
 
 
@@ -133,7 +148,7 @@ def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_js
 @click.option("--base", default=None,
               help="Replace only the linear components of this map ('appendix-b', 'thesis@T' or a map file); "
                    "the results are interpolated onto its grid.")
-@click.option("--temperature", type=float, default=None, help="Map temperature, C (default: the base's, else none).")
+@click.option("--temperature", type=TEMPERATURE, default=None, help="Map temperature, C (default: the base's, else none).")
 @click.option("--comp-file-type", type=click.Choice(["0", "1"]), default="0", show_default=True,
               help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
 @_units_option
@@ -157,6 +172,11 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
     try:
         entry = mapformats.get(fmt)
         read = [f.partition("=")[2] for f in files] if entry.per_axis else files
+        named = [f.partition("=")[2] for f in files if f.partition("=")[0] in tuple("XYZ")] if entry.per_axis \
+            else files
+        missing = [f for f in named if f and not os.path.lexists(f)]
+        if missing:  # a name that names no file: a usage error (exit 2) as in every command
+            raise click.BadParameter(f"{missing[0]}: cannot read (no such file)", param_hint="FILE...")
         check_not_input(out, [*read, base, machine_file], "--output")
         base_map = None if base is None else _map_spec(base, "--base")
         takes = entry.read_options()
@@ -204,7 +224,7 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
               help="linuxcnc: COMP_FILE_TYPE (0 = positions, 1 = trims).")
 @_units_option
 @machine_option
-@click.option("--temperature", type=float, default=None,
+@click.option("--temperature", type=TEMPERATURE, default=None,
               help="With --machine and a map set: the temperature to export the map at, C.")
 @json_option
 def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temperature, as_json) -> None:

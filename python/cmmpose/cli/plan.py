@@ -15,6 +15,7 @@ from rich.markup import escape
 from .._json import dumps as strict_json
 from ..errors import Error, InputError
 from .common import SEED, Positive, check_outputs, console, fail, load_maps, machine_option, map_specs, parse_effects
+from .common import TEMPERATURE
 
 
 @click.command("plan")
@@ -39,7 +40,7 @@ from .common import SEED, Positive, check_outputs, console, fail, load_maps, mac
               help="Simulate the proposed placements on the machine (with --effect physics) into -o RUN_DIR.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
               help="With --simulate: the physics the simulated machine has beyond its maps (as `cmmpose simulate`).")
-@click.option("--temperature", type=float, default=20.0, show_default=True, help="With --simulate: machine temperature, C.")
+@click.option("--temperature", type=TEMPERATURE, default=20.0, show_default=True, help="With --simulate: machine temperature, C.")
 @click.option("--jitter", type=float, default=0.0, show_default=True,
               help="With --simulate: per-scan reproducibility, um per axis.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="With --simulate: noise seed.")
@@ -168,9 +169,11 @@ def _open_rivals(runs, model, user_effects, machine):
 
 
 def _usage(exc: InputError) -> None:
-    """The library's error about an argument this command takes as an option (--sigma, --budget; the options'
-    types check their values first) as a usage error naming the option (exit 2), not the Python argument,
+    """The library's error about an argument this command takes as an option (--sigma, --budget, an unknown
+    --plan-for effect listing the known ones; the options' types check their values first) as a usage error naming the option (exit 2), not the Python argument,
     from its fields (``cli_option``; a remedy worded for the command line); any other error raised on as it is."""
+    if exc.message.startswith("effect ") and ": unknown; available: " in exc.message:  # a --plan-for name
+        raise click.BadParameter(exc.message, param_hint="--plan-for") from None
     if exc.cli_option not in ("--sigma", "--budget"):
         raise exc
     if exc.remedy is not None:  # runs without the degrees of freedom to estimate the noise from: give --sigma

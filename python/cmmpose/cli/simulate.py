@@ -18,12 +18,13 @@ from ..errors import Error
 from .artefact import simulate_artefact
 from .common import (SEED, console, fail, json_option, load_maps, machine_option, machine_row, map_specs,
                      parse_effects, pose_angles, show)
+from .common import TEMPERATURE
 
 
 @click.command("simulate")
 @click.option("--layout", type=click.Choice(["b89", "crossed"]), default="b89", show_default=True,
               help="20 ASME B89.4.1 positions (thesis Appendix C geometry) or the 8 crossed-ballbar positions.")
-@click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
+@click.option("--temperature", type=TEMPERATURE, default=20.0, show_default=True, help="Machine temperature, C.")
 @machine_option
 @click.option("--maps", "maps", multiple=True, callback=map_specs,
               help="The machine's real maps: 'thesis', 'appendix-b' or map files. Default: the machine's.")
@@ -148,7 +149,7 @@ def _exact_text(value: float) -> str:
 @machine_option
 @click.option("--pose", "pose_text", required=True, help="Nominal pose alpha,beta,gamma of the trunnion stop, degrees.")
 @click.option("--name", required=True, help="Name of the pose, e.g. A90B90: the files are NAME-vernier.csv, ...")
-@click.option("--temperature", type=float, default=20.0, show_default=True, help="Machine temperature, C.")
+@click.option("--temperature", type=TEMPERATURE, default=20.0, show_default=True, help="Machine temperature, C.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME:param=value,...",
               help="What the calibration should find, e.g. alignment:alpha=0.03 or mount-offset:u1=0.02 "
                    "(`cmmpose effects`); repeatable.")

@@ -89,6 +89,9 @@ ROTATIONS = (0.0, 45.0, 90.0, 135.0)
 #: Where along each axis a candidate's centroid is tried: shares of the travel.
 SHARES = (0.25, 0.5, 0.75)
 
+#: A given noise per centre coordinate, um: a nanometre to a centimetre.
+SIGMA_RANGE_UM = (1e-3, 1e4)
+
 
 # -- sensitivities at the centre level -----------------------------------------------
 
@@ -414,6 +417,11 @@ def _noise(measured: list, sigma_um) -> tuple[float, str]:
         if not (isinstance(sigma_um, (int, float)) and math.isfinite(sigma_um) and sigma_um > 0):
             raise InputError(f"sigma_um: a noise level > 0 um, got {sigma_um!r}", what="sigma_um", option="sigma_um",
                              cli_option="--sigma")
+        lo, hi = SIGMA_RANGE_UM
+        if not lo <= sigma_um <= hi:  # 1e-320 um: a typo that would promise uncertainties of nothing
+            raise InputError(f"sigma_um: {sigma_um:.6g} um is outside {lo:g}..{hi:g} um, the noise of a ball centre "
+                             "a CMM can have (check the unit: um)", what="sigma_um", value=f"{sigma_um:.6g}",
+                             allowed=SIGMA_RANGE_UM, unit="um", option="sigma_um", cli_option="--sigma")
         return float(sigma_um) * 1e-3, "given"
     if dof > 0:
         sigma = max(math.sqrt(sum(m.rss for m in measured) / dof), SIGMA_FLOOR)

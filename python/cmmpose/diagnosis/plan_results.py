@@ -118,10 +118,12 @@ class Plan:
 
     def __rich__(self):
         from rich.console import Group
+        from rich.markup import escape
         from rich.table import Table
         from rich.text import Text
 
-        t = Table(title=f"Next placements: {self.artefact} ({self.criterion})")
+        # The artefact's name comes from its file: shown as text, never as Rich markup.
+        t = Table(title=f"Next placements: {escape(str(self.artefact))} ({self.criterion})")
         t.add_column("parameter")
         t.add_column("unit")
         t.add_column("now (u)", justify="right")
@@ -129,7 +131,7 @@ class Plan:
         for k, p in enumerate(self.proposals, start=1):
             t.add_column(f"+{k}", justify="right")
         for name, unit, _ in self.parameters:
-            cells = [name, unit, f"{self.before[name]:.3g}", self.status[name]]
+            cells = [escape(name), escape(unit), f"{self.before[name]:.3g}", escape(self.status[name])]
             cells += [f"{p.uncertainty[name]:.3g}" for p in self.proposals]
             t.add_row(*cells)
         lines = [f"{k}. {p.placement} ({p.balls} balls): " + (separation_text(p.separates) if p.separates else

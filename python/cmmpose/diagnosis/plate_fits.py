@@ -229,6 +229,7 @@ def diagnose_plate_fits(artefact: Artefact, table: dict, *, temperature: float =
             raise InputError(f"{where}: placement {p} has {len(rows)} ball(s); its rigid fit needs at least 3")
         m = centres[rows]
         c = artefact.centres[[artefact.index(b) for b in ball[rows]]] * scale
+        _check_length_unit(where, p, m, c)
         r, t = rigid_fit(c, m)
         devs.append(m - (c @ r.T + t))
         proj = rigid_projection(m)
@@ -259,6 +260,30 @@ def diagnose_plate_fits(artefact: Artefact, table: dict, *, temperature: float =
                              float(np.sqrt(np.mean(size ** 2))) * _UM, values, unc,
                              float(np.sqrt(np.mean(left ** 2))) * _UM, Patterns(ranked, alpha, threshold),
                              float(rr.mean()), float(nominal))
+
+
+#: Largest relative difference between the measured and the certified ball spacing (1 %, 1e4 ppm: a scale
+#: error of any CMM is far smaller; centres in um, inches or metres are 1000, 1/25.4 or 1/1000 times apart).
+MAX_SPACING_RATIO_ERROR = 0.01
+#: Largest placement number or ball id (fits a C long).
+_MAX_ID = 2**63 - 1
+
+
+def _check_length_unit(where, placement, measured: np.ndarray, certified: np.ndarray) -> None:
+    """Refuse a placement whose measured centres are not as far apart as the certificate's (within
+    ``MAX_SPACING_RATIO_ERROR``): centres in another unit than mm would read as a scale error of -999,000 ppm."""
+    d_cert = float(np.linalg.norm(np.diff(certified, axis=0), axis=1).sum())
+    if not d_cert > 0:
+        return
+    ratio = float(np.linalg.norm(np.diff(measured, axis=0), axis=1).sum()) / d_cert
+    if abs(ratio - 1.0) <= MAX_SPACING_RATIO_ERROR:
+        return
+    units = {1e3: "um", 1 / 25.4: "inches", 1e-3: "metres", 0.1: "centimetres"}
+    guess = min(units, key=lambda u: abs(math.log(max(ratio, 1e-300) / u)))
+    hint = f": the centres look like {units[guess]}, not mm" if abs(math.log(max(ratio, 1e-300) / guess)) < 0.05 else ""
+    raise InputError(f"{where}: placement {placement}: the measured centres are {ratio:.6g} times as far apart as the "
+                     f"certificate's (more than {MAX_SPACING_RATIO_ERROR:.0%} off){hint}; x_mm, y_mm, z_mm are in mm",
+                     what="x_mm", value=f"{ratio:.6g}", unit="mm")
 
 
 def read_plate_fits(path, state: str | None = None) -> dict:
@@ -299,8 +324,10 @@ def read_plate_fits(path, state: str | None = None) -> dict:
                              f"y_mm, z_mm, radius_mm") from None
         if not all(math.isfinite(v) and abs(v) < 1e7 for v in vals) or vals[3] <= 0:
             raise InputError(f"{path}:{line}: centre and radius must be finite mm (below 1e7), the radius > 0")
-        if p < 1 or b < 1:
-            raise InputError(f"{path}:{line}: placement and ball are numbers >= 1, got {p}, {b}")
+        if not (1 <= p <= _MAX_ID and 1 <= b <= _MAX_ID):  # an id beyond a C long is no ball's
+            shown = [v if abs(v) < 10**20 else f"a {len(str(abs(v)))}-digit number" for v in (p, b)]
+            raise InputError(f"{path}:{line}: placement and ball are numbers >= 1 that fit a C long (at most "
+                             f"{_MAX_ID}), got {shown[0]}, {shown[1]}")
         if (p, b) in seen:
             raise InputError(f"{path}:{line}: placement {p}, ball {b} is given twice (also line {seen[(p, b)]})")
         seen[(p, b)] = line

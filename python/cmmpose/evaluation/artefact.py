@@ -202,18 +202,20 @@ class ArtefactEvaluation:
         return strict_json(self.to_dict(), **kw)
 
     def __rich__(self):
+        from rich.markup import escape
         from rich.table import Table
 
-        t = Table(title=f"Artefact evaluation: {self.artefact.name} ({self.artefact.kind})")
+        # Names and labels come from files (the artefact file, run.json): shown as text, never as Rich markup.
+        t = Table(title=f"Artefact evaluation: {escape(self.artefact.name)} ({escape(self.artefact.kind)})")
         t.add_column("placement")
         t.add_column("T (C)", justify="right")
         t.add_column("balls", justify="right")
         for r in self.results:
-            t.add_column(f"{r.label}\nrms dev (um)", justify="right")
+            t.add_column(f"{escape(r.label)}\nrms dev (um)", justify="right")
             t.add_column("largest (um)", justify="right")
             t.add_column("largest |E| (um)", justify="right")
         for k, p in enumerate(self.uncompensated.placements):
-            cells = [f"{p.position}: {p.label}", f"{p.temperature:.2f}", str(len(p.balls))]
+            cells = [escape(f"{p.position}: {p.label}"), f"{p.temperature:.2f}", str(len(p.balls))]
             for r in self.results:
                 q = r.placements[k]
                 e = q.largest_length_error
@@ -228,7 +230,7 @@ class ArtefactEvaluation:
         t.add_row(*cells)
         t.caption = "\n".join([f"deviations after the best-fit rigid transform per placement, at 20 C "
                                f"({self.artefact.expansion * 1e6:g} ppm/K); u in the JSON (k = 1)",
-                               *self.provenance.get("notes", [])])
+                               *map(escape, self.provenance.get("notes", []))])
         return t
 
     def __str__(self) -> str:

@@ -171,6 +171,7 @@ class Evaluation:
         return pd.DataFrame([{"result": r.label, **row} for r in self.results for row in r.rows()])
 
     def __rich__(self):
+        from rich.markup import escape
         from rich.table import Table
 
         t = Table(title="Ballbar evaluation")
@@ -197,7 +198,7 @@ class Evaluation:
         if self.compensated is not None:
             caption.insert(0, f"improvement: rms {self.improvement_rms:.1%}, B89 {self.improvement_b89:.1%}")
         for note in self.provenance.get("notes", []):
-            caption.append(note)
+            caption.append(escape(str(note)))  # notes name runs and files: text, not Rich markup
         t.caption = "\n".join(caption)
         return t
 
@@ -310,8 +311,15 @@ def ballbar_scans(run: Run, skip_incomplete: bool = False) -> tuple[dict[int, di
         by_pos.setdefault(pos, {}).setdefault(ball, []).append(scan_id)
     repeats = int((run.metadata or {}).get("repeat_scans", 0) or 0)
     if repeats and sum(len(ids) - 1 for balls in by_pos.values() for ids in balls.values()) <= repeats:
-        # The declared repeats: each ball's first scan gives the length.
-        by_pos = {p: {b: sorted(ids)[:1] for b, ids in balls.items()} for p, balls in by_pos.items()}
+        # The declared repeats are the run's last scans: each ball's first scan gives the length. A ball
+        # scanned twice before them is not a repeat but a mislabelled or duplicated scan (ambiguous).
+        tail = set(sorted(i for balls in by_pos.values() for ids in balls.values() for i in ids)[-repeats:])
+
+        def first(ids):
+            main = [i for i in sorted(ids) if i not in tail]
+            return main if len(main) > 1 else (main or sorted(ids))[:1]
+
+        by_pos = {p: {b: first(ids) for b, ids in balls.items()} for p, balls in by_pos.items()}
     for pos in sorted(set(by_pos) | {p for p in problems if not isinstance(p, tuple)}):
         balls = by_pos.get(pos, {})
         for b in (1, 2):

@@ -192,6 +192,9 @@ class UserEffect(EffectSpec):
             priors.append(prior)
         if name in LIBRARY:
             raise InputError(f"user effect {name!r}: the library already has an effect of that name")
+        if not isinstance(name, str) or not name or not name.isprintable():
+            raise InputError(f"user effect {name!r}: a name is printable text (no control character, no line "
+                             "break: it is shown in a terminal and saved in the model)", what="name", value=repr(name))
         return cls(name=name, params=tuple(names), units=tuple(units), prior=tuple(priors), kind="python",
                    key="user", physics=physics, reveal=reveal or "a measurement that exercises its inputs",
                    function=function)
@@ -229,6 +232,8 @@ class UserEffect(EffectSpec):
             raise
         except Exception as exc:  # the user's code: say where and how it failed
             raise self._failed(f"its function raised {type(exc).__name__}: {exc}", values, exc) from exc
+        if np.iscomplexobj(out):  # never cast to real in silence (the imaginary part discarded with a warning)
+            raise self._failed("its function returned complex values; a correction is real, in mm", values)
         try:
             out = np.asarray(out, dtype=float)
         except (TypeError, ValueError) as exc:

@@ -2,8 +2,9 @@
 of a document against it (issue 35, "one door in").
 
 Kinds (:data:`KINDS`): ``model`` (a saved model, JSON), ``machine`` (a
-machine file, TOML), ``artefact`` (an artefact file, TOML) and ``run`` (a
-run's ``run.json``). User effects are Python files, code rather than
+machine file, TOML), ``artefact`` (an artefact file, TOML), ``run`` (a
+run's ``run.json``), ``alignments`` (an alignment library, JSON) and
+``plan`` (an acquisition plan, JSON). User effects are Python files, code rather than
 documents: they have no schema. Each schema is defined once, here, as a JSON
 Schema (draft 2020-12) dict; :func:`validate` checks a parsed document with
 the :mod:`jsonschema` library, and ``python -m cmmpose.schemas`` writes them
@@ -24,7 +25,7 @@ from pathlib import Path
 
 from ..atomicfile import write_text
 from ..errors import InputError
-from . import artefact, machine, model, run
+from . import alignments, artefact, machine, model, plan, run
 from ._common import check, loads_json, validator
 
 __all__ = ["KINDS", "schema", "validate", "loads_json", "schema_text", "write_schemas"]
@@ -32,7 +33,7 @@ __all__ = ["KINDS", "schema", "validate", "loads_json", "schema_text", "write_sc
 _log = logging.getLogger(__name__)
 
 #: The document kinds, each with the module that defines its schema.
-KINDS = {"model": model, "machine": machine, "artefact": artefact, "run": run}
+KINDS = {"model": model, "machine": machine, "artefact": artefact, "run": run, "alignments": alignments, "plan": plan}
 
 
 def _kind(kind: str):
@@ -64,7 +65,7 @@ def validate(document, kind: str, path, *, error=InputError):
     ----------
     document : dict
         The parsed JSON or TOML.
-    kind : {'model', 'machine', 'artefact', 'run'}
+    kind : {'model', 'machine', 'artefact', 'run', 'alignments', 'plan'}
     path : str or path-like
         The file (or what names the document), first in any message.
     error : type of InputError

@@ -33,7 +33,7 @@ from ..errors import Error, InputError
 
 __all__ = ["DRAFT", "TEMPERATURE_C", "LENGTH_MM", "ANGLE_DEG", "MAX_ITEMS", "MAX_NAME", "INT64", "TEXT",
            "number", "integer", "nullable", "text", "triple", "pair", "obj", "array", "check", "key_path", "short",
-           "loads_json", "validator", "own_words", "BOUNDS"]
+           "loads_json", "no_repeats", "validator", "own_words", "BOUNDS"]
 
 #: The JSON Schema dialect of every schema.
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
@@ -349,6 +349,10 @@ def _no_repeats(path, error):
             out[k] = v
         return out
     return hook
+
+
+#: The ``object_pairs_hook`` of a reader keeping its own JSON error words (``no_repeats(path, error)``).
+no_repeats = _no_repeats
 
 
 def _no_constant(name):

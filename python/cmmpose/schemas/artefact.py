@@ -14,7 +14,7 @@ from .._registry import discover
 from ._common import DRAFT, ID_BASE, INT64, LENGTH_MM, NO_CONTROL, array, integer, number, obj, own_words, \
     text, triple
 
-__all__ = ["schema", "definition", "EXPANSION_RANGE_PPM", "REFERENCE_TEMPERATURE_RANGE_C", "MAX_BALLS", "MAX_RADIUS_MM", "MAX_U_UM"]
+__all__ = ["schema", "definition", "EXPANSION_RANGE_PPM", "REFERENCE_TEMPERATURE_RANGE_C", "MAX_BALLS", "MAX_RADIUS_MM", "MIN_RADIUS_MM", "MAX_U_UM"]
 
 #: Coefficients of expansion accepted, ppm/K: Zerodur and carbon fibre (about 0,
 #: slightly negative) to aluminium (23) and a margin.
@@ -26,6 +26,8 @@ REFERENCE_TEMPERATURE_RANGE_C = (0.0, 40.0)
 MAX_BALLS = 1_000
 #: Largest ball radius, mm.
 MAX_RADIUS_MM = 1e4
+#: Smallest ball radius, mm (a sphere a line scanner can measure: 0.1 mm; 5e-324 mm is a typo).
+MIN_RADIUS_MM = 0.1
 #: Largest standard uncertainty of a centre or a radius, um (1 cm).
 MAX_U_UM = 1e4
 
@@ -56,8 +58,8 @@ def definition() -> dict:
             "{path} = {value} is not physical: a solid's coefficient of expansion is between "
             + "{:g} and {:g} ppm/K (steel 11.5, Invar 1, Zerodur 0)".format(*EXPANSION_RANGE_PPM)),
         "radius": obj({
-            "nominal_mm": number(0.0, MAX_RADIUS_MM, "mm", exclusive_lo=True),
-            "calibrated_mm": number(0.0, MAX_RADIUS_MM, "mm", exclusive_lo=True),
+            "nominal_mm": number(MIN_RADIUS_MM, MAX_RADIUS_MM, "mm"),
+            "calibrated_mm": number(MIN_RADIUS_MM, MAX_RADIUS_MM, "mm"),
             "u_um": u,
         }, ["nominal_mm", "calibrated_mm", "u_um"], description="nominal_mm, calibrated_mm, u_um"),
         "balls": array(ball, 1, MAX_BALLS, "a list of { id = 1, xyz_mm = [x, y, z], u_um = [ux, uy, uz] }"),

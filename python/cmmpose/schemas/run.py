@@ -11,7 +11,7 @@ from ._common import DRAFT, ID_BASE, LENGTH_MM, MAX_ITEMS, NO_CONTROL, array, in
 from .artefact import definition
 from .model import record
 
-__all__ = ["schema", "MAX_ROWS", "SCHEMA", "SCHEMA_VERSION", "SUPPORTED_SCHEMA_VERSIONS", "CHANNEL_ROLES", "TABLES"]
+__all__ = ["schema", "MAX_ROWS", "SCHEMA", "SCHEMA_VERSION", "SUPPORTED_SCHEMA_VERSIONS", "CHANNEL_ROLES", "TABLES", "SWEEP_AXES"]
 
 #: Value of ``schema`` in run.json.
 SCHEMA = "cmmpose-run"
@@ -23,6 +23,8 @@ SUPPORTED_SCHEMA_VERSIONS = (1,)
 #: the physical effects bring (e.g. 'mount'; see :mod:`cmmpose.effects`).
 CHANNEL_ROLES = ("x_scale", "y_scale", "z_scale", "granite_top", "granite_bottom", "air", "part", "other",
                  *channel_roles())
+#: The axes a scan may sweep (the scans table's ``sweep_axis``).
+SWEEP_AXES = ("X", "Y", "Z")
 #: The tables of a run directory, beside run.json.
 TABLES = ("points", "scans", "poses", "temperatures")
 #: Most rows a table may say it holds (2^53: every count a float holds exactly; memory gives out long before).

@@ -18,7 +18,7 @@ from ..errors import InputError
 from ..placement import PROFILES_PER_BALL, Placement, ball_speed, check_repeat_scans, parse, plan, run_record
 from ..run import Run
 from .machine import Temperature, TruthMachine
-from .runs import SCAN_INTERVAL, SweepRecorder
+from .runs import SCAN_INTERVAL, SweepRecorder, check_jitter
 from .scanner import Scanner
 from .thermocouples import CHANNELS, thermocouple_log
 
@@ -106,8 +106,7 @@ def simulate_artefact_run(
     scanner = scanner or machine.scanner
     if not (scan_interval > 0 and np.isfinite(scan_interval)):
         raise InputError(f"scan_interval: must be > 0 s, got {scan_interval!r}")
-    if not (jitter >= 0 and np.isfinite(jitter)):
-        raise InputError(f"jitter: must be >= 0 mm, got {jitter!r}")
+    check_jitter(jitter)
     if not (speed > 0 and np.isfinite(speed)):
         raise InputError(f"speed: must be > 0 mm/s, got {speed!r}")
     if not placements:

@@ -11,6 +11,7 @@ import numpy as np
 
 from .. import layouts
 from ..errormap import ErrorMap, ErrorMapSet
+from .._validate import MAX_REPRODUCIBILITY_MM
 from ..errors import InputError
 from ..placement import check_repeat_scans
 from ..pose import MountOffset
@@ -133,6 +134,21 @@ class SweepRecorder:
         return points, {k: np.array(v) for k, v in self.scans.items()}, pose_table, np.concatenate(self.true_xyz)
 
 
+#: Fewest profiles a simulated sweep must put across a ball (a faster sweep measures nothing).
+MIN_PROFILES_PER_BALL = 3
+
+
+def check_jitter(jitter: float) -> None:
+    """``InputError`` unless ``jitter`` (mm per axis) is a per-scan reproducibility: finite, >= 0 and at most
+    ``MAX_REPRODUCIBILITY_MM`` (a metre of jitter would scan empty space and write an empty run)."""
+    if not (jitter >= 0 and np.isfinite(jitter)):
+        raise InputError(f"jitter: must be >= 0 mm, got {jitter!r}")
+    if jitter > MAX_REPRODUCIBILITY_MM:
+        raise InputError(f"jitter: {jitter:.6g} mm is beyond {MAX_REPRODUCIBILITY_MM:g} mm per axis, more than any "
+                         "per-scan reproducibility (check the unit: um on the command line)", what="jitter",
+                         value=f"{jitter:.6g}", unit="mm")
+
+
 def simulate_ballbar_run(
     maps: ErrorMap | ErrorMapSet | None = None,
     temperature: Temperature = 20.0,
@@ -221,8 +237,14 @@ def simulate_ballbar_run(
         raise InputError(f"calibrated: expected a subset of ('length', 'radius'), got {calibrated!r}")
     if not (scan_interval > 0 and np.isfinite(scan_interval)):
         raise InputError(f"scan_interval: must be > 0 s, got {scan_interval!r}")
-    if not (jitter >= 0 and np.isfinite(jitter)):
-        raise InputError(f"jitter: must be >= 0 mm, got {jitter!r}")
+    check_jitter(jitter)
+    if not (speed > 0 and np.isfinite(speed)):
+        raise InputError(f"speed: must be > 0 mm/s, got {speed!r}")
+    fastest = 2 * BALL_RADIUS * scanner.profile_rate / MIN_PROFILES_PER_BALL
+    if speed > fastest:
+        raise InputError(f"speed: {speed:.6g} mm/s lets fewer than {MIN_PROFILES_PER_BALL} profiles cross a ball of "
+                         f"radius {BALL_RADIUS:g} mm at {scanner.profile_rate:g} profiles/s: at most {fastest:.3g} mm/s",
+                         what="speed", value=f"{speed:.6g}", unit="mm/s")
     reference_poses = [tuple(float(x) for x in p) for p in reference_poses]
     repeat_scans = check_repeat_scans(repeat_scans, 2 * len(plan))
     total = 2 * len(plan) + len(reference_poses) + repeat_scans

@@ -15,6 +15,9 @@ from ..effects import Effect
 from ..scanner import Scanner
 from .machine import Temperature, TruthMachine
 
+#: Most profiles one simulated sweep may take (a slower sweep is a typo: 1e-320 mm/s).
+MAX_PROFILES_PER_SWEEP = 10_000
+
 AXES = {"X": 0, "Y": 1, "Z": 2}
 
 
@@ -129,7 +132,14 @@ def simulate_sweep(
     scanner = scanner or Scanner()
     effects = machine.effects if effects is None else tuple(effects)
     rng = np.random.default_rng(rng)
-    n_profiles = int(np.floor(sweep.length / sweep.speed * scanner.profile_rate)) + 1
+    with np.errstate(over="ignore", divide="ignore"):
+        span = float(sweep.length) / float(sweep.speed) * float(scanner.profile_rate)
+    if not (np.isfinite(span) and span < MAX_PROFILES_PER_SWEEP):
+        raise InputError(f"speed: {sweep.speed:.6g} mm/s over a {sweep.length:.6g} mm sweep at "
+                         f"{scanner.profile_rate:g} profiles/s would take more than {MAX_PROFILES_PER_SWEEP:,} "
+                         f"profiles: too slow (at least {sweep.length * scanner.profile_rate / MAX_PROFILES_PER_SWEEP:.3g}"
+                         " mm/s)", what="speed", value=f"{sweep.speed:.6g}", unit="mm/s")
+    n_profiles = int(np.floor(span)) + 1
     dt = np.arange(n_profiles) / scanner.profile_rate
     t = t0 + dt
     true_scales = sweep.positions(dt)

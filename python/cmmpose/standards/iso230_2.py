@@ -234,9 +234,10 @@ class PositioningResult:
         return "\n".join(lines) + "\n"
 
     def __rich__(self):
+        from rich.markup import escape
         from rich.table import Table
 
-        t = Table(title=f"ISO 230-2 positioning: {self.source}")
+        t = Table(title=f"ISO 230-2 positioning: {escape(str(self.source))}")  # a file's name: text, not markup
         for name in ("target (mm)", "n up/down", "mean up", "mean down", "mean", "B_i", "s up", "s down",
                      "R up", "R down", "R_i"):
             t.add_column(name, justify="right")
@@ -248,7 +249,7 @@ class PositioningResult:
         caption = [f"axis (um): {axis}", f"{ISO230_2_CLAUSE}; deviations in um"]
         if self.test_uncertainty_um is not None:
             caption.append(f"test uncertainty U (k = 2) = {self.test_uncertainty_um:.2f} um: {self.test_uncertainty_note}")
-        caption += list(self.notes)
+        caption += [escape(str(n)) for n in self.notes]
         t.caption = "\n".join(caption)
         return t
 
