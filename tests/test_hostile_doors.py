@@ -361,3 +361,14 @@ def test_a_400_digit_number_in_a_plan_float_column_is_refused(tmp_path, where, k
     (tmp_path / "p.json").write_text(json.dumps(doc))
     with pytest.raises(AcquisitionError, match=rf"{where}\[0\]: {key} = a 401-digit integer is not a finite number"):
         Plan.read(tmp_path / "p.json")
+
+
+def test_diagnose_refuses_an_unknown_added_effect_and_an_unphysical_temperature_as_usage_errors(tmp_path,
+                                                                                                simulated_run):
+    run_dir = tmp_path / "run"
+    simulated_run.save(run_dir)
+    r = CliRunner().invoke(main, ["diagnose", str(run_dir), "--add", "bogus"])
+    assert r.exit_code == 2 and "--add" in r.output and "'bogus': unknown; available:" in r.output, r.output
+    for command in (["diagnose", str(run_dir)], ["diagnose-fits", str(tmp_path / "fits.csv")]):
+        r = CliRunner().invoke(main, [*command, "--temperature", "500"])
+        assert r.exit_code == 2 and "--temperature" in r.output, r.output

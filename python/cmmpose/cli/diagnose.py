@@ -17,8 +17,8 @@ from ..atomicfile import FileGroup, check_outputs_free, ensure_folder, write_tex
 from ..errors import Error
 from ..temperature import TemperaturePolicy, log_notes
 from .artefact import diagnose_plate_fits_cli
-from .common import (check_outputs, check_report_file, console, fail, load_maps, machine_option, map_specs,
-                     policy_options, report_folder_html, scheduler_options)
+from .common import (TEMPERATURE, check_outputs, check_report_file, console, fail, load_maps, machine_option,
+                     map_specs, policy_options, report_folder_html, scheduler_options)
 
 
 @click.command("diagnose")
@@ -28,7 +28,7 @@ from .common import (check_outputs, check_report_file, console, fail, load_maps,
               help="Model maps ('thesis' or files); default: the machine's, or as run.json says.")
 @click.option("--model", "model_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Start from a model saved by an earlier diagnosis (its maps and effects).")
-@click.option("--temperature", type=float, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
+@click.option("--temperature", type=TEMPERATURE, default=None, help="Machine temperature, C (default: the run's thermocouple log).")
 @policy_options()
 @click.option("--add", "add", multiple=True, help="Add this effect first, whether significant or not (repeatable).")
 @click.option("--no-auto", is_flag=True, help="Only rank the candidates (and add --add ones); add nothing automatically.")
@@ -196,7 +196,7 @@ def _diagnose_one(o: DiagnoseOptions) -> None:
             except ImportError as exc:  # the diagnosis is still printed and the model saved
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
-        raise fail(exc) from None
+        raise _fail_or_usage(exc) from None
     _print_diagnosis(diag, files, o.as_json, o.verbose)
 
 
@@ -270,6 +270,14 @@ def _write_corrected_maps(model, path, inputs=()) -> list:
     return paths
 
 
+def _fail_or_usage(exc: Error) -> click.ClickException:
+    """A library error as the command says it; a name given to --add that names no effect is a usage error
+    (exit 2), as a wrong name is in every command."""
+    if getattr(exc, "cli_option", None) == "--add":
+        return click.BadParameter(str(exc).removeprefix("effect "), param_hint="--add")
+    return fail(exc)
+
+
 def _print_diagnosis(diag, files, as_json: bool, verbose: bool = False) -> None:
     """A diagnosis (or a joint one) on stdout: JSON, or its view at the terminal's width (the verdict first;
     ``verbose``: every table), then the thermocouple notes and the files written."""
@@ -334,7 +342,7 @@ def _diagnose_joint(o: DiagnoseOptions) -> None:
             except ImportError as exc:  # the diagnosis is still printed and the model saved
                 console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
-        raise fail(exc) from None
+        raise _fail_or_usage(exc) from None
     _print_diagnosis(diag, files, o.as_json, o.verbose)
 
 
@@ -367,7 +375,7 @@ def _diagnose_fleet(o: DiagnoseOptions) -> None:
                                   temperature_tolerance=policy.temperature_tolerance, log_hold=policy.log_hold,
                                   **options)
     except Error as exc:
-        raise fail(exc) from None
+        raise _fail_or_usage(exc) from None
     if o.as_json:
         click.echo(strict_json({str(r): json.loads(d.to_json()) for r, d in zip(o.run_dirs, diags)}, indent=1))
         return
@@ -403,7 +411,7 @@ def fleet_table(run_dirs, diags, scheduler: str) -> Table:
 @click.option("--artefact", "artefact_spec", default=None, metavar="FILE|NAME",
               help="FITS holds measured centres of this artefact (ball plate, step gauge): columns placement, ball, "
                    "x_mm, y_mm, z_mm, radius_mm (docs/artefacts.md).")
-@click.option("--temperature", type=float, default=None,
+@click.option("--temperature", type=TEMPERATURE, default=None,
               help="With --artefact: the artefact's temperature while measured, C (default 20).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the tables.")
 def diagnose_fits_cmd(fits_file, state, nominal_radius, reference_length, artefact_spec, temperature,

@@ -792,4 +792,5 @@ def check_effect_names(names, problem: Problem) -> None:
         if n not in problem.candidates:
             why = problem.skipped.get(n)
             raise InputError(f"effect {n!r}: " + (why if why else
-                             f"unknown; available: {', '.join(sorted(problem.candidates))}"))
+                             f"unknown; available: {', '.join(sorted(problem.candidates))}"),
+                             what=n, option="add", cli_option=None if why else "--add")
