@@ -76,9 +76,9 @@ def _as_float(name: str, value, error: type[Exception]) -> float:
     try:
         return float(value)
     except (TypeError, ValueError):
-        raise error(f"{name}: expected a number, got {_digits_cut(repr(value))}") from None
+        raise error(f"{name}: expected a number, got {digits_cut(repr(value))}") from None
     except OverflowError:  # an integer beyond any float (a 400-digit number): not finite, not echoed
-        raise error(f"{name}: must be finite, got {_digits_cut(repr(value))}") from None
+        raise error(f"{name}: must be finite, got {digits_cut(repr(value))}") from None
 
 
 def _not_a_number(x) -> bool:
@@ -180,7 +180,7 @@ def triple(name: str, value, *, unit: str | None = None, nonnegative: bool = Fal
         ``"<name>: expected three finite numbers (<unit>), got <value>"`` or
         ``"<name>: must be >= 0, got <value>"``.
     """
-    shown = _digits_cut(repr(value))
+    shown = digits_cut(repr(value))
     if any(_not_a_number(x) for x in _items(value)):
         raise error(f"{name}: expected three numbers{_unit(unit)}, got {shown}")
     try:
@@ -196,7 +196,7 @@ def triple(name: str, value, *, unit: str | None = None, nonnegative: bool = Fal
     return vals  # type: ignore[return-value]
 
 
-def _digits_cut(text: str) -> str:
+def digits_cut(text: str) -> str:
     """``text`` with every run of more than 20 digits said by its length (a 400-digit number is not echoed)."""
     return re.sub(r"\d{21,}", lambda m: f"<{len(m.group())} digits>", text)
 

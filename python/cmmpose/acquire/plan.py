@@ -50,7 +50,7 @@ from ..atomicfile import write_text
 from ..errors import AcquisitionError, InputError, MissingFileError, read_input_text
 from ..machine import CHANNELS
 from ..schemas import loads_json, validate
-from ..schemas._common import short
+from ..schemas import short
 from ..run import CHANNEL_ROLES, POSES_COLUMNS, SCANS_COLUMNS, SWEEP_AXES, Run
 
 __all__ = ["Plan", "DEFAULT_CHANNELS", "plan_from_run", "artefact_plan"]

@@ -26,9 +26,9 @@ from ..atomicfile import ensure_folder, locked_update, write_text
 from ..errors import InputError, InputTypeError, read_input_text
 from ..pose import MountOffset, Pose, pose_tuple
 from ..errors import CalibrationError
-from .._validate import _digits_cut, finite, triple
+from .._validate import digits_cut, finite, triple
 from ..schemas import validate
-from ..schemas._common import no_repeats
+from ..schemas import no_repeats
 from ..schemas.alignments import FIELDS as _FIELDS, LIBRARY_FORMAT, LIBRARY_VERSION
 from .alignment import CalibratedPose, MountOffsetFit, ReferenceReading
 
@@ -95,7 +95,7 @@ def _no_text(where: str, name: str, value) -> None:
     """Refuse text where numbers belong (``"90"`` would otherwise read as 90)."""
     if isinstance(value, (str, bytes)) or any(isinstance(x, (str, bytes)) for x in np.ravel(
             np.asarray(value, dtype=object))):
-        raise CalibrationError(f"{where}: {name} must be numbers, not text, got {_digits_cut(repr(value))}")
+        raise CalibrationError(f"{where}: {name} must be numbers, not text, got {digits_cut(repr(value))}")
 
 
 def _triple(where: str, name: str, value, *, optional: bool = False, nonnegative: bool = False):
@@ -114,9 +114,9 @@ def _matrix(where: str, name: str, value, *, covariance: bool = False):
     try:
         m = np.array(value, dtype=float)
     except (TypeError, ValueError, OverflowError):  # an integer beyond any float too
-        raise CalibrationError(f"{where}: {name} must be a 3 x 3 matrix of numbers, got {_digits_cut(repr(value))}") from None
+        raise CalibrationError(f"{where}: {name} must be a 3 x 3 matrix of numbers, got {digits_cut(repr(value))}") from None
     if m.shape != (3, 3) or not np.isfinite(m).all():
-        raise CalibrationError(f"{where}: {name} must be a finite 3 x 3 matrix, got {_digits_cut(repr(value))}")
+        raise CalibrationError(f"{where}: {name} must be a finite 3 x 3 matrix, got {digits_cut(repr(value))}")
     if covariance:
         scale = max(float(np.abs(m).max()), 1e-300)
         if np.abs(m - m.T).max() > 1e-9 * scale or np.linalg.eigvalsh((m + m.T) / 2).min() < -1e-9 * scale:
@@ -247,7 +247,7 @@ class AlignmentRecord:
         t = d.get("temperature")
         if t is not None:
             if isinstance(t, bool) or not isinstance(t, (int, float)) or not _is_finite_number(t):
-                raise CalibrationError(f"{where}: temperature must be a finite number (C) or null, got {_digits_cut(repr(t))}")
+                raise CalibrationError(f"{where}: temperature must be a finite number (C) or null, got {digits_cut(repr(t))}")
             t = float(t)
         out["temperature"] = t
         date = d.get("date", _now())
@@ -264,7 +264,7 @@ class AlignmentRecord:
         clean = {}
         for k, v in res.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not _is_finite_number(v):
-                raise CalibrationError(f"{where}: residual {k!r} must be a finite number (mm), got {_digits_cut(repr(v))}")
+                raise CalibrationError(f"{where}: residual {k!r} must be a finite number (mm), got {digits_cut(repr(v))}")
             clean[k] = float(v)
         out["residuals"] = clean
         note = d.get("note", "")

@@ -55,14 +55,14 @@ POSITIVE_MM = Positive("mm")
 
 class Temperature(click.ParamType):
     """A machine's or a map's temperature, C, as every command takes it (``--temperature``): a finite number
-    within the range the document schemas give a temperature (cmmpose.schemas._common.TEMPERATURE_C, -50..150
+    within the range the document schemas give a temperature (cmmpose.schemas.TEMPERATURE_C, -50..150
     C). Colder or hotter is no CMM's room, and -273.16 C, below absolute zero, is refused as such rather than
     "extrapolated"; a usage error (exit 2) naming the option, the value in six significant digits."""
 
     name = "float"
 
     def convert(self, value, param, ctx):
-        from ..schemas._common import TEMPERATURE_C
+        from ..schemas import TEMPERATURE_C
 
         if isinstance(value, float):
             v = value

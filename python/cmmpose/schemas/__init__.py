@@ -26,9 +26,10 @@ from pathlib import Path
 from ..atomicfile import write_text
 from ..errors import InputError
 from . import alignments, artefact, machine, model, plan, run
-from ._common import check, loads_json, validator
+from ._common import TEMPERATURE_C, check, loads_json, no_repeats, short, validator
 
-__all__ = ["KINDS", "schema", "validate", "loads_json", "schema_text", "write_schemas"]
+__all__ = ["KINDS", "schema", "validate", "loads_json", "schema_text", "write_schemas", "no_repeats", "short",
+           "TEMPERATURE_C"]
 
 _log = logging.getLogger(__name__)
 
