@@ -218,6 +218,29 @@ class Model:
                 return float(v[0])
         return 0.0
 
+    def _kernel_inputs(self, run: Run | RunInputs):
+        """What the kernel reads of ``run`` under this model: its inputs (with incidence angles from a first pass
+        through the model, only when an effect that needs them is switched on), one digitizer per pose (the
+        pose-level effects applied) and the named per-point inputs (an effect following a chosen thermocouple
+        group reads that group's temperature)."""
+        inputs = run if isinstance(run, RunInputs) else self.inputs(run)
+        needs_incidence = any("incidence" in s.needs and np.any(v != 0) for s, v in self.effects)
+        if needs_incidence and inputs.incidence is None:
+            inputs = inputs_with_incidence(self, inputs)
+        digitizers = [digitizer(p[:3], p[3:]) for p in self.poses(inputs)]
+        named = inputs.named()
+        named |= {s.sensor_input: inputs.sensor(s.sensor) for s, _ in self.effects if s.sensor_input}
+        return inputs, digitizers, named
+
+    def _user_corrections(self, inputs: RunInputs, xyz: np.ndarray) -> np.ndarray:
+        """``xyz`` with the user effects' (Python) corrections added."""
+        users = [(s, v) for s, v in self.effects if s.kind == "python"]
+        if users:
+            pts = _user_inputs(inputs, xyz)
+            for spec, v in users:
+                xyz = xyz + spec.correction(pts, v)
+        return xyz
+
     def compensate(self, run: Run | RunInputs, *, return_clamped: bool = False, return_report: bool = False):
         """Compensated machine coordinates of every point of ``run``, mm.
 
@@ -235,25 +258,12 @@ class Model:
         ndarray, shape (N, 3)
             X, Y, Z in mm, machine frame.
         """
-        inputs = run if isinstance(run, RunInputs) else self.inputs(run)
-        # Incidence angles come from a first pass through the model (the points' surface normals): computed only
-        # when an effect declares it needs them (``needs``) and is switched on.
-        needs_incidence = any("incidence" in s.needs and np.any(v != 0) for s, v in self.effects)
-        if needs_incidence and inputs.incidence is None:
-            inputs = inputs_with_incidence(self, inputs)
-        digitizers = [digitizer(p[:3], p[3:]) for p in self.poses(inputs)]
-        named = inputs.named()
-        # An effect following a chosen thermocouple group reads that group's temperature.
-        named |= {s.sensor_input: inputs.sensor(s.sensor) for s, _ in self.effects if s.sensor_input}
+        inputs, digitizers, named = self._kernel_inputs(run)
         xyz, report = _core.compensate_model(
             inputs.uv, inputs.scales, self.maps._core, digitizers, self.policy, pose_index=inputs.pose_index,
             inputs=named, effects=self.kernel_terms())
         clamped = report["clamped_points"]
-        users = [(s, v) for s, v in self.effects if s.kind == "python"]
-        if users:
-            pts = _user_inputs(inputs, xyz)
-            for spec, v in users:
-                xyz = xyz + spec.correction(pts, v)
+        xyz = self._user_corrections(inputs, xyz)
         if return_report:
             return xyz, report
         return (xyz, clamped) if return_clamped else xyz
@@ -357,22 +367,12 @@ class Model:
         ``(UncertainPoints, report)``; ``detail`` one of ``DETAILS``."""
         if detail not in DETAILS:
             raise InputError(f"detail: {detail!r} is not one of {', '.join(DETAILS)}")
-        inputs = run if isinstance(run, RunInputs) else self.inputs(run)
-        needs_incidence = any("incidence" in s.needs and np.any(v != 0) for s, v in self.effects)
-        if needs_incidence and inputs.incidence is None:
-            inputs = inputs_with_incidence(self, inputs)
-        digitizers = [digitizer(p[:3], p[3:]) for p in self.poses(inputs)]
-        named = inputs.named()
-        named |= {s.sensor_input: inputs.sensor(s.sensor) for s, _ in self.effects if s.sensor_input}
+        inputs, digitizers, named = self._kernel_inputs(run)
         xyz, rows, report = _core.compensate_uncertainty(
             inputs.uv, inputs.scales, self.maps._core, digitizers, self.policy,
             sources.kernel_sources(self, len(digitizers)), pose_index=inputs.pose_index, inputs=named,
             effects=self.kernel_terms(), detail=detail)
-        users = [(s, v) for s, v in self.effects if s.kind == "python"]
-        if users:
-            pts = _user_inputs(inputs, xyz)
-            for spec, v in users:
-                xyz = xyz + spec.correction(pts, v)
+        xyz = self._user_corrections(inputs, xyz)
         if sources.model and sources.on("model") and self.effects:
             names, J, _ = parameter_jacobian(self, inputs, xyz)
             if names:

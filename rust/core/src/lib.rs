@@ -18,6 +18,8 @@ pub mod pose;
 pub mod scanner;
 mod source;
 pub mod stream;
+#[cfg(test)]
+mod test_maps;
 pub mod thermal;
 pub mod truth;
 pub mod uncertainty;

@@ -315,7 +315,9 @@ impl Quadratic {
     #[inline(always)]
     fn diagonal_at(&self, u: f64, v: f64) -> [f64; 3] {
         let [a0, a1, a2, a3, a4, a5] = &self.0;
-        std::array::from_fn(|k| a0[k] + u * (a1[k] + u * a3[k] + v * a4[k]) + v * (a2[k] + v * a5[k]))
+        std::array::from_fn(|k| {
+            a0[k] + u * (a1[k] + u * a3[k] + v * a4[k]) + v * (a2[k] + v * a5[k])
+        })
     }
 
     /// C(u, v).

@@ -8,54 +8,18 @@
 use super::*;
 use crate::effects::{Columns, Effects};
 use crate::kernel::{compensate_points, MapSource, Points};
-use crate::map::{Carriage, CarriageTable, ErrorMap};
 use crate::thermal::ErrorMapSet;
 use crate::units::ARCSEC_TO_RAD;
 
-const RANGES: [(f64, f64); 3] = [(0.0, 900.0), (0.0, 550.0), (-500.0, 0.0)];
+use crate::test_maps::{map_from, points, RANGES};
 const OFFSET: [f64; 3] = [1.001, 264.505, 129.575];
 const POSE: (f64, f64, f64) = (90.0, 90.0, 10.0);
-
-/// Table rows (um, arc-seconds) `f(carriage, position)` on a 25 mm grid.
-fn map_from(f: impl Fn(usize, f64) -> [f64; 6], squareness: [f64; 3], t: Option<f64>) -> ErrorMap {
-    let tables = std::array::from_fn(|a| {
-        let (lo, hi) = RANGES[a];
-        let rows: Vec<[f64; 7]> = (0..=((hi - lo) / 25.0) as usize)
-            .map(|i| {
-                let p = lo + 25.0 * i as f64;
-                let c = f(a, p);
-                [p, c[0], c[1], c[2], c[3], c[4], c[5]]
-            })
-            .collect();
-        CarriageTable::from_table_units(Carriage::ALL[a], &rows).unwrap()
-    });
-    ErrorMap::new(tables, squareness, t).unwrap()
-}
 
 fn components(a: usize, p: f64) -> [f64; 6] {
     [p / 50.0, a as f64, 1.0, 0.5, -0.5, p / 300.0]
 }
 
 const SQUARENESS: [f64; 3] = [-173.0, -19.0, 21.0];
-
-fn points(n: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut state = 0x2545F4914F6CDD1Du64;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let (mut uv, mut s) = (Vec::new(), Vec::new());
-    for _ in 0..n {
-        uv.push(-30.0 + 60.0 * next());
-        uv.push(110.0 + 60.0 * next());
-        for (lo, hi) in RANGES {
-            s.push(lo + (hi - lo) * next());
-        }
-    }
-    (uv, s)
-}
 
 fn pose() -> Pose {
     Pose::new(POSE.0, POSE.1, POSE.2).unwrap()
@@ -67,18 +31,24 @@ struct Case<'a> {
     t: Option<&'a [f64]>,
 }
 
+impl<'a> Case<'a> {
+    /// The kernel's points: (u, v), readings and, when given, a temperature per point.
+    fn points(&self) -> Points<'a> {
+        Points {
+            uv: self.uv,
+            scales: self.s,
+            pose_index: None,
+            columns: match self.t {
+                Some(t) => Columns::new().with("temperature", 1, t),
+                None => Columns::new(),
+            },
+        }
+    }
+}
+
 fn xyz(case: &Case, maps: MapSource, pose: &Pose, offset: [f64; 3]) -> Vec<f64> {
     let d = Digitizer::new(pose, offset).unwrap();
-    let columns = match case.t {
-        Some(t) => Columns::new().with("temperature", 1, t),
-        None => Columns::new(),
-    };
-    let points = Points {
-        uv: case.uv,
-        scales: case.s,
-        pose_index: None,
-        columns,
-    };
+    let points = case.points();
     let mut out = vec![0.0; case.s.len()];
     compensate_points(
         &points,
@@ -94,16 +64,7 @@ fn xyz(case: &Case, maps: MapSource, pose: &Pose, offset: [f64; 3]) -> Vec<f64> 
 
 fn stated(case: &Case, maps: MapSource, sources: &Sources) -> (Vec<f64>, Vec<f64>) {
     let d = Digitizer::new(&pose(), OFFSET).unwrap();
-    let columns = match case.t {
-        Some(t) => Columns::new().with("temperature", 1, t),
-        None => Columns::new(),
-    };
-    let points = Points {
-        uv: case.uv,
-        scales: case.s,
-        pose_index: None,
-        columns,
-    };
+    let points = case.points();
     let n = case.s.len() / 3;
     let (mut out, mut unc) = (vec![0.0; 3 * n], vec![0.0; 15 * n]);
     crate::kernel::compensate_points_with_uncertainty(

@@ -4,7 +4,7 @@
 //! arrive as a dict of arrays, effects as a dict of parameter lists, kernel
 //! options as strings, reports leave as a dict.
 
-use cmmpose_core::kernel::{NanPolicy, Options, OutOfRange, Report};
+use cmmpose_core::kernel::{NanPolicy, Options, OutOfRange, Points, Report};
 use cmmpose_core::{Columns, Effects};
 use numpy::{
     PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn,
@@ -250,4 +250,20 @@ pub fn effects(d: Option<&Bound<'_, PyDict>>) -> Res<Effects> {
         named.push((key, vals));
     }
     Ok(Effects::new(named)?)
+}
+
+/// The kernel's points from the binding's arguments: (u, v) and readings
+/// read without copying, each point's pose and the named per-point inputs.
+pub fn kernel_points<'a>(
+    uv: &'a PyReadonlyArray2<'_, f64>,
+    scales: &'a PyReadonlyArray2<'_, f64>,
+    pose_index: Option<&'a PyReadonlyArray1<'_, u32>>,
+    named: &'a NamedArrays<'_>,
+) -> Res<Points<'a>> {
+    Ok(Points {
+        uv: rows("uv", uv, 2)?,
+        scales: rows("scales", scales, 3)?,
+        pose_index: pose_index.map(|p| vector("pose_index", p)).transpose()?,
+        columns: named.columns()?,
+    })
 }

@@ -4,13 +4,13 @@
 //! check themselves against.
 
 use cmmpose_core::effects::TERMS;
-use cmmpose_core::kernel::{self, Points};
+use cmmpose_core::kernel;
 use cmmpose_core::Digitizer;
 use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{effects, rows, run_kernel, vector, MapPolicy, NamedArrays};
+use crate::arrays::{effects, kernel_points, run_kernel, MapPolicy, NamedArrays};
 use crate::errors::Res;
 use crate::maps::map_source;
 use crate::pose::PyDigitizer;
@@ -41,15 +41,7 @@ fn compensate_model<'py>(
     let digitizers: Vec<Digitizer> = digitizers.iter().map(|d| d.inner).collect();
     let fx = self::effects(effects)?;
     let named = NamedArrays::from_dict("inputs", inputs)?;
-    let points = Points {
-        uv: rows("uv", &uv, 2)?,
-        scales: rows("scales", &scales, 3)?,
-        pose_index: pose_index
-            .as_ref()
-            .map(|p| vector("pose_index", p))
-            .transpose()?,
-        columns: named.columns()?,
-    };
+    let points = kernel_points(&uv, &scales, pose_index.as_ref(), &named)?;
     let n = points.scales.len() / 3;
     run_kernel(py, n, 3, |out| {
         kernel::compensate_points(&points, source, &digitizers, &fx, opts, out)

@@ -4,14 +4,14 @@
 //! already in the core's units (mm, rad, K, relative): the Python layer is
 //! the one place that converts from um, arc-seconds and ppm.
 
-use cmmpose_core::kernel::{self, Points};
+use cmmpose_core::kernel;
 use cmmpose_core::uncertainty::{Detail, MapUncertainty, PoseUncertainty, Sources};
 use cmmpose_core::Digitizer;
 use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{effects, report_dict, rows, vector, MapPolicy, NamedArrays};
+use crate::arrays::{effects, kernel_points, report_dict, MapPolicy, NamedArrays};
 use crate::errors::{input, Res};
 use crate::maps::map_source;
 use crate::pose::PyDigitizer;
@@ -122,15 +122,7 @@ fn compensate_uncertainty<'py>(
         poses,
     };
     let digitizers: Vec<Digitizer> = digitizers.iter().map(|d| d.inner).collect();
-    let points = Points {
-        uv: rows("uv", &uv, 2)?,
-        scales: rows("scales", &scales, 3)?,
-        pose_index: pose_index
-            .as_ref()
-            .map(|p| vector("pose_index", p))
-            .transpose()?,
-        columns: named.columns()?,
-    };
+    let points = kernel_points(&uv, &scales, pose_index.as_ref(), &named)?;
     let n = points.scales.len() / 3;
     // Uninitialised is fine: the kernel writes every element or fails.
     let xyz = unsafe { PyArray2::<f64>::new(py, [n, 3], false) };
