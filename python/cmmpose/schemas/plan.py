@@ -7,11 +7,10 @@ artefact plan's balls and placements those of its artefact)."""
 
 from __future__ import annotations
 
-from .. import _core
 from ._common import ANGLE_DEG, DRAFT, ID_BASE, LENGTH_MM, MAX_ITEMS, array, integer, number, obj, text, triple
 from .artefact import definition
 from .model import record
-from .run import CHANNEL_ROLES, SWEEP_AXES
+from .run import CHANNEL_ROLES, SWEEP_AXES, artefact_record, maps_record
 
 __all__ = ["schema", "INT32", "MAX_SPEED_MM_S", "OFFSET_LIMIT_MM", "MAX_CHANNEL"]
 
@@ -28,21 +27,8 @@ MAX_CHANNEL = 100_000
 def schema() -> dict:
     """The plan's schema (draft 2020-12)."""
     rec = {"$ref": "#/$defs/record"}
-    size = number(0.0, LENGTH_MM, "mm", exclusive_lo=True)
-    artefact = obj({
-        "kind": text("the artefact kind"),
-        "name": text(),
-        "ball_radius_mm": size,
-        "calibrated_length_mm": size,
-        "calibrated_radius_mm": size,
-        "reference_sphere": obj({"radius_mm": size}, closed=False, additionalProperties=rec),
-        "definition": {"$ref": "#/$defs/artefact"},
-    }, closed=False, additionalProperties=rec, description="the artefact measured, copied into run.json")
-    maps = obj({
-        "kind": text(),
-        "name": text(),
-        "kinematics": {"enum": [c["name"] for c in _core.kinematics_configurations()]},
-    }, closed=False, additionalProperties=rec, description="which error maps apply, copied into run.json")
+    artefact = artefact_record("the artefact measured, copied into run.json")
+    maps = maps_record("which error maps apply, copied into run.json")
     offset = number(-OFFSET_LIMIT_MM, OFFSET_LIMIT_MM, "mm")
     angle = number(-ANGLE_DEG, ANGLE_DEG, "degree")
     pose = obj({

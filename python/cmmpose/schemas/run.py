@@ -31,11 +31,12 @@ TABLES = ("points", "scans", "poses", "temperatures")
 MAX_ROWS = 2**53
 
 
-def schema() -> dict:
-    """The run.json schema (draft 2020-12)."""
+def artefact_record(description: str) -> dict:
+    """The ``artefact`` table of a run (and of a plan, which copies it into run.json): free, its sizes typed;
+    ``#/$defs/record`` and ``#/$defs/artefact`` must be defined beside it."""
     size = number(0.0, LENGTH_MM, "mm", exclusive_lo=True)
     rec = {"$ref": "#/$defs/record"}
-    artefact = obj({
+    return obj({
         "kind": text("the artefact kind"),
         "name": text(),
         "ball_radius_mm": size,
@@ -43,12 +44,23 @@ def schema() -> dict:
         "calibrated_radius_mm": size,
         "reference_sphere": obj({"radius_mm": size}, closed=False, additionalProperties=rec),
         "definition": {"$ref": "#/$defs/artefact"},
-    }, closed=False, additionalProperties=rec, description="the artefact measured (free, its sizes typed)")
-    maps = obj({
+    }, closed=False, additionalProperties=rec, description=description)
+
+
+def maps_record(description: str) -> dict:
+    """The ``maps`` table of a run (and of a plan): which error maps apply."""
+    return obj({
         "kind": text(),
         "name": text(),
         "kinematics": {"enum": [c["name"] for c in _core.kinematics_configurations()]},
-    }, closed=False, additionalProperties=rec, description="which error maps apply, e.g. bundled thesis")
+    }, closed=False, additionalProperties={"$ref": "#/$defs/record"}, description=description)
+
+
+def schema() -> dict:
+    """The run.json schema (draft 2020-12)."""
+    rec = {"$ref": "#/$defs/record"}
+    artefact = artefact_record("the artefact measured (free, its sizes typed)")
+    maps = maps_record("which error maps apply, e.g. bundled thesis")
     channel = obj({"name": text("the column of the temperatures table"), "role": {"enum": list(CHANNEL_ROLES)}},
                   ["name", "role"], closed=False, additionalProperties=rec)
     body = obj({
