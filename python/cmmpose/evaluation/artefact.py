@@ -276,14 +276,13 @@ def _map_moves(run, maps, model_t, groups, reject, policy, base_xyz, once: set |
     base = fit_spheres(base_xyz[keep], sid[keep], reject=reject)
     ref = stated.reference_mm
     out = []
-    for field_name, shape in (("position_um", (3, 3)), ("rotation_arcsec", (3, 3)), ("squareness_arcsec", (3,)),
-                              ("positioning_ppm", (3,))):
+    shapes = {"position_um": (3, 3), "rotation_arcsec": (3, 3), "squareness_arcsec": (3,), "positioning_ppm": (3,)}
+    for field_name, shape in shapes.items():
         u_all = np.asarray(getattr(stated, field_name), dtype=float)
         for index in np.ndindex(shape):
             if u_all[index] <= 0:
                 continue
-            unit = {f: np.zeros(s) for f, s in (("position_um", (3, 3)), ("rotation_arcsec", (3, 3)),
-                                                 ("squareness_arcsec", (3,)), ("positioning_ppm", (3,)))}
+            unit = {f: np.zeros(s) for f, s in shapes.items()}  # one unit of this component, none of the others
             unit[field_name][index] = 1.0
             moved_maps = perturbed_maps(maps.error_maps, MapDraw(**unit), ref)
             moved_model = moved_maps if maps.error_maps is maps else dataclasses.replace(maps, maps=moved_maps)

@@ -169,11 +169,7 @@ def short(value, limit: int = 40) -> str:
 def given(value) -> str:
     """``value`` as the document wrote it: Python's ``repr`` of a float, a boolean or (short) text, as
     :func:`short` shows anything else (a 400-digit integer is not printed back)."""
-    if isinstance(value, (bool, float)):
-        return repr(value)
-    if isinstance(value, str):
-        return short(value)
-    return short(value)
+    return repr(value) if isinstance(value, (bool, float)) else short(value)
 
 
 _TYPE_WORDS = {"number": "a number", "integer": "a whole number", "string": "text", "array": "a list",
