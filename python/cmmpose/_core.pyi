@@ -6,6 +6,12 @@ import numpy as np
 import numpy.typing as npt
 
 __version__: str
+#: The core's bounds of a machine's numbers (cmmpose_core::units): lengths, mm; a map's
+#: translations, um; its angles and squareness, arc-seconds; map temperatures, C.
+MAX_LENGTH_MM: float
+MAX_TRANSLATION_UM: float
+MAX_ANGLE_ARCSEC: float
+TEMPERATURE_RANGE_C: tuple[float, float]
 
 # Errors are raised as the classes of cmmpose.errors (rust/py/src/errors.rs).
 

@@ -155,13 +155,21 @@ def read(path, format: str = "csv", **options):
         format = found
     fmt = get(format)
     _check_options(fmt, options, path)
+    given = path
     if fmt.per_axis and not isinstance(path, Mapping):
         files = fmt.files(path, existing=True)
         if not files:
             raise MapError(f"{path}: no file of the map file format {fmt.name!r} (one per axis: "
                            f"{', '.join(str(p.name) for p in fmt.files(path).values())})")
         path = files
-    return fmt.read(path, **options)
+    try:
+        return fmt.read(path, **options)
+    except MapError as exc:
+        # The core checks a map's values (finite, within a machine's bounds) and names the table and row;
+        # the file is the reader's to name.
+        if exc.file is not None or str(exc).startswith(str(given)):
+            raise
+        raise MapError(f"{given}: {exc}", what=exc.what, file=str(given)) from None
 
 
 def _check_options(fmt: MapFormat, options: dict, path) -> None:

@@ -17,7 +17,7 @@
 //!   one computes (a hint only: no value changes).
 //!
 //! A block path never reports an error itself: on anything unusual (a
-//! non-finite input, a reading outside a map, an angle past the series'
+//! non-finite input or one beyond a machine's lengths, a reading outside a map, an angle past the series'
 //! range, an overflow) it gives the block back and the per-row path, which
 //! names the row and applies the NaN policy, does it again from the start.
 
@@ -27,6 +27,7 @@ use crate::effects::{Bound, MachineErrors, Temperatures};
 use crate::lanes::{Lanes, LANES};
 use crate::pose::Digitizer;
 use crate::source::{position_error_at, Options, PointError, Report, Source};
+use crate::units::{plausible_length, plausible_result};
 
 /// Largest |angle| (rad) for which [`tan_small`](crate::source::tan_small) takes its series.
 const TAN_SERIES: f64 = 1.0 / 64.0;
@@ -156,7 +157,7 @@ impl<S: Source> Call<'_, S> {
     /// The machine state of a run of `len` rows starting at row `i` with
     /// reading `s` and temperature `t`: the reading after the effects, the
     /// error state and the mount's scale factor. Its clamp counts go into
-    /// `report` once per row. `None` on a non-finite input or a miss.
+    /// `report` once per row. `None` on a non-finite or implausible input or a miss.
     #[inline(always)]
     fn state(
         &self,
@@ -166,7 +167,7 @@ impl<S: Source> Call<'_, S> {
         len: usize,
         report: &mut Report,
     ) -> Option<([f64; 3], PointError, f64)> {
-        let finite = s.iter().all(|x| x.is_finite())
+        let finite = s.iter().all(|&x| plausible_length(x))
             && (self.temperature.is_none() || t.is_finite())
             && self
                 .state_columns
@@ -235,7 +236,7 @@ impl<S: Source> Call<'_, S> {
     }
 
     /// Rows `first..first + m` into the lanes: readings and levers, loop
-    /// by loop over the block. `None` on a non-finite input.
+    /// by loop over the block. `None` on a non-finite or implausible input.
     #[inline(always)]
     fn gather(&self, first: usize, m: usize, lanes: &mut Lanes) -> Option<()> {
         let scales = &self.scales[3 * first..3 * (first + m)];
@@ -244,11 +245,11 @@ impl<S: Source> Call<'_, S> {
         for (r, s) in scales.chunks_exact(3).enumerate() {
             for (lane, &value) in lanes.s.iter_mut().zip(s) {
                 lane[r] = value;
-                finite &= value.is_finite();
+                finite &= plausible_length(value);
             }
         }
-        for p in uv {
-            finite &= p.is_finite();
+        for &p in uv {
+            finite &= plausible_length(p);
         }
         if let Some(t) = self.temperature {
             for x in &t[first..first + m] {
@@ -310,7 +311,8 @@ fn prefetch_lines(values: &[f64]) {
 /// The points of one run: X = (S + e) + R . lever(u, v), the lever's mount
 /// offset scaled by `factor`, as the per-row path computes it (origin x 1
 /// is the origin, so with no effect these are `Digitizer::lever`'s bits).
-/// Returns whether every result is finite.
+/// Returns whether every (u, v) is a length on a machine and every result
+/// plausible ([`crate::units`]).
 #[inline(always)]
 fn profile_points(
     se: &Vector3<f64>,
@@ -328,7 +330,8 @@ fn profile_points(
         o[0] = x.x;
         o[1] = x.y;
         o[2] = x.z;
-        finite &= x.x.is_finite() & x.y.is_finite() & x.z.is_finite();
+        finite &= plausible_length(p[0]) & plausible_length(p[1]);
+        finite &= plausible_result(x.x) & plausible_result(x.y) & plausible_result(x.z);
     }
     finite
 }
@@ -376,7 +379,7 @@ fn solve(lanes: &Lanes, m: usize, arms: &[[f64; 3]; 3], out: &mut [f64]) -> bool
         x[0][r] = (lanes.s[0][r] + ex) + ((xx * lx + yx * ly) + zx * lz);
         x[1][r] = (lanes.s[1][r] + ey) + ((xy * lx + yy * ly) + zy * lz);
         x[2][r] = (lanes.s[2][r] + ez) + ((xzz * lx + yz * ly) + zz * lz);
-        inside &= x[0][r].is_finite() & x[1][r].is_finite() & x[2][r].is_finite();
+        inside &= plausible_result(x[0][r]) & plausible_result(x[1][r]) & plausible_result(x[2][r]);
     }
     for (r, o) in out.chunks_exact_mut(3).enumerate().take(m) {
         o[0] = x[0][r];

@@ -47,6 +47,17 @@ pub enum CoreError {
     #[error("{argument}: non-finite value (NaN or inf) in row {row}")]
     NonFinite { argument: String, row: usize },
 
+    /// A finite input beyond a machine's lengths
+    /// ([`crate::units::MAX_LENGTH_MM`]): not millimetres, refused whatever
+    /// the NaN or range policy.
+    #[error("{argument}: row {row}: {shown} mm is beyond +-{limit} mm: not millimetres on a machine", shown = crate::units::shown(*value))]
+    Implausible {
+        argument: String,
+        row: usize,
+        value: f64,
+        limit: f64,
+    },
+
     /// NaN or infinity given for one scalar argument.
     #[error("{argument}: {value} {unit} is not finite")]
     NotFinite {

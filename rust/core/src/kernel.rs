@@ -29,6 +29,7 @@ pub use crate::source::{
 use crate::thermal::ErrorMapSet;
 use crate::uncertainty::Propagation;
 pub use crate::uncertainty::{Detail, Sources};
+use crate::units::{plausible_length, plausible_result, MAX_LENGTH_MM, MAX_RESULT_MM};
 
 /// Points per parallel work item: large enough to amortise scheduling, small
 /// enough to balance two or more threads on a few thousand points.
@@ -83,6 +84,22 @@ impl Inputs<'_, '_> {
             return Some("scales");
         }
         self.columns.non_finite(i)
+    }
+
+    /// The first finite input of row `i` beyond a machine's lengths
+    /// ([`MAX_LENGTH_MM`]), with its value: such a number is not
+    /// millimetres, and compensating it would give a finite nonsense.
+    #[inline(always)]
+    fn implausible(&self, i: usize) -> Option<(&'static str, f64)> {
+        if let Some(uv) = self.uv {
+            if let Some(&x) = uv[2 * i..2 * i + 2].iter().find(|x| !plausible_length(**x)) {
+                return Some(("uv", x));
+            }
+        }
+        self.scales[3 * i..3 * i + 3]
+            .iter()
+            .find(|x| !plausible_length(**x))
+            .map(|&x| ("scales", x))
     }
 }
 
@@ -240,6 +257,9 @@ where
             slot.fill(f64::NAN);
             report.nan_rows += 1;
             continue;
+        }
+        if let Some((argument, value)) = inputs.implausible(i) {
+            return (report, Some(implausible(argument, i, value)));
         }
         let s = [
             inputs.scales[3 * i],
@@ -471,7 +491,7 @@ fn compensate_with<S: Source>(
             let pe = PointError::new(s, &e.components, e.squareness, &arms);
             let lever = d.lever_scaled(p[0], p[1], bound.mount(i));
             let x = Vector3::from(s) + pe.e + pe.rotate(&lever);
-            if !(x.x.is_finite() && x.y.is_finite() && x.z.is_finite()) {
+            if !(plausible_result(x.x) && plausible_result(x.y) && plausible_result(x.z)) {
                 return Err(overflow(i));
             }
             slot.copy_from_slice(x.as_slice());
@@ -481,14 +501,25 @@ fn compensate_with<S: Source>(
     )
 }
 
-/// Finite inputs whose result is not: readings or (u, v) too large to be
-/// millimetres on a machine.
+/// A finite input beyond a machine's lengths.
+#[cold]
+fn implausible(argument: &str, row: usize, value: f64) -> CoreError {
+    CoreError::Implausible {
+        argument: argument.to_string(),
+        row,
+        value,
+        limit: MAX_LENGTH_MM,
+    }
+}
+
+/// Plausible inputs whose result is not (beyond [`MAX_RESULT_MM`]): maps
+/// extrapolated far beyond their tables.
 #[cold]
 fn overflow(row: usize) -> CoreError {
     CoreError::invalid_argument(
         "uv/scales",
         format!(
-            "row {row}: the compensated point overflows (readings or u, v far too large to be mm)"
+            "row {row}: the compensated point is beyond +-{MAX_RESULT_MM} mm (the maps extrapolated far beyond their tables)"
         ),
     )
 }
@@ -625,7 +656,7 @@ pub fn uncompensated(
     };
     drive(&inputs, opts, out, 3, |i, s, slot, _, _: &mut ()| {
         let x = Vector3::from(s) + digitizer.lever(uv[2 * i], uv[2 * i + 1]);
-        if !(x.x.is_finite() && x.y.is_finite() && x.z.is_finite()) {
+        if !(plausible_result(x.x) && plausible_result(x.y) && plausible_result(x.z)) {
             return Err(overflow(i));
         }
         slot.copy_from_slice(x.as_slice());

@@ -3,7 +3,7 @@
 use super::*;
 use crate::map::{Carriage, CarriageTable};
 use crate::pose::Pose;
-use crate::units::ARCSEC_TO_RAD;
+use crate::units::{ARCSEC_TO_RAD, MAX_LENGTH_MM};
 
 use crate::test_maps::{map_from, points, RANGES};
 const OFFSET: [f64; 3] = [1.001, 264.505, 129.575];
@@ -799,25 +799,80 @@ fn extrapolation_extends_the_end_slope_and_reports_the_distance() {
 }
 
 #[test]
-fn finite_input_never_gives_a_non_finite_result() {
+fn inputs_beyond_a_machines_lengths_are_refused_naming_the_row_on_every_path() {
+    // A finite number beyond 100 m is not millimetres: refused whatever the
+    // NaN or range policy, on the profile path (points sharing a reading),
+    // the lane path (random readings) and the per-row path (one point),
+    // naming the argument and the first such row. Without the bound, u = 5e5
+    // gives a finite nonsense on every path.
     let map = map_from(|_, _| [0.0; 6], [0.0; 3], None);
     let d = digitizer(90.0, 90.0, 0.0);
-    // Clamping takes the readings into the map; the point itself overflows.
-    let uv = [1.7e308, 1.7e308, 0.0, 0.0];
-    let s = [1.7e308, 1.7e308, 1.7e308, 10.0, 10.0, -10.0];
+    let (uv, s) = points(10_000);
+    let profiles: Vec<f64> = (0..10_000)
+        .flat_map(|i| [100.0 + (i / 1000) as f64, 50.0, -20.0])
+        .collect();
     let opts = Options {
         out_of_range: OutOfRange::Clamp,
+        nan_policy: NanPolicy::Propagate,
         ..Default::default()
     };
-    let mut out = vec![0.0; 6];
-    let e = compensate(&uv, &s, &map, &d, opts, &mut out)
+    for readings in [&s, &profiles] {
+        let mut bad_uv = uv.clone();
+        bad_uv[2 * 7000 + 1] = 5e5;
+        let mut bad_s = readings.to_vec();
+        bad_s[3 * 9000 + 2] = -2e5;
+        let mut out = vec![0.0; 30_000];
+        let e = compensate(&bad_uv, &bad_s, &map, &d, opts, &mut out).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.starts_with("uv: row 7000: 500000 mm is beyond"),
+            "{text}"
+        );
+        let e = compensate(&uv, &bad_s, &map, &d, opts, &mut out).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.starts_with("scales: row 9000: -200000 mm is beyond"),
+            "{text}"
+        );
+        let e = uncompensated(&bad_uv, readings, &d, opts, &mut out).unwrap_err();
+        assert!(e.to_string().starts_with("uv: row 7000:"), "{e}");
+    }
+    // At the bound itself a row is taken (a machine's lengths, inclusive).
+    let mut out = [0.0; 3];
+    compensate(
+        &[MAX_LENGTH_MM, 0.0],
+        &[100.0, 50.0, -20.0],
+        &map,
+        &d,
+        opts,
+        &mut out,
+    )
+    .unwrap();
+    assert!(out.iter().all(|x| x.is_finite()));
+}
+
+#[test]
+fn plausible_inputs_whose_point_is_not_are_refused_naming_the_row() {
+    // Maps 1e-9 C apart extrapolated to 30 C: a slope of 1e14 um/K makes
+    // the point far beyond MAX_RESULT_MM from plausible inputs.
+    let lo = map_from(|_, _| [0.0; 6], [0.0; 3], Some(20.0));
+    let hi = map_from(
+        |_, _| [1e5, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.0; 3],
+        Some(20.0 + 1e-9),
+    );
+    let set = ErrorMapSet::new(vec![lo, hi]).unwrap();
+    let d = digitizer(90.0, 90.0, 0.0);
+    let (uv, s) = points(3);
+    let opts = Options {
+        out_of_range: OutOfRange::Extrapolate,
+        ..Default::default()
+    };
+    let mut out = [0.0; 9];
+    let e = compensate_at_temperatures(&uv, &s, &[20.0, 30.0, 20.0], &set, &d, opts, &mut out)
         .unwrap_err()
         .to_string();
-    assert!(e.contains("row 0") && e.contains("overflows"), "{e}");
-    let e = uncompensated(&uv, &s, &d, opts, &mut out)
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("row 0"), "{e}");
+    assert!(e.contains("row 1") && e.contains("is beyond"), "{e}");
 }
 
 #[test]

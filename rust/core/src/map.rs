@@ -6,7 +6,10 @@
 
 use crate::error::{CoreError, Result};
 use crate::kinematics::Kinematics;
-use crate::units::{component_from_kernel, component_to_kernel, ARCSEC_TO_RAD};
+use crate::units::{
+    component_bound, component_from_kernel, component_to_kernel, plausible_length, shown,
+    ARCSEC_TO_RAD, MAX_ANGLE_ARCSEC, MAX_LENGTH_MM, TEMPERATURE_RANGE_C,
+};
 
 /// The three carriages of the CMM, in kinematic order (X on the table, Y on
 /// the bridge, Z the ram).
@@ -96,6 +99,12 @@ impl CarriageTable {
                     format!("position {p} is not finite"),
                 ));
             }
+            if !plausible_length(p) {
+                return Err(CoreError::invalid_map(
+                    where_(i),
+                    format!("position {} mm is beyond +-{MAX_LENGTH_MM} mm: not a position on a machine", shown(p)),
+                ));
+            }
             if let Some(k) = v.iter().position(|c| !c.is_finite()) {
                 return Err(CoreError::invalid_map(
                     where_(i),
@@ -149,7 +158,25 @@ impl CarriageTable {
 
     /// Build from rows in table units: position (mm), three deltas (um) and
     /// three angles (arc-second), as printed in the thesis.
+    /// The door of a map a user gives: each component within a machine's
+    /// error (10 cm, one degree), which the tables derived inside the core
+    /// (a map set's slopes per C, an extrapolated blend) need not be.
     pub fn from_table_units(carriage: Carriage, rows: &[[f64; 7]]) -> Result<Self> {
+        for (i, row) in rows.iter().enumerate() {
+            let table = |k: usize| row[k + 1];
+            if let Some(k) = (0..6).find(|&k| table(k).abs() > component_bound(k)) {
+                let unit = if k < 3 { "um" } else { "arc-second" };
+                return Err(CoreError::invalid_map(
+                    format!("{} carriage table, row {}", carriage.letter(), i),
+                    format!(
+                        "component {} is {} {unit}, beyond +-{} {unit}: not a machine's error",
+                        COMPONENT_NAMES[k],
+                        shown(table(k)),
+                        component_bound(k)
+                    ),
+                ));
+            }
+        }
         let positions = rows.iter().map(|r| r[0]).collect();
         let values = rows
             .iter()
@@ -361,6 +388,12 @@ impl ErrorMap {
                     format!("{name} is not finite ({s})"),
                 ));
             }
+            if !(s.abs() <= MAX_ANGLE_ARCSEC) {
+                return Err(CoreError::invalid_map(
+                    "squareness",
+                    format!("{name} is {} arc-second, beyond +-{MAX_ANGLE_ARCSEC} arc-second (one degree): not a machine's squareness", shown(s)),
+                ));
+            }
         }
         Self::check_temperature(temperature)?;
         Ok(ErrorMap {
@@ -425,6 +458,17 @@ impl ErrorMap {
                 "temperature",
                 format!("{t} C is not finite"),
             )),
+            Some(t) if !(TEMPERATURE_RANGE_C.0..=TEMPERATURE_RANGE_C.1).contains(&t) => {
+                Err(CoreError::invalid_map(
+                    "temperature",
+                    format!(
+                        "{} C is outside {} to {} C: not a temperature a machine is mapped at",
+                        shown(t),
+                        TEMPERATURE_RANGE_C.0,
+                        TEMPERATURE_RANGE_C.1
+                    ),
+                ))
+            }
             _ => Ok(()),
         }
     }
@@ -509,6 +553,49 @@ mod tests {
             assert!(t.eval(-0.001).is_none());
             assert!(t.eval(75.001).is_none());
             assert!(t.eval(f64::NAN).is_none());
+        }
+    }
+
+    #[test]
+    fn values_beyond_a_machines_bounds_are_refused_naming_row_and_component() {
+        let rows = |p1: f64, v: [f64; 6]| {
+            let r = [0.0; 7];
+            let mut s = [p1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+            s[1..].copy_from_slice(&v);
+            CarriageTable::from_table_units(Carriage::X, &[r, s])
+        };
+        let at_bounds = [1e5, -1e5, 0.0, 3600.0, -3600.0, 0.0];
+        rows(1e5, at_bounds).unwrap();
+        let e = rows(1e5 + 1.0, [0.0; 6]).unwrap_err().to_string();
+        assert!(
+            e.contains("X carriage table, row 1") && e.contains("100001 mm is beyond"),
+            "{e}"
+        );
+        let e = rows(25.0, [0.0, 1e30, 0.0, 0.0, 0.0, 0.0])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("row 1") && e.contains("component dy is 1e30 um"),
+            "{e}"
+        );
+        let e = rows(25.0, [0.0, 0.0, 0.0, 0.0, 0.0, -3601.0])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("component ez is -3601 arc-second"), "{e}");
+        let tables = || [0.0, 1.0, 2.0].map(|_| table(&[0.0, 25.0, 50.0]).unwrap());
+        ErrorMap::new(tables(), [3600.0, -3600.0, 0.0], Some(-50.0)).unwrap();
+        let e = ErrorMap::new(tables(), [0.0, -1e9, 0.0], None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("S_yz is -1e9 arc-second"), "{e}");
+        for t in [-273.16, 150.5, 1e300] {
+            let e = ErrorMap::new(tables(), [0.0; 3], Some(t))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("temperature") && e.contains("is outside -50 to 150 C"),
+                "{e}"
+            );
         }
     }
 

@@ -105,6 +105,19 @@ fn build(py: Python<'_>, failure: Failure) -> PyResult<PyErr> {
                     fields.set_item("remedy", "nan_policy")?;
                     "InputError"
                 }
+                CoreError::Implausible {
+                    argument,
+                    row,
+                    value,
+                    ..
+                } => {
+                    fields.set_item("what", &argument)?;
+                    fields.set_item("option", argument)?;
+                    fields.set_item("row", row)?;
+                    fields.set_item("value", value)?;
+                    fields.set_item("unit", "mm")?;
+                    "InputError"
+                }
                 CoreError::InvalidArgument { argument, .. } => {
                     fields.set_item("what", &argument)?;
                     fields.set_item("option", argument)?;

@@ -14,6 +14,7 @@ mod pose;
 mod sim;
 mod uncertainty;
 
+use cmmpose_core::units;
 use pyo3::prelude::*;
 
 /// Number of threads the kernels use (rayon's global pool; set
@@ -34,5 +35,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     uncertainty::register(m)?;
     m.add_function(wrap_pyfunction!(thread_count, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    // The core's bounds of a machine's numbers, for the file schemas to state the same ones.
+    m.add("MAX_LENGTH_MM", units::MAX_LENGTH_MM)?;
+    m.add("MAX_TRANSLATION_UM", units::MAX_TRANSLATION_UM)?;
+    m.add("MAX_ANGLE_ARCSEC", units::MAX_ANGLE_ARCSEC)?;
+    m.add("TEMPERATURE_RANGE_C", units::TEMPERATURE_RANGE_C)?;
     Ok(())
 }
