@@ -105,3 +105,18 @@ def test_a_point_file_beyond_a_machines_lengths_names_the_file_row_and_columns(t
     assert result.exit_code == 1
     assert f"{path}: columns u, v: row 1: 1e300 mm is beyond +-100000 mm" in " ".join(result.output.split())
     assert not out.exists()
+
+
+@pytest.mark.parametrize("t", [-300.0, 1e300, 150.5])
+def test_a_points_temperature_no_machine_works_at_is_refused_not_held(tmp_path, t):
+    # Under --out-of-range clamp a temperature outside the maps is held at their edge; one outside -50 to 150 C
+    # is not a temperature on a machine (a unit slip, a broken thermocouple) and is refused naming the row.
+    path = tmp_path / "scan.csv"
+    path.write_text(f"u,v,D,E,F,T\n1,120,499.575,275,-47.37,21.8\n1,120,499.575,275,-47.37,{t!r}\n")
+    out = tmp_path / "out.csv"
+    result = CliRunner().invoke(main, ["compensate", str(path), str(out), "--maps", "thesis", "--pose", "90,90,0",
+                                       "--offset", "1.001,264.505,129.575", "--out-of-range", "clamp"])
+    assert result.exit_code == 1, result.output
+    words = " ".join(result.output.split())
+    assert f"{path}: column T: row 1: " in words and "C is outside -50 to 150 C: not degrees C on a machine" in words
+    assert not out.exists()

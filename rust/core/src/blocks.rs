@@ -27,7 +27,7 @@ use crate::effects::{Bound, MachineErrors, Temperatures};
 use crate::lanes::{Lanes, LANES};
 use crate::pose::Digitizer;
 use crate::source::{position_error_at, Options, PointError, Report, Source};
-use crate::units::{plausible_length, plausible_result};
+use crate::units::{plausible_length, plausible_result, plausible_temperature};
 
 /// Largest |angle| (rad) for which [`tan_small`](crate::source::tan_small) takes its series.
 const TAN_SERIES: f64 = 1.0 / 64.0;
@@ -43,7 +43,7 @@ pub(crate) struct Call<'a, S: Source> {
     /// The effects switched on, bound to their inputs.
     pub bound: &'a Bound<'a>,
     /// Inputs that the effects' state stages read (values, width).
-    pub state_columns: Vec<(&'a [f64], usize)>,
+    pub state_columns: Vec<(&'a [f64], usize, (f64, f64))>,
     pub uv: &'a [f64],
     pub scales: &'a [f64],
     /// One value per point (C); `None` when no temperature column was given.
@@ -146,7 +146,7 @@ impl<S: Source> Call<'_, S> {
                 .temperature
                 .is_none_or(|tt| tt[k].to_bits() == t.to_bits())
             && self.pose_index.is_none_or(|p| p[k] == pose)
-            && self.state_columns.iter().all(|&(values, w)| {
+            && self.state_columns.iter().all(|&(values, w, _)| {
                 values[w * k..w * (k + 1)]
                     .iter()
                     .zip(&values[w * i..w * (i + 1)])
@@ -168,11 +168,12 @@ impl<S: Source> Call<'_, S> {
         report: &mut Report,
     ) -> Option<([f64; 3], PointError, f64)> {
         let finite = s.iter().all(|&x| plausible_length(x))
-            && (self.temperature.is_none() || t.is_finite())
-            && self
-                .state_columns
-                .iter()
-                .all(|&(values, w)| values[w * i..w * (i + 1)].iter().all(|x| x.is_finite()));
+            && (self.temperature.is_none() || plausible_temperature(t))
+            && self.state_columns.iter().all(|&(values, w, (lo, hi))| {
+                values[w * i..w * (i + 1)]
+                    .iter()
+                    .all(|&x| (lo..=hi).contains(&x))
+            });
         if !finite {
             return None;
         }
@@ -252,8 +253,8 @@ impl<S: Source> Call<'_, S> {
             finite &= plausible_length(p);
         }
         if let Some(t) = self.temperature {
-            for x in &t[first..first + m] {
-                finite &= x.is_finite();
+            for &x in &t[first..first + m] {
+                finite &= plausible_temperature(x);
             }
         }
         if !finite {

@@ -26,7 +26,7 @@
 
 use crate::error::{CoreError, Result};
 use crate::map::Components;
-use crate::units::ARCSEC_TO_RAD;
+use crate::units::{plausible_temperature, ARCSEC_TO_RAD, TEMPERATURE_RANGE_C};
 
 /// One named per-point input: `width` values per point, flat row-major.
 #[derive(Debug, Clone, Copy)]
@@ -92,6 +92,22 @@ impl<'a> Columns<'a> {
             }
         }
         Ok(())
+    }
+
+    /// The first temperature column (`temperature`, `*_temperature`) with
+    /// a value in row `i` outside the temperatures a machine works at, and
+    /// that value.
+    #[inline(always)]
+    pub(crate) fn implausible_temperature(&self, i: usize) -> Option<(&'a str, f64)> {
+        self.list
+            .iter()
+            .filter(|c| is_temperature(c.name))
+            .find_map(|c| {
+                c.values[c.width * i..c.width * (i + 1)]
+                    .iter()
+                    .find(|&&x| !plausible_temperature(x))
+                    .map(|&x| (c.name, x))
+            })
     }
 
     /// The first column with a non-finite value in row `i`.
@@ -570,7 +586,10 @@ impl<'a> Bound<'a> {
     /// The input columns (values, width) that the state stages read:
     /// points that agree on these (and on the reading, temperature and
     /// pose) share one machine state.
-    pub(crate) fn state_columns(&self) -> Vec<(&'a [f64], usize)> {
+    /// The inputs the state stage reads, each with the range its values
+    /// must lie in for the block paths (finite; a temperature within a
+    /// machine's), beyond which they hand the block to the per-row path.
+    pub(crate) fn state_columns(&self) -> Vec<(&'a [f64], usize, (f64, f64))> {
         self.active
             .iter()
             .filter(|a| a.term.state_reads_inputs())
@@ -579,7 +598,14 @@ impl<'a> Bound<'a> {
                     .inputs()
                     .iter()
                     .zip(&a.cols)
-                    .map(|(&(_, width), &values)| (values, width))
+                    .map(|(&(name, width), &values)| {
+                        let range = if is_temperature(name) {
+                            TEMPERATURE_RANGE_C
+                        } else {
+                            (-f64::MAX, f64::MAX)
+                        };
+                        (values, width, range)
+                    })
             })
             .collect()
     }
@@ -817,4 +843,9 @@ mod tests {
             assert!((p[0] - uv[2 * i]).abs() < 1e-12 && (p[1] - uv[2 * i + 1]).abs() < 1e-12);
         }
     }
+}
+
+/// Whether an input column holds temperatures, C (by the name terms declare).
+pub(crate) fn is_temperature(name: &str) -> bool {
+    name == "temperature" || name.ends_with("_temperature")
 }

@@ -47,15 +47,19 @@ pub enum CoreError {
     #[error("{argument}: non-finite value (NaN or inf) in row {row}")]
     NonFinite { argument: String, row: usize },
 
-    /// A finite input beyond a machine's lengths
-    /// ([`crate::units::MAX_LENGTH_MM`]): not millimetres, refused whatever
-    /// the NaN or range policy.
-    #[error("{argument}: row {row}: {shown} mm is beyond +-{limit} mm: not millimetres on a machine", shown = crate::units::shown(*value))]
+    /// A number no machine gives: a length beyond
+    /// [`crate::units::MAX_LENGTH_MM`], a temperature outside
+    /// [`crate::units::TEMPERATURE_RANGE_C`]; refused whatever the NaN or
+    /// range policy. `bound` words the limit ("beyond +-100000 mm"), `what`
+    /// the quantity ("millimetres").
+    #[error("{argument}: row {row}: {shown} {unit} is {bound}: not {what} on a machine", shown = crate::units::shown(*value))]
     Implausible {
         argument: String,
         row: usize,
         value: f64,
-        limit: f64,
+        unit: &'static str,
+        bound: String,
+        what: &'static str,
     },
 
     /// NaN or infinity given for one scalar argument.

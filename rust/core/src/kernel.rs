@@ -29,7 +29,9 @@ pub use crate::source::{
 use crate::thermal::ErrorMapSet;
 use crate::uncertainty::Propagation;
 pub use crate::uncertainty::{Detail, Sources};
-use crate::units::{plausible_length, plausible_result, MAX_LENGTH_MM, MAX_RESULT_MM};
+use crate::units::{
+    plausible_length, plausible_result, MAX_LENGTH_MM, MAX_RESULT_MM, TEMPERATURE_RANGE_C,
+};
 
 /// Points per parallel work item: large enough to amortise scheduling, small
 /// enough to balance two or more threads on a few thousand points.
@@ -86,20 +88,27 @@ impl Inputs<'_, '_> {
         self.columns.non_finite(i)
     }
 
-    /// The first finite input of row `i` beyond a machine's lengths
-    /// ([`MAX_LENGTH_MM`]), with its value: such a number is not
-    /// millimetres, and compensating it would give a finite nonsense.
+    /// The first finite input of row `i` that no machine gives, with its
+    /// value and unit: a length beyond [`MAX_LENGTH_MM`] (not millimetres;
+    /// compensating it would give a finite nonsense) or a temperature
+    /// outside [`TEMPERATURE_RANGE_C`] (not degrees C; a range policy would
+    /// hold it at the maps' edge).
     #[inline(always)]
-    fn implausible(&self, i: usize) -> Option<(&'static str, f64)> {
+    fn implausible(&self, i: usize) -> Option<(&str, f64, &'static str)> {
         if let Some(uv) = self.uv {
             if let Some(&x) = uv[2 * i..2 * i + 2].iter().find(|x| !plausible_length(**x)) {
-                return Some(("uv", x));
+                return Some(("uv", x, "mm"));
             }
         }
-        self.scales[3 * i..3 * i + 3]
+        if let Some(&x) = self.scales[3 * i..3 * i + 3]
             .iter()
             .find(|x| !plausible_length(**x))
-            .map(|&x| ("scales", x))
+        {
+            return Some(("scales", x, "mm"));
+        }
+        self.columns
+            .implausible_temperature(i)
+            .map(|(name, x)| (name, x, "C"))
     }
 }
 
@@ -258,8 +267,8 @@ where
             report.nan_rows += 1;
             continue;
         }
-        if let Some((argument, value)) = inputs.implausible(i) {
-            return (report, Some(implausible(argument, i, value)));
+        if let Some((argument, value, unit)) = inputs.implausible(i) {
+            return (report, Some(implausible(argument, i, value, unit)));
         }
         let s = [
             inputs.scales[3 * i],
@@ -501,14 +510,22 @@ fn compensate_with<S: Source>(
     )
 }
 
-/// A finite input beyond a machine's lengths.
+/// A finite input no machine gives: a length (mm) or a temperature (C).
 #[cold]
-fn implausible(argument: &str, row: usize, value: f64) -> CoreError {
+fn implausible(argument: &str, row: usize, value: f64, unit: &'static str) -> CoreError {
+    let (bound, what) = if unit == "C" {
+        let (lo, hi) = TEMPERATURE_RANGE_C;
+        (format!("outside {lo} to {hi} C"), "degrees C")
+    } else {
+        (format!("beyond +-{MAX_LENGTH_MM} mm"), "millimetres")
+    };
     CoreError::Implausible {
         argument: argument.to_string(),
         row,
         value,
-        limit: MAX_LENGTH_MM,
+        unit,
+        bound,
+        what,
     }
 }
 

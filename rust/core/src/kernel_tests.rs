@@ -837,6 +837,20 @@ fn inputs_beyond_a_machines_lengths_are_refused_naming_the_row_on_every_path() {
         let e = uncompensated(&bad_uv, readings, &d, opts, &mut out).unwrap_err();
         assert!(e.to_string().starts_with("uv: row 7000:"), "{e}");
     }
+    // A temperature no machine works at is not held at the maps' edge.
+    let set = two_maps();
+    for readings in [&s, &profiles] {
+        let mut t = vec![21.0; 10_000];
+        t[4321] = -300.0;
+        let mut out = vec![0.0; 30_000];
+        let e = compensate_at_temperatures(&uv, readings, &t, &set, &d, opts, &mut out)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "temperature: row 4321: -300 C is outside -50 to 150 C: not degrees C on a machine"
+        );
+    }
     // At the bound itself a row is taken (a machine's lengths, inclusive).
     let mut out = [0.0; 3];
     compensate(

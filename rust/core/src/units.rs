@@ -38,6 +38,12 @@ pub fn plausible_length(x: f64) -> bool {
     x.abs() <= MAX_LENGTH_MM
 }
 
+/// Whether `t` can be a temperature on a machine, C (false for NaN and inf).
+#[inline(always)]
+pub fn plausible_temperature(t: f64) -> bool {
+    (TEMPERATURE_RANGE_C.0..=TEMPERATURE_RANGE_C.1).contains(&t)
+}
+
 /// Whether `x` can be a compensated coordinate, mm (false for NaN and inf).
 #[inline(always)]
 pub fn plausible_result(x: f64) -> bool {

@@ -109,13 +109,14 @@ fn build(py: Python<'_>, failure: Failure) -> PyResult<PyErr> {
                     argument,
                     row,
                     value,
+                    unit,
                     ..
                 } => {
                     fields.set_item("what", &argument)?;
                     fields.set_item("option", argument)?;
                     fields.set_item("row", row)?;
                     fields.set_item("value", value)?;
-                    fields.set_item("unit", "mm")?;
+                    fields.set_item("unit", unit)?;
                     "InputError"
                 }
                 CoreError::InvalidArgument { argument, .. } => {
