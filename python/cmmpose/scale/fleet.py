@@ -14,6 +14,7 @@ from ..errormap import ErrorMapSet
 from ..errors import Error, InputError, quoting
 from .scheduler import SCHEDULER_TIMEOUT, gather_results, scheduler_client
 
+
 def _on_run(func, run_dir: str, args: tuple, kwargs: dict):
     """``func(Run.load(run_dir), *args, **kwargs)`` on a worker; an error names the run."""
     from ..run import Run

@@ -14,6 +14,7 @@ from ..uncertainty_columns import columns_of
 from .compensator import INPUT_COLUMNS, OUTPUT_COLUMNS, Compensator
 from .scheduler import require_distributed
 
+
 def _block(points: np.ndarray, kernel: Compensator) -> np.ndarray:
     """One (n, 5 or 6) block of u, v, D, E, F[, T] -> (n, 3) X, Y, Z mm
     (with uncertainty: and the uncertainty columns, mm and mm^2)."""
