@@ -233,18 +233,7 @@ def simulate_ballbar_run(
     rng = np.random.default_rng(seed)
     plan = _layout(layout)
     calibrated = tuple(calibrated)
-    if set(calibrated) - {"length", "radius"}:
-        raise InputError(f"calibrated: expected a subset of ('length', 'radius'), got {calibrated!r}")
-    if not (scan_interval > 0 and np.isfinite(scan_interval)):
-        raise InputError(f"scan_interval: must be > 0 s, got {scan_interval!r}")
-    check_jitter(jitter)
-    if not (speed > 0 and np.isfinite(speed)):
-        raise InputError(f"speed: must be > 0 mm/s, got {speed!r}")
-    fastest = 2 * BALL_RADIUS * scanner.profile_rate / MIN_PROFILES_PER_BALL
-    if speed > fastest:
-        raise InputError(f"speed: {speed:.6g} mm/s lets fewer than {MIN_PROFILES_PER_BALL} profiles cross a ball of "
-                         f"radius {BALL_RADIUS:g} mm at {scanner.profile_rate:g} profiles/s: at most {fastest:.3g} mm/s",
-                         what="speed", value=f"{speed:.6g}", unit="mm/s")
+    _check_sweeps(calibrated, scan_interval, jitter, speed, scanner)
     reference_poses = [tuple(float(x) for x in p) for p in reference_poses]
     repeat_scans = check_repeat_scans(repeat_scans, 2 * len(plan))
     total = 2 * len(plan) + len(reference_poses) + repeat_scans
@@ -288,13 +277,7 @@ def simulate_ballbar_run(
     extra = [(c, r) for c, r in effect_channels() if r in machine.role_offsets(np.zeros(1))]
     log = thermocouple_log(duration, temperature, role_offsets=machine.role_offsets, extra_channels=extra, rng=rng)
     lengths = np.array([p.length for p, _ in plan])
-    artefact = {"kind": "ballbar", "layout": layout, "ball_radius_mm": BALL_RADIUS, "positions": len(plan)}
-    if "length" in calibrated:
-        artefact["calibrated_length_mm"] = float(np.mean(lengths))
-    if "radius" in calibrated:
-        artefact["calibrated_radius_mm"] = BALL_RADIUS
-    if reference_poses:
-        artefact["reference_sphere"] = {"radius_mm": ref.radius}
+    artefact = _ballbar_artefact(layout, len(plan), lengths, calibrated, ref.radius if reference_poses else None)
     run = Run(
         points=points,
         scans=scans,
@@ -313,6 +296,37 @@ def simulate_ballbar_run(
         {"effects": [{"name": e.name, **asdict(e)} for e in effects], "layout": layout},
     )
     return run, truth
+
+
+def _check_sweeps(calibrated: tuple, scan_interval, jitter, speed, scanner) -> None:
+    """The ballbar simulation's options, checked: what is calibrated, the time between scans, the placement
+    jitter, and a sweep speed at which enough profiles cross each ball."""
+    if set(calibrated) - {"length", "radius"}:
+        raise InputError(f"calibrated: expected a subset of ('length', 'radius'), got {calibrated!r}")
+    if not (scan_interval > 0 and np.isfinite(scan_interval)):
+        raise InputError(f"scan_interval: must be > 0 s, got {scan_interval!r}")
+    check_jitter(jitter)
+    if not (speed > 0 and np.isfinite(speed)):
+        raise InputError(f"speed: must be > 0 mm/s, got {speed!r}")
+    fastest = 2 * BALL_RADIUS * scanner.profile_rate / MIN_PROFILES_PER_BALL
+    if speed > fastest:
+        raise InputError(f"speed: {speed:.6g} mm/s lets fewer than {MIN_PROFILES_PER_BALL} profiles cross a ball of "
+                         f"radius {BALL_RADIUS:g} mm at {scanner.profile_rate:g} profiles/s: at most {fastest:.3g} mm/s",
+                         what="speed", value=f"{speed:.6g}", unit="mm/s")
+
+
+def _ballbar_artefact(layout: str, positions: int, lengths: np.ndarray, calibrated: tuple,
+                      reference_radius: float | None) -> dict:
+    """run.json's ``artefact`` of a simulated ballbar run: its calibrated values as asked, the reference
+    sphere's radius when it was scanned."""
+    artefact = {"kind": "ballbar", "layout": layout, "ball_radius_mm": BALL_RADIUS, "positions": positions}
+    if "length" in calibrated:
+        artefact["calibrated_length_mm"] = float(np.mean(lengths))
+    if "radius" in calibrated:
+        artefact["calibrated_radius_mm"] = BALL_RADIUS
+    if reference_radius is not None:
+        artefact["reference_sphere"] = {"radius_mm": reference_radius}
+    return artefact
 
 
 def simulate_reference_scan(
