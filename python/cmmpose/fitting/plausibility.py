@@ -10,7 +10,7 @@ import warnings
 
 import numpy as np
 
-from .. import _core
+from .._core import fit_sphere as core_fit_sphere  # the Rust fits (cmmpose._core)
 from .._validate import LENGTH_UNIT_NAMES, length_unit_slip
 from ..errors import GeometryError, IllConditionedFit, ImplausibleFit
 from .results import SphereFit
@@ -133,7 +133,7 @@ def _implausible(rows: np.ndarray, fit: SphereFit, fixed: bool, what: str) -> st
                        f"{100 * MAX_RMS_FRACTION:g} %): the points do not lie on one sphere")
     if fixed and len(rows) >= 4:
         try:
-            free = _core.fit_sphere(np.ascontiguousarray(rows), radius=None, reject=None, rule=None,
+            free = core_fit_sphere(np.ascontiguousarray(rows), radius=None, reject=None, rule=None,
                                     max_iterations=100, min_coverage=0.0, samples=1, seed=0, start="algebraic")
         except Exception:  # noqa: BLE001 - no free fit, no comparison (the fixed fit stands)
             free = None

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import _core
+from .._core import segment_sphere as core_segment_sphere  # the Rust fits (cmmpose._core)
 from .._arrays import as_rows
 from .._validate import vector3
 from ..errors import InputError
@@ -142,7 +142,7 @@ def segment_sphere(points, radius: float, scanner_origin=(0.0, 0.0, 0.0), *, sta
     if int(max_rounds) < 1:
         raise InputError(f"max_rounds: must be at least 1, got {max_rounds}")
     start = None if start is None else tuple(vector3("start", start, unit="mm").tolist())
-    d = _core.segment_sphere(pts, float(radius), origin, start=start, half_angle=float(half_angle), rule=rule,
+    d = core_segment_sphere(pts, float(radius), origin, start=start, half_angle=float(half_angle), rule=rule,
                              reject=None if reject is None else float(reject), max_rounds=int(max_rounds),
                              samples=int(samples), seed=int(seed), max_iterations=int(max_iterations))
     fit = SphereFit._from(d["fit"])

@@ -9,7 +9,9 @@ import warnings
 
 import numpy as np
 
-from .. import _core
+from .._core import fit_plane as core_fit_plane  # the Rust fits (cmmpose._core)
+from .._core import fit_sphere as core_fit_sphere
+from .._core import fit_spheres as core_fit_spheres
 from .._arrays import as_rows
 from .._validate import vector3
 from ..errors import GeometryError, IllConditionedFit, InputError
@@ -121,7 +123,7 @@ def fit_sphere(points, radius: float | None = None, *, reject: float | None = No
     opts = check_options(radius, reject, rule, max_iterations, min_coverage, samples, seed)
     rows = as_rows("points", points, 3)
     try:
-        raw = _core.fit_sphere(rows, **opts, **start_options(start))
+        raw = core_fit_sphere(rows, **opts, **start_options(start))
     except GeometryError as exc:
         text = far_point(rows, str(exc))
         if radius is not None and text == str(exc) and "polar coverage" in text:
@@ -202,7 +204,7 @@ def fit_spheres(points, labels, radius: float | None = None, *, reject: float | 
         sorted_labels, sorted_pts = labels[order], np.ascontiguousarray(pts[order])
     starts = np.flatnonzero(np.r_[True, sorted_labels[1:] != sorted_labels[:-1]]) if len(labels) else np.array([], int)
     bounds = np.r_[starts, len(labels)].astype(np.int64)
-    d = _core.fit_spheres(sorted_pts, bounds, **opts, **start_options(start))
+    d = core_fit_spheres(sorted_pts, bounds, **opts, **start_options(start))
     unique = sorted_labels[starts]
     error = np.empty(len(unique), dtype=object)
     error[:] = d.pop("error")
@@ -248,5 +250,5 @@ def fit_plane(points, *, reject: float | None = None) -> PlaneFit:
     """
     if reject is not None and not (np.isfinite(reject) and reject > 0):
         raise InputError(f"reject: must be a positive multiple of the robust sigma, got {reject}")
-    d = _core.fit_plane(as_rows("points", points, 3), None if reject is None else float(reject))
+    d = core_fit_plane(as_rows("points", points, 3), None if reject is None else float(reject))
     return PlaneFit(**{**d, "point": np.asarray(d["point"]), "normal": np.asarray(d["normal"]), "axes": np.asarray(d["axes"])})
