@@ -10,7 +10,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from ..errors import RunError
-from ..schemas.run import TABLES
+from ..schemas.run import SWEEP_AXES, TABLES
 
 # run.json's ``schema`` and versions (SCHEMA, SCHEMA_VERSION, SUPPORTED_SCHEMA_VERSIONS) and the allowed roles
 # of a temperature channel (CHANNEL_ROLES) and the sweep axes of scans.sweep_axis (SWEEP_AXES) live with run.json's
@@ -215,3 +215,52 @@ def tables_equal(a, b) -> bool:
         elif not np.array_equal(x.view(f"u{x.itemsize}"), y.view(f"u{y.itemsize}")):
             return False
     return True
+
+
+def check_scans(scans: dict, poses: dict, tw: dict) -> None:
+    """The scans table against itself and the poses: unique ids, a sweep direction of +-1 and an axis X, Y or Z,
+    a pose that the poses table holds (its ids unique)."""
+    w = tw["scans"]
+    check_unique(scans["scan_id"], "scan_id", w)
+    bad = ~np.isin(scans["sweep_direction"], (1, -1))
+    if bad.any():
+        r = first_index(bad)
+        raise RunError(f"{w}: column 'sweep_direction': {scans['sweep_direction'][r]} at {w.row(r)}; must be +1 or -1")
+    bad = ~np.isin(scans["sweep_axis"], SWEEP_AXES)
+    if bad.any():
+        r = first_index(bad)
+        raise RunError(f"{w}: column 'sweep_axis': {scans['sweep_axis'][r]!r} at {w.row(r)}; must be 'X', 'Y' or 'Z'")
+    check_unique(poses["pose_id"], "pose_id", tw["poses"])
+    bad = ~np.isin(scans["pose_id"], poses["pose_id"])
+    if bad.any():
+        r = first_index(bad)
+        raise RunError(f"{w}: column 'pose_id': pose {scans['pose_id'][r]} at {w.row(r)} is not in {tw['poses']}")
+
+
+def check_points(points: dict, scans: dict, tw: dict) -> np.ndarray:
+    """The points table against the scans: each point's scan exists, its time does not decrease within the scan.
+    Returns the points' order by scan (stable)."""
+    w = tw["points"]
+    sid, t = points["scan_id"], points["t"]
+    bad = ~np.isin(sid, scans["scan_id"])
+    if bad.any():
+        r = first_index(bad)
+        raise RunError(f"{w}: column 'scan_id': scan {sid[r]} at {w.row(r)} is not in {tw['scans']}")
+    order = np.argsort(sid, kind="stable")
+    s, ts = sid[order], t[order]
+    back = (s[1:] == s[:-1]) & (ts[1:] < ts[:-1])
+    if back.any():
+        k = np.flatnonzero(back)
+        i = int(np.argmin(order[k + 1]))
+        r, p = int(order[k[i] + 1]), int(order[k[i]])
+        raise RunError(f"{w}: column 't' decreases within scan {s[k[i] + 1]} at {w.row(r)} (t = {float(t[r])!r} s after {float(t[p])!r} s at {w.row(p)})")
+    return order
+
+
+def check_temperature_times(temps: dict, w: Where) -> None:
+    """The temperatures table's times strictly increase."""
+    tt = temps["t"]
+    bad = tt[1:] <= tt[:-1]
+    if bad.any():
+        r = first_index(bad) + 1
+        raise RunError(f"{w}: column 't' not strictly increasing at {w.row(r)} (t = {float(tt[r])!r} s after {float(tt[r - 1])!r} s)")

@@ -17,13 +17,13 @@ import numpy as np
 from .._lazy import LazyModule
 from ..atomicfile import staged_folder
 from ..errors import RunError
-from ..schemas.run import SCHEMA, SCHEMA_VERSION, SWEEP_AXES, TABLES
+from ..schemas.run import SCHEMA, SCHEMA_VERSION, TABLES
 from ..formats.pointformats.common import parquet_options
 from ._files import (RUN_FILES, TRUTH_ARRAYS, TRUTH_DIR, TRUTH_INFO, arrow_column, check_artefact_numbers,
                      check_channels, check_created, check_json_value, check_row_counts, check_run_target, check_truth,
                      read_run_json, read_table_file, table_path)
-from ._tables import (FIXED_COLUMNS, POINTS_COLUMNS, POSES_COLUMNS, SCANS_COLUMNS, Labels, Where, as_table, check_unique,
-                      first_index, stack_columns, tables_equal, utc_now)
+from ._tables import (FIXED_COLUMNS, POINTS_COLUMNS, POSES_COLUMNS, SCANS_COLUMNS, Labels, Where, as_table,
+                      check_points, check_scans, check_temperature_times, stack_columns, tables_equal, utc_now)
 
 # Loaded on first use: `import cmmpose` does not pay for pyarrow (cmmpose._lazy).
 pa = LazyModule("pyarrow")
@@ -117,46 +117,10 @@ class Run:
                     raise RunError(f"{w}: missing column {absent[0]!r} (a channel listed in {j}temperature_channels)")
             temps = as_table(self.temperatures, {"t": "float64", **{n: "float64" for n in names}}, w, copy)
 
-        # scans: unique ids, allowed values, poses exist
-        w = tw["scans"]
-        check_unique(scans["scan_id"], "scan_id", w)
-        bad = ~np.isin(scans["sweep_direction"], (1, -1))
-        if bad.any():
-            r = first_index(bad)
-            raise RunError(f"{w}: column 'sweep_direction': {scans['sweep_direction'][r]} at {w.row(r)}; must be +1 or -1")
-        bad = ~np.isin(scans["sweep_axis"], SWEEP_AXES)
-        if bad.any():
-            r = first_index(bad)
-            raise RunError(f"{w}: column 'sweep_axis': {scans['sweep_axis'][r]!r} at {w.row(r)}; must be 'X', 'Y' or 'Z'")
-        check_unique(poses["pose_id"], "pose_id", tw["poses"])
-        bad = ~np.isin(scans["pose_id"], poses["pose_id"])
-        if bad.any():
-            r = first_index(bad)
-            raise RunError(f"{w}: column 'pose_id': pose {scans['pose_id'][r]} at {w.row(r)} is not in {tw['poses']}")
-
-        # points: scans exist, t non-decreasing within each scan
-        w = tw["points"]
-        sid, t = points["scan_id"], points["t"]
-        bad = ~np.isin(sid, scans["scan_id"])
-        if bad.any():
-            r = first_index(bad)
-            raise RunError(f"{w}: column 'scan_id': scan {sid[r]} at {w.row(r)} is not in {tw['scans']}")
-        order = np.argsort(sid, kind="stable")
-        s, ts = sid[order], t[order]
-        back = (s[1:] == s[:-1]) & (ts[1:] < ts[:-1])
-        if back.any():
-            k = np.flatnonzero(back)
-            i = int(np.argmin(order[k + 1]))
-            r, p = int(order[k[i] + 1]), int(order[k[i]])
-            raise RunError(f"{w}: column 't' decreases within scan {s[k[i] + 1]} at {w.row(r)} (t = {float(t[r])!r} s after {float(t[p])!r} s at {w.row(p)})")
-
+        check_scans(scans, poses, tw)
+        order = check_points(points, scans, tw)
         if temps is not None:
-            w = tw["temperatures"]
-            tt = temps["t"]
-            bad = tt[1:] <= tt[:-1]
-            if bad.any():
-                r = first_index(bad) + 1
-                raise RunError(f"{w}: column 't' not strictly increasing at {w.row(r)} (t = {float(tt[r])!r} s after {float(tt[r - 1])!r} s)")
+            check_temperature_times(temps, tw["temperatures"])
 
         set_(self, "points", points)
         set_(self, "scans", scans)
