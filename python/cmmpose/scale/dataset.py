@@ -280,12 +280,7 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
     """
     t_start = time.perf_counter()
     if isinstance(error_map, ErrorMap):
-        # One map holds at one temperature: said (a MapTemperatureWarning) when the given temperature, or the T
-        # columns' range from the files' statistics (no data read), is not the map's own.
-        given = temperature if temperature is not None else dataset_temperature_range(dataset_dir)
-        if given is not None:
-            policy = as_policy(temperature_policy, temperature_tolerance=temperature_tolerance)
-            warn_single_map(error_map, given, policy.temperature_tolerance)
+        _warn_single_map(error_map, dataset_dir, temperature, temperature_policy, temperature_tolerance)
     kernel = Compensator.make(error_map, pose, offset, temperature, out_of_range=out_of_range,
                               nan_policy=nan_policy, temperature_tolerance=temperature_tolerance,
                               temperature_policy=temperature_policy, uncertainty=uncertainty,
@@ -293,11 +288,7 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
     if not isinstance(batch_rows, (int, np.integer)) or batch_rows < 1:
         raise InputError(f"batch_rows: expected a positive integer, got {batch_rows!r}")
     files = dataset_files(dataset_dir)
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: exists and is not a folder")
-    if out.exists() and out.resolve() == Path(dataset_dir).resolve():
-        raise InputError(f"{out}: the output folder is the input folder; the inputs would be replaced")
+    out = _output_folder(out_dir, dataset_dir)
     plans = [_plan_file(f, kernel.needs_temperature_column, kernel.columns) for f in files]
     total = sum(rows for rows, _ in plans)
     ensure_folder(out)
@@ -331,11 +322,36 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         progress(total, total)
     report = KernelReport.total(r for _, r, _, _ in results)
     warn_clamped(report)
-    tally = None
-    if kernel.uncertainty is not None:
-        tally = UncertaintyTally(budget=budget_rows(kernel.uncertainty, error_map, uncertainty_origins))
-        for *_, part in results:
-            tally = tally.merge(part)
-        log_budget(tally, str(out))
+    tally = _dataset_tally(kernel, error_map, uncertainty_origins, results, out)
     return DatasetResult(outputs, sum(n for n, *_ in results), report, sum(s for _, _, s, _ in results),
                          time.perf_counter() - t_start, tally)
+
+
+def _warn_single_map(error_map: ErrorMap, dataset_dir, temperature, temperature_policy, temperature_tolerance) -> None:
+    """One map holds at one temperature: said (a MapTemperatureWarning) when the given temperature, or the T
+    columns' range from the files' statistics (no data read), is not the map's own."""
+    given = temperature if temperature is not None else dataset_temperature_range(dataset_dir)
+    if given is not None:
+        policy = as_policy(temperature_policy, temperature_tolerance=temperature_tolerance)
+        warn_single_map(error_map, given, policy.temperature_tolerance)
+
+
+def _output_folder(out_dir, dataset_dir) -> Path:
+    """The output folder: a folder or nothing yet, never the input folder."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    if out.exists() and out.resolve() == Path(dataset_dir).resolve():
+        raise InputError(f"{out}: the output folder is the input folder; the inputs would be replaced")
+    return out
+
+
+def _dataset_tally(kernel: Compensator, error_map, uncertainty_origins, results, out: Path) -> UncertaintyTally | None:
+    """With uncertainty: the budget and the files' tallies merged into one, logged."""
+    if kernel.uncertainty is None:
+        return None
+    tally = UncertaintyTally(budget=budget_rows(kernel.uncertainty, error_map, uncertainty_origins))
+    for *_, part in results:
+        tally = tally.merge(part)
+    log_budget(tally, str(out))
+    return tally
