@@ -126,6 +126,15 @@ def _program(outward: np.ndarray, s_out: int, repeats: int) -> tuple[np.ndarray,
     return np.array(tgt), np.array(dirs, dtype=np.int64), np.array(reps, dtype=np.int64)
 
 
+def _air(air, air_drift, station_error, frac: np.ndarray) -> tuple[tuple, tuple]:
+    """The air the beam crossed at each reading (temperature C, pressure mmHg, humidity % RH: the mean plus its drift
+    over the run, ``frac`` from -0.5 to 0.5) and what the weather station recorded (off by its error)."""
+    t_air = air[0] + air_drift[0] * frac
+    p_air = air[1] + air_drift[1] * frac
+    h_air = air[2] + air_drift[2] * frac
+    return (t_air, p_air, h_air), (t_air + station_error[0], p_air + station_error[1], h_air + station_error[2])
+
+
 def _reading(optics: str, travel, value, n_air, reading_basis: str, rec) -> tuple[np.ndarray, np.ndarray]:
     """What the laser displays, and the index ratio behind it: linear optics count the carriage's displacement from
     home (``travel`` mm plus the error ``value`` um) in wavelengths of the reading basis's air (standard air,
@@ -241,10 +250,7 @@ def simulate_interferometer_run(
     tgt, dirs, reps = _program(outward, s_out, repeats)
     k = len(tgt)
     frac = np.linspace(-0.5, 0.5, k)
-    t_air = air[0] + air_drift[0] * frac
-    p_air = air[1] + air_drift[1] * frac
-    h_air = air[2] + air_drift[2] * frac
-    rec = (t_air + station_error[0], p_air + station_error[1], h_air + station_error[2])
+    (t_air, p_air, h_air), rec = _air(air, air_drift, station_error, frac)
     if material_temperature is None:
         material_temperature = 20.0 if truth.temperature is None else truth.temperature
     tm = float(material_temperature) + float(material_drift) * frac
