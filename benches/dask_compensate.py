@@ -148,7 +148,7 @@ def serial_baseline(files: list[Path], out: Path) -> tuple[float, int]:
     t0 = time.perf_counter()
     n = 0
     for f in files:
-        m, *_ = scale._compensate_file(kernel, str(f), str(out / f.name), ["scan_id"], scale.BATCH_ROWS, None)
+        m, *_ = scale.dataset._compensate_file(kernel, str(f), str(out / f.name), ["scan_id"], scale.BATCH_ROWS, None)
         n += m
     return n / (time.perf_counter() - t0), n
 

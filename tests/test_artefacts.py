@@ -361,10 +361,10 @@ def test_fleet_table_gives_an_artefact_run_its_own_figures(plate_run):
 
     run, _ = plate_run
     maps = ErrorMapSet.thesis()
-    ev = scale._evaluate_run(run, maps, temperature=20.0, expansion_ppm_per_K=11.5, skip_incomplete=False)
+    ev = scale.fleet._evaluate_run(run, maps, temperature=20.0, expansion_ppm_per_K=11.5, skip_incomplete=False)
     direct = evaluate_artefact(run, maps, 20.0)
     bar, _ = simulate_ballbar_run(maps, 20.0, layout="crossed", scanner=Scanner(points_per_profile=64), seed=1)
-    rows = scale.fleet_summary(["plate", "bar"], [ev, scale._evaluate_run(bar, maps)])
+    rows = scale.fleet_summary(["plate", "bar"], [ev, scale.fleet._evaluate_run(bar, maps)])
     plate, ballbar = rows
     assert plate.kind == "ball-plate" and ballbar.kind == "ballbar"
     assert plate.rms_uncompensated == direct.uncompensated.rms and plate.rms_compensated == direct.compensated.rms

@@ -214,7 +214,7 @@ def test_an_output_group_quotes_its_member_with_the_remedy_a_field(tmp_path):
 
 # -- a scheduler that does not answer ---------------------------------------------------
 def test_a_scheduler_that_does_not_greet():
-    from cmmpose.scale import _probe_scheduler
+    from cmmpose.scale.scheduler import _probe_scheduler
 
     with socket.socket() as server:  # accepts (the kernel's backlog) and says nothing
         server.bind(("127.0.0.1", 0))

@@ -160,12 +160,10 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
         The output cannot be written (a full disk): nothing is left behind.
     """
     policy = as_policy(temperature_policy, out_of_range=out_of_range, temperature_tolerance=temperature_tolerance)
-    out_of_range, temperature_tolerance = policy.out_of_range, policy.temperature_tolerance
     points_in, points_out = Path(points_in), Path(points_out)
     check_writable(points_out)  # before any work: a missing folder is found now, not after
     check_not_input(points_out, [points_in], "OUT")
     size, chunks = point_chunks(points_in, chunk, extras=True)
-    state = {"temperature": None, "warned": False, "kernel": 0.0, "rows": 0}
     if not isinstance(maps, MachineModel):
         raise InputTypeError(f"maps: expected an ErrorMap, ErrorMapSet or Model, got {type(maps).__name__}")
     sources, tally = _uncertainty_plan(points_out, maps, uncertainty, uncertainty_detail, uncertainty_origins)
@@ -173,48 +171,89 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
         chunks = whole_scans(chunks)
     pose = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
     offset = tuple(offset) if isinstance(offset, MountOffset) else as_triple("offset", offset)
-    once: set = set()  # a model's checks of this file: each warning once, not once per chunk
+    kernel = _FileKernel(maps, points_in, pose, offset, temperature, policy, nan_policy, sources, uncertainty_detail,
+                         tally)
+    report = _write_points(chunks, kernel, points_in, points_out, size, progress)
+    _log.info("compensated %d points of %s into %s", report.points, points_in, points_out)
+    if kernel.tally is not None:
+        log_budget(kernel.tally, str(points_out))
+    return FileCompensation(points_in, points_out, report.points, report, kernel.seconds, kernel.temperature_used,
+                            kernel.tally)
 
-    def kernel(uv, scales, temps, extras=None):
-        """One chunk through the kernel: its coordinates and report; an
-        error naming a row of the chunk names the file and the file's row."""
-        first = state["rows"]
-        state["rows"] += len(uv)
+
+class _FileKernel:
+    """The chunks of one point file through the kernel: each chunk's coordinates, report and extra columns (the
+    uncertainty columns after X, Y, Z); an error naming a row of the chunk names the file and the file's row. Counts
+    the rows read, the kernel's time and the temperature used; a model's checks warn once per file, not per chunk."""
+
+    def __init__(self, maps, points_in: Path, pose, offset, temperature, policy: TemperaturePolicy, nan_policy: str,
+                 sources, detail: str, tally):
+        self.maps, self.points_in, self.pose, self.offset = maps, points_in, pose, offset
+        self.temperature, self.policy, self.nan_policy = temperature, policy, nan_policy
+        self.sources, self.detail, self.tally = sources, detail, tally
+        self.once: set = set()  # a model's checks of this file: each warning once, not once per chunk
+        self.temperature_used = None
+        self.warned = False
+        self.seconds = 0.0
+        self.rows = 0
+
+    def restart(self) -> None:
+        """Before the file is read again whole: the counts and the tally from zero (warnings given stay given)."""
+        self.seconds, self.rows = 0.0, 0
+        if self.tally is not None:
+            self.tally = UncertaintyTally(budget=self.tally.budget)
+
+    def __call__(self, uv, scales, temps, extras=None):
+        first = self.rows
+        self.rows += len(uv)
         try:
-            return chunk_kernel(uv, scales, temps, extras)
+            return self._chunk(uv, scales, temps, extras)
         except Error as exc:
-            raise _in_file(exc, points_in, first) from None
+            raise _in_file(exc, self.points_in, first) from None
 
-    def chunk_kernel(uv, scales, temps, extras):
+    def _temperatures(self, temps):
+        """The temperature the kernel takes for a chunk: the given one, else the T column; None for one map (it
+        holds at its own temperature: a warning once when the points' differs)."""
+        maps, temperature = self.maps, self.temperature
         t = temperature if temperature is not None else temps
         if isinstance(maps, ErrorMapSet) and t is None:
-            raise InputError(f"{points_in}: a map set needs a temperature (--temperature, temperature=) "
+            raise InputError(f"{self.points_in}: a map set needs a temperature (--temperature, temperature=) "
                              f"or a T column in the input")
         if isinstance(maps, ErrorMap):  # one map holds at its own temperature
-            if t is not None and not state["warned"]:
-                warn_single_map(maps, t, temperature_tolerance)
-                state["warned"] = True
-            t = None
-        elif t is not None:
-            state["temperature"] = "per point (T column)" if temperature is None else f"{temperature:g} C"
+            if t is not None and not self.warned:
+                warn_single_map(maps, t, self.policy.temperature_tolerance)
+                self.warned = True
+            return None
+        if t is not None:
+            self.temperature_used = "per point (T column)" if temperature is None else f"{temperature:g} C"
             if temperature is None:
                 t = np.ascontiguousarray(t, dtype=float)
+        return t
+
+    def _chunk(self, uv, scales, temps, extras):
+        t = self._temperatures(temps)
+        where, maps = str(self.points_in), self.maps
         t0 = time.perf_counter()
-        if sources is None:
-            xyz, raw = maps.compensate_points(uv, scales, pose, offset, t, policy=policy, nan_policy=nan_policy,
-                                              columns=extras, where=str(points_in), once=once)
+        if self.sources is None:
+            xyz, raw = maps.compensate_points(uv, scales, self.pose, self.offset, t, policy=self.policy,
+                                              nan_policy=self.nan_policy, columns=extras, where=where, once=self.once)
         else:
-            check_no_collision(points_in, extras, uncertainty_detail)
+            check_no_collision(self.points_in, extras, self.detail)
             points, raw = maps.compensate_points_uncertainty(
-                uv, scales, pose, offset, t, sources=sources, detail=uncertainty_detail, policy=policy,
-                nan_policy=nan_policy, columns=extras, where=str(points_in), once=once)
+                uv, scales, self.pose, self.offset, t, sources=self.sources, detail=self.detail, policy=self.policy,
+                nan_policy=self.nan_policy, columns=extras, where=where, once=self.once)
             xyz, extras = points.xyz, {**columns_of(points), **extras}  # u columns after X, Y, Z
-            tally.add(points.u)
-        state["kernel"] += time.perf_counter() - t0
+            self.tally.add(points.u)
+        self.seconds += time.perf_counter() - t0
         report = KernelReport(**raw)
         warn_clamped(report)
         return xyz, report, extras
 
+
+def _write_points(chunks, kernel: _FileKernel, points_in: Path, points_out: Path, size: int,
+                  progress) -> KernelReport:
+    """The chunks compensated into ``points_out`` (nothing left behind on an error): the kernel's reports summed.
+    When the fast reader refuses a line the strict one accepts, the whole file is read again by the strict one."""
     reports: list[KernelReport] = []
     writer = PointWriter(points_out, inputs=[points_in])
     try:
@@ -224,20 +263,13 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
             writer.abort()
             writer = PointWriter(points_out, inputs=[points_in])
             reports.clear()
-            state["kernel"], state["rows"] = 0.0, 0
-            if tally is not None:
-                tally = UncertaintyTally(budget=tally.budget)
+            kernel.restart()
             _pipeline(iter([(*again.points, again.extras, size)]), kernel, writer, reports, size, progress)
     except BaseException:
         writer.abort()
         raise
     writer.close()
-    report = KernelReport.total(reports)
-    _log.info("compensated %d points of %s into %s", report.points, points_in, points_out)
-    if tally is not None:
-        log_budget(tally, str(points_out))
-    return FileCompensation(points_in, points_out, report.points, report, state["kernel"], state["temperature"],
-                            tally)
+    return KernelReport.total(reports)
 
 
 def _uncertainty_plan(points_out, maps, uncertainty, detail: str, origins):
@@ -307,6 +339,32 @@ def _in_file(exc: Error, path, first: int) -> Error:
     return again
 
 
+def _put(q: queue.Queue, item, stop: threading.Event) -> bool:
+    """Put ``item`` on ``q``, waiting while it is full; False once stopped."""
+    while not stop.is_set():
+        try:
+            q.put(item, timeout=_POLL)
+            return True
+        except queue.Full:
+            continue
+    return False
+
+
+def _get(q: queue.Queue, thread: threading.Thread, stop: threading.Event):
+    """The next item of ``q``; a failure if its producer died without one."""
+    while True:
+        try:
+            return q.get(timeout=_POLL)
+        except queue.Empty:
+            if not thread.is_alive():
+                try:
+                    return q.get_nowait()
+                except queue.Empty:
+                    if stop.is_set():  # the writer failed and stopped the reader
+                        return _STOPPED
+                    return _Failed(RuntimeError(f"the {thread.name} thread ended without a result"))
+
+
 def _pipeline(chunks, kernel, writer: PointWriter, reports: list, size: int, progress) -> None:
     """Read ``chunks`` in a thread, compensate here, write in a thread; the
     first exception of any of them is raised here, after the threads stop."""
@@ -315,24 +373,14 @@ def _pipeline(chunks, kernel, writer: PointWriter, reports: list, size: int, pro
     write_q: queue.Queue = queue.Queue(QUEUE_CHUNKS)
     written = queue.SimpleQueue()  # bytes_done of each chunk written, or a failure
 
-    def put(q, item) -> bool:
-        """Put ``item`` on ``q``, waiting while it is full; False once stopped."""
-        while not stop.is_set():
-            try:
-                q.put(item, timeout=_POLL)
-                return True
-            except queue.Full:
-                continue
-        return False
-
     def read() -> None:
         try:
             for item in chunks:
-                if not put(read_q, item):
+                if not _put(read_q, item, stop):
                     return
-            put(read_q, _END)
+            _put(read_q, _END, stop)
         except BaseException as exc:  # carried to the calling thread
-            put(read_q, _Failed(exc))
+            _put(read_q, _Failed(exc), stop)
 
     def write() -> None:
         while not stop.is_set():
@@ -351,20 +399,6 @@ def _pipeline(chunks, kernel, writer: PointWriter, reports: list, size: int, pro
                 written.put(_Failed(exc))
                 return
             written.put(done)
-
-    def get(q, thread):
-        """The next item of ``q``; a failure if its producer died without one."""
-        while True:
-            try:
-                return q.get(timeout=_POLL)
-            except queue.Empty:
-                if not thread.is_alive():
-                    try:
-                        return q.get_nowait()
-                    except queue.Empty:
-                        if stop.is_set():  # the writer failed and stopped the reader
-                            return _STOPPED
-                        return _Failed(RuntimeError(f"the {thread.name} thread ended without a result"))
 
     def report_progress(block: bool) -> BaseException | None:
         """Pass on what the writer finished; its failure, if any."""
@@ -388,7 +422,7 @@ def _pipeline(chunks, kernel, writer: PointWriter, reports: list, size: int, pro
     writer_thread.start()
     try:
         while True:
-            item = get(read_q, reader_thread)
+            item = _get(read_q, reader_thread, stop)
             if isinstance(item, _Failed):
                 raise item.exc
             if item is _END:
@@ -399,13 +433,13 @@ def _pipeline(chunks, kernel, writer: PointWriter, reports: list, size: int, pro
             xyz, rep, extras = kernel(uv, scales, temps, extras)
             reports.append(rep)
             del uv, scales, temps, item
-            if not put(write_q, (xyz, extras, done)):
+            if not _put(write_q, (xyz, extras, done), stop):
                 break
             del xyz, extras
             failure = report_progress(block=False)
             if failure is not None:
                 raise failure
-        put(write_q, _END)  # False when the writer stopped on a failure, reported next
+        _put(write_q, _END, stop)  # False when the writer stopped on a failure, reported next
         failure = report_progress(block=True)
         if failure is not None:
             raise failure

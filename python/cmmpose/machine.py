@@ -282,97 +282,19 @@ def load_machine(path: str | Path | None) -> Machine:
 
 def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
     validate(doc, "machine", where)  # the one door in: every key typed and every number within its range
-    for table, allowed in _KEYS.items():
-        part = doc if table == "" else doc.get(table, {})
-        if not isinstance(part, dict):
-            raise InputError(f"{where}: [{table}] must be a table")
-        unknown = sorted(set(part) - allowed)
-        if unknown:
-            prefix = f"{table}." if table else ""
-            raise InputError(f"{where}: unknown key {prefix}{unknown[0]} (known: {', '.join(sorted(allowed))})")
-    missing = [t for t in _REQUIRED_TABLES if t not in doc]
-    if missing:
-        raise InputError(f"{where}: [{missing[0]}] is missing ({_REQUIRED_TABLES[missing[0]]}); "
-                         "a machine file states it (cmmpose machine example)")
-    defaults: list[str] = []
+    _check_tables(doc, where)
+    defaults: list[str] = []  # what the file leaves to the defaults, in the order the tables come
     if "name" not in doc:
         defaults.append('name = "unnamed machine"')
     name = _text(doc, "name", where, default="unnamed machine")
-    known = [c["name"] for c in configurations()]
-    if "kinematics" not in doc:
-        raise InputError(f"{where}: kinematics is missing (one of {', '.join(known)}); "
-                         "without it the machine's chain is unknown")
-    kinematics = _text(doc, "kinematics", where, default="")
-    if kinematics not in known:
-        raise InputError(f"{where}: kinematics = {kinematics!r} is not one of {', '.join(known)}")
+    kinematics = _kinematics(doc, where)
     travel_table = doc["travel"]
     travel = tuple(_pair(travel_table, axis, f"{where}: travel.{axis}", limit=TRAVEL_LIMIT_MM) for axis in "xyz")
-    maps = doc["maps"]
-    if ("bundled" in maps) == ("files" in maps):
-        raise InputError(f"{where}: [maps] needs one of bundled = 'thesis' | 'appendix-b' or files = [...]")
-    bundled, files = None, ()
-    if "bundled" in maps:
-        bundled = maps["bundled"]
-        if bundled not in ("thesis", "appendix-b"):
-            raise InputError(f"{where}: maps.bundled = {bundled!r} is not 'thesis' or 'appendix-b'")
-    else:
-        if not (isinstance(maps["files"], list) and maps["files"] and all(isinstance(f, str) for f in maps["files"])):
-            raise InputError(f"{where}: maps.files must be a non-empty list of file names")
-        files = tuple((folder or Path(".")) / f for f in maps["files"])
-        missing = [str(f) for f in files if not f.is_file()]
-        if missing:
-            raise InputError(f"{where}: maps.files: no such file {missing[0]}")
-    sc = doc.get("scanner", {})
-    scanner_defaults = Scanner()
-    for key, value in (("field_of_view_mm", list(scanner_defaults.u_range)),
-                       ("depth_of_view_mm", list(scanner_defaults.v_range)),
-                       ("points_per_profile", scanner_defaults.points_per_profile),
-                       ("profile_rate_hz", scanner_defaults.profile_rate),
-                       ("noise_um", scanner_defaults.noise * 1e3)):
-        if key not in sc:
-            defaults.append(f"scanner.{key} = {value!r}")
-    scanner = Scanner(
-        u_range=_pair(sc, "field_of_view_mm", f"{where}: scanner.field_of_view_mm",
-                      default=scanner_defaults.u_range),
-        v_range=_pair(sc, "depth_of_view_mm", f"{where}: scanner.depth_of_view_mm",
-                      default=scanner_defaults.v_range),
-        points_per_profile=_integer(sc, "points_per_profile", f"{where}: scanner.points_per_profile",
-                                    scanner_defaults.points_per_profile),
-        profile_rate=_setting(sc, "profile_rate_hz", f"{where}: scanner.profile_rate_hz",
-                              scanner_defaults.profile_rate, positive),
-        noise=_setting(sc, "noise_um", f"{where}: scanner.noise_um", scanner_defaults.noise * 1e3,
-                       nonnegative) * 1e-3,
-    )
-    mount = doc["mount"]
-    for key in ("offset_mm", "pose_deg"):
-        if key not in mount:
-            raise InputError(f"{where}: mount.{key} is missing ({_REQUIRED_TABLES['mount']})")
-    offset_where = f"{where}: mount.offset_mm"
-    offset = MountOffset(*as_triple(offset_where, mount["offset_mm"]))
-    if max(map(abs, offset)) > OFFSET_LIMIT_MM:
-        raise InputError(f"{offset_where}: {list(offset)} mm is beyond +-{OFFSET_LIMIT_MM:g} mm")
-    pose = Pose(*check_pose_angles(f"{where}: mount.pose_deg", mount["pose_deg"]))
-    alignments = None
-    if "alignments" in mount:
-        if not isinstance(mount["alignments"], str) or not mount["alignments"]:
-            raise InputError(f"{where}: mount.alignments must be a file name")
-        alignments = (folder or Path(".")) / mount["alignments"]
-    tc = doc["thermocouples"]
-    if not isinstance(tc, dict) or not tc:
-        raise InputError(f"{where}: [thermocouples] must name at least one channel = role")
-    roles = {r for _, r in CHANNELS} | set(channel_roles())
-    for channel, role in tc.items():
-        if not isinstance(role, str) or role not in roles:
-            raise InputError(f"{where}: thermocouples.{channel} = {role!r} is not a known role "
-                             f"({', '.join(sorted(roles))})")
-    exp_table = doc.get("expansion", {})
-    if "artefact" not in exp_table:
-        defaults.append("expansion.artefact = 12.0 ppm/K (steel)")
-    expansion_ppm = _setting(exp_table, "artefact", f"{where}: expansion.artefact", 12.0)
-    lo, hi = EXPANSION_RANGE_PPM
-    if not lo <= expansion_ppm <= hi:
-        raise InputError(f"{where}: expansion.artefact = {expansion_ppm:g} ppm/K is outside {lo:g}..{hi:g} ppm/K "
-                         "(a coefficient of expansion in ppm/K, e.g. 11.5 for steel)")
+    bundled, files = _maps(doc["maps"], where, folder)
+    scanner = _scanner(doc.get("scanner", {}), where, defaults)
+    offset, pose, alignments = _mount(doc["mount"], where, folder)
+    tc = _thermocouples(doc["thermocouples"], where)
+    expansion_ppm = _expansion(doc.get("expansion", {}), where, defaults)
     repro_um, repro_source = _reproducibility(doc, where)
     map_uncertainty = None
     if "uncertainty" in doc:
@@ -386,6 +308,118 @@ def _parse(doc: dict, where: str, folder: Path | None) -> Machine:
         _log.info("machine %s: %s (the default; the file does not give it)", where, d)
     _log.info("machine %s: %s, %s", where, name, kinematics)
     return machine
+
+
+def _check_tables(doc: dict, where: str) -> None:
+    """Every table a table, every key known, every required table there."""
+    for table, allowed in _KEYS.items():
+        part = doc if table == "" else doc.get(table, {})
+        if not isinstance(part, dict):
+            raise InputError(f"{where}: [{table}] must be a table")
+        unknown = sorted(set(part) - allowed)
+        if unknown:
+            prefix = f"{table}." if table else ""
+            raise InputError(f"{where}: unknown key {prefix}{unknown[0]} (known: {', '.join(sorted(allowed))})")
+    missing = [t for t in _REQUIRED_TABLES if t not in doc]
+    if missing:
+        raise InputError(f"{where}: [{missing[0]}] is missing ({_REQUIRED_TABLES[missing[0]]}); "
+                         "a machine file states it (cmmpose machine example)")
+
+
+def _kinematics(doc: dict, where: str) -> str:
+    """The machine configuration's name: required, one of the known ones."""
+    known = [c["name"] for c in configurations()]
+    if "kinematics" not in doc:
+        raise InputError(f"{where}: kinematics is missing (one of {', '.join(known)}); "
+                         "without it the machine's chain is unknown")
+    kinematics = _text(doc, "kinematics", where, default="")
+    if kinematics not in known:
+        raise InputError(f"{where}: kinematics = {kinematics!r} is not one of {', '.join(known)}")
+    return kinematics
+
+
+def _maps(maps: dict, where: str, folder: Path | None) -> tuple[str | None, tuple]:
+    """[maps]: bundled maps by name, or map files (relative to the machine file's folder) that exist."""
+    if ("bundled" in maps) == ("files" in maps):
+        raise InputError(f"{where}: [maps] needs one of bundled = 'thesis' | 'appendix-b' or files = [...]")
+    if "bundled" in maps:
+        bundled = maps["bundled"]
+        if bundled not in ("thesis", "appendix-b"):
+            raise InputError(f"{where}: maps.bundled = {bundled!r} is not 'thesis' or 'appendix-b'")
+        return bundled, ()
+    if not (isinstance(maps["files"], list) and maps["files"] and all(isinstance(f, str) for f in maps["files"])):
+        raise InputError(f"{where}: maps.files must be a non-empty list of file names")
+    files = tuple((folder or Path(".")) / f for f in maps["files"])
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise InputError(f"{where}: maps.files: no such file {missing[0]}")
+    return None, files
+
+
+def _scanner(sc: dict, where: str, defaults: list) -> Scanner:
+    """[scanner]: each value given or the default (named in ``defaults``)."""
+    scanner_defaults = Scanner()
+    for key, value in (("field_of_view_mm", list(scanner_defaults.u_range)),
+                       ("depth_of_view_mm", list(scanner_defaults.v_range)),
+                       ("points_per_profile", scanner_defaults.points_per_profile),
+                       ("profile_rate_hz", scanner_defaults.profile_rate),
+                       ("noise_um", scanner_defaults.noise * 1e3)):
+        if key not in sc:
+            defaults.append(f"scanner.{key} = {value!r}")
+    return Scanner(
+        u_range=_pair(sc, "field_of_view_mm", f"{where}: scanner.field_of_view_mm",
+                      default=scanner_defaults.u_range),
+        v_range=_pair(sc, "depth_of_view_mm", f"{where}: scanner.depth_of_view_mm",
+                      default=scanner_defaults.v_range),
+        points_per_profile=_integer(sc, "points_per_profile", f"{where}: scanner.points_per_profile",
+                                    scanner_defaults.points_per_profile),
+        profile_rate=_setting(sc, "profile_rate_hz", f"{where}: scanner.profile_rate_hz",
+                              scanner_defaults.profile_rate, positive),
+        noise=_setting(sc, "noise_um", f"{where}: scanner.noise_um", scanner_defaults.noise * 1e3,
+                       nonnegative) * 1e-3,
+    )
+
+
+def _mount(mount: dict, where: str, folder: Path | None) -> tuple[MountOffset, Pose, Path | None]:
+    """[mount]: the offset (within reach), the pose, and the alignment library's file if named."""
+    for key in ("offset_mm", "pose_deg"):
+        if key not in mount:
+            raise InputError(f"{where}: mount.{key} is missing ({_REQUIRED_TABLES['mount']})")
+    offset_where = f"{where}: mount.offset_mm"
+    offset = MountOffset(*as_triple(offset_where, mount["offset_mm"]))
+    if max(map(abs, offset)) > OFFSET_LIMIT_MM:
+        raise InputError(f"{offset_where}: {list(offset)} mm is beyond +-{OFFSET_LIMIT_MM:g} mm")
+    pose = Pose(*check_pose_angles(f"{where}: mount.pose_deg", mount["pose_deg"]))
+    alignments = None
+    if "alignments" in mount:
+        if not isinstance(mount["alignments"], str) or not mount["alignments"]:
+            raise InputError(f"{where}: mount.alignments must be a file name")
+        alignments = (folder or Path(".")) / mount["alignments"]
+    return offset, pose, alignments
+
+
+def _thermocouples(tc, where: str) -> dict:
+    """[thermocouples]: at least one channel, each with a known role."""
+    if not isinstance(tc, dict) or not tc:
+        raise InputError(f"{where}: [thermocouples] must name at least one channel = role")
+    roles = {r for _, r in CHANNELS} | set(channel_roles())
+    for channel, role in tc.items():
+        if not isinstance(role, str) or role not in roles:
+            raise InputError(f"{where}: thermocouples.{channel} = {role!r} is not a known role "
+                             f"({', '.join(sorted(roles))})")
+    return tc
+
+
+def _expansion(exp_table: dict, where: str, defaults: list) -> float:
+    """[expansion]: the artefact's coefficient, ppm/K (steel's by default, named in ``defaults``), in range."""
+    if "artefact" not in exp_table:
+        defaults.append("expansion.artefact = 12.0 ppm/K (steel)")
+    expansion_ppm = _setting(exp_table, "artefact", f"{where}: expansion.artefact", 12.0)
+    lo, hi = EXPANSION_RANGE_PPM
+    if not lo <= expansion_ppm <= hi:
+        raise InputError(f"{where}: expansion.artefact = {expansion_ppm:g} ppm/K is outside {lo:g}..{hi:g} ppm/K "
+                         "(a coefficient of expansion in ppm/K, e.g. 11.5 for steel)")
+    return expansion_ppm
 
 
 def with_reproducibility(text: str, per_scan_um: float, source: str, where: str = "machine file") -> str:

@@ -134,7 +134,6 @@ def assemble(contents: JournalContents, plan: Plan, *, created: str, pose=(90.0,
         the journal's torn tail if any.
     """
     summary = _summary(contents)
-    clock: dict = {}
 
     # -- scanner
     frames = [f for _, f in contents.scanner]
@@ -157,9 +156,50 @@ def assemble(contents: JournalContents, plan: Plan, *, created: str, pose=(90.0,
     t_vals = np.array([r.values for r in rows], dtype=float).reshape(len(rows), len(names))
     t_seg = segments(None, t_dev)[0] if len(t_dev) else np.empty(0, np.int64)
 
-    s_fits = _fits(s_dev[keep], s_host[keep], s_seg[keep]) if keep.any() else []
+    ref, s_fits, l_fits, clock = _clocks(s_dev[keep], s_host[keep], s_seg[keep], keep.any(), t_dev, t_host, t_seg)
+
+    # -- points
+    counts_all = heads["n"].astype(np.int64)
+    starts = (np.cumsum(counts_all) - counts_all)[keep]
+    heads, s_dev, s_seg = heads[keep], s_dev[keep], s_seg[keep]
+    counts = counts_all[keep]
+    t_rec = _to_run_time(s_dev, s_seg, s_fits, ref) if len(s_dev) else np.empty(0)
+    ids, origin, renumbered = _scan_ids(s_seg, heads["scan"])
+    order = np.lexsort((t_rec, ids))
+    c = counts[order]
+    take = np.repeat(starts[order] - (np.cumsum(c) - c), c) + np.arange(int(c.sum()))
+    rep = np.repeat(order, c)
+    uv64 = uv.astype(np.float64)[take] if len(take) else np.empty((0, 2))
+    points = {"scan_id": ids[rep].astype(np.int32), "t": t_rec[rep], "u": uv64[:, 0], "v": uv64[:, 1],
+              "D": heads["D"][rep], "E": heads["E"][rep], "F": heads["F"][rep]}
+    points, summary["scanner"]["excluded"] = _finite_points(points)
+
+    # -- scans and poses
+    poses = _pose_table(plan, pose, offset)
+    scans = _scan_table(plan, ids, origin, heads, t_rec, int(poses["pose_id"][0]))
+
+    # -- temperatures
+    t_run = _to_run_time(t_dev, t_seg, l_fits, ref) if len(t_dev) else np.empty(0)
+    temps, summary["thermo"]["dropped_same_time"] = _temperature_table(t_run, t_vals, names)
+    summary["scanner"]["points"] = int(counts.sum())
+    summary["scanner"]["renumbered_scans"] = renumbered
+    summary["clock"] = clock
+    summary["journal"] = {"blocks": contents.blocks, "bytes": contents.good_bytes,
+                          "torn_tail": None if contents.torn_tail is None else vars(contents.torn_tail)}
+    return Run(
+        points=points, scans=scans, poses=poses, temperatures=temps,
+        temperature_channels=[{"name": ch["name"], "role": ch["role"], "channel": ch["channel"]} for ch in plan.temperature_channels],
+        artefact=plan.artefact, maps=plan.maps, metadata={**plan.metadata, "acquisition": summary}, created=created,
+    )
+
+
+def _clocks(s_dev, s_host, s_seg, any_scans: bool, t_dev, t_host, t_seg):
+    """The clock fits of the scanner's (kept frames) and the logger's segments, the one run time is counted in
+    (the scanner's first segment, else the logger's, else the host's), and the record of them for the summary:
+    (reference fit, scanner fits, logger fits, clock summary)."""
+    s_fits = _fits(s_dev, s_host, s_seg) if any_scans else []
     l_fits = _fits(t_dev, t_host, t_seg)
-    s_fits = _borrow_rates(s_fits, s_dev[keep], s_host[keep], s_seg[keep], None) if s_fits else []
+    s_fits = _borrow_rates(s_fits, s_dev, s_host, s_seg, None) if s_fits else []
     donor = max((f for f in s_fits if f.rate_fitted), key=lambda f: f.span, default=None)
     l_fits = _borrow_rates(l_fits, t_dev, t_host, t_seg, donor.rate if donor else None) if l_fits else []
     if s_fits:
@@ -171,35 +211,36 @@ def assemble(contents: JournalContents, plan: Plan, *, created: str, pose=(90.0,
     else:
         ref = ClockFit(0.0, 1.0, 0, 0.0, 0.0, 0.0, False)
         base = "host clock"
-    clock["time_base"] = base
-    clock["scanner_segments"] = [f.to_dict() for f in s_fits]
-    clock["thermo_segments"] = [f.to_dict() for f in l_fits]
+    clock: dict = {"time_base": base, "scanner_segments": [f.to_dict() for f in s_fits],
+                   "thermo_segments": [f.to_dict() for f in l_fits]}
     if s_fits and l_fits:
         # logger time L -> scanner time S: S = (cL + rL L - cS) / rS
         sf, lf = s_fits[0], l_fits[0]
         clock["thermo_to_scanner"] = {"offset_s": (lf.offset - sf.offset) / sf.rate, "rate": lf.rate / sf.rate,
                                       "drift_ppm": (lf.rate / sf.rate - 1.0) * 1e6,
                                       "meaning": "scanner_time = offset_s + rate * logger_time (first clock segments)"}
+    return ref, s_fits, l_fits, clock
 
-    def to_run_time(dev, seg, fits):
-        out = np.empty(len(dev))
-        for k, f in enumerate(fits):
-            m = seg == k
-            out[m] = dev[m] if f is ref else ref.device(f.host(dev[m]))
-        return out
 
-    # -- points
-    counts_all = heads["n"].astype(np.int64)
-    starts = (np.cumsum(counts_all) - counts_all)[keep]
-    heads, s_dev, s_seg = heads[keep], s_dev[keep], s_seg[keep]
-    counts = counts_all[keep]
-    t_rec = to_run_time(s_dev, s_seg, s_fits) if len(s_dev) else np.empty(0)
-    ids = np.empty(len(heads), dtype=np.int64)
+def _to_run_time(dev, seg, fits, ref) -> np.ndarray:
+    """Device times of a stream's clock segments in run time (the reference fit's device clock)."""
+    out = np.empty(len(dev))
+    for k, f in enumerate(fits):
+        m = seg == k
+        out[m] = dev[m] if f is ref else ref.device(f.host(dev[m]))
+    return out
+
+
+def _scan_ids(seg, scan) -> tuple[np.ndarray, dict, list]:
+    """The run's scan id of each frame (by clock segment and scanner scan number): a scan number already used in
+    an earlier segment, or one the run's int32 cannot hold, gets the next free one. (ids, scan id -> the scanner's
+    number, the renumbered ones for the summary)."""
+    ids = np.empty(len(scan), dtype=np.int64)
     assigned: dict[tuple[int, int], int] = {}
     used: set[int] = set()
     origin: dict[int, int] = {}
     renumbered = []
-    for i, (sg, sc) in enumerate(zip(s_seg.tolist(), heads["scan"].tolist())):
+    for i, (sg, sc) in enumerate(zip(seg.tolist(), scan.tolist())):
         key = (sg, sc)
         if key not in assigned:
             # A scan number already used, or one the run's int32 cannot hold, gets the next free one.
@@ -212,23 +253,21 @@ def assemble(contents: JournalContents, plan: Plan, *, created: str, pose=(90.0,
             used.add(new)
             origin[new] = sc
         ids[i] = assigned[key]
-    order = np.lexsort((t_rec, ids))
-    c = counts[order]
-    take = np.repeat(starts[order] - (np.cumsum(c) - c), c) + np.arange(int(c.sum()))
-    rep = np.repeat(order, c)
-    uv64 = uv.astype(np.float64)[take] if len(take) else np.empty((0, 2))
-    points = {"scan_id": ids[rep].astype(np.int32), "t": t_rec[rep], "u": uv64[:, 0], "v": uv64[:, 1],
-              "D": heads["D"][rep], "E": heads["E"][rep], "F": heads["F"][rep]}
-    points, summary["scanner"]["excluded"] = _finite_points(points)
+    return ids, origin, renumbered
 
-    # -- scans and poses
+
+def _pose_table(plan: Plan, pose, offset) -> dict:
+    """The plan's poses; without any, the one pose and mount offset given (default the thesis digitizer's)."""
     if plan.poses:
-        poses = {c: np.array([p[c] for p in plan.poses]) for c in ("pose_id", "alpha", "beta", "gamma", "U1", "V1", "W1")}
-    else:
-        off = MountOffset.thesis() if offset is None else MountOffset(*(float(x) for x in offset))
-        poses = {"pose_id": np.array([0]), "alpha": np.array([float(pose[0])]), "beta": np.array([float(pose[1])]),
-                 "gamma": np.array([float(pose[2])]), "U1": np.array([off[0]]), "V1": np.array([off[1]]), "W1": np.array([off[2]])}
-    default_pose = int(poses["pose_id"][0])
+        return {c: np.array([p[c] for p in plan.poses]) for c in ("pose_id", "alpha", "beta", "gamma", "U1", "V1", "W1")}
+    off = MountOffset.thesis() if offset is None else MountOffset(*(float(x) for x in offset))
+    return {"pose_id": np.array([0]), "alpha": np.array([float(pose[0])]), "beta": np.array([float(pose[1])]),
+            "gamma": np.array([float(pose[2])]), "U1": np.array([off[0]]), "V1": np.array([off[1]]), "W1": np.array([off[2]])}
+
+
+def _scan_table(plan: Plan, ids, origin: dict, heads, t_rec, default_pose: int) -> dict:
+    """The scans table: a planned scan as the plan says; one the plan lacks at the default pose, its sweep axis,
+    direction and speed inferred from the scale readings."""
     planned = {int(s["scan_id"]): s for s in plan.scans}
     scan_rows = []
     for sid in sorted(set(ids.tolist())):
@@ -248,21 +287,13 @@ def assemble(contents: JournalContents, plan: Plan, *, created: str, pose=(90.0,
              for c in scan_cols}
     if scan_rows:
         scans["sweep_speed"] = scans["sweep_speed"].astype(float)
+    return scans
 
-    # -- temperatures
-    t_run = to_run_time(t_dev, t_seg, l_fits) if len(t_dev) else np.empty(0)
+
+def _temperature_table(t_run, t_vals, names) -> tuple[dict, int]:
+    """The temperatures table in time order, a reading at a time already read dropped; and how many were."""
     o = np.argsort(t_run, kind="stable")
     t_sorted = t_run[o]
     inc = np.concatenate([[True], np.diff(t_sorted) > 0]) if len(o) else np.empty(0, bool)
     temps = {"t": t_sorted[inc], **{n: t_vals[o][inc][:, k] for k, n in enumerate(names)}}
-    summary["thermo"]["dropped_same_time"] = int((~inc).sum())
-    summary["scanner"]["points"] = int(counts.sum())
-    summary["scanner"]["renumbered_scans"] = renumbered
-    summary["clock"] = clock
-    summary["journal"] = {"blocks": contents.blocks, "bytes": contents.good_bytes,
-                          "torn_tail": None if contents.torn_tail is None else vars(contents.torn_tail)}
-    return Run(
-        points=points, scans=scans, poses=poses, temperatures=temps,
-        temperature_channels=[{"name": ch["name"], "role": ch["role"], "channel": ch["channel"]} for ch in plan.temperature_channels],
-        artefact=plan.artefact, maps=plan.maps, metadata={**plan.metadata, "acquisition": summary}, created=created,
-    )
+    return temps, int((~inc).sum())

@@ -51,7 +51,8 @@ from ..errors import AcquisitionError, InputError, MissingFileError, read_input_
 from ..machine import CHANNELS
 from ..schemas import loads_json, validate
 from ..schemas import short
-from ..run import CHANNEL_ROLES, POSES_COLUMNS, SCANS_COLUMNS, SWEEP_AXES, Run
+from ..run import CHANNEL_ROLES, POSES_COLUMNS, SCANS_COLUMNS, Run
+from ..schemas.run import SWEEP_AXES
 
 __all__ = ["Plan", "DEFAULT_CHANNELS", "plan_from_run", "artefact_plan"]
 

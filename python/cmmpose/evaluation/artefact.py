@@ -445,13 +445,7 @@ def evaluate_artefact(
         prov["temperature"]["log"] = log
         prov["notes"].extend(log_notes(log))
     prov["u_temperature_K"] = u_temperature
-    for pos, balls in sorted(groups.items()):
-        missing = [int(b) for b in artefact.ids if int(b) not in balls]
-        if missing:
-            prov["notes"].append(f"position {pos}: balls {', '.join(map(str, missing))} were not measured")
-    skipped = int(np.sum(run.scans["feature"] != "ball"))
-    if skipped:
-        prov["notes"].append(f"{skipped} scans of other features (not 'ball') are not part of the evaluation")
+    _note_scans(prov, run, groups, artefact)
     raw = _evaluate_state("uncompensated", run, machine_coordinates(run, None, None), groups, artefact, temps,
                           labels, reject, u_temperature, check=True)
     if maps is None:
@@ -464,6 +458,29 @@ def evaluate_artefact(
     reports: list = []
     once: set = set()  # the checks of the model on this run: said once, not again for each parameter's step
     xyz = machine_coordinates(run, maps, model_t, policy, reports, once=once)
+    moves = _uncertain_moves(run, maps, model_t, groups, reject, policy, xyz, once, map_uncertainty, prov)
+    comp = _evaluate_state("compensated", run, xyz, groups, artefact, temps, labels, reject, u_temperature, moves)
+    prov["points_clamped"] = int(sum(r.clamped_points for r in reports))
+    prov["points_held_at_maps_edge"] = int(sum(r.held_temperature for r in reports))
+    return ArtefactEvaluation(artefact, raw, comp, provenance=prov)
+
+
+def _note_scans(prov: dict, run: Run, groups: dict, artefact) -> None:
+    """Notes of what the evaluation leaves out: balls a position did not measure, scans of other features."""
+    for pos, balls in sorted(groups.items()):
+        missing = [int(b) for b in artefact.ids if int(b) not in balls]
+        if missing:
+            prov["notes"].append(f"position {pos}: balls {', '.join(map(str, missing))} were not measured")
+    skipped = int(np.sum(run.scans["feature"] != "ball"))
+    if skipped:
+        prov["notes"].append(f"{skipped} scans of other features (not 'ball') are not part of the evaluation")
+
+
+def _uncertain_moves(run: Run, maps, model_t, groups, reject, policy, xyz, once: set, map_uncertainty: bool,
+                     prov: dict) -> list:
+    """How the compensated balls move with each uncertain input: the model's parameters (when it has effects)
+    and, with ``map_uncertainty``, the maps' stated uncertainty; a note of each, and of the parameters the
+    diagnosis left undetermined (left out: no number would be honest)."""
     moves = _model_moves(run, maps, model_t, groups, reject, policy, xyz, once) \
         if maps.effects else []
     if moves:
@@ -482,7 +499,4 @@ def evaluate_artefact(
         prov["notes"].append("the model's parameters " + ", ".join(undetermined) + " are undetermined (the run the "
                              "model was found on cannot determine them): the u of the compensated deviations and "
                              "lengths leave them out")
-    comp = _evaluate_state("compensated", run, xyz, groups, artefact, temps, labels, reject, u_temperature, moves)
-    prov["points_clamped"] = int(sum(r.clamped_points for r in reports))
-    prov["points_held_at_maps_edge"] = int(sum(r.held_temperature for r in reports))
-    return ArtefactEvaluation(artefact, raw, comp, provenance=prov)
+    return moves

@@ -473,6 +473,24 @@ def evaluate(
         raise InputError(f"skip_incomplete: expected True or False, got {skip_incomplete!r}")
     positions, skipped = ballbar_scans(run, skip_incomplete)
     prov = evaluation_provenance(run, maps, temperature, temps, expansion, out_of_range, temperature_tolerance, log_hold)
+    _note_inputs(prov, maps, log, skipped)
+    raw = _ballbar(run, machine_coordinates(run, None, None), "uncompensated", temps, nominal_radius, reject, expansion,
+                   positions)
+    if maps is None:
+        return Evaluation(raw, provenance=prov)
+    if temps is None and isinstance(maps.error_maps, ErrorMapSet):
+        raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
+    model_t = _model_temperature(maps, temperature, temps, temperature_tolerance, prov)
+    reports: list = []
+    xyz = machine_coordinates(run, maps, model_t, policy, reports)
+    comp = _ballbar(run, xyz, "compensated", temps, nominal_radius, reject, expansion, positions)
+    _count_kernel_reports(prov, reports, temperature_tolerance)
+    return Evaluation(raw, comp, provenance=prov)
+
+
+def _note_inputs(prov: dict, maps, log, skipped) -> None:
+    """What the provenance says of the evaluation's inputs: the thermocouple log's use, the positions skipped,
+    a model's own artefact expansion (not the one the lengths use)."""
     if log is not None:
         prov["temperature"]["log"] = log
         prov["notes"].extend(log_notes(log))
@@ -482,28 +500,29 @@ def evaluate(
                              f"the artefact it was found on: the lengths at 20 C use the expansion given here")
     if skipped:
         prov["notes"].append(skipped_note(skipped))
-    raw = _ballbar(run, machine_coordinates(run, None, None), "uncompensated", temps, nominal_radius, reject, expansion,
-                   positions)
-    if maps is None:
-        return Evaluation(raw, provenance=prov)
-    if temps is None and isinstance(maps.error_maps, ErrorMapSet):
-        raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
+
+
+def _model_temperature(maps, temperature, temps, tolerance: float, prov: dict):
+    """The temperature the model is applied at: a found model reads the run's log itself (the caller's value
+    only); one map holds at its own temperature (None: a warning, noted, when the run's differs); a set takes
+    the given temperature or the run's."""
     if maps.reads_run:  # a found model reads the run's log itself, with the caller's policy
-        model_t = temperature
-    elif isinstance(maps, ErrorMap):
-        model_t = None
+        return temperature
+    if isinstance(maps, ErrorMap):
         if temps is not None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", MapTemperatureWarning)
-                note = warn_single_map(maps, temps, temperature_tolerance)
+                note = warn_single_map(maps, temps, tolerance)
             if note:
-                warnings.warn(note, MapTemperatureWarning, stacklevel=2)
+                warnings.warn(note, MapTemperatureWarning, stacklevel=3)  # the caller of evaluate
                 prov["notes"].append(note)
-    else:
-        model_t = temperature if temperature is not None else temps
-    reports: list = []
-    xyz = machine_coordinates(run, maps, model_t, policy, reports)
-    comp = _ballbar(run, xyz, "compensated", temps, nominal_radius, reject, expansion, positions)
+        return None
+    return temperature if temperature is not None else temps
+
+
+def _count_kernel_reports(prov: dict, reports: list, tolerance: float) -> None:
+    """The compensation's counts into the provenance, with a note for each that is not zero: points held at
+    the maps' edge, clamped into them, temperatures extrapolated beyond them."""
     held = sum(r.held_temperature for r in reports)
     clamped = sum(r.clamped_points for r in reports)
     extrapolated = sum(r.extrapolated_temperature for r in reports)
@@ -513,14 +532,13 @@ def evaluate(
     if extrapolated:
         prov["max_extrapolation_K"] = round(max(r.max_extrapolation for r in reports), 3)
     if held:
-        prov["notes"].append(f"{held} points within {temperature_tolerance:g} K outside the maps' temperatures "
+        prov["notes"].append(f"{held} points within {tolerance:g} K outside the maps' temperatures "
                              f"were held at the edge")
     if clamped:
         prov["notes"].append(f"{clamped} points were clamped into the maps")
     if extrapolated:
         prov["notes"].append(f"{extrapolated} temperatures extrapolated beyond the maps, up to "
                              f"{prov['max_extrapolation_K']:g} K")
-    return Evaluation(raw, comp, provenance=prov)
 
 
 def evaluation_provenance(run: Run, maps, temperature, temps, expansion, out_of_range, tolerance, log_hold) -> dict:

@@ -369,6 +369,16 @@ def evaluation_uncertainty(
             if compensated and maps.effects else ()
         out.append(_result_uncertainty(res, lengths, bar, var_fit, c_t, compensated, u_t, u_map, u_model, u_alpha,
                                        terms))
+    left_out = _left_out(maps, u_model, no_sensitivity)
+    inputs = {"u_temperature_K": u_t, "u_map_ppm": round(u_map, 4), "u_model_ppm": u_model,
+              "u_expansion_ppm_per_K": u_alpha}
+    return EvaluationUncertainty(tuple(out), inputs, tuple(left_out))
+
+
+def _left_out(maps, u_model: float, no_sensitivity: bool) -> list[str]:
+    """What the figures' uncertainty leaves out, in words: always the certificate, the part temperature, the
+    alignment and gradients; a residual model error not given, a single map's temperature, the model's parameters
+    without a number, a temperature sensitivity that could not be taken (logged too)."""
     left_out = [
         "the artefact's certificate (these figures are measured lengths, not errors against a calibrated length; "
         "cmmpose standards acceptance counts it)",
@@ -398,9 +408,7 @@ def evaluation_uncertainty(
         left_out.append("the temperature reading through the maps: neither +-0.5 K about the machine temperature is "
                         "inside them")
         _log.warning("no temperature sensitivity: +-%g K about the machine temperature leaves the maps", _STEP_K)
-    inputs = {"u_temperature_K": u_t, "u_map_ppm": round(u_map, 4), "u_model_ppm": u_model,
-              "u_expansion_ppm_per_K": u_alpha}
-    return EvaluationUncertainty(tuple(out), inputs, tuple(left_out))
+    return left_out
 
 
 def _temperature_sensitivity(run, maps, model_t, res, reject, out_of_range, lengths,
@@ -451,6 +459,39 @@ def _model_terms(run, model, model_t, res, reject, policy, lengths, once: set | 
             c_b89 = (b89_value(moved) - b89_value(lengths)) / step * 1e3
             out.append((f"model {spec.name}: {param}", spec.units[j], float(u[j]), c_len, c_rms, c_b89))
     return out
+
+
+def _typical(name: str, rows_per_p) -> Budget:
+    """Each term's rms over the positions (its contribution), as one budget."""
+    first = rows_per_p[0]
+    rows = []
+    for j, row in enumerate(first):
+        contrib = math.sqrt(float(np.mean([r[j].contribution ** 2 for r in rows_per_p])))
+        u = row.standard_uncertainty
+        if row.unit == "um" or u == 0:
+            rows.append(Input(row.name, 0.0, contrib, "um", 1.0, row.note + " (rms over the positions)"))
+        else:
+            rows.append(Input(row.name, 0.0, u, row.unit, contrib / u, row.note + " (rms over the positions)"))
+    return Budget(name, tuple(rows), "um")
+
+
+def _spread_budgets(s: float, P: int, model_terms, model_note: str):
+    """The budgets of the figures of the lengths' spread, each with its Type A term alone: the rms accuracy
+    error (s / sqrt(2 (P - 1))) and B89 (a parametric bootstrap of the largest |L - mean| of P lengths);
+    ((budget, Type A u) of each)."""
+    u_rms = s / math.sqrt(2 * (P - 1))
+    b_rms = Budget("rms accuracy error", (Input("Type A: sample standard deviation of P lengths", 0.0, u_rms, "um", 1.0,
+                                                f"s / sqrt(2 (P - 1)), P = {P}"),
+                                          *[Input(name, 0.0, u, unit, c_rms, model_note)
+                                            for name, unit, u, _, c_rms, _ in model_terms]), "um")
+    draws = np.random.default_rng(_B89_SEED).normal(0.0, s, (_B89_DRAWS, P))
+    b89_draws = np.max(np.abs(draws - draws.mean(axis=1, keepdims=True)), axis=1)
+    u_b89 = float(np.std(b89_draws, ddof=1))
+    b_b89 = Budget("B89", (Input("Type A: largest |L - mean| of P lengths", 0.0, u_b89, "um", 1.0,
+                                 f"parametric bootstrap, {_B89_DRAWS} draws of {P} normal lengths of sd s_L"),
+                           *[Input(name, 0.0, u, unit, c_b89, model_note)
+                             for name, unit, u, _, _, c_b89 in model_terms]), "um")
+    return (b_rms, u_rms), (b_b89, u_b89)
 
 
 def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensated, u_t, u_map, u_model,
@@ -512,39 +553,15 @@ def _result_uncertainty(res: BallbarResult, lengths, bar, var_fit, c_t, compensa
         lengths20_fig.append(Figure(f"length {int(res.positions[p])} at 20 C", float(l20[p]), "mm",
                                     b20.combined_standard_uncertainty, budget=b20))
 
-    def typical(name, rows_per_p):
-        # Each term's rms over the positions (its contribution), as one budget.
-        first = rows_per_p[0]
-        rows = []
-        for j, row in enumerate(first):
-            contrib = math.sqrt(float(np.mean([r[j].contribution ** 2 for r in rows_per_p])))
-            u = row.standard_uncertainty
-            if row.unit == "um" or u == 0:
-                rows.append(Input(row.name, 0.0, contrib, "um", 1.0, row.note + " (rms over the positions)"))
-            else:
-                rows.append(Input(row.name, 0.0, u, row.unit, contrib / u, row.note + " (rms over the positions)"))
-        return Budget(name, tuple(rows), "um")
-
     Lm = float(np.mean(L_um))
     u_fit_mean = math.sqrt(float(np.mean(u_fit ** 2)))
     mean_inp = length_budget(u_fit_mean, Lm, u_map_mean, float(np.mean(c_t)), n=P)
     b_mean = Budget("mean length", tuple(mean_inp), "um")
     dT_mean = float(np.nanmean(dT)) if np.any(np.isfinite(dT)) else float("nan")
     b_mean20 = Budget("mean length at 20 C", tuple(at20(mean_inp, Lm, dT_mean, float(np.mean(c_t20)))), "um")
-    u_rms = s / math.sqrt(2 * (P - 1))
-    b_rms = Budget("rms accuracy error", (Input("Type A: sample standard deviation of P lengths", 0.0, u_rms, "um", 1.0,
-                                                f"s / sqrt(2 (P - 1)), P = {P}"),
-                                          *[Input(name, 0.0, u, unit, c_rms, model_note)
-                                            for name, unit, u, _, c_rms, _ in model_terms]), "um")
-    draws = np.random.default_rng(_B89_SEED).normal(0.0, s, (_B89_DRAWS, P))
-    b89_draws = np.max(np.abs(draws - draws.mean(axis=1, keepdims=True)), axis=1)
-    u_b89 = float(np.std(b89_draws, ddof=1))
-    b_b89 = Budget("B89", (Input("Type A: largest |L - mean| of P lengths", 0.0, u_b89, "um", 1.0,
-                                 f"parametric bootstrap, {_B89_DRAWS} draws of {P} normal lengths of sd s_L"),
-                           *[Input(name, 0.0, u, unit, c_b89, model_note)
-                             for name, unit, u, _, _, c_b89 in model_terms]), "um")
-    budgets = {"length": typical("length (typical)", per_len_inputs),
-               "length at 20 C": typical("length at 20 C (typical)", per_len20_inputs),
+    (b_rms, u_rms), (b_b89, u_b89) = _spread_budgets(s, P, model_terms, model_note)
+    budgets = {"length": _typical("length (typical)", per_len_inputs),
+               "length at 20 C": _typical("length at 20 C (typical)", per_len20_inputs),
                "mean length": b_mean, "mean length at 20 C": b_mean20, "rms accuracy error": b_rms, "B89": b_b89}
     return ResultUncertainty(
         label=res.label, lengths=tuple(lengths_fig), lengths_20c=tuple(lengths20_fig),

@@ -10,8 +10,6 @@ answer (:class:`cmmpose.model.MachineModel`)."""
 from __future__ import annotations
 
 import logging
-import math
-import tempfile
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -19,21 +17,19 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from .._json import dumps as strict_json
-from ..atomicfile import write_text
 from ..errormap import ErrorMap, ErrorMapSet
-from ..errors import Error, InputError, InputTypeError, MapError, ModelDomainWarning, read_input_text, warn_clamped
+from ..errors import InputError, InputTypeError, ModelDomainWarning, warn_clamped
 from ..fitting import fit_spheres
 from ..pose import digitizer
 from ..run import Run
-from ..schemas import loads_json, validate
 from ..schemas.model import MODEL_SCHEMA  # ``schema`` of a saved model file, defined with the file's schema
 from ..temperature import LOG_HOLD, TEMPERATURE_TOLERANCE, TemperaturePolicy, check_policy
 from ..kernel_report import KernelReport
 from ..point_uncertainty import DETAILS, UncertainPoints, UncertaintySources
-from .alternatives import Alternative, check_alternatives
+from .alternatives import check_alternatives
 from .domain import Domain, correction_uncertainty, domain_notes, parameter_jacobian, uncertainty_notes
 from .inputs import RunInputs, incidence_angles
+from .modelfile import model_document, read_model, write_model
 from .names import resolve
 from .point_inputs import check_inputs, point_inputs, single_map_warning
 from .spec import LIBRARY, EffectSpec, effect_spec
@@ -498,50 +494,13 @@ class Model:
     # -- files --------------------------------------------------------------
 
     def to_dict(self) -> dict:
-        maps = self.maps.maps if isinstance(self.maps, ErrorMapSet) else [self.maps]
-        texts = []
-        with tempfile.TemporaryDirectory() as d:
-            for i, m in enumerate(maps):
-                p = Path(d) / f"map{i}.csv"
-                m.write(p)
-                texts.append(p.read_text())
-        return {
-            "schema": MODEL_SCHEMA,
-            "schema_version": 1,
-            "maps": {"kind": "set" if isinstance(self.maps, ErrorMapSet) else "map", "csv": texts,
-                     "kinematics": self.maps.kinematics},
-            "temperature": self.temperature,
-            "out_of_range": self.out_of_range,
-            "temperature_tolerance_K": self.temperature_tolerance,
-            "log_hold_s": self.log_hold,
-            "temperature_policy": self.policy.to_dict(),
-            **({"temperature_log": self.thermal} if self.thermal else {}),
-            "effects": [{"name": s.name, "kind": s.kind, "params": dict(zip(s.params, map(float, v))),
-                         "units": dict(zip(s.params, s.units))} | _uncertainty_entry(self, s) for s, v in self.effects],
-            **({"alternatives": [a.to_dict() for a in self.alternatives if a.chosen in self.names]}
-               if self.alternatives else {}),
-            **({"domain": self.domain.to_dict()} if self.domain is not None else {}),
-            **({"covariance": {"parameters": list(self.covariance["parameters"]),
-                               "matrix": np.asarray(self.covariance["matrix"], float).tolist()}}
-               if self.covariance else {}),
-        }
+        return model_document(self)
 
     def save(self, path) -> Path:
         """Write the model (maps included) as JSON to ``path``, atomically
         (:mod:`cmmpose.atomicfile`: ``OutputError`` on a full disk, the earlier
         file left whole)."""
-        path = Path(path)
-        doc = self.to_dict()
-        if _holds_nan(doc):
-            raise InputError(f"{path}: the model holds a value that is not a number (NaN): not written")
-        try:
-            # Standard JSON only (cmmpose._json): an undetermined uncertainty (inf) is written null and named
-            # in the top-level "non_finite" list; load reads null back as inf.
-            text = strict_json(doc, indent=1)
-        except ValueError:
-            raise InputError(f"{path}: the model holds a value that is not finite (inf): not written") from None
-        write_text(path, text)
-        return path
+        return write_model(self, path)
 
     @classmethod
     def load(cls, path, user_effects=()) -> Model:
@@ -555,67 +514,7 @@ class Model:
         user_effects : sequence of UserEffect
             Specs of the user-defined effects the file names.
         """
-        path = Path(path)
-        text = read_input_text(path, "model file")  # a FIFO or /dev/zero refused as such, the size bounded
-        doc = loads_json(text, path, "model file")  # not JSON, or a key repeated in an object: InputError
-        if not isinstance(doc, dict) or doc.get("schema") != MODEL_SCHEMA or doc.get("schema_version") != 1:
-            raise InputError(f"{path}: not a {MODEL_SCHEMA} version 1 file", file=str(path))
-        validate(doc, "model", path)  # the one door in: every key typed and every number within its range
-        try:
-            with tempfile.TemporaryDirectory() as d:
-                maps = []
-                for i, text in enumerate(doc["maps"]["csv"]):
-                    p = Path(d) / f"map{i}.csv"
-                    p.write_text(text)
-                    try:
-                        maps.append(ErrorMap.read(p))
-                    except MapError as exc:  # name the user's file, not the temporary one
-                        raise MapError(str(exc).replace(str(p), f"{path} (maps.csv[{i}])")) from None
-            kind = doc["maps"]["kind"]
-            if kind not in ("set", "map"):
-                raise InputError(f"{path}: maps.kind must be 'set' or 'map', got {kind!r}")
-            if not maps:
-                raise InputError(f"{path}: maps.csv lists no map")
-            if kind == "map" and len(maps) != 1:
-                raise InputError(f"{path}: maps.kind 'map' needs exactly one map, got {len(maps)}")
-            model_maps = ErrorMapSet(maps) if kind == "set" else maps[0]
-            kinematics = doc["maps"].get("kinematics", "thesis")  # files before machine configurations: thesis
-            if not isinstance(kinematics, str):
-                raise InputError(f"{path}: maps.kinematics must be a configuration name, got {kinematics!r}")
-            model_maps = model_maps.with_kinematics(kinematics)
-            users = {}
-            for u in user_effects:
-                if users.get(u.name, u) is not u:  # which one the file means would depend on their order
-                    raise InputError(f"user_effects: two effects are named {u.name!r}: give each effect once",
-                                     what=u.name)
-                users[u.name] = u
-            effects, unc = [], {}
-            for e in doc["effects"]:
-                name = e["name"]
-                spec = _saved_spec(name, e.get("kind"), users, path)
-                if set(e["params"]) != set(spec.params):
-                    raise InputError(f"{path}: effect {name!r} has parameters {sorted(e['params'])}, "
-                                     f"expected {list(spec.params)}")
-                values = [e["params"][p] for p in spec.params]
-                bad = [p for p, v in zip(spec.params, values) if isinstance(v, bool) or not isinstance(v, (int, float))]
-                if bad:
-                    raise InputError(f"{path}: effect {name!r}: parameter {bad[0]!r} = {e['params'][bad[0]]!r} "
-                                     f"is not a number")
-                effects.append((spec, np.array([float(v) for v in values])))
-                if "uncertainty" in e:  # optional: null is a parameter the data did not determine
-                    unc[name] = _saved_uncertainty(e["uncertainty"], spec, path)
-            alternatives = _saved_alternatives(doc.get("alternatives") or [], users, [s.name for s, _ in effects],
-                                               path)
-            domain = Domain.from_dict(doc["domain"], str(path)) if doc.get("domain") is not None else None
-            covariance = _saved_covariance(doc.get("covariance"), effects, path)
-            return cls(model_maps, tuple(effects), doc.get("temperature"), doc.get("out_of_range", "raise"),
-                       doc.get("temperature_tolerance_K", TEMPERATURE_TOLERANCE), doc.get("log_hold_s", LOG_HOLD),
-                       unc, _saved_policy(doc.get("temperature_policy"), path), doc.get("temperature_log") or {},
-                       alternatives, domain, covariance)
-        except Error:  # already names the file and what is wrong in it
-            raise
-        except (KeyError, TypeError, ValueError) as e:
-            raise InputError(f"{path}: malformed model file ({type(e).__name__}: {e})") from None
+        return cls(*read_model(path, user_effects))
 
     def __repr__(self) -> str:
         eff = "; ".join(f"{s.name}: {s.describe(v)}" for s, v in self.effects) or "thesis model, no effects"
@@ -643,94 +542,6 @@ def _keep_policy(model: Model) -> None:
                                                             temperature_tolerance=base.temperature_tolerance,
                                                             log_hold=base.log_hold))
 
-
-def _saved_spec(name: str, kind, users: dict, path) -> EffectSpec:
-    """The spec of a saved effect named ``name`` (a map correction is rebuilt from its name)."""
-    if name.startswith(("map:", "cross:")):  # a map or cross-axis correction: rebuilt from its name
-        return resolve(name)
-    if kind == "python":
-        if name not in users:
-            raise InputError(f"{path}: effect {name!r} is user-defined", remedy="user_effects")
-        return users[name]
-    return resolve(name)
-
-
-def _saved_alternatives(entries, users: dict, names, path) -> tuple:
-    """The ``alternatives`` of a model file (files before them: none). An
-    alternative to an effect the model lacks is refused; a user-defined one
-    whose spec was not passed is left out, with a log line (the model still
-    applies; only the check of that alternative is lost)."""
-    out = []
-    for i, e in enumerate(entries):
-        name, chosen = e["name"], e["chosen"]
-        if chosen not in names:
-            raise InputError(f"{path}: alternatives[{i}] ({name}) is an alternative to {chosen!r}, "
-                             f"which the model does not hold")
-        # A map or cross-axis correction (kind "python", name "map:..." or "cross:...") is a library shape rebuilt
-        # from its name (_saved_spec): only a user-defined effect needs its spec passed again.
-        if e.get("kind") == "python" and not name.startswith(("map:", "cross:")) and name not in users:
-            logging.getLogger("cmmpose.model.alternatives").warning(
-                "%s: the alternative %s to %s is user-defined and was not passed: it is not checked", path, name,
-                chosen)
-            continue
-        spec = _saved_spec(name, e.get("kind"), users, path)
-        values = [e["params"][p] for p in spec.params]
-        if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
-            raise InputError(f"{path}: alternatives[{i}] ({name}): a parameter is not a number")
-        out.append(Alternative(chosen, spec, np.array(values, float), float(e.get("in_sample_difference_um") or 0.0),
-                               str(e.get("reason", ""))))
-    return tuple(out)
-
-
-def _saved_covariance(doc, effects, path) -> dict:
-    """The ``covariance`` of a model file: its parameters must be the model's
-    ('effect.param'), its matrix square, finite, symmetric and positive
-    semi-definite (a negative variance or a correlation above 1 would make a
-    predicted uncertainty imaginary or too small), in the parameters' units."""
-    if doc is None:
-        return {}
-    known = {f"{s.name}.{p}" for s, _ in effects for p in s.params}
-    try:
-        names, m = list(doc["parameters"]), np.array(doc["matrix"], dtype=float)
-    except (KeyError, TypeError, ValueError):
-        raise InputError(f"{path}: covariance: expected parameters (a list of 'effect.param') and a matrix "
-                         f"(a list of rows of numbers)", file=str(path), what="covariance") from None
-    unknown = [n for n in names if n not in known]
-    if unknown or len(set(names)) != len(names):
-        raise InputError(f"{path}: covariance.parameters: {unknown or names} are not each one parameter of the "
-                         f"model's effects", file=str(path), what="covariance.parameters")
-    k = len(names)
-    if m.shape != (k, k) or not np.all(np.isfinite(m)):
-        raise InputError(f"{path}: covariance.matrix: expected {k} x {k} finite numbers, got shape {m.shape}",
-                         file=str(path), what="covariance.matrix")
-    scale = max(float(np.max(np.abs(m))), 1e-300) if k else 1.0
-    if k and (np.max(np.abs(m - m.T)) > 1e-9 * scale or np.linalg.eigvalsh((m + m.T) / 2).min() < -1e-9 * scale):
-        raise InputError(f"{path}: covariance.matrix is not symmetric positive semi-definite", file=str(path),
-                         what="covariance.matrix")
-    return {"parameters": names, "matrix": m}
-
-
-def _saved_uncertainty(entry, spec: EffectSpec, path) -> np.ndarray:
-    """The standard uncertainty of a saved effect's parameters, in its units:
-    null (or absent) is a parameter the data did not determine (inf); a NaN,
-    a negative value or one that is not a number is refused, naming the file,
-    the effect and the parameter (an evaluation's budget would otherwise drop
-    its row without a word)."""
-    if not isinstance(entry, dict):
-        raise InputError(f"{path}: effect {spec.name!r}: uncertainty must map each parameter to a number, "
-                         f"got {entry!r}")
-    out = []
-    for p in spec.params:
-        v = entry.get(p)
-        if v is None:
-            out.append(np.inf)
-            continue
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0:
-            raise InputError(f"{path}: effect {spec.name!r}: the uncertainty of parameter {p!r} is {v!r}; expected "
-                             f"a standard uncertainty >= 0 in {spec.units[spec.params.index(p)]}, or null for a "
-                             f"parameter the data did not determine")
-        out.append(float(v))
-    return np.array(out)
 
 
 def run_kinematics(run: Run) -> str | None:
@@ -769,31 +580,6 @@ def check_kinematics(model: Model, run: Run, name: str | None = None) -> None:
                      f"maps are stacked as {model.maps.kinematics!r}: the model was found on (or made for) another "
                      f"machine; diagnose this run from its own maps (a machine file with kinematics = {kin!r})")
 
-
-def _saved_policy(doc, path) -> TemperaturePolicy | None:
-    if doc is None:  # files before the policy was saved whole
-        return None
-    try:
-        return TemperaturePolicy.from_dict(doc)
-    except InputError as exc:
-        raise InputError(f"{path}: temperature_policy: {exc}") from None
-
-
-def _uncertainty_entry(model: Model, spec: EffectSpec) -> dict:
-    """``{"uncertainty": {param: u}}`` of an effect whose uncertainty the model knows (inf: undetermined,
-    which :meth:`Model.save` writes null and names in ``non_finite``)."""
-    u = model.uncertainty.get(spec.name)
-    if u is None:
-        return {}
-    return {"uncertainty": {p: (float(x) if np.isfinite(x) else math.inf) for p, x in zip(spec.params, np.ravel(u))}}
-
-
-def _holds_nan(obj) -> bool:
-    if isinstance(obj, dict):
-        return any(_holds_nan(v) for v in obj.values())
-    if isinstance(obj, (list, tuple)):
-        return any(_holds_nan(v) for v in obj)
-    return isinstance(obj, float) and math.isnan(obj)
 
 
 def _known(model: Model, effect) -> dict[str, EffectSpec]:

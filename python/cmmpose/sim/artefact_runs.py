@@ -18,7 +18,7 @@ from ..errors import InputError
 from ..placement import PROFILES_PER_BALL, Placement, ball_speed, check_repeat_scans, parse, plan, run_record
 from ..run import Run
 from .machine import Temperature, TruthMachine
-from .runs import SCAN_INTERVAL, SweepRecorder, check_jitter
+from .runs import SCAN_INTERVAL, SweepRecorder, check_timing
 from .scanner import Scanner
 from .thermocouples import CHANNELS, thermocouple_log
 
@@ -104,11 +104,7 @@ def simulate_artefact_run(
     machine = Machine.thesis() if machine is None else machine
     maps = machine.maps() if maps is None else maps
     scanner = scanner or machine.scanner
-    if not (scan_interval > 0 and np.isfinite(scan_interval)):
-        raise InputError(f"scan_interval: must be > 0 s, got {scan_interval!r}")
-    check_jitter(jitter)
-    if not (speed > 0 and np.isfinite(speed)):
-        raise InputError(f"speed: must be > 0 mm/s, got {speed!r}")
+    check_timing(scan_interval, jitter, speed)
     if not placements:
         raise InputError("placements: none given")
     parsed: list[Placement] = []

@@ -96,6 +96,62 @@ def _by_optics(name: str, value, default: Mapping[str, float], optics: str) -> f
     return v
 
 
+def _targets(table: np.ndarray, targets, home, carriage: str):
+    """The target positions (sorted, within the truth's range), home (the target nearest 0 by default; the first
+    or the last) and the targets in the order they are visited from home with the outward direction:
+    (grid, home, outward, direction)."""
+    grid = np.unique(np.asarray(table[:, 0] if targets is None else targets, dtype=np.float64))
+    if len(grid) < 2 or not np.isfinite(grid).all():
+        raise InputError("targets: need at least two finite target positions")
+    lo, hi = table[0, 0], table[-1, 0]
+    if grid[0] < lo or grid[-1] > hi:
+        raise InputError(f"targets: {grid[0]:g}..{grid[-1]:g} mm is outside the truth's {carriage} range {lo:g}..{hi:g} mm")
+    if home is None:
+        home = float(grid[np.argmin(np.abs(grid))])
+    home = float(home)
+    if home == grid[0]:
+        return grid, home, grid, 1
+    if home == grid[-1]:
+        return grid, home, grid[::-1], -1
+    raise InputError(f"home: {home:g} mm must be the first or last target ({grid[0]:g} or {grid[-1]:g} mm)")
+
+
+def _program(outward: np.ndarray, s_out: int, repeats: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each repeat out and back: the target, the direction of approach and the repeat of each reading."""
+    tgt, dirs, reps = [], [], []
+    for r in range(1, repeats + 1):
+        tgt += list(outward) + list(outward[::-1])
+        dirs += [s_out] * len(outward) + [-s_out] * len(outward)
+        reps += [r] * (2 * len(outward))
+    return np.array(tgt), np.array(dirs, dtype=np.int64), np.array(reps, dtype=np.int64)
+
+
+def _air(air, air_drift, station_error, frac: np.ndarray) -> tuple[tuple, tuple]:
+    """The air the beam crossed at each reading (temperature C, pressure mmHg, humidity % RH: the mean plus its drift
+    over the run, ``frac`` from -0.5 to 0.5) and what the weather station recorded (off by its error)."""
+    t_air = air[0] + air_drift[0] * frac
+    p_air = air[1] + air_drift[1] * frac
+    h_air = air[2] + air_drift[2] * frac
+    return (t_air, p_air, h_air), (t_air + station_error[0], p_air + station_error[1], h_air + station_error[2])
+
+
+def _reading(optics: str, travel, value, n_air, reading_basis: str, rec) -> tuple[np.ndarray, np.ndarray]:
+    """What the laser displays, and the index ratio behind it: linear optics count the carriage's displacement from
+    home (``travel`` mm plus the error ``value`` um) in wavelengths of the reading basis's air (standard air,
+    vacuum, or the station's recorded air); the other optics read ``value`` scaled by the air's index against
+    standard air's."""
+    n_std = float(refractive_index(*STANDARD_AIR))
+    if optics != "linear":
+        scale = n_air / n_std
+        return value * scale, scale
+    n_basis = {"standard_air": n_std, "vacuum": 1.0}.get(reading_basis)
+    if n_basis is None:  # compensated with the station's (recorded) air
+        n_basis = np.asarray(refractive_index(*rec))
+    displacement = travel + value / 1000.0  # true carriage displacement from home, mm
+    reading = displacement * n_air / n_basis  # fringes of lambda_vac/n_air counted with lambda_vac/n_basis
+    return reading, n_air / n_basis
+
+
 def simulate_interferometer_run(
     truth: ErrorMap,
     carriage: str,
@@ -186,56 +242,22 @@ def simulate_interferometer_run(
     rng = np.random.default_rng(seed)
 
     table = truth.table(carriage)
-    grid = np.unique(np.asarray(table[:, 0] if targets is None else targets, dtype=np.float64))
-    if len(grid) < 2 or not np.isfinite(grid).all():
-        raise InputError("targets: need at least two finite target positions")
-    lo, hi = table[0, 0], table[-1, 0]
-    if grid[0] < lo or grid[-1] > hi:
-        raise InputError(f"targets: {grid[0]:g}..{grid[-1]:g} mm is outside the truth's {carriage} range {lo:g}..{hi:g} mm")
-    if home is None:
-        home = float(grid[np.argmin(np.abs(grid))])
-    home = float(home)
-    if home == grid[0]:
-        outward, s_out = grid, 1
-    elif home == grid[-1]:
-        outward, s_out = grid[::-1], -1
-    else:
-        raise InputError(f"home: {home:g} mm must be the first or last target ({grid[0]:g} or {grid[-1]:g} mm)")
+    grid, home, outward, s_out = _targets(table, targets, home, carriage)
     col = TABLE_COLUMNS.index(component + ("_um" if component[0] == "d" else "_arcsec"))
     true_at = np.interp(grid, table[:, 0], table[:, col])
     true_home = float(np.interp(home, table[:, 0], table[:, col]))
 
-    tgt, dirs, reps = [], [], []
-    for r in range(1, repeats + 1):
-        tgt += list(outward) + list(outward[::-1])
-        dirs += [s_out] * len(outward) + [-s_out] * len(outward)
-        reps += [r] * (2 * len(outward))
-    tgt = np.array(tgt)
-    dirs = np.array(dirs, dtype=np.int64)
-    reps = np.array(reps, dtype=np.int64)
+    tgt, dirs, reps = _program(outward, s_out, repeats)
     k = len(tgt)
     frac = np.linspace(-0.5, 0.5, k)
-    t_air = air[0] + air_drift[0] * frac
-    p_air = air[1] + air_drift[1] * frac
-    h_air = air[2] + air_drift[2] * frac
-    rec = (t_air + station_error[0], p_air + station_error[1], h_air + station_error[2])
+    (t_air, p_air, h_air), rec = _air(air, air_drift, station_error, frac)
     if material_temperature is None:
         material_temperature = 20.0 if truth.temperature is None else truth.temperature
     tm = float(material_temperature) + float(material_drift) * frac
 
     value = np.interp(tgt, grid, true_at) - true_home + dirs * rev / 2.0 + rng.normal(0.0, sigma, k)
     n_air = np.asarray(refractive_index(t_air, p_air, h_air))
-    n_std = float(refractive_index(*STANDARD_AIR))
-    if optics == "linear":
-        n_basis = {"standard_air": n_std, "vacuum": 1.0}.get(reading_basis)
-        if n_basis is None:  # compensated with the station's (recorded) air
-            n_basis = np.asarray(refractive_index(*rec))
-        displacement = (tgt - home) + value / 1000.0  # true carriage displacement from home, mm
-        reading = displacement * n_air / n_basis  # fringes of lambda_vac/n_air counted with lambda_vac/n_basis
-        scale = n_air / n_basis
-    else:
-        scale = n_air / n_std
-        reading = value * scale
+    reading, scale = _reading(optics, tgt - home, value, n_air, reading_basis, rec)
     if quantise:
         reading = np.round(reading, READING_DECIMALS[optics])
         rec = tuple(np.round(v, d) for v, d in zip(rec, STATION_DECIMALS))

@@ -138,6 +138,15 @@ class SweepRecorder:
 MIN_PROFILES_PER_BALL = 3
 
 
+def check_timing(scan_interval, jitter, speed) -> None:
+    """A simulated run's time between scans (s, > 0), placement jitter and sweep speed (mm/s, > 0), checked."""
+    if not (scan_interval > 0 and np.isfinite(scan_interval)):
+        raise InputError(f"scan_interval: must be > 0 s, got {scan_interval!r}")
+    check_jitter(jitter)
+    if not (speed > 0 and np.isfinite(speed)):
+        raise InputError(f"speed: must be > 0 mm/s, got {speed!r}")
+
+
 def check_jitter(jitter: float) -> None:
     """``InputError`` unless ``jitter`` (mm per axis) is a per-scan reproducibility: finite, >= 0 and at most
     ``MAX_REPRODUCIBILITY_MM`` (a metre of jitter would scan empty space and write an empty run)."""
@@ -233,18 +242,7 @@ def simulate_ballbar_run(
     rng = np.random.default_rng(seed)
     plan = _layout(layout)
     calibrated = tuple(calibrated)
-    if set(calibrated) - {"length", "radius"}:
-        raise InputError(f"calibrated: expected a subset of ('length', 'radius'), got {calibrated!r}")
-    if not (scan_interval > 0 and np.isfinite(scan_interval)):
-        raise InputError(f"scan_interval: must be > 0 s, got {scan_interval!r}")
-    check_jitter(jitter)
-    if not (speed > 0 and np.isfinite(speed)):
-        raise InputError(f"speed: must be > 0 mm/s, got {speed!r}")
-    fastest = 2 * BALL_RADIUS * scanner.profile_rate / MIN_PROFILES_PER_BALL
-    if speed > fastest:
-        raise InputError(f"speed: {speed:.6g} mm/s lets fewer than {MIN_PROFILES_PER_BALL} profiles cross a ball of "
-                         f"radius {BALL_RADIUS:g} mm at {scanner.profile_rate:g} profiles/s: at most {fastest:.3g} mm/s",
-                         what="speed", value=f"{speed:.6g}", unit="mm/s")
+    _check_sweeps(calibrated, scan_interval, jitter, speed, scanner)
     reference_poses = [tuple(float(x) for x in p) for p in reference_poses]
     repeat_scans = check_repeat_scans(repeat_scans, 2 * len(plan))
     total = 2 * len(plan) + len(reference_poses) + repeat_scans
@@ -259,28 +257,10 @@ def simulate_ballbar_run(
     def artefact_scale(t):
         return float(np.prod([e.artefact_scale(mean_temperature(t)) for e in effects]))
     rec = SweepRecorder(machine, offset, scanner, temperature, speed, scan_interval, placements, rng, progress, total)
-    sweep_over = rec.sweep_over
-
-    for k, (position, w_axis) in enumerate(plan):
-        pose = _pose(position, w_axis, layout)
-        c1, c2 = np.asarray(position.ball1, float), np.asarray(position.ball2, float)
-        c2 = c1 + (c2 - c1) * artefact_scale((2 * k) * scan_interval)
-        for b, centre in enumerate((c1, c2), start=1):
-            scan_id = 2 * k + b - 1
-            direction = -1 if bidirectional and scan_id % 2 else 1
-            sweep_over(scan_id, pose, centre, BALL_RADIUS, direction, "ball", k + 1, b)
     ref = reference_sphere()
-    for j, rpose in enumerate(reference_poses):
-        sweep_over(2 * len(plan) + j, rpose, ref.centre, ref.radius, 1, "reference", -1, -1)
-    for j in range(repeat_scans):  # the same ball again, where it was (its own jitter, new noise)
-        k, b = divmod(j, 2)
-        position, w_axis = plan[k]
-        c1, c2 = np.asarray(position.ball1, float), np.asarray(position.ball2, float)
-        c2 = c1 + (c2 - c1) * artefact_scale((2 * k) * scan_interval)
-        scan_id = 2 * len(plan) + len(reference_poses) + j
-        direction = -1 if bidirectional and (2 * k + b) % 2 else 1
-        sweep_over(scan_id, _pose(position, w_axis, layout), (c1, c2)[b], BALL_RADIUS, direction, "ball", k + 1,
-                   b + 1)
+    for sweep in _sweeps(plan, layout, reference_poses, ref, repeat_scans, bidirectional,
+                         lambda k: artefact_scale((2 * k) * scan_interval)):
+        rec.sweep_over(*sweep)
     points, scans, pose_table, true_xyz = rec.tables()
     duration = total * scan_interval
     # Each effect says how far each thermocouple role reads above the mean;
@@ -288,13 +268,7 @@ def simulate_ballbar_run(
     extra = [(c, r) for c, r in effect_channels() if r in machine.role_offsets(np.zeros(1))]
     log = thermocouple_log(duration, temperature, role_offsets=machine.role_offsets, extra_channels=extra, rng=rng)
     lengths = np.array([p.length for p, _ in plan])
-    artefact = {"kind": "ballbar", "layout": layout, "ball_radius_mm": BALL_RADIUS, "positions": len(plan)}
-    if "length" in calibrated:
-        artefact["calibrated_length_mm"] = float(np.mean(lengths))
-    if "radius" in calibrated:
-        artefact["calibrated_radius_mm"] = BALL_RADIUS
-    if reference_poses:
-        artefact["reference_sphere"] = {"radius_mm": ref.radius}
+    artefact = _ballbar_artefact(layout, len(plan), lengths, calibrated, ref.radius if reference_poses else None)
     run = Run(
         points=points,
         scans=scans,
@@ -313,6 +287,57 @@ def simulate_ballbar_run(
         {"effects": [{"name": e.name, **asdict(e)} for e in effects], "layout": layout},
     )
     return run, truth
+
+
+def _sweeps(plan, layout: str, reference_poses, ref, repeat_scans: int, bidirectional: bool, bar_scale):
+    """Every sweep of a ballbar test in the order it is scanned, as ``SweepRecorder.sweep_over`` takes it: each
+    position's two balls (the bar's length scaled by ``bar_scale(position index)``), the reference sphere at each
+    of its poses, then the repeated ball scans (the same ball again, where it was: its own jitter, new noise)."""
+    for k, (position, w_axis) in enumerate(plan):
+        pose = _pose(position, w_axis, layout)
+        c1, c2 = np.asarray(position.ball1, float), np.asarray(position.ball2, float)
+        c2 = c1 + (c2 - c1) * bar_scale(k)
+        for b, centre in enumerate((c1, c2), start=1):
+            scan_id = 2 * k + b - 1
+            direction = -1 if bidirectional and scan_id % 2 else 1
+            yield scan_id, pose, centre, BALL_RADIUS, direction, "ball", k + 1, b
+    for j, rpose in enumerate(reference_poses):
+        yield 2 * len(plan) + j, rpose, ref.centre, ref.radius, 1, "reference", -1, -1
+    for j in range(repeat_scans):
+        k, b = divmod(j, 2)
+        position, w_axis = plan[k]
+        c1, c2 = np.asarray(position.ball1, float), np.asarray(position.ball2, float)
+        c2 = c1 + (c2 - c1) * bar_scale(k)
+        scan_id = 2 * len(plan) + len(reference_poses) + j
+        direction = -1 if bidirectional and (2 * k + b) % 2 else 1
+        yield scan_id, _pose(position, w_axis, layout), (c1, c2)[b], BALL_RADIUS, direction, "ball", k + 1, b + 1
+
+
+def _check_sweeps(calibrated: tuple, scan_interval, jitter, speed, scanner) -> None:
+    """The ballbar simulation's options, checked: what is calibrated, the time between scans, the placement
+    jitter, and a sweep speed at which enough profiles cross each ball."""
+    if set(calibrated) - {"length", "radius"}:
+        raise InputError(f"calibrated: expected a subset of ('length', 'radius'), got {calibrated!r}")
+    check_timing(scan_interval, jitter, speed)
+    fastest = 2 * BALL_RADIUS * scanner.profile_rate / MIN_PROFILES_PER_BALL
+    if speed > fastest:
+        raise InputError(f"speed: {speed:.6g} mm/s lets fewer than {MIN_PROFILES_PER_BALL} profiles cross a ball of "
+                         f"radius {BALL_RADIUS:g} mm at {scanner.profile_rate:g} profiles/s: at most {fastest:.3g} mm/s",
+                         what="speed", value=f"{speed:.6g}", unit="mm/s")
+
+
+def _ballbar_artefact(layout: str, positions: int, lengths: np.ndarray, calibrated: tuple,
+                      reference_radius: float | None) -> dict:
+    """run.json's ``artefact`` of a simulated ballbar run: its calibrated values as asked, the reference
+    sphere's radius when it was scanned."""
+    artefact = {"kind": "ballbar", "layout": layout, "ball_radius_mm": BALL_RADIUS, "positions": positions}
+    if "length" in calibrated:
+        artefact["calibrated_length_mm"] = float(np.mean(lengths))
+    if "radius" in calibrated:
+        artefact["calibrated_radius_mm"] = BALL_RADIUS
+    if reference_radius is not None:
+        artefact["reference_sphere"] = {"radius_mm": reference_radius}
+    return artefact
 
 
 def simulate_reference_scan(

@@ -484,15 +484,7 @@ def acceptance_test(
     U_form = 2 * u_frm
     U_size = 2 * u_dia
     if calibrated_radius is not None:
-        r_cal = float(calibrated_radius)
-        for s in res.spheres:
-            item = f"position {s.position} ball {s.ball} (scan {s.scan_id})"
-            checks.append(Check.judged("probing form, single view", item, s.form * 1e3, mpes["mpe_form"].at(),
-                                       U_form))
-        for s in res.spheres:
-            item = f"position {s.position} ball {s.ball} (scan {s.scan_id})"
-            e = 2 * (s.radius - r_cal) * 1e3
-            checks.append(Check.judged("probing size, single view", item, e, mpes["mpe_size"].at(), U_size))
+        checks += _ball_probing_checks(res.spheres, float(calibrated_radius), mpes, U_form, U_size)
     else:
         notes.append("no calibrated ball radius (artefact calibrated_radius_mm): no probing tests on the ballbar's balls")
 
@@ -507,17 +499,7 @@ def acceptance_test(
         notes.append("no scans of the reference sphere: no all-points probing tests")
 
     if calibrated_length is not None:
-        l_cal = float(calibrated_length)
-        l20 = res.lengths_at_20c
-        if not np.all(np.isfinite(l20)):
-            raise InputError("temperature: the run has no temperature log; give the part temperature (C) for the "
-                             "lengths at 20 C")
-        for p, length, t in zip(res.positions.tolist(), l20, res.temperatures):
-            e = (length - l_cal) * 1e3
-            u = math.sqrt(u_len ** 2 + (length * u_alpha * (t - 20.0) * 1e-3) ** 2
-                          + (length * expansion * 1e6 * u_t * 1e-3) ** 2)
-            mpe = mpes["mpe_length"].at(length)
-            checks.append(Check.judged("length", f"position {p}", e, mpe, 2 * u, float(length)))
+        checks += _length_checks(res, float(calibrated_length), mpes["mpe_length"], u_len, u_alpha, expansion, u_t)
         unotes.append(f"length U = 2 sqrt(u_cert^2 + (L u_alpha |T - 20|)^2 + (L alpha u_T)^2): u_cert {u_len:g} um, "
                       f"u_alpha {u_alpha:g} ppm/K, alpha {expansion * 1e6:g} ppm/K, u_T {u_t:g} K")
     else:
@@ -531,6 +513,39 @@ def acceptance_test(
     _log.info("acceptance: %d values tested", len(checks))
     return AcceptanceResult(tuple(checks), res.label, mpes["mpe_form"], mpes["mpe_size"], mpes["mpe_length"],
                             tuple(unotes), tuple(notes), tuple(ev.skipped), tlog)
+
+
+def _ball_probing_checks(spheres, r_cal: float, mpes: dict, U_form: float, U_size: float) -> list[Check]:
+    """The single-view probing tests on the ballbar's balls: each ball's form, then each ball's size error
+    (twice the radius error against the calibrated radius), um."""
+    checks = []
+    for s in spheres:
+        item = f"position {s.position} ball {s.ball} (scan {s.scan_id})"
+        checks.append(Check.judged("probing form, single view", item, s.form * 1e3, mpes["mpe_form"].at(),
+                                   U_form))
+    for s in spheres:
+        item = f"position {s.position} ball {s.ball} (scan {s.scan_id})"
+        e = 2 * (s.radius - r_cal) * 1e3
+        checks.append(Check.judged("probing size, single view", item, e, mpes["mpe_size"].at(), U_size))
+    return checks
+
+
+def _length_checks(res, l_cal: float, mpe_length: MPE, u_len: float, u_alpha: float, expansion: float,
+                   u_t: float) -> list[Check]:
+    """The length test at each position: the error of the length at 20 C against the calibrated length, um, with
+    U = 2 sqrt(u_cert^2 + (L u_alpha |T - 20|)^2 + (L alpha u_T)^2)."""
+    l20 = res.lengths_at_20c
+    if not np.all(np.isfinite(l20)):
+        raise InputError("temperature: the run has no temperature log; give the part temperature (C) for the "
+                         "lengths at 20 C")
+    checks = []
+    for p, length, t in zip(res.positions.tolist(), l20, res.temperatures):
+        e = (length - l_cal) * 1e3
+        u = math.sqrt(u_len ** 2 + (length * u_alpha * (t - 20.0) * 1e-3) ** 2
+                      + (length * expansion * 1e6 * u_t * 1e-3) ** 2)
+        mpe = mpe_length.at(length)
+        checks.append(Check.judged("length", f"position {p}", e, mpe, 2 * u, float(length)))
+    return checks
 
 
 def _reference_checks(run: Run, maps, temperature, policy, ref_ids: np.ndarray, radius: float, mpes,

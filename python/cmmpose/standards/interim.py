@@ -231,14 +231,10 @@ def interim_check(
                   temperature_policy=temperature_policy)
     tlog = ev.provenance["temperature"].get("log")
     res = ev.compensated if ev.compensated is not None else ev.uncompensated
-    balls = {(s.position, s.ball): s.centre for s in res.spheres}
-    bar = np.array([balls[(int(p), 2)] - balls[(int(p), 1)] for p in res.positions])
-    n = bar / np.linalg.norm(bar, axis=1)[:, None]
+    a = _sensitivities(res)
     l20 = res.lengths_at_20c
     if not np.all(np.isfinite(l20)):
         raise InputError("temperature: the run has no temperature log; give the machine temperature (C)")
-    a = np.column_stack([-n[:, 0] ** 2, -n[:, 1] ** 2, -n[:, 2] ** 2, ARCSEC_PPM * n[:, 0] * n[:, 1],
-                         ARCSEC_PPM * n[:, 1] * n[:, 2], ARCSEC_PPM * n[:, 2] * n[:, 0]])
     absolute = calibrated_length is not None
     notes = [n for n in (skipped_note(ev.skipped),) if n] + (log_notes(tlog) if tlog else [])
     if absolute:
@@ -248,27 +244,10 @@ def interim_check(
     else:
         ref = float(np.mean(l20))
         y = (l20 - ref) / ref * 1e6
-        # Scales constrained to sum to zero (the common scale is the unknown bar length): s = B t.
-        b3 = np.array([[1.0, 0.0], [-0.5, math.sqrt(3) / 2], [-0.5, -math.sqrt(3) / 2]]) * math.sqrt(2 / 3)
-        basis = np.zeros((6, 5))
-        basis[:3, :2] = b3
-        basis[3:, 2:] = np.eye(3)
-        design = np.column_stack([a @ basis, np.ones(len(y))])  # + a constant: the bar length's offset
+        design, basis = _relative_design(a, len(y))
         notes.append("no calibrated length: the scale values are scale mismatches (each axis against the mean of "
                      "the three); the common scale cannot be told from the bar's length")
-    n_par = design.shape[1]
-    if len(y) <= n_par:
-        raise InputError(f"run: {len(y)} positions do not determine {n_par} values; the B89 layout's 20 do")
-    sv = np.linalg.svd(design, compute_uv=False)
-    if sv[-1] < 1e-6 * sv[0]:
-        weak = _undetermined(a)
-        raise InputError(f"run: the positions' directions do not determine {', '.join(weak) or 'every value'}: add "
-                         "positions along each axis and on each plane's diagonals")
-    theta, *_ = np.linalg.lstsq(design, y, rcond=None)
-    resid = y - design @ theta
-    dof = len(y) - n_par
-    s2 = float(resid @ resid) / dof
-    cov_t = s2 * np.linalg.inv(design.T @ design)
+    theta, resid, dof, cov_t = _least_squares(design, y, a)
     if absolute:
         params, cov = theta, cov_t
         t_mean = float(np.nanmean(res.temperatures))
@@ -290,6 +269,44 @@ def interim_check(
                  (" plus the reference's common scale terms" if absolute else ""))
     residual_um = float(np.sqrt(np.mean(resid ** 2))) * ref * 1e-3
     return InterimCheck(values, res.label, absolute, residual_um, len(y), tuple(notes), tuple(ev.skipped), tlog)
+
+
+def _sensitivities(res) -> np.ndarray:
+    """How each position's length (ppm) moves with the three scales (ppm) and three squarenesses (arcsec),
+    from the bar's direction between its two balls: (positions, 6)."""
+    balls = {(s.position, s.ball): s.centre for s in res.spheres}
+    bar = np.array([balls[(int(p), 2)] - balls[(int(p), 1)] for p in res.positions])
+    n = bar / np.linalg.norm(bar, axis=1)[:, None]
+    return np.column_stack([-n[:, 0] ** 2, -n[:, 1] ** 2, -n[:, 2] ** 2, ARCSEC_PPM * n[:, 0] * n[:, 1],
+                            ARCSEC_PPM * n[:, 1] * n[:, 2], ARCSEC_PPM * n[:, 2] * n[:, 0]])
+
+
+def _relative_design(a: np.ndarray, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """Without a calibrated length: the scales constrained to sum to zero (the common scale is the unknown bar
+    length), s = B t, and a constant for the bar length's offset: (design, basis B)."""
+    b3 = np.array([[1.0, 0.0], [-0.5, math.sqrt(3) / 2], [-0.5, -math.sqrt(3) / 2]]) * math.sqrt(2 / 3)
+    basis = np.zeros((6, 5))
+    basis[:3, :2] = b3
+    basis[3:, 2:] = np.eye(3)
+    return np.column_stack([a @ basis, np.ones(rows)]), basis
+
+
+def _least_squares(design: np.ndarray, y: np.ndarray, a: np.ndarray):
+    """The least-squares values, residuals, degrees of freedom and covariance (Type A, from the residuals); the
+    positions must outnumber the values and their directions determine each."""
+    n_par = design.shape[1]
+    if len(y) <= n_par:
+        raise InputError(f"run: {len(y)} positions do not determine {n_par} values; the B89 layout's 20 do")
+    sv = np.linalg.svd(design, compute_uv=False)
+    if sv[-1] < 1e-6 * sv[0]:
+        weak = _undetermined(a)
+        raise InputError(f"run: the positions' directions do not determine {', '.join(weak) or 'every value'}: add "
+                         "positions along each axis and on each plane's diagonals")
+    theta, *_ = np.linalg.lstsq(design, y, rcond=None)
+    resid = y - design @ theta
+    dof = len(y) - n_par
+    s2 = float(resid @ resid) / dof
+    return theta, resid, dof, s2 * np.linalg.inv(design.T @ design)
 
 
 def _undetermined(a: np.ndarray) -> list[str]:

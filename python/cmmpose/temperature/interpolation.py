@@ -484,16 +484,7 @@ def per_scan_temperature(
     tt = _times(t)
     if tt.ndim != 1:
         raise InputError(f"t: expected shape (N,), got {tt.shape}")
-    sid = np.asarray(scan_id)
-    if sid.ndim != 1:
-        raise InputError(f"scan_id: expected shape (N,), got {sid.shape}")
-    if sid.shape != tt.shape:
-        raise InputError(f"scan_id: has {sid.shape[0]} entries but t has {tt.shape[0]}; one scan id per point")
-    if sid.dtype.kind not in "iu":
-        if sid.dtype.kind == "f" and np.all(np.isfinite(sid)) and np.all(sid == np.round(sid)):
-            sid = sid.astype(np.int64)
-        else:
-            raise InputError(f"scan_id: expected integers, got dtype {sid.dtype}")
+    sid = _scan_ids(scan_id, tt)
     if not len(tt):
         raise InputError("t: no points")
     tt, ev, summary, log, rep, groups, interpolate, hold = _select(tt, temperatures, channels, policy, report,
@@ -517,7 +508,45 @@ def per_scan_temperature(
             raise InputError(f"scan {ids[k]} ({a[k]:g} s to {b[k]:g} s) spans a gap of the temperature log: no samples "
                              f"from {g0[gk]:g} s to {g1[gk]:g} s ({g1[gk] - g0[gk]:g} s > max_gap {rep.max_gap:g} s)",
                              option="on_gap", remedy="on_gap")
-    # knots: each scan's ends and the log samples strictly inside it
+    q, first, n_in = _knots(lt, a, b)
+    kev, none_any, _ = _evaluate(q, log, rep, groups, interpolate)
+    if none_any.any():
+        j = int(np.argmax(none_any))
+        k = int(np.searchsorted(first, j, side="right")) - 1
+        raise InputError(f"scan {ids[k]} ({a[k]:g} s to {b[k]:g} s): no clean channel for policy {policy!r} at "
+                         f"{q[j]:g} s inside the scan", option="on_gap", remedy="on_gap")
+    owner = np.repeat(np.arange(s), n_in + 2)
+    mean = _time_means(q, kev.values, owner, first, a, b)
+    temp = mean if policy == "per_axis" else mean[:, 0]
+    per_point = temp[inv]
+    across = np.zeros(s, dtype=bool)
+    np.logical_or.at(across, owner, kev.bridged)
+    if len(gaps):
+        across |= ((lt[gaps][None, :] < b[:, None]) & (lt[gaps + 1][None, :] > a[:, None])).any(axis=1)
+    for arr in (ids, a, b, temp, n_pts, per_point):
+        arr.flags.writeable = False
+    return ScanTemperatures(ids, a, b, temp, n_pts, per_point, summary, int(across.sum()))
+
+
+def _scan_ids(scan_id, tt: np.ndarray) -> np.ndarray:
+    """The points' scan ids: one per time, integers (whole floats taken as such)."""
+    sid = np.asarray(scan_id)
+    if sid.ndim != 1:
+        raise InputError(f"scan_id: expected shape (N,), got {sid.shape}")
+    if sid.shape != tt.shape:
+        raise InputError(f"scan_id: has {sid.shape[0]} entries but t has {tt.shape[0]}; one scan id per point")
+    if sid.dtype.kind not in "iu":
+        if sid.dtype.kind == "f" and np.all(np.isfinite(sid)) and np.all(sid == np.round(sid)):
+            sid = sid.astype(np.int64)
+        else:
+            raise InputError(f"scan_id: expected integers, got dtype {sid.dtype}")
+    return sid
+
+
+def _knots(lt: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The times the log is evaluated at: each scan's ends [a, b] and the log samples strictly inside it, scan after
+    scan; (times, index of each scan's first, samples inside each)."""
+    s = len(a)
     i0 = np.searchsorted(lt, a, side="right")
     i1 = np.searchsorted(lt, b, side="left")
     n_in = np.maximum(i1 - i0, 0)
@@ -528,14 +557,14 @@ def per_scan_temperature(
     seg = np.repeat(np.arange(s), n_in)
     within = np.arange(int(n_in.sum())) - np.repeat(np.cumsum(n_in) - n_in, n_in)
     q[first[seg] + 1 + within] = lt[i0[seg] + within]
-    kev, none_any, _ = _evaluate(q, log, rep, groups, interpolate)
-    if none_any.any():
-        j = int(np.argmax(none_any))
-        k = int(np.searchsorted(first, j, side="right")) - 1
-        raise InputError(f"scan {ids[k]} ({a[k]:g} s to {b[k]:g} s): no clean channel for policy {policy!r} at "
-                         f"{q[j]:g} s inside the scan", option="on_gap", remedy="on_gap")
-    y = kev.values  # (K, G)
-    owner = np.repeat(np.arange(s), n_in + 2)
+    return q, first, n_in
+
+
+def _time_means(q: np.ndarray, y: np.ndarray, owner: np.ndarray, first: np.ndarray, a: np.ndarray,
+                b: np.ndarray) -> np.ndarray:
+    """Each scan's time mean of the temperatures ``y`` (K, G) at the knots ``q`` (trapezoids between knots of one
+    scan); a scan of no duration takes the value at its time."""
+    s = len(a)
     dq = np.diff(q)
     area = 0.5 * (y[1:] + y[:-1]) * dq[:, None]
     same = owner[1:] == owner[:-1]
@@ -543,13 +572,4 @@ def per_scan_temperature(
     np.add.at(integral, owner[1:][same], area[same])
     dur = b - a
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(dur[:, None] > 0, integral / np.where(dur > 0, dur, 1.0)[:, None], y[first])
-    temp = mean if policy == "per_axis" else mean[:, 0]
-    per_point = temp[inv]
-    across = np.zeros(s, dtype=bool)
-    np.logical_or.at(across, owner, kev.bridged)
-    if len(gaps):
-        across |= ((lt[gaps][None, :] < b[:, None]) & (lt[gaps + 1][None, :] > a[:, None])).any(axis=1)
-    for arr in (ids, a, b, temp, n_pts, per_point):
-        arr.flags.writeable = False
-    return ScanTemperatures(ids, a, b, temp, n_pts, per_point, summary, int(across.sum()))
+        return np.where(dur[:, None] > 0, integral / np.where(dur > 0, dur, 1.0)[:, None], y[first])
