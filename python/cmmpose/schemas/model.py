@@ -13,7 +13,7 @@ import re
 
 from .. import _core
 from .. import effects as effects_registry
-from ..temperature import BROKEN_CHANNELS, ON_GAP, OUT_OF_RANGE
+from ..temperature.policy import BROKEN_CHANNELS, ON_GAP, OUT_OF_RANGE
 from ._common import (ANGLE_DEG, DRAFT, ID_BASE, LENGTH_MM, MAX_ITEMS, NO_CONTROL, TEMPERATURE_C, array,
                       integer, nullable, number, obj, pair, text, triple)
 
