@@ -288,8 +288,8 @@ def test_a_ball_not_measured_is_stated(plate_run):
     assert ev.to_dict()["results"][0]["placements"][0]["missing_balls"] == [1]
 
 
-def test_old_ballbar_runs_evaluate_as_before():
-    run, _ = simulate_ballbar_run(None, 20.0, layout="crossed", seed=1)
+def test_old_ballbar_runs_evaluate_as_before(simulated_run):
+    run = simulated_run
     assert not is_artefact_run(run)
     assert len(evaluate(run, None).uncompensated.lengths) == 8
     with pytest.raises(InputError, match="records no artefact definition"):

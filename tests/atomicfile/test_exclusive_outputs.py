@@ -322,9 +322,9 @@ def test_corrected_maps_on_a_full_disk_leave_no_part_of_the_set(maps_and_run, tm
 
 
 @pytest.fixture(scope="module")
-def small_run(tmp_path_factory):
+def small_run(tmp_path_factory, simulated_run):
     root = tmp_path_factory.mktemp("runs")
-    assert cli("simulate", "-o", root / "run", "--seed", "3").exit_code == 0
+    simulated_run.save(root / "run")
     return root / "run"
 
 

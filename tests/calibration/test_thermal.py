@@ -207,8 +207,8 @@ def test_scalar_time_stamp():
     assert per_axis.shape == (3,)
 
 
-def test_run_input_agrees_with_the_evaluation_default():
-    run, _ = sim.simulate_ballbar_run(cmmpose.ErrorMapSet.thesis(), 22.5, [], seed=1)
+def test_run_input_agrees_with_the_evaluation_default(simulated_run):
+    run = simulated_run
     t = run.points["t"][::50]
     temps, info = temperatures_at(t, run)
     assert np.allclose(temps, machine_temperature(run, t), atol=1e-12)

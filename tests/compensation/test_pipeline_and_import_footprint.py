@@ -91,10 +91,8 @@ def test_parquet_point_file_encodes_each_column_for_what_it_holds(tmp_path):
     np.testing.assert_array_equal(read_point_cloud(path).xyz, xyz)
 
 
-def test_run_tables_encode_floats_without_a_dictionary(tmp_path):
-    from cmmpose.sim import simulate_ballbar_run
-
-    run, _ = simulate_ballbar_run(None, 20.0, layout="crossed", seed=1)
+def test_run_tables_encode_floats_without_a_dictionary(tmp_path, simulated_run):
+    run = simulated_run
     run.save(tmp_path / "r")
     meta = pq.ParquetFile(tmp_path / "r" / "points.parquet").metadata.row_group(0)
     kinds = {meta.column(k).path_in_schema: meta.column(k) for k in range(meta.num_columns)}

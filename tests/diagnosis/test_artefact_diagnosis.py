@@ -33,11 +33,6 @@ def _strict_json(text: str):
 
 
 @pytest.fixture(scope="module")
-def plate():
-    return artefacts.load_artefact("koba-0420")
-
-
-@pytest.fixture(scope="module")
 def hidden(plate):
     """KOBA 0420 in the three coordinate planes of the thesis machine with a
     squareness and a scale error the maps do not hold."""

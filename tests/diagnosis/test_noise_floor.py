@@ -57,8 +57,8 @@ def _machine_file(tmp_path, table: str):
 # -- 1. the machine file states it --------------------------------------------------
 
 
-def test_the_thesis_machine_states_its_reproducibility_and_where_it_comes_from():
-    m = Machine.thesis()
+def test_the_thesis_machine_states_its_reproducibility_and_where_it_comes_from(machine):
+    m = machine
     assert m.reproducibility_um == 3.0
     assert "REALISTIC_JITTER" in m.reproducibility_source and "appendix-c" in m.reproducibility_source
     assert m.reproducibility_um == cmmpose.sim.runs.REALISTIC_JITTER * 1e3  # the figure the demo simulates

@@ -24,11 +24,11 @@ HIDDEN = [parse_effect("squareness:xy=8,yz=6,zx=-5"), parse_effect("scale:y=-6")
 
 
 @pytest.fixture(scope="module")
-def xy_plate():
+def xy_plate(machine):
     """A KOBA 0420 in the XY plane only, at two heights: squareness yz and zx leave it untouched."""
     run, _ = simulate_artefact_run(artefacts.load_artefact("koba-0420"), ["xy@z=-450", "xy@z=-300,rot=90"], MAPS,
                                    20.5, HIDDEN, jitter=0.0005, seed=1)
-    return dataclasses.replace(run, maps=Machine.thesis().maps_record(()))
+    return dataclasses.replace(run, maps=machine.maps_record(()))
 
 
 def test_xy_placements_leave_yz_and_zx_invisible_and_the_plan_stands_the_plate_up(xy_plate):
@@ -58,7 +58,7 @@ def test_the_budget_is_respected(xy_plate, budget):
     assert len(set(result.placements)) == budget
 
 
-def test_the_proposals_parse_and_reach(xy_plate):
+def test_the_proposals_parse_and_reach(xy_plate, machine):
     """A proposal's shorthand gives back its placement (cmmpose.placement), and the machine reaches every ball."""
     from cmmpose.placement import parse
     from cmmpose.placement import plan as place
@@ -69,7 +69,7 @@ def test_the_proposals_parse_and_reach(xy_plate):
         (again,) = parse(prop.placement)
         np.testing.assert_allclose(again.rotation, prop.where.rotation, atol=1e-9)
         np.testing.assert_allclose(again.centre, prop.where.centre, atol=1e-5)
-        place([again], art, Machine.thesis())
+        place([again], art, machine)
 
 
 def test_bad_input_is_refused(xy_plate):

@@ -33,11 +33,6 @@ def _table(run, plate):
 
 
 @pytest.fixture(scope="module")
-def plate():
-    return artefacts.load_artefact("koba-0420")
-
-
-@pytest.fixture(scope="module")
 def rows(plate):
     run, _ = simulate_artefact_run(plate, ["planes"], ErrorMap.zero(temperature=20.0), 20.0,
                                    [Squareness(*TRUTH[:3]), Scale(*TRUTH[3:])], seed=1)

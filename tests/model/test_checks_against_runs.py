@@ -217,12 +217,12 @@ def test_an_implausible_stated_reproducibility_is_refused():
     problem.state_reproducibility(3.0)
 
 
-def test_the_command_line_names_its_reproducibility_option(tmp_path):
+def test_the_command_line_names_its_reproducibility_option(tmp_path, simulated_run):
     from click.testing import CliRunner
 
     from cmmpose.cli import main
 
-    run, _ = cmmpose.sim.simulate_ballbar_run(MAPS, 22.5, seed=6)
+    run = simulated_run
     run.save(tmp_path / "run")
     res = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), "--reproducibility", "5000"])
     assert res.exit_code != 0 and "--reproducibility: 5000 um per axis is implausible" in res.output, res.output

@@ -21,7 +21,6 @@ from cmmpose.cli import main
 from cmmpose.errors import InputError
 from cmmpose.formats import mapformats, pointformats
 from cmmpose.formats.linearaxis import linear_components
-from cmmpose.machine import Machine
 
 # -- the mechanism ----------------------------------------------------------------------------------------------
 
@@ -141,7 +140,7 @@ def _with_kind(monkeypatch, cls) -> None:
 
 
 @pytest.mark.parametrize("spans, like", [("line", "thesis-ballbar"), ("plane", "koba-0420"), ("point", None)])
-def test_a_plan_for_a_new_artefact_kind_follows_what_it_declares(monkeypatch, spans, like):
+def test_a_plan_for_a_new_artefact_kind_follows_what_it_declares(monkeypatch, spans, like, machine):
     from cmmpose.diagnosis import plan as plan_module
 
     class Probe(artefacts.ArtefactKind):
@@ -154,7 +153,6 @@ def test_a_plan_for_a_new_artefact_kind_follows_what_it_declares(monkeypatch, sp
     template = artefacts.load_artefact(like or "thesis-ballbar")
     probe = replace(template, kind="probe-kind")
     assert artefacts.get("probe-kind") is Probe
-    machine = Machine.thesis()
     if like is None:
         with pytest.raises(InputError, match="one ball cannot separate"):
             plan_module.candidate_placements(probe, machine)

@@ -275,18 +275,12 @@ def test_calibrate_alignment_and_simulate_refuse_absurd_poses(tmp_path):
 # -- a dropped thermocouple and a held log are in the provenance ------------------------------------
 
 
-@pytest.fixture(scope="module")
-def crossed_run():
-    run, _ = cmmpose.sim.simulate_ballbar_run(cmmpose.ErrorMapSet.thesis(), 20.0, layout="crossed", seed=3)
-    return run
-
-
-def test_a_dropped_thermocouple_and_a_held_log_are_in_the_provenance(crossed_run, tmp_path):
-    log = {k: np.array(v, copy=True) for k, v in crossed_run.temperatures.items()}
+def test_a_dropped_thermocouple_and_a_held_log_are_in_the_provenance(simulated_run, tmp_path):
+    log = {k: np.array(v, copy=True) for k, v in simulated_run.temperatures.items()}
     log["X1"][:] = 1e6  # a broken channel reading a constant 1e6 C
-    end = float(np.max(crossed_run.points["t"])) - 5.0  # the log ends 5 s before the last point
+    end = float(np.max(simulated_run.points["t"])) - 5.0  # the log ends 5 s before the last point
     log = {k: v[log["t"] <= end] for k, v in log.items()}
-    run = dataclasses.replace(crossed_run, temperatures=log)
+    run = dataclasses.replace(simulated_run, temperatures=log)
     ev = cmmpose.evaluate(run, cmmpose.ErrorMapSet.thesis())
     prov = json.loads(json.dumps(ev.to_dict()))["provenance"]
     tlog = prov["temperature"]["log"]
@@ -310,8 +304,8 @@ def test_a_dropped_thermocouple_and_a_held_log_are_in_the_provenance(crossed_run
     assert r.exit_code == 0 and "thermocouple X1" in out and "does not cover" in out
 
 
-def test_a_clean_log_has_nothing_dropped_or_held(crossed_run):
-    ev = cmmpose.evaluate(crossed_run, cmmpose.ErrorMapSet.thesis())
+def test_a_clean_log_has_nothing_dropped_or_held(simulated_run):
+    ev = cmmpose.evaluate(simulated_run, cmmpose.ErrorMapSet.thesis())
     tlog = ev.provenance["temperature"]["log"]
     assert tlog["channels_dropped"] == [] and tlog["held"] is None
     assert len(tlog["channels_used"]) == 9
