@@ -25,7 +25,7 @@ from tests.acquire.test_recorder_end_to_end import CLI, TIMEOUT, stop_process, w
 
 PLACEMENTS = ["xy@z=-450", "xy@z=-450,rot=90"]
 #: Agreement of deviations and length errors, acquired vs simulated, mm (as
-#: test_acquire_e2e's ballbar figures): the points go over the link as
+#: test_recorder_end_to_end's ballbar figures): the points go over the link as
 #: float32 (about 2 nm at 500 mm) and the temperatures are sampled at the
 #: recorder's poll times, not at the simulated log's (its noisy readings
 #: move the maps' thermal terms and each placement's expansion by tens of nm).
