@@ -1,7 +1,7 @@
 """Coverage of the command-line calibration's stated uncertainties: how often
 its errors fall within 2 (and 1, 3) stated standard uncertainties, over many
 noise seeds, on the moving-bridge example machine with its maps and three
-vernier points (tests/calibration_study.py runs one trial: three
+vernier points (tests/support/calibration_study.py runs one trial: three
 ``cmmpose calibrate alignment`` and one ``cmmpose calibrate offset``).
 
     python benches/calibration_coverage.py [--trials 200]
@@ -23,7 +23,7 @@ import numpy as np
 
 from cmmpose.calibration import AlignmentLibrary, ReferenceReading, mount_offset
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "support"))
 from calibration_study import GROUPS, cli_trial  # noqa: E402
 
 

@@ -1,5 +1,5 @@
 """Throughput and memory of the Rust kernel against the NumPy reference
-(tests/numpy_reference.py) on the same inputs, in the same run.
+(tests/support/numpy_reference.py) on the same inputs, in the same run.
 
     python benches/compare_numpy.py [--points 1000000] [--repeats 5]
 
@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 
 import cmmpose  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "support"))
 import numpy_reference as nr  # noqa: E402
 
 POSE = (90.0, 90.0, 0.0)

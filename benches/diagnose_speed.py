@@ -2,7 +2,7 @@
 500,000 points, the Hyscan at 1024 points per profile) with the whole
 effect library, and of its unit of work, one model evaluation (compensate
 every point, fit every sphere), against the NumPy way of doing that same
-evaluation (tests/numpy_reference.py for the compensation, SciPy
+evaluation (tests/support/numpy_reference.py for the compensation, SciPy
 least_squares for the geometric sphere fits), in the same run.
 
     python benches/diagnose_speed.py [--repeats 5] [--cold 5] [--reference-spheres 4]
@@ -37,7 +37,7 @@ from cmmpose.diagnosis.identify import Problem  # noqa: E402
 from cmmpose.sim import effects as E  # noqa: E402
 from cmmpose.sim.runs import simulate_ballbar_run  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "support"))
 import numpy_reference as nr  # noqa: E402
 
 

@@ -2,7 +2,7 @@
 default simulated run (``cmmpose simulate``: 20 B89 positions, about
 476,000 points), in process, against the NumPy way of doing the same work
 in the same run: uncompensated and compensated coordinates of every point
-with tests/numpy_reference.py, and the 2 x 40 geometric sphere fits with
+with tests/support/numpy_reference.py, and the 2 x 40 geometric sphere fits with
 SciPy's least_squares (a few fitted, scaled up to all of them).
 
     python benches/evaluate_speed.py [--repeats 5] [--reference-spheres 4] [--no-reference]
@@ -26,7 +26,7 @@ import cmmpose
 from cmmpose.evaluation.ballbar import evaluate, machine_temperature
 from cmmpose.sim import simulate_ballbar_run
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "support"))
 import numpy_reference as nr  # noqa: E402
 
 

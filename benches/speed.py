@@ -2,7 +2,7 @@
 measured in the same run:
 
 - compensation on profile-structured scan data and on random readings, in
-  M points/s, against the NumPy reference (tests/numpy_reference.py) and
+  M points/s, against the NumPy reference (tests/support/numpy_reference.py) and
   against this machine's streaming limit for the same arrays
   (``_core.streaming_reference``: the same reads and writes with one add
   per value);
@@ -43,7 +43,7 @@ from cmmpose.pose import digitizer  # noqa: E402
 from cmmpose.sim import effects as E  # noqa: E402
 from cmmpose.sim.runs import simulate_ballbar_run  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "support"))
 import numpy_reference as nr  # noqa: E402
 
 POSE = (90.0, 90.0, 0.0)

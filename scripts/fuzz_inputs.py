@@ -10,7 +10,7 @@ Exit status 1 if any entry point had a crash or a silent result. The
 references are deliberately simple and independent of cmmpose's readers:
 Python's csv module and a strict number pattern for text files, numpy's own
 loader for .npy, value equality with the clean file for binary run tables,
-and tests/numpy_reference.py for the compensation.
+and tests/support/numpy_reference.py for the compensation.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from cmmpose.formats.pointfiles import read_points
 from cmmpose.run import Run
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE.parent / "tests" / "support"))
 import numpy_reference as ref  # noqa: E402  (the independent NumPy implementation)
 
 NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")

@@ -11,6 +11,11 @@ where a line wraps.
 
 The shared fixtures are made once per session and are read-only (a ``Run`` never changes once made; a test
 that needs another run derives one, e.g. with ``dataclasses.replace``, or saves it under ``tmp_path``).
+
+The layout. The folders of ``tests/`` mirror ``python/cmmpose/`` (docs/architecture.md, "Tests"); a folder's own
+``conftest.py`` holds what only its tests share; the helper modules (the independent references, NIST's scans,
+``repo.REPO`` for the repository's files) live in ``tests/support/``, imported by name (``pythonpath`` in
+pyproject.toml).
 """
 
 from __future__ import annotations

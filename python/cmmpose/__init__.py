@@ -29,7 +29,7 @@ from .kernel_report import KernelReport
 # `compensate` or `evaluate` never need (the command line imports this
 # package first). So do the run format and the evaluation (with pyarrow,
 # which the run format reads through): `cmmpose fit` or `compensate` never
-# needs them (tests/test_speed_footprint.py checks what `import cmmpose` loads).
+# needs them (tests/compensation/test_pipeline_and_import_footprint.py checks what `import cmmpose` loads).
 __getattr__, __dir__ = lazy_attributes(__name__, {
     # What `cmmpose fit` or `compensate` need is loaded by those commands themselves (start-up, issue 27).
     **{name: ("filecompensation", name) for name in ("FileCompensation", "compensate_file")},

@@ -92,7 +92,7 @@ def check_labels(groups, fits, radius: float) -> None:
 #: what no rigid motion explains, and grows with the artefact: the thesis
 #: machine uncompensated (its maps, 20-29.5 C) leaves up to 0.22 mm on a KOBA
 #: 0620 (752 mm diagonal), 0.29 um per mm, and 0.14 mm on the 0420 and the
-#: APMP plate (tests/test_artefact_labels.py measures it); 1 mm, or 2 um per
+#: APMP plate (tests/evaluation/test_artefact_labels.py measures it); 1 mm, or 2 um per
 #: mm of the artefact's largest spacing (2000 ppm, 400 arcsec of shear: a
 #: machine no one measures a calibrated plate on), is 6.9 times the worst of
 #: these. A swapped or wrong label moves a ball to another ball's place, at

@@ -21,7 +21,7 @@ from .._lazy import LazyModule
 from ..errors import InputError, InputTypeError
 from .log import LogColumns, LogReport, check_log, read_log
 
-# The run format loads on first use (tests/test_speed_footprint.py).
+# The run format loads on first use (tests/compensation/test_pipeline_and_import_footprint.py).
 _run = LazyModule("cmmpose.run")
 
 __all__ = ["temperatures_at", "per_scan_temperature", "ThermalSummary", "ScanTemperatures", "POLICIES", "AXIS_ROLES"]

@@ -20,7 +20,7 @@ import numpy as np
 from .._lazy import LazyModule
 from ..errors import InputError
 
-# The run format loads on first use (tests/test_speed_footprint.py).
+# The run format loads on first use (tests/compensation/test_pipeline_and_import_footprint.py).
 _run = LazyModule("cmmpose.run")
 
 __all__ = ["check_log", "check_log_coverage", "LogProblem", "LogReport", "LogColumns", "read_log", "PLAUSIBLE",

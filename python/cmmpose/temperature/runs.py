@@ -20,7 +20,7 @@ from .interpolation import AXIS_ROLES, ThermalSummary, temperatures_at
 from .log import LogReport, check_log, check_log_coverage
 from .policy import DEFAULT_POLICY, LOG_HOLD, TemperaturePolicy, as_policy
 
-# The run format loads on first use (tests/test_speed_footprint.py).
+# The run format loads on first use (tests/compensation/test_pipeline_and_import_footprint.py).
 _run = LazyModule("cmmpose.run")
 
 if TYPE_CHECKING:

@@ -7,7 +7,7 @@
 //! Layers (lowest first): [`crate::map`] and [`crate::lanes`], this module,
 //! [`crate::thermal`] (map sets), [`crate::blocks`] (the block paths),
 //! [`crate::kernel`] (the public entry points). A module uses only the ones
-//! below it (`tests/test_package_structure.py` checks it).
+//! below it (`tests/package/test_structure.py` checks it).
 
 use nalgebra::Vector3;
 
