@@ -59,7 +59,8 @@ from ..errors import Error
 from ..model.inputs import RunInputs
 from .statistics import INDISTINGUISHABLE_LR
 
-__all__ = ["AGREE_K", "GRID", "MAX_MEMBERS", "AmbiguitySet", "equivalences", "find_ambiguity", "travel_grid"]
+__all__ = ["AGREE_K", "GRID", "MAX_MEMBERS", "AmbiguitySet", "equivalences", "find_ambiguity", "sibling_candidates",
+           "travel_grid"]
 
 log = logging.getLogger(__name__)
 
@@ -183,7 +184,8 @@ class AmbiguitySet:
             loose = [m["name"] for m in self.members if not m["determined"]]
             size = (f"{self.largest_difference_um:.1f} ± {u:.1f} um" if math.isfinite(u) else
                     f"{self.largest_difference_um:.1f} um (and by an unknown amount where "
-                    f"{', '.join(loose) or 'a member'} has a parameter the data did not determine)")
+                    f"{', '.join(loose) or 'a member'} {'have' if len(loose) > 1 else 'has'} a parameter the data "
+                    f"did not determine)")
             head = (f"the data cannot choose between {names} (cross-validated rms within one standard uncertainty "
                     f"of the best), and their corrections differ by up to {size} over the travel "
                     f"({' and '.join(w.get('pair', ()))} at {at} mm): none was added; choose one (diagnose --add "
@@ -285,6 +287,75 @@ def _over_travel(spec) -> bool:
     return not getattr(spec, "needs", ()) and getattr(spec, "sensor", None) is None
 
 
+def columns_of(problem, name: str) -> np.ndarray:
+    """A candidate's columns: the problem's, or a sibling shape's (:func:`sibling_candidates`)."""
+    siblings = problem.__dict__.get("_sibling_columns", {})
+    return siblings[name] if name in siblings and name not in problem.columns else problem.columns[name]
+
+
+def sibling_columns(problem, specs) -> dict:
+    """The centre-level columns of map-correction ``specs`` at ``problem``'s base model (cached on the
+    problem, not among its candidates: a sibling shape is judged beside a chosen one, never ranked alone)."""
+    cache = problem.__dict__.setdefault("_sibling_columns", {})
+    for spec in specs:
+        if spec.name not in cache:
+            cache[spec.name] = problem._columns(problem.base, spec, np.zeros(spec.size), problem.base_obs)
+    return {spec.name: cache[spec.name] for spec in specs}
+
+
+def sibling_candidates(problem, step, chosen) -> list:
+    """The shape of ``chosen`` (a map correction) on the other components of
+    the same carriage (:func:`cmmpose.diagnosis.mapfamily.sibling_shapes`:
+    the same basis, knots or period, on its axis's other translational
+    components and its three angles), each evaluated against ``step``'s
+    model as the ranking evaluates a candidate (its fitted values, -2 log L
+    gain, p-value against ``chosen``'s threshold). The map family searches
+    each component's shape separately, so the same shape on a sibling is
+    otherwise never offered: a straightness bump along X and a roll of X
+    with the same knots move the balls of one plane alike.
+
+    Returns
+    -------
+    list of Candidate
+        One per sibling not in the model: the ranking's own where the
+        search offered that very shape, else evaluated here.
+    """
+    if getattr(chosen.spec, "family", None) != "map":
+        return []
+    cache = step.__dict__.setdefault("_siblings", {})
+    if chosen.name not in cache:
+        cache[chosen.name] = _sibling_candidates(problem, step, chosen)
+    return list(cache[chosen.name])
+
+
+def _sibling_candidates(problem, step, chosen) -> list:
+    from types import SimpleNamespace
+
+    from .identify import rank_candidates
+    from .mapfamily import _kinematics, sibling_shapes
+
+    model = step.model
+    specs = [s for s in sibling_shapes(chosen.spec, _kinematics(model)) if s.name not in model.names]
+    ranked = {c.name: c for c in step.ranking if not c.alternative_to}
+    out = [ranked[s.name] for s in specs if s.name in ranked]
+    new = {s.name: s for s in specs if s.name not in ranked and s.name not in problem.candidates}
+    if not new:
+        return out
+    cols = sibling_columns(problem, new.values())
+    import copy
+
+    view = copy.copy(problem)  # the step's model's effects and the siblings alone
+    view.candidates = {**{n: problem.candidates[n] for n in model.names if n in problem.candidates}, **new}
+    view.columns = {**{n: problem.columns[n] for n in model.names if n in problem.columns}, **cols}
+    residual = step.residual if getattr(step, "residual", None) is not None else problem.observe(model).residual
+    for c in rank_candidates(view, model, SimpleNamespace(residual=residual)):
+        c.threshold = chosen.threshold  # the map family's threshold, as the ranking set it
+        c.significant = c.dof > 0 and c.p_value < c.threshold
+        c.indistinguishable_from, c.stands_for = [], []
+        out.append(c)
+    return out
+
+
 def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only: bool) -> AmbiguitySet | None:
     """The ambiguity set of ``chosen`` (the candidate the selection is about
     to add to ``step``'s model), or None when no other candidate explains
@@ -318,13 +389,18 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
         # the map-shape family ranks after them where they explain the structure, and its searched shapes
         # (periods, knot spacings) were chosen on all the data, which flatters their held-out figures.
         rivals = [c for c in rivals if getattr(c.spec, "family", None) != "map"]
+    # The chosen map shape on the carriage's other components (the same knots or period): the search never
+    # offers them beside it, and one plane or height may not tell them apart.
+    named = {c.name for c in rivals}
+    rivals += [c for c in sibling_candidates(problem, step, chosen)
+               if c.name not in named and c.dof > 0 and c.lr >= chosen.lr - INDISTINGUISHABLE_LR]
     if not rivals:
         return None
     r0, X0, ridge0, target0, sigma = current_state(problem, step)
     design = CVDesign(problem, r0, X0, ridge0, target0, sigma, folds)
     scored = []
     for c in [chosen, *rivals]:
-        s = design.score_with(problem.columns[c.name])
+        s = design.score_with(columns_of(problem, c.name))
         if math.isfinite(s.rms_um):
             scored.append((c, s.rms_um, s.u_rms_um))
     if len(scored) < 2 or scored[0][0] is not chosen:
@@ -342,7 +418,7 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
     base = model.compensate(grid)
     corr, unc, covs = [], [], []
     for c, _, _ in members:
-        C = _member_covariance(problem, r0, X0, problem.columns[c.name], c.spec)
+        C = _member_covariance(problem, r0, X0, columns_of(problem, c.name), c.spec)
         covs.append(C)
         try:
             d, u = _correction(model, c.spec, c.values, C, grid, base)
