@@ -159,6 +159,16 @@ def test_a_periodic_position_error_is_found_as_before_with_no_new_ambiguity():
     assert not any(_x_carriage(a.names) for a in d.ambiguity)
 
 
+def test_a_periodic_x_error_on_a_ballbar_is_found_as_before_with_no_ambiguity():
+    from cmmpose.sim.runs import simulate_ballbar_run
+
+    run, _ = simulate_ballbar_run(seed=1, jitter=JITTER, scanner=Scanner(points_per_profile=256))
+    d = _quiet(cmmpose.diagnose, _shifted(run, "periodic"), patterns=False)
+    (name,) = d.added
+    assert name.startswith("map:dx(X):sine") and abs(parse(name).scale_mm - 170.0) < 2.0
+    assert d.ambiguity == []
+
+
 # -- pose-out folds -------------------------------------------------------------------
 
 

@@ -9,7 +9,12 @@ judged beside it on data none of them was fitted to
 (:mod:`cmmpose.diagnosis.cv`), with folds that follow how the data were
 taken (:func:`cmmpose.diagnosis.cv.cv_groups` with ``across=True``: whole
 runs, else whole placements, else within one placement, which judges
-interpolation only). Every candidate whose cross-validated headline rms is
+interpolation only). A map-shape correction is also judged beside the same
+shape on the other components of its carriage (:func:`sibling_candidates`:
+the same knots or period on its axis's position error, straightnesses and
+roll, pitch and yaw), which the map family's per-component search never
+offers beside it: a step gauge along X near Y = 0 cannot tell a Y
+straightness of X from a roll of X. Every candidate whose cross-validated headline rms is
 within one standard uncertainty of the best one's (the one-standard-error
 rule) is a member of the *ambiguity set*: the data cannot prefer one.
 

@@ -29,8 +29,10 @@ The ambiguity set's judge (:mod:`cmmpose.diagnosis.ambiguity`) asks instead
 how a model carries to where it will be used (``cv_groups(..., across=True)``):
 whole runs out when there are two or more (another placement, plane, pose or
 day), else whole placements of a run that holds several (a plate in the XY,
-XZ and YZ planes: plane-out), else the split within the one placement, said
-to judge interpolation only.
+XZ and YZ planes: plane-out), else the digitizer poses of a run whose one
+placement was scanned from several (pose-out: each ball or bar position with
+the pose, told by its angles, that scanned it), else the split within the
+one placement, said to judge interpolation only.
 
 The fit of each fold is the linearised weighted least-squares fit of the
 diagnosis (:meth:`cmmpose.diagnosis.identify.Problem.wls`) with each class's
@@ -76,7 +78,8 @@ HEADLINE_RISE_SIGMA = 2.0
 #: whitened figure falls (it would trade the figure users read for sphere-fit residuals).
 HEADLINE_RISE_SHARE = 0.01
 
-__all__ = ["CVDesign", "CVScore", "INTERPOLATION_ONLY", "compare", "current_state", "cv_groups", "cv_score", "judge", "model_design", "verify"]
+__all__ = ["CVDesign", "CVScore", "INTERPOLATION_ONLY", "POSE_ANGLE_TOL", "compare", "current_state", "cv_groups",
+           "cv_score", "judge", "model_design", "scan_pose_angles", "verify"]
 
 
 def _single_groups(layout) -> tuple[np.ndarray, str]:
