@@ -108,6 +108,7 @@ def test_a_roll_chosen_alone_is_judged_beside_the_straightness_of_the_same_shape
     words = {m["name"]: m["physics"] for m in a.members}
     assert "roll of X" in words[roll.name] and "straightness dy(X)" in words["map:dy(X):hat51.6[275,894]"]
     assert len(a.where["xyz_mm"]) == 3 and set(a.where["pair"]) <= set(a.names)
+    assert any("X carriage" in w and "another height" in w for w in a.equivalences)
     # One run of two placements: the judge holds a whole placement out.
     assert a.split.startswith("leave one placement out") and not a.interpolation_only
 

@@ -114,7 +114,25 @@ def equivalences(names) -> list[str]:
         hit = any(re.search(pa, a) and re.search(pb, b) for a in names for b in names if a != b)
         if hit and words not in out:
             out.append(words)
+    out += _sibling_words(names)
     return out
+
+
+#: A map correction's name: (d or e, direction, its axis, its shape over its travel).
+_MAP_NAME = re.compile(r"^map:([de])([xyz])\(([XYZ])\):([a-z]+[0-9.]*\[[^]]*\])")
+
+
+def _sibling_words(names) -> list[str]:
+    """Words for members that are one shape on two components of one carriage (:func:`sibling_candidates`)."""
+    count: dict = {}
+    for n in names:
+        m = _MAP_NAME.match(n)
+        if m:
+            count[(m.group(3), m.group(4))] = count.get((m.group(3), m.group(4)), 0) + 1
+    return [f"the same shape on two components of the {axis} carriage (a position error or straightness of {axis}, "
+            f"or its roll, pitch or yaw) moves the points alike where an angle's lever arm hardly changes (one "
+            f"plane, one height, one line, one probe pose): a placement in another plane, at another height or "
+            f"from another pose tells them apart" for axis in sorted({a for (a, _), k in count.items() if k > 1})]
 
 
 @dataclass
