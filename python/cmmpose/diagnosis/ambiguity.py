@@ -355,10 +355,10 @@ def _sibling_candidates(problem, step, chosen) -> list:
     from types import SimpleNamespace
 
     from .identify import rank_candidates
-    from .mapfamily import _kinematics, sibling_shapes
+    from .mapfamily import model_kinematics, sibling_shapes
 
     model = step.model
-    specs = [s for s in sibling_shapes(chosen.spec, _kinematics(model)) if s.name not in model.names]
+    specs = [s for s in sibling_shapes(chosen.spec, model_kinematics(model)) if s.name not in model.names]
     ranked = {c.name: c for c in step.ranking if not c.alternative_to}
     out = [ranked[s.name] for s in specs if s.name in ranked]
     new = {s.name: s for s in specs if s.name not in ranked and s.name not in problem.candidates}

@@ -113,6 +113,7 @@ __all__ = [
     "corrected_maps",
     "is_map",
     "map_candidates",
+    "model_kinematics",
     "parse",
     "sibling_shapes",
 ]
@@ -442,11 +443,15 @@ def travel_range(problem) -> list[tuple[float, float]]:
     return [(math.floor(a), math.ceil(b)) for a, b in zip(lo, hi)]
 
 
-def _kinematics(model) -> str:
+def model_kinematics(model) -> str:
+    """The machine configuration of ``model``'s maps (whose arms an angle acts over); 'thesis' when they name none."""
     try:
         return str(model.maps.kinematics)
     except AttributeError:
         return "thesis"
+
+
+_kinematics = model_kinematics
 
 
 def _columns(problem, spec: MapCorrection) -> np.ndarray:
