@@ -220,3 +220,28 @@ def test_poses_are_told_apart_by_their_angles_not_their_ids():
     got = cvmod.cv_groups(q, across=True)
     assert got[2] == want[2] and "(2 poses" in got[2]
     assert np.array_equal(got[0], want[0])
+
+
+def test_a_crossed_ballbar_layout_and_a_plate_beside_it_hold_a_pose_out():
+    """The crossed layout scans its bars with the W axis along X and along Y (two poses): pose-out on its own,
+    and, beside a plate scanned from two other poses (runs of different kinds), one pose out of every run."""
+    from cmmpose.diagnosis.joint import JointProblem
+    from cmmpose.sim.runs import simulate_ballbar_run
+
+    bar, _ = simulate_ballbar_run(layout="crossed", seed=1, jitter=JITTER, scanner=Scanner(points_per_profile=64))
+    p = Problem(Model(MAPS), bar)
+    folds, items, split = cvmod.cv_groups(p, across=True)
+    assert split.startswith("leave one digitizer pose out (2 poses") and "positions" in split
+    n = p.layout.sizes["length"]
+    assert set(np.unique(folds[:n])) == {0, 1}
+    plate = simulate_artefact_run(PLATE, ["xy@x=430,y=270,z=-250"], jitter=JITTER, seed=7,
+                                  scanner=Scanner(points_per_profile=64))[0]
+    j = JointProblem(Model(MAPS), [bar, plate])
+    folds, items, split = cvmod.cv_groups(j, across=True)
+    assert split.startswith("leave one digitizer pose out of every run") and "differ in kind" in split
+    per_run = np.split(folds, [len(j.parts[0].classes)])
+    assert all(len(set(np.unique(f[f >= 0]))) >= 2 for f in per_run)
+    r0 = j.base_obs.residual
+    X0, ridge0, target0 = cvmod.model_design(j, j.base)
+    sigma = j.wls(r0, X0, ridge=ridge0, target=target0).sigma
+    assert np.isfinite(cvmod.CVDesign(j, r0, X0, ridge0, target0, sigma, (folds, items)).score_with().rms_um)

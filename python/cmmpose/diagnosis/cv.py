@@ -32,7 +32,8 @@ day), else whole placements of a run that holds several (a plate in the XY,
 XZ and YZ planes: plane-out), else the digitizer poses of a run whose one
 placement was scanned from several (pose-out: each ball or bar position with
 the pose, told by its angles, that scanned it), else the split within the
-one placement, said to judge interpolation only.
+one placement, said to judge interpolation only. Runs of different kinds
+hold one pose out of every run at once when each was scanned from several.
 
 The fit of each fold is the linearised weighted least-squares fit of the
 diagnosis (:meth:`cmmpose.diagnosis.identify.Problem.wls`) with each class's
@@ -162,27 +163,40 @@ def _pose_groups(problem) -> tuple[np.ndarray, int] | None:
     scan; -1 where the row has no item. None when the scans' items use
     fewer than two poses, or a pose holds no headline row (a pose that
     only viewed the reference sphere). Returns (folds, poses)."""
+    return _pose_split([problem])
+
+
+def _pose_split(parts) -> tuple[np.ndarray, int] | None:
+    """:func:`_pose_groups` over the stacked rows of one or more runs, the poses told apart by their angles
+    across the runs; None unless every run holds headline rows of two or more poses (each fold then leaves
+    every run rows that pin its own nuisances)."""
     try:
-        angles = scan_pose_angles(problem)
+        angles = [scan_pose_angles(p) for p in parts]
     except (AttributeError, KeyError, IndexError, TypeError):  # a scripted problem, a run without poses
         return None
-    layout = problem.layout
-    keys = np.round(angles / POSE_ANGLE_TOL) * POSE_ANGLE_TOL
-    _, pose_of_scan = np.unique(keys, axis=0, return_inverse=True)
-    pose_of_scan = pose_of_scan.reshape(-1)
-    g, _ = _single_groups(layout)
-    S = len(layout.labels)
-    at = layout.sizes["length"] + 3 * len(layout.repeated)
-    scan_item = g[at:at + S]  # the radius rows: one per scan, its item
-    items, first = np.unique(scan_item, return_index=True)
-    lut = np.full(int(max(g.max(), items.max())) + 1, -1)
-    lut[items] = pose_of_scan[first]
-    folds = np.where(g >= 0, lut[np.clip(g, 0, None)], -1)
-    head = folds[:layout.sizes["length"]]
-    used = np.unique(folds[folds >= 0])
-    if len(used) < 2 or any(not np.any(head == u) for u in used):
-        return None
-    return folds, len(used)
+    keys = np.round(np.concatenate(angles) / POSE_ANGLE_TOL) * POSE_ANGLE_TOL
+    _, pose = np.unique(keys, axis=0, return_inverse=True)
+    pose = pose.reshape(-1)
+    out, used_all, at_scan = [], set(), 0
+    for p, a in zip(parts, angles):
+        layout = p.layout
+        pose_of_scan = pose[at_scan:at_scan + len(a)]
+        at_scan += len(a)
+        g, _ = _single_groups(layout)
+        S = len(layout.labels)
+        at = layout.sizes["length"] + 3 * len(layout.repeated)
+        scan_item = g[at:at + S]  # the radius rows: one per scan, its item
+        items, first = np.unique(scan_item, return_index=True)
+        lut = np.full(int(max(g.max(), items.max())) + 1, -1)
+        lut[items] = pose_of_scan[first]
+        folds = np.where(g >= 0, lut[np.clip(g, 0, None)], -1)
+        head = folds[:layout.sizes["length"]]
+        used = set(np.unique(folds[folds >= 0]).tolist())
+        if len(used) < 2 or any(not np.any(head == u) for u in used):
+            return None
+        used_all |= used
+        out.append(folds)
+    return np.concatenate(out), len(used_all)
 
 
 def _one_kind(parts) -> bool:
@@ -230,8 +244,15 @@ def cv_groups(problem, by_run: bool | None = None, across: bool = False) -> tupl
         by_run = True
     elif across and parts and len(parts) >= 2:
         # Runs of different kinds (a ballbar layout beside an artefact's placements): one cannot predict the
-        # other's own figures (its rigid fit, its lengths' offset), so each run's positions or balls are held out.
+        # other's own figures (its rigid fit, its lengths' offset), so each run's positions or balls are held out;
+        # or, when every run was scanned from several digitizer poses, one pose out of every run at once.
         folds, items, split = cv_groups(problem, by_run=False)
+        posed = _pose_split(parts)
+        if posed is not None:
+            return posed[0], items, (f"leave one digitizer pose out of every run ({posed[1]} poses, by their "
+                                     f"angles: the positions or balls each scanned, with their scans, held out "
+                                     f"together); the runs differ in kind; uncertainty from the spread over "
+                                     f"positions or balls")
         return folds, items, f"{split}; the runs differ in kind; {INTERPOLATION_ONLY}"
     elif across:
         # One run: whole placements out when it holds several, else the digitizer poses out when its scans
