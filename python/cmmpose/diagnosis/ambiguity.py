@@ -9,7 +9,12 @@ judged beside it on data none of them was fitted to
 (:mod:`cmmpose.diagnosis.cv`), with folds that follow how the data were
 taken (:func:`cmmpose.diagnosis.cv.cv_groups` with ``across=True``: whole
 runs, else whole placements, else within one placement, which judges
-interpolation only). Every candidate whose cross-validated headline rms is
+interpolation only). A map-shape correction is also judged beside the same
+shape on the other components of its carriage (:func:`sibling_candidates`:
+the same knots or period on its axis's position error, straightnesses and
+roll, pitch and yaw), which the map family's per-component search never
+offers beside it: a step gauge along X near Y = 0 cannot tell a Y
+straightness of X from a roll of X. Every candidate whose cross-validated headline rms is
 within one standard uncertainty of the best one's (the one-standard-error
 rule) is a member of the *ambiguity set*: the data cannot prefer one.
 
@@ -59,7 +64,8 @@ from ..errors import Error
 from ..model.inputs import RunInputs
 from .statistics import INDISTINGUISHABLE_LR
 
-__all__ = ["AGREE_K", "GRID", "MAX_MEMBERS", "AmbiguitySet", "equivalences", "find_ambiguity", "travel_grid"]
+__all__ = ["AGREE_K", "GRID", "MAX_MEMBERS", "AmbiguitySet", "equivalences", "find_ambiguity", "sibling_candidates",
+           "travel_grid"]
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +114,25 @@ def equivalences(names) -> list[str]:
         hit = any(re.search(pa, a) and re.search(pb, b) for a in names for b in names if a != b)
         if hit and words not in out:
             out.append(words)
+    out += _sibling_words(names)
     return out
+
+
+#: A map correction's name: (d or e, direction, its axis, its shape over its travel).
+_MAP_NAME = re.compile(r"^map:([de])([xyz])\(([XYZ])\):([a-z]+[0-9.]*\[[^]]*\])")
+
+
+def _sibling_words(names) -> list[str]:
+    """Words for members that are one shape on two components of one carriage (:func:`sibling_candidates`)."""
+    count: dict = {}
+    for n in names:
+        m = _MAP_NAME.match(n)
+        if m:
+            count[(m.group(3), m.group(4))] = count.get((m.group(3), m.group(4)), 0) + 1
+    return [f"the same shape on two components of the {axis} carriage (a position error or straightness of {axis}, "
+            f"or its roll, pitch or yaw) moves the points alike where an angle's lever arm hardly changes (one "
+            f"plane, one height, one line, one probe pose): a placement in another plane, at another height or "
+            f"from another pose tells them apart" for axis in sorted({a for (a, _), k in count.items() if k > 1})]
 
 
 @dataclass
@@ -183,7 +207,8 @@ class AmbiguitySet:
             loose = [m["name"] for m in self.members if not m["determined"]]
             size = (f"{self.largest_difference_um:.1f} ± {u:.1f} um" if math.isfinite(u) else
                     f"{self.largest_difference_um:.1f} um (and by an unknown amount where "
-                    f"{', '.join(loose) or 'a member'} has a parameter the data did not determine)")
+                    f"{', '.join(loose) or 'a member'} {'have' if len(loose) > 1 else 'has'} a parameter the data "
+                    f"did not determine)")
             head = (f"the data cannot choose between {names} (cross-validated rms within one standard uncertainty "
                     f"of the best), and their corrections differ by up to {size} over the travel "
                     f"({' and '.join(w.get('pair', ()))} at {at} mm): none was added; choose one (diagnose --add "
@@ -285,6 +310,75 @@ def _over_travel(spec) -> bool:
     return not getattr(spec, "needs", ()) and getattr(spec, "sensor", None) is None
 
 
+def columns_of(problem, name: str) -> np.ndarray:
+    """A candidate's columns: the problem's, or a sibling shape's (:func:`sibling_candidates`)."""
+    siblings = problem.__dict__.get("_sibling_columns", {})
+    return siblings[name] if name in siblings and name not in problem.columns else problem.columns[name]
+
+
+def sibling_columns(problem, specs) -> dict:
+    """The centre-level columns of map-correction ``specs`` at ``problem``'s base model (cached on the
+    problem, not among its candidates: a sibling shape is judged beside a chosen one, never ranked alone)."""
+    cache = problem.__dict__.setdefault("_sibling_columns", {})
+    for spec in specs:
+        if spec.name not in cache:
+            cache[spec.name] = problem._columns(problem.base, spec, np.zeros(spec.size), problem.base_obs)
+    return {spec.name: cache[spec.name] for spec in specs}
+
+
+def sibling_candidates(problem, step, chosen) -> list:
+    """The shape of ``chosen`` (a map correction) on the other components of
+    the same carriage (:func:`cmmpose.diagnosis.mapfamily.sibling_shapes`:
+    the same basis, knots or period, on its axis's other translational
+    components and its three angles), each evaluated against ``step``'s
+    model as the ranking evaluates a candidate (its fitted values, -2 log L
+    gain, p-value against ``chosen``'s threshold). The map family searches
+    each component's shape separately, so the same shape on a sibling is
+    otherwise never offered: a straightness bump along X and a roll of X
+    with the same knots move the balls of one plane alike.
+
+    Returns
+    -------
+    list of Candidate
+        One per sibling not in the model: the ranking's own where the
+        search offered that very shape, else evaluated here.
+    """
+    if getattr(chosen.spec, "family", None) != "map":
+        return []
+    cache = step.__dict__.setdefault("_siblings", {})
+    if chosen.name not in cache:
+        cache[chosen.name] = _sibling_candidates(problem, step, chosen)
+    return list(cache[chosen.name])
+
+
+def _sibling_candidates(problem, step, chosen) -> list:
+    from types import SimpleNamespace
+
+    from .identify import rank_candidates
+    from .mapfamily import model_kinematics, sibling_shapes
+
+    model = step.model
+    specs = [s for s in sibling_shapes(chosen.spec, model_kinematics(model)) if s.name not in model.names]
+    ranked = {c.name: c for c in step.ranking if not c.alternative_to}
+    out = [ranked[s.name] for s in specs if s.name in ranked]
+    new = {s.name: s for s in specs if s.name not in ranked and s.name not in problem.candidates}
+    if not new:
+        return out
+    cols = sibling_columns(problem, new.values())
+    import copy
+
+    view = copy.copy(problem)  # the step's model's effects and the siblings alone
+    view.candidates = {**{n: problem.candidates[n] for n in model.names if n in problem.candidates}, **new}
+    view.columns = {**{n: problem.columns[n] for n in model.names if n in problem.columns}, **cols}
+    residual = step.residual if getattr(step, "residual", None) is not None else problem.observe(model).residual
+    for c in rank_candidates(view, model, SimpleNamespace(residual=residual)):
+        c.threshold = chosen.threshold  # the map family's threshold, as the ranking set it
+        c.significant = c.dof > 0 and c.p_value < c.threshold
+        c.indistinguishable_from, c.stands_for = [], []
+        out.append(c)
+    return out
+
+
 def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only: bool) -> AmbiguitySet | None:
     """The ambiguity set of ``chosen`` (the candidate the selection is about
     to add to ``step``'s model), or None when no other candidate explains
@@ -318,13 +412,18 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
         # the map-shape family ranks after them where they explain the structure, and its searched shapes
         # (periods, knot spacings) were chosen on all the data, which flatters their held-out figures.
         rivals = [c for c in rivals if getattr(c.spec, "family", None) != "map"]
+    # The chosen map shape on the carriage's other components (the same knots or period): the search never
+    # offers them beside it, and one plane or height may not tell them apart.
+    named = {c.name for c in rivals}
+    rivals += [c for c in sibling_candidates(problem, step, chosen)
+               if c.name not in named and c.dof > 0 and c.lr >= chosen.lr - INDISTINGUISHABLE_LR]
     if not rivals:
         return None
     r0, X0, ridge0, target0, sigma = current_state(problem, step)
     design = CVDesign(problem, r0, X0, ridge0, target0, sigma, folds)
     scored = []
     for c in [chosen, *rivals]:
-        s = design.score_with(problem.columns[c.name])
+        s = design.score_with(columns_of(problem, c.name))
         if math.isfinite(s.rms_um):
             scored.append((c, s.rms_um, s.u_rms_um))
     if len(scored) < 2 or scored[0][0] is not chosen:
@@ -342,7 +441,7 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
     base = model.compensate(grid)
     corr, unc, covs = [], [], []
     for c, _, _ in members:
-        C = _member_covariance(problem, r0, X0, problem.columns[c.name], c.spec)
+        C = _member_covariance(problem, r0, X0, columns_of(problem, c.name), c.spec)
         covs.append(C)
         try:
             d, u = _correction(model, c.spec, c.values, C, grid, base)

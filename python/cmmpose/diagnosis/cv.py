@@ -29,8 +29,11 @@ The ambiguity set's judge (:mod:`cmmpose.diagnosis.ambiguity`) asks instead
 how a model carries to where it will be used (``cv_groups(..., across=True)``):
 whole runs out when there are two or more (another placement, plane, pose or
 day), else whole placements of a run that holds several (a plate in the XY,
-XZ and YZ planes: plane-out), else the split within the one placement, said
-to judge interpolation only.
+XZ and YZ planes: plane-out), else the digitizer poses of a run whose one
+placement was scanned from several (pose-out: each ball or bar position with
+the pose, told by its angles, that scanned it), else the split within the
+one placement, said to judge interpolation only. Runs of different kinds
+hold one pose out of every run at once when each was scanned from several.
 
 The fit of each fold is the linearised weighted least-squares fit of the
 diagnosis (:meth:`cmmpose.diagnosis.identify.Problem.wls`) with each class's
@@ -76,7 +79,8 @@ HEADLINE_RISE_SIGMA = 2.0
 #: whitened figure falls (it would trade the figure users read for sphere-fit residuals).
 HEADLINE_RISE_SHARE = 0.01
 
-__all__ = ["CVDesign", "CVScore", "INTERPOLATION_ONLY", "compare", "current_state", "cv_groups", "cv_score", "judge", "model_design", "verify"]
+__all__ = ["CVDesign", "CVScore", "INTERPOLATION_ONLY", "POSE_ANGLE_TOL", "compare", "current_state", "cv_groups",
+           "cv_score", "judge", "model_design", "scan_pose_angles", "verify"]
 
 
 def _single_groups(layout) -> tuple[np.ndarray, str]:
@@ -135,6 +139,66 @@ def _placement_groups(layout) -> np.ndarray | None:
     return out
 
 
+#: Degrees: two digitizer poses whose Euler angles agree this closely are one pose (poses are identified by
+#: their angles, not their ids: two runs may number them differently).
+POSE_ANGLE_TOL = 1e-6
+
+
+def scan_pose_angles(problem) -> np.ndarray:
+    """(S, 3): the Euler angles (degrees) of the digitizer pose each sphere
+    scan of one run (``problem.layout.labels``) was taken with."""
+    layout, inputs = problem.layout, problem.inputs
+    sc = problem.run.scans
+    sid = np.asarray(sc["scan_id"])
+    order = np.argsort(sid, kind="stable")
+    pid = np.asarray(sc["pose_id"])[order[np.searchsorted(sid[order], layout.labels)]]
+    angles = np.asarray(inputs.poses, float)[:, :3]
+    return angles[np.searchsorted(np.asarray(inputs.pose_ids), pid)]
+
+
+def _pose_groups(problem) -> tuple[np.ndarray, int] | None:
+    """Fold of every observable row of one run by the digitizer pose (by its
+    angles) that scanned it: each item of :func:`_single_groups` (a ballbar
+    position, a ball, a reference scan) goes with the pose of its first
+    scan; -1 where the row has no item. None when the scans' items use
+    fewer than two poses, or a pose holds no headline row (a pose that
+    only viewed the reference sphere). Returns (folds, poses)."""
+    return _pose_split([problem])
+
+
+def _pose_split(parts) -> tuple[np.ndarray, int] | None:
+    """:func:`_pose_groups` over the stacked rows of one or more runs, the poses told apart by their angles
+    across the runs; None unless every run holds headline rows of two or more poses (each fold then leaves
+    every run rows that pin its own nuisances)."""
+    try:
+        angles = [scan_pose_angles(p) for p in parts]
+    except (AttributeError, KeyError, IndexError, TypeError):  # a scripted problem, a run without poses
+        return None
+    keys = np.round(np.concatenate(angles) / POSE_ANGLE_TOL) * POSE_ANGLE_TOL
+    _, pose = np.unique(keys, axis=0, return_inverse=True)
+    pose = pose.reshape(-1)
+    out, used_all, at_scan = [], set(), 0
+    for p, a in zip(parts, angles):
+        layout = p.layout
+        pose_of_scan = pose[at_scan:at_scan + len(a)]
+        at_scan += len(a)
+        g, _ = _single_groups(layout)
+        S = len(layout.labels)
+        at = layout.sizes["length"] + 3 * len(layout.repeated)
+        scan_item = g[at:at + S]  # the radius rows: one per scan, its item
+        items, first = np.unique(scan_item, return_index=True)
+        lut = np.full(int(max(g.max(), items.max())) + 1, -1)
+        lut[items] = pose_of_scan[first]
+        folds = np.where(g >= 0, lut[np.clip(g, 0, None)], -1)
+        head = folds[:layout.sizes["length"]]
+        used = set(np.unique(folds[folds >= 0]).tolist())
+        if len(used) < 2 or any(not np.any(head == u) for u in used):
+            return None
+        used_all |= used
+        out.append(folds)
+    return np.concatenate(out), len(used_all)
+
+
 def _one_kind(parts) -> bool:
     """Whether the runs of a joint problem are of one kind: all ballbar layouts, or all placements of one
     artefact (by its name), so that one run's figures can be predicted from the others'."""
@@ -180,17 +244,32 @@ def cv_groups(problem, by_run: bool | None = None, across: bool = False) -> tupl
         by_run = True
     elif across and parts and len(parts) >= 2:
         # Runs of different kinds (a ballbar layout beside an artefact's placements): one cannot predict the
-        # other's own figures (its rigid fit, its lengths' offset), so each run's positions or balls are held out.
+        # other's own figures (its rigid fit, its lengths' offset), so each run's positions or balls are held out;
+        # or, when every run was scanned from several digitizer poses, one pose out of every run at once.
         folds, items, split = cv_groups(problem, by_run=False)
+        posed = _pose_split(parts)
+        if posed is not None:
+            return posed[0], items, (f"leave one digitizer pose out of every run ({posed[1]} poses, by their "
+                                     f"angles: the positions or balls each scanned, with their scans, held out "
+                                     f"together); the runs differ in kind; uncertainty from the spread over "
+                                     f"positions or balls")
         return folds, items, f"{split}; the runs differ in kind; {INTERPOLATION_ONLY}"
     elif across:
-        # One run: whole placements out when it holds several, else within the one placement, said so.
+        # One run: whole placements out when it holds several, else the digitizer poses out when its scans
+        # used several (each another view of the same placement), else within the one placement, said so.
         layout = (parts[0] if parts else problem).layout
         placed = _placement_groups(layout)
         if placed is not None and not parts:
             g, _ = _single_groups(layout)
             return placed, g, ("leave one placement out (its deviations and scans held out together); "
                                "uncertainty from the spread over balls")
+        posed = None if parts else _pose_groups(problem)
+        if posed is not None:
+            g, how = _single_groups(layout)
+            unit = "balls" if layout.artefact is not None else "positions"
+            return posed[0], g, (f"leave one digitizer pose out ({posed[1]} poses, by their angles: the {unit} each "
+                                 f"scanned, with their scans, held out together); uncertainty from the spread over "
+                                 f"{unit}")
         g, how = _single_groups(layout)
         if not parts:
             return g, g, f"{how}; {INTERPOLATION_ONLY}"
@@ -519,9 +598,11 @@ def step_cv(problem, step, groups: np.ndarray, split: str) -> CVScore:
     return score
 
 
-def judge_candidate(problem, step, candidate, groups: np.ndarray, split: str) -> bool:
+def judge_candidate(problem, step, candidate, groups: np.ndarray, split: str, columns: np.ndarray | None = None) -> bool:
     """Cross-validate ``candidate`` added to ``step``'s model; set
-    ``candidate.cv`` and return whether it passes :func:`judge`."""
+    ``candidate.cv`` and return whether it passes :func:`judge`. ``columns``:
+    its columns when they are not the problem's (a sibling shape,
+    :func:`cmmpose.diagnosis.ambiguity.sibling_candidates`)."""
     state = getattr(step, "_cv_state", None)
     if state is None:
         step_cv(problem, step, groups, split)
@@ -542,7 +623,7 @@ def judge_candidate(problem, step, candidate, groups: np.ndarray, split: str) ->
         design = CVDesign(problem, r0, X0, ridge0, target0, sigma, groups)
         designs[by_run] = (design, design.score_with() if by_run else old)
     design, old = designs[by_run]
-    J = problem.columns[candidate.name]
+    J = problem.columns[candidate.name] if columns is None else columns
     new = design.score_with(J, _pw(), 0.0)
     change = compare(old, new)
     ok, why = judge(change)

@@ -258,10 +258,11 @@ def _attach_patterns(diag: Diagnosis, problem: Problem, run: Run, steps: list[St
                                                     m.names)
 
 
-def _two_axis_first(problem, step, candidate) -> bool:
+def _two_axis_first(problem, step, candidate, columns=None) -> bool:
     """Whether an error varying with two axes at once explains the structure
     better than the map correction ``candidate`` (a smaller p-value): then the
-    candidate is refused, with the reason on it (``candidate.cv``)."""
+    candidate is refused, with the reason on it (``candidate.cv``).
+    ``columns``: its columns when they are not the problem's (a sibling shape)."""
     from .floor import explained_beyond, two_axis_findings
 
     found = getattr(step, "_two_axis", None)
@@ -270,7 +271,8 @@ def _two_axis_first(problem, step, candidate) -> bool:
     if not found:
         return False
     f = found[0]
-    beyond = min(1.0, explained_beyond(problem, step, f, problem.columns[candidate.name])
+    J = problem.columns[candidate.name] if columns is None else columns
+    beyond = min(1.0, explained_beyond(problem, step, f, J)
                  * getattr(candidate.spec, "trials", 1))
     if beyond < candidate.threshold:  # it explains more than the two-axis error does
         return False
@@ -328,7 +330,7 @@ def attach_floor(diag, problem, step, reproducibility_um=None, reproducibility_s
     diag.two_axis = [{k: v for k, v in f.items() if not k.startswith("_")} for f in two_axis_findings(problem, step)]
     for s in diag.steps:
         s.residual = None
-        for k in ("_cv_state", "_cv_by_run", "_two_axis"):
+        for k in ("_cv_state", "_cv_by_run", "_two_axis", "_siblings"):
             s.__dict__.pop(k, None)
 
 
@@ -418,6 +420,8 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
         best = _next_candidate(problem, context, open_names, cross_validate, groups, split)
         if best is None:
             break
+        if cross_validate and getattr(best.spec, "family", None) == "map":
+            best = _better_sibling(problem, context, best, open_names, groups, split)
         if cross_validate:
             # Competing explanations side by side (cmmpose.diagnosis.ambiguity): when others predict held-out
             # data as well and their corrections differ over the travel, none is added.
@@ -459,6 +463,38 @@ def _next_candidate(problem, context: Step, skip: set, cross_validate: bool, gro
         if not cross_validate or judge_candidate(problem, context, c, groups, split):
             return c
     return None
+
+
+def _better_sibling(problem, context: Step, best, skip: set, groups, split):
+    """``best`` (a map correction the selection is about to add), or the
+    same shape on a sibling component of its carriage
+    (:func:`cmmpose.diagnosis.ambiguity.sibling_candidates`: the same knots
+    or period on its axis's other translational components and angles) that
+    the data clearly prefer: significant, -2 log L lower by more than
+    INDISTINGUISHABLE_LR, and passing the selection's cross-validation. The
+    map family searches each component's shape separately, so a shape
+    chosen on one component may fit another's physics less well than the
+    same shape there. One taken instead joins the problem's candidates (it
+    enters the model) and ``context``'s ranking, before ``best``."""
+    from .ambiguity import columns_of, sibling_candidates
+    from .cv import judge_candidate
+    from .statistics import INDISTINGUISHABLE_LR
+
+    fresh = [c for c in sibling_candidates(problem, context, best)
+             if c.name not in problem.candidates and c.name not in skip and c.significant
+             and c.lr > best.lr + INDISTINGUISHABLE_LR]
+    for c in sorted(fresh, key=lambda c: -c.lr):
+        J = columns_of(problem, c.name)
+        if _two_axis_first(problem, context, c, J):
+            continue
+        if judge_candidate(problem, context, c, groups, split, columns=J):
+            c.cv["why"] += (f"; the same shape as {best.name} on a sibling component, which the data prefer "
+                            f"(-2 log L {c.lr - best.lr:.1f} lower)")
+            problem.candidates[c.name] = c.spec
+            problem.columns[c.name] = J
+            context.ranking.insert(context.ranking.index(best), c)
+            return c
+    return best
 
 
 def _look_past(problem, model: Model, held: list, step) -> Step:

@@ -113,7 +113,9 @@ __all__ = [
     "corrected_maps",
     "is_map",
     "map_candidates",
+    "model_kinematics",
     "parse",
+    "sibling_shapes",
 ]
 
 #: Knot spacings tried, as fractions of the travel.
@@ -441,11 +443,15 @@ def travel_range(problem) -> list[tuple[float, float]]:
     return [(math.floor(a), math.ceil(b)) for a, b in zip(lo, hi)]
 
 
-def _kinematics(model) -> str:
+def model_kinematics(model) -> str:
+    """The machine configuration of ``model``'s maps (whose arms an angle acts over); 'thesis' when they name none."""
     try:
         return str(model.maps.kinematics)
     except AttributeError:
         return "thesis"
+
+
+_kinematics = model_kinematics
 
 
 def _columns(problem, spec: MapCorrection) -> np.ndarray:
@@ -547,6 +553,37 @@ def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapC
             if hi - lo >= 3 * PERIOD_MIN:
                 sq = make(comp, "const", lo, hi)
                 out[sq.name] = sq
+    return out
+
+
+def sibling_shapes(spec: MapCorrection, kinematics: str = "thesis") -> list[MapCorrection]:
+    """The shape of the map correction ``spec`` on the other components of
+    the same carriage (issue 33, section 3): the same basis over the same
+    travel (the same knots, the same period) on its axis's other
+    translational components (its position error and two straightnesses)
+    and its three angles (roll, pitch and yaw, acting over the lever arms
+    the machine configuration ``kinematics`` gives), in
+    :data:`COMPONENTS`'s order. A plate in one plane, or a bar at one
+    height, may not tell them apart (a Y straightness along X and a roll of
+    X move the balls of an XY plane alike); the ambiguity set
+    (:mod:`cmmpose.diagnosis.ambiguity`) judges them as rivals. A
+    squareness or a cross-axis correction has none.
+
+    Returns
+    -------
+    list of MapCorrection
+        Each with the chosen shape's search cost (``trials``) and period
+        uncertainty, so its p-value pays for the same search.
+    """
+    if not is_map(spec) or spec.component not in COMPONENTS:
+        return []
+    axis = reading_axis(spec.component)
+    out = []
+    for comp in COMPONENTS:
+        if comp == spec.component or reading_axis(comp) != axis:
+            continue
+        out.append(make(comp, spec.shape, spec.lo, spec.hi, spec.scale_mm, kinematics=kinematics,
+                        scale_u_mm=spec.scale_u_mm, trials=spec.trials))
     return out
 
 
