@@ -166,13 +166,13 @@ def compensate_file(points_in, points_out, maps: ErrorMap | ErrorMapSet, pose, o
     size, chunks = point_chunks(points_in, chunk, extras=True)
     if not isinstance(maps, MachineModel):
         raise InputTypeError(f"maps: expected an ErrorMap, ErrorMapSet or Model, got {type(maps).__name__}")
-    sources, tally = _uncertainty_plan(points_out, maps, uncertainty, uncertainty_detail, uncertainty_origins)
     if maps.reads_sweeps:  # a model with latency: each sweep whole in one chunk
         chunks = whole_scans(chunks)
     pose = pose.as_tuple() if isinstance(pose, Pose) else as_triple("pose", pose)
     offset = tuple(offset) if isinstance(offset, MountOffset) else as_triple("offset", offset)
-    kernel = _FileKernel(maps, points_in, pose, offset, temperature, policy, nan_policy, sources, uncertainty_detail,
-                         tally)
+    kernel = _FileKernel(maps, points_in, pose, offset, temperature, policy, nan_policy, uncertainty_detail)
+    kernel.sources, kernel.tally = _uncertainty_plan(points_out, maps, uncertainty, uncertainty_detail,
+                                                     uncertainty_origins)
     report = _write_points(chunks, kernel, points_in, points_out, size, progress)
     _log.info("compensated %d points of %s into %s", report.points, points_in, points_out)
     if kernel.tally is not None:
@@ -187,10 +187,13 @@ class _FileKernel:
     the rows read, the kernel's time and the temperature used; a model's checks warn once per file, not per chunk."""
 
     def __init__(self, maps, points_in: Path, pose, offset, temperature, policy: TemperaturePolicy, nan_policy: str,
-                 sources, detail: str, tally):
+                 detail: str):
         self.maps, self.points_in, self.pose, self.offset = maps, points_in, pose, offset
         self.temperature, self.policy, self.nan_policy = temperature, policy, nan_policy
-        self.sources, self.detail, self.tally = sources, detail, tally
+        self.detail = detail
+        # With uncertainty (set from the plan, checked before any work): the sources and the running tally.
+        self.sources: UncertaintySources | None = None
+        self.tally: UncertaintyTally | None = None
         self.once: set = set()  # a model's checks of this file: each warning once, not once per chunk
         self.temperature_used = None
         self.warned = False
@@ -287,8 +290,8 @@ def _uncertainty_plan(points_out, maps, uncertainty, detail: str, origins):
         raise InputError(f"{points_out}: the {fmt.name.upper()} format cannot carry the uncertainty columns "
                          f"({', '.join(uncertainty_columns(detail))}) that uncertainty= (--uncertainty) writes; "
                          f"write .csv, .parquet, .npy, .ply, .xyz or .e57, or leave out the uncertainty")
-    require_stated(sources, maps, str(points_out))
-    return sources, UncertaintyTally(budget=budget_rows(sources, maps, origins))
+    stated = require_stated(sources, maps, str(points_out))
+    return sources, UncertaintyTally(budget=budget_rows(sources, stated, origins))
 
 
 def whole_scans(chunks):

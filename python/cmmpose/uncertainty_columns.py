@@ -29,8 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errormap import ErrorMapSet
 from .errors import InputError
-from .point_uncertainty import DETAILS, UncertainPoints, UncertaintySources
+from .point_uncertainty import DETAILS, MapUncertainty, UncertainPoints, UncertaintySources
 
 __all__ = ["U_COLUMNS", "COVARIANCE_COLUMNS", "COMMON_COLUMNS", "uncertainty_columns", "columns_of",
            "check_detail", "check_no_collision", "stated_sources", "require_stated", "budget_rows",
@@ -90,22 +91,34 @@ def _model_stated(maps) -> bool:
     return any(np.any(np.isfinite(np.ravel(stated.get(spec.name, np.nan)))) for spec, _ in effects)
 
 
-def _thermal(maps) -> bool:
-    """Whether the temperature acts through the maps (a set of maps at several temperatures)."""
-    from .errormap import ErrorMapSet
+@dataclass(frozen=True)
+class StatedMaps:
+    """What a machine model (maps or a found model) states for the
+    uncertainty budget, read once: the map uncertainty in force (None: none
+    stated, or the source switched off), whether the temperature acts
+    through the maps (a set at several temperatures), and whether a model
+    states its parameters' covariance."""
 
-    return isinstance(getattr(maps, "error_maps", maps), ErrorMapSet)
+    map: MapUncertainty | None
+    thermal: bool
+    model: bool
+
+    @classmethod
+    def of(cls, sources: UncertaintySources, maps) -> "StatedMaps":
+        thermal = isinstance(maps.error_maps, ErrorMapSet)
+        model = _model_stated(maps)
+        return cls(sources.stated_map(maps), thermal, model)
 
 
-def stated_sources(sources: UncertaintySources, maps) -> list[str]:
+def stated_sources(sources: UncertaintySources, stated: StatedMaps) -> list[str]:
     """The names of the sources that are on and give the points some
     uncertainty (a non-zero value; the temperature only through a map set)."""
     on = []
-    m = sources.stated_map(maps)
+    m = stated.map
     if m is not None and any(v > 0 for v in (*np.ravel(m.position_um), *np.ravel(m.rotation_arcsec),
                                              *m.squareness_arcsec, *m.positioning_ppm)):
         on.append("map")
-    if sources.on("temperature") and sources.temperature_k > 0 and _thermal(maps):
+    if sources.on("temperature") and sources.temperature_k > 0 and stated.thermal:
         on.append("temperature")
     if sources.on("scanner_scale") and sources.scanner_scale_ppm > 0:
         on.append("scanner_scale")
@@ -115,23 +128,24 @@ def stated_sources(sources: UncertaintySources, maps) -> list[str]:
             np.any(np.asarray(p.offset_covariance_mm2)) or np.any(np.asarray(p.angle_covariance_deg2))
             for p in sources.pose):
         on.append("pose")
-    if sources.model and sources.on("model") and _model_stated(maps):
+    if sources.model and sources.on("model") and stated.model:
         on.append("model")
     return on
 
 
-def require_stated(sources: UncertaintySources, maps, where: str = "uncertainty") -> list[str]:
-    """:func:`stated_sources`, or ``InputError`` when there is none: every
-    point's uncertainty would be written as 0, a silent wrong answer."""
-    on = stated_sources(sources, maps)
-    if not on:
+def require_stated(sources: UncertaintySources, maps, where: str = "uncertainty") -> StatedMaps:
+    """What ``maps`` (an ErrorMap, ErrorMapSet or Model) state
+    (:class:`StatedMaps`), or ``InputError`` when no source is stated:
+    every point's uncertainty would be written as 0, a silent wrong answer."""
+    stated = StatedMaps.of(sources, maps)
+    if not stated_sources(sources, stated):
         off = f"; switched off: {', '.join(sources.off)}" if sources.off else ""
         raise InputError(
             f"{where}: no source of uncertainty is stated (the maps state none, and no temperature, scanner or "
             f"pose uncertainty is given{off}): every u would be 0. State one (a map file's uncertainty, "
             f"--temperature-uncertainty / temperature_k, --scanner-noise / scanner_noise_um, "
             f"--scanner-scale-ppm / scanner_scale_ppm, an alignment's covariance) or leave out --uncertainty")
-    return on
+    return stated
 
 
 def _map_text(m) -> str:
@@ -150,14 +164,15 @@ def _pose_text(poses) -> str:
     return "; ".join(texts)
 
 
-def budget_rows(sources: UncertaintySources, maps, origins: dict | None = None) -> list[dict]:
+def budget_rows(sources: UncertaintySources, stated: StatedMaps, origins: dict | None = None) -> list[dict]:
     """One row per source: ``source``, ``on`` (bool), ``value`` (text with
     units) and ``from`` (where the value comes from; ``origins`` by source
-    name overrides the default wording, e.g. a machine file's key)."""
+    name overrides the default wording, e.g. a machine file's key).
+    ``stated`` is what the maps state (:func:`require_stated`)."""
     origins = dict(origins or {})
-    m = sources.stated_map(maps)
+    m = stated.map
     u_n = sources.scanner_noise_um
-    thermal = _thermal(maps)
+    thermal = stated.thermal
     model_on = bool(sources.model and sources.on("model"))
     rows = [
         ("map", sources.on("map"), "none stated" if m is None else _map_text(m),
@@ -169,8 +184,8 @@ def budget_rows(sources: UncertaintySources, maps, origins: dict | None = None) 
         ("scanner_noise", sources.on("scanner_noise"), f"u {u_n[0]:g} um, v {u_n[1]:g} um (independent)", "stated"),
         ("pose", sources.on("pose"), "none stated" if not sources.pose else _pose_text(sources.pose),
          "; ".join(p.source for p in sources.pose or ()) or ""),
-        ("model", model_on, "parameter covariance" if _model_stated(maps) else "no model effects",
-         "the model's parameter covariance" if _model_stated(maps) else ""),
+        ("model", model_on, "parameter covariance" if stated.model else "no model effects",
+         "the model's parameter covariance" if stated.model else ""),
     ]
     return [{"source": s, "on": bool(on), "value": v, "from": origins.get(s, f)} for s, on, v, f in rows]
 

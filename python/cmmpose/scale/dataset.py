@@ -22,7 +22,7 @@ from ..temperature import TemperaturePolicy, as_policy
 from ..kernel_report import KernelReport
 from ..formats.pointformats.common import parquet_options
 from ..point_uncertainty import UncertaintySources
-from ..uncertainty_columns import UncertaintyTally, budget_rows, columns_of, log_budget
+from ..uncertainty_columns import StatedMaps, UncertaintyTally, budget_rows, columns_of, log_budget
 from .._lazy import LazyModule
 from .compensator import INPUT_COLUMNS, OUTPUT_COLUMNS, Compensator
 from .scheduler import SCHEDULER_TIMEOUT, gather_results, scheduler_client
@@ -350,7 +350,8 @@ def _dataset_tally(kernel: Compensator, error_map, uncertainty_origins, results,
     """With uncertainty: the budget and the files' tallies merged into one, logged."""
     if kernel.uncertainty is None:
         return None
-    tally = UncertaintyTally(budget=budget_rows(kernel.uncertainty, error_map, uncertainty_origins))
+    stated = StatedMaps.of(kernel.uncertainty, error_map)
+    tally = UncertaintyTally(budget=budget_rows(kernel.uncertainty, stated, uncertainty_origins))
     for *_, part in results:
         tally = tally.merge(part)
     log_budget(tally, str(out))
