@@ -5,6 +5,7 @@ calls :func:`simulate_artefact` and :func:`evaluate_artefact_run`."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 import warnings
@@ -194,8 +195,9 @@ def simulate_artefact(o: SimulateOptions, machine, maps, effects, progress_colum
 
 
 def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json, policy,
-                          strict_model: bool | None = None) -> None:
-    """``cmmpose evaluate RUN_DIR`` on an artefact run: the table or JSON, and the report; with a --model
+                          strict_model: bool | None = None, outputs=None) -> None:
+    """``cmmpose evaluate RUN_DIR`` on an artefact run: the table or JSON, and the report (written inside
+    ``outputs``, the command's :func:`cmmpose.cli.common.writing` group: exclusive, whole or none); with a --model
     (``strict_model`` not None) its check against the plain maps (cmmpose.evaluation.model_check), and with
     --strict-model exit status 1 where the model was doubted."""
     from ..evaluation.artefact import evaluate_artefact
@@ -213,7 +215,10 @@ def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report
                 check = check_model(run, model, evaluation=ev, **options)
         say_caught(caught)
         poses = dict(zip(run.scans["scan_id"].tolist(), run.scans["pose_id"].tolist()))
-        files = write_artefact_report(ev, Path(report_dir), poses) if report_dir else []
+        files = []
+        if report_dir:
+            with outputs if outputs is not None else contextlib.nullcontext():
+                files = write_artefact_report(ev, Path(report_dir), poses)
     except Error as exc:
         raise _fail(exc) from None
     if as_json:
@@ -265,6 +270,10 @@ def diagnose_plate_fits_cli(fits_file, artefact_spec, state, temperature, nomina
                          f"{d.radius_mean:.4f} mm (calibrated {d.nominal_radius:g})")
     Console(width=max(Console().width, 110)).print(table_out)
     Console(width=150).print(d.patterns)
+
+
+#: The files of an artefact run's report (the plots only with matplotlib; ``deviations_<result>.png`` besides).
+ARTEFACT_REPORT_FILES = ("evaluation.json", "deviations.csv", "lengths.csv", "centres.csv", "length_errors.png")
 
 
 def write_artefact_report(ev, directory: Path, poses: dict | None = None) -> list[Path]:
