@@ -22,8 +22,8 @@ from .. import artefacts
 from ..atomicfile import ensure_folder, write_text
 from .._json import dumps as strict_json
 from ..errors import Error, InputError, ModelDomainWarning
-from .common import (json_option, table_data, console, show, machine_option, model_doubts, print_model_check,
-                     say_caught, strict_model_exit)
+from .common import (check_free, command_inputs, json_option, table_data, console, show, machine_option,
+                     model_doubts, overwrite_option, print_model_check, say_caught, strict_model_exit, writing)
 from .common import fail as _fail
 
 if TYPE_CHECKING:
@@ -123,18 +123,23 @@ def artefact_check_cmd(path, as_json) -> None:
                    "once more if fewer); 0 repeats none.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
               help="Plan file (JSON) for `cmmpose acquire --plan`.")
-def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out, repeat_scans=0) -> None:
+@overwrite_option()
+def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out, repeat_scans=0,
+                      overwrite=False) -> None:
     """Write the acquisition plan of an artefact run: the pose and sweep of every ball of every placement
     (docs/artefacts.md, 'Recording a plate'), for `cmmpose acquire --plan`."""
     from ..acquire.plan import artefact_plan
     from ..machine import load_machine
 
+    inputs = command_inputs([path, machine_file])
     try:
+        check_free({"--output": out}, inputs, overwrite=overwrite)  # before any work
         machine = load_machine(machine_file)
         artefact = artefacts.load_artefact(path)
         plan = artefact_plan(artefact, list(placements) or [artefacts.get(artefact.kind).layout], machine,
                              speed=speed, bidirectional=bidirectional, repeat_scans=repeat_scans)
-        plan.write(out)
+        with writing("--output", [out], inputs, overwrite=overwrite):  # created exclusively without --overwrite
+            plan.write(out)
     except Error as exc:
         raise _fail(exc) from None
     table = Table(title=f"cmmpose artefact plan -> {escape(str(out))}")
