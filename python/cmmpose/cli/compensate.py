@@ -198,9 +198,9 @@ def _check_out(o: CompensateOptions) -> None:
             check_free({"OUT": [Path(o.points_out) / f.name for f in dataset_files(o.points_in)]}, o.inputs,
                        overwrite=o.overwrite)
         return
+    check_free({"OUT": o.points_out}, o.inputs, overwrite=o.overwrite)  # first: an input is named as such
     check_writable(o.points_out)  # a missing folder is found now, not after
     output_format(o.points_out)  # an unknown suffix is refused now, listing the known ones
-    check_free({"OUT": o.points_out}, o.inputs, overwrite=o.overwrite)
 
 
 def _budget(tally) -> dict:

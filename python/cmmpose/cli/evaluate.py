@@ -150,10 +150,9 @@ def evaluate_cmd(**flags) -> None:
                                "budgets: --scheduler is for maps")
     if o.model_file is not None and len(o.run_dirs) > 1:
         return _evaluate_with_model(o)
+    fleet = len(o.run_dirs) > 1 or o.scheduler is not None
     try:
-        machine = load_machine(o.machine_file)
-        expansion = o.expansion_for(machine)
-        if len(o.run_dirs) > 1 or o.scheduler is not None:
+        if fleet:
             # The table across runs carries no uncertainties: their options would do nothing.
             for flag, given in (("--u-temperature", o.u_temperature is not None), ("--u-map", o.u_map is not None),
                                 ("--u-model", o.u_model != 0.0)):
@@ -161,11 +160,14 @@ def evaluate_cmd(**flags) -> None:
                     raise click.UsageError(f"{flag} takes one run: the table across runs has no uncertainties "
                                            "(evaluate each run on its own for them)")
             check_report_free(o, report_folder_names(o.run_dirs, o.report_dir))  # before any work
-            return _evaluate_fleet(o, machine, expansion)
-        run_dir = o.run_dirs[0]
-        if o.report_dir:
+        elif o.report_dir:
             check_report_paths(o.report_dir, (*REPORT_FILES, *UNCERTAINTY_FILES))  # before any work
             check_report_free(o)
+        machine = load_machine(o.machine_file)
+        expansion = o.expansion_for(machine)
+        if fleet:
+            return _evaluate_fleet(o, machine, expansion)
+        run_dir = o.run_dirs[0]
         run = Run.load(run_dir)
         with_model = o.model_file is not None
         model = load_model(o.model_file, o.user_files) if with_model else machine.maps_for_run(run, o.maps)
