@@ -112,7 +112,8 @@ class AtomicFile:
         Replace an existing file (the default). False: create it
         exclusively: an existing file is refused now, and one that another
         writer makes meanwhile is never replaced (:meth:`commit` raises
-        ``OutputError``). Inside a :class:`FileGroup` the group's setting wins.
+        ``OutputError``). Inside a :class:`FileGroup` that takes this file
+        (its ``only``) the group's setting wins.
 
     Raises
     ------

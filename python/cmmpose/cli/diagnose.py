@@ -152,7 +152,7 @@ class DiagnoseOptions:
         return {"--save-model": self.model_out, "--report": self.report_file,
                 "--user-effect-skeleton": self.skeleton_out}
 
-    def check_outputs_free(self) -> None:
+    def check_targets(self) -> None:
         """Before any work: no output is an input (the runs' files, model, machine, user effects), through links,
         nor (without --overwrite) an existing file; the --report file's folder is made if missing."""
         files = {k: v for k, v in self.outputs.items() if k != "--report"}
@@ -188,7 +188,7 @@ def _diagnose_one(o: DiagnoseOptions) -> None:
     run_dir = o.run_dirs[0]
     reproducibility_um = o.one_reproducibility_um
     try:
-        o.check_outputs_free()  # before any work
+        o.check_targets()  # before any work
         machine = load_machine(o.machine_file)
         run = Run.load(run_dir)
         from ..model import load_user_effects
@@ -349,7 +349,7 @@ def _diagnose_joint(o: DiagnoseOptions) -> None:
     from ..run import Run
 
     try:
-        o.check_outputs_free()  # before any work
+        o.check_targets()  # before any work
         machine = load_machine(o.machine_file)
         runs = [Run.load(r) for r in o.run_dirs]
         from ..model import load_user_effects

@@ -274,10 +274,10 @@ def _evaluate_with_model(o: EvaluateOptions) -> None:
 
     docs, files, doubts = [], [], []
     try:
-        machine = load_machine(o.machine_file)
-        expansion = o.expansion_for(machine)
         names = report_folder_names(o.run_dirs, o.report_dir)
         check_report_free(o, names)  # before any work
+        machine = load_machine(o.machine_file)
+        expansion = o.expansion_for(machine)
         model = load_model(o.model_file, o.user_files)
         for r, name in zip(o.run_dirs, names):
             run = Run.load(r)
