@@ -277,3 +277,21 @@ def test_a_diagnosis_writes_all_its_outputs_or_none(inputs, tmp_path):
             "--report", tmp_path / "D", "--no-auto")
     refused(r, "diagnose.html", "use --overwrite to replace it")
     assert listing(tmp_path) == ["D", "D/diagnose.html"]
+
+
+def test_a_dataset_folder_refuses_an_existing_output_file(inputs, tmp_path, no_work):
+    """compensate DATASET_DIR OUT_DIR: each file OUT_DIR would get (named after its input) is checked before
+    any work; the other files in OUT_DIR do not matter."""
+    pq = pytest.importorskip("pyarrow.parquet")
+    import pyarrow as pa
+
+    (tmp_path / "ds").mkdir()
+    table = pa.table({"u": [0.0], "v": [0.0], "D": [450.0], "E": [275.0], "F": [-250.0]})
+    for name in ("a.parquet", "b.parquet"):
+        pq.write_table(table, tmp_path / "ds" / name)
+    earlier(tmp_path / "out" / "b.parquet")
+    earlier(tmp_path / "out" / "notes.txt")
+    refused(cli("compensate", tmp_path / "ds", tmp_path / "out", "--maps", "appendix-b"),
+            str(tmp_path / "out" / "b.parquet"), "use --overwrite to replace it")
+    assert unchanged(tmp_path / "out" / "b.parquet") and sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "b.parquet", "notes.txt"]
