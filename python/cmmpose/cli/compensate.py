@@ -224,14 +224,15 @@ def _compensate_dataset(o: CompensateOptions, machine, pose_t, offset_t, u_args)
     logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
     try:
         error_map = load_maps(o.maps, machine)
-        with warnings.catch_warnings(record=True) as caught, Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                      TextColumn("{task.completed:,.0f} points"),
-                      TimeRemainingColumn(), console=console) as bar:
+        with warnings.catch_warnings(record=True) as caught, \
+                Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                         TextColumn("{task.completed:,.0f} points"), TimeRemainingColumn(), console=console) as bar:
             task = bar.add_task("", total=None)
             result = compensate_dataset(points_in, points_out, error_map, pose_t, offset_t, temperature,
                                         out_of_range=o.out_of_range, nan_policy=o.nan_policy,
                                         temperature_tolerance=o.temperature_tolerance, scheduler=scheduler,
-                                        scheduler_timeout=o.scheduler_timeout, progress=lambda done, total: bar.update(task, completed=done, total=total),
+                                        scheduler_timeout=o.scheduler_timeout,
+                                        progress=lambda done, total: bar.update(task, completed=done, total=total),
                                         **u_args)
         say_caught(caught)
     except Error as exc:
