@@ -250,13 +250,13 @@ def full_disk(work: Path, writer: str) -> None:
             small_run(work, "r")
         fill(fs)
         args = {
-            "compensate": ("compensate", "a.csv", earlier, *COMPENSATE),
-            "machine": ("machine", "example", "moving-bridge", "-o", earlier),
+            "compensate": ("compensate", "a.csv", earlier, *COMPENSATE, "--overwrite"),
+            "machine": ("machine", "example", "moving-bridge", "-o", earlier, "--overwrite"),
             "artefact": ("artefact", "example", "ball-plate", "-o", earlier, "--overwrite"),
-            "model": ("diagnose", "r", "--save-model", earlier),
+            "model": ("diagnose", "r", "--save-model", earlier, "--overwrite"),
             "simulate": ("simulate", "--seed", 2, "--overwrite", "-o", earlier),
-            "map": ("map", "export", "thesis", "--format", "iso230-2", "-o", earlier),
-            "report": ("evaluate", "r", "--report", earlier),
+            "map": ("map", "export", "thesis", "--format", "iso230-2", "-o", earlier, "--overwrite"),
+            "report": ("evaluate", "r", "--report", earlier, "--overwrite"),
         }[writer]
         r = cli(*args, cwd=work)
         now = {p.name: digest(p) for p in (earlier.iterdir() if earlier.is_dir() else [earlier]) if p.is_file()} \
@@ -690,10 +690,13 @@ def empty_option(work: Path, option: str, value: str) -> None:
 def started_together(work: Path, command: str) -> None:
     """Two writers of one output started together: exactly one succeeds, the other fails with a clear
     message naming the output, and the output is whole (never both exit 0 with one result lost)."""
-    target = work / {"simulate": "same", "artefact": "a.toml", "machine": "m.toml"}[command]
+    if command == "compensate":
+        scan_copy(work)
+    target = work / {"simulate": "same", "artefact": "a.toml", "machine": "m.toml", "compensate": "x.csv"}[command]
     argv = {"simulate": [["simulate", "--seed", s, "-o", target] for s in (1, 2)],
             "artefact": [["artefact", "example", k, "-o", target] for k in ("ballbar", "sphere")],
-            "machine": [["machine", "example", k, "-o", target] for k in ("thesis", "gantry")]}[command]
+            "machine": [["machine", "example", k, "-o", target] for k in ("thesis", "gantry")],
+            "compensate": [["compensate", "a.csv", target, *COMPENSATE, "--temperature", t] for t in (21, 23)]}[command]
     procs = [subprocess.Popen([*cmmpose_exe(), *map(str, a)], cwd=work, stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL) for a in argv]
     try:
@@ -710,7 +713,7 @@ def started_together(work: Path, command: str) -> None:
     loser = outs[[p.returncode for p in procs].index(1)]
     if target.name not in loser[1] or "Traceback" in loser[1]:
         raise Failed("silent", f"two {command}: the refusal does not name {target.name}: {loser[1][-300:]}")
-    extra = leftovers(work, {target.name})
+    extra = leftovers(work, {target.name, "a.csv"})
     if extra:
         raise Failed("data loss", f"two {command}: left {extra}")
     if command == "simulate":
@@ -718,6 +721,96 @@ def started_together(work: Path, command: str) -> None:
                                capture_output=True, text=True)
         if check.returncode:
             raise Failed("data loss", f"two simulate -o same: the run left does not load: {check.stderr[-300:]}")
+
+
+#: The commands that write a file, each with its arguments (run in a folder holding a.csv, the run r, m.csv and
+#: linear.csv) and the output it writes: without --overwrite an existing one is refused before any work.
+EXISTING_OUTPUTS = {
+    "compensate": (("compensate", "a.csv", "o.csv", *COMPENSATE), "o.csv"),
+    "evaluate --report": (("evaluate", "r", "--report", "R"), "R/evaluation.json"),
+    "diagnose --save-model": (("diagnose", "r", "--save-model", "model.json", "--no-auto"), "model.json"),
+    "diagnose --report": (("diagnose", "r", "--report", "D", "--no-auto"), "D/diagnose.html"),
+    "diagnose --corrected-maps": (("diagnose", "r", "--corrected-maps", "cm.csv", "--no-auto"), "cm_30C.csv"),
+    "map export": (("map", "export", "m.csv", "--format", "iso230-2", "-o", "e.csv"), "e.csv"),
+    "map export linuxcnc": (("map", "export", "m.csv", "--format", "linuxcnc", "-o", "comp"), "comp/z.comp"),
+    "map import": (("map", "import", "iso230-2", "linear.csv", "-o", "i.csv"), "i.csv"),
+    "map plot": (("map", "plot", "m.csv", "-o", "p.png"), "p.png"),
+    "map table-motion": (("map", "table-motion", "m.csv", "--carriage", "Y", "--measured-at", "0,0,0",
+                          "--part-point", "300,100,50", "-o", "t.csv"), "t.csv"),
+    "calibrate map": (("calibrate", "map", *sorted(map(str, (DATA / "examples" / "interferometer").glob("*.csv"))),
+                       "--squareness", "-173,-19,21", "-o", "c.csv"), "c.csv"),
+    "calibrate simulate-alignment": (("calibrate", "simulate-alignment", "--pose", "90,90,0", "--name", "A",
+                                      "-o", "al"), "al/A-plane.csv"),
+    "standards iso230-2 --report": (("standards", "iso230-2", str(DATA / "examples" / "interferometer" / "x_dx.csv"),
+                                     "--report", "S"), "S/iso230-2.json"),
+    "standards interim-check --report": (("standards", "interim-check", "r", "--report", "I"),
+                                         "I/interim-check.md"),
+    "artefact plan": (("artefact", "plan", "koba-0320", "-o", "plan.json"), "plan.json"),
+    "demo --report": (("demo", "--report", "dm"), "dm/evaluation.json"),
+}
+
+
+def _outputs_inputs(work: Path) -> None:
+    """What the EXISTING_OUTPUTS commands read: a.csv, the run r, the map m.csv and linear.csv."""
+    scan_copy(work)
+    small_run(work, "r")
+    code = ("import sys, cmmpose\nm = cmmpose.ErrorMapSet.thesis().at(20)\nm.write(sys.argv[1])\n"
+            "m.write(sys.argv[2], format='iso230-2')")
+    subprocess.run([sys.executable, "-c", code, str(work / "m.csv"), str(work / "linear.csv")], check=True)
+
+
+def existing_output(work: Path, command: str) -> None:
+    """An output that exists, without --overwrite: refused (exit 1) before any work with one line naming it and
+    --overwrite; the file, its modification time and the folder left as they were. With --overwrite the file
+    is replaced."""
+    _outputs_inputs(work)
+    args, out = EXISTING_OUTPUTS[command]
+    target = work / out
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text("earlier\n")
+    os.utime(target, (1_000_000_000, 1_000_000_000))
+    before = sorted(str(p.relative_to(work)) for p in work.rglob("*"))
+    t0 = time.monotonic()
+    r = cli(*args, cwd=work)
+    if target.read_text() != "earlier\n" or target.stat().st_mtime != 1_000_000_000:
+        raise Failed("data loss", f"{command}: an existing {out} was replaced without --overwrite (exit {r.code})")
+    after = sorted(str(p.relative_to(work)) for p in work.rglob("*"))
+    if after != before:
+        raise Failed("data loss", f"{command}: refused, but wrote {sorted(set(after) - set(before))[:4]}")
+    refused(r, what=f"{command} over an existing {out}", mentions=(target.name, "use --overwrite to replace it"))
+    if r.code != 1 or len([ln for ln in r.err.splitlines() if ln.startswith("Error:")]) != 1:
+        raise Failed("silent", f"{command} over an existing {out}: exit {r.code}, not one line: {r.err[-300:]}")
+    if time.monotonic() - t0 > 30:
+        raise Failed("silent", f"{command} over an existing {out}: refused only after {time.monotonic() - t0:.0f} s")
+    r = cli(*args, "--overwrite", cwd=work)
+    if r.code not in (0, 1) or target.read_bytes() == b"earlier\n":
+        raise Failed("silent", f"{command} --overwrite did not replace {out} (exit {r.code}): {r.text[-300:]}")
+
+
+def overwrite_never_an_input(work: Path, command: str) -> None:
+    """--overwrite replaces an earlier output, never an input: an output that is an input through a symbolic
+    link is refused, the input unchanged."""
+    _outputs_inputs(work)
+    named, args = {
+        "compensate": ("a.csv", ("compensate", "a.csv", "link.csv", *COMPENSATE)),
+        "compensate (its --maps file)": ("m.csv", ("compensate", "a.csv", "link.csv", "--maps", "m.csv",
+                                                   "--temperature", 20, "--pose", "90,90,0", "--offset",
+                                                   "1.001,264.505,129.575")),
+        "map import": ("linear.csv", ("map", "import", "iso230-2", "linear.csv", "-o", "link.csv")),
+        "map export": ("m.csv", ("map", "export", "m.csv", "--format", "iso230-2", "-o", "link.csv")),
+        "diagnose --save-model": ("r/run.json", ("diagnose", "r", "--save-model", "link.csv", "--no-auto")),
+        "evaluate --report": ("r/run.json", ("evaluate", "r", "--report", "R")),
+    }[command]
+    if command == "evaluate --report":
+        (work / "R").mkdir()
+        (work / "R" / "evaluation.json").symlink_to(work / named)
+    else:
+        (work / "link.csv").symlink_to(work / named)
+    before = digest(work / named)
+    r = cli(*args, "--overwrite", cwd=work)
+    if digest(work / named) != before:
+        raise Failed("data loss", f"{command} --overwrite through a link to its input {named}: the input changed")
+    refused(r, what=f"{command} --overwrite through a link to its input", mentions=(Path(named).name, "input"))
 
 
 def _map_inputs(work: Path) -> tuple[list[str], dict[str, str]]:
@@ -1460,6 +1553,12 @@ ATTACKS = {
         "two simulate -o same started together": lambda w: started_together(w, "simulate"),
         "two artefact example -o same started together": lambda w: started_together(w, "artefact"),
         "two machine example -o same started together": lambda w: started_together(w, "machine"),
+        "two compensate to one OUT started together": lambda w: started_together(w, "compensate"),
+        **{f"an existing output without --overwrite: {c}": (lambda w, c=c: existing_output(w, c))
+           for c in EXISTING_OUTPUTS},
+        **{f"--overwrite through a link to an input: {c}": (lambda w, c=c: overwrite_never_an_input(w, c))
+           for c in ("compensate", "compensate (its --maps file)", "map import", "map export",
+                     "diagnose --save-model", "evaluate --report")},
         "diagnose --corrected-maps over its --maps files": lambda w: corrected_maps_over_inputs(w, "given"),
         "diagnose --corrected-maps over a machine's maps": lambda w: corrected_maps_over_inputs(w, "machine"),
         "full disk: diagnose --corrected-maps": corrected_maps_full_disk,

@@ -308,12 +308,12 @@ def test_corrected_maps_on_a_full_disk_leave_no_part_of_the_set(maps_and_run, tm
 
     monkeypatch.setattr(os, "fsync", fsync)
     maps = [a for m in sorted((root / "in").glob("cm_*C.csv")) for a in ("--maps", m)]
-    r = cli("diagnose", root / "run", *maps, "--corrected-maps", out / "cm.csv")
+    r = cli("diagnose", root / "run", *maps, "--corrected-maps", out / "cm.csv", "--overwrite")
     monkeypatch.undo()
     one_line_failure(r, "cm_30C.csv", "no space left", "nothing of the --corrected-maps was written")
     assert sorted(p.name for p in out.iterdir()) == ["cm_25C.csv"]
     assert (out / "cm_25C.csv").read_text() == "earlier\n"
-    r = cli("diagnose", root / "run", *maps, "--corrected-maps", out / "cm.csv")
+    r = cli("diagnose", root / "run", *maps, "--corrected-maps", out / "cm.csv", "--overwrite")
     assert r.exit_code == 0, r.output
     assert sorted(p.name for p in out.iterdir()) == ["cm_20C.csv", "cm_25C.csv", "cm_30C.csv"]
 

@@ -369,9 +369,9 @@ def test_cli_outputs_on_a_full_or_read_only_disk(tmp_path, scan, disk, err, word
         p.write_text("earlier\n")
     report = tmp_path / "report"
     disk(on, err)
-    cases = [(("compensate", scan, out, "--maps", "thesis"), out),
+    cases = [(("compensate", scan, out, "--maps", "thesis", "--overwrite"), out),
              (("machine", "example", "thesis", "-o", machine, "--overwrite"), machine),
-             (("diagnose", run_dir, "--save-model", model, "--max-effects", "0", "--no-auto"), model),
+             (("diagnose", run_dir, "--save-model", model, "--max-effects", "0", "--no-auto", "--overwrite"), model),
              (("evaluate", run_dir, "--report", report), report / "evaluation.json")]
     for args, named in cases:
         one_line_failure(cli(*args), str(named), words)

@@ -195,7 +195,7 @@ def test_compensate_model_with_a_raising_user_effect_says_it_in_one_line(tmp_pat
     args = ["compensate", str(tmp_path / "pts.parquet"), str(tmp_path / "o.csv"), "--model", str(tmp_path / "model.json")]
     res = CliRunner().invoke(main, [*args, "--user-effect", str(ok)])
     assert res.exit_code == 0, res.output
-    res = CliRunner().invoke(main, [*args, "--user-effect", str(bad)])
+    res = CliRunner().invoke(main, [*args, "--user-effect", str(bad), "--overwrite"])  # o.csv exists: replaced
     assert res.exit_code == 1 and "Traceback" not in res.output and not isinstance(res.exception, RuntimeError)
     assert "bad.py, line 5" in res.output and "RuntimeError: boom" in res.output and "'shift'" in res.output
 

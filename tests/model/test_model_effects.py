@@ -205,8 +205,8 @@ def test_cli_diagnose_writes_tables_report_json_and_a_reusable_model(tmp_path):
     assert "cannot choose between squareness, roll" in " ".join(r.output.split())
     assert Model.load(tmp_path / "open.json").names == ()
     r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "run"), "--add", "squareness", "--report",
-                                  str(tmp_path / "r"), "--save-model", str(tmp_path / "m.json")],
-                           env={"COLUMNS": "100"})
+                                  str(tmp_path / "r"), "--save-model", str(tmp_path / "m.json"), "--overwrite"],
+                           env={"COLUMNS": "100"})  # the report replaces the first one
     assert r.exit_code == 0, r.output
     assert "squareness" in r.output and "The error falling" in r.output
     html = (tmp_path / "r" / "diagnose.html").read_text()

@@ -31,10 +31,12 @@
   an exclusive reservation of the name): of two writers of one name, exactly
   one succeeds and the other gets ``OutputError``, its file never replacing
   the first one's.
-- A group of files (a map set) is written with :class:`FileGroup`: every
-  member is written beside its target first, then all are put in place; a
-  failure puts back what was there and removes what was new, so the group
-  appears whole or not at all.
+- A group of files (a map set, a command's outputs) is written with
+  :class:`FileGroup`: every member is written beside its target first, then
+  all are put in place; a failure puts back what was there and removes what
+  was new, so the group appears whole or not at all. A group given ``only``
+  (its files or their folders) takes only those; a writer's scratch file
+  elsewhere is written as outside the group.
 - A run directory is written into a temporary folder beside it and renamed
   into place whole when the name is free (exclusive: of two writers one
   fails), or swapped in under a lock on the folder (:func:`staged_folder`):

@@ -112,7 +112,8 @@ class AtomicFile:
         Replace an existing file (the default). False: create it
         exclusively: an existing file is refused now, and one that another
         writer makes meanwhile is never replaced (:meth:`commit` raises
-        ``OutputError``). Inside a :class:`FileGroup` the group's setting wins.
+        ``OutputError``). Inside a :class:`FileGroup` that takes this file
+        (its ``only``) the group's setting wins.
 
     Raises
     ------
@@ -128,7 +129,7 @@ class AtomicFile:
                  overwrite: bool = True):
         if mode not in ("w", "wb"):
             raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
-        groups = _GROUP.get()
+        groups = [g for g in _GROUP.get() if g.claims(path)]
         self.group = groups[-1] if groups else None
         if self.group is not None:
             overwrite = self.group.overwrite
@@ -360,13 +361,29 @@ class FileGroup:
         Files no member may be (:func:`check_not_input`).
     what : str
         How messages name the group (e.g. ``"--corrected-maps"``).
+    only : iterable of path-like, optional
+        The group's files (or the folders whose files it is): a writer
+        joins only for a target that is one of them or lies directly in one
+        of them (any spelling or link). Any other file written in the
+        block, such as a writer's own scratch file that it reads back, is
+        written as it would be outside the group. None: every writer joins.
     """
 
-    def __init__(self, *, overwrite: bool = True, inputs=(), what: str = "output"):
+    def __init__(self, *, overwrite: bool = True, inputs=(), what: str = "output", only=None):
         self.overwrite = overwrite
         self.inputs = [i for i in inputs if i is not None]
         self.what = what
+        self.only = None if only is None else {os.path.realpath(p) for p in only if p is not None}
         self.members: list[AtomicFile] = []
+
+    def claims(self, path) -> bool:
+        """Whether a file written at ``path`` in the block joins the group (see ``only``)."""
+        if self.only is None:
+            return True
+        if str(path) == STDOUT:
+            return False
+        real = os.path.realpath(path)
+        return real in self.only or os.path.dirname(real) in self.only
 
     def staged(self, member: AtomicFile) -> None:
         """Called by a member's commit: it is whole beside its target."""

@@ -96,37 +96,38 @@ def lexists(path) -> bool:
 def check_output(path, *, overwrite: bool = True, what: str = "output") -> Path:
     """``path`` as a Path after the checks made before any work: ``InputError``
     if it is a folder or its folder does not exist; ``OutputError`` if it exists
-    and ``overwrite`` is False (:func:`exists_error`). Special files pass."""
-    path = Path(path)
+    and ``overwrite`` is False (:func:`exists_error`). Special files pass. Messages name the
+    path as given (``./a.csv``)."""
+    shown, path = path, Path(path)
     if str(path) == STDOUT:
         return path
     st = stat_or_none(path)
     if st is not None and stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{path}: is a folder, expected a file name")
+        raise InputError(f"{shown}: is a folder, expected a file name")
     if st is None:
         real = Path(os.path.realpath(path))
         folder = real.parent
         if not folder.is_dir():
-            raise InputError(f"{path}: the folder {path.parent if str(path.parent) else '.'} does not exist")
+            raise InputError(f"{shown}: the folder {path.parent if str(path.parent) else '.'} does not exist")
     if not overwrite and (st is None and lexists(path) or st is not None and stat.S_ISREG(st.st_mode)):
-        raise exists_error(path, what)
+        raise exists_error(shown, what)
     return path
 
 
 def check_outputs_free(paths, inputs=(), *, overwrite: bool = True, what: str = "output") -> list[Path]:
     """Check every path of an output group before any work: no folder, no missing folder, none of
     ``inputs`` (any spelling or link: :func:`check_not_input`), no two the same file, and none existing
-    unless ``overwrite``. The paths as Paths."""
-    paths = [Path(p) for p in paths]
+    unless ``overwrite``. The paths as Paths (messages name each as given)."""
+    given = list(paths)
     seen: dict[str, Path] = {}
-    for p in paths:
+    for p in given:
         check_not_input(p, inputs, what)
         check_output(p, overwrite=overwrite, what=what)
         key = os.path.realpath(p)
         if key in seen:
             raise InputError(f"{p}: the {what} names the same file as {seen[key]}; give names that differ")
         seen[key] = p
-    return paths
+    return [Path(p) for p in given]
 
 
 def ensure_folder(path) -> Path:

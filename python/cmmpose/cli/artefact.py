@@ -5,6 +5,7 @@ calls :func:`simulate_artefact` and :func:`evaluate_artefact_run`."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 import warnings
@@ -21,8 +22,8 @@ from .. import artefacts
 from ..atomicfile import ensure_folder, write_text
 from .._json import dumps as strict_json
 from ..errors import Error, InputError, ModelDomainWarning
-from .common import (json_option, table_data, console, show, machine_option, model_doubts, print_model_check,
-                     say_caught, strict_model_exit)
+from .common import (check_free, command_inputs, json_option, table_data, console, show, machine_option,
+                     model_doubts, overwrite_option, print_model_check, say_caught, strict_model_exit, writing)
 from .common import fail as _fail
 
 if TYPE_CHECKING:
@@ -122,18 +123,23 @@ def artefact_check_cmd(path, as_json) -> None:
                    "once more if fewer); 0 repeats none.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
               help="Plan file (JSON) for `cmmpose acquire --plan`.")
-def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out, repeat_scans=0) -> None:
+@overwrite_option()
+def artefact_plan_cmd(path, placements, machine_file, speed, bidirectional, out, repeat_scans=0,
+                      overwrite=False) -> None:
     """Write the acquisition plan of an artefact run: the pose and sweep of every ball of every placement
     (docs/artefacts.md, 'Recording a plate'), for `cmmpose acquire --plan`."""
     from ..acquire.plan import artefact_plan
     from ..machine import load_machine
 
+    inputs = command_inputs([path, machine_file])
     try:
+        check_free({"--output": out}, inputs, overwrite=overwrite)  # before any work
         machine = load_machine(machine_file)
         artefact = artefacts.load_artefact(path)
         plan = artefact_plan(artefact, list(placements) or [artefacts.get(artefact.kind).layout], machine,
                              speed=speed, bidirectional=bidirectional, repeat_scans=repeat_scans)
-        plan.write(out)
+        with writing("--output", [out], inputs, overwrite=overwrite):  # created exclusively without --overwrite
+            plan.write(out)
     except Error as exc:
         raise _fail(exc) from None
     table = Table(title=f"cmmpose artefact plan -> {escape(str(out))}")
@@ -194,8 +200,9 @@ def simulate_artefact(o: SimulateOptions, machine, maps, effects, progress_colum
 
 
 def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report_dir, as_json, policy,
-                          strict_model: bool | None = None) -> None:
-    """``cmmpose evaluate RUN_DIR`` on an artefact run: the table or JSON, and the report; with a --model
+                          strict_model: bool | None = None, outputs=None) -> None:
+    """``cmmpose evaluate RUN_DIR`` on an artefact run: the table or JSON, and the report (written inside
+    ``outputs``, the command's :func:`cmmpose.cli.common.writing` group: exclusive, whole or none); with a --model
     (``strict_model`` not None) its check against the plain maps (cmmpose.evaluation.model_check), and with
     --strict-model exit status 1 where the model was doubted."""
     from ..evaluation.artefact import evaluate_artefact
@@ -213,7 +220,10 @@ def evaluate_artefact_run(run, model, temperature, reject, u_temperature, report
                 check = check_model(run, model, evaluation=ev, **options)
         say_caught(caught)
         poses = dict(zip(run.scans["scan_id"].tolist(), run.scans["pose_id"].tolist()))
-        files = write_artefact_report(ev, Path(report_dir), poses) if report_dir else []
+        files = []
+        if report_dir:
+            with outputs if outputs is not None else contextlib.nullcontext():
+                files = write_artefact_report(ev, Path(report_dir), poses)
     except Error as exc:
         raise _fail(exc) from None
     if as_json:
@@ -265,6 +275,10 @@ def diagnose_plate_fits_cli(fits_file, artefact_spec, state, temperature, nomina
                          f"{d.radius_mean:.4f} mm (calibrated {d.nominal_radius:g})")
     Console(width=max(Console().width, 110)).print(table_out)
     Console(width=150).print(d.patterns)
+
+
+#: The files of an artefact run's report (the plots only with matplotlib; ``deviations_<result>.png`` besides).
+ARTEFACT_REPORT_FILES = ("evaluation.json", "deviations.csv", "lengths.csv", "centres.csv", "length_errors.png")
 
 
 def write_artefact_report(ev, directory: Path, poses: dict | None = None) -> list[Path]:

@@ -18,7 +18,7 @@ from ..formats.pointfiles import read_points
 from ..pose import Pose
 from .common import json_option, console, fail, load_maps, machine_option, map_specs, offset_mm, travel_notes, triple
 from .common import TEMPERATURE
-from .common import check_plot_path, plot_option
+from .common import check_free, check_plot_path, command_inputs, overwrite_option, plot_option, writing
 
 
 @click.group("calibrate")
@@ -305,8 +305,9 @@ def _compare_map(spec: str):
 @plot_option("--plot", "plot_path", help="Difference plot (with --compare): PNG, PDF, SVG.")
 @machine_option
 @json_option
+@overwrite_option("Replace an existing --output or --plot file (never an input).")
 def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out, compare_to, plot_path,
-                      machine_file, as_json) -> None:
+                      machine_file, as_json, overwrite) -> None:
     """Build an error map from raw laser-interferometer RUN_FILES (docs/interferometer.md). With
     --machine, the map is checked against the machine's travel."""
     from ..calibration.interferometer import (InterferometerWarning, build_map, compare_maps, plot_map_difference,
@@ -317,8 +318,9 @@ def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out
     if plot_path and not compare_to:
         raise click.UsageError("--plot draws the difference from a --compare map: give --compare")
     try:
-        for given, flag in ((out, "--output"), (plot_path, "--plot")):
-            check_not_input(given, [*run_files, machine_file, compare_to], flag)
+        inputs = command_inputs([*run_files, machine_file, compare_to])
+        check_free({"--output": out, "--plot": plot_path}, inputs, overwrite=overwrite)  # before any work
+        check_free({"--output and --plot": [out, plot_path]}, overwrite=True)  # two names for one file
         check_plot_path(plot_path, "--plot")
         other = _compare_map(compare_to) if compare_to else None  # before the map is written
         runs = [read_run(f) for f in run_files]
@@ -326,15 +328,18 @@ def calibrate_map_cmd(run_files, squareness, temperature, no_air_correction, out
             warnings.simplefilter("ignore", InterferometerWarning)
             built = build_map(runs, sq, temperature, air_correction=not no_air_correction)
         notes = list(built.notes) + (travel_notes(load_machine(machine_file), built.map) if machine_file else [])
-        built.map.write(out)
         comparison = None
-        if other is not None:
-            comparison = compare_maps(built.map, other)
-            if not as_json:
-                Console().print(comparison.table())
-            if plot_path:
-                plot_map_difference(built.map, other, plot_path)
-                console.print(f"wrote {plot_path}")
+        with writing("--output" + (" and --plot" if plot_path else ""), [out, plot_path], inputs,
+                     overwrite=overwrite):  # the map and its plot, created exclusively, both or neither
+            built.map.write(out)
+            if other is not None:
+                comparison = compare_maps(built.map, other)
+                if plot_path:
+                    plot_map_difference(built.map, other, plot_path)
+        if comparison is not None and not as_json:
+            Console().print(comparison.table())
+        if plot_path:
+            console.print(f"wrote {plot_path}")
     except Error as exc:
         raise fail(exc) from None
     if as_json:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import warnings
 from pathlib import Path
 
@@ -13,7 +14,7 @@ from rich.markup import escape
 
 from .._arrays import as_triple
 from .._json import dumps as strict_json
-from ..atomicfile import check_not_input
+from ..atomicfile import FileGroup, check_not_input, check_outputs_free
 from ..errormap import ErrorMap, ErrorMapSet
 from ..errors import Error, ModelDomainWarning
 from ..policy import cli_wording
@@ -312,12 +313,52 @@ def check_outputs(outputs: dict, run_dirs=(), files=()) -> None:
     """``InputError`` if an output (flag -> path, None for not given) is one of the
     files the command reads: the runs' files (``cmmpose.run.RUN_FILES``) and ``files``
     (cmmpose.atomicfile.check_not_input: any spelling or link)."""
-    from ..run import RUN_FILES
-
-    inputs = [Path(r) / n for r in run_dirs for n in RUN_FILES] + [f for f in files if f]
-    inputs += [m for f in files if f and str(f).lower().endswith(".toml") for m in _machine_maps(f)]
+    inputs = command_inputs(files, run_dirs)
     for flag, path in outputs.items():
         check_not_input(path, inputs, flag)
+
+
+def command_inputs(files=(), run_dirs=()) -> list:
+    """Every file a command reads, for its outputs to be checked against (through links): ``files`` that are
+    given (a --maps name such as 'thesis' names no file and is left out), the map files a machine file among
+    them names, and the runs' files (``cmmpose.run.RUN_FILES``)."""
+    from ..run import RUN_FILES
+
+    given = [f for f in files if f and str(f) != "-"]
+    inputs = [Path(r) / n for r in run_dirs for n in RUN_FILES] + given
+    inputs += [m for f in given if str(f).lower().endswith(".toml") for m in _machine_maps(f)]
+    return inputs
+
+
+def overwrite_option(help_text: str = "Replace an existing output file (never an input)."):
+    """--overwrite, the same flag on every command that writes a file: without it an existing output is refused
+    before any work and each output is created exclusively (cmmpose.atomicfile, docs/formats.md)."""
+    return click.option("--overwrite", is_flag=True, help=help_text)
+
+
+def check_free(outputs: dict, inputs=(), *, overwrite: bool, folders_made: bool = False) -> None:
+    """Before any work, every output (flag -> a path, several paths, or None when not given) checked by
+    :func:`cmmpose.atomicfile.check_outputs_free`: no folder, none of ``inputs`` (any spelling or link), no two
+    the same file and, without ``overwrite``, none existing (``OutputError``: ``use --overwrite to replace it``).
+    ``folders_made``: the outputs go in folders the command makes (a --report folder): one still missing holds
+    nothing to replace and is not an error."""
+    for flag, paths in outputs.items():
+        if paths is None:
+            continue
+        paths = [paths] if isinstance(paths, (str, os.PathLike)) else [p for p in paths if p is not None]
+        if folders_made:
+            paths = [p for p in paths if Path(os.path.realpath(p)).parent.is_dir()]
+        check_outputs_free(paths, inputs, overwrite=overwrite, what=flag)
+
+
+def writing(what: str, outputs, inputs=(), *, overwrite: bool) -> FileGroup:
+    """``with writing("--report", [folder], inputs, overwrite=o.overwrite): ...``: every file the block writes
+    (through cmmpose.atomicfile, whichever writer) at one of ``outputs`` or directly in one of them (a folder) is
+    created exclusively without ``overwrite`` (of two writers one fails), is never one of ``inputs``, and these
+    files appear together or not at all (:class:`cmmpose.atomicfile.FileGroup`); messages name them as ``what``
+    (the flag). A writer's scratch files elsewhere are written as they are outside the group."""
+    return FileGroup(overwrite=overwrite, inputs=[i for i in inputs if i is not None], what=what,
+                     only=[o for o in outputs if o is not None])
 
 
 def _machine_maps(path) -> list:

@@ -11,15 +11,15 @@ import click
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from ..atomicfile import check_not_input
 from ..errormap import ErrorMapSet
 from ..errors import AliasedChoiceWarning, Error, MapTemperatureWarning, ModelDomainWarning
 from ..filecompensation import compensate_file
 from ..formats.pointfiles import check_writable, output_format
 from ..formats.pointformats.common import check_file
-from .common import (aliased_choices_once, check_model_or_maps, console, fail, json_option, kernel_report_rows,
-                     load_maps, load_model, machine_option, machine_row, map_specs, model_doubts, model_options,
-                     offset_mm, policy_options, pose_angles, say_caught, scheduler_options, show, strict_model_exit)
+from .common import (aliased_choices_once, check_free, check_model_or_maps, command_inputs, console, fail,
+                     json_option, kernel_report_rows, load_maps, load_model, machine_option, machine_row, map_specs,
+                     model_doubts, model_options, offset_mm, overwrite_option, policy_options, pose_angles, say_caught,
+                     scheduler_options, show, strict_model_exit, writing)
 from .common import TEMPERATURE
 from .uncertainty_options import budget_table, check_uncertainty_options, uncertainty_options, uncertainty_sources
 
@@ -48,14 +48,12 @@ from .uncertainty_options import budget_table, check_uncertainty_options, uncert
 @model_options(", which read their inputs from IN's columns (t and scan_id for latency, T_<role> for a "
                "thermocouple role; docs/diagnosis.md).")
 @uncertainty_options
-def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose, offset, alignment, library_file,
-                   out_of_range, temperature_tolerance, nan_policy, scheduler, scheduler_timeout, model_file,
-                   user_files, as_json, uncertainty, uncertainty_detail, temperature_uncertainty, scanner_noise,
-                   scanner_scale_ppm, uncertainty_off, strict_model=False) -> None:
+@overwrite_option("Replace an existing OUT (for a folder IN: the files of the same names in OUT); never an input.")
+def compensate_cmd(**flags) -> None:
     """Compensate scanner points IN (CSV, NPY, Parquet, PLY or XYZ: u, v, D, E, F[, T])
     into machine coordinates OUT (by suffix: CSV, NPY, Parquet, PLY, XYZ, PTS or E57;
     X, Y, Z in mm, E57 in metres). Any other column of IN (scan_id, intensity, ...)
-    is written to OUT unchanged.
+    is written to OUT unchanged. An existing OUT is refused unless --overwrite.
 
     IN may be a folder of Parquet files (a dataset): OUT is then a folder that
     gets one Parquet file per input, named after it, with X, Y, Z and the
@@ -66,43 +64,39 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
     covariance, mm^2), and a budget of its sources is printed."""
     from ..machine import load_machine
 
-    if str(points_in) != "-" and not os.path.lexists(points_in):  # as evaluate's RUN_DIR: a usage error, exit 2
-        raise click.BadParameter(f"{points_in}: no such file", param_hint="'IN'")
-    stated = {"temperature_uncertainty": temperature_uncertainty, "scanner_noise": scanner_noise,
-              "scanner_scale_ppm": scanner_scale_ppm, "uncertainty_off": uncertainty_off}
-    check_uncertainty_options(uncertainty, uncertainty_detail=uncertainty_detail, **stated)
+    o = CompensateOptions.from_flags(flags)
+    if str(o.points_in) != "-" and not os.path.lexists(o.points_in):  # as evaluate's RUN_DIR: a usage error, exit 2
+        raise click.BadParameter(f"{o.points_in}: no such file", param_hint="'IN'")
+    check_uncertainty_options(o.uncertainty, uncertainty_detail=o.uncertainty_detail, **o.stated)
+    check_model_or_maps(o.model_file, o.user_files, o.maps, o.strict_model)
     record = None
     try:
-        machine = load_machine(machine_file)
-        if alignment is not None:
+        _check_out(o)  # before any work: an existing OUT without --overwrite, an input, a missing folder
+        machine = load_machine(o.machine_file)
+        pose, offset = o.pose, o.offset
+        if o.alignment is not None:
             if pose is not None or offset is not None:
                 raise click.UsageError("give --alignment or --pose/--offset, not both")
-            pose, offset, record = _aligned(alignment, library_file or machine.alignments)
-        sources, origins = uncertainty_sources(machine, record, **stated) if uncertainty else (None, None)
+            pose, offset, record = _aligned(o.alignment, o.library_file or machine.alignments)
+        sources, origins = uncertainty_sources(machine, record, **o.stated) if o.uncertainty else (None, None)
     except Error as exc:
         raise fail(exc) from None
-    u_args = {"uncertainty": sources, "uncertainty_detail": uncertainty_detail or "standard",
+    u_args = {"uncertainty": sources, "uncertainty_detail": o.uncertainty_detail or "standard",
               "uncertainty_origins": origins}
     pose_t = pose_angles(pose, "--pose") if pose is not None else machine.pose.as_tuple()
     offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
-    check_model_or_maps(model_file, user_files, maps, strict_model)
-    if Path(points_in).is_dir():
-        if model_file is not None:
-            raise click.UsageError(f"{points_in} is a folder: --model compensates a point file")
-        return _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
-                                   temperature_tolerance, nan_policy, scheduler or "threads", scheduler_timeout,
-                                   as_json, u_args)
-    if scheduler is not None:
-        raise click.BadParameter(f"{points_in} is a file; --scheduler is for a folder of Parquet files",
+    if Path(o.points_in).is_dir():
+        if o.model_file is not None:
+            raise click.UsageError(f"{o.points_in} is a folder: --model compensates a point file")
+        return _compensate_dataset(o, machine, pose_t, offset_t, u_args)
+    if o.scheduler is not None:
+        raise click.BadParameter(f"{o.points_in} is a file; --scheduler is for a folder of Parquet files",
                                  param_hint="--scheduler")
     try:
-        check_writable(points_out)  # before any work: a missing folder is found now, not after
-        output_format(points_out)  # an unknown suffix is refused now, listing the known ones
-        check_not_input(points_out, [points_in, *([model_file] if model_file else []), *user_files], "OUT")
-        error_map = load_model(model_file, user_files) if model_file is not None else load_maps(maps, machine)
-        if model_file is not None:
-            _check_model_kinematics(error_map, model_file, machine)
-        size = check_file(points_in).stat().st_size
+        error_map = load_model(o.model_file, o.user_files) if o.model_file is not None else load_maps(o.maps, machine)
+        if o.model_file is not None:
+            _check_model_kinematics(error_map, o.model_file, machine)
+        size = check_file(o.points_in).stat().st_size
         # One bar over reading, compensating and writing, by bytes of input;
         # memory stays bounded by a few chunks whatever the file's size.
         with Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
@@ -112,10 +106,11 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
             warnings.simplefilter("always", AliasedChoiceWarning)
             warnings.simplefilter("always", ModelDomainWarning)
             task = bar.add_task("", total=size)
-            done = compensate_file(points_in, points_out, error_map, pose_t, offset_t, temperature,
-                                   out_of_range=out_of_range, nan_policy=nan_policy,
-                                   temperature_tolerance=temperature_tolerance,
-                                   progress=lambda at, _: bar.update(task, completed=at), **u_args)
+            with writing("OUT", [o.points_out], o.inputs, overwrite=o.overwrite):  # exclusive without --overwrite
+                done = compensate_file(o.points_in, o.points_out, error_map, pose_t, offset_t, o.temperature,
+                                       out_of_range=o.out_of_range, nan_policy=o.nan_policy,
+                                       temperature_tolerance=o.temperature_tolerance,
+                                       progress=lambda at, _: bar.update(task, completed=at), **u_args)
             bar.update(task, completed=size)
         say_caught(caught)
         doubts = model_doubts(caught)
@@ -123,22 +118,89 @@ def compensate_cmd(points_in, points_out, machine_file, maps, temperature, pose,
         raise fail(exc) from None
     report, elapsed, t_all = done.report, done.kernel_seconds, done.temperature
     n = report.points
-    table = Table(title=f"cmmpose compensate: {points_in} -> {points_out}", show_header=False)
+    table = Table(title=f"cmmpose compensate: {o.points_in} -> {o.points_out}", show_header=False)
     machine_row(table, machine)
     table.add_row("points", f"{n:,}")
     table.add_row("maps", repr(error_map))
     table.add_row("temperature", t_all or "-")
     table.add_row("pose (deg)", ", ".join(f"{v:g}" for v in pose_t))
     table.add_row("offset (mm)", ", ".join(f"{v:g}" for v in offset_t))
-    kernel_report_rows(table, report, temperature_tolerance)
+    kernel_report_rows(table, report, o.temperature_tolerance)
     table.add_row("kernel time", f"{elapsed * 1e3:.1f} ms ({n / max(elapsed, 1e-9) / 1e6:.1f} M points/s)")
-    show(table, as_json, {"input": str(points_in), "output": str(points_out), "machine": machine.name,
-                          "points": n, "maps": repr(error_map), "temperature": t_all, "pose_deg": list(pose_t),
-                          "offset_mm": list(offset_t), "kernel_report": dataclasses.asdict(report),
-                          "kernel_seconds": elapsed, **({"model_doubts": doubts} if model_file else {}),
-                          **_budget(done.uncertainty)})
-    _print_budget(done.uncertainty, as_json)
-    strict_model_exit(doubts, strict_model)
+    show(table, o.as_json, {"input": str(o.points_in), "output": str(o.points_out), "machine": machine.name,
+                            "points": n, "maps": repr(error_map), "temperature": t_all, "pose_deg": list(pose_t),
+                            "offset_mm": list(offset_t), "kernel_report": dataclasses.asdict(report),
+                            "kernel_seconds": elapsed, **({"model_doubts": doubts} if o.model_file else {}),
+                            **_budget(done.uncertainty)})
+    _print_budget(done.uncertainty, o.as_json)
+    strict_model_exit(doubts, o.strict_model)
+
+
+@dataclasses.dataclass(frozen=True)
+class CompensateOptions:
+    """What ``cmmpose compensate`` was asked, from its flags (each field the click parameter of its name): one
+    object for the command and its helpers."""
+
+    points_in: str
+    points_out: str
+    machine_file: str | None
+    maps: tuple[str, ...]
+    temperature: float | None
+    #: --pose and --offset as given (text); None: the machine's, or the --alignment's.
+    pose: str | None
+    offset: str | None
+    alignment: str | None
+    library_file: str | None
+    out_of_range: str | None
+    temperature_tolerance: float | None
+    nan_policy: str
+    scheduler: str | None
+    scheduler_timeout: float
+    model_file: str | None
+    user_files: tuple[str, ...]
+    as_json: bool
+    uncertainty: bool
+    uncertainty_detail: str | None
+    temperature_uncertainty: float | None
+    scanner_noise: float | None
+    scanner_scale_ppm: float | None
+    uncertainty_off: tuple[str, ...]
+    strict_model: bool
+    overwrite: bool
+
+    @classmethod
+    def from_flags(cls, flags: dict) -> CompensateOptions:
+        """The options from the command's click parameters (by their names)."""
+        return cls(**{f.name: flags[f.name] for f in dataclasses.fields(cls)})
+
+    @property
+    def stated(self) -> dict:
+        """The uncertainty sources' options as given (cmmpose.cli.uncertainty_options.uncertainty_sources)."""
+        return {"temperature_uncertainty": self.temperature_uncertainty, "scanner_noise": self.scanner_noise,
+                "scanner_scale_ppm": self.scanner_scale_ppm, "uncertainty_off": self.uncertainty_off}
+
+    @property
+    def inputs(self) -> list:
+        """Every file the command reads (OUT is never one of them): IN, the model, its user effects, the machine
+        file and its own maps, the map files of --maps and the alignment library."""
+        return command_inputs([self.points_in, self.model_file, *self.user_files, self.machine_file,
+                               self.library_file, *self.maps])
+
+
+def _check_out(o: CompensateOptions) -> None:
+    """The checks of OUT before any work: a file OUT by its suffix (a missing folder, an unknown format) and
+    against every input; for a folder IN, each file OUT will get (named after its input). Without
+    --overwrite, an existing one is refused (cmmpose.cli.common.check_free)."""
+    if Path(o.points_in).is_dir():
+        from ..scale import dataset_files
+
+        if Path(o.points_out).is_dir():  # a missing OUT is made: nothing in it to replace
+            check_free({"OUT": [Path(o.points_out) / f.name for f in dataset_files(o.points_in)]}, o.inputs,
+                       overwrite=o.overwrite)
+        return
+    check_free({"OUT": o.points_out}, o.inputs, overwrite=o.overwrite)  # first: an input is named as such
+    check_writable(o.points_out)  # a missing folder is found now, not after
+    output_format(o.points_out)  # an unknown suffix is refused now, listing the known ones
 
 
 def _budget(tally) -> dict:
@@ -152,26 +214,26 @@ def _print_budget(tally, as_json: bool) -> None:
         show(budget_table(tally, "uncertainty budget (k = 1)"), False)
 
 
-def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_t, offset_t, out_of_range,
-                        temperature_tolerance, nan_policy, scheduler, scheduler_timeout, as_json=False,
-                        u_args=None) -> None:
+def _compensate_dataset(o: CompensateOptions, machine, pose_t, offset_t, u_args) -> None:
     """`compensate DATASET_DIR OUT_DIR`: a folder of Parquet files on a Dask scheduler (cmmpose.scale)."""
     import logging
 
     from ..scale import compensate_dataset
 
+    points_in, points_out, temperature, scheduler = o.points_in, o.points_out, o.temperature, o.scheduler or "threads"
     logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's start-up chatter
     try:
-        error_map = load_maps(maps, machine)
-        with warnings.catch_warnings(record=True) as caught, Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                      TextColumn("{task.completed:,.0f} points"),
-                      TimeRemainingColumn(), console=console) as bar:
+        error_map = load_maps(o.maps, machine)
+        with warnings.catch_warnings(record=True) as caught, \
+                Progress(TextColumn("compensating"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                         TextColumn("{task.completed:,.0f} points"), TimeRemainingColumn(), console=console) as bar:
             task = bar.add_task("", total=None)
             result = compensate_dataset(points_in, points_out, error_map, pose_t, offset_t, temperature,
-                                        out_of_range=out_of_range, nan_policy=nan_policy,
-                                        temperature_tolerance=temperature_tolerance, scheduler=scheduler,
-                                        scheduler_timeout=scheduler_timeout, progress=lambda done, total: bar.update(task, completed=done, total=total),
-                                        **(u_args or {}))
+                                        out_of_range=o.out_of_range, nan_policy=o.nan_policy,
+                                        temperature_tolerance=o.temperature_tolerance, scheduler=scheduler,
+                                        scheduler_timeout=o.scheduler_timeout,
+                                        progress=lambda done, total: bar.update(task, completed=done, total=total),
+                                        **u_args)
         say_caught(caught)
     except Error as exc:
         raise fail(exc) from None
@@ -186,14 +248,14 @@ def _compensate_dataset(points_in, points_out, machine, maps, temperature, pose_
     table.add_row("pose (deg)", ", ".join(f"{v:g}" for v in pose_t))
     table.add_row("offset (mm)", ", ".join(f"{v:g}" for v in offset_t))
     table.add_row("scheduler", scheduler)
-    kernel_report_rows(table, report, temperature_tolerance)
+    kernel_report_rows(table, report, o.temperature_tolerance)
     table.add_row("wall time", f"{result.elapsed:.1f} s ({result.points / max(result.elapsed, 1e-9) / 1e6:.1f} M points/s)")
-    show(table, as_json, {"input": str(points_in), "output": str(points_out), "machine": machine.name,
+    show(table, o.as_json, {"input": str(points_in), "output": str(points_out), "machine": machine.name,
                           "files": [str(f) for f in result.outputs], "points": result.points, "maps": repr(error_map),
                           "temperature": temperature, "pose_deg": list(pose_t), "offset_mm": list(offset_t),
                           "scheduler": scheduler, "kernel_report": dataclasses.asdict(report),
                           "wall_seconds": result.elapsed, **_budget(result.uncertainty)})
-    _print_budget(result.uncertainty, as_json)
+    _print_budget(result.uncertainty, o.as_json)
 
 
 def _aligned(name: str, library_file) -> tuple[str, str, object]:

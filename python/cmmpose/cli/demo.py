@@ -12,8 +12,9 @@ from rich.progress import BarColumn, Progress, TextColumn
 
 from .._json import dumps as strict_json
 from ..errors import Error
-from .common import SEED, json_option, console, fail, load_maps, machine_option
-from .common import TEMPERATURE
+from ..evaluation.files import REPORT_FILES
+from .common import SEED, check_free, command_inputs, json_option, console, fail, load_maps, machine_option
+from .common import TEMPERATURE, overwrite_option, writing
 from .evaluate import write_report
 
 
@@ -27,7 +28,8 @@ from .evaluate import write_report
               help="Folder for the run, JSON, CSV and plots.")
 @machine_option
 @json_option
-def demo_cmd(temperature, seed, jitter, report_dir, machine_file, as_json) -> None:
+@overwrite_option("Replace the run and report of an earlier demo in the --report folder.")
+def demo_cmd(temperature, seed, jitter, report_dir, machine_file, as_json, overwrite) -> None:
     """Simulate the default B89 ballbar run on the bundled thesis maps (or the machine's), with a realistic
     per-scan reproducibility of 3 um, and evaluate it uncompensated and compensated: the error falls from
     about 70 um to about 4 um, the floor that reproducibility and the scanner's noise leave."""
@@ -37,8 +39,14 @@ def demo_cmd(temperature, seed, jitter, report_dir, machine_file, as_json) -> No
 
     jitter_mm = REALISTIC_JITTER if jitter is None else jitter * 1e-3
 
+    from ..run import check_run_target
+
     start = time.perf_counter()
+    report = Path(report_dir)
+    inputs = command_inputs([machine_file])
     try:
+        check_run_target(report / "run", overwrite=overwrite)  # before any work: an earlier demo is kept
+        check_free({"--report": [report / f for f in REPORT_FILES]}, inputs, overwrite=overwrite, folders_made=True)
         machine = load_machine(machine_file)
         maps = load_maps((), machine)
         console.print(f"machine: {machine.name} ({machine.kinematics}; {machine.source})")
@@ -49,10 +57,10 @@ def demo_cmd(temperature, seed, jitter, report_dir, machine_file, as_json) -> No
                                               offset=tuple(machine.offset), jitter=jitter_mm,
                                               progress=lambda d, n: bar.update(task, completed=d, total=n))
         run = dataclasses.replace(run, maps=machine.maps_record())
-        report = Path(report_dir)
-        run.save(report / "run", truth=truth, overwrite=True)
         ev = evaluate(run, maps, temperature)
-        files = write_report(ev, report, maps)
+        run.save(report / "run", truth=truth, overwrite=overwrite)
+        with writing("--report", [report], inputs, overwrite=overwrite):  # created exclusively, all or none
+            files = write_report(ev, report, maps)
     except Error as exc:
         raise fail(exc) from None
     if as_json:

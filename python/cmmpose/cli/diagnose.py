@@ -13,12 +13,13 @@ from rich.progress import BarColumn, Progress, TextColumn
 from rich.table import Table
 
 from .._json import dumps as strict_json
-from ..atomicfile import FileGroup, check_outputs_free, ensure_folder, write_text
+from ..atomicfile import check_outputs_free, ensure_folder, write_text
 from ..errors import Error
 from ..temperature import TemperaturePolicy, log_notes
 from .artefact import diagnose_plate_fits_cli
-from .common import (TEMPERATURE, check_outputs, check_report_file, console, fail, load_maps, machine_option,
-                     map_specs, policy_options, report_folder_html, scheduler_options)
+from .common import (TEMPERATURE, check_free, check_outputs, check_report_file, command_inputs, console, fail,
+                     load_maps, machine_option, map_specs, overwrite_option, policy_options, report_folder_html,
+                     scheduler_options, writing)
 
 
 @click.command("diagnose")
@@ -60,6 +61,8 @@ from .common import (TEMPERATURE, check_outputs, check_report_file, console, fai
               help="Offer only the library's named effects (no corrections of the map components).")
 @click.option("--corrected-maps", "corrected_out", type=click.Path(dir_okay=False), default=None,
               help="Write the maps with the found map corrections in them (CSV; a set: one file per temperature).")
+@overwrite_option("Replace existing --save-model, --report, --corrected-maps and --user-effect-skeleton files "
+                  "(never an input).")
 def diagnose_cmd(**flags) -> None:
     """Find which physical effect the model misses on RUN_DIR, add it, and show the error fall.
     Several RUN_DIRs are diagnosed one by one on a Dask scheduler, with one table across them."""
@@ -117,6 +120,8 @@ class DiagnoseOptions:
     reproducibility_um: tuple[float, ...] | None
     map_corrections: bool
     corrected_out: str | None
+    #: --overwrite: replace existing output files (never an input).
+    overwrite: bool = False
 
     @classmethod
     def from_flags(cls, flags: dict) -> DiagnoseOptions:
@@ -129,7 +134,7 @@ class DiagnoseOptions:
                    same_artefact=not flags["separate_artefacts"], scheduler=flags["scheduler"],
                    scheduler_timeout=flags["scheduler_timeout"], as_json=flags["as_json"], verbose=flags["verbose"],
                    reproducibility_um=flags["reproducibility_um"], map_corrections=not flags["no_map_corrections"],
-                   corrected_out=flags["corrected_out"])
+                   corrected_out=flags["corrected_out"], overwrite=flags["overwrite"])
 
     @property
     def one_reproducibility_um(self) -> float | None:
@@ -140,6 +145,31 @@ class DiagnoseOptions:
     def inputs(self) -> list:
         """The files the diagnosis reads besides the runs and the maps: model, machine, user effects."""
         return [self.model_file, self.machine_file, *self.user_files]
+
+    @property
+    def outputs(self) -> dict:
+        """The files asked for, by flag (None: not asked; --corrected-maps' own names come from the maps)."""
+        return {"--save-model": self.model_out, "--report": self.report_file,
+                "--user-effect-skeleton": self.skeleton_out}
+
+    def check_targets(self) -> None:
+        """Before any work: no output is an input (the runs' files, model, machine, user effects), through links,
+        nor (without --overwrite) an existing file; the --report file's folder is made if missing."""
+        files = {k: v for k, v in self.outputs.items() if k != "--report"}
+        check_outputs({**files, "--report": self.report_file, "--corrected-maps": self.corrected_out},
+                      self.run_dirs, self.inputs)
+        check_report_file(self.report_file)  # after: an input given as --report is named as such
+        inputs = command_inputs(self.inputs, self.run_dirs)
+        check_free(files, inputs, overwrite=self.overwrite)
+        check_free({"--report": self.report_file}, inputs, overwrite=self.overwrite, folders_made=True)
+
+    def writing(self, inputs, corrected=()):
+        """The group every output is written in (cmmpose.cli.common.writing): exclusive without --overwrite,
+        never over one of ``inputs``, all the files asked for (``corrected``: the --corrected-maps files) or
+        none."""
+        given = [flag for flag, path in {**self.outputs, "--corrected-maps": self.corrected_out}.items() if path]
+        return writing(" and ".join(given) or "output", [*self.outputs.values(), *corrected], inputs,
+                       overwrite=self.overwrite)
 
     def model_policy(self) -> dict:
         """The starting model's temperature keywords: --temperature and the policy (its fields and itself)."""
@@ -158,10 +188,7 @@ def _diagnose_one(o: DiagnoseOptions) -> None:
     run_dir = o.run_dirs[0]
     reproducibility_um = o.one_reproducibility_um
     try:
-        check_outputs({"--save-model": o.model_out, "--report": o.report_file,
-                       "--user-effect-skeleton": o.skeleton_out, "--corrected-maps": o.corrected_out},
-                      o.run_dirs, o.inputs)
-        check_report_file(o.report_file)
+        o.check_targets()  # before any work
         machine = load_machine(o.machine_file)
         run = Run.load(run_dir)
         from ..model import load_user_effects
@@ -169,7 +196,7 @@ def _diagnose_one(o: DiagnoseOptions) -> None:
         user = load_user_effects(o.user_files)
         model = _starting_model(run, machine, user, o)
         map_inputs = _map_inputs(o, machine)
-        _check_corrected_maps(model, o.corrected_out, map_inputs)
+        _check_corrected_maps(model, o.corrected_out, map_inputs, o.overwrite)
         with console.status("diagnosing ..."):
             known = set(model.names)
             diag = diagnose(run, model, add=o.add, auto=o.auto, max_effects=o.max_effects,
@@ -177,24 +204,25 @@ def _diagnose_one(o: DiagnoseOptions) -> None:
                             map_corrections=o.map_corrections, reproducibility_um=reproducibility_um,
                             machine=machine, **machine_floor(machine, o.machine_file, reproducibility_um))
         files = []
-        if o.skeleton_out:
-            from ..diagnosis.unexplained import user_effect_skeleton
+        corrected = _corrected_maps(diag.model, o.corrected_out)
+        with o.writing(map_inputs, corrected):  # every output or none
+            if o.skeleton_out:
+                from ..diagnosis.unexplained import user_effect_skeleton
 
-            if diag.unexplained:
-                write_text(o.skeleton_out, user_effect_skeleton(diag.unexplained[0]))
-                files.append(o.skeleton_out)
-            else:
-                console.print("no unexplained structure: no user-effect draft written")
-        if o.model_out:
-            files.append(diag.model.save(o.model_out))
-        if o.corrected_out:
-            files += _write_corrected_maps(diag.model, o.corrected_out, map_inputs)
-        if o.report_file:
-            try:
-                ensure_folder(Path(o.report_file).parent)
-                files.append(diag.write_report(o.report_file, run, run_dir=run_dir, model_file=o.model_out))
-            except ImportError as exc:  # the diagnosis is still printed and the model saved
-                console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
+                if diag.unexplained:
+                    write_text(o.skeleton_out, user_effect_skeleton(diag.unexplained[0]))
+                    files.append(o.skeleton_out)
+                else:
+                    console.print("no unexplained structure: no user-effect draft written")
+            if o.model_out:
+                files.append(diag.model.save(o.model_out))
+            files += _write_corrected_maps(corrected)
+            if o.report_file:
+                try:
+                    ensure_folder(Path(o.report_file).parent)
+                    files.append(diag.write_report(o.report_file, run, run_dir=run_dir, model_file=o.model_out))
+                except ImportError as exc:  # the diagnosis is still printed and the model saved
+                    console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
         raise _fail_or_usage(exc) from None
     _print_diagnosis(diag, files, o.as_json, o.verbose)
@@ -248,26 +276,35 @@ def _map_inputs(o: DiagnoseOptions, machine) -> list:
             + [Path(s) for s in o.maps if Path(s).exists()] + list(machine.map_files))
 
 
-def _check_corrected_maps(model, path, inputs) -> None:
+def _check_corrected_maps(model, path, inputs, overwrite: bool = False) -> None:
     """Before any work: every name --corrected-maps derives from ``path`` (the maps' temperatures are the
-    starting model's) is checked against every input, through links (cmmpose.atomicfile.check_outputs_free)."""
+    starting model's) is checked against every input, through links, and (without ``overwrite``) refused if it
+    exists (cmmpose.atomicfile.check_outputs_free)."""
     if path:
-        check_outputs_free(_corrected_map_paths(model.maps, path), inputs, what="--corrected-maps")
+        check_outputs_free(_corrected_map_paths(model.maps, path), inputs, overwrite=overwrite,
+                           what="--corrected-maps")
 
 
-def _write_corrected_maps(model, path, inputs=()) -> list:
-    """The model's maps with its map corrections in them (cmmpose.diagnosis.mapfamily.corrected_maps):
-    one CSV at ``path``, or for a set one per temperature beside it (``NAME_<T>C.csv``), written as one
-    group (cmmpose.atomicfile.FileGroup): all of them or, on a failure, none."""
+def _corrected_maps(model, path) -> dict:
+    """--corrected-maps: the model's maps with its map corrections in them
+    (cmmpose.diagnosis.mapfamily.corrected_maps), by where each goes: ``path``, or for a set one file per
+    temperature beside it (``NAME_<T>C.csv``); empty without ``path``."""
     from ..errormap import ErrorMapSet
     from ..model.mapshape import corrected_maps
 
+    if not path:
+        return {}
     maps = corrected_maps(model)
-    paths = _corrected_map_paths(maps, path)
-    with FileGroup(inputs=inputs, what="--corrected-maps"):
-        for m, p in zip(maps.maps if isinstance(maps, ErrorMapSet) else [maps], paths, strict=True):
-            m.write(p)
-    return paths
+    return dict(zip(_corrected_map_paths(maps, path), maps.maps if isinstance(maps, ErrorMapSet) else [maps],
+                    strict=True))
+
+
+def _write_corrected_maps(corrected: dict) -> list:
+    """Write the --corrected-maps (:func:`_corrected_maps`), in the command's group
+    (:meth:`DiagnoseOptions.writing`, a cmmpose.atomicfile.FileGroup): all of them or, on a failure, none."""
+    for p, m in corrected.items():
+        m.write(p)
+    return list(corrected)
 
 
 def _fail_or_usage(exc: Error) -> click.ClickException:
@@ -312,9 +349,7 @@ def _diagnose_joint(o: DiagnoseOptions) -> None:
     from ..run import Run
 
     try:
-        check_outputs({"--save-model": o.model_out, "--report": o.report_file, "--corrected-maps": o.corrected_out},
-                      o.run_dirs, o.inputs)
-        check_report_file(o.report_file)
+        o.check_targets()  # before any work
         machine = load_machine(o.machine_file)
         runs = [Run.load(r) for r in o.run_dirs]
         from ..model import load_user_effects
@@ -322,7 +357,7 @@ def _diagnose_joint(o: DiagnoseOptions) -> None:
         user = load_user_effects(o.user_files)
         model = _starting_model(runs[0], machine, user, o)
         map_inputs = _map_inputs(o, machine)
-        _check_corrected_maps(model, o.corrected_out, map_inputs)
+        _check_corrected_maps(model, o.corrected_out, map_inputs, o.overwrite)
         with console.status(f"diagnosing {len(runs)} runs together ..."):
             options = {"add": o.add, "auto": o.auto, "max_effects": o.max_effects, "same_artefact": o.same_artefact,
                        "map_corrections": o.map_corrections}
@@ -332,15 +367,17 @@ def _diagnose_joint(o: DiagnoseOptions) -> None:
             diag = diagnose_jointly(runs, model, user_effects=[u for u in user if u.name not in set(model.names)],
                                     run_names=[str(r) for r in o.run_dirs], machine=machine, **options,
                                     **machine_floor(machine, o.machine_file, repro))
-        files = [diag.model.save(o.model_out)] if o.model_out else []
-        if o.corrected_out:
-            files += _write_corrected_maps(diag.model, o.corrected_out, map_inputs)
-        if o.report_file:
-            try:
-                ensure_folder(Path(o.report_file).parent)
-                files.append(diag.write_report(o.report_file, runs[0], run_dir=o.run_dirs[0], model_file=o.model_out))
-            except ImportError as exc:  # the diagnosis is still printed and the model saved
-                console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
+        corrected = _corrected_maps(diag.model, o.corrected_out)
+        with o.writing(map_inputs, corrected):  # every output or none
+            files = [diag.model.save(o.model_out)] if o.model_out else []
+            files += _write_corrected_maps(corrected)
+            if o.report_file:
+                try:
+                    ensure_folder(Path(o.report_file).parent)
+                    files.append(diag.write_report(o.report_file, runs[0], run_dir=o.run_dirs[0],
+                                                   model_file=o.model_out))
+                except ImportError as exc:  # the diagnosis is still printed and the model saved
+                    console.print(f"[yellow]no HTML report:[/] {escape(str(exc))}")
     except Error as exc:
         raise _fail_or_usage(exc) from None
     _print_diagnosis(diag, files, o.as_json, o.verbose)

@@ -24,10 +24,11 @@ from ..evaluation.model_check import check_model
 from ..evaluation.files import FLEET_FILES, REPORT_FILES, write_evaluation_files
 from ..evaluation.metrics import STEEL_EXPANSION
 from ..temperature import TemperaturePolicy
-from .artefact import evaluate_artefact_run, write_artefact_report
-from .common import (aliased_choices_once, check_model_or_maps, console, console_log, expansion_ppm, fail, load_maps,
-                     load_model, machine_option, map_specs, model_doubts, model_options, policy_options,
-                     print_model_check, scheduler_options, say_caught, skip_incomplete_option, strict_model_exit, warn)
+from .artefact import ARTEFACT_REPORT_FILES, evaluate_artefact_run, write_artefact_report
+from .common import (aliased_choices_once, check_free, check_model_or_maps, command_inputs, console, console_log,
+                     expansion_ppm, fail, load_maps, load_model, machine_option, map_specs, model_doubts, model_options,
+                     overwrite_option, policy_options, print_model_check, scheduler_options, say_caught,
+                     skip_incomplete_option, strict_model_exit, warn, writing)
 from .common import TEMPERATURE
 
 
@@ -52,6 +53,27 @@ def report_folder_names(run_dirs, report_dir) -> list[str]:
         check_report_paths(report_dir, [Path(n) / f for n in names for f in (*REPORT_FILES, *UNCERTAINTY_FILES)]
                            + list(FLEET_FILES))
     return names
+
+
+def report_targets(folder) -> list[Path]:
+    """Every file one run's --report may write in ``folder`` (a ballbar run's report and budgets, an artefact
+    run's report and the deviation plots an earlier one left there): checked before any work, so that without
+    --overwrite no earlier report is replaced, not even in part."""
+    folder = Path(folder)
+    earlier = sorted(folder.glob("deviations_*.png")) if folder.is_dir() else []
+    return [folder / f for f in dict.fromkeys((*REPORT_FILES, *UNCERTAINTY_FILES, *ARTEFACT_REPORT_FILES))] + earlier
+
+
+def check_report_free(o: EvaluateOptions, names=None) -> None:
+    """Before any work: no file --report would write exists (unless --overwrite) or is an input, through links
+    (cmmpose.cli.common.check_free); ``names``: the runs' report folders in a report across runs."""
+    if not o.report_dir:
+        return
+    folders = [Path(o.report_dir)] if names is None else [Path(o.report_dir) / n for n in names]
+    targets = [t for f in folders for t in report_targets(f)]
+    if names is not None:
+        targets += [Path(o.report_dir) / f for f in FLEET_FILES]
+    check_free({"--report": targets}, o.inputs, overwrite=o.overwrite, folders_made=True)
 
 
 #: The files of one ballbar run's report beside evaluation/files.py's (the uncertainty budgets).
@@ -110,6 +132,7 @@ def write_report(evaluation, directory: Path, maps=None) -> list[Path]:
 @model_options(" (inputs the run lacks are an error naming them); its parameters' uncertainties enter the "
                "budgets. Several runs: each evaluated in turn with the model, with its budgets; --json prints a "
                "list, --report a folder per run.")
+@overwrite_option("Replace the files of an earlier --report (never an input).")
 def evaluate_cmd(**flags) -> None:
     """Ballbar evaluation of RUN_DIR: lengths per position, uncompensated and compensated.
 
@@ -127,37 +150,43 @@ def evaluate_cmd(**flags) -> None:
                                "budgets: --scheduler is for maps")
     if o.model_file is not None and len(o.run_dirs) > 1:
         return _evaluate_with_model(o)
+    fleet = len(o.run_dirs) > 1 or o.scheduler is not None
     try:
-        machine = load_machine(o.machine_file)
-        expansion = o.expansion_for(machine)
-        if len(o.run_dirs) > 1 or o.scheduler is not None:
+        if fleet:
             # The table across runs carries no uncertainties: their options would do nothing.
             for flag, given in (("--u-temperature", o.u_temperature is not None), ("--u-map", o.u_map is not None),
                                 ("--u-model", o.u_model != 0.0)):
                 if given:
                     raise click.UsageError(f"{flag} takes one run: the table across runs has no uncertainties "
                                            "(evaluate each run on its own for them)")
-            report_folder_names(o.run_dirs, o.report_dir)  # before any work
+            check_report_free(o, report_folder_names(o.run_dirs, o.report_dir))  # before any work
+        elif o.report_dir:
+            check_report_paths(o.report_dir, (*REPORT_FILES, *UNCERTAINTY_FILES))  # before any work
+            check_report_free(o)
+        machine = load_machine(o.machine_file)
+        expansion = o.expansion_for(machine)
+        if fleet:
             return _evaluate_fleet(o, machine, expansion)
         run_dir = o.run_dirs[0]
-        if o.report_dir:
-            check_report_paths(o.report_dir, (*REPORT_FILES, *UNCERTAINTY_FILES))  # before any work
         run = Run.load(run_dir)
         with_model = o.model_file is not None
         model = load_model(o.model_file, o.user_files) if with_model else machine.maps_for_run(run, o.maps)
         if "definition" in run.artefact:  # an artefact run (cmmpose simulate --artefact): cli/artefact.py
             return evaluate_artefact_run(run, model, o.temperature, o.reject, o.u_temperature, o.report_dir,
                                          o.as_json, {"temperature_policy": o.temperature_policy},
-                                         strict_model=o.strict_model if with_model else None)
+                                         strict_model=o.strict_model if with_model else None,
+                                         outputs=writing("--report", [o.report_dir], o.inputs,
+                                                         overwrite=o.overwrite))
         ev, check, caught = _evaluated(run, model, with_model, o.evaluate_keywords(expansion))
         say_caught(caught)
         unc = _evaluation_uncertainty(run, ev, model, o)
-        files = write_report(ev, Path(o.report_dir), getattr(model, "maps", model) if with_model else model) \
-            if o.report_dir else []
+        files = []
         if o.report_dir:
-            files += [Path(o.report_dir) / "uncertainty.json", Path(o.report_dir) / "uncertainty.md"]
-            write_text(files[-2], unc.to_json(indent=2))
-            write_text(files[-1], unc.to_markdown())
+            with writing("--report", [o.report_dir], o.inputs, overwrite=o.overwrite):  # exclusive, whole or none
+                files = write_report(ev, Path(o.report_dir), getattr(model, "maps", model) if with_model else model)
+                files += [Path(o.report_dir) / "uncertainty.json", Path(o.report_dir) / "uncertainty.md"]
+                write_text(files[-2], unc.to_json(indent=2))
+                write_text(files[-1], unc.to_markdown())
     except Error as exc:
         raise fail(exc) from None
     if o.as_json:
@@ -201,6 +230,8 @@ class EvaluateOptions:
     user_files: tuple[str, ...]
     strict_model: bool
     verbose: bool
+    #: --overwrite: replace an earlier report (never an input).
+    overwrite: bool = False
 
     @classmethod
     def from_flags(cls, flags: dict) -> EvaluateOptions:
@@ -211,7 +242,14 @@ class EvaluateOptions:
                    u_map=flags["u_map"], u_model=flags["u_model"], report_dir=flags["report_dir"],
                    as_json=flags["as_json"], skip_incomplete=flags["skip_incomplete"], scheduler=flags["scheduler"],
                    scheduler_timeout=flags["scheduler_timeout"], model_file=flags["model_file"],
-                   user_files=flags["user_files"], strict_model=flags["strict_model"], verbose=flags["verbose"])
+                   user_files=flags["user_files"], strict_model=flags["strict_model"], verbose=flags["verbose"],
+                   overwrite=flags["overwrite"])
+
+    @property
+    def inputs(self) -> list:
+        """Every file the evaluation reads (no --report file may be one): the runs' files, the machine file and
+        its maps, the --maps files, the model and its user effects."""
+        return command_inputs([self.machine_file, *self.maps, self.model_file, *self.user_files], self.run_dirs)
 
     def expansion_for(self, machine) -> float:
         """The artefact's expansion coefficient, ppm/K: --expansion, or the machine's."""
@@ -236,10 +274,11 @@ def _evaluate_with_model(o: EvaluateOptions) -> None:
 
     docs, files, doubts = [], [], []
     try:
+        names = report_folder_names(o.run_dirs, o.report_dir)
+        check_report_free(o, names)  # before any work
         machine = load_machine(o.machine_file)
         expansion = o.expansion_for(machine)
         model = load_model(o.model_file, o.user_files)
-        names = report_folder_names(o.run_dirs, o.report_dir)
         for r, name in zip(o.run_dirs, names):
             run = Run.load(r)
             if "definition" in run.artefact:
@@ -253,10 +292,11 @@ def _evaluate_with_model(o: EvaluateOptions) -> None:
             unc = _evaluation_uncertainty(run, ev, model, o)
             if o.report_dir:
                 folder = Path(o.report_dir) / name
-                files += write_report(ev, folder, model.maps)
-                files += [folder / "uncertainty.json", folder / "uncertainty.md"]
-                write_text(files[-2], unc.to_json(indent=2))
-                write_text(files[-1], unc.to_markdown())
+                with writing("--report", [folder], o.inputs, overwrite=o.overwrite):  # this run's report or none
+                    files += write_report(ev, folder, model.maps)
+                    files += [folder / "uncertainty.json", folder / "uncertainty.md"]
+                    write_text(files[-2], unc.to_json(indent=2))
+                    write_text(files[-1], unc.to_markdown())
             if o.as_json:
                 docs.append({"run": str(r), **ev.to_dict(), "uncertainty": unc.to_dict(), "warnings": said,
                              "model_check": check.to_dict()})
@@ -391,21 +431,23 @@ def _evaluate_fleet(o: EvaluateOptions, machine, expansion: float) -> None:
         from ..evaluation.plots import plot_fleet_trend
 
         directory = ensure_folder(report_dir)
-        for name, ev in zip(report_folder_names(run_dirs, report_dir), evaluations):
-            if isinstance(ev, ArtefactEvaluation):  # a plate or step-gauge run of the fleet
-                files += write_artefact_report(ev, directory / name)
-                continue
-            files += write_report(ev, directory / name, model if not isinstance(model, str) else None)
-        summary = directory / "summary.csv"
-        fields = list(rows[0].__dataclass_fields__)
-        write_text(summary, "\n".join([",".join(fields)] + [",".join(str(getattr(row, f)) for f in fields)
-                                                             for row in rows]) + "\n")
-        files.append(summary)
-        try:
-            plot_fleet_trend(rows, directory / "trend.png")
-            files.append(directory / "trend.png")
-        except (ImportError, InputError) as exc:  # the table is still printed
-            console.print(f"[yellow]no trend plot:[/] {escape(str(exc))}")
+        folders = [directory, *(directory / n for n in report_folder_names(run_dirs, report_dir))]
+        with writing("--report", folders, o.inputs, overwrite=o.overwrite):  # exclusive; every report or none
+            for name, ev in zip(report_folder_names(run_dirs, report_dir), evaluations):
+                if isinstance(ev, ArtefactEvaluation):  # a plate or step-gauge run of the fleet
+                    files += write_artefact_report(ev, directory / name)
+                    continue
+                files += write_report(ev, directory / name, model if not isinstance(model, str) else None)
+            summary = directory / "summary.csv"
+            fields = list(rows[0].__dataclass_fields__)
+            write_text(summary, "\n".join([",".join(fields)] + [",".join(str(getattr(row, f)) for f in fields)
+                                                                 for row in rows]) + "\n")
+            files.append(summary)
+            try:
+                plot_fleet_trend(rows, directory / "trend.png")
+                files.append(directory / "trend.png")
+            except (ImportError, InputError) as exc:  # the table is still printed
+                console.print(f"[yellow]no trend plot:[/] {escape(str(exc))}")
     if as_json:
         click.echo(strict_json([{**{k: (None if isinstance(v, float) and v != v else v) for k, v in row.__dict__.items()},
                                 "skipped": ev.skipped} for row, ev in zip(rows, evaluations)],

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import click
 from rich.markup import escape
 
-from ..atomicfile import FileGroup, check_not_input, check_outputs_free, ensure_folder
+from ..atomicfile import ensure_folder
 from ..errormap import ErrorMapSet
 from .._json import dumps as strict_json
 from ..errors import Error, InputError
-from .common import (check_plot_path, console, console_log, fail, json_option, load_maps, machine_option, map_specs,
-                     plot_option, travel_notes, warn)
+from .common import (check_free, check_plot_path, command_inputs, console, console_log, fail, json_option, load_maps,
+                     machine_option, map_specs, overwrite_option, plot_option, travel_notes, warn, writing)
 from .common import TEMPERATURE
 
 
@@ -37,7 +38,8 @@ def _maps_argument(value):
 @click.argument("maps", nargs=-1, callback=lambda ctx, param, value: _maps_argument(value))
 @plot_option("-o", "--output", "out", required=True, help="PNG (or PDF, SVG) to write.")
 @machine_option
-def plot_map_cmd(maps, out, machine_file) -> None:
+@overwrite_option()
+def plot_map_cmd(maps, out, machine_file, overwrite) -> None:
     """Plot error-map components against position (like thesis Figures 3-7 to 3-18).
     MAPS: 'thesis', 'appendix-b', or map files (several make a set); default: the machine's."""
     from ..machine import load_machine
@@ -46,9 +48,12 @@ def plot_map_cmd(maps, out, machine_file) -> None:
     try:
         if not maps and machine_file is None:
             raise click.UsageError("give MAPS or --machine")
-        check_not_input(out, [*maps, machine_file], "--output")
+        inputs = command_inputs([*maps, machine_file])
+        check_free({"--output": out}, inputs, overwrite=overwrite)  # before any work
         check_plot_path(out, "--output")
-        plot_error_map(load_maps(tuple(maps), load_machine(machine_file) if machine_file else None), out)
+        error_map = load_maps(tuple(maps), load_machine(machine_file) if machine_file else None)
+        with writing("--output", [out], inputs, overwrite=overwrite):  # created exclusively without --overwrite
+            plot_error_map(error_map, out)
     except Error as exc:
         raise fail(exc) from None
     console.print(f"wrote {out}")
@@ -114,7 +119,8 @@ def map_group() -> None:
 @click.option("--part-point", required=True, metavar="X,Y,Z",
               help="mm: where the part sits on the table (same frame); the map is exact for points there.")
 @json_option
-def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_json) -> None:
+@overwrite_option()
+def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_json, overwrite) -> None:
     """Turn a moving table's own measured motion into map components (the probe relative to the part):
     d = -(d_T + eps_T x (part point - measured at)), eps = -eps_T for that carriage; the other carriages and
     the squareness are kept (docs/conventions.md, moving tables). `map import` takes probe-relative results:
@@ -123,7 +129,7 @@ def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_js
     from .common import triple
 
     try:
-        check_not_input(out, [map_spec], "--output")
+        check_free({"--output": out}, [map_spec], overwrite=overwrite)  # before any work
         base = _map_spec(map_spec, "MAP")
         try:
             converted = table_motion_to_map(base, carriage, triple(measured_at, "--measured-at"),
@@ -132,7 +138,8 @@ def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_js
             if exc.cli_option not in ("--measured-at", "--part-point"):
                 raise
             raise click.BadParameter(exc.message.removeprefix(f"{exc.option}: "), param_hint=exc.cli_option) from None
-        converted.write(out)
+        with writing("--output", [out], [map_spec], overwrite=overwrite):
+            converted.write(out)
     except Error as exc:
         raise fail(exc) from None
     if as_json:
@@ -155,7 +162,9 @@ def map_table_motion_cmd(map_spec, out, carriage, measured_at, part_point, as_js
 @click.option("--hold-ends", is_flag=True, help="With --base: hold the end values where its grid runs beyond the targets.")
 @machine_option
 @json_option
-def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, hold_ends, machine_file, as_json) -> None:
+@overwrite_option()
+def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, hold_ends, machine_file, as_json,
+                   overwrite) -> None:
     """Build a canonical map from linear-axis results in FORMAT (probe-relative results; a moving table's own
     motion, read by an instrument riding on it, is converted by `cmmpose map table-motion`).
 
@@ -177,7 +186,8 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
         missing = [f for f in named if f and not os.path.lexists(f)]
         if missing:  # a name that names no file: a usage error (exit 2) as in every command
             raise click.BadParameter(f"{missing[0]}: cannot read (no such file)", param_hint="FILE...")
-        check_not_input(out, [*read, base, machine_file], "--output")
+        inputs = command_inputs([*read, base, machine_file])
+        check_free({"--output": out}, inputs, overwrite=overwrite)  # before any work
         base_map = None if base is None else _map_spec(base, "--base")
         takes = entry.read_options()
         options = {"base": base_map, "temperature": temperature, "hold_ends": hold_ends,
@@ -204,7 +214,8 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
                     source[axis.upper()] = path
             built = mapformats.read(source, fmt, **options)
         notes = travel_notes(load_machine(machine_file), built) if machine_file else []
-        built.write(out)
+        with writing("--output", [out], inputs, overwrite=overwrite):
+            built.write(out)
     except Error as exc:
         raise fail(exc) from None
     for note in notes:
@@ -227,7 +238,9 @@ def map_import_cmd(fmt, files, out, base, temperature, comp_file_type, units, ho
 @click.option("--temperature", type=TEMPERATURE, default=None,
               help="With --machine and a map set: the temperature to export the map at, C.")
 @json_option
-def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temperature, as_json) -> None:
+@overwrite_option("Replace an existing output file (linuxcnc: the axis files in OUT); never an input.")
+def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temperature, as_json,
+                   overwrite) -> None:
     """Write the linear components of MAP ('appendix-b', 'thesis@T' or a map file) in FORMAT;
     without MAP, the machine's map (--machine; a set at --temperature).
 
@@ -241,15 +254,16 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temp
 
     try:
         entry = mapformats.get(fmt)
-        inputs = [map_spec, machine_file]
+        inputs = command_inputs([map_spec, machine_file])  # a machine file's own maps are inputs too
+        targets = entry.files(out) if entry.per_axis else {"": out}
+        if not entry.per_axis or Path(out).is_dir():  # a folder still missing is made: nothing in it to replace
+            check_free({"--output": list(targets.values())}, inputs, overwrite=overwrite)  # before any work
         if map_spec is not None:
             source = _map_spec(map_spec, "MAP")
         elif machine_file is None:
             raise click.UsageError("give MAP or --machine")
         else:
-            machine = load_machine(machine_file)
-            inputs += list(machine.map_files)  # the machine file's own maps are inputs too
-            source = load_maps((), machine)
+            source = load_maps((), load_machine(machine_file))
             if isinstance(source, ErrorMapSet):
                 if temperature is None:
                     raise click.UsageError("the machine's maps are a set: give --temperature (C)")
@@ -258,15 +272,10 @@ def map_export_cmd(map_spec, fmt, out, comp_file_type, units, machine_file, temp
         options = {k: v for k, v in {"comp_file_type": int(comp_file_type), "units": units}.items()
                    if k in takes or takes == ["*"]}
         if entry.per_axis:
-            files = entry.files(ensure_folder(out))
-            check_outputs_free(files.values(), inputs, what="--output")
-            with FileGroup(inputs=inputs, what="--output"):  # the files of every axis whole or none
-                mapformats.write(source, files, fmt, **options)
-            written = [str(p) for p in files.values()]
-        else:
-            check_not_input(out, inputs, "--output")
-            mapformats.write(source, out, fmt, **options)
-            written = out
+            ensure_folder(out)
+        with writing("--output", targets.values(), inputs, overwrite=overwrite):  # every axis's file or none
+            mapformats.write(source, targets if entry.per_axis else out, fmt, **options)
+        written = [str(p) for p in targets.values()] if entry.per_axis else out
     except Error as exc:
         raise fail(exc) from None
     except OSError as exc:

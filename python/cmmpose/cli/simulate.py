@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import shlex
 import time
+from pathlib import Path
 
 import click
 import numpy as np
@@ -16,8 +17,8 @@ from .._json import dumps as strict_json
 from ..atomicfile import atomic_write, ensure_folder, write_text
 from ..errors import Error
 from .artefact import simulate_artefact
-from .common import (SEED, console, fail, json_option, load_maps, machine_option, machine_row, map_specs,
-                     parse_effects, pose_angles, show)
+from .common import (SEED, check_free, command_inputs, console, fail, json_option, load_maps, machine_option,
+                     machine_row, map_specs, overwrite_option, parse_effects, pose_angles, show, writing)
 from .common import TEMPERATURE
 
 
@@ -159,8 +160,9 @@ def _exact_text(value: float) -> str:
 @json_option
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Folder for the measurement files.")
+@overwrite_option("Replace the NAME-* files of an earlier simulation in the folder (never an input).")
 def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, vernier_points, seed, as_json,
-                           out_dir) -> None:
+                           out_dir, overwrite) -> None:
     """Simulate the measurements that align the scanner at one pose (thesis chapter 4): optical-vernier
     positions, a plane scan and a reference-sphere scan, as `cmmpose calibrate alignment` reads them.
 
@@ -172,7 +174,13 @@ def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, 
     from ..sim.calibration_data import vernier_points as vernier
 
     nominal = pose_angles(pose_text, "--pose")
+    files = {k: Path(out_dir) / f"{name}-{k}.csv" for k in ("vernier", "plane", "sphere")}
+    truth_file = Path(out_dir) / f"{name}-truth.json"
     try:
+        # before any work: the four files, none an input (the machine file, its maps) nor, without
+        # --overwrite, an earlier file (a folder still missing is made: nothing in it to replace)
+        check_free({"--output": [*files.values(), truth_file]}, command_inputs([machine_file]), overwrite=overwrite,
+                   folders_made=True)
         machine = load_machine(machine_file)
         parsed = parse_effects(effects)
         maps = machine.maps()
@@ -183,21 +191,22 @@ def simulate_alignment_cmd(machine_file, pose_text, name, temperature, effects, 
         plane = plane_scan(nominal, offset, scanner=machine.scanner, seed=rng, **common)
         sphere = reference_sphere_scans([nominal], offset, scanner=machine.scanner,
                                         seed=int(rng.integers(1 << 30)), **common)[0]
-        folder = ensure_folder(out_dir)
-        files = {k: folder / f"{name}-{k}.csv" for k in ("vernier", "plane", "sphere")}
-        with atomic_write(files["vernier"]) as f:
-            np.savetxt(f, v.points, delimiter=",", header="x,y,z", comments="", fmt="%.9f")
-        for k, d in (("plane", plane), ("sphere", sphere.data)):
-            with atomic_write(files[k]) as f:
-                np.savetxt(f, np.column_stack([d.uv, d.scales]), delimiter=",", header="u,v,D,E,F",
-                           comments="", fmt="%.9f")
+        ensure_folder(out_dir)
         normal = [float(c) for c in plane.plane.normal]
         truth = {"units": {"pose": "degree", "reading": "mm", "offset": "mm", "vernier_uncertainty": "um"},
                  "nominal_pose": list(nominal), "plane_normal": normal,
                  "true_pose": [float(c) for c in sphere.true_pose], "true_reading": [float(c) for c in sphere.true_reading],
                  "true_offset": [float(c) for c in sphere.true_offset], "vernier_uncertainty": VERNIER_NOISE * 1e3,
                  "temperature": temperature, "effects": list(effects), "seed": seed}
-        write_text(folder / f"{name}-truth.json", strict_json(truth, indent=2))
+        with writing("--output", [*files.values(), truth_file], command_inputs([machine_file]),
+                     overwrite=overwrite):  # the four files, created exclusively, all or none
+            with atomic_write(files["vernier"]) as f:
+                np.savetxt(f, v.points, delimiter=",", header="x,y,z", comments="", fmt="%.9f")
+            for k, d in (("plane", plane), ("sphere", sphere.data)):
+                with atomic_write(files[k]) as f:
+                    np.savetxt(f, np.column_stack([d.uv, d.scales]), delimiter=",", header="u,v,D,E,F",
+                               comments="", fmt="%.9f")
+            write_text(truth_file, strict_json(truth, indent=2))
     except Error as exc:
         raise fail(exc) from None
     q = lambda path: shlex.quote(str(path))  # noqa: E731 - a folder with a space stays one argument

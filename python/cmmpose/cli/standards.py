@@ -15,12 +15,12 @@ from rich.console import Console
 from rich.markup import escape
 
 from .._json import dumps as strict_json
-from ..atomicfile import check_not_input, ensure_folder, write_text
+from ..atomicfile import ensure_folder, write_text
 from ..errors import Error
 from ..formats.pointclouds import UNITS
 from ..temperature import TemperaturePolicy
-from .common import (POSITIVE_MM, check_plot_path, console, expansion_ppm, map_specs, plot_option, policy_options,
-                     skip_incomplete_option)
+from .common import (POSITIVE_MM, check_free, check_plot_path, command_inputs, console, expansion_ppm, map_specs,
+                     overwrite_option, plot_option, policy_options, skip_incomplete_option, writing)
 from .common import fail as _fail
 
 __all__ = ["standards_group", "iso230_2_cmd", "acceptance_cmd", "acceptance_sphere_cmd", "interim_cmd", "e3125_distances_cmd"]
@@ -40,20 +40,31 @@ def _show(result, files, as_json: bool) -> None:
         console.print(f"wrote {f}")
 
 
-def _outputs(result, stem: str, plot, plot_path, report_dir, inputs=()) -> list[Path]:
-    """The plot at ``plot_path`` and the report in ``report_dir``, as asked; the files written.
-    ``InputError`` first if one of them is one of the ``inputs`` (any spelling or link)."""
-    check_not_input(plot_path, inputs, "--plot")
-    if report_dir:
-        for suffix in (".json", ".md", ".png"):
-            check_not_input(Path(report_dir) / f"{stem}{suffix}", inputs, "--report")
+def _report_files(report_dir, stem: str) -> list[Path]:
+    """The files --report writes in ``report_dir`` (the plot only where the command draws one)."""
+    return [Path(report_dir) / f"{stem}{suffix}" for suffix in (".json", ".md", ".png")] if report_dir else []
+
+
+def _check_outputs(stem: str, plot_path, report_dir, inputs, overwrite: bool) -> None:
+    """Before any work: neither the plot nor a report file is one of the ``inputs`` (any spelling or link), nor,
+    without ``overwrite``, an existing file (cmmpose.cli.common.check_free; the --report folder is made)."""
+    check_free({"--plot": plot_path}, inputs, overwrite=overwrite)
+    check_free({"--report": _report_files(report_dir, stem)}, inputs, overwrite=overwrite, folders_made=True)
+
+
+def _outputs(result, stem: str, plot, plot_path, report_dir, inputs=(), overwrite: bool = False) -> list[Path]:
+    """The plot at ``plot_path`` and the report in ``report_dir``, as asked, checked by :func:`_check_outputs`
+    before any work, written as one group (created exclusively without ``overwrite``; all or none); the files
+    written."""
     files = []
     try:
-        if plot_path:
-            plot(plot_path)
-            files.append(Path(plot_path))
-        if report_dir:
-            files += _write_report(result, report_dir, stem, plot)
+        with writing("--plot and --report" if plot_path and report_dir else "--plot" if plot_path else "--report",
+                     [plot_path, *_report_files(report_dir, stem)], inputs, overwrite=overwrite):
+            if plot_path:
+                plot(plot_path)
+                files.append(Path(plot_path))
+            if report_dir:
+                files += _write_report(result, report_dir, stem, plot)
     except OSError as exc:  # an unwritable path: named, no traceback
         raise click.ClickException(f"{exc.filename or plot_path or report_dir}: {exc.strerror or exc}") from None
     return files
@@ -100,7 +111,8 @@ def _write_report(result, directory, stem: str, plot=None) -> list[Path]:
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write iso230-2.json, iso230-2.md (a report section) and iso230-2.png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON (the axis figures at the top level, um).")
-def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, report_dir, as_json) -> None:
+@overwrite_option("Replace an existing --plot or --report file (never an input).")
+def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, report_dir, as_json, overwrite) -> None:
     """ISO 230-2:2014 positioning accuracy and repeatability of one axis.
 
     FILE is a CSV with columns target_mm, direction (+1/-1), cycle,
@@ -112,11 +124,13 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
 
     check_plot_path(plot_path, "--plot")
     try:
+        _check_outputs("iso230-2", plot_path, report_dir, [data_file], overwrite)  # before any work
         data, u, note = load_positioning(data_file, air_correction=not no_air_correction)
         if test_uncertainty is not None:
             u, note = test_uncertainty, "given (--test-uncertainty)"
         result = evaluate_iso230_2(data, test_uncertainty_um=u, test_uncertainty_note=note)
-        files = _outputs(result, "iso230-2", lambda p: result.plot(p, data), plot_path, report_dir, [data_file])
+        files = _outputs(result, "iso230-2", lambda p: result.plot(p, data), plot_path, report_dir, [data_file],
+                         overwrite)
     except Error as exc:
         raise _fail(exc) from None
     _show(result, files, as_json)
@@ -150,6 +164,7 @@ def iso230_2_cmd(data_file, no_air_correction, test_uncertainty, plot_path, repo
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
 @skip_incomplete_option
 @policy_options()
+@overwrite_option("Replace an existing --plot or --report file (never an input).")
 def acceptance_cmd(**flags) -> None:
     """Probing form and size errors and length measurement errors of RUN_DIR (in the manner of ISO 10360-8),
     each decided against its MPE: pass (|E| + U <= MPE), fail (|E| - U > MPE) or not proven.
@@ -163,7 +178,9 @@ def acceptance_cmd(**flags) -> None:
 
     o = AcceptanceOptions.from_flags(flags)
     check_plot_path(o.plot_path, "--plot")
+    inputs = command_inputs([o.machine_file, *o.maps], [o.run_dir])
     try:
+        _check_outputs("acceptance", o.plot_path, o.report_dir, inputs, o.overwrite)  # before any work
         machine = load_machine(o.machine_file)
         run = Run.load(o.run_dir)
         model = machine.maps_for_run(run, o.maps)
@@ -175,7 +192,7 @@ def acceptance_cmd(**flags) -> None:
             expansion_ppm_per_K=machine.artefact_expansion * 1e6 if o.expansion is None else o.expansion,
             u_expansion_ppm_per_K=o.u_expansion, u_part_temperature_K=o.u_part_temperature,
             skip_incomplete=o.skip_incomplete, temperature_policy=o.temperature_policy)
-        files = _outputs(result, "acceptance", result.plot, o.plot_path, o.report_dir)
+        files = _outputs(result, "acceptance", result.plot, o.plot_path, o.report_dir, inputs, o.overwrite)
     except Error as exc:
         raise _fail(exc) from None
     _show(result, files, o.as_json)
@@ -208,6 +225,7 @@ class AcceptanceOptions:
     as_json: bool
     skip_incomplete: bool
     temperature_policy: TemperaturePolicy
+    overwrite: bool
 
     @classmethod
     def from_flags(cls, flags: dict) -> AcceptanceOptions:
@@ -232,15 +250,18 @@ class AcceptanceOptions:
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
 @skip_incomplete_option
 @policy_options()
+@overwrite_option("Replace the files of an earlier --report (never an input).")
 def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_length_cert, u_temperature,
-                report_dir, as_json, skip_incomplete, temperature_policy) -> None:
+                report_dir, as_json, skip_incomplete, temperature_policy, overwrite) -> None:
     """Interim check of RUN_DIR, in the manner of the ballbar and gauge products: three scale and three
     squareness values with their uncertainties (k = 2). Next to it, 'cmmpose diagnose' gives the full diagnosis."""
     from ..machine import load_machine
     from ..run import Run
     from ..standards.interim import interim_check
 
+    inputs = command_inputs([machine_file, *maps], [run_dir])
     try:
+        _check_outputs("interim-check", None, report_dir, inputs, overwrite)  # before any work
         machine = load_machine(machine_file)
         run = Run.load(run_dir)
         model = machine.maps_for_run(run, maps)
@@ -248,7 +269,7 @@ def interim_cmd(run_dir, machine_file, maps, temperature, calibrated_length, u_l
                                u_length_certificate_um=u_length_cert, expansion_ppm_per_K=machine.artefact_expansion * 1e6,
                                u_temperature_K=u_temperature, skip_incomplete=skip_incomplete,
                                temperature_policy=temperature_policy)
-        files = _write_report(result, report_dir, "interim-check") if report_dir else []
+        files = _outputs(result, "interim-check", None, None, report_dir, inputs, overwrite)
     except Error as exc:
         raise _fail(exc) from None
     except OSError as exc:
@@ -316,8 +337,9 @@ def acceptance_sphere_cmd(scan, radius, mpe_form, mpe_size, units, segment, scan
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write e3125-distances.json, .md (a report section) and .png here.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+@overwrite_option("Replace an existing --plot or --report file (never an input).")
 def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_text, plot_path, report_dir,
-                        as_json) -> None:
+                        as_json, overwrite) -> None:
     """Sphere-centre distance errors in the manner of ASTM E3125: each NAME=SCAN is a raw scan of one
     sphere target (any point-cloud format), segmented and fitted with the radius fixed; each pair of
     --pairs is compared with its reference distance (docs/standards.md)."""
@@ -344,6 +366,7 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
             raise click.BadParameter(f"target {name!r} given twice", param_hint="NAME=SCAN")
         named[name] = path
     try:
+        _check_outputs("e3125-distances", plot_path, report_dir, [*named.values(), pairs_file], overwrite)
         mpe = parse_mpe(mpe_text, "--mpe") if mpe_text else None
         clouds = {n: read_point_cloud(p, units=units).xyz for n, p in named.items()}
         scale = unit_factor(next(iter(named.values())), units)  # --scanner-origin is in the scans' units
@@ -352,7 +375,7 @@ def e3125_distances_cmd(scans, pairs_file, radius, units, scanner_origin, mpe_te
             targets = sphere_targets(clouds, radius, tuple(v * scale for v in origin))
         result = distance_errors(targets, read_pairs(pairs_file), mpe)
         files = _outputs(result, "e3125-distances", result.plot, plot_path, report_dir,
-                         [*named.values(), pairs_file])
+                         [*named.values(), pairs_file], overwrite)
     except Error as exc:
         raise _fail(exc) from None
     _show(result, files, as_json)
