@@ -27,7 +27,7 @@ from .common import (check_free, command_inputs, json_option, table_data, consol
 from .common import fail as _fail
 
 if TYPE_CHECKING:
-    from .simulate import SimulateOptions
+    from .simulate_options import SimulateOptions
 
 __all__ = ["artefact_group", "simulate_artefact", "evaluate_artefact_run", "diagnose_plate_fits_cli"]
 

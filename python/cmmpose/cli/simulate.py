@@ -17,6 +17,7 @@ from .._json import dumps as strict_json
 from ..atomicfile import atomic_write, ensure_folder, write_text
 from ..errors import Error
 from .artefact import simulate_artefact
+from .simulate_options import SimulateOptions
 from .common import (SEED, check_free, command_inputs, console, fail, json_option, load_maps, machine_option,
                      machine_row, map_specs, overwrite_option, parse_effects, pose_angles, show, writing)
 from .common import TEMPERATURE
@@ -107,36 +108,6 @@ def simulate_cmd(**flags) -> None:
     show(table, o.as_json, {"run": str(o.run_dir), "machine": machine.name, "layout": o.layout,
                             "sweeps": len(run.scans["scan_id"]), "repeat_scans": repeat_scans, "points": run.n_points,
                             "temperature_C": o.temperature, "effects": list(o.effects), "seconds": elapsed})
-
-
-@dataclasses.dataclass(frozen=True)
-class SimulateOptions:
-    """What ``cmmpose simulate`` was asked, from its flags (each field the click parameter of its name): one
-    object for the command and :func:`cmmpose.cli.artefact.simulate_artefact`."""
-
-    layout: str
-    temperature: float
-    machine_file: str | None
-    maps: tuple[str, ...]
-    effects: tuple[str, ...]
-    speed: float
-    bidirectional: bool
-    jitter: float
-    calibrated: bool
-    reference_poses: tuple[str, ...]
-    artefact: str | None
-    placements: tuple[str, ...]
-    seed: int
-    as_json: bool
-    run_dir: str
-    overwrite: bool
-    #: --repeat-scans; None: the default (docs/diagnosis.md).
-    repeat_scans: int | None
-
-    @classmethod
-    def from_flags(cls, flags: dict) -> SimulateOptions:
-        """The options from the command's click parameters (by their names)."""
-        return cls(**{f.name: flags[f.name] for f in dataclasses.fields(cls)})
 
 
 def _exact_text(value: float) -> str:
