@@ -23,8 +23,11 @@ plane: outside the training domain). For each unseen run the bench counts:
   two-axis errors, error left above the noise floor): a case outside the
   library should be said, not hidden.
 
-Null machines count the runs that carry any claim (an effect added, a
-two-axis or unexplained finding).
+Null machines count the runs that carry any claim (``Diagnosis.claims``, as
+benches/diagnosis_false_alarms.py counts them: an effect or map correction
+added, an ambiguity, a significant pattern, an unexplained or two-axis
+finding, error above a stated or measured floor; above the spheres' fit
+scatter alone, a lower bound, is said but claims nothing).
 
     python benches/unseen_placements.py                 # every case, 2 seeds each
     python benches/unseen_placements.py --cases periodic,noise --seeds 1   # CI smoke
@@ -128,7 +131,8 @@ def one(case, seed, points_per_profile, reproducibility_um):
                      "removed": (check.plain_um - check.model_um) / excess if excess > 0.3 else float("nan"),
                      "harm": check.worse, "warned": bool(check.worse or domain or check.notes),
                      "domain": len(domain)})
-    return {"case": case, "seed": seed, "added": list(d.added), "said": said(d), "seconds": elapsed, "unseen": rows}
+    return {"case": case, "seed": seed, "added": list(d.added), "said": said(d), "claims": d.claims,
+            "seconds": elapsed, "unseen": rows}
 
 
 def main(argv=None):
@@ -167,11 +171,12 @@ def main(argv=None):
         print(f"other cases: said (ambiguous, unexplained, two-axis) in {sum(bool(r['said']) for r in others)} of "
               f"{len(others)} diagnoses")
     if nulls:
-        claims = sum(bool(r["added"] or set(r["said"]) - {"above floor"}) for r in nulls)
+        claims = sum(any(r["claims"].values()) for r in nulls)
         above = sum("above floor" in r["said"] for r in nulls)
-        print(f"null machines: {claims} of {len(nulls)} diagnoses carry a claim (an effect, an ambiguity, an "
-              f"unexplained or two-axis finding); {above} say error is left above the floor (without a stated "
-              f"reproducibility the floor is the spheres' fit scatter, a lower bound: give --reproducibility-um)")
+        print(f"null machines: {claims} of {len(nulls)} diagnoses carry a claim (Diagnosis.claims: an effect, an "
+              f"ambiguity, a pattern, an unexplained or two-axis finding, error above a stated floor); {above} say "
+              f"error is left above the floor (without a stated reproducibility the floor is the spheres' fit "
+              f"scatter, a lower bound, and claims nothing: give --reproducibility-um)")
     print(f"joint diagnosis of two plate placements: {min(r['seconds'] for r in results):.1f}-"
           f"{max(r['seconds'] for r in results):.1f} s")
 

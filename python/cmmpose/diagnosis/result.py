@@ -269,6 +269,28 @@ class Diagnosis:
         diagnosis stopped because nothing more is significant)."""
         return [c for c in self.steps[-1].ranking if c.significant]
 
+    @property
+    def claims(self) -> dict[str, bool]:
+        """Which kinds of claim the diagnosis makes about the machine, each True when made: on a machine
+        with no error beyond its maps every one is false (benches/diagnosis_false_alarms.py and the null
+        machines of benches/unseen_placements.py count them so).
+
+        ``effect`` a library or user effect added; ``map`` a map correction added (``map:...``);
+        ``ambiguous`` an open ambiguity set or a group the run cannot tell apart (the data need one of
+        them); ``pattern`` a significant residual pattern of the final model; ``unexplained`` an
+        unexplained finding; ``floor`` "N um is unexplained above a floor" against a stated or measured
+        floor (against the spheres' fit scatter alone, a lower bound, the verdict says first that there
+        is no floor and claims nothing); ``two_axis`` an error of two axes at once."""
+        added = self.added
+        noise = self.noise or {}
+        return {"effect": any(not n.startswith("map:") for n in added),
+                "map": any(n.startswith("map:") for n in added),
+                "ambiguous": bool(self.open_ambiguity or self.ambiguous),
+                "pattern": self.patterns is not None and bool(self.patterns.significant),
+                "unexplained": bool(self.unexplained),
+                "floor": noise.get("noise") is False and bool(noise.get("floor_stated_or_measured")),
+                "two_axis": bool(self.two_axis)}
+
     def history(self) -> list[dict]:
         """One dict per step: label and figures in um (for plots and tables)."""
         return [{"label": s.label, **s.figures.to_dict()} for s in self.steps]
