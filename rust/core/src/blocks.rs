@@ -324,14 +324,15 @@ fn profile_points(
     out: &mut [f64],
 ) -> bool {
     let origin = d.origin * factor;
-    let mut finite = true;
+    // (u, v) in a loop of their own over the flat slice, which vectorizes;
+    // tested inside the point loop they cost a tenth of its throughput.
+    let mut finite = uv.iter().fold(true, |ok, &p| ok & plausible_length(p));
     for (p, o) in uv.chunks_exact(2).zip(out.chunks_exact_mut(3)) {
         let l = origin + d.u_dir * p[0] + d.v_dir * p[1];
         let x = se + pe.rotate(&l);
         o[0] = x.x;
         o[1] = x.y;
         o[2] = x.z;
-        finite &= plausible_length(p[0]) & plausible_length(p[1]);
         finite &= plausible_result(x.x) & plausible_result(x.y) & plausible_result(x.z);
     }
     finite

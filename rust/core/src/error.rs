@@ -50,16 +50,19 @@ pub enum CoreError {
     /// A number no machine gives: a length beyond
     /// [`crate::units::MAX_LENGTH_MM`], a temperature outside
     /// [`crate::units::TEMPERATURE_RANGE_C`]; refused whatever the NaN or
-    /// range policy. `bound` words the limit ("beyond +-100000 mm"), `what`
-    /// the quantity ("millimetres").
-    #[error("{argument}: row {row}: {shown} {unit} is {bound}: not {what} on a machine", shown = crate::units::shown(*value))]
+    /// range policy.
+    #[error(
+        "{argument}: row {row}: {} {} is {}: not {} on a machine",
+        crate::units::shown(*value),
+        quantity.unit(),
+        quantity.bound(),
+        quantity.words()
+    )]
     Implausible {
         argument: String,
         row: usize,
         value: f64,
-        unit: &'static str,
-        bound: String,
-        what: &'static str,
+        quantity: Quantity,
     },
 
     /// NaN or infinity given for one scalar argument.
@@ -80,6 +83,45 @@ pub enum CoreError {
 }
 
 pub type Result<T> = std::result::Result<T, CoreError>;
+
+/// What an implausible input was taken as (its unit and bounds). A small
+/// enum, so the error stays as small as its other variants: results pass
+/// through the kernel's hot loops.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quantity {
+    /// A length on a machine, mm.
+    Length,
+    /// A temperature on a machine, C.
+    Temperature,
+}
+
+impl Quantity {
+    pub fn unit(self) -> &'static str {
+        match self {
+            Quantity::Length => "mm",
+            Quantity::Temperature => "C",
+        }
+    }
+
+    /// The bound, in words ("beyond +-100000 mm").
+    pub fn bound(self) -> String {
+        match self {
+            Quantity::Length => format!("beyond +-{} mm", crate::units::MAX_LENGTH_MM),
+            Quantity::Temperature => {
+                let (lo, hi) = crate::units::TEMPERATURE_RANGE_C;
+                format!("outside {lo} to {hi} C")
+            }
+        }
+    }
+
+    /// What a number beyond the bound is not.
+    pub fn words(self) -> &'static str {
+        match self {
+            Quantity::Length => "millimetres",
+            Quantity::Temperature => "degrees C",
+        }
+    }
+}
 
 impl CoreError {
     pub(crate) fn invalid_map(location: impl Into<String>, reason: impl Into<String>) -> Self {

@@ -18,7 +18,7 @@ use rayon::prelude::*;
 
 use crate::blocks::Call;
 use crate::effects::{Columns, Effects, MachineErrors, Temperatures};
-use crate::error::{CoreError, Result};
+use crate::error::{CoreError, Quantity, Result};
 use crate::map::ErrorMap;
 use crate::pose::Digitizer;
 use crate::source::Source;
@@ -29,9 +29,7 @@ pub use crate::source::{
 use crate::thermal::ErrorMapSet;
 use crate::uncertainty::Propagation;
 pub use crate::uncertainty::{Detail, Sources};
-use crate::units::{
-    plausible_length, plausible_result, MAX_LENGTH_MM, MAX_RESULT_MM, TEMPERATURE_RANGE_C,
-};
+use crate::units::{plausible_length, plausible_result, MAX_RESULT_MM};
 
 /// Points per parallel work item: large enough to amortise scheduling, small
 /// enough to balance two or more threads on a few thousand points.
@@ -94,21 +92,21 @@ impl Inputs<'_, '_> {
     /// outside [`TEMPERATURE_RANGE_C`] (not degrees C; a range policy would
     /// hold it at the maps' edge).
     #[inline(always)]
-    fn implausible(&self, i: usize) -> Option<(&str, f64, &'static str)> {
+    fn implausible(&self, i: usize) -> Option<(&str, f64, Quantity)> {
         if let Some(uv) = self.uv {
             if let Some(&x) = uv[2 * i..2 * i + 2].iter().find(|x| !plausible_length(**x)) {
-                return Some(("uv", x, "mm"));
+                return Some(("uv", x, Quantity::Length));
             }
         }
         if let Some(&x) = self.scales[3 * i..3 * i + 3]
             .iter()
             .find(|x| !plausible_length(**x))
         {
-            return Some(("scales", x, "mm"));
+            return Some(("scales", x, Quantity::Length));
         }
         self.columns
             .implausible_temperature(i)
-            .map(|(name, x)| (name, x, "C"))
+            .map(|(name, x)| (name, x, Quantity::Temperature))
     }
 }
 
@@ -267,8 +265,8 @@ where
             report.nan_rows += 1;
             continue;
         }
-        if let Some((argument, value, unit)) = inputs.implausible(i) {
-            return (report, Some(implausible(argument, i, value, unit)));
+        if let Some((argument, value, quantity)) = inputs.implausible(i) {
+            return (report, Some(implausible(argument, i, value, quantity)));
         }
         let s = [
             inputs.scales[3 * i],
@@ -510,22 +508,14 @@ fn compensate_with<S: Source>(
     )
 }
 
-/// A finite input no machine gives: a length (mm) or a temperature (C).
+/// A finite input no machine gives.
 #[cold]
-fn implausible(argument: &str, row: usize, value: f64, unit: &'static str) -> CoreError {
-    let (bound, what) = if unit == "C" {
-        let (lo, hi) = TEMPERATURE_RANGE_C;
-        (format!("outside {lo} to {hi} C"), "degrees C")
-    } else {
-        (format!("beyond +-{MAX_LENGTH_MM} mm"), "millimetres")
-    };
+fn implausible(argument: &str, row: usize, value: f64, quantity: Quantity) -> CoreError {
     CoreError::Implausible {
         argument: argument.to_string(),
         row,
         value,
-        unit,
-        bound,
-        what,
+        quantity,
     }
 }
 

@@ -866,6 +866,17 @@ fn inputs_beyond_a_machines_lengths_are_refused_naming_the_row_on_every_path() {
 }
 
 #[test]
+fn the_error_is_no_larger_than_its_variants_before_the_bounds() {
+    // Results carry it through the kernel's hot loops: the bounds' variant
+    // (an owned name, a row, a value, a small enum) must not widen it.
+    assert!(
+        std::mem::size_of::<CoreError>() <= 56,
+        "{}",
+        std::mem::size_of::<CoreError>()
+    );
+}
+
+#[test]
 fn plausible_inputs_whose_point_is_not_are_refused_naming_the_row() {
     // Maps 1e-9 C apart extrapolated to 30 C: a slope of 1e14 um/K makes
     // the point far beyond MAX_RESULT_MM from plausible inputs.

@@ -109,9 +109,9 @@ fn build(py: Python<'_>, failure: Failure) -> PyResult<PyErr> {
                     argument,
                     row,
                     value,
-                    unit,
-                    ..
+                    quantity,
                 } => {
+                    let unit = quantity.unit();
                     fields.set_item("what", &argument)?;
                     fields.set_item("option", argument)?;
                     fields.set_item("row", row)?;
