@@ -3,15 +3,15 @@ runs of every layout benches/diagnosis_false_alarms.py measures (200 seeds each 
 arithmetic behind the promise holds."""
 
 import importlib.util
-from pathlib import Path
 
 import pytest
 
 import cmmpose
 from cmmpose.diagnosis.floor import FLOOR_ALPHA
 from cmmpose.diagnosis.statistics import ALPHA, CLAIM_FAMILIES
+from repo import REPO
 
-BENCH = Path(__file__).resolve().parents[1] / "benches" / "diagnosis_false_alarms.py"
+BENCH = REPO / "benches" / "diagnosis_false_alarms.py"
 
 
 def _bench():
