@@ -93,6 +93,36 @@ def test_dataset_threads_and_fixed_temperature(dataset, tmp_path):
         assert _same_bits(_xyz(tmp_path / "out" / name)[1], _reference(cols, temperature=23.5))
 
 
+def test_dataset_without_overwrite_refuses_before_work_and_never_replaces_a_file_made_meanwhile(dataset, tmp_path,
+                                                                                                   monkeypatch):
+    from cmmpose.errors import OutputError
+
+    src, files = dataset
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "scan_001.parquet").write_text("an earlier result")
+    with pytest.raises(OutputError, match="scan_001.parquet: exists.*overwrite=True"):
+        scale.compensate_dataset(src, out, MAPS, POSE, OFFSET, temperature=23.5, overwrite=False)
+    assert sorted(p.name for p in out.iterdir()) == ["scan_001.parquet"]  # nothing done
+    assert (out / "scan_001.parquet").read_text() == "an earlier result"
+    # A file another writer makes while the work runs: created exclusively, it is not replaced.
+    (out / "scan_001.parquet").unlink()
+    real = scale.dataset._plan_file
+
+    def plan_then_another_writer(path, *args):
+        (out / "scan_002.parquet").write_text("another writer's")
+        return real(path, *args)
+
+    monkeypatch.setattr(scale.dataset, "_plan_file", plan_then_another_writer)
+    with pytest.raises(OutputError):
+        scale.compensate_dataset(src, out, MAPS, POSE, OFFSET, temperature=23.5, overwrite=False)
+    assert (out / "scan_002.parquet").read_text() == "another writer's"
+    monkeypatch.setattr(scale.dataset, "_plan_file", real)
+    result = scale.compensate_dataset(src, out, MAPS, POSE, OFFSET, temperature=23.5)  # the default replaces
+    assert [p.name for p in result.outputs] == sorted(files)
+    assert _same_bits(_xyz(out / "scan_002.parquet")[1], _reference(files["scan_002.parquet"], temperature=23.5))
+
+
 def test_dataset_errors_name_the_file_and_column(tmp_path, dataset):
     src, files = dataset
     bad = tmp_path / "bad"

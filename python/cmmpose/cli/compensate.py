@@ -233,7 +233,7 @@ def _compensate_dataset(o: CompensateOptions, machine, pose_t, offset_t, u_args)
                                         temperature_tolerance=o.temperature_tolerance, scheduler=scheduler,
                                         scheduler_timeout=o.scheduler_timeout,
                                         progress=lambda done, total: bar.update(task, completed=done, total=total),
-                                        **u_args)
+                                        overwrite=o.overwrite, **u_args)
         say_caught(caught)
     except Error as exc:
         raise fail(exc) from None

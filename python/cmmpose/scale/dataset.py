@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomicfile import AtomicFile, ensure_folder
+from ..atomicfile import AtomicFile, check_outputs_free, ensure_folder
 from ..errormap import ErrorMap, ErrorMapSet, warn_single_map
 from ..errors import Error, InputError, quoting, warn_clamped
 from ..temperature import TemperaturePolicy, as_policy
@@ -153,10 +153,13 @@ def _float_column(batch: pa.RecordBatch, name: str) -> np.ndarray:
 
 
 def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[str], batch_rows: int,
-                     topic: str | None) -> tuple[int, KernelReport, float, UncertaintyTally | None]:
+                     topic: str | None, overwrite: bool = True) -> tuple[int, KernelReport, float,
+                                                                    UncertaintyTally | None]:
     """One dataset file through the kernel, batch by batch, into ``dst``
-    (written under a temporary name, renamed when whole); with the kernel's
-    ``uncertainty``, the u columns after X, Y, Z and their tally. Runs on a worker."""
+    (written under a temporary name, renamed when whole; without
+    ``overwrite`` created exclusively, so a file another writer made
+    meanwhile is never replaced); with the kernel's ``uncertainty``, the u
+    columns after X, Y, Z and their tally. Runs on a worker."""
     worker = None
     if topic is not None:
         try:
@@ -170,7 +173,7 @@ def _compensate_file(kernel: Compensator, src: str, dst: str, passthrough: list[
     tally = UncertaintyTally() if kernel.uncertainty is not None else None
     writer = out = None
     try:
-        out = AtomicFile(dst_p, "wb", inputs=[src_p])  # cmmpose.atomicfile: renamed into place when whole
+        out = AtomicFile(dst_p, "wb", inputs=[src_p], overwrite=overwrite)  # renamed into place when whole
         pf = pq.ParquetFile(src_p)
         in_schema = pf.schema_arrow
         out_schema = pa.schema([pa.field(c, pa.float64()) for c in OUTPUT_COLUMNS + kernel.columns]
@@ -229,7 +232,7 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
                        scheduler_timeout: float = SCHEDULER_TIMEOUT,
                        temperature_policy: TemperaturePolicy | None = None,
                        uncertainty: bool | UncertaintySources | None = None, uncertainty_detail: str = "standard",
-                       uncertainty_origins: dict | None = None) -> DatasetResult:
+                       uncertainty_origins: dict | None = None, overwrite: bool = True) -> DatasetResult:
     """Compensate a folder of Parquet scans into a folder of Parquet files.
 
     Each input ``NAME.parquet`` (columns ``u, v`` mm, ``D, E, F`` mm, ``T`` C
@@ -246,7 +249,8 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
     dataset_dir, out_dir : path-like
         The input folder and the output folder (made if missing; must differ).
         An output file is written under a temporary name and renamed when
-        whole; an existing one of the same name is replaced.
+        whole; an existing one of the same name is replaced (see
+        ``overwrite``).
     error_map, pose, offset, temperature, out_of_range, nan_policy, temperature_tolerance, temperature_policy
         As in :func:`cmmpose.compensate` (``temperature`` a float, C, or None).
     scheduler : str or distributed.Client
@@ -263,6 +267,11 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
     uncertainty, uncertainty_detail, uncertainty_origins
         As :func:`cmmpose.compensate_file` takes them: the u columns (and
         covariance) after X, Y, Z, each batch by the same kernel call.
+    overwrite : bool
+        False: an output file that exists already is refused before any
+        work (``OutputError``), and each is created exclusively (of two
+        writers of one name, one fails); ``cmmpose compensate`` without
+        ``--overwrite``.
 
     Returns
     -------
@@ -289,10 +298,12 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         raise InputError(f"batch_rows: expected a positive integer, got {batch_rows!r}")
     files = dataset_files(dataset_dir)
     out = _output_folder(out_dir, dataset_dir)
+    outputs = [out / f.name for f in files]
+    if out.exists():  # before any work: none an input, none existing unless overwrite
+        check_outputs_free(outputs, files, overwrite=overwrite)
     plans = [_plan_file(f, kernel.needs_temperature_column, kernel.columns) for f in files]
     total = sum(rows for rows, _ in plans)
     ensure_folder(out)
-    outputs = [out / f.name for f in files]
     topic = f"cmmpose-progress-{uuid.uuid4().hex}"
     done, finished = 0, False
 
@@ -310,7 +321,7 @@ def compensate_dataset(dataset_dir, out_dir, error_map: ErrorMap | ErrorMapSet, 
         try:
             # absolute paths: a cluster's workers do not share this process's working folder
             futures = [client.submit(_compensate_file, shared, str(f.absolute()), str(o.absolute()), passthrough,
-                                     int(batch_rows), topic,
+                                     int(batch_rows), topic, bool(overwrite),
                                      key=f"cmmpose-compensate-{f.name}-{topic[-8:]}", pure=False)
                        for f, o, (_, passthrough) in zip(files, outputs, plans)]
             results = gather_results(client, futures)
