@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import click
@@ -61,8 +62,7 @@ NOMINAL_W_TOLERANCE_DEG = 10.0
                    "its gamma, which catches an inward --plane-normal (the scan alone fits it at gamma + 180).")
 @click.option("--replace", is_flag=True, help="Replace the alignment already stored under --name (default: refuse).")
 @click.option("--json", "as_json", is_flag=True, help="Print the stored record as JSON instead of the table.")
-def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, offset, name, library_file, temperature,
-                            machine_file, maps, vernier_uncertainty, nominal_pose, replace, as_json) -> None:
+def calibrate_alignment_cmd(**flags) -> None:
     """Align the digitizer at one trunnion pose: alpha, beta from vernier points, gamma from plane
     scans, D0 E0 F0 from a reference-sphere scan; store the result in the library (an existing
     --name only with --replace).
@@ -71,105 +71,24 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
     opposite normal as well: the normal's sign picks the branch. It is checked against
     --nominal-pose, else against two or more other alignments in the library (the mount offset
     must fit them), else a note says it was not checked."""
-    from ..calibration import (
-        AlignmentLibrary,
-        AlignmentRecord,
-        alpha_beta_from_vernier,
-        calibrated_pose,
-        gamma_from_plane_scan,
-        reference_centre_reading,
-    )
     from ..machine import load_machine
 
-    normal = triple(plane_normal, "--plane-normal") if plane_normal else None
-    nominal = triple(nominal_pose, "--nominal-pose") if nominal_pose else None
-    if not plane_files:
-        raise click.UsageError("--plane-scan is needed to store an alignment (gamma; with --plane-normal, or two "
-                               "sweeps along different axes)")
-    if not ref_file:
-        raise click.UsageError("--reference-scan is needed to store an alignment (D0, E0, F0)")
-    if vernier_uncertainty is not None and not (vernier_uncertainty > 0 and np.isfinite(vernier_uncertainty)):
-        raise click.BadParameter(f"expected a positive number of um, got {vernier_uncertainty}",
-                                 param_hint="--vernier-uncertainty")
+    o = AlignmentOptions.from_flags(flags)
+    o.check()
     try:
-        machine = load_machine(machine_file)
-        if library_file is None:
-            if machine_file is None or machine.alignments is None:
-                raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
-            library_file = machine.alignments
-        check_not_input(library_file, [vernier_file, *plane_files, ref_file, machine_file, *maps], "--library")
-        library = AlignmentLibrary(library_file)
-        if not replace and name in library:  # before the work: refuse to overwrite a stored calibration silently
-            raise click.UsageError(f"{library_file}: pose {name!r} is already aligned; give --replace to replace "
-                                   "it, or another --name")
-        offset_t = offset_mm(offset, "--offset") if offset is not None else tuple(machine.offset)
-        error_map = load_maps(maps, machine) if (maps or machine_file) else None
-        if error_map is None:
-            console.print("[yellow]warning:[/] no error map: the readings are taken as positions, and the "
-                          "squareness shear biases alpha (give --maps or --machine)")
-        elif isinstance(error_map, ErrorMapSet) and temperature is None:
-            raise click.UsageError("a map set needs --temperature (the machine's during the alignment, C)")
-        em = {"maps": error_map, "temperature": temperature if error_map is not None else None}
-        point_u = None if vernier_uncertainty is None else vernier_uncertainty * 1e-3
-        vernier_points = read_point_cloud(vernier_file).xyz
-        if len(vernier_points) == 3 and point_u is None:
-            raise click.UsageError(f"{vernier_file}: three vernier points fit the plane exactly, leaving no "
-                                   "residuals to estimate their uncertainty from: give --vernier-uncertainty "
-                                   "(um; the vernier's null, Type B)")
-        vern = alpha_beta_from_vernier(vernier_points, point_uncertainty=point_u, **em)
-        if nominal is not None:
-            w_nominal = Pose(*nominal).matrix()[:, 2]
-            off = float(np.degrees(np.arccos(np.clip(float(np.dot(vern.normal, w_nominal)), -1.0, 1.0))))
-            if off > NOMINAL_W_TOLERANCE_DEG:
-                raise CalibrationError(
-                    f"{vernier_file}: the vernier's scan-plane normal w {np.round(vern.normal, 4).tolist()} is "
-                    f"{off:.1f} deg from the w of --nominal-pose {nominal_pose} ({np.round(w_nominal, 4).tolist()}): "
-                    "is --nominal-pose this stop's trunnion index, and are the vernier points counter-clockwise "
-                    "seen from +w?")
-        scans = [read_points(f) for f in plane_files]
-        uv, scales, _ = read_points(ref_file)
-
-        def solve(plane_n):
-            try:
-                gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
-                                            vern.alpha, vern.beta, normal=plane_n, offset=offset_t,
-                                            gamma0=None if nominal is None else nominal[2],
-                                            alpha_beta_covariance=vern.covariance, **em)
-            except CalibrationError as exc:  # name the files and flags the solver was given
-                given = "--plane-scan" + (" with --plane-normal" if plane_n is not None else "") + (
-                    " and --nominal-pose" if nominal is not None else "")
-                raise CalibrationError(f"{', '.join(map(str, plane_files))} ({given}): {exc.message}",
-                                       **exc.fields) from None
-            cp = calibrated_pose(vern, gam)
-            # The pose's covariance goes into the reading through its Jacobian; the
-            # record keeps both apart (reading_uncertainty is the reading's own).
-            ref = reference_centre_reading(uv, scales, cp.pose, offset_t, pose_covariance=cp.covariance, **em)
-            residuals = {"vernier_rms": float(vern.fit.rms), "plane_rms": float(gam.rms)}
-            return gam, ref, AlignmentRecord.from_calibration(cp, ref, offset_t, temperature=temperature,
-                                                              residuals=residuals)
-
-        gam, ref, record = solve(normal)
-        if nominal is not None:
-            off = abs((gam.gamma - nominal[2] + 180.0) % 360.0 - 180.0)
-            if off > NOMINAL_W_TOLERANCE_DEG:
-                raise CalibrationError(
-                    f"{', '.join(map(str, plane_files))}: gamma {gam.gamma:.4f} deg is {off:.1f} deg from the gamma "
-                    f"of --nominal-pose {nominal_pose}: is --nominal-pose this stop's trunnion index, and "
-                    "--plane-normal the scanned face's outward normal?")
-        branch_note = None
-        if gam.branch_from_normal and nominal is None:
-            branch_note = _check_branch(library, name, record, lambda: solve(tuple(-c for c in normal))[2], normal,
-                                        plane_files)
-        library.save(name, record, overwrite=replace)
+        machine = load_machine(o.machine_file)
+        library_file, library = _alignment_library(o, machine)
+        record, ref, branch_note = _solve_alignment(o, machine, library)
+        library.save(o.name, record, overwrite=o.replace)
     except Error as exc:
         raise fail(exc) from None
-    if as_json:  # the note in the document (as `calibrate map --json` does), stdout stays one JSON document
-        click.echo(strict_json({"name": name, "library": str(library_file), **record.to_dict(),
+    if o.as_json:  # the note in the document (as `calibrate map --json` does), stdout stays one JSON document
+        click.echo(strict_json({"name": o.name, "library": str(library_file), **record.to_dict(),
                                 "notes": [branch_note] if branch_note else []}, indent=2))
         return
     if branch_note:
         console.print(f"note: {branch_note}")
-    table = Table(title=f"alignment {name!r} -> {library_file}", show_header=False)
+    table = Table(title=f"alignment {o.name!r} -> {library_file}", show_header=False)
     table.add_row("alpha, beta, gamma (deg)", ", ".join(f"{v:.4f}" for v in record.pose))
     table.add_row("u (deg)", ", ".join(f"{v:.4f}" for v in record.pose_uncertainty))
     table.add_row("D0, E0, F0 (mm)", ", ".join(f"{v:.4f}" for v in record.reading))
@@ -177,6 +96,158 @@ def calibrate_alignment_cmd(vernier_file, plane_files, plane_normal, ref_file, o
     total = np.sqrt(np.diag(ref.covariance))
     table.add_row("u, with the pose's (mm)", ", ".join(f"{v:.4f}" for v in total))
     Console().print(table)
+
+
+@dataclasses.dataclass(frozen=True)
+class AlignmentOptions:
+    """What ``cmmpose calibrate alignment`` was asked, from its flags (each field the click parameter of its
+    name)."""
+
+    vernier_file: str
+    plane_files: tuple[str, ...]
+    plane_normal: str | None
+    ref_file: str | None
+    offset: str | None
+    name: str
+    library_file: str | None
+    temperature: float | None
+    machine_file: str | None
+    maps: tuple[str, ...]
+    vernier_uncertainty: float | None
+    nominal_pose: str | None
+    replace: bool
+    as_json: bool
+
+    @classmethod
+    def from_flags(cls, flags: dict) -> AlignmentOptions:
+        """The options from the command's click parameters (by their names)."""
+        return cls(**{f.name: flags[f.name] for f in dataclasses.fields(cls)})
+
+    @property
+    def normal(self) -> tuple[float, float, float] | None:
+        """--plane-normal, nx, ny, nz."""
+        return triple(self.plane_normal, "--plane-normal") if self.plane_normal else None
+
+    @property
+    def nominal(self) -> tuple[float, float, float] | None:
+        """--nominal-pose, alpha, beta, gamma (deg)."""
+        return triple(self.nominal_pose, "--nominal-pose") if self.nominal_pose else None
+
+    @property
+    def inputs(self) -> list:
+        """The files the command reads: none may be the library it writes."""
+        return [self.vernier_file, *self.plane_files, self.ref_file, self.machine_file, *self.maps]
+
+    def check(self) -> None:
+        """The usage errors, before anything is read."""
+        _ = self.normal, self.nominal
+        if not self.plane_files:
+            raise click.UsageError("--plane-scan is needed to store an alignment (gamma; with --plane-normal, or "
+                                   "two sweeps along different axes)")
+        if not self.ref_file:
+            raise click.UsageError("--reference-scan is needed to store an alignment (D0, E0, F0)")
+        u = self.vernier_uncertainty
+        if u is not None and not (u > 0 and np.isfinite(u)):
+            raise click.BadParameter(f"expected a positive number of um, got {u}", param_hint="--vernier-uncertainty")
+
+
+def _alignment_library(o: AlignmentOptions, machine):
+    """The library file (--library, else the machine file's) and the library, checked before the work: not an
+    input, and --name not stored already unless --replace."""
+    from ..calibration import AlignmentLibrary
+
+    library_file = o.library_file
+    if library_file is None:
+        if o.machine_file is None or machine.alignments is None:
+            raise click.UsageError("give --library FILE (or --machine with mount.alignments)")
+        library_file = machine.alignments
+    check_not_input(library_file, o.inputs, "--library")
+    library = AlignmentLibrary(library_file)
+    if not o.replace and o.name in library:  # before the work: refuse to overwrite a stored calibration silently
+        raise click.UsageError(f"{library_file}: pose {o.name!r} is already aligned; give --replace to replace "
+                               "it, or another --name")
+    return library_file, library
+
+
+def _alignment_maps(o: AlignmentOptions, machine) -> dict:
+    """The maps and temperature the readings are corrected with (``maps`` None: none given, with a warning)."""
+    error_map = load_maps(o.maps, machine) if (o.maps or o.machine_file) else None
+    if error_map is None:
+        console.print("[yellow]warning:[/] no error map: the readings are taken as positions, and the "
+                      "squareness shear biases alpha (give --maps or --machine)")
+    elif isinstance(error_map, ErrorMapSet) and o.temperature is None:
+        raise click.UsageError("a map set needs --temperature (the machine's during the alignment, C)")
+    return {"maps": error_map, "temperature": o.temperature if error_map is not None else None}
+
+
+def _vernier(o: AlignmentOptions, em: dict):
+    """alpha, beta from the vernier points, checked against --nominal-pose."""
+    from ..calibration import alpha_beta_from_vernier
+
+    point_u = None if o.vernier_uncertainty is None else o.vernier_uncertainty * 1e-3
+    vernier_points = read_point_cloud(o.vernier_file).xyz
+    if len(vernier_points) == 3 and point_u is None:
+        raise click.UsageError(f"{o.vernier_file}: three vernier points fit the plane exactly, leaving no "
+                               "residuals to estimate their uncertainty from: give --vernier-uncertainty "
+                               "(um; the vernier's null, Type B)")
+    vern = alpha_beta_from_vernier(vernier_points, point_uncertainty=point_u, **em)
+    nominal = o.nominal
+    if nominal is not None:
+        w_nominal = Pose(*nominal).matrix()[:, 2]
+        off = float(np.degrees(np.arccos(np.clip(float(np.dot(vern.normal, w_nominal)), -1.0, 1.0))))
+        if off > NOMINAL_W_TOLERANCE_DEG:
+            raise CalibrationError(
+                f"{o.vernier_file}: the vernier's scan-plane normal w {np.round(vern.normal, 4).tolist()} is "
+                f"{off:.1f} deg from the w of --nominal-pose {o.nominal_pose} ({np.round(w_nominal, 4).tolist()}): "
+                "is --nominal-pose this stop's trunnion index, and are the vernier points counter-clockwise "
+                "seen from +w?")
+    return vern
+
+
+def _solve_alignment(o: AlignmentOptions, machine, library):
+    """The alignment record, the reference reading and the branch note (None: none to say)."""
+    from ..calibration import AlignmentRecord, calibrated_pose, gamma_from_plane_scan, reference_centre_reading
+
+    offset_t = offset_mm(o.offset, "--offset") if o.offset is not None else tuple(machine.offset)
+    em = _alignment_maps(o, machine)
+    vern = _vernier(o, em)
+    nominal = o.nominal
+    scans = [read_points(f) for f in o.plane_files]
+    uv, scales, _ = read_points(o.ref_file)
+
+    def solve(plane_n):
+        try:
+            gam = gamma_from_plane_scan(np.vstack([sc[0] for sc in scans]), np.vstack([sc[1] for sc in scans]),
+                                        vern.alpha, vern.beta, normal=plane_n, offset=offset_t,
+                                        gamma0=None if nominal is None else nominal[2],
+                                        alpha_beta_covariance=vern.covariance, **em)
+        except CalibrationError as exc:  # name the files and flags the solver was given
+            given = "--plane-scan" + (" with --plane-normal" if plane_n is not None else "") + (
+                " and --nominal-pose" if nominal is not None else "")
+            raise CalibrationError(f"{', '.join(map(str, o.plane_files))} ({given}): {exc.message}",
+                                   **exc.fields) from None
+        cp = calibrated_pose(vern, gam)
+        # The pose's covariance goes into the reading through its Jacobian; the
+        # record keeps both apart (reading_uncertainty is the reading's own).
+        ref = reference_centre_reading(uv, scales, cp.pose, offset_t, pose_covariance=cp.covariance, **em)
+        residuals = {"vernier_rms": float(vern.fit.rms), "plane_rms": float(gam.rms)}
+        return gam, ref, AlignmentRecord.from_calibration(cp, ref, offset_t, temperature=o.temperature,
+                                                          residuals=residuals)
+
+    normal = o.normal
+    gam, ref, record = solve(normal)
+    if nominal is not None:
+        off = abs((gam.gamma - nominal[2] + 180.0) % 360.0 - 180.0)
+        if off > NOMINAL_W_TOLERANCE_DEG:
+            raise CalibrationError(
+                f"{', '.join(map(str, o.plane_files))}: gamma {gam.gamma:.4f} deg is {off:.1f} deg from the gamma "
+                f"of --nominal-pose {o.nominal_pose}: is --nominal-pose this stop's trunnion index, and "
+                "--plane-normal the scanned face's outward normal?")
+    branch_note = None
+    if gam.branch_from_normal and nominal is None:
+        branch_note = _check_branch(library, o.name, record, lambda: solve(tuple(-c for c in normal))[2], normal,
+                                    o.plane_files)
+    return record, ref, branch_note
 
 
 def _check_branch(library, name, record, opposite, normal, plane_files) -> str | None:
