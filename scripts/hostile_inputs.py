@@ -1530,6 +1530,33 @@ def escapes_in_files(work: Path, kind: str) -> None:
         refused(r, what=f"a {kind} with terminal escapes", mentions=("e.csv",))
 
 
+
+def beyond_a_machine(work: Path, kind: str) -> None:
+    """Numbers no machine gives (a map component of 1e30 um, u = 1e300 mm, a point's T of -300 C under
+    --out-of-range clamp): refused naming the file and the row, never compensated into a finite nonsense."""
+    code = "import sys, cmmpose\ncmmpose.ErrorMapSet.thesis().maps[0].write(sys.argv[1])"
+    subprocess.run([sys.executable, "-c", code, str(work / "m.csv")], check=True)
+    maps, points = "thesis", "p.csv"
+    row = "1,120,499.575,275,-47.37,21.8"
+    if kind == "map":
+        lines = [ln for ln in (work / "m.csv").read_text().splitlines() if not ln.startswith("# sha256")]
+        lines = ["X,25,1e30,0,0,0,0.57,-0.37" if ln.startswith("X,25,") else ln for ln in lines]
+        (work / "m.csv").write_text("\n".join(lines) + "\n")
+        maps, mentions = "m.csv", ("m.csv", "1e30 um")
+        (work / points).write_text(f"u,v,D,E,F,T\n{row}\n")
+    elif kind == "u":
+        (work / points).write_text(f"u,v,D,E,F,T\n{row}\n1e300,120,499.575,275,-47.37,21.8\n")
+        mentions = ("p.csv", "row 1", "1e300 mm")
+    else:
+        (work / points).write_text(f"u,v,D,E,F,T\n{row}\n1,120,499.575,275,-47.37,-300\n")
+        mentions = ("p.csv", "row 1", "-300 C")
+    r = cli("compensate", points, "o.csv", "--maps", maps, "--pose", "90,90,0", "--offset", "1.001,264.505,129.575",
+            "--out-of-range", "clamp", cwd=work)
+    refused(r, what=f"a {kind} beyond a machine's numbers", mentions=mentions)
+    if (work / "o.csv").exists():
+        raise Failed("silent", f"a {kind} beyond a machine's numbers: refused, yet an output was written")
+
+
 ATTACKS = {
     "data loss": {
         "compensate a.csv a.csv": lambda w: same_file(w, "plain"),
@@ -1658,6 +1685,9 @@ ATTACKS = {
         "artefact certificate at -300 C": lambda w: schema_attack(w, "artefact -300 C"),
         "simulate --speed 1e308": lambda w: simulate_option(w, "--speed", "1e308"),
         "simulate --jitter 1e308": lambda w: simulate_option(w, "--jitter", "1e308"),
+        "a map component of 1e30 um": lambda w: beyond_a_machine(w, "map"),
+        "a point's u of 1e300 mm": lambda w: beyond_a_machine(w, "u"),
+        "a point's T of -300 C under --out-of-range clamp": lambda w: beyond_a_machine(w, "T"),
         "artefact with a ball id beyond int64": lambda w: artefact_attack(w, "ball id beyond int64"),
         "artefact named with terminal escapes": lambda w: artefact_attack(w, "escape"),
         "artefact with a repeated key": lambda w: artefact_attack(w, "repeated key"),
