@@ -19,8 +19,14 @@ The split follows how the data were taken (:func:`cv_groups`):
   nothing to pin what only both together show (an expansion between two
   temperatures). A smoothing choice that must extrapolate between set-ups
   (a map correction's knot spacing) and the decision on a map correction
-  hold out whole runs whenever there are two or more: a shape of position
-  must carry from one set-up to the next.
+  hold out whole runs when there are three or more
+  (:func:`map_runs_out`): a shape of position must carry from one set-up
+  to the next. With two, one run alone rarely covers what the other sees (a
+  local bump under one placement's balls, near none of the other's): the
+  held-out run then tests nothing and a real shape fails; each run's balls
+  or positions are held out instead, and a ball held out between the
+  others tests the shape between the balls, where an unseen placement's
+  balls will lie.
 
 Scans of the reference sphere (no figure holds them) are held out one scan at
 a time: each pose a separate view.
@@ -79,8 +85,8 @@ HEADLINE_RISE_SIGMA = 2.0
 #: whitened figure falls (it would trade the figure users read for sphere-fit residuals).
 HEADLINE_RISE_SHARE = 0.01
 
-__all__ = ["CVDesign", "CVScore", "INTERPOLATION_ONLY", "POSE_ANGLE_TOL", "compare", "current_state", "cv_groups",
-           "cv_score", "judge", "model_design", "scan_pose_angles", "verify"]
+__all__ = ["CVDesign", "CVScore", "INTERPOLATION_ONLY", "MAP_RUNS_OUT", "POSE_ANGLE_TOL", "compare", "current_state",
+           "cv_groups", "cv_score", "judge", "map_runs_out", "model_design", "scan_pose_angles", "verify"]
 
 
 def _single_groups(layout) -> tuple[np.ndarray, str]:
@@ -197,6 +203,20 @@ def _pose_split(parts) -> tuple[np.ndarray, int] | None:
         used_all |= used
         out.append(folds)
     return np.concatenate(out), len(used_all)
+
+
+#: Runs from which a map (or cross-axis) correction is judged holding whole runs out (fewer: their balls or positions).
+MAP_RUNS_OUT = 3
+
+
+def map_runs_out(problem) -> bool | None:
+    """The ``by_run`` of :func:`cv_groups` that judges a map correction and
+    chooses its knot spacing: whole runs out with MAP_RUNS_OUT runs or more,
+    else within each run (None: a single run's default)."""
+    parts = getattr(problem, "parts", None)
+    if not parts:
+        return None
+    return len(parts) >= MAP_RUNS_OUT
 
 
 def _one_kind(parts) -> bool:
@@ -609,11 +629,12 @@ def judge_candidate(problem, step, candidate, groups: np.ndarray, split: str, co
         state = step._cv_state
     r0, X0, ridge0, target0, sigma, old = state
     by_run = False
-    if getattr(candidate.spec, "family", None) in ("map", "cross") and getattr(problem, "parts", None):
+    if getattr(candidate.spec, "family", None) in ("map", "cross") and map_runs_out(problem):
         # A map shape is a function of position: it must carry from one
-        # set-up to the next, so with several runs it is judged holding out
-        # whole runs (a periodic shape that fits the balls between others
-        # can still fail a placement it never saw).
+        # set-up to the next, so with three runs or more it is judged holding
+        # out whole runs (a periodic shape that fits the balls between others
+        # can still fail a placement it never saw); with two, within each run
+        # (map_runs_out).
         folds, items, split = cv_groups(problem, by_run=True)
         groups = (folds, items)
         by_run = True

@@ -93,7 +93,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.sparse import csr_matrix
 
-from .cv import CVDesign, cv_groups, model_design
+from .cv import CVDesign, cv_groups, map_runs_out, model_design
 
 from ..model.crossaxis import CrossAxisCorrection, is_cross, make_cross
 from ..model.mapshape import (ARCSEC, COMPONENTS, PERIOD_MIN, PRIOR_AS, PRIOR_UM, ROTATIONAL, SQUARENESS, TRANSLATIONAL,
@@ -495,6 +495,38 @@ def _pair_gains(W0q, r, J, rows) -> np.ndarray:
     return np.sum(np.where(keep, z * z / np.where(keep, w, 1.0), 0.0), axis=1)
 
 
+def coverage_gap(problem, axis: int) -> float:
+    """The widest gap, mm, between the positions along ``axis`` at which the
+    runs' scans lie (each scan's mean reading): what the data sample of a
+    function of that axis's reading. A map correction moves each scan's
+    centre by the component's function over that scan's points, so between
+    two neighbouring scan positions the function is not observed."""
+    parts = getattr(problem, "parts", None) or [problem]
+    pos = []
+    for p in parts:
+        sub = reading_subset(p)
+        cnt = np.bincount(sub["scan"], minlength=sub["S"])
+        tot = np.bincount(sub["scan"], sub["q"][:, axis], minlength=sub["S"])
+        pos.append(tot[cnt > 0] / cnt[cnt > 0])
+    x = np.sort(np.concatenate(pos)) if pos else np.zeros(0)
+    return float(np.max(np.diff(x))) if len(x) > 1 else math.inf
+
+
+def hat_spacings(span: float, gap: float) -> list[float]:
+    """The knot spacings tried over a travel of ``span`` mm whose scans leave
+    gaps of up to ``gap`` mm: the fractions HAT_FRACTIONS of the travel,
+    none finer than the gap (a knot interval with no scan in it leaves its
+    hats to the prior: the fit zig-zags between the scans and misplaces the
+    function where the next placement's balls lie), and, where that left
+    some out, the finest whole division of the travel the coverage supports."""
+    out = [round(span * f, 1) for f in HAT_FRACTIONS if span * f >= gap]
+    if len(out) < len(HAT_FRACTIONS) and math.isfinite(gap) and gap > 0:  # the coverage left some out
+        n = int(span // gap)
+        if n >= 3 and round(span / n, 1) not in out:
+            out.append(round(span / n, 1))
+    return sorted(set(out), reverse=True) or [round(span * HAT_FRACTIONS[0], 1)]
+
+
 def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapCorrection]:
     """The map-correction candidates for ``problem`` (a Problem or
     JointProblem at its base model): for each of the 18 components of an
@@ -515,8 +547,8 @@ def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapC
     rw = fit.residual / s
     W0 = X0 / s[:, None]
     W0q = np.linalg.qr(W0)[0] if W0.shape[1] else np.zeros((len(r0), 0))
-    # Knot spacing must carry from one set-up to the next: whole runs held out when there are several.
-    folds, items, _ = cv_groups(problem, by_run=True if getattr(problem, "parts", None) else None)
+    # Knot spacing must carry from one set-up to the next: the folds that judge a map correction (map_runs_out).
+    folds, items, _ = cv_groups(problem, by_run=map_runs_out(problem))
     design = CVDesign(problem, r0, X0, ridge0, target0, sigma, (folds, items))
     # Map corrections move centres and radii only (point residuals at first order unchanged).
     rows = _rows(problem)
@@ -531,13 +563,14 @@ def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapC
         out[poly.name] = poly
         # Knot spacing by cross-validation (the base design's folds solved once, each spacing added to it).
         best = None
-        for f in HAT_FRACTIONS:
-            h = make(comp, "hat", lo, hi, round(span * f, 1), kinematics=kin)
+        spacings = hat_spacings(span, coverage_gap(problem, axis))
+        for spacing in spacings:
+            h = make(comp, "hat", lo, hi, spacing, kinematics=kin)
             J = component_columns(problem, problem.base_obs, comp, h.basis, kin, compact=True) * np.asarray(h.prior)
             sc = design.score_with(J, rows=rows)
             if best is None or sc.whitened < best[0]:
                 best = (sc.whitened, h)
-        out[best[1].name] = replace(best[1], trials=len(HAT_FRACTIONS))
+        out[best[1].name] = replace(best[1], trials=len(spacings))
         # Period search: log-spaced from PERIOD_MIN to the travel.
         grid = np.exp(np.linspace(math.log(PERIOD_MIN), math.log(span), periods))
         gains = _sine_gains(problem, comp, kin, lo, hi, grid, W0q, rw, s, rows)
