@@ -21,30 +21,17 @@ import cmmpose
 from cmmpose import atomicfile
 from cmmpose.atomicfile import AtomicFile, FileGroup, write_text
 from cmmpose.cli import main
+from child_processes import ENV
+from child_processes import one_error_line as one_line_failure
 from cmmpose.errors import InputError, OutputError
 from cmmpose.run import Run
 
-# The children import the cmmpose these tests import (installed, or a source tree on PYTHONPATH), not the clone's
-# python/ folder, which holds no compiled core when the package was installed as a wheel.
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(Path(cmmpose.__file__).parent.parent),
-                                                                os.environ.get("PYTHONPATH", "")) if p)}
 
 
 def cli(*args):
     return CliRunner().invoke(main, [str(a) for a in args])
 
 
-def one_line_failure(result, *words, code=1):
-    """Exit ``code`` with one line naming ``words``, no traceback."""
-    assert result.exit_code == code, result.output
-    assert isinstance(result.exception, SystemExit), result.exception
-    text = result.output.strip()
-    assert "Traceback" not in text, text
-    errors = [line for line in text.splitlines() if line.startswith("Error:")]
-    assert len(errors) == 1, text
-    for w in words:
-        assert w in errors[0], errors[0]
-    return errors[0]
 
 
 def scratch(folder: Path) -> list[str]:

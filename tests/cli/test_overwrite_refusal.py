@@ -21,32 +21,20 @@ import cmmpose.run
 from cmmpose import atomicfile
 from cmmpose.calibration import interferometer
 from cmmpose.cli import main
+from child_processes import ENV
+from child_processes import one_error_line as refused
 from cmmpose.formats import mapformats
 from cmmpose.standards import iso230_2
 
 INTERFEROMETER = Path(cmmpose.data_path("examples", "interferometer"))
 #: The modification time given to every earlier output (s since the epoch): a refusal leaves it.
 EARLIER_MTIME = 1_000_000_000
-# The children import the cmmpose these tests import (as tests/test_one_door_out.py does).
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(Path(cmmpose.__file__).parent.parent),
-                                                                os.environ.get("PYTHONPATH", "")) if p)}
 
 
 def cli(*args):
     return CliRunner().invoke(main, [str(a) for a in args])
 
 
-def refused(result, *words, code=1) -> str:
-    """Exit ``code`` with one ``Error:`` line naming ``words``, no traceback; the line."""
-    assert result.exit_code == code, result.output
-    assert isinstance(result.exception, SystemExit), result.exception
-    text = result.output.strip()
-    assert "Traceback" not in text, text
-    errors = [line for line in text.splitlines() if line.startswith("Error:")]
-    assert len(errors) == 1, text
-    for w in words:
-        assert w in errors[0], errors[0]
-    return errors[0]
 
 
 def earlier(path: Path) -> Path:
