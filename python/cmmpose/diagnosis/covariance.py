@@ -12,6 +12,7 @@ its column-normalised SVD, with the parameters it leaves free
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -36,36 +37,83 @@ def model_uncertainties(problem: Problem, model) -> dict[str, np.ndarray]:
 
 
 def model_covariance(problem: Problem, model) -> tuple[dict[str, np.ndarray], dict]:
-    """:func:`model_uncertainties`, and the covariance of the determined
-    parameters (``{"parameters": ["effect.param", ...], "matrix": (k, k)}``
+    """:func:`model_uncertainties`, and the covariance of the values a saved
+    model applies (``{"parameters": ["effect.param", ...], "matrix": (k, k)}``
     in their units; empty without effects): what a saved model keeps to
     predict the uncertainty of its correction elsewhere
-    (:mod:`cmmpose.model.domain`)."""
-    obs = problem.observe(model)
-    X0, index = problem.model_design(model)
-    k0 = problem.nuisance.shape[1]
-    if not index:
+    (:mod:`cmmpose.model.domain`).
+
+    A parameter the data do not determine on its own (a spline knot of which
+    only a combination is seen, inf in the uncertainties) is still in the
+    matrix: the model applies its value projected onto what the data
+    determine (:func:`determined_values`), and the matrix is the
+    pseudo-inverse covariance of exactly that projection, so the correction's
+    predicted uncertainty ``J C J^T`` holds for what is applied. A parameter
+    the data do not see at all (its column is zero: it keeps no value) is left
+    out."""
+    design = _effects_design(problem, model)
+    if design is None:
         return {}, {}
-    fit = problem.wls(obs.residual, X0)
-    cov, free = design_covariance(fit.whitened_r)
+    cov, free = design_covariance(design.whitened_r)
     var = np.diag(cov)
-    out, pos, names, at, scale = {}, k0, [], [], []
-    for name, k in index:
-        spec = problem.candidates[name]
-        prior = np.asarray(spec.prior, float)
+    out, pos = {}, design.k0
+    for name, k in design.index:
+        prior = np.asarray(problem.candidates[name].prior, float)
         sd = np.sqrt(np.clip(var[pos:pos + k], 0.0, None)) * prior
         # A parameter the data alone cannot tell from zero at UNDETERMINED_PRIORS typical magnitudes is not
         # determined by them: its fitted value is the prior's (an XY-plane run's squareness yz and zx).
         out[name] = np.where(free[pos:pos + k] | (sd > UNDETERMINED_PRIORS * np.abs(prior)), np.inf, sd)
-        for j, param in enumerate(spec.params):
-            if np.isfinite(out[name][j]):
-                names.append(f"{name}.{param}")
-                at.append(pos + j)
-                scale.append(prior[j])
         pos += k
-    scale = np.asarray(scale, float)
-    matrix = cov[np.ix_(at, at)] * np.outer(scale, scale)
-    return out, ({"parameters": names, "matrix": (matrix + matrix.T) / 2} if names else {})
+    live = ~design.zero
+    if not live.any():
+        return out, {}
+    # Normalised coordinates c = value / prior * norm: A = Re / norm = U S V^T; what is applied is the part of c
+    # on the kept right singular vectors, whose covariance is V_k S_k^-2 V_k^T (the pseudo-inverse's).
+    _, s, vt = np.linalg.svd(design.normalised(), full_matrices=False)
+    keep = s > UNDETERMINED_RCOND * (s[0] if len(s) and s[0] > 0 else 1.0)
+    w = vt[keep].T / s[keep]
+    scale = design.prior[live] / design.norm[live]
+    matrix = (w @ w.T) * np.outer(scale, scale)
+    names = [f"{name}.{param}" for name, k in design.index for param in problem.candidates[name].params]
+    names = [n for n, ok in zip(names, live) if ok]
+    return out, {"parameters": names, "matrix": (matrix + matrix.T) / 2}
+
+
+@dataclass(frozen=True)
+class _EffectsDesign:
+    """The whitened design of a model's effects at the model, with the
+    nuisances projected out (:func:`_effects_design`)."""
+
+    whitened_r: np.ndarray  # nuisances then effects, as the fit's
+    k0: int  # nuisance columns
+    projected: np.ndarray  # the effects' columns less their nuisance part
+    norm: np.ndarray  # each projected column's norm
+    zero: np.ndarray  # columns the data do not see at all
+    prior: np.ndarray  # each parameter's typical magnitude (its units)
+    index: list  # (effect, parameters) in column order
+
+    def normalised(self) -> np.ndarray:
+        """The seen columns, each of unit norm."""
+        live = ~self.zero
+        return self.projected[:, live] / self.norm[live]
+
+
+def _effects_design(problem: Problem, model) -> _EffectsDesign | None:
+    """The design of ``model``'s effects (None without effects)."""
+    X0, index = problem.model_design(model)
+    if not index:
+        return None
+    k0 = problem.nuisance.shape[1]
+    R = problem.wls(problem.observe(model).residual, X0).whitened_r
+    Rn, Re = R[:, :k0], R[:, k0:]
+    if k0:
+        q, _ = np.linalg.qr(Rn)
+        Re = Re - q @ (q.T @ Re)
+    norm = np.linalg.norm(Re, axis=0)
+    top = norm.max() if len(norm) else 0.0
+    zero = norm <= UNDETERMINED_RCOND * max(top, 1e-300)
+    prior = np.concatenate([np.asarray(problem.candidates[n].prior, float) for n, _ in index])
+    return _EffectsDesign(R, k0, Re, norm, zero, prior, index)
 
 
 def determined_values(problem: Problem, model) -> dict[str, np.ndarray]:
@@ -83,25 +131,15 @@ def determined_values(problem: Problem, model) -> dict[str, np.ndarray]:
     (to first order); the values elsewhere do only by what the data never
     tested. Effects with no determined direction keep no value. Returns
     effect -> values in its units (every effect of ``model``)."""
-    X0, index = problem.model_design(model)
-    k0 = problem.nuisance.shape[1]
-    if not index:
+    design = _effects_design(problem, model)
+    if design is None:
         return {}
-    obs = problem.observe(model)
-    R = problem.wls(obs.residual, X0).whitened_r
-    Rn, Re = R[:, :k0], R[:, k0:]
-    if k0:
-        q, _ = np.linalg.qr(Rn)
-        Re = Re - q @ (q.T @ Re)
-    norm = np.linalg.norm(Re, axis=0)
-    top = norm.max() if len(norm) else 0.0
-    zero = norm <= UNDETERMINED_RCOND * max(top, 1e-300)
-    prior = np.concatenate([np.asarray(problem.candidates[n].prior, float) for n, _ in index])
+    zero, norm, prior, index = design.zero, design.norm, design.prior, design.index
     b = np.concatenate([np.asarray(model.values(n), float) for n, _ in index]) / prior
     c = np.where(zero, 0.0, b * norm)
     live = ~zero
     if live.any():
-        _, s, vt = np.linalg.svd(Re[:, live] / norm[live], full_matrices=True)
+        _, s, vt = np.linalg.svd(design.normalised(), full_matrices=True)
         s = np.r_[s, np.zeros(int(live.sum()) - len(s))]
         null = vt.T[:, s <= UNDETERMINED_RCOND * (s[0] if len(s) and s[0] > 0 else 1.0)]
         c[live] -= null @ (null.T @ c[live])

@@ -202,8 +202,10 @@ def correction_uncertainty(model, inputs: RunInputs, xyz: np.ndarray | None = No
     uncertainty of each point's correction is ``sqrt(diag(J C J^T))`` with C
     the parameters' covariance (:attr:`cmmpose.Model.covariance`, else their
     standard uncertainties as independent). A parameter the training data
-    did not determine (infinite uncertainty) is reported by how far it moves
-    the points instead.
+    did not determine on its own (infinite uncertainty) enters through the
+    covariance where it covers it (the diagnosis keeps the covariance of the
+    projected values it applies: a combination of spline knots); one the
+    covariance does not cover is reported by how far it moves the points.
 
     Returns
     -------
@@ -233,8 +235,9 @@ def correction_uncertainty(model, inputs: RunInputs, xyz: np.ndarray | None = No
 
 
 def parameter_jacobian(model, inputs: RunInputs, base: np.ndarray):
-    """The compensated points' Jacobian in each determined effect parameter
-    (one forward step, the effect's ``steps``, through the kernel).
+    """The compensated points' Jacobian in each effect parameter the model's
+    covariance covers, or that has a finite uncertainty (one forward step,
+    the effect's ``steps``, through the kernel).
 
     Returns
     -------
@@ -244,23 +247,28 @@ def parameter_jacobian(model, inputs: RunInputs, base: np.ndarray):
         mm per parameter unit.
     undetermined : list of (str, float)
         Parameters the training data did not determine (infinite
-        uncertainty) and how far they move the points at most, um.
+        uncertainty) and that no covariance covers, and how far they move
+        the points at most, um.
     """
     names, columns, undetermined = [], [], []
+    # A parameter not determined on its own whose applied value is in the covariance (a knot of which the data
+    # determine a combination: the value is projected onto it) enters through the covariance.
+    covered = set(model.covariance.get("parameters", ()))
     for spec, values in model.effects:
         u = np.ravel(model.uncertainty.get(spec.name, np.full(spec.size, np.nan)))
         for j, param in enumerate(spec.params):
-            if np.isnan(u[j]) or u[j] == 0:
+            name = f"{spec.name}.{param}"
+            if np.isnan(u[j]) or (u[j] == 0 and name not in covered):
                 continue
             v = np.array(values, dtype=float)
             step = float(spec.steps[j])
             v[j] += step
             jac = (model.with_values(spec, v).compensate(inputs) - base) / step  # mm per unit
-            if np.isinf(u[j]):
+            if np.isinf(u[j]) and name not in covered:
                 move = float(np.max(np.linalg.norm(jac, axis=1)) * abs(float(values[j]))) * 1e3
-                undetermined.append((f"{spec.name}.{param}", move))
+                undetermined.append((name, move))
                 continue
-            names.append(f"{spec.name}.{param}")
+            names.append(name)
             columns.append(jac)
     J = np.stack(columns, axis=2) if columns else np.zeros((len(base), 3, 0))
     return names, J, undetermined
