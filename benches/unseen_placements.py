@@ -62,13 +62,17 @@ MAPS = cmmpose.ErrorMapSet.thesis()
 HIDDEN = {
     "periodic": lambda D, E, F: (0.012 * np.sin(2 * np.pi * D / 170.0), 0 * D, 0 * D),
     "bump": lambda D, E, F: (0 * D, 0.020 * np.exp(-((D - 450.0) / 60.0) ** 2), 0 * D),
-    "bow": lambda D, E, F: (0 * D, 0 * D, 0.015 * ((D - 450.0) / 450.0) ** 2),
+    "bow": lambda D, E, F: (0 * D, 0 * D, 0.050 * ((D - 450.0) / 450.0) ** 2),
     "twist": lambda D, E, F: (0 * D, 0 * D, 0.030 * (D - 450.0) / 450.0 * (E - 275.0) / 275.0),
     "sag": lambda D, E, F: (0 * D, 0 * D, -0.025 * ((D - 450.0) / 450.0) ** 2 * (E / 550.0)),
     "periodic+twist": lambda D, E, F: (0.012 * np.sin(2 * np.pi * D / 170.0), 0 * D,
                                        0.030 * (D - 450.0) / 450.0 * (E - 275.0) / 275.0),
     "noise": lambda D, E, F: (0 * D, 0 * D, 0 * D),
 }
+#: The bow is 50 um at the ends of X: at 15 um its curvature over a plate's 332 mm left the unseen same-plane run
+#: no excess to remove (< 0.3 um against 3 um of noise), so the case judged nothing. Its linear part (a shear of
+#: the XZ plane, a tilt no XY placement can tell from the rigid fit) is not determined by XY training runs: the
+#: XZ-plane run keeps that part of its excess, and the model, outside its domain there, says so.
 #: Cases whose physics is a shape of one map component (the promise: half the unseen excess removed).
 MAP_SHAPES = ("periodic", "bump", "bow")
 
