@@ -16,7 +16,11 @@ roll, pitch and yaw), which the map family's per-component search never
 offers beside it: a step gauge along X near Y = 0 cannot tell a Y
 straightness of X from a roll of X. Every candidate whose cross-validated headline rms is
 within one standard uncertainty of the best one's (the one-standard-error
-rule) is a member of the *ambiguity set*: the data cannot prefer one.
+rule) is a member of the *ambiguity set*: the data cannot prefer one. A
+member may be a set of effects: two rivals fitted together that explain
+the data as the chosen one does, clearly more than either alone
+(:func:`_set_members`: a roll of X with an alignment change, say, against a
+twist).
 
 Effects that follow a sensor or need other inputs than the position and
 the pose (temperatures, velocities) are not compared here: what the data
@@ -142,10 +146,13 @@ class AmbiguitySet:
     Attributes
     ----------
     members : list of dict
-        Each: ``name``, ``physics`` (words), ``values``, ``uncertainty`` and
-        ``units`` (parameter -> in the effect's units), ``cv_rms_um`` and
-        ``cv_rms_u_um`` (its cross-validated headline rms and standard
-        uncertainty, um), ``determined`` (every parameter has a finite uncertainty).
+        Each: ``name`` (an effect's, or ``'A + B'`` for a set of effects
+        fitted together), ``effects`` (the effects' names), ``physics``
+        (words), ``values``, ``uncertainty`` and ``units`` (parameter -> in
+        the effect's units; ``'effect.param'`` for a set),
+        ``cv_rms_um`` and ``cv_rms_u_um`` (its cross-validated headline rms
+        and standard uncertainty, um), ``determined`` (every parameter has a
+        finite uncertainty).
     split : str
         How the cross-validation held data out.
     interpolation_only : bool
@@ -163,8 +170,9 @@ class AmbiguitySet:
         The known physical equivalences among the members, in words.
     travel : list of (lo, hi)
         The travel the corrections were compared over, mm.
-    specs : dict of str -> EffectSpec
-        Each member's effect (not saved: what ``cmmpose plan`` separates).
+    specs : dict of str -> list of (EffectSpec, values)
+        Each member's effects with their fitted values (not saved: what
+        ``cmmpose plan`` separates).
     """
 
     members: list
@@ -180,13 +188,24 @@ class AmbiguitySet:
 
     @property
     def rivals(self) -> list:
-        """(spec, values) of each member, for :func:`cmmpose.diagnosis.plan.plan`'s ``rivals``."""
-        return [(self.specs[m["name"]], np.array(list(m["values"].values()), float)) for m in self.members
-                if m["name"] in self.specs]
+        """Each member for :func:`cmmpose.diagnosis.plan.plan`'s ``rivals``: (spec, values) of one effect, or a
+        list of them for a set of effects."""
+        out = []
+        for m in self.members:
+            parts = self.specs.get(m["name"])
+            if parts:
+                out.append(parts[0] if len(parts) == 1 else list(parts))
+        return out
 
     @property
     def names(self) -> list[str]:
+        """Each member's name (``'A + B'`` for a set of effects)."""
         return [m["name"] for m in self.members]
+
+    @property
+    def effects(self) -> list[str]:
+        """Every effect in a member, each once."""
+        return list(dict.fromkeys(e for m in self.members for e in m.get("effects", [m["name"]])))
 
     @property
     def resolved(self) -> bool:
@@ -212,7 +231,8 @@ class AmbiguitySet:
             head = (f"the data cannot choose between {names} (cross-validated rms within one standard uncertainty "
                     f"of the best), and their corrections differ by up to {size} over the travel "
                     f"({' and '.join(w.get('pair', ()))} at {at} mm): none was added; choose one (diagnose --add "
-                    f"NAME) or measure what tells them apart (cmmpose plan --separate)")
+                    f"NAME{'; a set: --add each of its effects' if any(' + ' in n for n in self.names) else ''}) "
+                    f"or measure what tells them apart (cmmpose plan --separate)")
         if self.interpolation_only:
             head += "; the cross-validation held out data within one placement: it judges interpolation only"
         return head
@@ -266,16 +286,17 @@ def travel_grid(problem, model, n: int = GRID) -> tuple[RunInputs, np.ndarray]:
     return vin, poses[pose_index, :3]
 
 
-def _member_covariance(problem, r0, X0, J, spec) -> np.ndarray:
-    """The data-only covariance of a member's parameters (its units) fitted beside the step's model and the
-    nuisances: the whitened design's (:func:`cmmpose.diagnosis.covariance.design_covariance`), with a parameter
-    the design leaves free, or pins no better than UNDETERMINED_PRIORS typical magnitudes, at infinity."""
+def _member_covariance(problem, r0, X0, J, specs) -> np.ndarray:
+    """The data-only covariance of a member's parameters (its effects' units, in order) fitted beside the step's
+    model and the nuisances: the whitened design's (:func:`cmmpose.diagnosis.covariance.design_covariance`), with
+    a parameter the design leaves free, or pins no better than UNDETERMINED_PRIORS typical magnitudes, at
+    infinity."""
     from .covariance import UNDETERMINED_PRIORS, design_covariance
 
     k = J.shape[1]
     R = problem.wls(r0, np.column_stack([X0, J])).whitened_r
     cov, free = design_covariance(R)
-    prior = np.asarray(spec.prior, float)
+    prior = np.concatenate([np.asarray(s.prior, float) for s in specs])
     C = cov[-k:, -k:] * np.outer(prior, prior)
     u = np.sqrt(np.clip(np.diag(C), 0.0, None))
     bad = free[-k:] | ~np.isfinite(u) | (u > UNDETERMINED_PRIORS * prior)
@@ -284,16 +305,25 @@ def _member_covariance(problem, r0, X0, J, spec) -> np.ndarray:
     return C
 
 
-def _correction(model, spec, values, C, grid, base):
+def _with(model, parts):
+    """``model`` with each (spec, values) of ``parts`` set."""
+    for spec, values in parts:
+        model = model.with_values(spec, values)
+    return model
+
+
+def _correction(model, parts, C, grid, base):
     """A member's correction on the grid (m, 3), mm, and its standard uncertainty (m,), mm: the 3-D
-    magnitude of sqrt(diag(J C J^T)) per point, through one step of each parameter (inf where an
-    undetermined parameter acts)."""
-    moved = model.with_values(spec, values).compensate(grid)
+    magnitude of sqrt(diag(J C J^T)) per point, through one step of each parameter of each of its effects
+    ``parts`` ((spec, values) each; inf where an undetermined parameter acts)."""
+    moved = _with(model, parts).compensate(grid)
     jac = []
-    for j in range(spec.size):
-        v = np.array(values, float)
-        v[j] += float(spec.steps[j])
-        jac.append((model.with_values(spec, v).compensate(grid) - moved) / float(spec.steps[j]))
+    for i, (spec, values) in enumerate(parts):
+        for j in range(spec.size):
+            v = np.array(values, float)
+            v[j] += float(spec.steps[j])
+            stepped = [(s, v if k == i else x) for k, (s, x) in enumerate(parts)]
+            jac.append((_with(model, stepped).compensate(grid) - moved) / float(spec.steps[j]))
     Jg = np.stack(jac, axis=2)  # (m, 3, k) mm per unit
     bad = ~np.isfinite(np.diag(C))
     Cf = np.where(np.isfinite(C), C, 0.0)
@@ -423,30 +453,35 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
     design = CVDesign(problem, r0, X0, ridge0, target0, sigma, folds)
     scored = []
     for c in [chosen, *rivals]:
-        s = design.score_with(columns_of(problem, c.name))
+        J = columns_of(problem, c.name)
+        s = design.score_with(J)
         if math.isfinite(s.rms_um):
-            scored.append((c, s.rms_um, s.u_rms_um))
-    if len(scored) < 2 or scored[0][0] is not chosen:
+            scored.append(_Member(c.name, [(c.spec, np.asarray(c.values, float))], c.lr, J, s.rms_um, s.u_rms_um))
+    if len(scored) < 2 or scored[0].name != chosen.name:
         return None
-    best = min(scored, key=lambda t: t[1])
-    limit = best[1] + (best[2] if math.isfinite(best[2]) else 0.0)  # one standard error
+    best = min(scored, key=lambda t: t.cv_rms_um)
+    limit = best.cv_rms_um + (best.cv_rms_u_um if math.isfinite(best.cv_rms_u_um) else 0.0)  # one standard error
     # ... and not rejected in sample: -2 log L within the margin by which the diagnosis says the data cannot
     # choose (a few held-out runs judge coarsely; a likelihood ratio of e^20 is not an equal explanation).
-    top = max(t[0].lr for t in scored)
-    members = [t for t in scored if t[1] <= limit and t[0].lr >= top - INDISTINGUISHABLE_LR]
-    if len(members) < 2 or all(t[0] is not chosen for t in members):
+    top = max(t.lr for t in scored)
+    members = [t for t in scored if t.cv_rms_um <= limit and t.lr >= top - INDISTINGUISHABLE_LR]
+    if all(t.name != chosen.name for t in members):
+        return None
+    members += _set_members(problem, design, (r0, X0, ridge0, target0),
+                            [t for t in scored if t.name != chosen.name and t not in members], limit, top)
+    if len(members) < 2:
         return None
     model = step.model
     grid, angles = travel_grid(problem, model)
     base = model.compensate(grid)
     corr, unc, covs = [], [], []
-    for c, _, _ in members:
-        C = _member_covariance(problem, r0, X0, columns_of(problem, c.name), c.spec)
+    for t in members:
+        C = _member_covariance(problem, r0, X0, t.J, [spec for spec, _ in t.parts])
         covs.append(C)
         try:
-            d, u = _correction(model, c.spec, c.values, C, grid, base)
+            d, u = _correction(model, t.parts, C, grid, base)
         except (Error, ValueError) as exc:  # it cannot be applied on the grid: no prediction, no claim
-            log.debug("ambiguity: %s not compared over the travel: %s", c.name, exc)
+            log.debug("ambiguity: %s not compared over the travel: %s", t.name, exc)
             d, u = np.zeros_like(base), np.full(len(base), np.inf)
         corr.append(d)
         unc.append(u)
@@ -464,15 +499,80 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
             if size[k] * 1e3 >= largest:
                 largest = float(size[k] * 1e3)
                 where = {"xyz_mm": grid.scales[k].tolist(), "pose": angles[k].tolist(),
-                         "pair": [members[a][0].name, members[b][0].name], "u_um": float(u[k] * 1e3)}
-    out = []
-    for (c, rms, u), C in zip(members, covs):
-        unc_c = np.sqrt(np.clip(np.diag(C), 0.0, None))
-        out.append({"name": c.name, "physics": getattr(c.spec, "physics", "") or "",
-                    "values": dict(zip(c.spec.params, map(float, c.values))),
-                    "uncertainty": dict(zip(c.spec.params, map(float, unc_c))),
-                    "units": dict(zip(c.spec.params, c.spec.units)), "cv_rms_um": float(rms),
-                    "cv_rms_u_um": float(u), "determined": bool(np.all(np.isfinite(unc_c)))})
+                         "pair": [members[a].name, members[b].name], "u_um": float(u[k] * 1e3)}
+    out = [t.to_member(C) for t, C in zip(members, covs)]
     return AmbiguitySet(out, split, interpolation_only, largest, where, agree,
-                        equivalences=equivalences([m["name"] for m in out]), travel=_travel(model),
-                        specs={c.name: c.spec for c, _, _ in members})
+                        equivalences=equivalences([e for m in out for e in m["effects"]]), travel=_travel(model),
+                        specs={t.name: t.parts for t in members})
+
+
+#: Rivals whose pairs are judged as one explanation (the strongest by likelihood), and pair members kept at most.
+SET_RIVALS, MAX_SETS = 4, 3
+
+
+@dataclass(eq=False)
+class _Member:
+    """One explanation judged in an ambiguity set: one effect, or a set of effects fitted together."""
+
+    name: str
+    parts: list  # (spec, fitted values in its units) of each effect
+    lr: float  # -2 log L gain over the step's model
+    J: np.ndarray  # the centre-level columns of its effects, side by side
+    cv_rms_um: float
+    cv_rms_u_um: float
+
+    def to_member(self, C: np.ndarray) -> dict:
+        """The member as :class:`AmbiguitySet` lists it (``C``: its parameters' covariance)."""
+        single = len(self.parts) == 1
+        keys = [p if single else f"{spec.name}.{p}" for spec, _ in self.parts for p in spec.params]
+        values = [float(v) for _, vals in self.parts for v in vals]
+        units = [u for spec, _ in self.parts for u in spec.units]
+        unc = np.sqrt(np.clip(np.diag(C), 0.0, None))
+        words = [getattr(spec, "physics", "") or "" for spec, _ in self.parts]
+        return {"name": self.name, "effects": [spec.name for spec, _ in self.parts],
+                "physics": " and ".join(w for w in words if w) if not single else words[0],
+                "values": dict(zip(keys, values)), "uncertainty": dict(zip(keys, map(float, unc))),
+                "units": dict(zip(keys, units)), "cv_rms_um": float(self.cv_rms_um),
+                "cv_rms_u_um": float(self.cv_rms_u_um), "determined": bool(np.all(np.isfinite(unc)))}
+
+
+def _set_members(problem, design, state, singles, limit: float, top: float) -> list:
+    """Pairs of rival effects that, fitted together, explain the data as the chosen one does: each pair
+    within one standard error of the best cross-validated rms (``limit``), its -2 log L gain within
+    INDISTINGUISHABLE_LR of the best (``top``), and clearly more than either of its effects alone
+    (INDISTINGUISHABLE_LR beyond: a set, not one effect and noise). Only rivals that are no member alone
+    pair up (a member alone already says the data cannot choose), the SET_RIVALS strongest; at most
+    MAX_SETS pairs, the best cross-validated first. Named effects only (the library's and the user's): the
+    map-shape and cross-axis families' shapes were searched on all the data (periods, knots, spans), which
+    flatters their held-out figures, and two searched shapes side by side fit the noise as a set."""
+    from .identify import PRIOR_WEIGHT
+
+    r0, X0, ridge0, target0 = state
+    named = [t for t in singles if all(getattr(spec, "family", None) is None for spec, _ in t.parts)]
+    pool = sorted(named, key=lambda t: -t.lr)[:SET_RIVALS]
+    if len(pool) < 2:
+        return []
+    base = problem.wls(r0, X0, ridge=ridge0, target=target0)
+    found = []
+    for i in range(len(pool)):
+        for j in range(i + 1, len(pool)):
+            a, b = pool[i], pool[j]
+            if {spec.name for spec, _ in a.parts} & {spec.name for spec, _ in b.parts}:
+                continue
+            J = np.column_stack([a.J, b.J])
+            k = J.shape[1]
+            fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(k, PRIOR_WEIGHT)],
+                              target=np.r_[target0, np.zeros(k)])
+            lr = max(base.neg2loglik - fit.neg2loglik, 0.0)
+            if lr < top - INDISTINGUISHABLE_LR or lr < max(a.lr, b.lr) + INDISTINGUISHABLE_LR:
+                continue
+            score = design.score_with(J)
+            if not (math.isfinite(score.rms_um) and score.rms_um <= limit):
+                continue
+            beta = fit.beta[-k:]
+            parts, at = [], 0
+            for spec, _ in (*a.parts, *b.parts):
+                parts.append((spec, beta[at:at + spec.size] * np.asarray(spec.prior, float)))
+                at += spec.size
+            found.append(_Member(f"{a.name} + {b.name}", parts, lr, J, score.rms_um, score.u_rms_um))
+    return sorted(found, key=lambda t: t.cv_rms_um)[:MAX_SETS]

@@ -144,7 +144,7 @@ def verdict(d) -> list[tuple[str, str]]:
     sets = getattr(d, "ambiguity", [])
     ambiguous = [_ambiguity_words(a) for a in sets[:MOST_LISTED]]
     for group in d.ambiguous[:MOST_LISTED]:
-        if any(set(group) <= set(a.names) for a in sets):
+        if any(set(group) <= set(a.effects) for a in sets):
             continue  # said with the set above
         ambiguous.append(f"the run cannot tell apart {_names(group)}")
     said = [set(group) for group in d.ambiguous[:MOST_LISTED]]

@@ -437,7 +437,7 @@ def select_effects(problem, model: Model, add_names, auto: bool, max_effects: in
                 else:
                     steps[-1].further_ambiguity.append(amb)
                 if not amb.agree:
-                    open_names |= set(amb.names) | {best.name}
+                    open_names |= set(amb.effects) | {best.name}
                     held.append((best.spec, best.values))
                     continue
                 amb.chosen = best.name

@@ -526,7 +526,8 @@ def plan(
     rivals : AmbiguitySet or sequence of (EffectSpec or str, values), optional
         Rival explanations of the runs (a diagnosis's open ambiguity set,
         :attr:`cmmpose.diagnosis.result.Diagnosis.open_ambiguity`, or each
-        effect with its fitted values in its units). Then the placements
+        effect with its fitted values in its units; a list of such pairs is
+        one rival made of several effects fitted together). Then the placements
         are chosen to tell them apart, not to sharpen parameters: the
         T-optimal criterion (Atkinson and Fedorov 1975). For a pair (A, B),
         A taken true at its values theta_A, B refitted (with its weak
@@ -558,7 +559,7 @@ def plan(
     notes = []
     theta = None
     if rivals is not None:
-        specs, theta = _rival_specs(rivals)
+        specs, theta = _rival_specs(rivals)  # theta: each rival's (name, its specs, its values)
     else:
         specs = _planned_specs(effects, model, notes)
     params = [(f"{s.name}.{p}", u, float(pr)) for s in specs for p, u, pr in zip(s.params, s.units, s.prior)]
@@ -602,27 +603,41 @@ def plan(
 
 
 def _rival_specs(rivals):
-    """(specs, values per spec) of ``rivals``: an AmbiguitySet (its ``rivals``) or (spec or name, values) pairs."""
-    pairs = list(getattr(rivals, "rivals", rivals))
-    specs, theta = [], []
-    for item in pairs:
-        try:
-            spec, values = item
-        except (TypeError, ValueError):
-            raise InputError(f"rivals: each rival is (effect, values), got {item!r}") from None
-        spec = spec if isinstance(spec, EffectSpec) else resolve(str(spec))
-        if spec.needs or spec.sensor is not None or getattr(spec.effect, "on_scanner", False):
-            raise InputError(f"rival {spec.name!r}: a placement cannot show it (what shows it: {spec.reveal})")
-        values = np.asarray(values, float).reshape(-1)
-        if len(values) != spec.size or not np.all(np.isfinite(values)):
-            raise InputError(f"rival {spec.name!r}: give its {spec.size} fitted values (finite), got {values!r}")
-        if spec.name in {s.name for s in specs}:
-            raise InputError(f"rivals: {spec.name!r} is given twice")
-        specs.append(spec)
-        theta.append(values)
-    if len(specs) < 2:
+    """The effects of ``rivals`` (an AmbiguitySet, its ``rivals``, or rivals each (spec or name, values) or a
+    list of such for a set of effects fitted together): (specs, each effect once; rivals, each as (name, the
+    indices of its specs, its values side by side))."""
+    items = list(getattr(rivals, "rivals", rivals))
+    specs, out, seen = [], [], set()
+    for item in items:
+        parts = item if isinstance(item, list) else [item]
+        at, values_all, names = [], [], []
+        for part in parts:
+            try:
+                spec, values = part
+            except (TypeError, ValueError):
+                raise InputError(f"rivals: each rival is (effect, values) or a list of them, got {part!r}") from None
+            spec = spec if isinstance(spec, EffectSpec) else resolve(str(spec))
+            if spec.needs or spec.sensor is not None or getattr(spec.effect, "on_scanner", False):
+                raise InputError(f"rival {spec.name!r}: a placement cannot show it (what shows it: {spec.reveal})")
+            values = np.asarray(values, float).reshape(-1)
+            if len(values) != spec.size or not np.all(np.isfinite(values)):
+                raise InputError(f"rival {spec.name!r}: give its {spec.size} fitted values (finite), got {values!r}")
+            if spec.name in names:
+                raise InputError(f"rivals: {spec.name!r} is given twice in one set")
+            known = [i for i, s in enumerate(specs) if s.name == spec.name]
+            if not known:
+                specs.append(spec)
+            at.append(known[0] if known else len(specs) - 1)
+            values_all.append(values)
+            names.append(spec.name)
+        label = " + ".join(names)
+        if label in seen:
+            raise InputError(f"rivals: {label!r} is given twice")
+        seen.add(label)
+        out.append((label, at, np.concatenate(values_all) if values_all else np.zeros(0)))
+    if len(out) < 2:
         raise InputError("rivals: give two or more rival explanations to tell apart")
-    return specs, theta
+    return specs, out
 
 
 def _pair_separation(info, prior_info, blocks, theta, a, b):
@@ -662,12 +677,16 @@ def _separations(info, prior_info, blocks, theta, Jp=None) -> list[dict]:
 
 def _t_optimal(artefact_name, params, specs, theta, sigma, source, info, prior_info, before, status, options,
                unreachable, notes, budget) -> Plan:
-    """The greedy T-optimal plan (:func:`plan`'s ``rivals``)."""
-    blocks, at = [], 0
+    """The greedy T-optimal plan (:func:`plan`'s ``rivals``; ``theta``: each rival's (name, its specs' indices,
+    its values), :func:`_rival_specs`). A rival's block is its effects' parameters: a set of effects is refitted
+    together, and an effect two rivals share is one parameter block."""
+    ranges, at = [], 0
     for spec in specs:
-        blocks.append(np.arange(at, at + spec.size))
+        ranges.append(np.arange(at, at + spec.size))
         at += spec.size
-    names = [s.name for s in specs]
+    names = [name for name, _, _ in theta]
+    blocks = [np.concatenate([ranges[i] for i in idx]) for _, idx, _ in theta]
+    theta = [values for _, _, values in theta]
 
     def named(seps):
         return [{"pair": [names[x["pair"][0]], names[x["pair"][1]]], "separation": round(x["separation"], 4),
