@@ -432,16 +432,17 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
     """
     from .cv import CVDesign, current_state
 
-    rivals = [c for c in step.ranking if c.significant and not c.alternative_to and c.name != chosen.name
-              and c.name in problem.columns][:MAX_MEMBERS - 1]
     if not _over_travel(chosen.spec):
         return None  # a thermal effect: its aliases are kept as alternatives (cmmpose.diagnosis.aliases)
-    rivals = [c for c in rivals if _over_travel(c.spec)]
+    rivals = [c for c in step.ranking if c.significant and not c.alternative_to and c.name != chosen.name
+              and c.name in problem.columns and _over_travel(c.spec)]
     if getattr(chosen.spec, "family", None) != "map":
         # A named effect the selection chose is judged against the other named effects (library and user):
         # the map-shape family ranks after them where they explain the structure, and its searched shapes
-        # (periods, knot spacings) were chosen on all the data, which flatters their held-out figures.
+        # (periods, knot spacings) were chosen on all the data, which flatters their held-out figures. (Taken
+        # out before the strongest are kept: which rivals are judged must not depend on where the maps rank.)
         rivals = [c for c in rivals if getattr(c.spec, "family", None) != "map"]
+    rivals = rivals[:MAX_MEMBERS - 1]
     # The chosen map shape on the carriage's other components (the same knots or period): the search never
     # offers them beside it, and one plane or height may not tell them apart.
     named = {c.name for c in rivals}

@@ -524,11 +524,18 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
     # against the parameters spent on it.
     # A cross-axis term ranks with the named effects only where it explains clearly more than the best of
     # them (-2 log L beyond INDISTINGUISHABLE_LR): the named physics is preferred where the two say the same.
+    # Likewise it ranks before the map shapes only where it explains clearly more than the best of them: a shape
+    # of one map component is the simpler physics, and a cross-axis term that takes part of a map error's signal
+    # (a sag fitted to a periodic Y error the plates sample coarsely) would be added before the map rivals that
+    # explain it better are ever judged beside it.
     named_lr = max((c.lr for c in out if c.significant and getattr(c.spec, "family", None) is None), default=0.0)
+    map_lr = max((c.lr for c in out if c.significant and getattr(c.spec, "family", None) == "map"), default=0.0)
 
     def tier(c) -> int:
         family = getattr(c.spec, "family", None)
         if family == "cross":
+            if c.lr <= map_lr + INDISTINGUISHABLE_LR:
+                return 3
             return 0 if c.lr > named_lr + INDISTINGUISHABLE_LR else 1
         return 2 if family == "map" else 0
 

@@ -532,7 +532,7 @@ def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapC
     JointProblem at its base model): for each of the 18 components of an
     axis the run moves along, a ``poly``, a ``hat`` with its knot spacing
     chosen by cross-validation, and a ``sine`` with its period found by the
-    search over [PERIOD_MIN, travel]; and a constant squareness of each
+    search over [the scans' coverage gap (at least PERIOD_MIN), travel]; and a constant squareness of each
     plane the run spans when the library's named ``squareness`` is not a
     candidate."""
 
@@ -571,12 +571,18 @@ def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapC
             if best is None or sc.whitened < best[0]:
                 best = (sc.whitened, h)
         out[best[1].name] = replace(best[1], trials=len(spacings))
-        # Period search: log-spaced from PERIOD_MIN to the travel.
-        grid = np.exp(np.linspace(math.log(PERIOD_MIN), math.log(span), periods))
+        # Period search: log-spaced from the shortest period the scans can carry to the travel. A period shorter
+        # than the widest gap between neighbouring scans completes a cycle where nothing is observed: a sine
+        # fitted there is an alias of one the scans sample (a 110 mm Y error on a plate of 83 mm pitch came out
+        # at 19.7 mm), so it is never offered.
+        shortest = min(max(PERIOD_MIN, coverage_gap(problem, axis)), span / 3)
+        grid = np.exp(np.linspace(math.log(shortest), math.log(span), periods))
         gains = _sine_gains(problem, comp, kin, lo, hi, grid, W0q, rw, s, rows)
         i = int(np.argmax(gains))
         P, u = _refine_period(problem, comp, kin, lo, hi, grid, i, W0q, rw, s, rows)
-        # Independent periods in the range: frequencies resolvable over the travel.
+        # Independent periods: frequencies resolvable over the travel down to PERIOD_MIN (not the shortest period
+        # searched: the search's lower end follows the data, and the penalty the null-run rate was measured with
+        # stays; conservative where the scans lie far apart).
         trials = max(int(math.ceil(span / PERIOD_MIN - 1)), 1)
         sine = make(comp, "sine", lo, hi, P, scale_u_mm=u, trials=trials, kinematics=kin)
         out[sine.name] = sine
