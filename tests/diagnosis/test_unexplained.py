@@ -133,3 +133,20 @@ def test_two_hidden_effects_both_found_and_no_invented_structure():
     lat = next(x for x in d.decisions() if x["name"] == "scanner-scale")
     assert abs(lat["values"]["lateral"] - 6e-4) < 4 * lat["uncertainty"]["lateral"]
     assert abs(lat["values"]["depth"]) < 4 * lat["uncertainty"]["depth"]
+
+
+def test_a_joint_diagnosis_says_what_each_run_leaves_unexplained():
+    """Issue 33, section 6 and "every other case reported as ambiguous or unexplained": the joint diagnosis looks
+    in each run's residuals as the single-run one does (each family at ALPHA over the runs together), and names
+    the run of each finding; clean runs give none."""
+    from cmmpose.diagnosis.joint import diagnose_jointly
+
+    runs = [rippled(clean_run("b89", s), "D", 0.0015, 12.0) for s in (3, 5)]
+    d = diagnose_jointly(runs, MAPS, max_effects=2, run_names=["left", "right"])
+    periodic = [f for f in d.unexplained if f.kind in ("periodic", "local")]
+    assert {f.description.split(":")[0] for f in periodic} == {"left", "right"}, [f.description for f in d.unexplained]
+    assert all(f.input == "D" and f.period_mm == pytest.approx(12.0, rel=5e-3) for f in periodic)
+    assert d.claims["unexplained"]
+    clean = diagnose_jointly([clean_run("b89", 3), clean_run("b89", 5)], MAPS, max_effects=2)
+    assert clean.unexplained == [], [f.description for f in clean.unexplained]
+    assert diagnose_jointly(runs, MAPS, max_effects=2, patterns=False).unexplained == []

@@ -21,6 +21,7 @@ from ..model.domain import Domain
 from ..model.model import Model, as_model, check_kinematics, run_kinematics
 from ..evaluation.observables import figures
 from .result import INSTEAD, Diagnosis, Step
+from .statistics import ALPHA
 from .unexplained import periodic_errors, unexplained_findings
 from .wording import without_held_needs
 
@@ -240,22 +241,28 @@ def _polish(problem: Problem, run: Run, model: Model, steps: list[Step]) -> tupl
 def _attach_patterns(diag: Diagnosis, problem: Problem, run: Run, steps: list[Step]) -> None:
     """The residual patterns of the base and the final model on ``diag``, and what the final one leaves
     unexplained."""
-    try:
-        from .patterns import find_patterns
-    except ImportError:  # pragma: no cover
-        return
+    diag.base_patterns, _ = residual_findings(problem, run, steps[0].model, findings=False)
+    diag.patterns, diag.unexplained = residual_findings(problem, run, steps[-1].model)
+
+
+def residual_findings(problem: Problem, run: Run, model, *, alpha: float = ALPHA, findings: bool = True):
+    """The residual patterns of ``model`` on ``run`` (``problem`` its problem: the points it holds), and
+    with ``findings`` what they leave unexplained (the periodic errors and the significant patterns,
+    :func:`cmmpose.diagnosis.unexplained.unexplained_findings`), each family tested at ``alpha``
+    family-wise. Returns (Patterns, list of Finding)."""
+    from .patterns import find_patterns
+
     nominal = run.artefact.get("calibrated_radius_mm")
-    for which, m in (("base_patterns", steps[0].model), ("patterns", steps[-1].model)):
-        xyz = m.compensate(problem.inputs)
-        sid = problem.inputs.scan_id
-        keep = np.isin(sid, problem.layout.labels)
-        fits = fit_spheres(xyz[keep], sid[keep])
-        sub = run if keep.all() else _subset(run, keep)
-        setattr(diag, which, find_patterns(sub, xyz[keep], fits, temperature=problem.inputs.temperature[keep],
-                                           nominal_radius=nominal))
-        if which == "patterns":  # the final model's: what it leaves unexplained
-            diag.unexplained = unexplained_findings(diag.patterns, periodic_errors(sub, xyz[keep], fits),
-                                                    m.names)
+    xyz = model.compensate(problem.inputs)
+    sid = problem.inputs.scan_id
+    keep = np.isin(sid, problem.layout.labels)
+    fits = fit_spheres(xyz[keep], sid[keep])
+    sub = run if keep.all() else _subset(run, keep)
+    patterns = find_patterns(sub, xyz[keep], fits, temperature=problem.inputs.temperature[keep],
+                             nominal_radius=nominal, alpha=alpha)
+    if not findings:
+        return patterns, []
+    return patterns, unexplained_findings(patterns, periodic_errors(sub, xyz[keep], fits, alpha=alpha), model.names)
 
 
 def _two_axis_first(problem, step, candidate, columns=None) -> bool:

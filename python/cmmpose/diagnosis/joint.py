@@ -14,6 +14,7 @@ can) or kept per run. Selection, decisions and uncertainties are those of
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import time
 from dataclasses import dataclass, field
@@ -26,11 +27,12 @@ from ..errors import InputError, InputTypeError
 from ..run import Run
 from ._blas import one_blas_thread
 from .aliases import find_alternatives
-from .diagnose import (add_map_candidates, attach_floor, default_floor, run_holds, select_effects, state_floor,
-                       unobservable_candidates, user_specs)
+from .diagnose import (add_map_candidates, attach_floor, default_floor, residual_findings, run_holds,
+                       select_effects, state_floor, unobservable_candidates, user_specs)
 from .covariance import determined_values, model_covariance
 from .identify import Problem, check_effect_names, rank_candidates
 from .result import Diagnosis, Step
+from .statistics import ALPHA
 from ..model.point_inputs import single_map_warning
 from ..model.domain import Domain
 from ..model.model import Model, as_model, check_kinematics, run_kinematics
@@ -152,7 +154,8 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
                      max_effects: int = 4, user_effects=(), same_artefact: bool = True,
                      run_names=None, map_corrections: bool = True, reproducibility_um=None,
                      reproducibility_source: str = "stated",
-                     default_reproducibility_um: float | None = None, machine=None) -> JointDiagnosis:
+                     default_reproducibility_um: float | None = None, machine=None,
+                     patterns: bool = True) -> JointDiagnosis:
     """One model for several runs: the effects' parameters shared, each run
     with its own noise levels (and its own nuisances unless ``same_artefact``).
 
@@ -192,6 +195,11 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     machine : cmmpose.machine.Machine, optional
         Where the "next" advice for an open ambiguity set looks for the
         placement that tells its members apart (default the thesis machine).
+    patterns : bool
+        Also look in each run's residuals under the final model for what it
+        leaves unexplained (periodic errors, significant residual patterns;
+        each family at ALPHA over the runs together, Bonferroni), named by
+        run in ``unexplained``.
 
     Returns
     -------
@@ -247,6 +255,8 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
                           run_figures=per_run, run_names=names, run_has=run_holds(problem))
     diag.alternatives = find_alternatives(problem, steps, model)
     attach_floor(diag, problem, steps[-1], reproducibility_um, reproducibility_source)
+    if patterns:
+        diag.unexplained = _unexplained(problem, runs, names, model)
     if map_corrections:  # what the runs together determine of each map component (mapfamily)
         from .mapfamily import component_report
 
@@ -257,6 +267,18 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
         separating_measurement(diag, runs, machine)
     diag.elapsed = time.perf_counter() - t0
     return diag
+
+
+def _unexplained(problem, runs, names, model) -> list:
+    """What the final model leaves unexplained in each run's residuals (periodic errors, significant
+    patterns: :func:`cmmpose.diagnosis.diagnose.residual_findings`), each finding named by its run. Each
+    family is tested at ALPHA over the runs together (ALPHA / runs in each), so a joint diagnosis claims no
+    more often than one run's."""
+    out = []
+    for part, run, name in zip(problem.parts, runs, names):
+        _, found = residual_findings(part, run, model, alpha=ALPHA / len(runs))
+        out += [dataclasses.replace(f, description=f"{name}: {f.description}") for f in found]
+    return out
 
 
 def _fingerprint(run: Run) -> tuple:
