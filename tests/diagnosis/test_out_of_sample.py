@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import warnings
 
 import cmmpose
 from cmmpose.diagnosis.floor import FIT_SCATTER, NO_FLOOR
@@ -33,6 +34,8 @@ from cmmpose.diagnosis.joint import diagnose_jointly
 from cmmpose.diagnosis.patterns import _LENGTH_HINTS, _POINT_HINTS
 from cmmpose.diagnosis.unexplained import Finding, user_effect_skeleton
 from cmmpose.errormap import data_path
+from cmmpose.errors import ModelDomainWarning
+from cmmpose.evaluation.model_check import check_model
 from cmmpose.sim.artefact_runs import simulate_artefact_run
 from cmmpose.sim.runs import simulate_ballbar_run
 from cmmpose.sim.scanner import Scanner
@@ -281,3 +284,27 @@ def test_the_named_jacobian_for_other_tools():
     i = jac["names"].index("squareness.xy")
     assert np.array_equal(jac["J"][:, i], problem.columns["squareness"][:, 0])
     assert len(jac["singular_values"]) and np.all(np.diff(jac["singular_values"]) <= 1e-12)
+
+
+def test_a_periodic_error_found_on_a_b89_run_runs_on_beyond_its_travel():
+    """A 12 um, 170 mm periodic X error found on a B89 run (X 169-729 mm) and applied, as saved, to a crossed
+    layout reaching X 56-854 mm: the sine runs on past the travel it was fitted on (a scale's periodic error
+    repeats along it), so the bars that reach beyond are corrected too. Held at its end values instead, the
+    model raised that run's error from 2.70 to 6.30 um (truth 1.53 um); running on, it removes at least half
+    of the excess, and the run is still said to leave the model's domain."""
+    def run(layout, seed):
+        r, _ = simulate_ballbar_run(cmmpose.ErrorMapSet.thesis(), 21.0, [], layout=layout, jitter=0.0015, seed=seed)
+        return _shifted(r, "periodic")
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = cmmpose.diagnose(run("b89", 10), max_effects=3)
+    (sine,) = [s for s, _ in d.model.effects if s.name.startswith("map:dx(X):sine")]
+    assert 165 < sine.scale_mm < 175 and sine.hi < 760
+    crossed = run("crossed", 16)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check = check_model(crossed, d.model)
+    assert any(issubclass(w.category, ModelDomainWarning) and "X travel" in str(w.message) for w in caught)
+    best = check_model(crossed, truth_model("periodic")).model_um
+    assert check.plain_um - check.model_um >= 0.5 * (check.plain_um - best), (check.plain_um, check.model_um, best)

@@ -104,7 +104,8 @@ class MapCorrection(EffectSpec):
     scale_mm : float
         Knot spacing (hat) or period (sine), mm; 0 for poly and const.
     lo, hi : float
-        Travel the shape spans, mm (the readings are clipped to it).
+        Travel the shape spans, mm (the readings are clipped to it, except a
+        sine's: a periodic error runs on along its scale).
     scale_u_mm : float
         Standard uncertainty of the period found by the search, mm (sine).
     trials : int
@@ -132,7 +133,7 @@ class MapCorrection(EffectSpec):
 
     def basis(self, q: np.ndarray) -> np.ndarray:
         """(N, k) basis functions at readings ``q`` (mm), unitless (x the parameters' unit)."""
-        q = np.clip(np.asarray(q, float), self.lo, self.hi)
+        q = self._reading(q)
         if self.shape == "const":
             return np.ones((len(q), 1))
         if self.shape == "poly":
@@ -145,6 +146,13 @@ class MapCorrection(EffectSpec):
         knots = self.knots()
         return np.clip(1 - np.abs(q[:, None] - knots[None, :]) / self.scale_mm, 0.0, None)
 
+    def _reading(self, q) -> np.ndarray:
+        """Readings ``q`` (mm) as the shape takes them: a sine runs on beyond its travel (a periodic error of a
+        scale or a screw repeats along it: a run that reaches past the training travel gets the same period
+        and phase, not the end value held), every other shape holds its end values there."""
+        q = np.asarray(q, float)
+        return q if self.shape == "sine" else np.clip(q, self.lo, self.hi)
+
     def knots(self) -> np.ndarray:
         n = max(int(math.ceil((self.hi - self.lo) / self.scale_mm - 1e-9)), 1)
         return self.lo + self.scale_mm * np.arange(n + 1)
@@ -155,7 +163,7 @@ class MapCorrection(EffectSpec):
         O(N) for every shape (a hat sum is the linear interpolation of its
         knot values), so a model applies it to every point of a run cheaply."""
         v = np.asarray(values, float)
-        q = np.clip(np.asarray(q, float), self.lo, self.hi)
+        q = self._reading(q)
         if self.shape == "hat":
             return np.interp(q, self.knots(), v)
         if self.shape == "const":
