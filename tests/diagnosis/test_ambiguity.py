@@ -386,3 +386,19 @@ def test_the_plan_takes_rival_sets_and_refuses_a_set_given_twice():
         _rival_specs([(one, [1.0]), (one, [2.0])])
     with pytest.raises(InputError, match="twice in one set"):
         _rival_specs([(one, [1.0]), [(two, [1.0]), (two, [2.0])]])
+
+
+def test_a_pair_is_judged_against_the_chosen_effect_with_its_partner():
+    """A squareness and a scale on a plate in three planes: a roll with the scale explains the data about as
+    well as the squareness alone, but far worse than the squareness with the scale, which the next step adds.
+    Judged against the squareness alone, the pair held the squareness back and map shapes took its place;
+    judged fairly, both true effects are added and no set stays open."""
+    from cmmpose import ErrorMapSet
+    from cmmpose.diagnosis.diagnose import diagnose
+    from cmmpose.sim.effects import Scale, Squareness
+
+    run, _ = simulate_artefact_run(PLATE, ["planes", "xy@rot=90"], None, 20.0,
+                                   [Squareness(6.0, -4.0, 3.0), Scale(8.0, -6.0, 5.0)], speed=7.0, seed=1)
+    d = diagnose(run, ErrorMapSet.thesis(), patterns=False)
+    assert sorted(d.added) == ["scale", "squareness"], d.added
+    assert d.open_ambiguity == []

@@ -468,8 +468,9 @@ def find_ambiguity(problem, step, chosen, folds, split: str, interpolation_only:
     members = [t for t in scored if t.cv_rms_um <= limit and t.lr >= top - INDISTINGUISHABLE_LR]
     if all(t.name != chosen.name for t in members):
         return None
-    members += _set_members(problem, design, (r0, X0, ridge0, target0),
-                            [t for t in scored if t.name != chosen.name and t not in members], limit, top)
+    others = [t for t in scored if t.name != chosen.name]
+    members += _set_members(problem, design, (r0, X0, ridge0, target0), scored[0], others,
+                            [t for t in others if t not in members], limit, top)
     if len(members) < 2:
         return None
     model = step.model
@@ -537,15 +538,21 @@ class _Member:
                 "cv_rms_u_um": float(self.cv_rms_u_um), "determined": bool(np.all(np.isfinite(unc)))}
 
 
-def _set_members(problem, design, state, singles, limit: float, top: float) -> list:
-    """Pairs of rival effects that, fitted together, explain the data as the chosen one does: each pair
-    within one standard error of the best cross-validated rms (``limit``), its -2 log L gain within
-    INDISTINGUISHABLE_LR of the best (``top``), and clearly more than either of its effects alone
-    (INDISTINGUISHABLE_LR beyond: a set, not one effect and noise). Only rivals that are no member alone
-    pair up (a member alone already says the data cannot choose), the SET_RIVALS strongest; at most
-    MAX_SETS pairs, the best cross-validated first. Named effects only (the library's and the user's): the
-    map-shape and cross-axis families' shapes were searched on all the data (periods, knots, spans), which
-    flatters their held-out figures, and two searched shapes side by side fit the noise as a set."""
+def _set_members(problem, design, state, chosen, partners, singles, limit: float, top: float) -> list:
+    """Pairs of rival effects that, fitted together, explain the data as the chosen one does, judged as
+    pairs are fairly judged: against the chosen effect with its best partner (a second effect the next step
+    may add), not against the chosen effect alone. A pair is a member when its cross-validated rms is within
+    one standard error of the best of the singles and the chosen effect's pairs (``limit`` is the singles'),
+    its -2 log L gain within INDISTINGUISHABLE_LR of the best of those (``top`` the singles'), and clearly
+    more than either of its effects alone (INDISTINGUISHABLE_LR beyond: a set, not one effect and noise).
+    (A squareness and a scale on a plate: a roll with the scale explains the data about as well as the
+    squareness alone, but far worse than the squareness with the scale; it is no rival.) ``partners``: the
+    other candidates judged (the chosen one's partners); ``singles``: those no member alone. Only rivals that
+    are no member alone pair up (a member alone already says the data cannot choose), the SET_RIVALS
+    strongest; at most MAX_SETS pairs, the best cross-validated first. Named effects only (the library's
+    and the user's): the map-shape and cross-axis families' shapes were searched on all the data (periods,
+    knots, spans), which flatters their held-out figures, and two searched shapes side by side fit the
+    noise as a set."""
     from .identify import PRIOR_WEIGHT
 
     r0, X0, ridge0, target0 = state
@@ -554,22 +561,36 @@ def _set_members(problem, design, state, singles, limit: float, top: float) -> l
     if len(pool) < 2:
         return []
     base = problem.wls(r0, X0, ridge=ridge0, target=target0)
+
+    def together(a, b):
+        J = np.column_stack([a.J, b.J])
+        k = J.shape[1]
+        fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(k, PRIOR_WEIGHT)],
+                          target=np.r_[target0, np.zeros(k)])
+        return J, fit, max(base.neg2loglik - fit.neg2loglik, 0.0)
+
+    # The chosen effect with its best partner (any other named rival): the fair reference of a pair.
+    ref_lr, ref_cv = top, limit
+    for r in sorted([t for t in partners if all(getattr(spec, "family", None) is None for spec, _ in t.parts)],
+                    key=lambda t: -t.lr)[:SET_RIVALS]:
+        J, _, lr = together(chosen, r)
+        ref_lr = max(ref_lr, lr)
+        score = design.score_with(J)
+        if math.isfinite(score.rms_um) and math.isfinite(score.u_rms_um):
+            ref_cv = min(ref_cv, score.rms_um + score.u_rms_um)
     found = []
     for i in range(len(pool)):
         for j in range(i + 1, len(pool)):
             a, b = pool[i], pool[j]
             if {spec.name for spec, _ in a.parts} & {spec.name for spec, _ in b.parts}:
                 continue
-            J = np.column_stack([a.J, b.J])
-            k = J.shape[1]
-            fit = problem.wls(r0, np.column_stack([X0, J]), ridge=np.r_[ridge0, np.full(k, PRIOR_WEIGHT)],
-                              target=np.r_[target0, np.zeros(k)])
-            lr = max(base.neg2loglik - fit.neg2loglik, 0.0)
-            if lr < top - INDISTINGUISHABLE_LR or lr < max(a.lr, b.lr) + INDISTINGUISHABLE_LR:
+            J, fit, lr = together(a, b)
+            if lr < ref_lr - INDISTINGUISHABLE_LR or lr < max(a.lr, b.lr) + INDISTINGUISHABLE_LR:
                 continue
             score = design.score_with(J)
-            if not (math.isfinite(score.rms_um) and score.rms_um <= limit):
+            if not (math.isfinite(score.rms_um) and score.rms_um <= ref_cv):
                 continue
+            k = J.shape[1]
             beta = fit.beta[-k:]
             parts, at = [], 0
             for spec, _ in (*a.parts, *b.parts):
