@@ -343,9 +343,10 @@ def attach_floor(diag, problem, step, reproducibility_um=None, reproducibility_s
 
 def add_map_candidates(problem, model) -> None:
     """Offer ``problem`` the map corrections (:func:`mapfamily.map_candidates`)
-    and the cross-axis corrections (:func:`mapfamily.cross_candidates`) with
+    and the cross-axis corrections (:func:`crossfamily.cross_candidates`) with
     their centre-level sensitivities."""
-    from .mapfamily import cross_candidates, map_candidates
+    from .crossfamily import cross_candidates
+    from .mapfamily import map_candidates
 
     for name, spec in {**map_candidates(problem, model), **cross_candidates(problem)}.items():
         if name in problem.candidates:

@@ -520,14 +520,10 @@ def rank_candidates(problem: Problem, model, obs: Observed | None = None) -> lis
                              1 - after / before if before > 0 else 0.0,
                              1 - la / lb if lb > 0 else 0.0, corr, with_, cond, float(np.max(s2)) if k else 0.0))
     threshold = _judge(out, len(todo) - len(alternatives), model)
-    # Significant first; then by p-value, which weighs the likelihood gain
-    # against the parameters spent on it.
-    # A cross-axis term ranks with the named effects only where it explains clearly more than the best of
-    # them (-2 log L beyond INDISTINGUISHABLE_LR): the named physics is preferred where the two say the same.
-    # Likewise it ranks before the map shapes only where it explains clearly more than the best of them: a shape
-    # of one map component is the simpler physics, and a cross-axis term that takes part of a map error's signal
-    # (a sag fitted to a periodic Y error the plates sample coarsely) would be added before the map rivals that
-    # explain it better are ever judged beside it.
+    # Significant first, then by p-value (the likelihood gain against the parameters spent). A cross-axis term
+    # ranks with the named effects, or before the map shapes, only where it explains clearly more than the best
+    # of them (-2 log L beyond INDISTINGUISHABLE_LR): the simpler physics is preferred where the two say the
+    # same (a sag took a periodic Y error's signal before the map shapes were judged beside it).
     named_lr = max((c.lr for c in out if c.significant and getattr(c.spec, "family", None) is None), default=0.0)
     map_lr = max((c.lr for c in out if c.significant and getattr(c.spec, "family", None) == "map"), default=0.0)
 

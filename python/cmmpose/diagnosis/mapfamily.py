@@ -95,28 +95,13 @@ from scipy.sparse import csr_matrix
 
 from .cv import CVDesign, cv_groups, map_runs_out, model_design
 
-from ..model.crossaxis import CrossAxisCorrection, is_cross, make_cross
+from ..model.crossaxis import CrossAxisCorrection, is_cross
 from ..model.mapshape import (ARCSEC, COMPONENTS, PERIOD_MIN, PRIOR_AS, PRIOR_UM, ROTATIONAL, SQUARENESS, TRANSLATIONAL,
                                MapCorrection, arms, corrected_maps, is_map, kind_of, make, parse, reading_axis)
 
-__all__ = [
-    "COMPONENTS",
-    "GRID_MM",
-    "PERIOD_MIN",
-    "PRIOR_AS",
-    "PRIOR_UM",
-    "ROTATIONAL",
-    "SQUARENESS",
-    "TRANSLATIONAL",
-    "MapCorrection",
-    "component_report",
-    "corrected_maps",
-    "is_map",
-    "map_candidates",
-    "model_kinematics",
-    "parse",
-    "sibling_shapes",
-]
+__all__ = ["COMPONENTS", "GRID_MM", "PERIOD_MIN", "PRIOR_AS", "PRIOR_UM", "ROTATIONAL", "SQUARENESS", "TRANSLATIONAL",
+           "MapCorrection", "component_report", "corrected_maps", "is_map", "map_candidates", "model_kinematics",
+           "parse", "sibling_shapes"]
 
 #: Knot spacings tried, as fractions of the travel.
 HAT_FRACTIONS = (1 / 3, 1 / 5, 1 / 8, 1 / 12, 1 / 18)
@@ -387,50 +372,6 @@ def cross_columns(problem, obs, spec: CrossAxisCorrection) -> np.ndarray:
     q = reading_subset(problem)["q"]
     field = spec.basis(q) * (1e-3 * np.asarray(spec.prior, float))  # mm per prior magnitude
     return observable_change(problem, obs, field, direction=spec.direction)
-
-
-#: Half the travel, mm, both axes of a cross-axis candidate must span (the run moves along both).
-CROSS_HALF_SPAN_MM = 15.0
-
-
-#: mm: scans whose mean readings along an axis lie closer than this stand at one level of it.
-LEVEL_MM = 10.0
-
-
-def axis_levels(problem) -> np.ndarray:
-    """How many distinct positions (levels, :data:`LEVEL_MM` apart) the runs'
-    scans stand at along each axis (their mean scale readings): a curvature
-    along an axis needs three."""
-    means = []
-    for p in getattr(problem, "parts", None) or [problem]:
-        sub = reading_subset(p)
-        cnt = np.maximum(np.bincount(sub["scan"], minlength=sub["S"]), 1)
-        means.append(np.column_stack([np.bincount(sub["scan"], sub["q"][:, a], minlength=sub["S"]) / cnt
-                                      for a in range(3)]))
-    q = np.sort(np.concatenate(means), axis=0)
-    return 1 + np.sum(np.diff(q, axis=0) > LEVEL_MM, axis=0)
-
-
-def cross_candidates(problem) -> dict[str, CrossAxisCorrection]:
-    """The cross-axis candidates for ``problem``: for each direction and each
-    pair of axes the runs move along together (:data:`CROSS_HALF_SPAN_MM`),
-    a twist, and a sag where the data determine its curvatures (three levels
-    or more along both axes: at two heights a bow along Z is a constant, and
-    the sag would be a squareness), over the travel used
-    (:mod:`cmmpose.model.crossaxis`)."""
-    travel = travel_range(problem)
-    levels = axis_levels(problem)
-    out = {}
-    for d in range(3):
-        for axes in ((0, 1), (1, 2), (0, 2)):
-            span = [travel[a] for a in axes]
-            if any((hi - lo) / 2 < CROSS_HALF_SPAN_MM for lo, hi in span):
-                continue
-            shapes = ("twist", "sag") if all(levels[a] >= 3 for a in axes) else ("twist",)
-            for shape in shapes:
-                spec = make_cross(d, axes, shape, span)
-                out[spec.name] = spec
-    return out
 
 
 # -- candidates for a run -------------------------------------------------
