@@ -402,3 +402,13 @@ def test_a_pair_is_judged_against_the_chosen_effect_with_its_partner():
     d = diagnose(run, ErrorMapSet.thesis(), patterns=False)
     assert sorted(d.added) == ["scale", "squareness"], d.added
     assert d.open_ambiguity == []
+
+
+def test_a_look_past_an_open_set_is_no_step_of_the_history():
+    """With a set left open the candidates are ranked with its best member held in; that look is not a step:
+    every run's figures are the steps' own (nothing added, so no run's error "fell")."""
+    d = ambiguous()
+    assert d.added == [] and d.open_ambiguity
+    assert len(d.run_figures) == len(d.steps) == len(d.history())
+    found = dict(verdict(d))["found"]
+    assert "fell" not in found and "rose" not in found and "rms deviation is" in found, found

@@ -117,3 +117,30 @@ def test_evaluate_prints_a_summary_within_40_lines_and_the_budgets_behind_verbos
     assert res.exit_code == 0, res.output
     flat = _flat(res.stdout)
     assert "Uncertainty budget: mean length" in flat and "left out:" in flat and "Ballbar evaluation" in flat
+
+
+def test_a_joint_verdict_with_two_open_sets_stays_within_40_lines(tmp_path):
+    """Two plates at one height with a periodic X error and a twisted table (benches/unseen_placements.py,
+    ``periodic+twist``): two ambiguity sets stay open and nothing is added. The first set is given in full,
+    the second in a sentence; with nothing added the history table (one row) is left out; 38 lines."""
+    import importlib.util
+    import warnings
+
+    from repo import REPO
+
+    spec = importlib.util.spec_from_file_location("unseen_placements", REPO / "benches" / "unseen_placements.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    folders = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for i, placement in enumerate(bench.TRAIN):
+            folders.append(str(tmp_path / f"r{i}"))
+            bench.plate_run("periodic+twist", placement, 100 + i, 48).save(folders[-1])
+    res = CliRunner().invoke(main, ["diagnose", *folders, "--joint", "--maps", "thesis"], env={"COLUMNS": "100"})
+    assert res.exit_code == 0, res.output
+    lines = res.stdout.rstrip("\n").splitlines()
+    assert len(lines) <= 40 and max(len(line) for line in lines) <= 100, res.stdout
+    flat = _flat(res.stdout)
+    assert flat.count("the data cannot choose between") == 2 and "either" in flat
+    assert "fell" not in flat.split("ambiguous:")[0]

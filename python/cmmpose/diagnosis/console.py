@@ -72,6 +72,8 @@ def _change_words(first, last) -> str:
     _, after, _ = _headline(last)
     if before is None or after is None:
         return f"the {what} cannot be said"
+    if first is last:  # one model: its figure, no change to speak of
+        return f"the {what} is {before:.2f} um"
     return change_text(f"the {what}", before, after, change_u_um(rms_u_um(before, n), rms_u_um(after, n)))
 
 
@@ -132,7 +134,7 @@ def verdict(d) -> list[tuple[str, str]]:
     if per_run:
         changes = [f"{label}: {_change_words(a, b)}" for label, a, b in zip(_short_names(d), per_run[0], per_run[-1])]
         found += "; " + "; ".join(changes)
-    elif len(steps) > 1:
+    else:  # one step: the figure as it stays (the history table is then not shown)
         found += "; " + _change_words(steps[0].figures, steps[-1].figures)
     cv0, cv1 = steps[0].cv or {}, steps[-1].cv or {}
     if len(steps) > 1 and cv0.get("cv_rms_um") is not None and cv1.get("cv_rms_um") is not None:
@@ -142,7 +144,9 @@ def verdict(d) -> list[tuple[str, str]]:
     if getattr(d, "verification", None):
         out.append(("model check", d.verification["verdict"]))
     sets = getattr(d, "ambiguity", [])
-    ambiguous = [_ambiguity_words(a) for a in sets[:MOST_LISTED]]
+    # The first set in full (its members' values, where they differ, the equivalences); a further one by its
+    # members and their largest difference: the verdict stays within a screen (--verbose, --json: all).
+    ambiguous = [_ambiguity_words(a) if i == 0 else _ambiguity_brief(a) for i, a in enumerate(sets[:MOST_LISTED])]
     for group in d.ambiguous[:MOST_LISTED]:
         if any(set(group) <= set(a.effects) for a in sets):
             continue  # said with the set above
@@ -405,7 +409,8 @@ class DiagnosisView:
         yield Text(title, style="bold underline")
         yield _verdict_grid(d)
         yield final_model_table(d)
-        yield history_table(d, not self.verbose or bool(getattr(d, "run_figures", None)), options.max_width)
+        if self.verbose or len(d.steps) > 1:  # one step: nothing fell, and "found" says each run's figure
+            yield history_table(d, not self.verbose or bool(getattr(d, "run_figures", None)), options.max_width)
         if not self.verbose:
             yield Text(f"{d.n_points} points, {d.elapsed:.1f} s; the candidate tables: --verbose (or --json, "
                        f"--report)", style="dim")
@@ -452,6 +457,14 @@ def as_text(d, verbose: bool = True, width: int = WIDE) -> str:
     console.print(DiagnosisView(d, verbose))
     return console.export_text()
 
+
+
+def _ambiguity_brief(a) -> str:
+    """A further ambiguity set in a sentence: its members and how far their corrections differ."""
+    if a.agree:
+        return f"{_names(a.names)} explain the data alike and agree over the travel ({a.chosen or 'none'} added)"
+    return (f"the data cannot choose between {_names(a.names)} either (their corrections differ by up to "
+            f"{a.largest_difference_um:.1f} um over the travel; none added; each member's values: --verbose)")
 
 
 def _ambiguity_words(a) -> str:

@@ -236,13 +236,12 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
     if map_corrections:
         add_map_candidates(problem, model)
     check_effect_names(list(add), problem)
-    per_run = []
 
     def step(label, m, forced):
         obs = problem.base_obs if m is problem.base else problem.observe(m)
-        per_run.append(problem.figures(m, obs))
-        return Step(label, m, per_run[-1][0], rank_candidates(problem, m, obs), forced, residual=obs.residual,
-                    run_figures=per_run[-1])
+        per_run = problem.figures(m, obs)  # every run's figures (a look past an open set is a step too, unkept)
+        return Step(label, m, per_run[0], rank_candidates(problem, m, obs), forced, residual=obs.residual,
+                    run_figures=per_run)
 
     steps, model = select_effects(problem, model, list(add), auto, max_effects, step)
     unobservable, advice, ambiguous = unobservable_candidates(problem, steps)
@@ -252,7 +251,7 @@ def diagnose_jointly(runs, maps: Model | ErrorMap | ErrorMapSet | None = None, *
                           final_values=determined_values(problem, model),
                           domain=Domain.of_runs(runs, [p.inputs for p in problem.parts], model.maps.kinematics),
                           skipped=dict(problem.skipped),
-                          run_figures=per_run, run_names=names, run_has=run_holds(problem))
+                          run_figures=[s.run_figures for s in steps], run_names=names, run_has=run_holds(problem))
     diag.alternatives = find_alternatives(problem, steps, model)
     attach_floor(diag, problem, steps[-1], reproducibility_um, reproducibility_source)
     if patterns:
