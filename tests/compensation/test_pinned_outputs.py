@@ -30,20 +30,17 @@ suite twice, with OpenBLAS's default kernel and with OPENBLAS_CORETYPE=Haswell.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import numpy as np
 import pytest
 from repo import PINNED
+from repo_scripts import load_script
 
 
 
 def _load_make_pinned():
-    spec = importlib.util.spec_from_file_location("make_pinned", PINNED / "make_pinned.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(PINNED / "make_pinned.py")
 
 
 mp = _load_make_pinned()

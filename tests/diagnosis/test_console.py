@@ -123,14 +123,11 @@ def test_a_joint_verdict_with_two_open_sets_stays_within_40_lines(tmp_path):
     """Two plates at one height with a periodic X error and a twisted table (benches/unseen_placements.py,
     ``periodic+twist``): two ambiguity sets stay open and nothing is added. The first set is given in full,
     the second in a sentence; with nothing added the history table (one row) is left out; 38 lines."""
-    import importlib.util
     import warnings
 
-    from repo import REPO
+    from repo_scripts import bench as load_bench
 
-    spec = importlib.util.spec_from_file_location("unseen_placements", REPO / "benches" / "unseen_placements.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_bench("unseen_placements")
     folders = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

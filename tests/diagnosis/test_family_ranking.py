@@ -6,21 +6,17 @@ was ranked before every map shape whatever their likelihoods (so it was added be
 explain the data better were judged beside it), and the period search went below the spacing of the scans,
 where a sine is an alias (19.7 mm for 110 mm)."""
 
-import importlib.util
 import warnings
 
 from cmmpose.diagnosis.joint import JointProblem
 from cmmpose.diagnosis.mapfamily import coverage_gap, map_candidates
 from cmmpose.model import Model
 from cmmpose.model.mapshape import reading_axis
-from repo import REPO
+from repo_scripts import bench
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("unseen_placements", REPO / "benches" / "unseen_placements.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return bench("unseen_placements")
 
 
 def test_a_cross_axis_term_does_not_take_a_map_errors_place():

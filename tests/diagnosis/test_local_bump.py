@@ -7,7 +7,6 @@ left to the prior, and the fit zig-zags between the training balls, where the un
 and, with two runs, a map shape judged holding a whole run out (the run far from the bump tests nothing, and
 the real shape failed)."""
 
-import importlib.util
 import math
 import warnings
 
@@ -19,16 +18,12 @@ from cmmpose.diagnosis.identify import Problem
 from cmmpose.diagnosis.joint import JointProblem
 from cmmpose.diagnosis.mapfamily import HAT_FRACTIONS, coverage_gap, hat_spacings
 from cmmpose.model import Model
-from repo import REPO
+from repo_scripts import bench
 
-BENCH = REPO / "benches" / "unseen_placements.py"
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("unseen_placements", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return bench("unseen_placements")
 
 
 def test_no_knot_spacing_finer_than_the_gaps_between_the_scans():

@@ -2,23 +2,17 @@
 runs of every layout benches/diagnosis_false_alarms.py measures (200 seeds each there) carry no claim, and the
 arithmetic behind the promise holds."""
 
-import importlib.util
-
 import pytest
 
 import cmmpose
 from cmmpose.diagnosis.floor import FLOOR_ALPHA
 from cmmpose.diagnosis.statistics import ALPHA, CLAIM_FAMILIES
-from repo import REPO
+from repo_scripts import bench
 
-BENCH = REPO / "benches" / "diagnosis_false_alarms.py"
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("diagnosis_false_alarms", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return bench("diagnosis_false_alarms")
 
 
 def test_the_claim_families_together_stay_within_the_promise():

@@ -154,17 +154,14 @@ def test_a_twisted_table_left_ambiguous_is_resolved_by_the_first_proposal():
     them apart); the separating measurement the diagnosis proposes (the plan's first proposal, another height),
     simulated on the same machine and diagnosed jointly with the two, resolves the set, and the model then
     lowers the error on both unseen placements (the same plane elsewhere and the XZ plane)."""
-    import importlib.util
     import warnings
 
     from cmmpose.diagnosis.joint import diagnose_jointly
     from cmmpose.diagnosis.plan import separating_measurement
     from cmmpose.evaluation.model_check import check_model
-    from repo import REPO
+    from repo_scripts import bench as load_bench
 
-    spec = importlib.util.spec_from_file_location("unseen_placements", REPO / "benches" / "unseen_placements.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_bench("unseen_placements")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         train = [bench.plate_run("twist", p, 300 + i, 48) for i, p in enumerate(bench.TRAIN)]

@@ -6,11 +6,11 @@ the planes the text says."""
 
 from __future__ import annotations
 
-import importlib.util
 import re
 
 import pytest
 from repo import REPO
+from repo_scripts import load_script
 
 ROOT = REPO
 SCRIPT = ROOT / "scripts" / "artefact_signatures.py"
@@ -24,10 +24,7 @@ SHOWS = {"squareness xy": (True, False, False), "squareness yz": (False, False, 
 
 @pytest.fixture(scope="module")
 def script():
-    spec = importlib.util.spec_from_file_location("artefact_signatures", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT)
 
 
 def documented() -> dict[str, list[float]]:

@@ -4,18 +4,14 @@ results. The README's reliability figures come from a full run."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from repo import REPO
+from repo_scripts import load_script
 
 SCRIPT = REPO / "scripts" / "fuzz_inputs.py"
 
 
 def test_no_tracebacks_and_no_silent_results():
-    spec = importlib.util.spec_from_file_location("fuzz_inputs", SCRIPT)
-    fuzz = importlib.util.module_from_spec(spec)
-    sys.modules["fuzz_inputs"] = fuzz  # its dataclasses look their module up
-    spec.loader.exec_module(fuzz)
+    fuzz = load_script(SCRIPT, register=True)  # its dataclasses look their module up
     results = fuzz.run_all(trials=150, seed=7)
     assert set(results) == {"read_points (CSV)", "read_points (NPY)", "ErrorMap.read (CSV)", "Model.load", "Run.load",
                             "compensate"}
