@@ -494,6 +494,7 @@ def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapC
     # Map corrections move centres and radii only (point residuals at first order unchanged).
     rows = _rows(problem)
     out: dict[str, MapCorrection] = {}
+    gaps = [coverage_gap(problem, a) for a in range(3)]  # each axis's, once (six components read each axis)
     for comp in COMPONENTS:
         axis = reading_axis(comp)
         lo, hi = travel[axis]
@@ -504,7 +505,7 @@ def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapC
         out[poly.name] = poly
         # Knot spacing by cross-validation (the base design's folds solved once, each spacing added to it).
         best = None
-        spacings = hat_spacings(span, coverage_gap(problem, axis))
+        spacings = hat_spacings(span, gaps[axis])
         for spacing in spacings:
             h = make(comp, "hat", lo, hi, spacing, kinematics=kin)
             J = component_columns(problem, problem.base_obs, comp, h.basis, kin, compact=True) * np.asarray(h.prior)
@@ -516,7 +517,7 @@ def map_candidates(problem, model=None, *, periods: int = 120) -> dict[str, MapC
         # than the widest gap between neighbouring scans completes a cycle where nothing is observed: a sine
         # fitted there is an alias of one the scans sample (a 110 mm Y error on a plate of 83 mm pitch came out
         # at 19.7 mm), so it is never offered.
-        shortest = min(max(PERIOD_MIN, coverage_gap(problem, axis)), span / 3)
+        shortest = min(max(PERIOD_MIN, gaps[axis]), span / 3)
         grid = np.exp(np.linspace(math.log(shortest), math.log(span), periods))
         gains = _sine_gains(problem, comp, kin, lo, hi, grid, W0q, rw, s, rows)
         i = int(np.argmax(gains))
